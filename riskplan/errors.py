@@ -1,0 +1,10 @@
+"""The one exception type for bad user input (CLI exit code 2, one plain line)."""
+
+
+class BadInput(ValueError):
+    """Bad user input; `str()` is the single line shown to the user, naming the key or path."""
+
+    def __init__(self, where: str, problem: str):
+        self.where = where
+        self.problem = problem
+        super().__init__(f"{where}: {problem}")

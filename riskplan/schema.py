@@ -1,0 +1,142 @@
+"""Typed schema of every config key (Hydra structured configs): a typo or a wrong type fails at composition."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, List, Optional
+
+from hydra.core.config_store import ConfigStore
+
+
+@dataclass
+class RiskConf:
+    """The objective: `cvar` optimises CVaR_beta, `neutral` the mean; beta is also the reporting level."""
+
+    measure: str = "cvar"
+    beta: float = 0.1
+
+
+@dataclass
+class StepSizeConf:
+    """eps_l = initial / (1 + l/decay)^power; Assumption 6 holds for power in (0.5, 1]."""
+
+    initial: float = 0.1
+    decay: float = 50.0
+    power: float = 1.0
+
+
+@dataclass
+class TrainConf:
+    """Policy-gradient loop settings."""
+
+    iterations: int = 200
+    samples: int = 6000
+    samples_growth: float = 0.0  # W_l = ceil(samples * (1 + l)^samples_growth); > 0 makes W_l -> inf (Theorem 1)
+    step_size: StepSizeConf = field(default_factory=StepSizeConf)
+    theta0: List[float] = field(default_factory=lambda: [20.0, 20.0])
+    baseline: bool = True  # mean baseline in the risk-neutral gradient
+    eval_episodes: int = 100_000
+    paths: int = 20  # sampled paths per policy and robot in trajectories.parquet
+    checkpoint_every: int = 10
+    bootstrap: int = 1000  # resamples for the summary's 95% intervals
+
+
+@dataclass
+class MotionConf:
+    """Source motion: `static`, or `random_walk` moving to a random 4-neighbour with probability `prob` per step."""
+
+    kind: str = "static"
+    prob: float = 0.0
+
+
+@dataclass
+class SourceConf:
+    """One source: Gaussian signal eq. (1) and a random reward paid on reaching it."""
+
+    position: List[int] = field(default_factory=lambda: [0, 0])
+    covariance: List[List[float]] = field(default_factory=lambda: [[16.0, 0.0], [0.0, 16.0]])
+    scale: Optional[float] = None  # w; None means 2*pi*sqrt(det covariance), so the signal peaks at 1
+    reward: Any = 0.0
+    motion: MotionConf = field(default_factory=MotionConf)
+    name: str = ""
+
+
+@dataclass
+class RegionConf:
+    """A named cell set with a per-step reward; give exactly one of rect, halfplane, cells."""
+
+    name: str = ""
+    reward: Any = 0.0
+    risky: bool = False
+    rect: Optional[List[int]] = None  # [x0, y0, x1, y1], inclusive corners
+    halfplane: Optional[List[float]] = None  # [a, b, c]: the cells with a*x + b*y > c ("y > x" is [-1, 1, 0])
+    cells: Optional[List[List[int]]] = None  # [[x, y], ...]
+
+
+@dataclass
+class WorldConf:
+    """Grid world of paper Section II/V."""
+
+    size: List[int] = field(default_factory=lambda: [12, 12])
+    start: List[int] = field(default_factory=lambda: [0, 0])
+    horizon: int = 20
+    stop_at_source: bool = True
+    obstacles: List[List[int]] = field(default_factory=list)
+    sources: List[SourceConf] = field(default_factory=list)
+    regions: List[RegionConf] = field(default_factory=list)
+
+
+@dataclass
+class DelayConf:
+    """Message delays in iterations: uniform on 0..max (B0 of Assumption 5)."""
+
+    max: int = 0
+
+
+@dataclass
+class SwitchingConf:
+    """Time-varying graph: each link is up with probability `up` per iteration, jointly connected within `window`."""
+
+    enabled: bool = False
+    up: float = 0.8
+    window: int = 5
+
+
+@dataclass
+class TeamConf:
+    """Robots and their communication graph (paper Section IV); robots=1 is a centralized run."""
+
+    robots: int = 1
+    graph: str = "line"  # line | ring | star | complete | grid | random_geometric | edges
+    directed: bool = False
+    edges: Optional[List[List[int]]] = None  # with graph=edges: [[i, j], ...], 0-based, j sends to i if directed
+    radius: float = 0.5  # random_geometric link radius in the unit square
+    resample: int = 100  # random_geometric redraws before giving up on strong connectivity
+    weights: str = "metropolis"  # metropolis | max_degree | lazy | matrix
+    matrix: Optional[List[List[float]]] = None  # with weights=matrix: the N x N row-stochastic A
+    diagonal: Optional[List[List[List[float]]]] = None  # optional per-parameter weights a^{ij}_m, shape N x N x M
+    delay: DelayConf = field(default_factory=DelayConf)
+    drop: float = 0.0
+    max_gap: int = 10  # B of Assumption 5: a link delivers at least once every max_gap iterations
+    stale: str = "arrival"  # arrival (paper eq. 14) | latest (newest value received from each neighbour)
+    consensus_rounds: int = 1
+    starts: Optional[List[List[int]]] = None  # per-robot start cells; default world.start for all
+    switching: SwitchingConf = field(default_factory=SwitchingConf)
+
+
+@dataclass
+class RiskplanConf:
+    """The whole experiment."""
+
+    seed: int = 0
+    experiment: str = "paper_single"
+    risk: RiskConf = field(default_factory=RiskConf)
+    train: TrainConf = field(default_factory=TrainConf)
+    world: WorldConf = field(default_factory=WorldConf)
+    team: TeamConf = field(default_factory=TeamConf)
+
+
+def register() -> None:
+    """Register the schema so conf/config.yaml can extend it."""
+    ConfigStore.instance().store(name="riskplan_schema", node=RiskplanConf)
+    ConfigStore.instance().store(group="risk", name="risk_schema", node=RiskConf)
