@@ -1,0 +1,495 @@
+"""Consensus layer of paper eq. (14): mixing weights, Assumption 5 checks, delayed/dropped messages, reports.
+
+Conventions (see also riskplan.graphs):
+- ``adjacency[i, j]`` / ``weights[i, j, m]``: robot i receives from robot j; row i of A is what robot i mixes.
+- ``team.edges`` entries ``[i, j]`` mean j sends to i (both ways unless ``team.directed``).
+- Every random draw comes from a generator keyed by (seed, stream, iteration[, round]), so a resumed run
+  redraws exactly what an uninterrupted one would have drawn.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from riskplan import graphs
+from riskplan.errors import BadInput
+
+WEIGHTS = ("metropolis", "max_degree", "lazy", "matrix")
+STALE = ("arrival", "latest")
+TOL = 1e-9  # row-stochasticity tolerance
+MIX_STREAM = 7919  # delays and drops: default_rng([seed, 7919, iteration, round])
+SWITCH_STREAM = 7927  # switching links: default_rng([seed, 7927, iteration])
+MASK = (1 << 64) - 1
+
+
+@dataclass(frozen=True, eq=False)
+class Network:
+    """A validated communication graph with per-parameter mixing weights a^{ij}_m of eq. (14)."""
+
+    robots: int
+    adjacency: np.ndarray  # (N, N) bool: [i, j] True when robot i receives from robot j
+    weights: np.ndarray  # (N, N, M): weights[i, j, m] = a^{ij}_m; each row sums to 1 for every m
+    positions: np.ndarray | None  # (N, 2) in the unit square for random_geometric, else None
+    graph: str
+    directed: bool
+    gamma: float  # Assumption 5 (2): the smallest positive weight
+
+    @property
+    def n_params(self) -> int:
+        """M, the number of policy parameters."""
+        return int(self.weights.shape[2])
+
+    @property
+    def edges(self) -> list[list[int]]:
+        """Links as [i, j] (j sends to i); undirected links once with i < j."""
+        return graphs.edge_list(self.adjacency, self.directed)
+
+    @property
+    def slem(self) -> float:
+        """Worst SLEM over the parameters: the predicted per-round contraction on the fixed graph."""
+        return max(second_largest_eigenvalue_modulus(self.weights[:, :, m]) for m in range(self.n_params))
+
+
+# ---------------------------------------------------------------------------------------------- settings
+
+
+def _get(team: Any, dotted: str, default: Any = None) -> Any:
+    """team.<dotted> from a DictConfig or any object with TeamConf's attributes."""
+    value = team
+    for part in dotted.split("."):
+        value = getattr(value, part, default) if value is not None else default
+    return value
+
+
+def _plain(value: Any) -> Any:
+    """An OmegaConf container as plain lists; anything else unchanged."""
+    if hasattr(value, "_get_node"):
+        from omegaconf import OmegaConf
+
+        return OmegaConf.to_container(value, resolve=True)
+    return value
+
+
+def _integer(team: Any, key: str, low: int, meaning: str) -> int:
+    """An integer setting >= low, or BadInput naming team.<key>."""
+    value = _get(team, key)
+    if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < low:
+        raise BadInput(f"team.{key}", f"is {value!r}; {meaning} must be an integer >= {low}")
+    return int(value)
+
+
+def _number(team: Any, key: str) -> float:
+    """A finite real setting, or BadInput naming team.<key>."""
+    value = _get(team, key)
+    if not isinstance(value, numbers.Real) or isinstance(value, bool) or not math.isfinite(value):
+        raise BadInput(f"team.{key}", f"is {value!r}; expected a finite number")
+    return float(value)
+
+
+def _choice(team: Any, key: str, valid: tuple[str, ...]) -> str:
+    """A setting that must be one of `valid`."""
+    value = _get(team, key)
+    if value not in valid:
+        raise BadInput(f"team.{key}", f"unknown value {value!r}; valid: {', '.join(valid)}")
+    return str(value)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The validated scalar team settings the Mixer needs."""
+
+    robots: int
+    max_delay: int  # B0
+    drop: float
+    max_gap: int  # B
+    stale: str
+    rounds: int
+    switching: bool
+    up: float
+    window: int
+
+
+def check_settings(team: Any) -> Settings:
+    """Validate the team's scalar keys (robots, names, delays, drops, gaps, rounds, switching)."""
+    robots = _integer(team, "robots", 1, "the number of robots")
+    _choice(team, "graph", graphs.GRAPHS)
+    _choice(team, "weights", WEIGHTS)
+    stale = _choice(team, "stale", STALE)
+    max_delay = _integer(team, "delay.max", 0, "the largest message delay in iterations (B0)")
+    drop = _number(team, "drop")
+    if not 0.0 <= drop < 1.0:
+        raise BadInput("team.drop", f"is {drop:g}; the drop probability must be in [0, 1)")
+    max_gap = _integer(team, "max_gap", 1, "the longest gap between deliveries on a link (B)")
+    rounds = _integer(team, "consensus_rounds", 1, "the number of consensus rounds per iteration")
+    _integer(team, "resample", 0, "the number of random_geometric redraws")
+    window = _integer(team, "switching.window", 1, "the switching window (iterations)")
+    up = _number(team, "switching.up")
+    if not 0.0 < up <= 1.0:
+        raise BadInput("team.switching.up", f"is {up:g}; the per-iteration link-up probability must be in (0, 1]")
+    switching = bool(_get(team, "switching.enabled", False))
+    return Settings(robots, max_delay, drop, max_gap, stale, rounds, switching, up, window)
+
+
+# ---------------------------------------------------------------------------------------------- network
+
+
+def build_network(team: Any, n_params: int, seed: int) -> Network:
+    """The team's graph and weights, checked against Assumption 5 (BadInput naming the key otherwise)."""
+    settings = check_settings(team)
+    if not isinstance(n_params, numbers.Integral) or n_params < 1:
+        raise BadInput("train.theta0", f"gives {n_params!r} parameters; the policy needs at least one (one per source)")
+    graph = str(_get(team, "graph"))
+    directed = bool(_get(team, "directed", False))
+    adjacency, positions = _adjacency(team, graph, settings.robots, directed, seed)
+    if graph == "random_geometric":
+        directed = False  # distance links are symmetric whatever team.directed says
+    if not graphs.strongly_connected(adjacency):
+        key = "team.edges" if graph == "edges" else "team.graph"
+        kind = "directed " if directed else ""
+        raise BadInput(
+            key,
+            f"the {kind}{graph} graph with edges {graphs.format_edges(adjacency, directed)} is not strongly connected "
+            f"(Assumption 5 (1)); add edges or use graph=ring" + (" or directed=false" if directed else ""),
+        )
+    weights, where = _weights(team, adjacency, int(n_params))
+    check_weights(weights, adjacency, where)
+    positive = weights[weights > 0]
+    gamma = float(positive.min()) if positive.size else 1.0
+    for array in (adjacency, weights, positions):
+        if array is not None:
+            array.setflags(write=False)  # the dataclass is frozen; so are its arrays
+    return Network(settings.robots, adjacency, weights, positions, graph, directed, gamma)
+
+
+def _adjacency(team: Any, graph: str, robots: int, directed: bool, seed: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """Links of the configured topology, and robot positions for random_geometric."""
+    if graph == "edges":
+        return graphs.edges_adjacency(_plain(_get(team, "edges")), robots, directed), None
+    if graph == "random_geometric":
+        radius = _number(team, "radius")
+        if radius <= 0:
+            raise BadInput("team.radius", f"is {radius:g}; the link radius must be > 0 (the unit square's diagonal is 1.414)")
+        return graphs.random_geometric(robots, radius, int(_get(team, "resample")), seed)
+    return graphs.named_adjacency(graph, robots, directed), None
+
+
+def rule_weights(rule: str, adjacency: np.ndarray) -> np.ndarray:
+    """N x N weights of a named rule on the links, the rest of each row on the diagonal."""
+    n = len(adjacency)
+    links = adjacency.astype(float)
+    degree = adjacency.sum(axis=1)  # in-degree: how many robots robot i hears
+    if rule == "metropolis":
+        # 1/(1+max(d_i, d_j)) is symmetric on undirected graphs, hence doubly stochastic there.
+        weights = links / (1.0 + np.maximum(degree[:, None], degree[None, :]))
+    elif rule == "max_degree":
+        weights = links / (1.0 + (degree.max() if n else 0))
+    elif rule == "lazy":
+        weights = 0.5 * links / np.maximum(degree, 1)[:, None]
+    else:
+        raise ValueError(f"no weight rule named {rule!r}")
+    np.fill_diagonal(weights, 0.0)
+    np.fill_diagonal(weights, 1.0 - weights.sum(axis=1))
+    return weights
+
+
+def _weights(team: Any, adjacency: np.ndarray, n_params: int) -> tuple[np.ndarray, str]:
+    """(N, N, M) weights from team.diagonal, team.matrix or the named rule, and the key they came from."""
+    n = len(adjacency)
+    diagonal = _plain(_get(team, "diagonal"))
+    if diagonal is not None:
+        return _array(diagonal, (n, n, n_params), "team.diagonal", "N x N x M per-parameter weights a^{ij}_m"), "team.diagonal"
+    rule = str(_get(team, "weights"))
+    if rule == "matrix":
+        matrix = _plain(_get(team, "matrix"))
+        if matrix is None:
+            raise BadInput("team.matrix", f"weights=matrix needs team.matrix, a {n} x {n} row-stochastic list of lists")
+        plain = _array(matrix, (n, n), "team.matrix", "the N x N row-stochastic matrix A")
+        return np.repeat(plain[:, :, None], n_params, axis=2), "team.matrix"
+    return np.repeat(rule_weights(rule, adjacency)[:, :, None], n_params, axis=2), "team.weights"
+
+
+def _array(value: Any, shape: tuple[int, ...], where: str, what: str) -> np.ndarray:
+    """A finite float array of exactly `shape`, or BadInput."""
+    try:
+        array = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise BadInput(where, f"is not a rectangular list of numbers; expected {' x '.join(map(str, shape))} ({what})") from None
+    if array.shape != shape:
+        got = " x ".join(map(str, array.shape)) or "a scalar"
+        raise BadInput(where, f"has shape {got}; expected {' x '.join(map(str, shape))} ({what})")
+    if not np.isfinite(array).all():
+        raise BadInput(where, "holds a non-finite number; weights must be finite")
+    return array
+
+
+def check_weights(weights: np.ndarray, adjacency: np.ndarray, where: str) -> None:
+    """Assumption 5 (2) and eq. (14): nonnegative, row-stochastic, positive exactly on links and the diagonal."""
+    n = len(adjacency)
+    off_graph = ~adjacency & ~np.eye(n, dtype=bool)
+    checks = (
+        (weights < 0, "a[{i}][{j}] = {v:g} (parameter {m}) is negative; weights must be >= 0"),
+        (np.eye(n, dtype=bool)[:, :, None] & (weights <= 0), "a[{i}][{i}] = {v:g} (parameter {m}) must be > 0 (Assumption 5 (2))"),
+        (adjacency[:, :, None] & (weights <= 0), "a[{i}][{j}] = {v:g} (parameter {m}) is zero on the link {j}->{i}; every link needs a positive weight (Assumption 5 (2))"),
+        (off_graph[:, :, None] & (weights != 0), "a[{i}][{j}] = {v:g} (parameter {m}) but robot {i} does not receive from {j} in the graph; weights off the graph must be 0"),
+    )
+    for bad, text in checks:
+        if bad.any():
+            i, j, m = (int(k) for k in np.argwhere(bad)[0])
+            raise BadInput(where, text.format(i=i, j=j, m=m, v=weights[i, j, m]))
+    sums = weights.sum(axis=1)
+    if (np.abs(sums - 1.0) > TOL).any():
+        i, m = (int(k) for k in np.argwhere(np.abs(sums - 1.0) > TOL)[0])
+        raise BadInput(where, f"row {i} (parameter {m}) sums to {sums[i, m]:.12g}, not 1; every row of A must sum to 1 (eq. 14)")
+
+
+# ---------------------------------------------------------------------------------------------- measures
+
+
+def second_largest_eigenvalue_modulus(weights2d: np.ndarray) -> float:
+    """SLEM of an N x N weight matrix: the per-round consensus contraction on a fixed graph (0 for N = 1)."""
+    w = np.asarray(weights2d, dtype=float)
+    if w.ndim != 2 or w.shape[0] != w.shape[1]:
+        raise ValueError(f"expected a square matrix, got shape {w.shape}")
+    if len(w) <= 1:
+        return 0.0
+    # eigvalsh is exact to rounding for the symmetric (undirected, doubly stochastic) case.
+    values = np.linalg.eigvalsh(w) if np.allclose(w, w.T, rtol=0, atol=1e-14) else np.linalg.eigvals(w)
+    return float(np.sort(np.abs(values))[-2])
+
+
+def consensus_error(thetas: np.ndarray) -> float:
+    """max_{i,j} ||theta^i - theta^j||_2 over the rows of an (N, M) array; 0.0 for N = 1."""
+    t = np.asarray(thetas, dtype=float)
+    if t.ndim != 2:
+        raise ValueError(f"expected thetas of shape (N, M), got {t.shape}")
+    if len(t) <= 1:
+        return 0.0
+    gaps = t[:, None, :] - t[None, :, :]
+    return float(np.sqrt((gaps**2).sum(axis=-1)).max())
+
+
+# ---------------------------------------------------------------------------------------------- mixing
+
+
+class Mixer:
+    """Consensus rounds of eq. (14) (without the gradient term) under delays, drops and switching links.
+
+    Timing: a call ``mix(thetas, l, r)`` is slot (l, r). Every robot j sends thetas[j] on each outgoing link
+    that is up; the message is dropped with probability ``team.drop`` and otherwise arrives in slot (l + D, r),
+    D uniform on 0..B0 (``team.delay.max``). Assumption 5 (3) is enforced on the sending side: if a link has
+    had no delivered (undropped) send for B = ``team.max_gap`` iterations, the current send is forced through
+    (even over a switched-off link), so deliveries are at most B iterations apart and arrivals at most B + B0.
+    Switching (``team.switching``): each link is up with probability ``up`` per iteration (both directions of
+    an undirected link together), and is forced up when it has been down for ``window`` iterations, so every
+    link, hence a strongly connected graph, is up within any ``window`` consecutive iterations.
+    """
+
+    def __init__(self, network: Network, team: Any, seed: int):
+        self.network = network
+        self.settings = check_settings(team)
+        if self.settings.robots != network.robots:
+            raise BadInput("team.robots", f"is {self.settings.robots} but the network has {network.robots} robots")
+        self.seed = int(seed) & MASK
+        n, m = network.robots, network.n_params
+        slots, rounds = self.settings.max_delay + 1, self.settings.rounds
+        # Messages in flight, one per (arrival iteration mod B0+1, round, link): a newer send overwrites an
+        # older one due in the same slot, which is "the newest sent wins" of the arrival rule.
+        self._state = {
+            "pending": np.zeros((slots, rounds, n, n, m)),
+            "pending_sent": np.full((slots, rounds, n, n), -1, dtype=np.int64),
+            "pending_due": np.full((slots, rounds, n, n), -1, dtype=np.int64),
+            "latest": np.zeros((n, n, m)),  # newest value received per link (stale="latest")
+            "latest_stamp": np.full((n, n), -1, dtype=np.int64),  # its send slot l * R + r, -1 = nothing yet
+            "last_delivered": np.zeros((n, n), dtype=np.int64),  # iteration of the last undropped send
+            "last_up": np.zeros((n, n), dtype=np.int64),  # iteration the link was last up (switching)
+            "up": np.ones((n, n), dtype=bool),  # links up at iteration up_iteration
+            "up_iteration": np.array(-1, dtype=np.int64),
+            "started": np.array(False),
+            "delivered": np.zeros((n, n), dtype=bool),  # last call: links whose send got through
+            "forced": np.zeros((n, n), dtype=bool),  # last call: sends forced by max_gap
+            "used_sent": np.full((n, n), -1, dtype=np.int64),  # last call: send iteration of the mixed value
+        }
+
+    # Diagnostics of the last call, for tests and logs.
+    @property
+    def delivered(self) -> np.ndarray:
+        """(N, N) bool: links whose message sent in the last call was not dropped."""
+        return self._state["delivered"].copy()
+
+    @property
+    def forced(self) -> np.ndarray:
+        """(N, N) bool: links whose send in the last call was forced through by max_gap."""
+        return self._state["forced"].copy()
+
+    @property
+    def used_sent(self) -> np.ndarray:
+        """(N, N) int: iteration at which the neighbour value mixed in the last call was sent (-1: none)."""
+        return self._state["used_sent"].copy()
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Everything a resumed Mixer needs, as numpy arrays (copies)."""
+        return {key: np.array(value, copy=True) for key, value in self._state.items()}
+
+    def restore(self, state: dict[str, np.ndarray]) -> "Mixer":
+        """Load a state() taken from a Mixer of the same team; returns self."""
+        for key, current in self._state.items():
+            if key not in state or np.shape(state[key]) != current.shape:
+                raise ValueError(f"checkpoint's consensus state '{key}' does not match this team's network/settings")
+        self._state = {key: np.array(state[key], dtype=current.dtype, copy=True) for key, current in self._state.items()}
+        return self
+
+    def links_up(self, iteration: int) -> np.ndarray:
+        """(N, N) bool links up at `iteration` (all links unless switching is enabled); cached per iteration."""
+        s, adjacency = self._state, self.network.adjacency
+        if not self.settings.switching:
+            return adjacency
+        if int(s["up_iteration"]) != iteration:
+            rng = np.random.default_rng([self.seed, SWITCH_STREAM, iteration & MASK])
+            draw = rng.random(adjacency.shape) < self.settings.up
+            if not self.network.directed:
+                draw = np.triu(draw, 1) | np.triu(draw, 1).T  # an undirected link is up both ways or not at all
+            overdue = iteration - s["last_up"] >= self.settings.window
+            s["up"] = adjacency & (draw | overdue)
+            s["last_up"] = np.where(s["up"], iteration, s["last_up"])
+            s["up_iteration"] = np.array(iteration, dtype=np.int64)
+        return s["up"]
+
+    def mix(self, thetas: np.ndarray, iteration: int, round_index: int = 0) -> np.ndarray:
+        """One consensus round of eq. (14) at slot (iteration, round_index): (N, M) in, (N, M) out."""
+        thetas = np.asarray(thetas, dtype=float)
+        n, m = self.network.robots, self.network.n_params
+        if thetas.shape != (n, m):
+            raise ValueError(f"expected thetas of shape ({n}, {m}), got {thetas.shape}")
+        if not 0 <= round_index < self.settings.rounds:
+            raise ValueError(f"round_index {round_index} outside 0..{self.settings.rounds - 1} (team.consensus_rounds)")
+        if n == 1:
+            return thetas.copy()
+        iteration = int(iteration)
+        s = self._state
+        if not s["started"]:
+            # Gaps are counted from just before the first iteration mixed.
+            s["last_delivered"][:] = iteration - 1
+            s["last_up"][:] = iteration - 1
+            s["started"] = np.array(True)
+        self._send(thetas, iteration, round_index)
+        weights, values = self._received(thetas, iteration, round_index)
+        return np.einsum("ijm,ijm->im", weights, values)
+
+    def _send(self, thetas: np.ndarray, iteration: int, round_index: int) -> None:
+        """Put this slot's messages in flight: delay, drop, forced delivery (Assumption 5 (3)-(4))."""
+        s, cfg = self._state, self.settings
+        # A fresh generator per slot: no random state crosses iterations, so resume is bit-identical.
+        rng = np.random.default_rng([self.seed, MIX_STREAM, iteration & MASK, round_index])
+        delay = rng.integers(0, cfg.max_delay + 1, size=(self.network.robots,) * 2)
+        kept = rng.random(delay.shape) >= cfg.drop
+        overdue = self.network.adjacency & (iteration - s["last_delivered"] >= cfg.max_gap)
+        sent = self.links_up(iteration) & kept
+        s["forced"] = overdue & ~sent
+        sent = sent | overdue
+        s["delivered"] = sent
+        s["last_delivered"] = np.where(sent, iteration, s["last_delivered"])
+        receiver, sender = np.nonzero(sent)
+        due = iteration + delay[receiver, sender]
+        slot = due % (cfg.max_delay + 1)
+        s["pending"][slot, round_index, receiver, sender, :] = thetas[sender]
+        s["pending_sent"][slot, round_index, receiver, sender] = iteration
+        s["pending_due"][slot, round_index, receiver, sender] = due
+
+    def _received(self, thetas: np.ndarray, iteration: int, round_index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Effective (N, N, M) weights and the values they multiply, after arrivals at this slot."""
+        s, cfg, adjacency = self._state, self.settings, self.network.adjacency
+        slot = iteration % (cfg.max_delay + 1)
+        arrived = adjacency & (s["pending_due"][slot, round_index] == iteration)
+        s["pending_due"][slot, round_index][arrived] = -1  # consumed
+        values = s["pending"][slot, round_index]
+        stamp = s["pending_sent"][slot, round_index] * cfg.rounds + round_index
+        newer = arrived & (stamp > s["latest_stamp"])  # a late message must not replace a newer one
+        s["latest"][newer] = values[newer]
+        s["latest_stamp"] = np.where(newer, stamp, s["latest_stamp"])
+        if cfg.stale == "arrival":
+            use, neighbour = arrived, values
+            s["used_sent"] = np.where(arrived, s["pending_sent"][slot, round_index], -1)
+        else:
+            use, neighbour = s["latest_stamp"] >= 0, s["latest"]
+            s["used_sent"] = np.where(use, s["latest_stamp"] // cfg.rounds, -1)
+        w = self.network.weights
+        effective = w * use[:, :, None]
+        # A neighbour with nothing to offer hands its weight to robot i itself, keeping each row stochastic.
+        idle = (w * (adjacency & ~use)[:, :, None]).sum(axis=1)
+        diagonal = np.arange(len(w))
+        effective[diagonal, diagonal, :] = w[diagonal, diagonal, :] + idle
+        values = np.where(use[:, :, None], neighbour, 0.0)  # stale slots never meet a weight, even as 0 * inf
+        values[diagonal, diagonal, :] = thetas
+        return effective, values
+
+
+# ---------------------------------------------------------------------------------------------- reports
+
+
+def network_metadata(network: Network) -> dict:
+    """JSON-able description of the network for the MCAP log."""
+    return {
+        "robots": network.robots,
+        "graph": network.graph,
+        "directed": network.directed,
+        "edge_convention": "[i, j]: robot j sends to robot i",
+        "edges": network.edges,
+        "weights": network.weights.tolist(),  # [i][j][m] = a^{ij}_m
+        "positions": None if network.positions is None else network.positions.tolist(),
+        "gamma": network.gamma,
+        "slem": network.slem,
+    }
+
+
+def _matrix_text(matrix: np.ndarray, indent: str = "    ") -> str:
+    """An N x N matrix as aligned rows."""
+    rows = np.array2string(matrix, precision=4, suppress_small=True, max_line_width=160).splitlines()
+    return "\n".join(indent + row for row in rows)
+
+
+def describe(network: Network, team: Any) -> str:
+    """Multi-line text for `riskplan check`: graph, weights, Assumption 5 parts, SLEM and predicted rate."""
+    cfg = check_settings(team)
+    n = network.robots
+    kind = "directed" if network.directed else "undirected"
+    lines = [f"team: {n} robot{'s' if n != 1 else ''}, {network.graph} graph ({kind}), weights={_get(team, 'weights')}"]
+    if n == 1:
+        lines.append("centralized run: no communication; Assumption 5 holds trivially")
+        return "\n".join(lines)
+    notation = "j->i: robot j sends to robot i" if network.directed else "i-j: a two-way link"
+    lines.append(f"edges ({notation}): {graphs.format_edges(network.adjacency, network.directed)}")
+    if network.positions is not None:
+        lines.append("positions (unit square): " + "; ".join(f"{k}:({x:.3f},{y:.3f})" for k, (x, y) in enumerate(network.positions)))
+    w = network.weights
+    same = all(np.array_equal(w[:, :, 0], w[:, :, k]) for k in range(network.n_params))
+    lines.append("weights A (row i = what robot i mixes; rows sum to 1):")
+    for k in range(1 if same else network.n_params):
+        if not same:
+            lines.append(f"  parameter {k}:")
+        lines.append(_matrix_text(w[:, :, k]))
+    doubly = np.allclose(w.sum(axis=0), 1.0, atol=TOL)
+    lines.append("Assumption 5: holds")
+    lines.append("  (1) strongly connected: yes" + (f"; under switching every link is up within any {cfg.window} iterations" if cfg.switching else ""))
+    lines.append(f"  (2) gamma = {network.gamma:.6g} > 0 (smallest weight on the diagonal and on the links)")
+    lines.append(f"  (3) B = {cfg.max_gap}: a link delivers at least once every {cfg.max_gap} iterations (drop probability {cfg.drop:g})")
+    lines.append(f"  (4) B0 = {cfg.max_delay}: delays uniform on 0..{cfg.max_delay} iterations; stale={cfg.stale}")
+    lines.append(f"  A is {'doubly' if doubly else 'row'} stochastic" + ("" if doubly else ": consensus value is a weighted, not plain, average"))
+    slem = network.slem
+    slem = 0.0 if slem < 1e-12 else slem  # rounding noise of an exact-averaging matrix (e.g. complete graph)
+    per_iteration = slem**cfg.rounds
+    rate = f"SLEM = {slem:.6g}: on the fixed graph the consensus error shrinks by about x{slem:.4g} per round"
+    if cfg.rounds > 1:
+        rate += f", x{per_iteration:.4g} per iteration ({cfg.rounds} rounds)"
+    if slem == 0:
+        rate += " (exact average after one round)"
+    elif slem < 1:
+        rate += f"; {1.0 / -math.log(slem):.3g} rounds per e-fold"
+    lines.append(rate)
+    if cfg.max_delay or cfg.drop or cfg.switching:
+        lines.append("  (delays, drops and switching slow this down; the SLEM rate is a best case)")
+    return "\n".join(lines)
