@@ -1,0 +1,201 @@
+"""The `riskplan` command line (typer). Bad input: one plain line on stderr and exit code 2."""
+
+from __future__ import annotations
+
+import datetime as dt
+import functools
+import json
+import sys
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from riskplan.errors import BadInput
+
+app = typer.Typer(
+    help="Risk-averse sensor planning with (distributed) CVaR policy gradients: train, sweep, report, reproduce.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+PASS_THROUGH = {"allow_extra_args": True, "ignore_unknown_options": True}
+HYDRA_FLAGS = {"--cfg", "-c", "--package", "-p", "--resolve", "--info", "-i"}
+OVERRIDES_HELP = ("Hydra overrides, e.g. risk=neutral risk.beta=0.2 train.samples=2000 world.size=[16,16] "
+                  "experiment=paper_team team.graph=ring. Hydra flags --cfg job|hydra|all, --package, --resolve, "
+                  "--info pass through to Hydra.")
+
+
+def bad_input_exits(command):
+    """Turn BadInput into one line on stderr and exit code 2 (no traceback)."""
+
+    @functools.wraps(command)
+    def wrapper(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except BadInput as err:
+            typer.echo(f"error: {err}", err=True)
+            raise typer.Exit(2) from None
+
+    return wrapper
+
+
+@app.command(context_settings=PASS_THROUGH)
+@bad_input_exits
+def train(
+    overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_HELP, show_default=False),
+    resume: Optional[Path] = typer.Option(
+        None, "--resume", help="Continue the run in RUN_DIR from its last checkpoint (also: extend a finished run "
+                               "with a larger train.iterations=...). Only train.iterations may be overridden.",
+        metavar="RUN_DIR"),
+) -> None:
+    """Train one experiment (default: experiment=paper_single) into outputs/runs/<timestamp>_<experiment>/."""
+    from riskplan.config import compose
+
+    args = list(overrides or [])
+    if resume is not None:
+        _resume(resume, args)
+        return
+    if HYDRA_FLAGS & set(args):
+        from riskplan.app import run_hydra
+
+        run_hydra(args)
+        return
+    cfg = compose(args)
+    explicit = _explicit_run_dir(args)
+    out = explicit or _claim_run_dir(Path("outputs") / "runs", cfg.experiment)
+    typer.echo(f"run directory: {out}")
+    from riskplan.app import run_hydra
+
+    run_hydra(args if explicit else [*args, f"hydra.run.dir={_quote(out)}"])
+    _finish(out)
+
+
+@app.command(context_settings=PASS_THROUGH)
+@bad_input_exits
+def check(overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_HELP, show_default=False)) -> None:
+    """Compose and validate a config without running it; print it, the world, the team and Assumptions 5-6."""
+    from omegaconf import OmegaConf
+
+    from riskplan.config import compose
+    from riskplan.consensus import describe
+    from riskplan.setup import build_setup
+
+    cfg = compose(list(overrides or []), validate=False)
+    setup = build_setup(cfg)
+    typer.echo(OmegaConf.to_yaml(cfg).rstrip())
+    typer.echo("")
+    typer.echo(_describe_world(setup))
+    power = cfg.train.step_size.power
+    holds = 0.5 < power <= 1.0
+    typer.echo(f"Assumption 6 (sum eps = inf, sum eps^2 < inf): {'holds' if holds else 'FAILS'} "
+               f"(eps_l = {cfg.train.step_size.initial} / (1 + l/{cfg.train.step_size.decay})^{power})")
+    typer.echo(describe(setup.network, cfg.team))
+    typer.echo("config OK")
+
+
+def _resume(run_dir: Path, args: list[str]) -> None:
+    """`train --resume RUN_DIR [train.iterations=N]`."""
+    from omegaconf import OmegaConf
+
+    from riskplan.config import parse_overrides
+    from riskplan.progress import TrainingBar
+    from riskplan.runs import is_run_dir
+    from riskplan.train import CHECKPOINT, NumericalTrouble
+    from riskplan.train import train as train_run
+
+    if not run_dir.is_dir() or not is_run_dir(run_dir):
+        raise BadInput(str(run_dir), "holds no run; give the directory of a riskplan train run to --resume")
+    if not (run_dir / CHECKPOINT).is_file():
+        raise BadInput(str(run_dir), "has no checkpoint yet (killed before the first one); start it again")
+    for override in parse_overrides(args):
+        if override.key_or_group != "train.iterations":
+            raise BadInput(f"override '{override.input_line}'", "cannot change a resumed run; "
+                                                                 "only train.iterations=N may be given")
+    cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
+    cfg.merge_with(OmegaConf.from_dotlist(args))
+    typer.echo(f"resuming: {run_dir}")
+    try:
+        with TrainingBar() as progress:
+            train_run(cfg, run_dir, resume=True, progress=progress)
+    except NumericalTrouble as err:
+        typer.echo(f"error: {err}", err=True)
+        raise typer.Exit(1) from None
+    (run_dir / "status.json").write_text(json.dumps({"status": "done", "error": None}, indent=2))
+    _finish(run_dir)
+
+
+def _finish(out: Path) -> None:
+    """Print the one-line summary of a finished run, or its error with exit code 1."""
+    from riskplan.app import STATUS
+
+    status = json.loads((out / STATUS).read_text()) if (out / STATUS).is_file() else {"status": "failed",
+                                                                                      "error": "no status written"}
+    if status["status"] != "done":
+        typer.echo(f"error: run failed: {status['error']} (see {out})", err=True)
+        raise typer.Exit(1)
+    typer.echo(summary_line(json.loads((out / "summary.json").read_text()), out))
+
+
+def summary_line(summary: dict, out: Path) -> str:
+    """One line: what ran, how long, the headline figures with 95% intervals."""
+
+    def fig(name: str) -> str:
+        f = summary[name]
+        return f"{f['value']:.1f} [{f['low']:.1f}, {f['high']:.1f}]"
+
+    reached = ", ".join(f"{k} {v:.1%}" for k, v in summary["source_reached"].items())
+    return (f"{summary['experiment']} risk={summary['risk']} beta={summary['beta']:g} robots={summary['robots']}: "
+            f"{summary['iterations']} iterations in {summary['wall_time']:.2f} s | eval {summary['eval_episodes']} "
+            f"episodes: mean {fig('mean')}, CVaR {fig('cvar')}, VaR {fig('value_at_risk')} | "
+            f"P(risky) {summary['risky_fraction']:.1%} | reached {reached} -> {out}")
+
+
+def _describe_world(setup) -> str:
+    """A few lines on the world: grid, start, sources, regions."""
+    world = setup.world
+    lines = [f"world: {world.width}x{world.height} grid, horizon K={world.horizon}, "
+             f"{int(world.obstacle.sum())} obstacle cells, stop at source: {world.stop_at_source}"]
+    for j, name in enumerate(world.source_names):
+        x, y = world.xy(world.source_cells[j])
+        kind = "static" if world.source_motion[j] == 0 else f"random walk p={world.source_motion[j]:g}"
+        lines.append(f"  source {j} '{name}' at ({x}, {y}), {kind}, peak signal {world.source_amplitude[j]:.3g}")
+    for r, name in enumerate(world.region_names):
+        count = int((world.region_of == r).sum())
+        lines.append(f"  region {r} '{name}': {count} cells{', risky' if world.region_risky[r] else ''}")
+    return "\n".join(lines)
+
+
+def _explicit_run_dir(args: list[str]) -> Path | None:
+    """The hydra.run.dir=... the user typed, if any."""
+    for arg in args:
+        if arg.startswith("hydra.run.dir="):
+            return Path(arg.split("=", 1)[1].strip("'\""))
+    return None
+
+
+def _claim_run_dir(root: Path, experiment: str) -> Path:
+    """Create root/<YYYY-MM-DD_HH-MM-SS>_<experiment>, with a numeric suffix if taken (mkdir is the lock)."""
+    base = root / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}_{experiment}"
+    candidate, suffix = base, 1
+    while True:
+        try:
+            candidate.mkdir(parents=True)
+            return candidate
+        except FileExistsError:
+            candidate = base.with_name(f"{base.name}_{suffix}")
+            suffix += 1
+
+
+def _quote(path: Path) -> str:
+    """Quote a path for a Hydra override value."""
+    return "'" + str(path).replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+
+def main() -> None:
+    """Entry point for `python -m riskplan`."""
+    app(prog_name="riskplan")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

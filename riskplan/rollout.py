@@ -1,0 +1,302 @@
+"""Batched Monte Carlo rollouts: many policies x many episodes in one numba kernel.
+
+numba (parallel, cached on disk) runs the whole episode loop in machine code: policy lookup, move sampling,
+reward draws from the compiled distribution programs and score accumulation (eq. 10). Each episode draws from
+its own counter-based stream (riskplan.rng), so numbers do not depend on threads or chunking.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from riskplan import distributions as D
+from riskplan.policy import tables
+from riskplan.rng import episode_state, next_uniform, normal_quantile
+from riskplan.world import MAX_STACK, MOVES, World
+
+CHUNK = 64  # episodes per parallel work item: amortises the per-item scratch allocations
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Outcome of P policies x W episodes, flattened policy-major (episode e of policy p at p * W + e)."""
+
+    total_reward: np.ndarray  # (P*W,) float64
+    score: np.ndarray  # (P*W, M) float64: d log f(xi) / d theta
+    risky_steps: np.ndarray  # (P*W,) int64
+    source_reached: np.ndarray  # (P*W,) int64, -1 for none
+    steps: np.ndarray  # (P*W,) int64: moves made
+    path_cells: np.ndarray | None = None  # (P*W, K+1) int64 when recorded; -1 after the episode ended
+    path_rewards: np.ndarray | None = None  # (P*W, K+1) float64 when recorded
+
+
+@dataclass(frozen=True)
+class Kernel:
+    """World arrays in the layout the kernel takes, built once per run."""
+
+    next_cell: np.ndarray
+    region_of: np.ndarray
+    region_risky: np.ndarray
+    region_programs: tuple[np.ndarray, np.ndarray, np.ndarray]
+    source_programs: tuple[np.ndarray, np.ndarray, np.ndarray]
+    source_at: np.ndarray
+    source_cells: np.ndarray
+    source_motion: np.ndarray
+    source_amplitude: np.ndarray
+    source_precision: np.ndarray
+    height: int
+    width: int
+    horizon: int
+    stop_at_source: bool
+    mobile: bool
+
+
+def make_kernel(world: World) -> Kernel:
+    """Pack a World for `simulate`."""
+    source_at = np.full(world.cells, -1, dtype=np.int64)
+    for j in range(world.sources - 1, -1, -1):  # the first source listed wins a shared cell
+        source_at[world.source_cells[j]] = j
+    return Kernel(
+        next_cell=world.next_cell,
+        region_of=world.region_of,
+        region_risky=world.region_risky,
+        region_programs=D.pack_programs(list(world.region_rewards)),
+        source_programs=D.pack_programs(list(world.source_rewards)),
+        source_at=source_at,
+        source_cells=world.source_cells,
+        source_motion=world.source_motion,
+        source_amplitude=world.source_amplitude,
+        source_precision=world.source_precision,
+        height=world.height,
+        width=world.width,
+        horizon=world.horizon,
+        stop_at_source=world.stop_at_source,
+        mobile=world.mobile,
+    )
+
+
+def simulate(
+    world: World,
+    kernel: Kernel,
+    thetas: np.ndarray,
+    starts: np.ndarray,
+    keys: np.ndarray,
+    episodes: int,
+    record: bool = False,
+) -> Batch:
+    """Run `episodes` episodes for each policy p (theta thetas[p], start cell starts[p], stream key keys[p])."""
+    thetas = np.ascontiguousarray(thetas, dtype=np.float64)
+    policies, sources = thetas.shape
+    cum, score = tables(world, thetas)
+    total = policies * episodes
+    out_z = np.empty(total)
+    out_score = np.empty((total, sources))
+    out_risky = np.empty(total, dtype=np.int64)
+    out_reached = np.empty(total, dtype=np.int64)
+    out_steps = np.empty(total, dtype=np.int64)
+    width = kernel.horizon + 1 if record else 0
+    path_cells = np.full((total if record else 0, width), -1, dtype=np.int64)
+    path_rewards = np.zeros((total if record else 0, width))
+    _simulate(
+        cum, score, thetas, np.asarray(starts, np.int64), np.asarray(keys, np.uint64), episodes,
+        kernel.next_cell, kernel.region_of, kernel.region_risky, *kernel.region_programs,
+        *kernel.source_programs, kernel.source_at, kernel.source_cells, kernel.source_motion,
+        kernel.source_amplitude, kernel.source_precision, kernel.height, kernel.width,
+        kernel.horizon, kernel.stop_at_source, kernel.mobile, record,
+        out_z, out_score, out_risky, out_reached, out_steps, path_cells, path_rewards,
+    )
+    return Batch(out_z, out_score, out_risky, out_reached, out_steps,
+                 path_cells if record else None, path_rewards if record else None)
+
+
+@njit(cache=True)
+def _draw(ops, params, first, last, stack, state):
+    """Run one postfix reward program (riskplan.distributions) and return (value, state)."""
+    top = 0
+    for i in range(first, last):
+        op = ops[i, 0]
+        if op == D.OP_CONST:
+            stack[top] = params[i, 0]
+            top += 1
+        elif op == D.OP_UNIFORM:
+            state, u = next_uniform(state)
+            stack[top] = params[i, 0] + (params[i, 1] - params[i, 0]) * u
+            top += 1
+        elif op == D.OP_NORMAL:
+            state, u = next_uniform(state)
+            stack[top] = params[i, 0] + params[i, 1] * normal_quantile(u)
+            top += 1
+        elif op == D.OP_BERNOULLI:
+            state, u = next_uniform(state)
+            stack[top] = 1.0 if u < params[i, 0] else 0.0
+            top += 1
+        elif op == D.OP_SCALE:
+            stack[top - 1] *= params[i, 0]
+        elif op == D.OP_CLIP:
+            stack[top - 1] = min(max(stack[top - 1], params[i, 0]), params[i, 1])
+        elif op == D.OP_SUM:
+            n = ops[i, 1]
+            acc = 0.0
+            for k in range(n):
+                acc += stack[top - 1 - k]
+            top -= n
+            stack[top] = acc
+            top += 1
+        else:  # OP_MIXTURE: n values, then their n normalised weights, on the stack
+            n = ops[i, 1]
+            state, u = next_uniform(state)
+            pick = n - 1
+            acc = 0.0
+            for k in range(n):
+                acc += stack[top - n + k]
+                if u < acc:
+                    pick = k
+                    break
+            value = stack[top - 2 * n + pick]
+            top -= 2 * n
+            stack[top] = value
+            top += 1
+    return stack[0 if top == 0 else top - 1], state
+
+
+@njit(cache=True)
+def _mobile_policy(cell, theta, src, next_cell, amplitude, precision, height, cum, feats):
+    """Move probabilities (cumulative) and features at `cell` for sources at `src` (mobile sources)."""
+    best = -np.inf
+    for a in range(5):
+        nc = next_cell[cell, a]
+        x, y = nc // height, nc % height
+        logit = 0.0
+        for j in range(len(src)):
+            dx = x - src[j] // height
+            dy = y - src[j] % height
+            q = precision[j, 0] * dx * dx + 2.0 * precision[j, 1] * dx * dy + precision[j, 2] * dy * dy
+            feats[a, j] = amplitude[j] * math.exp(-0.5 * q)
+            logit += theta[j] * feats[a, j]
+        cum[a] = logit
+        best = max(best, logit)
+    total = 0.0
+    for a in range(5):
+        cum[a] = math.exp(cum[a] - best)
+        total += cum[a]
+    acc = 0.0
+    for a in range(5):
+        acc += cum[a] / total
+        cum[a] = acc
+    cum[4] = 1.0
+
+
+@njit(cache=True)
+def _walk(src, motion, height, width, state):
+    """One random-walk step of each mobile source (stays on the grid); returns the stream state."""
+    for j in range(len(src)):
+        if motion[j] > 0.0:
+            state, u = next_uniform(state)
+            if u < motion[j]:
+                state, v = next_uniform(state)
+                a = min(int(v * 4.0), 3)
+                move = (0, 1, 3, 4)[a]  # E, W, N, S (never Stay)
+                x = src[j] // height + (1, -1, 0, 0, 0)[move]
+                y = src[j] % height + (0, 0, 0, 1, -1)[move]
+                if 0 <= x < width and 0 <= y < height:
+                    src[j] = x * height + y
+    return state
+
+
+@njit(parallel=True, cache=True)
+def _simulate(cum, score, thetas, starts, keys, episodes,
+              next_cell, region_of, region_risky, reg_off, reg_ops, reg_par,
+              src_off, src_ops, src_par, source_at, source_cells, motion, amplitude, precision,
+              height, width, horizon, stop_at_source, mobile, record,
+              out_z, out_score, out_risky, out_reached, out_steps, path_cells, path_rewards):
+    """Episode loop; see `simulate`."""
+    policies = cum.shape[0]
+    sources = score.shape[3]
+    total = policies * episodes
+    chunks = (total + CHUNK - 1) // CHUNK
+    for chunk in prange(chunks):
+        stack = np.empty(MAX_STACK)
+        src = np.empty(sources, dtype=np.int64)
+        local_cum = np.empty(5)
+        feats = np.empty((5, sources))
+        expect = np.empty(sources)
+        for e in range(chunk * CHUNK, min(total, (chunk + 1) * CHUNK)):
+            p = e // episodes
+            state = episode_state(keys[p], e - p * episodes)
+            cell = starts[p]
+            z = 0.0
+            risky = 0
+            reached = -1
+            steps = 0
+            for j in range(sources):
+                out_score[e, j] = 0.0
+                src[j] = source_cells[j]
+            if record:
+                path_cells[e, 0] = cell
+            for k in range(horizon):
+                state, u = next_uniform(state)
+                if mobile:
+                    _mobile_policy(cell, thetas[p], src, next_cell, amplitude, precision, height, local_cum, feats)
+                    a = 0
+                    while u > local_cum[a]:
+                        a += 1
+                    expect[:] = 0.0
+                    prev = 0.0
+                    for b in range(5):
+                        for j in range(sources):
+                            expect[j] += (local_cum[b] - prev) * feats[b, j]
+                        prev = local_cum[b]
+                    for j in range(sources):
+                        out_score[e, j] += feats[a, j] - expect[j]
+                else:
+                    a = 0
+                    while u > cum[p, cell, a]:
+                        a += 1
+                    for j in range(sources):
+                        out_score[e, j] += score[p, cell, a, j]
+                cell = next_cell[cell, a]
+                steps += 1
+                reward = 0.0
+                region = region_of[cell]
+                if region >= 0:
+                    reward, state = _draw(reg_ops, reg_par, reg_off[region], reg_off[region + 1], stack, state)
+                    if region_risky[region]:
+                        risky += 1
+                hit = -1
+                if mobile:
+                    for j in range(sources):
+                        if src[j] == cell:
+                            hit = j
+                            break
+                    state = _walk(src, motion, height, width, state)
+                else:
+                    hit = source_at[cell]
+                if hit >= 0:
+                    value, state = _draw(src_ops, src_par, src_off[hit], src_off[hit + 1], stack, state)
+                    reward += value
+                    if reached < 0:
+                        reached = hit
+                z += reward
+                if record:
+                    path_cells[e, k + 1] = cell
+                    path_rewards[e, k + 1] = reward
+                if hit >= 0 and stop_at_source:
+                    break
+            out_z[e] = z
+            out_risky[e] = risky
+            out_reached[e] = reached
+            out_steps[e] = steps
+
+
+def move_xy(cells: np.ndarray, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cell indices to (x, y) arrays (paths use -1 past the end and map to -1)."""
+    x, y = np.divmod(cells, height)
+    ended = cells < 0
+    return np.where(ended, -1, x), np.where(ended, -1, y)
+
+
+__all__ = ["Batch", "Kernel", "make_kernel", "simulate", "move_xy", "MOVES"]

@@ -1,0 +1,100 @@
+"""Everything a run derives from its config, built (and so validated) once at the top: the PureJaxRL way."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from riskplan.consensus import Mixer, Network, build_network
+from riskplan.errors import BadInput
+from riskplan.rollout import Kernel, make_kernel
+from riskplan.world import World, build_world
+
+MEASURES = ("cvar", "neutral")
+
+
+@dataclass(frozen=True)
+class Setup:
+    """A validated experiment: config, world, kernel arrays, team network."""
+
+    config: dict
+    world: World
+    kernel: Kernel
+    network: Network
+    mixer: Mixer
+    theta0: np.ndarray  # (M,)
+
+    @property
+    def robots(self) -> int:
+        """Team size N."""
+        return self.network.robots
+
+    @property
+    def team(self) -> bool:
+        """Whether this is a distributed run (N > 1)."""
+        return self.network.robots > 1
+
+
+def build_setup(cfg: DictConfig | dict) -> Setup:
+    """Validate every key and build the run's objects; raises BadInput on the first problem."""
+    if not isinstance(cfg, DictConfig):
+        cfg = OmegaConf.create(cfg)
+    risk, train, team = cfg.risk, cfg.train, cfg.team
+    if risk.measure not in MEASURES:
+        raise BadInput("risk.measure", f"got '{risk.measure}'; expected one of {', '.join(MEASURES)} (risk=cvar or risk=neutral)")
+    _check(0.0 < risk.beta <= 1.0, "risk.beta", f"got {risk.beta}; expected 0 < beta <= 1")
+    _check(train.iterations >= 1, "train.iterations", f"got {train.iterations}; expected a whole number >= 1")
+    _check(train.samples >= 1, "train.samples", f"got {train.samples}; expected W >= 1")
+    _check(math.isfinite(train.samples_growth) and train.samples_growth >= 0, "train.samples_growth",
+           f"got {train.samples_growth}; expected a finite exponent >= 0")
+    sched = train.step_size
+    _check(math.isfinite(sched.initial) and sched.initial >= 0, "train.step_size.initial",
+           f"got {sched.initial}; expected a finite step >= 0")
+    _check(math.isfinite(sched.decay) and sched.decay > 0, "train.step_size.decay", f"got {sched.decay}; expected > 0")
+    _check(math.isfinite(sched.power) and sched.power >= 0, "train.step_size.power", f"got {sched.power}; expected >= 0")
+    if not 0.5 < sched.power <= 1.0:
+        warnings.warn(f"train.step_size.power={sched.power} breaks Assumption 6 (needs 0.5 < power <= 1)", stacklevel=2)
+    _check(train.eval_episodes >= 1, "train.eval_episodes", f"got {train.eval_episodes}; expected >= 1")
+    _check(train.paths >= 0, "train.paths", f"got {train.paths}; expected >= 0")
+    _check(train.checkpoint_every >= 1, "train.checkpoint_every", f"got {train.checkpoint_every}; expected >= 1")
+    _check(train.bootstrap >= 1, "train.bootstrap", f"got {train.bootstrap}; expected >= 1 resamples")
+
+    starts = None
+    if team.starts is not None:
+        starts = [list(s) for s in team.starts]
+        _check(len(starts) == team.robots, "team.starts",
+               f"gives {len(starts)} start cells for {team.robots} robots; give one [x, y] per robot or null")
+    world = build_world(cfg.world, starts)
+    theta0 = np.array(list(train.theta0), dtype=float)
+    _check(theta0.shape == (world.sources,) and bool(np.all(np.isfinite(theta0))), "train.theta0",
+           f"got {list(train.theta0)}; expected {world.sources} finite numbers, one per source")
+    network = build_network(team, world.sources, int(cfg.seed))
+    return Setup(
+        config=OmegaConf.to_container(cfg, resolve=True),
+        world=world,
+        kernel=make_kernel(world),
+        network=network,
+        mixer=Mixer(network, team, int(cfg.seed)),
+        theta0=theta0,
+    )
+
+
+def step_size(iteration: int, schedule: dict[str, Any]) -> float:
+    """eps_l = initial / (1 + l / decay)^power."""
+    return schedule["initial"] / (1.0 + iteration / schedule["decay"]) ** schedule["power"]
+
+
+def samples_at(iteration: int, train: dict[str, Any]) -> int:
+    """W_l = ceil(samples * (1 + l)^samples_growth)."""
+    return int(math.ceil(train["samples"] * (1.0 + iteration) ** train["samples_growth"]))
+
+
+def _check(ok: bool, key: str, problem: str) -> None:
+    """Raise BadInput(key, problem) unless ok."""
+    if not ok:
+        raise BadInput(key, problem)

@@ -1,0 +1,286 @@
+"""Centralized and distributed policy-gradient training (eqs. 4, 11, 14), checkpoints, final evaluation.
+
+One loop serves both: a centralized run is a team of one robot whose consensus step is the identity.
+Iteration l: every robot i simulates W_l episodes at its own theta^i_l (all robots in one kernel call),
+estimates its gradient (Algorithm 1 for CVaR, REINFORCE for the mean), then
+    theta^i_{l+1} = sum_j A^{ij} theta^j_{t^{ij}(l)} + eps_l Delta^i          (eq. 14; N = 1 gives eq. 11)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+from omegaconf import OmegaConf
+
+from riskplan import rng
+from riskplan.consensus import consensus_error, network_metadata
+from riskplan.record import RunLog, resume_log
+from riskplan.risk import cvar_gradient, mean_gradient, summary_stats
+from riskplan.rollout import simulate
+from riskplan.setup import Setup, build_setup, samples_at, step_size
+from riskplan.summary import SCHEMA_VERSION, bootstrap_intervals, provenance
+from riskplan.world import world_map
+
+CHECKPOINT = "checkpoint"
+AVERAGE = -1  # the `robot` id of the network average in team tables
+EVAL_BATCH = 100_000  # episodes per kernel call during evaluation (bounds memory for large teams)
+CRASH_ENV = "RISKPLAN_TEST_KILL_IN_CHECKPOINT"  # fault injection for the crash-safety tests
+
+
+class NumericalTrouble(RuntimeError):
+    """theta or a gradient stopped being finite; the last good checkpoint is kept."""
+
+
+@dataclass
+class State:
+    """What a checkpoint holds: the next iteration, every robot's theta, the mixer's buffers, the rows so far."""
+
+    iteration: int
+    thetas: np.ndarray  # (N, M)
+    mixer: dict
+    rows: list[dict]
+
+
+def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
+    """One iteration of the team loop: rollouts, gradients, consensus, step. Returns the new state and rows."""
+    cfg = setup.config
+    started = time.perf_counter()
+    l, thetas = state.iteration, state.thetas
+    n, beta = setup.robots, cfg["risk"]["beta"]
+    episodes = samples_at(l, cfg["train"])
+    batch = simulate(setup.world, setup.kernel, thetas, starts(setup),
+                     rng.robot_keys(cfg["seed"], rng.TRAIN, l, n), episodes)
+    z = batch.total_reward.reshape(n, episodes)
+    scores = batch.score.reshape(n, episodes, -1)
+    if cfg["risk"]["measure"] == "cvar":
+        grads = np.stack([cvar_gradient(z[i], scores[i], beta) for i in range(n)])
+    else:
+        grads = np.stack([mean_gradient(z[i], scores[i], cfg["train"]["baseline"]) for i in range(n)])
+    eps = step_size(l, cfg["train"]["step_size"])
+    mixed = thetas
+    for round_index in range(cfg["team"]["consensus_rounds"] if setup.team else 0):
+        mixed = setup.mixer.mix(mixed, l, round_index)
+    new_thetas = mixed + eps * grads
+    if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(new_thetas))):
+        raise NumericalTrouble(f"iteration {l}: theta or its gradient is not finite (theta={thetas.tolist()}, "
+                               f"gradient={grads.tolist()}); lower train.step_size.initial")
+    error = consensus_error(thetas) if setup.team else math.nan
+    seconds = time.perf_counter() - started
+    rows = [_row(l, i, z[i], thetas[i], grads[i], eps, error, episodes, seconds, beta) for i in range(n)]
+    if setup.team:
+        rows.append(_row(l, AVERAGE, z.ravel(), thetas.mean(axis=0), grads.mean(axis=0), eps, error,
+                         episodes * n, seconds, beta))
+    return State(l + 1, new_thetas, setup.mixer.state(), state.rows + rows), rows
+
+
+def train(config, out_dir: str | Path, *, resume: bool = False,
+          progress: Callable[[int, int, dict], None] | None = None) -> "Run":
+    """Train, evaluate and record one experiment into out_dir; with resume, continue from its checkpoint."""
+    setup = build_setup(config)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_config(out, setup.config)
+    state = load_checkpoint(out, setup) if resume else None
+    wall = time.perf_counter()
+    if state is None:
+        state = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
+        log = RunLog(out / "run.mcap")
+        _log_header(log, setup)
+    else:
+        setup.mixer.restore(state.mixer)
+        log = resume_log(out / "run.mcap", out / "run.mcap.resume", state.iteration - 1)
+        os.replace(out / "run.mcap.resume", out / "run.mcap")
+    total = setup.config["train"]["iterations"]
+    every = setup.config["train"]["checkpoint_every"]
+    with log:
+        while state.iteration < total:
+            state, rows = iterate(setup, state)
+            log.iteration(rows)
+            if state.iteration % every == 0 or state.iteration == total:
+                save_checkpoint(out, state)
+            if progress:
+                progress(state.iteration, total, rows[-1])
+        train_seconds = time.perf_counter() - wall
+        metrics = pd.DataFrame(state.rows)
+        evaluation = evaluate(setup, state.thetas)
+        trajectories = sample_paths(setup, state.thetas)
+        summary = summarize(setup, state, evaluation, metrics, train_seconds)
+        log.trajectories(trajectories)
+        log.evaluation(evaluation)
+        log.summary(summary)
+    metrics.to_parquet(out / "metrics.parquet", index=False)
+    evaluation.to_parquet(out / "eval.parquet", index=False)
+    trajectories.to_parquet(out / "trajectories.parquet", index=False)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=True))
+    from riskplan.runs import Run
+
+    return Run(out, setup.config, metrics, evaluation, trajectories, summary, True)
+
+
+def starts(setup: Setup) -> np.ndarray:
+    """Start cell of each robot (all at world.start unless team.starts is given)."""
+    cells = setup.world.starts
+    return np.repeat(cells, setup.robots) if len(cells) == 1 else cells
+
+
+def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The evaluated policies: (robot ids, thetas, start cells); teams add the network average (robot -1)."""
+    ids = np.arange(setup.robots)
+    cells = starts(setup)
+    if not setup.team:
+        return ids, thetas, cells
+    return np.append(ids, AVERAGE), np.vstack([thetas, thetas.mean(axis=0)]), np.append(cells, cells[0])
+
+
+def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
+    """The final policies on fresh episodes (own stream), one row per episode."""
+    count = setup.config["train"]["eval_episodes"]
+    ids, evaluated, cells = policies(setup, thetas)
+    frames = []
+    for p, robot in enumerate(ids):
+        parts = []
+        for first in range(0, count, EVAL_BATCH):
+            key = np.array([rng.stream_key(setup.config["seed"], rng.EVAL, p, first)], dtype=np.uint64)
+            size = min(EVAL_BATCH, count - first)
+            parts.append(simulate(setup.world, setup.kernel, evaluated[p:p + 1], cells[p:p + 1], key, size))
+        frames.append(pd.DataFrame({
+            "episode": np.arange(count, dtype=np.int64),
+            "robot": np.full(count, robot, dtype=np.int64),
+            "total_reward": np.concatenate([b.total_reward for b in parts]),
+            "risky_steps": np.concatenate([b.risky_steps for b in parts]),
+            "source_reached": np.concatenate([b.source_reached for b in parts]),
+            "steps": np.concatenate([b.steps for b in parts]),
+        }))
+    return pd.concat(frames, ignore_index=True)
+
+
+def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
+    """A few sampled paths of the initial and the final policies (own stream), one row per step."""
+    count = setup.config["train"]["paths"]
+    frames = []
+    for name, policy_thetas in (("initial", np.tile(setup.theta0, (setup.robots, 1))), ("final", thetas)):
+        ids, evaluated, cells = policies(setup, policy_thetas)
+        keys = rng.robot_keys(setup.config["seed"], rng.PATHS, 0 if name == "initial" else 1, len(ids))
+        batch = simulate(setup.world, setup.kernel, evaluated, cells, keys, count, record=True)
+        alive = batch.path_cells >= 0
+        episode, step = np.nonzero(alive)
+        x, y = setup.world.xy(batch.path_cells[alive])
+        frames.append(pd.DataFrame({
+            "policy": name,
+            "episode": (episode % max(count, 1)).astype(np.int64),
+            "robot": ids[episode // max(count, 1)].astype(np.int64),
+            "step": step.astype(np.int64),
+            "x": x.astype(np.int64),
+            "y": y.astype(np.int64),
+            "reward": batch.path_rewards[alive],
+        }))
+    return pd.concat(frames, ignore_index=True)
+
+
+def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.DataFrame,
+              train_seconds: float) -> dict:
+    """summary.json: headline policy's figures with intervals, per-policy basics, timing, provenance."""
+    cfg = setup.config
+    headline = AVERAGE if setup.team else 0
+    z = evaluation.loc[evaluation.robot == headline]
+    figures = bootstrap_intervals(z.total_reward.to_numpy(), cfg["risk"]["beta"], cfg["train"]["bootstrap"],
+                                  cfg["seed"])
+    steps = float(metrics.samples[metrics.robot >= 0].sum())
+    per_policy = {}
+    for robot, group in evaluation.groupby("robot"):
+        per_policy[str(robot)] = {
+            **summary_stats(group.total_reward.to_numpy(), cfg["risk"]["beta"]),
+            "risky_fraction": float((group.risky_steps > 0).mean()),
+            "source_reached": {name: float((group.source_reached == j).mean())
+                               for j, name in enumerate(setup.world.source_names)} | {
+                "none": float((group.source_reached < 0).mean())},
+        }
+    _, final_thetas, _ = policies(setup, state.thetas)
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "experiment": cfg["experiment"],
+        "risk": cfg["risk"]["measure"],
+        "beta": cfg["risk"]["beta"],
+        "robots": setup.robots,
+        "headline_robot": headline,
+        **figures,
+        "risky_fraction": per_policy[str(headline)]["risky_fraction"],
+        "source_reached": per_policy[str(headline)]["source_reached"],
+        "theta_final": final_thetas[-1].tolist() if setup.team else final_thetas[0].tolist(),
+        "policies": per_policy,
+        "iterations": state.iteration,
+        "eval_episodes": cfg["train"]["eval_episodes"],
+        "wall_time": train_seconds,
+        "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else math.nan,
+        "provenance": provenance(),
+    }
+
+
+def save_checkpoint(out: Path, state: State) -> None:
+    """Write the checkpoint atomically: temp file, fsync, rename, fsync the directory."""
+    tmp = out / f"{CHECKPOINT}.tmp"
+    payload = {"iteration": state.iteration, "thetas": state.thetas.tolist(),
+               "mixer": {k: np.asarray(v).tolist() for k, v in state.mixer.items()},
+               "mixer_dtypes": {k: str(np.asarray(v).dtype) for k, v in state.mixer.items()},
+               "rows": state.rows}
+    with open(tmp, "w") as handle:
+        json.dump(payload, handle)
+        handle.flush()
+        os.fsync(handle.fileno())
+    if os.environ.get(CRASH_ENV) == str(state.iteration):
+        os.kill(os.getpid(), signal.SIGKILL)
+    os.replace(tmp, out / CHECKPOINT)
+    directory = os.open(out, os.O_RDONLY)
+    try:
+        os.fsync(directory)
+    finally:
+        os.close(directory)
+
+
+def load_checkpoint(out: Path, setup: Setup) -> State:
+    """The last good checkpoint of a run directory (a half-written temp file is ignored)."""
+    from riskplan.errors import BadInput
+
+    path = out / CHECKPOINT
+    if not path.exists():
+        raise BadInput(str(out), "has no checkpoint to resume from; start it again with riskplan train")
+    payload = json.loads(path.read_text())
+    thetas = np.array(payload["thetas"], dtype=float)
+    if thetas.shape != (setup.robots, setup.world.sources):
+        raise BadInput(str(out), f"checkpoint holds {thetas.shape} thetas, the config needs "
+                                 f"{(setup.robots, setup.world.sources)}; only train.iterations may change on resume")
+    mixer = {k: np.array(v, dtype=payload["mixer_dtypes"][k]) for k, v in payload["mixer"].items()}
+    return State(payload["iteration"], thetas, mixer, payload["rows"])
+
+
+def _row(l, robot, z, theta, grad, eps, error, samples, seconds, beta) -> dict:
+    """One metrics.parquet row."""
+    return {"iteration": l, "robot": robot, **summary_stats(z, beta),
+            **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
+            "grad_norm": float(np.linalg.norm(grad)), "step_size": eps, "consensus_error": error,
+            "samples": int(samples), "seconds": seconds}
+
+
+def _write_config(out: Path, config: dict) -> None:
+    """.hydra/config.yaml for runs started from the Python API (Hydra writes it for the CLI)."""
+    path = out / ".hydra" / "config.yaml"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
+
+
+def _log_header(log: RunLog, setup: Setup) -> None:
+    """Config, provenance, network and world map at the top of run.mcap."""
+    log.metadata("config", setup.config)
+    log.metadata("provenance", provenance())
+    log.metadata("network", network_metadata(setup.network))
+    log.world_map(world_map(setup.world, starts(setup)))
