@@ -151,10 +151,15 @@ def build_network(team: Any, n_params: int, seed: int) -> Network:
     if not graphs.strongly_connected(adjacency):
         key = "team.edges" if graph == "edges" else "team.graph"
         kind = "directed " if directed else ""
+        if graph == "edges":
+            advice = "add edges so that every robot can reach every other one"
+            advice += " or set directed=false" if directed else ""
+        else:
+            advice = "use graph=ring or complete, directed=false, or graph=edges with a strongly connected list"
         raise BadInput(
             key,
             f"the {kind}{graph} graph with edges {graphs.format_edges(adjacency, directed)} is not strongly connected "
-            f"(Assumption 5 (1)); add edges or use graph=ring" + (" or directed=false" if directed else ""),
+            f"(Assumption 5 (1)); {advice}",
         )
     weights, where = _weights(team, adjacency, int(n_params))
     check_weights(weights, adjacency, where)
@@ -173,7 +178,7 @@ def _adjacency(team: Any, graph: str, robots: int, directed: bool, seed: int) ->
     if graph == "random_geometric":
         radius = _number(team, "radius")
         if radius <= 0:
-            raise BadInput("team.radius", f"is {radius:g}; the link radius must be > 0 (the unit square's diagonal is 1.414)")
+            raise BadInput("team.radius", f"is {radius:g}; the link radius must be > 0 (the unit square is 1 x 1)")
         return graphs.random_geometric(robots, radius, int(_get(team, "resample")), seed)
     return graphs.named_adjacency(graph, robots, directed), None
 
@@ -202,7 +207,8 @@ def _weights(team: Any, adjacency: np.ndarray, n_params: int) -> tuple[np.ndarra
     n = len(adjacency)
     diagonal = _plain(_get(team, "diagonal"))
     if diagonal is not None:
-        return _array(diagonal, (n, n, n_params), "team.diagonal", "N x N x M per-parameter weights a^{ij}_m"), "team.diagonal"
+        what = "N x N x M per-parameter weights a^{ij}_m"
+        return _array(diagonal, (n, n, n_params), "team.diagonal", what), "team.diagonal"
     rule = str(_get(team, "weights"))
     if rule == "matrix":
         matrix = _plain(_get(team, "matrix"))
@@ -218,7 +224,8 @@ def _array(value: Any, shape: tuple[int, ...], where: str, what: str) -> np.ndar
     try:
         array = np.array(value, dtype=float)
     except (TypeError, ValueError):
-        raise BadInput(where, f"is not a rectangular list of numbers; expected {' x '.join(map(str, shape))} ({what})") from None
+        expected = " x ".join(map(str, shape))
+        raise BadInput(where, f"is not a rectangular list of numbers; expected {expected} ({what})") from None
     if array.shape != shape:
         got = " x ".join(map(str, array.shape)) or "a scalar"
         raise BadInput(where, f"has shape {got}; expected {' x '.join(map(str, shape))} ({what})")
@@ -231,11 +238,14 @@ def check_weights(weights: np.ndarray, adjacency: np.ndarray, where: str) -> Non
     """Assumption 5 (2) and eq. (14): nonnegative, row-stochastic, positive exactly on links and the diagonal."""
     n = len(adjacency)
     off_graph = ~adjacency & ~np.eye(n, dtype=bool)
+    entry = "a[{i}][{j}] = {v:g} (parameter {m})"
     checks = (
-        (weights < 0, "a[{i}][{j}] = {v:g} (parameter {m}) is negative; weights must be >= 0"),
-        (np.eye(n, dtype=bool)[:, :, None] & (weights <= 0), "a[{i}][{i}] = {v:g} (parameter {m}) must be > 0 (Assumption 5 (2))"),
-        (adjacency[:, :, None] & (weights <= 0), "a[{i}][{j}] = {v:g} (parameter {m}) is zero on the link {j}->{i}; every link needs a positive weight (Assumption 5 (2))"),
-        (off_graph[:, :, None] & (weights != 0), "a[{i}][{j}] = {v:g} (parameter {m}) but robot {i} does not receive from {j} in the graph; weights off the graph must be 0"),
+        (weights < 0, entry + " is negative; weights must be >= 0"),
+        (np.eye(n, dtype=bool)[:, :, None] & (weights <= 0), entry + " must be > 0 (Assumption 5 (2))"),
+        (adjacency[:, :, None] & (weights <= 0),
+         entry + " is zero on the link {j}->{i}; every link needs a positive weight (Assumption 5 (2))"),
+        (off_graph[:, :, None] & (weights != 0),
+         entry + " but robot {i} does not receive from {j} in the graph; weights off the graph must be 0"),
     )
     for bad, text in checks:
         if bad.any():
@@ -244,7 +254,8 @@ def check_weights(weights: np.ndarray, adjacency: np.ndarray, where: str) -> Non
     sums = weights.sum(axis=1)
     if (np.abs(sums - 1.0) > TOL).any():
         i, m = (int(k) for k in np.argwhere(np.abs(sums - 1.0) > TOL)[0])
-        raise BadInput(where, f"row {i} (parameter {m}) sums to {sums[i, m]:.12g}, not 1; every row of A must sum to 1 (eq. 14)")
+        problem = f"row {i} (parameter {m}) sums to {sums[i, m]:.12g}, not 1; every row of A must sum to 1 (eq. 14)"
+        raise BadInput(where, problem)
 
 
 # ---------------------------------------------------------------------------------------------- measures
@@ -340,11 +351,15 @@ class Mixer:
         for key, current in self._state.items():
             if key not in state or np.shape(state[key]) != current.shape:
                 raise ValueError(f"checkpoint's consensus state '{key}' does not match this team's network/settings")
-        self._state = {key: np.array(state[key], dtype=current.dtype, copy=True) for key, current in self._state.items()}
+        self._state = {key: np.array(state[key], dtype=value.dtype, copy=True) for key, value in self._state.items()}
         return self
 
     def links_up(self, iteration: int) -> np.ndarray:
-        """(N, N) bool links up at `iteration` (all links unless switching is enabled); cached per iteration."""
+        """(N, N) bool links up at `iteration` (all links unless switching is enabled)."""
+        return np.array(self._links_up(iteration), copy=True)
+
+    def _links_up(self, iteration: int) -> np.ndarray:
+        """Links up at `iteration`, drawn once per iteration and cached so every round sees the same graph."""
         s, adjacency = self._state, self.network.adjacency
         if not self.settings.switching:
             return adjacency
@@ -388,7 +403,7 @@ class Mixer:
         delay = rng.integers(0, cfg.max_delay + 1, size=(self.network.robots,) * 2)
         kept = rng.random(delay.shape) >= cfg.drop
         overdue = self.network.adjacency & (iteration - s["last_delivered"] >= cfg.max_gap)
-        sent = self.links_up(iteration) & kept
+        sent = self._links_up(iteration) & kept
         s["forced"] = overdue & ~sent
         sent = sent | overdue
         s["delivered"] = sent
@@ -464,7 +479,8 @@ def describe(network: Network, team: Any) -> str:
     notation = "j->i: robot j sends to robot i" if network.directed else "i-j: a two-way link"
     lines.append(f"edges ({notation}): {graphs.format_edges(network.adjacency, network.directed)}")
     if network.positions is not None:
-        lines.append("positions (unit square): " + "; ".join(f"{k}:({x:.3f},{y:.3f})" for k, (x, y) in enumerate(network.positions)))
+        spots = "; ".join(f"{k}:({x:.3f},{y:.3f})" for k, (x, y) in enumerate(network.positions))
+        lines.append(f"positions (unit square): {spots}")
     w = network.weights
     same = all(np.array_equal(w[:, :, 0], w[:, :, k]) for k in range(network.n_params))
     lines.append("weights A (row i = what robot i mixes; rows sum to 1):")
@@ -474,11 +490,14 @@ def describe(network: Network, team: Any) -> str:
         lines.append(_matrix_text(w[:, :, k]))
     doubly = np.allclose(w.sum(axis=0), 1.0, atol=TOL)
     lines.append("Assumption 5: holds")
-    lines.append("  (1) strongly connected: yes" + (f"; under switching every link is up within any {cfg.window} iterations" if cfg.switching else ""))
+    switching = f"; under switching every link is up within any {cfg.window} iterations" if cfg.switching else ""
+    lines.append("  (1) strongly connected: yes" + switching)
     lines.append(f"  (2) gamma = {network.gamma:.6g} > 0 (smallest weight on the diagonal and on the links)")
-    lines.append(f"  (3) B = {cfg.max_gap}: a link delivers at least once every {cfg.max_gap} iterations (drop probability {cfg.drop:g})")
+    lines.append(f"  (3) B = {cfg.max_gap}: a link delivers at least once every {cfg.max_gap} iterations "
+                 f"(drop probability {cfg.drop:g}; arrivals at most B + B0 = {cfg.max_gap + cfg.max_delay} apart)")
     lines.append(f"  (4) B0 = {cfg.max_delay}: delays uniform on 0..{cfg.max_delay} iterations; stale={cfg.stale}")
-    lines.append(f"  A is {'doubly' if doubly else 'row'} stochastic" + ("" if doubly else ": consensus value is a weighted, not plain, average"))
+    weighted = "" if doubly else ": the consensus value is a weighted, not plain, average"
+    lines.append(f"  A is {'doubly' if doubly else 'row'} stochastic{weighted}")
     slem = network.slem
     slem = 0.0 if slem < 1e-12 else slem  # rounding noise of an exact-averaging matrix (e.g. complete graph)
     per_iteration = slem**cfg.rounds

@@ -46,7 +46,7 @@ def _pairs(graph: str, robots: int) -> list[tuple[int, int]]:
 
 
 def named_adjacency(graph: str, robots: int, directed: bool) -> np.ndarray:
-    """Adjacency of line/ring/star/complete/grid; directed versions send from lower to higher index (ring closes N-1 -> 0)."""
+    """Adjacency of line/ring/star/complete/grid; directed ones send lower -> higher index (ring closes N-1 -> 0)."""
     adjacency = np.zeros((robots, robots), dtype=bool)
     for sender, receiver in _pairs(graph, robots):
         adjacency[receiver, sender] = True
@@ -58,7 +58,8 @@ def named_adjacency(graph: str, robots: int, directed: bool) -> np.ndarray:
 def edges_adjacency(edges, robots: int, directed: bool) -> np.ndarray:
     """Adjacency of an explicit list [[i, j], ...] (j sends to i; both ways unless directed)."""
     if edges is None:
-        raise BadInput("team.edges", "graph=edges needs team.edges, a list of [i, j] pairs (j sends to i), e.g. [[0,1],[1,2]]")
+        problem = "graph=edges needs team.edges, a list of [i, j] pairs (j sends to i), e.g. [[0,1],[1,2]]"
+        raise BadInput("team.edges", problem)
     adjacency = np.zeros((robots, robots), dtype=bool)
     for k, edge in enumerate(edges):
         i, j = _edge(edge, k, robots)
@@ -78,9 +79,11 @@ def _edge(edge, k: int, robots: int) -> tuple[int, int]:
         raise BadInput("team.edges", f"entry {k} is {_show(edge)}; each edge must be a pair [i, j] of robot indices")
     i, j = int(pair[0]), int(pair[1])
     if not (0 <= i < robots and 0 <= j < robots):
-        raise BadInput("team.edges", f"entry {k} [{i}, {j}] names a robot that does not exist; valid indices are 0..{robots - 1}")
+        problem = f"entry {k} [{i}, {j}] names a robot that does not exist; valid indices are 0..{robots - 1}"
+        raise BadInput("team.edges", problem)
     if i == j:
-        raise BadInput("team.edges", f"entry {k} [{i}, {j}] is a self-loop; the self weight is the diagonal of A, list links between different robots")
+        problem = f"entry {k} [{i}, {j}] is a self-loop; list links between different robots (A's diagonal is implicit)"
+        raise BadInput("team.edges", problem)
     return i, j
 
 
@@ -98,7 +101,8 @@ def random_geometric(robots: int, radius: float, resample: int, seed: int) -> tu
     raise BadInput(
         "team.radius",
         f"no random_geometric draw of {robots} robots with radius {radius:g} was connected in {resample + 1} tries "
-        f"(Assumption 5 (1)); use a larger team.radius (about {max(hint, radius * 1.5):.2f} or more) or a larger team.resample",
+        f"(Assumption 5 (1)); use a larger team.radius (about {max(hint, radius * 1.5):.2f} or more) "
+        "or a larger team.resample",
     )
 
 
