@@ -396,11 +396,13 @@ def test_same_seed_same_output_and_resume_is_bit_identical(stale, tmp_path):
     assert all(isinstance(v, np.ndarray) for v in state.values())
     np.savez(tmp_path / "ck.npz", **state)  # a checkpoint writer can store it as is
     loaded = dict(np.load(tmp_path / "ck.npz"))
-    resumed = Mixer(build_network(team, 2, 0), team, 5).restore(loaded)
-    for l in range(13, 30):
-        for r in range(2):
-            theta = resumed.mix(theta, l, r)
-        assert np.array_equal(theta, full[l + 1])
+    as_json = json.loads(json.dumps({key: value.tolist() for key, value in state.items()}))  # a JSON checkpoint
+    for saved in (loaded, as_json):
+        resumed, theta_r = Mixer(build_network(team, 2, 0), team, 5).restore(saved), theta
+        for l in range(13, 30):
+            for r in range(2):
+                theta_r = resumed.mix(theta_r, l, r)
+            assert np.array_equal(theta_r, full[l + 1])
 
 
 def test_state_is_a_copy_and_restore_checks_shapes():
