@@ -20,10 +20,11 @@ from omegaconf import DictConfig
 from riskplan import schema
 from riskplan.errors import BadInput
 
+CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # absolute: conf/ is a symlinked data dir, not a package
 STATUS = "status.json"  # written in every job directory: {"status": "done" | "failed", "error": ...}
 
 
-@hydra.main(config_path="conf", config_name="config", version_base="1.3")
+@hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
 def task(cfg: DictConfig) -> float | None:
     """Train one job in Hydra's output directory; record success or failure in status.json."""
     from riskplan.train import NumericalTrouble, train
