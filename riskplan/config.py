@@ -45,9 +45,9 @@ def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = Tru
     finally:
         GlobalHydra.instance().clear()
     if validate:
-        from riskplan.validate import validate_config
+        from riskplan.setup import build_setup
 
-        validate_config(cfg)
+        build_setup(cfg)
     return cfg
 
 
@@ -61,10 +61,7 @@ def _explain(err: Exception, overrides: list[str]) -> tuple[str, str]:
             if name and name in message:
                 key = name
                 break
-    where = f"key '{key}'" if key else "config"
-    if "Could not find" in message or "not found in" in message:
-        return where, message
-    return where, message
+    return (f"key '{key}'" if key else "config"), message
 
 
 def to_container(cfg: DictConfig) -> dict:

@@ -106,20 +106,16 @@ def parse(data: Any, where: str = "reward") -> Dist:
 
 def to_data(dist: Dist) -> Any:
     """Inverse of `parse` (canonical form): parse(to_data(d)) == d."""
-    if dist.kind == "constant":
-        return {"constant": dist.params[0]}
-    if dist.kind in ("uniform", "normal", "clip"):
-        node: dict = {dist.kind: list(dist.params)}
-    elif dist.kind == "bernoulli":
-        node = {"bernoulli": dist.params[0]}
-    elif dist.kind == "scale":
-        node = {"scale": dist.params[0]}
-    elif dist.kind == "sum":
+    if dist.kind in ("constant", "bernoulli"):
+        return {dist.kind: dist.params[0]}
+    if dist.kind in ("uniform", "normal"):
+        return {dist.kind: list(dist.params)}
+    if dist.kind == "sum":
         return {"sum": [to_data(c) for c in dist.children]}
-    else:
+    if dist.kind == "mixture":
         return {"mixture": [{"weight": w, "of": to_data(c)} for w, c in zip(dist.params, dist.children)]}
-    node["of"] = to_data(dist.children[0])
-    return node
+    value = dist.params[0] if dist.kind == "scale" else list(dist.params)
+    return {dist.kind: value, "of": to_data(dist.children[0])}
 
 
 def sample(dist: Dist, rng: np.random.Generator, n: int) -> np.ndarray:

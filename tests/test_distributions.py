@@ -1,0 +1,73 @@
+"""Reward-distribution grammar: parsing, errors, and the kernel's programs against numpy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from riskplan import distributions as D
+from riskplan.errors import BadInput
+from riskplan.rollout import _draw
+from riskplan.world import MAX_STACK
+
+PAPER_RISKY = {"clip": [-1e4, 1e4], "of": {"sum": [{"scale": 200, "of": {"uniform": [0, 1]}}, {"normal": [0, 100]}]}}
+
+
+def kernel_sample(data, n: int, seed: int = 0) -> np.ndarray:
+    """n draws of a distribution through the numba postfix interpreter."""
+    ops, params = D.compile_program(D.parse(data))
+    stack = np.empty(MAX_STACK)
+    state = np.uint64(seed)
+    out = np.empty(n)
+    for i in range(n):
+        out[i], state = _draw(ops, params, 0, len(ops), stack, np.uint64(state))
+    return out
+
+
+@pytest.mark.parametrize("data", [
+    3.5, {"constant": -2}, {"uniform": [0, 1]}, {"normal": [2000, 2000]}, {"bernoulli": 0.01},
+    {"mixture": [{"weight": 0.99, "of": 0}, {"weight": 0.01, "of": {"normal": [-1e4, 10]}}]},
+    {"sum": [1, {"uniform": [-1, 1]}]}, PAPER_RISKY,
+])
+def test_round_trip(data):
+    dist = D.parse(data)
+    assert D.parse(D.to_data(dist)) == dist
+
+
+@pytest.mark.parametrize("data, where", [
+    ("normal(0,1)", "reward"), ({"gauss": [0, 1]}, "reward"), ({"normal": [0, -1]}, "reward.normal"),
+    ({"uniform": [2, 1]}, "reward.uniform"), ({"bernoulli": 1.5}, "reward.bernoulli"),
+    ({"scale": 2}, "reward"), ({"clip": [0, 1], "of": {"normal": [0]}}, "reward.of.normal"),
+    ({"mixture": [{"weight": 1}]}, "reward.mixture.0"), ({"sum": []}, "reward.sum"), (True, "reward"),
+    ({"normal": [0, float("inf")]}, "reward.normal"), ({"normal": [0, 1], "uniform": [0, 1]}, "reward"),
+])
+def test_garbage_is_rejected_with_the_key(data, where):
+    with pytest.raises(BadInput) as err:
+        D.parse(data)
+    assert err.value.where == where
+
+
+def test_paper_risky_reward_moments_in_kernel_and_numpy():
+    """200 a + d, a ~ U[0,1], d ~ N(0, 100^2): mean 100, variance 200^2/12 + 100^2 (clipping is negligible)."""
+    expected_std = np.sqrt(200**2 / 12 + 100**2)
+    for draws in (kernel_sample(PAPER_RISKY, 200_000), D.sample(D.parse(PAPER_RISKY), np.random.default_rng(0), 200_000)):
+        assert draws.mean() == pytest.approx(100.0, abs=1.5)
+        assert draws.std() == pytest.approx(expected_std, rel=0.01)
+
+
+def test_kernel_clip_mixture_bernoulli():
+    clipped = kernel_sample({"clip": [-1, 1], "of": {"normal": [0, 10]}}, 20_000)
+    assert clipped.min() == -1.0 and clipped.max() == 1.0
+    assert np.mean(np.abs(clipped) == 1.0) == pytest.approx(1 - 0.0797, abs=0.01)  # P(|N(0,100)| > 1)
+    mixture = kernel_sample({"mixture": [{"weight": 3, "of": 1}, {"weight": 1, "of": 5}]}, 40_000)
+    assert set(np.unique(mixture)) == {1.0, 5.0}
+    assert np.mean(mixture == 5.0) == pytest.approx(0.25, abs=0.01)
+    rare = kernel_sample({"scale": -1e4, "of": {"bernoulli": 0.02}}, 50_000)
+    assert set(np.unique(rare)) == {-1e4, 0.0}
+    assert np.mean(rare < 0) == pytest.approx(0.02, abs=0.003)
+
+
+def test_kernel_normal_quantiles():
+    draws = np.sort(kernel_sample({"normal": [0, 1]}, 100_000, seed=7))
+    for q, value in ((0.01, -2.3263), (0.1, -1.2816), (0.5, 0.0), (0.9, 1.2816), (0.99, 2.3263)):
+        assert draws[int(q * draws.size)] == pytest.approx(value, abs=0.03)

@@ -1,0 +1,48 @@
+"""Softmax policy (eqs. 2-3): stability and the score function against finite differences of log mu."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from riskplan.config import compose
+from riskplan.policy import move_features, probabilities, scores
+from riskplan.setup import build_setup
+
+
+@pytest.fixture(scope="module")
+def world():
+    return build_setup(compose([])).world
+
+
+def test_score_matches_finite_differences(world):
+    features = move_features(world)
+    theta = np.array([3.0, -1.5])
+    analytic = scores(features, probabilities(features, theta))
+    h = 1e-6
+    for j in range(2):
+        step = np.zeros(2)
+        step[j] = h
+        numeric = (np.log(probabilities(features, theta + step)) - np.log(probabilities(features, theta - step))) / (2 * h)
+        np.testing.assert_allclose(analytic[..., j], numeric, atol=1e-7)
+
+
+def test_probabilities_are_stable_for_huge_theta(world):
+    features = move_features(world)
+    probs = probabilities(features, np.array([1e8, 0.0]))
+    assert np.all(np.isfinite(probs))
+    np.testing.assert_allclose(probs.sum(axis=-1), 1.0)
+    # a huge positive weight on the safe source makes the move with the strongest safe signal certain
+    best = np.argmax(features[..., 0], axis=-1)
+    chosen = np.argmax(probs, axis=-1)
+    ties = np.isclose(np.sort(features[..., 0], axis=-1)[:, -1], np.sort(features[..., 0], axis=-1)[:, -2])
+    assert np.all((best == chosen) | ties)
+
+
+def test_blocked_moves_see_their_own_cell(world):
+    features = move_features(world)
+    corner = 0  # (0, 0): West and South are blocked and equal Stay
+    np.testing.assert_array_equal(features[corner, 1], features[corner, 2])
+    np.testing.assert_array_equal(features[corner, 4], features[corner, 2])
+    signals = world.signals()
+    assert signals.max() == pytest.approx(1.0)  # scale w = 2 pi sqrt(det): the peak is 1 at each source

@@ -1,0 +1,92 @@
+"""Estimators against closed forms and exact small cases."""
+
+from __future__ import annotations
+
+from statistics import NormalDist
+
+import numpy as np
+import pytest
+
+from riskplan.risk import cvar, cvar_gradient, mean_gradient, tail_count, value_at_risk
+
+
+def normal_cvar(mu: float, sigma: float, beta: float) -> float:
+    """Lower-tail CVaR of N(mu, sigma^2): mu - sigma * phi(Phi^-1(beta)) / beta."""
+    unit = NormalDist()
+    return mu - sigma * unit.pdf(unit.inv_cdf(beta)) / beta
+
+
+@pytest.mark.parametrize("beta", [0.05, 0.1, 0.25, 0.5])
+def test_normal_var_and_cvar_match_closed_form(beta):
+    z = np.random.default_rng(1).normal(3.0, 2.0, 1_000_000)
+    assert value_at_risk(z, beta) == pytest.approx(3.0 + 2.0 * NormalDist().inv_cdf(beta), abs=0.02)
+    assert cvar(z, beta) == pytest.approx(normal_cvar(3.0, 2.0, beta), abs=0.02)
+
+
+@pytest.mark.parametrize("beta", [0.05, 0.2, 0.7])
+def test_uniform_var_and_cvar_match_closed_form(beta):
+    z = np.random.default_rng(2).uniform(0.0, 1.0, 1_000_000)
+    assert value_at_risk(z, beta) == pytest.approx(beta, abs=2e-3)
+    assert cvar(z, beta) == pytest.approx(beta / 2.0, abs=2e-3)
+
+
+def test_exact_small_cases():
+    z = np.arange(10, 0, -1, dtype=float)  # unsorted 10..1
+    assert value_at_risk(z, 0.3) == 3.0
+    assert cvar(z, 0.3) == pytest.approx(2.0)  # mean of {1, 2, 3}: beta W whole, eq. (6)
+    # beta W = 2.5 is not whole: m = 3, v = 3, cvar = 3 + ((1-3) + (2-3)) / 2.5
+    assert value_at_risk(z, 0.25) == 3.0
+    assert cvar(z, 0.25) == pytest.approx(1.8)
+    assert cvar(z, 1.0) == pytest.approx(z.mean())
+    assert value_at_risk(z, 1.0) == 10.0
+    assert cvar(z, 0.01) == 1.0  # m = 1: the minimum
+
+
+def test_tail_count_guards_float_error():
+    assert 0.07 * 100 != 7  # the trap this guards against
+    assert tail_count(0.07, 100) == 7
+    assert tail_count(0.1, 6000) == 600
+    assert tail_count(0.3, 10) == 3
+    assert tail_count(0.25, 10) == 3
+    assert tail_count(1e-9, 10) == 1
+    with pytest.raises(ValueError):
+        tail_count(0.0, 10)
+    with pytest.raises(ValueError):
+        tail_count(1.5, 10)
+
+
+def test_cvar_gradient_location_scale_normal():
+    """z ~ N(mu, sigma^2): dCVaR/dmu = 1 and dCVaR/dsigma = -phi(Phi^-1(beta)) / beta."""
+    mu, sigma, beta = 1.0, 2.0, 0.1
+    z = np.random.default_rng(3).normal(mu, sigma, 2_000_000)
+    scores = np.stack([(z - mu) / sigma**2, ((z - mu) ** 2 - sigma**2) / sigma**3], axis=1)
+    grad = cvar_gradient(z, scores, beta)
+    unit = NormalDist()
+    assert grad[0] == pytest.approx(1.0, abs=0.03)
+    assert grad[1] == pytest.approx(-unit.pdf(unit.inv_cdf(beta)) / beta, abs=0.05)
+
+
+def test_mean_gradient_location_scale_normal():
+    mu, sigma = -2.0, 1.5
+    z = np.random.default_rng(4).normal(mu, sigma, 1_000_000)
+    scores = np.stack([(z - mu) / sigma**2, ((z - mu) ** 2 - sigma**2) / sigma**3], axis=1)
+    for baseline in (True, False):
+        grad = mean_gradient(z, scores, baseline=baseline)
+        assert grad == pytest.approx([1.0, 0.0], abs=0.02)
+
+
+def test_cvar_gradient_exact_small_case():
+    z = np.array([5.0, 1.0, 3.0, 2.0, 4.0])
+    scores = np.arange(10, dtype=float).reshape(5, 2)
+    # beta = 0.4: m = 2, v = 2; tail {1 (row 1), 2 (row 3)}: weights (1-2) and 0
+    expected = (-1.0 * scores[1]) / (0.4 * 5)
+    assert cvar_gradient(z, scores, 0.4) == pytest.approx(expected)
+
+
+def test_beta_one_cvar_gradient_is_unbiased_mean_gradient():
+    """At beta = 1 the tail is everything and v = max: an unbiased mean gradient with baseline max(z)."""
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=1000)
+    scores = rng.normal(size=(1000, 3))
+    expected = ((z - z.max()) @ scores) / z.size
+    assert cvar_gradient(z, scores, 1.0) == pytest.approx(expected)
