@@ -236,11 +236,11 @@ def _decode_column(dtype: str, values: list) -> Any:
                 arr = np.asarray([_float(v) for v in values], dtype=np.float64)
             return arr.astype(dt, copy=False)
         if dt == np.dtype(object):
-            return pd.Series(values, dtype=object).to_numpy()
+            return pd.Series(values, dtype=object)
     try:
         return pd.array(values, dtype=dt)
     except (TypeError, ValueError):
-        return pd.Series(values, dtype=object).to_numpy()
+        return pd.Series(values, dtype=object)
 
 
 def _empty(columns: dict[str, str]) -> pd.DataFrame:
@@ -532,7 +532,7 @@ def _column(values: list) -> Any:
         return np.asarray(values, dtype=bool)
     if all(v is None or (type(v) in (int, float)) or v in ("Infinity", "-Infinity") for v in values):
         return np.asarray([_float(v) for v in values], dtype=np.float64)
-    return pd.Series(values, dtype=object).to_numpy()
+    return pd.Series(values, dtype=object)
 
 
 def _metrics_frame(rows: list[dict]) -> pd.DataFrame:
