@@ -50,7 +50,7 @@ def train(
         metavar="RUN_DIR"),
 ) -> None:
     """Train one experiment (default: experiment=paper_single) into outputs/runs/<timestamp>_<experiment>/."""
-    from riskplan.config import compose
+    from riskplan.config import compose, expand_overrides
 
     args = list(overrides or [])
     if resume is not None:
@@ -67,6 +67,7 @@ def train(
     typer.echo(f"run directory: {out}")
     from riskplan.app import run_hydra
 
+    args = expand_overrides(args)
     run_hydra(args if explicit else [*args, f"hydra.run.dir={_quote(out)}"])
     _finish(out)
 

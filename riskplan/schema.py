@@ -54,7 +54,7 @@ class SourceConf:
     """One source: Gaussian signal eq. (1) and a random reward paid on reaching it."""
 
     position: List[int] = field(default_factory=lambda: [0, 0])
-    covariance: List[List[float]] = field(default_factory=lambda: [[16.0, 0.0], [0.0, 16.0]])
+    covariance: List[Any] = field(default_factory=lambda: [[16.0, 0.0], [0.0, 16.0]])  # [[a, b], [b, c]], SPD
     scale: Optional[float] = None  # w; None means 2*pi*sqrt(det covariance), so the signal peaks at 1
     reward: Any = 0.0
     motion: MotionConf = field(default_factory=MotionConf)
@@ -113,8 +113,8 @@ class TeamConf:
     radius: float = 0.5  # random_geometric link radius in the unit square
     resample: int = 100  # random_geometric redraws before giving up on strong connectivity
     weights: str = "metropolis"  # metropolis | max_degree | lazy | matrix
-    matrix: Optional[List[List[float]]] = None  # with weights=matrix: the N x N row-stochastic A
-    diagonal: Optional[List[List[List[float]]]] = None  # optional per-parameter weights a^{ij}_m, shape N x N x M
+    matrix: Optional[List[Any]] = None  # with weights=matrix: the N x N row-stochastic A
+    diagonal: Optional[List[Any]] = None  # optional per-parameter weights a^{ij}_m, shape N x N x M
     delay: DelayConf = field(default_factory=DelayConf)
     drop: float = 0.0
     max_gap: int = 10  # B of Assumption 5: a link delivers at least once every max_gap iterations
