@@ -215,47 +215,55 @@ def path_scenes(
     """Yield (log_time_ns, foxglove.SceneUpdate) to replay sampled paths.
 
     Each (policy, episode) group, in order of first appearance, is played one after the other: at its first
-    step all earlier entities are deleted, a line strip per robot shows the whole path and a label names the
-    policy and episode; then one message per step moves a sphere per robot ("robot/<r>") to its cell centre.
-    Consecutive steps are `step_ns` apart, and groups are separated by a pause of 4 steps.
+    step all earlier entities are deleted, a line strip per robot ("path/<r>") shows the whole path and a label
+    names the policy and episode; then one message per step moves a sphere per robot ("robot/<r>") to its cell
+    centre. Consecutive steps are `step_ns` apart, and groups are separated by a pause of 4 steps.
     """
-    if len(df) == 0:
+    n = len(df)
+    if n == 0:
         return
+    xs = df["x"].to_numpy(dtype=np.float64) + 0.5
+    ys = df["y"].to_numpy(dtype=np.float64) + 0.5
     if width is None:
-        width = int(df["x"].max()) + 1
+        width = int(np.nanmax(xs[np.isfinite(xs)], initial=0.5))
     if height is None:
-        height = int(df["y"].max()) + 1
+        height = int(np.nanmax(ys[np.isfinite(ys)], initial=0.5))
+    group = df.groupby(["policy", "episode"], sort=False).ngroup().to_numpy()
+    steps = df["step"].to_numpy()
+    robots = df["robot"].to_numpy()
+    order = np.lexsort((robots, steps, group))
+    labels = df[["policy", "episode"]].to_numpy()
+    bounds = np.flatnonzero(np.diff(group[order])) + 1
     t = int(t0_ns)
-    keys = ["policy", "episode"]
-    for (policy, episode), g in df.groupby(keys, sort=False):
-        g = g.sort_values(["step", "robot"], kind="stable")
-        robots = list(dict.fromkeys(int(r) for r in g["robot"]))
-        steps = list(dict.fromkeys(int(s) for s in g["step"]))
-        by_step = {s: gs for s, gs in g.groupby("step", sort=True)}
-        first = True
-        for i, s in enumerate(sorted(steps)):
-            ts = t + i * int(step_ns)
-            gs = by_step[s]
+    step_ns = int(step_ns)
+    for idx in np.split(order, bounds):
+        policy, episode = labels[idx[0]]
+        g_steps, g_robots = steps[idx].tolist(), robots[idx].tolist()
+        g_x, g_y = xs[idx].tolist(), ys[idx].tolist()
+        paths: dict[int, list] = {}
+        for r, x, y in zip(g_robots, g_x, g_y):
+            paths.setdefault(int(r), []).append((x, y, 0.05))
+        try:
+            ep = int(episode)
+        except (TypeError, ValueError):
+            ep = episode
+        i, k, m = -1, 0, len(idx)
+        while k < m:
+            i += 1
+            ts = t + i * step_ns
+            s = g_steps[k]
             ents = []
-            if first:
-                for r in robots:
-                    gr = g[g["robot"] == r]
-                    pts = [(float(x) + 0.5, float(y) + 0.5, 0.05) for x, y in zip(gr["x"], gr["y"])]
+            if i == 0:
+                for r, pts in paths.items():
                     ents.append(entity(f"path/{r}", ts, lines=[line_strip(pts, robot_color(r))]))
-                ents.append(
-                    entity(
-                        "label",
-                        ts,
-                        texts=[text(width / 2.0, height + 0.8, 0.5, f"{policy} policy, episode {int(episode)}", 0.6)],
-                    )
-                )
-            for r, x, y in zip(gs["robot"], gs["x"], gs["y"]):
-                ents.append(
-                    entity(f"robot/{int(r)}", ts, spheres=[sphere(float(x) + 0.5, float(y) + 0.5, 0.3, 0.6, robot_color(r))])
-                )
-            yield ts, scene_update(ents, [delete_all(ts)] if first else None)
-            first = False
-        t += (len(steps) + 4) * int(step_ns)
+                label = text(width / 2.0, height + 0.8, 0.5, f"{policy} policy, episode {ep}", 0.6)
+                ents.append(entity("label", ts, texts=[label]))
+            while k < m and g_steps[k] == s:
+                r = int(g_robots[k])
+                ents.append(entity(f"robot/{r}", ts, spheres=[sphere(g_x[k], g_y[k], 0.3, 0.6, robot_color(r))]))
+                k += 1
+            yield ts, scene_update(ents, [delete_all(ts)] if i == 0 else None)
+        t += (i + 1 + 4) * step_ns
 
 
 # ----------------------------------------------------------------------------------------------- schemas

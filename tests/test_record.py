@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import base64
 import json
-import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -501,3 +499,22 @@ def test_per_iteration_cost_is_reported(tmp_path):
             log.iteration(rr)
         per = (time.perf_counter() - t0) / len(batches)
     print(f"\nRunLog.iteration: {per * 1e6:.0f} us per iteration ({N + 1} rows, {M} thetas), durable each time")
+
+
+def test_durability_without_writer_flush_method(tmp_path):
+    """mcap < 1.6 has no Writer.flush(); the private chunk finaliser is used instead, with the same effect."""
+    rng = np.random.default_rng(4)
+    path = tmp_path / "run.mcap"
+    log = RunLog(path)
+    log._w.flush = None  # hide the public method, as on an older mcap
+    rows = []
+    for it in range(4):
+        rr = make_rows(it, rng)
+        rows += rr
+        log.iteration(rr)
+    killed = tmp_path / "killed.mcap"
+    killed.write_bytes(path.read_bytes())
+    log.close()
+    d = read_log(killed)
+    pd.testing.assert_frame_equal(d.metrics, expected_metrics(rows), check_exact=True)
+    assert d.problem == "truncated after iteration 3 (file ends at byte %d, inside a record header)" % killed.stat().st_size
