@@ -1,3 +1,33 @@
-"""riskplan: risk-averse sensor planning with distributed CVaR policy gradients."""
+"""riskplan: risk-averse sensor planning with distributed CVaR policy gradients.
+
+Python API (the same composition, validation and files as the CLI):
+    cfg = riskplan.compose(["risk=neutral", "seed=3"])
+    run = riskplan.train(cfg, "outputs/runs/my_run")
+    run = riskplan.load_run("outputs/runs/my_run")   # .metrics .eval .trajectories .config .summary .complete
+"""
+
+from __future__ import annotations
 
 __version__ = "0.1.0"
+__all__ = ["compose", "train", "load_run", "__version__"]
+
+
+def compose(overrides=()):
+    """Compose and validate a config from Hydra overrides (riskplan.config.compose)."""
+    from riskplan.config import compose as _compose
+
+    return _compose(list(overrides))
+
+
+def train(config, out_dir):
+    """Train, evaluate and record one experiment into out_dir; returns its Run (riskplan.train.train)."""
+    from riskplan.train import train as _train
+
+    return _train(config, out_dir)
+
+
+def load_run(path):
+    """Load a run directory (tables rebuilt from run.mcap if needed) (riskplan.runs.load_run)."""
+    from riskplan.runs import load_run as _load_run
+
+    return _load_run(path)

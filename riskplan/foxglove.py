@@ -208,6 +208,26 @@ def world_markers(world: dict, t_ns: int) -> dict:
     )
 
 
+def network_scene(network: dict, t_ns: int) -> dict:
+    """foxglove.SceneUpdate in frame "team": robots as coloured spheres, links as lines (random-geometric
+    robots at their drawn positions, others on a circle), 10 m across."""
+    n = int(network["robots"])
+    positions = network.get("positions")
+    if positions is None:
+        angle = 2 * np.pi * np.arange(n) / max(n, 1)
+        xy = np.stack([0.5 + 0.5 * np.cos(angle), 0.5 + 0.5 * np.sin(angle)], axis=1) if n > 1 else np.full((1, 2), 0.5)
+    else:
+        xy = np.asarray(positions, dtype=float)
+    xy = 10.0 * xy
+    nodes = [sphere(x, y, 0.0, 0.6, robot_color(r)) for r, (x, y) in enumerate(xy)]
+    labels = [text(x, y, 0.8, f"robot {r}", 0.4, robot_color(r)) for r, (x, y) in enumerate(xy)]
+    links = [line_strip([(xy[j][0], xy[j][1], 0.0), (xy[i][0], xy[i][1], 0.0)], (0.4, 0.4, 0.4), 0.05)
+             for i, j in network.get("edges", [])]
+    team = entity("team", t_ns, spheres=nodes, texts=labels, lines=links)
+    team["frame_id"] = "team"
+    return scene_update([team])
+
+
 # ----------------------------------------------------------------------------------------------- paths
 def path_scenes(
     df, t0_ns: int, step_ns: int, width: int | None = None, height: int | None = None

@@ -63,9 +63,11 @@ SUMMARY = "/summary"
 WORLD_MAP = "/world/map"
 WORLD_MARKERS = "/world/markers"
 PATHS = "/paths"
+NETWORK = "/team/network"
+NETWORK_SCENE = "/team/graph"
 
 ITERATION_TOPICS = (METRICS, THETA, CONSENSUS)
-WORLD_TOPICS = (WORLD_MAP, WORLD_MARKERS)
+WORLD_TOPICS = (WORLD_MAP, WORLD_MARKERS, NETWORK, NETWORK_SCENE)  # written once, copied on resume
 
 METRICS_BASE = {
     "iteration": "int64", "robot": "int64", "mean": "float64", "cvar": "float64", "value_at_risk": "float64",
@@ -134,6 +136,14 @@ OWN_SCHEMAS: dict[str, dict] = {
         },
         "required": ["table", "offset", "rows", "dtypes", "columns"],
     },
+    "riskplan.Network": {
+        "title": "riskplan.Network",
+        "description": "The team's communication graph and mixing weights (weights[i][j][m] = a^{ij}_m of eq. 14).",
+        "type": "object",
+        "properties": {"robots": _INT, "graph": {"type": "string"}, "edges": {"type": "array"},
+                       "weights": {"type": "array"}, "gamma": _FLOAT, "slem": _FLOAT},
+        "required": ["robots", "graph", "edges", "weights"],
+    },
     "riskplan.Summary": {
         "title": "riskplan.Summary",
         "description": "summary.json of the run (free-form object).",
@@ -148,6 +158,8 @@ TOPIC_SCHEMA = {
     TRAJECTORIES: "riskplan.TableBatch",
     EVAL: "riskplan.TableBatch",
     SUMMARY: "riskplan.Summary",
+    NETWORK: "riskplan.Network",
+    NETWORK_SCENE: fx.SCENE_UPDATE,
     WORLD_MAP: fx.GRID,
     WORLD_MARKERS: fx.SCENE_UPDATE,
     PATHS: fx.SCENE_UPDATE,
@@ -335,6 +347,16 @@ class RunLog:
         t = self._now()
         self._add(WORLD_MAP, fx.grid(world, t), t)
         self._add(WORLD_MARKERS, fx.world_markers(world, t), t)
+        self._durable()
+
+    def network(self, network: dict) -> None:
+        """Metadata "network", the graph as JSON on /team/network and as a foxglove.SceneUpdate on /team/graph."""
+        self._check_open()
+        data = _jsonable(network)
+        self._w.add_metadata("network", {"json": _dumps(data)})
+        t = self._now()
+        self._add(NETWORK, data, t)
+        self._add(NETWORK_SCENE, fx.network_scene(data, t), t)
         self._durable()
 
     def iteration(self, rows: list[dict]) -> None:

@@ -110,7 +110,7 @@ def train(config, out_dir: str | Path, *, resume: bool = False,
             if progress:
                 progress(state.iteration, total, rows[-1])
         train_seconds = time.perf_counter() - wall
-        metrics = pd.DataFrame(state.rows)
+        metrics = pd.DataFrame(state.rows).sort_values(["iteration", "robot"], ignore_index=True)
         evaluation = evaluate(setup, state.thetas)
         trajectories = sample_paths(setup, state.thetas)
         summary = summarize(setup, state, evaluation, metrics, train_seconds)
@@ -282,5 +282,5 @@ def _log_header(log: RunLog, setup: Setup) -> None:
     """Config, provenance, network and world map at the top of run.mcap."""
     log.metadata("config", setup.config)
     log.metadata("provenance", provenance())
-    log.metadata("network", network_metadata(setup.network))
+    log.network(network_metadata(setup.network))
     log.world_map(world_map(setup.world, starts(setup)))
