@@ -20,8 +20,8 @@ def compose(overrides=()):
 
 
 def train(config, out_dir):
-    """Train, evaluate and record one experiment into out_dir; returns its Run (riskplan.train.train)."""
-    from riskplan.train import train as _train
+    """Train, evaluate and record one experiment into out_dir; returns its Run (riskplan.training.train)."""
+    from riskplan.training import train as _train
 
     return _train(config, out_dir)
 

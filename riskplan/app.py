@@ -27,7 +27,7 @@ STATUS = "status.json"  # written in every job directory: {"status": "done" | "f
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
 def task(cfg: DictConfig) -> float | None:
     """Train one job in Hydra's output directory; record success or failure in status.json."""
-    from riskplan.train import NumericalTrouble, train
+    from riskplan.training import NumericalTrouble, train
 
     out = Path(HydraConfig.get().runtime.output_dir)
     single = HydraConfig.get().mode == RunMode.RUN

@@ -102,8 +102,8 @@ def _resume(run_dir: Path, args: list[str]) -> None:
     from riskplan.config import parse_overrides
     from riskplan.progress import TrainingBar
     from riskplan.runs import is_run_dir
-    from riskplan.train import CHECKPOINT, NumericalTrouble
-    from riskplan.train import train as train_run
+    from riskplan.training import CHECKPOINT, NumericalTrouble
+    from riskplan.training import train as train_run
 
     if not run_dir.is_dir() or not is_run_dir(run_dir):
         raise BadInput(str(run_dir), "holds no run; give the directory of a riskplan train run to --resume")

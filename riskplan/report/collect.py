@@ -1,0 +1,377 @@
+"""Find the runs under some directories, load them, skip the broken ones, and group them by what differs.
+
+A *group* is a set of runs whose configs agree on every key but `seed`: the seeds of one experimental condition.
+Groups are labelled by the fewest differing keys that tell them apart (risk measure, beta, team size, graph, ...).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from riskplan.errors import BadInput
+from riskplan.runs import TABLES, Run, find_runs, load_run
+
+# Keys that never define a condition: the seeds of one condition are pooled.
+IGNORED_KEYS = ("seed",)
+# Keys tried first when labelling groups (in this order); the rest follow alphabetically.
+LABEL_PRIORITY = ("risk.measure", "risk.beta", "team.robots", "team.graph", "team.weights", "team.delay.max",
+                  "team.drop", "team.consensus_rounds", "train.samples", "train.theta0", "experiment")
+# Okabe-Ito palette (colour-blind safe); the paper's pair is blue (risk-neutral) and black (risk-averse).
+PALETTE = ("#0072B2", "#000000", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#E69F00", "#999999")
+AVERAGE = -1  # robot id of a team's network average
+
+
+@dataclass
+class RunInfo:
+    """A usable (complete) training run."""
+
+    run: Run
+    flat: dict[str, Any]
+    rebuilt: bool  # tables were rebuilt from run.mcap
+    group: "Group | None" = None
+
+    @property
+    def path(self) -> Path:
+        return self.run.path
+
+    @property
+    def config(self) -> dict:
+        return self.run.config
+
+    @property
+    def seed(self) -> int:
+        return int(self.config.get("seed", 0))
+
+    @property
+    def robots(self) -> int:
+        return int(self.config.get("team", {}).get("robots", 1))
+
+    @property
+    def headline(self) -> int:
+        """The robot id whose figures stand for the run: 0 (centralized) or the network average -1 (team)."""
+        if self.run.summary and "headline_robot" in self.run.summary:
+            return int(self.run.summary["headline_robot"])
+        return AVERAGE if self.robots > 1 else 0
+
+    def metrics_of(self, robot: int | None = None) -> pd.DataFrame:
+        """Metrics rows of one robot (default: the headline), sorted by iteration."""
+        robot = self.headline if robot is None else robot
+        m = self.run.metrics
+        return m.loc[m.robot == robot].sort_values("iteration")
+
+    def eval_of(self, robot: int | None = None) -> pd.DataFrame:
+        """Evaluation episodes of one robot (default: the headline)."""
+        robot = self.headline if robot is None else robot
+        e = self.run.eval
+        return e.loc[e.robot == robot]
+
+    def final_theta(self) -> list[float]:
+        """The headline policy's final theta (after the last update)."""
+        if self.run.summary and self.run.summary.get("theta_final") is not None:
+            return [float(t) for t in self.run.summary["theta_final"]]
+        last = self.metrics_of().iloc[-1]
+        return [float(last[c]) for c in theta_columns(self.run.metrics)]
+
+
+@dataclass
+class Broken:
+    """A run directory that could not be used, and why."""
+
+    path: Path
+    reason: str
+
+
+@dataclass
+class Group:
+    """The runs (seeds) of one condition."""
+
+    key: tuple
+    runs: list[RunInfo]
+    label: str = ""
+    color: str = PALETTE[0]
+    settings: dict[str, Any] = field(default_factory=dict)  # differing keys -> value
+
+    @property
+    def first(self) -> RunInfo:
+        return self.runs[0]
+
+    @property
+    def config(self) -> dict:
+        return self.first.config
+
+    @property
+    def measure(self) -> str:
+        return str(self.config.get("risk", {}).get("measure", "cvar"))
+
+    @property
+    def beta(self) -> float:
+        return float(self.config.get("risk", {}).get("beta", 0.1))
+
+    @property
+    def robots(self) -> int:
+        return self.first.robots
+
+    @property
+    def team(self) -> bool:
+        return self.robots > 1
+
+    @property
+    def seeds(self) -> list[int]:
+        return [r.seed for r in self.runs]
+
+    @property
+    def slug(self) -> str:
+        """A file-name-safe name."""
+        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in self.label)
+        return "_".join(filter(None, safe.split("_")))[:60] or "group"
+
+
+@dataclass
+class Collection:
+    """Everything found under the report's input paths."""
+
+    inputs: list[Path]
+    runs: list[RunInfo]
+    broken: list[Broken]
+    landscapes: list  # riskplan.report.landscape.Landscape
+    groups: list[Group]
+    differing: list[str]  # config keys that differ between groups
+
+    def paper_pair(self) -> tuple[Group | None, Group | None]:
+        """The risk-neutral and risk-averse groups of Figs. 1-2: centralized if any, differing least."""
+        pool = [g for g in self.groups if not g.team] or list(self.groups)
+        neutral = [g for g in pool if g.measure == "neutral"]
+        averse = [g for g in pool if g.measure != "neutral"]
+        if neutral and averse:
+            def distance(pair):
+                a, b = pair
+                return (_distance(a.first.flat, b.first.flat), abs(b.beta - a.beta), abs(b.beta - 0.1))
+            return min(((a, b) for a in neutral for b in averse), key=distance)
+        if averse:
+            return None, min(averse, key=lambda g: abs(g.beta - 0.1))
+        return (neutral[0] if neutral else None), None
+
+    def team_comparison(self) -> tuple[Group | None, list[Group]]:
+        """Fig. 3: the centralized group and the distributed groups it is compared with."""
+        teams = [g for g in self.groups if g.team]
+        if not teams:
+            return None, []
+        measures = {g.measure for g in teams}
+        measure = "cvar" if "cvar" in measures else sorted(measures)[0]
+        teams = [g for g in teams if g.measure == measure]
+        central = [g for g in self.groups if not g.team and g.measure == measure]
+        if not central:
+            return None, teams
+        best = min(central, key=lambda c: (sum(_distance(c.first.flat, t.first.flat) for t in teams),
+                                           abs(c.beta - teams[0].beta)))
+        return best, teams
+
+
+def flatten(config: Any, prefix: str = "") -> dict[str, Any]:
+    """Nested dict -> {dotted.key: value}; lists become JSON strings so they compare and hash."""
+    out: dict[str, Any] = {}
+    if isinstance(config, dict):
+        for k, v in config.items():
+            out.update(flatten(v, f"{prefix}{k}."))
+        if not config and prefix:
+            out[prefix[:-1]] = "{}"
+    elif isinstance(config, (list, tuple)):
+        out[prefix[:-1]] = json.dumps(config, sort_keys=True)
+    else:
+        out[prefix[:-1]] = config
+    return out
+
+
+def theta_columns(metrics: pd.DataFrame) -> list[str]:
+    """theta_0, theta_1, ... in numeric order."""
+    cols = [c for c in metrics.columns if c.startswith("theta_") and c[6:].isdigit()]
+    return sorted(cols, key=lambda c: int(c[6:]))
+
+
+def collect(paths: list[Path]) -> Collection:
+    """Find, load and group every run under `paths`; BadInput only for a path that holds no run at all."""
+    from riskplan.report.landscape import is_landscape_dir, load_landscape
+
+    inputs = [Path(p) for p in paths]
+    found = find_runs(inputs)  # BadInput for a missing path or one without any run
+    runs: list[RunInfo] = []
+    broken: list[Broken] = []
+    landscapes = []
+    for path in found:
+        if is_landscape_dir(path):
+            try:
+                landscapes.append(load_landscape(path))
+            except Exception as err:  # noqa: BLE001 - a broken landscape is listed, never fatal
+                broken.append(Broken(path, f"landscape: {_reason(err)}"))
+            continue
+        info, problem = _load(path)
+        if info is None:
+            broken.append(Broken(path, problem))
+        else:
+            runs.append(info)
+    groups, differing = group_runs(runs)
+    return Collection(inputs, runs, broken, landscapes, groups, differing)
+
+
+def _load(path: Path) -> tuple[RunInfo | None, str]:
+    """Load one run; (None, reason) when it is broken, partial or failed."""
+    failed = _failed_status(path)
+    try:
+        run = load_run(path)
+    except Exception as err:  # noqa: BLE001 - any failure to read a run skips it, with the reason
+        return None, failed or _reason(err)
+    if not run.complete:
+        reason = run.problem or "incomplete run"
+        return None, f"{failed}; {reason}" if failed else reason
+    if failed:
+        return None, failed
+    missing = [name for name in ("metrics", "eval") if getattr(run, name) is None or getattr(run, name).empty]
+    if missing:
+        return None, f"empty {' and '.join(missing)} table"
+    if not run.config:
+        return None, "no config (.hydra/config.yaml missing and none in run.mcap)"
+    rebuilt = not all((path / f"{name}.parquet").is_file() for name in TABLES) or bool(
+        run.problem and "rebuilt" in run.problem)
+    flat = {k: v for k, v in flatten(run.config).items() if k not in IGNORED_KEYS}
+    return RunInfo(run, flat, rebuilt), ""
+
+
+def _failed_status(path: Path) -> str:
+    """The error recorded in status.json by a failed job, or ''."""
+    file = path / "status.json"
+    if not file.is_file():
+        return ""
+    try:
+        status = json.loads(file.read_text())
+    except (OSError, ValueError):
+        return ""
+    if status.get("status") == "failed":
+        return f"job failed: {status.get('error') or 'no reason recorded'}"
+    return ""
+
+
+def _reason(err: BaseException) -> str:
+    """One line for an exception."""
+    text = str(err).strip().splitlines()[0] if str(err).strip() else ""
+    return f"{type(err).__name__}: {text}" if not isinstance(err, BadInput) else text
+
+
+def _distance(a: dict, b: dict) -> int:
+    """Number of keys on which two flat configs differ."""
+    return sum(1 for k in set(a) | set(b) if a.get(k, _MISSING) != b.get(k, _MISSING))
+
+
+class _Missing:
+    def __repr__(self) -> str:
+        return "(absent)"
+
+
+_MISSING = _Missing()
+
+
+def group_runs(runs: list[RunInfo]) -> tuple[list[Group], list[str]]:
+    """Group runs by every config key but the seed; label and colour the groups."""
+    keys = sorted({k for r in runs for k in r.flat})
+    differing = [k for k in keys if len({_hashable(r.flat.get(k, _MISSING)) for r in runs}) > 1]
+    by_key: dict[tuple, list[RunInfo]] = {}
+    for r in runs:
+        key = tuple(_hashable(r.flat.get(k, _MISSING)) for k in differing)
+        by_key.setdefault(key, []).append(r)
+    groups = []
+    for key, members in by_key.items():
+        members.sort(key=lambda r: (r.seed, str(r.path)))
+        group = Group(key, members, settings={k: members[0].flat.get(k, _MISSING) for k in differing})
+        for r in members:
+            r.group = group
+        groups.append(group)
+    groups.sort(key=lambda g: (g.robots, g.measure != "neutral", g.beta, str(g.key)))
+    _label(groups, differing)
+    _colour(groups)
+    return groups, differing
+
+
+def _hashable(v: Any) -> Any:
+    if isinstance(v, float) and math.isnan(v):
+        return "nan"
+    return v
+
+
+def _label(groups: list[Group], differing: list[str]) -> None:
+    """Label each group by the fewest differing keys (in priority order) that tell the groups apart."""
+    if len(groups) == 1:
+        groups[0].label = _describe(groups[0], ["risk.measure", "team.robots"], single=True)
+        return
+    order = [k for k in LABEL_PRIORITY if k in differing] + [k for k in differing if k not in LABEL_PRIORITY]
+    chosen: list[str] = []
+    distinct = 1
+    for k in order:
+        trial = chosen + [k]
+        count = len({tuple(_hashable(g.settings.get(c, _MISSING)) for c in trial) for g in groups})
+        if count > distinct:
+            chosen, distinct = trial, count
+        if distinct == len(groups):
+            break
+    for g in groups:
+        g.label = _describe(g, chosen)
+    # any residual duplicates (should not happen) get a suffix
+    seen: dict[str, int] = {}
+    for g in groups:
+        if g.label in seen:
+            seen[g.label] += 1
+            g.label = f"{g.label} #{seen[g.label]}"
+        else:
+            seen[g.label] = 1
+
+
+def _describe(group: Group, keys: list[str], single: bool = False) -> str:
+    """Human label from the chosen keys, e.g. 'risk-averse (CVaR β=0.1), distributed N=3'."""
+    parts = []
+    keys = list(keys)
+    if "risk.measure" in keys or "risk.beta" in keys or single:
+        if group.measure == "neutral":
+            parts.append("risk-neutral" + (f" (β={group.beta:g})" if "risk.beta" in keys and
+                                           "risk.measure" not in keys else ""))
+        else:
+            beta = f" β={group.beta:g}" if "risk.beta" in keys or single else ""
+            parts.append(f"risk-averse (CVaR{beta})")
+    if "team.robots" in keys or single:
+        parts.append(f"distributed N={group.robots}" if group.team else "centralized")
+    for k in keys:
+        if k in ("risk.measure", "risk.beta", "team.robots"):
+            continue
+        parts.append(f"{k.split('.')[-1] if k.startswith('team.') else k}={_short(group.settings.get(k))}")
+    return ", ".join(parts) or "runs"
+
+
+def _short(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, _Missing):
+        return "(absent)"
+    text = str(v)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _colour(groups: list[Group]) -> None:
+    """Paper pair first (risk-neutral blue, risk-averse black), then the palette in order."""
+    neutral = next((g for g in groups if not g.team and g.measure == "neutral"), None)
+    averse = [g for g in groups if not g.team and g.measure != "neutral"]
+    averse_pick = min(averse, key=lambda g: abs(g.beta - 0.1)) if averse else None
+    ordered = [g for g in (neutral, averse_pick) if g is not None]
+    if neutral is None and averse_pick is not None:
+        ordered = [averse_pick]
+        averse_pick.color = PALETTE[1]
+    elif neutral is not None:
+        neutral.color = PALETTE[0]
+        if averse_pick is not None:
+            averse_pick.color = PALETTE[1]
+    rest = [g for g in groups if g not in ordered]
+    palette = [c for c in PALETTE if c not in {g.color for g in ordered}]
+    for i, g in enumerate(rest):
+        g.color = palette[i % len(palette)]

@@ -1,0 +1,220 @@
+"""The objective landscape: mean and CVaR of the total reward on a grid of theta, with common random numbers.
+
+theta has one weight per source, so with the paper's two sources the whole objective is a picture. Every grid
+point replays the same episode streams (one stream key for the whole grid), so differences between points are
+differences between policies, not between random draws; the surface is smooth and its optima are comparable.
+
+A landscape directory is run-like: `.hydra/config.yaml`, `landscape.parquet` (one row per grid point),
+`summary.json` with `"kind": "landscape"` (the marker the report recognises) and `status.json`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from riskplan import rng
+from riskplan.errors import BadInput
+from riskplan.risk import tail_count
+
+KIND = "landscape"
+TABLE = "landscape.parquet"
+SCHEMA_VERSION = 1
+DEFAULT_POINTS = 41
+DEFAULT_EPISODES = 4000
+DEFAULT_RANGE = (-20.0, 60.0)
+CHUNK_EPISODES = 1_000_000  # episodes per kernel call (bounds memory)
+
+
+@dataclass
+class Landscape:
+    """A computed landscape on disk."""
+
+    path: Path
+    config: dict
+    table: pd.DataFrame
+    summary: dict
+
+    @property
+    def axes(self) -> tuple[int, int]:
+        a = self.summary.get("axes", [0, 1])
+        return int(a[0]), int(a[1])
+
+    @property
+    def beta(self) -> float:
+        return float(self.summary.get("beta", self.config.get("risk", {}).get("beta", 0.1)))
+
+    def grid(self, column: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(values of axis a, values of axis b, column as an array [b, a]) for imshow/pcolormesh."""
+        a, b = self.axes
+        ca, cb = f"theta_{a}", f"theta_{b}"
+        pivot = self.table.pivot_table(index=cb, columns=ca, values=column, aggfunc="first")
+        return pivot.columns.to_numpy(float), pivot.index.to_numpy(float), pivot.to_numpy(float)
+
+    def best(self, column: str) -> dict:
+        """The grid point maximising `column`: its theta and value."""
+        row = self.table.loc[self.table[column].idxmax()]
+        return {"theta": [float(row[c]) for c in _theta_columns(self.table)], "value": float(row[column])}
+
+
+def is_landscape_dir(path: Path) -> bool:
+    """A landscape directory: it holds landscape.parquet, or a summary.json whose kind is 'landscape'."""
+    if (path / TABLE).is_file():
+        return True
+    file = path / "summary.json"
+    if file.is_file():
+        try:
+            return json.loads(file.read_text()).get("kind") == KIND
+        except (OSError, ValueError, AttributeError):
+            return False
+    return False
+
+
+def load_landscape(path: Path) -> Landscape:
+    """Read a landscape directory (raises on a damaged one)."""
+    path = Path(path)
+    if not (path / TABLE).is_file():
+        raise ValueError(f"no {TABLE} (the landscape did not finish)")
+    table = pd.read_parquet(path / TABLE)
+    summary = json.loads((path / "summary.json").read_text()) if (path / "summary.json").is_file() else {}
+    config_file = path / ".hydra" / "config.yaml"
+    config = yaml.safe_load(config_file.read_text()) if config_file.is_file() else {}
+    needed = {"mean", "cvar", "value_at_risk"}
+    if not needed <= set(table.columns) or len(_theta_columns(table)) < 2:
+        raise ValueError(f"{TABLE} lacks columns {sorted(needed - set(table.columns))} or theta columns")
+    return Landscape(path, config or {}, table, summary)
+
+
+def _theta_columns(table: pd.DataFrame) -> list[str]:
+    cols = [c for c in table.columns if c.startswith("theta_") and c[6:].isdigit()]
+    return sorted(cols, key=lambda c: int(c[6:]))
+
+
+def grid_thetas(theta0: np.ndarray, axes: tuple[int, int], ranges: tuple[tuple[float, float], ...],
+                points: int) -> np.ndarray:
+    """(points^2, M) thetas: axis a varies slowest; the other components stay at theta0."""
+    a, b = axes
+    va = np.linspace(ranges[0][0], ranges[0][1], points)
+    vb = np.linspace(ranges[1][0], ranges[1][1], points)
+    ga, gb = np.meshgrid(va, vb, indexing="ij")
+    thetas = np.tile(np.asarray(theta0, dtype=float), (points * points, 1))
+    thetas[:, a] = ga.ravel()
+    thetas[:, b] = gb.ravel()
+    return thetas
+
+
+def evaluate_grid(setup, thetas: np.ndarray, episodes: int, beta: float, seed: int) -> pd.DataFrame:
+    """Mean, CVaR_beta, VaR_beta, std, P(risky), P(source j) of every theta, all on the same episode streams."""
+    from riskplan.rollout import simulate
+
+    world, kernel = setup.world, setup.kernel
+    key = np.uint64(rng.stream_key(seed, rng.LANDSCAPE))
+    start = world.starts[0]
+    m = tail_count(beta, episodes)
+    per_call = max(1, CHUNK_EPISODES // episodes)
+    parts = []
+    for first in range(0, len(thetas), per_call):
+        block = thetas[first:first + per_call]
+        p = len(block)
+        batch = simulate(world, kernel, block, np.full(p, start, dtype=np.int64), np.full(p, key, dtype=np.uint64),
+                         episodes)
+        z = batch.total_reward.reshape(p, episodes)
+        zs = np.sort(z, axis=1)
+        var = zs[:, m - 1]
+        cvar = var + np.minimum(zs - var[:, None], 0.0).sum(axis=1) / (beta * episodes)
+        reached = batch.source_reached.reshape(p, episodes)
+        part = {f"theta_{j}": block[:, j] for j in range(block.shape[1])}
+        part.update({
+            "mean": z.mean(axis=1),
+            "cvar": cvar,
+            "value_at_risk": var,
+            "std": z.std(axis=1),
+            "risky_fraction": (batch.risky_steps.reshape(p, episodes) > 0).mean(axis=1),
+            "mean_steps": batch.steps.reshape(p, episodes).mean(axis=1),
+        })
+        for j, name in enumerate(world.source_names):
+            part[f"reached_{name}"] = (reached == j).mean(axis=1)
+        part["reached_none"] = (reached < 0).mean(axis=1)
+        parts.append(pd.DataFrame(part))
+    return pd.concat(parts, ignore_index=True)
+
+
+def run_landscape(overrides: list[str], out_dir: Path, *, points: int = DEFAULT_POINTS,
+                  episodes: int = DEFAULT_EPISODES, ranges: tuple[tuple[float, float], ...] | None = None,
+                  axes: tuple[int, int] = (0, 1)) -> Path:
+    """Compose the config from overrides, evaluate the landscape and write it to out_dir (returned)."""
+    from riskplan.config import compose
+
+    cfg = compose(list(overrides))
+    return compute_landscape(cfg, out_dir, points=points, episodes=episodes, ranges=ranges, axes=axes,
+                             overrides=list(overrides))
+
+
+def compute_landscape(cfg, out_dir: Path, *, points: int = DEFAULT_POINTS, episodes: int = DEFAULT_EPISODES,
+                      ranges: tuple[tuple[float, float], ...] | None = None, axes: tuple[int, int] = (0, 1),
+                      overrides: list[str] | None = None) -> Path:
+    """Evaluate mean and CVaR on a points x points grid of (theta_a, theta_b) into a run-like directory."""
+    from omegaconf import OmegaConf
+
+    from riskplan.setup import build_setup
+    from riskplan.summary import provenance
+
+    setup = build_setup(cfg)
+    config = setup.config
+    sources = setup.world.sources
+    if sources < 2:
+        raise BadInput("world.sources", f"has {sources} source; the landscape needs at least 2 (one theta per axis)")
+    a, b = (int(axes[0]), int(axes[1]))
+    if not (0 <= a < sources and 0 <= b < sources and a != b):
+        raise BadInput("--axes", f"got {a},{b}; expected two different source indices in 0..{sources - 1}")
+    if points < 2:
+        raise BadInput("--points", f"got {points}; expected at least 2 grid points per axis")
+    if episodes < 1:
+        raise BadInput("--episodes", f"got {episodes}; expected at least 1 episode per grid point")
+    ranges = tuple(ranges) if ranges is not None else (DEFAULT_RANGE, DEFAULT_RANGE)
+    if len(ranges) != 2 or any(not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) for lo, hi in ranges):
+        raise BadInput("--range", f"got {ranges}; expected LO,HI (both axes) or LO,HI,LO,HI with LO < HI")
+    beta = float(config["risk"]["beta"])
+    seed = int(config["seed"])
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "status.json").unlink(missing_ok=True)
+    hydra_dir = out / ".hydra"
+    hydra_dir.mkdir(exist_ok=True)
+    (hydra_dir / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
+    (hydra_dir / "overrides.yaml").write_text(yaml.safe_dump(list(overrides or [])))
+
+    started = time.perf_counter()
+    thetas = grid_thetas(setup.theta0, (a, b), ranges, points)
+    table = evaluate_grid(setup, thetas, episodes, beta, seed)
+    seconds = time.perf_counter() - started
+    table.to_parquet(out / TABLE, index=False)
+    land = Landscape(out, config, table, {"axes": [a, b]})
+    summary = {
+        "kind": KIND,
+        "schema_version": SCHEMA_VERSION,
+        "experiment": config.get("experiment"),
+        "axes": [a, b],
+        "ranges": [list(r) for r in ranges],
+        "points": points,
+        "episodes": episodes,
+        "beta": beta,
+        "seed": seed,
+        "theta_fixed": setup.theta0.tolist(),
+        "common_random_numbers": True,
+        "best": {"mean": land.best("mean"), "cvar": land.best("cvar"), "value_at_risk": land.best("value_at_risk")},
+        "seconds": seconds,
+        "episodes_per_s": points * points * episodes / seconds if seconds > 0 else math.nan,
+        "provenance": provenance(),
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=True))
+    (out / "status.json").write_text(json.dumps({"status": "done", "error": None}, indent=2))
+    return out
