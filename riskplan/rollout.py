@@ -113,7 +113,7 @@ def simulate(
                  path_cells if record else None, path_rewards if record else None)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _draw(ops, params, first, last, stack, state):
     """Run one postfix reward program (riskplan.distributions) and return (value, state)."""
     top = 0
@@ -207,7 +207,7 @@ def _walk(src, motion, height, width, state):
     return state
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def _simulate(cum, score, thetas, starts, keys, episodes,
               next_cell, region_of, region_risky, reg_off, reg_ops, reg_par,
               src_off, src_ops, src_par, source_at, source_cells, motion, amplitude, precision,
@@ -224,6 +224,7 @@ def _simulate(cum, score, thetas, starts, keys, episodes,
         local_cum = np.empty(5)
         feats = np.empty((5, sources))
         expect = np.empty(sources)
+        acc = np.empty(sources)  # the episode's score, kept local: one store per episode, not per step
         for e in range(chunk * CHUNK, min(total, (chunk + 1) * CHUNK)):
             p = e // episodes
             state = episode_state(keys[p], e - p * episodes)
@@ -233,7 +234,7 @@ def _simulate(cum, score, thetas, starts, keys, episodes,
             reached = -1
             steps = 0
             for j in range(sources):
-                out_score[e, j] = 0.0
+                acc[j] = 0.0
                 src[j] = source_cells[j]
             if record:
                 path_cells[e, 0] = cell
@@ -251,13 +252,13 @@ def _simulate(cum, score, thetas, starts, keys, episodes,
                             expect[j] += (local_cum[b] - prev) * feats[b, j]
                         prev = local_cum[b]
                     for j in range(sources):
-                        out_score[e, j] += feats[a, j] - expect[j]
+                        acc[j] += feats[a, j] - expect[j]
                 else:
                     a = 0
                     while u > cum[p, cell, a]:
                         a += 1
                     for j in range(sources):
-                        out_score[e, j] += score[p, cell, a, j]
+                        acc[j] += score[p, cell, a, j]
                 cell = next_cell[cell, a]
                 steps += 1
                 reward = 0.0
@@ -287,6 +288,7 @@ def _simulate(cum, score, thetas, starts, keys, episodes,
                 if hit >= 0 and stop_at_source:
                     break
             out_z[e] = z
+            out_score[e, :] = acc
             out_risky[e] = risky
             out_reached[e] = reached
             out_steps[e] = steps
