@@ -14,27 +14,23 @@ def move_features(world: World, signals: np.ndarray | None = None) -> np.ndarray
 
 
 def probabilities(features: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """mu_theta(u | x) for every cell, shape (C, 5); stable for any finite theta (max-shifted logits)."""
-    logits = features @ theta
-    logits = logits - logits.max(axis=-1, keepdims=True)
+    """mu_theta(u | x) for every cell, shape (..., C, 5) for theta (..., M); stable for any finite theta."""
+    logits = np.einsum("cam,...m->...ca", features, np.asarray(theta, dtype=float))
+    logits = logits - logits.max(axis=-1, keepdims=True)  # max-shift: no overflow for large theta
     weights = np.exp(logits)
     return weights / weights.sum(axis=-1, keepdims=True)
 
 
 def scores(features: np.ndarray, probs: np.ndarray) -> np.ndarray:
-    """d log mu(u|x) / d theta_j = s^j(x+u) - sum_v mu(v|x) s^j(x+v), shape (C, 5, M)."""
-    expected = np.einsum("ca,cam->cm", probs, features)
-    return features - expected[:, None, :]
+    """d log mu(u|x) / d theta_j = s^j(x+u) - sum_v mu(v|x) s^j(x+v), shape (..., C, 5, M)."""
+    expected = np.einsum("...ca,cam->...cm", probs, features)
+    return features - expected[..., None, :]
 
 
 def tables(world: World, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-policy cumulative move probabilities (P, C, 5) and scores (P, C, 5, M) for thetas (P, M)."""
     features = move_features(world)
-    cum = np.empty((len(thetas), world.cells, 5))
-    score = np.empty((len(thetas), world.cells, 5, world.sources))
-    for p, theta in enumerate(thetas):
-        probs = probabilities(features, np.asarray(theta, dtype=float))
-        cum[p] = np.cumsum(probs, axis=-1)
-        cum[p, :, -1] = 1.0  # guard the last bin against round-off so a uniform draw always lands
-        score[p] = scores(features, probs)
-    return cum, score
+    probs = probabilities(features, thetas)
+    cum = np.cumsum(probs, axis=-1)
+    cum[..., -1] = 1.0  # guard the last bin against round-off so a uniform draw always lands
+    return cum, scores(features, probs)

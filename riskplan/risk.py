@@ -25,38 +25,42 @@ def tail_count(beta: float, n: int) -> int:
     return int(min(max(m, 1), n))
 
 
-def value_at_risk(z: np.ndarray, beta: float) -> float:
-    """beta-VaR (eq. 5/8): the ceil(beta W)-th smallest sample."""
+def value_at_risk(z: np.ndarray, beta: float) -> np.ndarray | float:
+    """beta-VaR (eq. 5/8): the ceil(beta W)-th smallest sample, along the last axis."""
     z = np.asarray(z, dtype=float)
-    m = tail_count(beta, z.size)
-    return float(np.partition(z, m - 1)[m - 1])
+    m = tail_count(beta, z.shape[-1])
+    return np.partition(z, m - 1, axis=-1)[..., m - 1]
 
 
-def cvar(z: np.ndarray, beta: float) -> float:
-    """beta-CVaR, Rockafellar-Uryasev form at the empirical quantile; cvar(z, 1) == mean(z)."""
+def cvar(z: np.ndarray, beta: float) -> np.ndarray | float:
+    """beta-CVaR, Rockafellar-Uryasev form at the empirical quantile (last axis); cvar(z, 1) == mean(z)."""
     z = np.asarray(z, dtype=float)
     v = value_at_risk(z, beta)
-    tail = np.minimum(z - v, 0.0)
-    return float(v + tail.sum() / (beta * z.size))
+    return v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1])
 
 
 def cvar_gradient(z: np.ndarray, scores: np.ndarray, beta: float) -> np.ndarray:
-    """Eq. (9): (1 / (beta W)) sum_i score_i (z_i - v) 1{z_i <= v}; z (W,), scores (W, M) -> (M,)."""
+    """Eq. (9): (1 / (beta W)) sum_i score_i (z_i - v) 1{z_i <= v}; z (..., W), scores (..., W, M) -> (..., M)."""
     z = np.asarray(z, dtype=float)
-    v = value_at_risk(z, beta)
-    weight = np.minimum(z - v, 0.0)  # (z - v) 1{z <= v}
-    return weight @ np.asarray(scores, dtype=float) / (beta * z.size)
+    weights = _tail_weights(z, value_at_risk(z, beta))
+    return np.einsum("...w,...wm->...m", weights, np.asarray(scores, dtype=float)) / (beta * z.shape[-1])
 
 
 def mean_gradient(z: np.ndarray, scores: np.ndarray, baseline: bool = True) -> np.ndarray:
     """REINFORCE estimate of grad E[Z] (eq. 4): mean of score_i (z_i - b), b = mean(z) by default, else 0."""
     z = np.asarray(z, dtype=float)
-    centred = z - z.mean() if baseline else z
-    return centred @ np.asarray(scores, dtype=float) / z.size
+    centred = z - z.mean(axis=-1, keepdims=True) if baseline else z
+    return np.einsum("...w,...wm->...m", centred, np.asarray(scores, dtype=float)) / z.shape[-1]
 
 
-def summary_stats(z: np.ndarray, beta: float) -> dict[str, float]:
-    """mean, cvar, value_at_risk at beta and std of a sample (one sort)."""
+def summary_stats(z: np.ndarray, beta: float) -> dict[str, np.ndarray | float]:
+    """mean, cvar, value_at_risk at beta and std along the last axis, with one partition."""
     z = np.asarray(z, dtype=float)
-    return {"mean": float(z.mean()), "cvar": cvar(z, beta), "value_at_risk": value_at_risk(z, beta),
-            "std": float(z.std())}
+    v = value_at_risk(z, beta)
+    return {"mean": z.mean(axis=-1), "cvar": v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1]),
+            "value_at_risk": v, "std": z.std(axis=-1)}
+
+
+def _tail_weights(z: np.ndarray, v: np.ndarray | float) -> np.ndarray:
+    """(z_i - v) 1{z_i <= v}, broadcasting v over the last axis."""
+    return np.minimum(z - np.expand_dims(v, -1), 0.0)

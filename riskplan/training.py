@@ -62,9 +62,9 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
     z = batch.total_reward.reshape(n, episodes)
     scores = batch.score.reshape(n, episodes, -1)
     if cfg["risk"]["measure"] == "cvar":
-        grads = np.stack([cvar_gradient(z[i], scores[i], beta) for i in range(n)])
+        grads = cvar_gradient(z, scores, beta)
     else:
-        grads = np.stack([mean_gradient(z[i], scores[i], cfg["train"]["baseline"]) for i in range(n)])
+        grads = mean_gradient(z, scores, cfg["train"]["baseline"])
     eps = step_size(l, cfg["train"]["step_size"])
     mixed = thetas
     for round_index in range(cfg["team"]["consensus_rounds"] if setup.team else 0):
@@ -75,10 +75,12 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
                                f"gradient={grads.tolist()}); lower train.step_size.initial")
     error = consensus_error(thetas) if setup.team else math.nan
     seconds = time.perf_counter() - started
-    rows = [_row(l, i, z[i], thetas[i], grads[i], eps, error, episodes, seconds, beta) for i in range(n)]
+    stats = summary_stats(z, beta)
+    rows = [_row(l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, episodes, seconds)
+            for i in range(n)]
     if setup.team:
-        rows.append(_row(l, AVERAGE, z.ravel(), thetas.mean(axis=0), grads.mean(axis=0), eps, error,
-                         episodes * n, seconds, beta))
+        rows.append(_row(l, AVERAGE, summary_stats(z.ravel(), beta), thetas.mean(axis=0), grads.mean(axis=0), eps,
+                         error, episodes * n, seconds))
     return State(l + 1, new_thetas, setup.mixer.state(), state.rows + rows), rows
 
 
@@ -198,7 +200,7 @@ def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.
     per_policy = {}
     for robot, group in evaluation.groupby("robot"):
         per_policy[str(robot)] = {
-            **summary_stats(group.total_reward.to_numpy(), cfg["risk"]["beta"]),
+            **{k: float(v) for k, v in summary_stats(group.total_reward.to_numpy(), cfg["risk"]["beta"]).items()},
             "risky_fraction": float((group.risky_steps > 0).mean()),
             "source_reached": {name: float((group.source_reached == j).mean())
                                for j, name in enumerate(setup.world.source_names)} | {
@@ -262,9 +264,9 @@ def load_checkpoint(out: Path, setup: Setup) -> State:
     return State(payload["iteration"], thetas, mixer, payload["rows"])
 
 
-def _row(l, robot, z, theta, grad, eps, error, samples, seconds, beta) -> dict:
+def _row(l, robot, stats, theta, grad, eps, error, samples, seconds) -> dict:
     """One metrics.parquet row."""
-    return {"iteration": l, "robot": robot, **summary_stats(z, beta),
+    return {"iteration": l, "robot": robot, **{k: float(v) for k, v in stats.items()},
             **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
             "grad_norm": float(np.linalg.norm(grad)), "step_size": eps, "consensus_error": error,
             "samples": int(samples), "seconds": seconds}
