@@ -193,6 +193,9 @@ def _quote(path: Path) -> str:
     return "'" + str(path).replace("\\", "\\\\").replace("'", "\\'") + "'"
 
 
+from riskplan.report.cli import register as _register_report; _register_report(app)
+
+
 def main() -> None:
     """Entry point for `python -m riskplan`."""
     app(prog_name="riskplan")

@@ -1,0 +1,122 @@
+"""`riskplan report` and `riskplan landscape`, registered on the main typer app by riskplan.cli."""
+
+from __future__ import annotations
+
+import datetime as dt
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from riskplan.errors import BadInput
+
+REPRODUCE_ROOT = Path("outputs") / "reproduce"
+REPORTS_ROOT = Path("outputs") / "reports"
+LANDSCAPES_ROOT = Path("outputs") / "landscapes"
+
+
+def latest_reproduction(root: Path = REPRODUCE_ROOT) -> Path:
+    """The newest folder in outputs/reproduce/ (names are timestamps; ties broken by modification time)."""
+    folders = [p for p in root.iterdir() if p.is_dir()] if root.is_dir() else []
+    if not folders:
+        raise BadInput(str(root), "holds no reproduction; run `riskplan reproduce` first or give run or sweep "
+                                  "directories: riskplan report DIR...")
+    return max(folders, key=lambda p: (p.name, p.stat().st_mtime))
+
+
+def default_out(paths: list[Path]) -> Path:
+    """<path>/report for one input path, else outputs/reports/<timestamp>/."""
+    if len(paths) == 1:
+        return paths[0] / "report"
+    return REPORTS_ROOT / dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+
+
+def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
+    """'a,b,...' -> floats, with one of the allowed counts."""
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        values = []
+    if len(values) not in counts:
+        raise BadInput(where, f"got '{text}'; expected {' or '.join(str(c) for c in counts)} comma-separated numbers")
+    return values
+
+
+def register(app: typer.Typer) -> None:
+    """Add `report` and `landscape` to the riskplan app."""
+    from riskplan.cli import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits
+
+    @app.command()
+    @bad_input_exits
+    def report(
+        paths: Optional[List[Path]] = typer.Argument(
+            None, help="Run, sweep, reproduce or landscape directories (searched recursively). "
+                       "Default: the newest folder in outputs/reproduce/.", show_default=False),
+        out: Optional[Path] = typer.Option(
+            None, "--out", help="Where to write report.html, report.csv, runs.csv and the figures. Default: "
+                                "DIR/report for one input DIR, else outputs/reports/<timestamp>/.", metavar="DIR"),
+        formats: str = typer.Option("png,pdf", "--format", help="Figure files to write: any of png,pdf,svg."),
+    ) -> None:
+        """Figures (the paper's Figs. 1-4 and more), tables and a self-contained report.html from finished runs."""
+        from riskplan.report import check_formats, write_report
+
+        fmts = check_formats(formats)
+        inputs = list(paths) if paths else [latest_reproduction()]
+        target = out or default_out(inputs)
+        result = write_report(inputs, target, fmts)
+        coll = result.collection
+        for broken in coll.broken:
+            typer.echo(f"skipped {broken.path}: {broken.reason}", err=True)
+        rebuilt = [r for r in coll.runs if r.rebuilt]
+        for r in rebuilt:
+            typer.echo(f"rebuilt tables of {r.path} from run.mcap")
+        typer.echo(f"{len(coll.runs)} run(s) in {len(coll.groups)} group(s), {len(coll.landscapes)} landscape(s), "
+                   f"{len(coll.broken)} skipped; {len(result.figures)} figures")
+        typer.echo(f"report: {result.page}")
+
+    @app.command(context_settings=PASS_THROUGH)
+    @bad_input_exits
+    def landscape(
+        overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_HELP, show_default=False),
+        out: Optional[Path] = typer.Option(
+            None, "--out", help="Output directory. Default: outputs/landscapes/<timestamp>_<experiment>/.",
+            metavar="DIR"),
+        points: int = typer.Option(41, "--points", help="Grid points per axis."),
+        episodes: int = typer.Option(4000, "--episodes", help="Episodes per grid point (the same streams at "
+                                                               "every point: common random numbers)."),
+        theta_range: str = typer.Option("-20,60", "--range", help="LO,HI for both axes, or LO,HI,LO,HI. Write "
+                                                                  "--range=-20,60 when LO is negative."),
+        axes: str = typer.Option("0,1", "--axes", help="The two theta components to vary; the others stay at "
+                                                        "train.theta0."),
+    ) -> None:
+        """Evaluate mean and CVaR of the total reward on a grid of theta (common random numbers, seeded)."""
+        from riskplan.config import compose
+        from riskplan.report.landscape import compute_landscape
+
+        args = list(overrides or [])
+        cfg = compose(args)
+        bounds = parse_floats(theta_range, "--range", (2, 4))
+        ranges = ((bounds[0], bounds[1]), (bounds[-2], bounds[-1]))
+        pair = parse_floats(axes, "--axes", (2,))
+        if any(v != int(v) for v in pair):
+            raise BadInput("--axes", f"got '{axes}'; expected two whole source indices, e.g. 0,1")
+        if points < 2 or points > 1001:
+            raise BadInput("--points", f"got {points}; expected 2..1001 grid points per axis")
+        if episodes < 1:
+            raise BadInput("--episodes", f"got {episodes}; expected at least 1 episode per grid point")
+        target = out or LANDSCAPES_ROOT / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}_{cfg.experiment}"
+        typer.echo(f"landscape directory: {target}")
+        path = compute_landscape(cfg, target, points=points, episodes=episodes, ranges=ranges,
+                                 axes=(int(pair[0]), int(pair[1])), overrides=args)
+        import json
+
+        s = json.loads((path / "summary.json").read_text())
+        best = s["best"]
+
+        def at(name: str) -> str:
+            theta = ", ".join(f"{t:g}" for t in best[name]["theta"])
+            return f"{best[name]['value']:.1f} at theta=({theta})"
+
+        typer.echo(f"{points}x{points} grid x {episodes} episodes in {s['seconds']:.2f} s "
+                   f"({s['episodes_per_s'] / 1e6:.2f} M episodes/s): max mean {at('mean')}; "
+                   f"max CVaR_{s['beta']:g} {at('cvar')} -> {path}")

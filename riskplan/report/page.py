@@ -1,0 +1,186 @@
+"""report.html: one self-contained page (inline CSS, figures embedded as data: URIs, no scripts, no network)."""
+
+from __future__ import annotations
+
+import base64
+import datetime as dt
+import html
+import math
+from pathlib import Path
+
+import pandas as pd
+
+from riskplan import __version__
+from riskplan.report.collect import Collection
+from riskplan.report.figures import FigureSpec
+
+CSS = """
+body { font-family: "DejaVu Sans", Helvetica, Arial, sans-serif; margin: 2em auto; max-width: 1100px;
+       color: #222; line-height: 1.45; padding: 0 1em; }
+h1 { font-size: 1.6em; margin-bottom: 0.2em; } h2 { font-size: 1.25em; margin-top: 2em;
+     border-bottom: 1px solid #ddd; padding-bottom: 0.2em; }
+.meta { color: #666; font-size: 0.9em; }
+table { border-collapse: collapse; font-size: 0.85em; margin: 0.8em 0; }
+th, td { border: 1px solid #ddd; padding: 0.25em 0.55em; text-align: left; vertical-align: top; }
+th { background: #f4f4f4; } td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
+figure { margin: 1.5em 0; } figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
+figcaption { font-size: 0.9em; color: #444; max-width: 900px; }
+.skipped { color: #a33; } .note { color: #666; font-size: 0.9em; }
+.swatch { display: inline-block; width: 0.9em; height: 0.9em; border-radius: 2px; margin-right: 0.4em;
+          vertical-align: -0.1em; }
+"""
+
+
+def _esc(value) -> str:
+    return html.escape("" if value is None else str(value))
+
+
+def _num(value, digits: int = 1) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    if isinstance(value, float):
+        return f"{value:,.{digits}f}"
+    return _esc(value)
+
+
+def _interval(row: pd.Series, name: str, percent: bool = False) -> str:
+    value, low, high = row.get(name), row.get(f"{name}_low"), row.get(f"{name}_high")
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    if percent:
+        text = f"{100 * value:.1f}%"
+        if low is not None and not math.isnan(low):
+            text += f" [{100 * low:.1f}, {100 * high:.1f}]"
+        return text
+    text = f"{value:,.1f}"
+    if low is not None and not math.isnan(low):
+        text += f" [{low:,.1f}, {high:,.1f}]"
+    return text
+
+
+def _table(head: list[str], rows: list[list[str]], numeric: set[int] = frozenset()) -> str:
+    out = ["<table>", "<tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"]
+    for row in rows:
+        cells = "".join(f'<td class="num">{c}</td>' if i in numeric else f"<td>{c}</td>" for i, c in enumerate(row))
+        out.append(f"<tr>{cells}</tr>")
+    out.append("</table>")
+    return "\n".join(out)
+
+
+def configs_section(coll: Collection) -> str:
+    """The groups and the config keys that differ between them."""
+    if not coll.groups:
+        return "<p>No usable runs.</p>"
+    keys = coll.differing
+    head = ["group", "seeds"] + [f"<code>{_esc(k)}</code>" for k in keys]
+    rows = []
+    for g in coll.groups:
+        swatch = f'<span class="swatch" style="background:{g.color}"></span>'
+        rows.append([swatch + _esc(g.label), _esc(", ".join(str(s) for s in g.seeds))]
+                    + [_esc(g.settings.get(k)) for k in keys])
+    text = ("<p>Runs are grouped by every config key except <code>seed</code>; the seeds of a group are pooled "
+            "(curves: across-seed mean with a 95% band).</p>")
+    if not keys:
+        c = coll.groups[0].config
+        text += (f"<p>All runs share one configuration: experiment <code>{_esc(c.get('experiment'))}</code>, "
+                 f"risk <code>{_esc(c.get('risk'))}</code>, team.robots={_esc(c.get('team', {}).get('robots'))}, "
+                 f"train.iterations={_esc(c.get('train', {}).get('iterations'))}, "
+                 f"train.samples={_esc(c.get('train', {}).get('samples'))}.</p>")
+    return text + _table(head, rows)
+
+
+def comparison_section(table: pd.DataFrame) -> str:
+    """report.csv as a table with intervals."""
+    if table.empty:
+        return "<p>No usable runs.</p>"
+    reached = [c for c in table.columns if c.startswith("reached_") and not c.endswith(("_low", "_high"))]
+    head = ["group", "policy", "β", "seeds", "mean", "CVaR<sub>β</sub>", "VaR<sub>β</sub>", "P(risky)"] + [
+        f"P(reach {_esc(c[len('reached_'):])})" for c in reached]
+    rows = []
+    for _, row in table.iterrows():
+        rows.append([_esc(row["group"]), _esc(row["policy"]), f"{row['beta']:g}", _esc(row["seeds"]),
+                     _interval(row, "mean"), _interval(row, "cvar"), _interval(row, "value_at_risk"),
+                     _interval(row, "risky_fraction", True)] + [_interval(row, c, True) for c in reached])
+    methods = sorted(set(table["interval"]))
+    note = (f'<p class="note">Final policies on their evaluation episodes (team runs: the network average θ̄). '
+            f'Brackets: {"; ".join(_esc(m) for m in methods)}. P(risky): share of episodes with at least one step '
+            f'in a risky region. The same numbers, unrounded, are in <code>report.csv</code>.</p>')
+    return _table(head, rows, numeric=set(range(2, len(head)))) + note
+
+
+def landscape_section(table: pd.DataFrame) -> str:
+    if table.empty:
+        return ""
+    head = ["landscape", "β", "grid", "max mean at θ", "max CVaR at θ", "group", "objective", "final θ",
+            "distance to optimum", "objective at final θ", "gap to grid max"]
+    rows = []
+    for _, r in table.iterrows():
+        rows.append([_esc(Path(r["landscape"]).name), f"{r['beta']:g}",
+                     f"{_esc(r.get('points'))}² × {_esc(r.get('episodes'))}",
+                     f"{_esc(r['best_mean_theta'])}: {_num(r['best_mean'])}",
+                     f"{_esc(r['best_cvar_theta'])}: {_num(r['best_cvar'])}",
+                     _esc(r.get("group", "–")), _esc(r.get("objective", "–")), _esc(r.get("final_theta", "–")),
+                     _num(r.get("distance_to_optimum")), _num(r.get("landscape_at_final")),
+                     _num(r.get("gap_to_optimum"))])
+    return ("<h2>Landscape optima</h2>" + _table(head, rows, numeric={8, 9, 10})
+            + '<p class="note">Objective: CVaR for risk-averse groups, mean for risk-neutral ones, as evaluated on '
+              'the landscape grid; distance is Euclidean in θ between the across-seed mean final θ and the grid '
+              'maximum; the gap is the grid maximum minus the grid value nearest the final θ.</p>')
+
+
+def runs_section(runs: pd.DataFrame) -> str:
+    head = ["run directory", "status", "group", "seed", "note / reason", "mean", "CVaR", "final θ"]
+    rows = []
+    for _, r in runs.iterrows():
+        status = _esc(r["status"])
+        if r["status"] == "skipped":
+            status = f'<span class="skipped">{status}</span>'
+        rows.append([f"<code>{_esc(r['path'])}</code>", status, _esc(r.get("group") or ""),
+                     _esc("" if pd.isna(r.get("seed")) else int(r["seed"])), _esc(r.get("note") or ""),
+                     _num(r.get("mean")), _num(r.get("cvar")), _esc(r.get("theta_final") or "")])
+    return _table(head, rows, numeric={5, 6})
+
+
+def figure_html(spec: FigureSpec, files: dict) -> str:
+    data = base64.b64encode(files["png_bytes"]).decode("ascii")
+    links = " · ".join(f'<a href="{_esc(name)}">{_esc(fmt.upper())}</a>' for fmt, name in files.items()
+                       if fmt != "png_bytes")
+    return (f'<figure id="{_esc(spec.name)}"><img src="data:image/png;base64,{data}" alt="{_esc(spec.title)}">'
+            f"<figcaption><b>{_esc(spec.title)}.</b> {_esc(spec.caption)}"
+            + (f" <span class=\"note\">Files: {links}.</span>" if links else "") + "</figcaption></figure>")
+
+
+def render(coll: Collection, figures: list[tuple[FigureSpec, dict]], skipped: dict[str, str],
+           comparison: pd.DataFrame, runs: pd.DataFrame, landscapes: pd.DataFrame) -> str:
+    """The whole page."""
+    now = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    inputs = ", ".join(f"<code>{_esc(p)}</code>" for p in coll.inputs)
+    counts = (f"{len(coll.runs)} run(s) in {len(coll.groups)} group(s), {len(coll.landscapes)} landscape(s), "
+              f"{len(coll.broken)} skipped")
+    paper = [f for f in figures if f[0].name.startswith("fig")]
+    extra = [f for f in figures if not f[0].name.startswith("fig")]
+    parts = [
+        "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        "<title>riskplan report</title>", f"<style>{CSS}</style></head><body>",
+        "<h1>riskplan report</h1>",
+        f'<p class="meta">riskplan {_esc(__version__)} · generated {now} · from {inputs} · {counts}</p>',
+    ]
+    if coll.broken:
+        items = "".join(f"<li><code>{_esc(b.path)}</code>: {_esc(b.reason)}</li>" for b in coll.broken)
+        parts.append(f'<p class="skipped"><b>Skipped {len(coll.broken)} broken or partial run(s):</b></p>'
+                     f"<ul>{items}</ul>")
+    parts += ["<h2>Configurations that differ</h2>", configs_section(coll),
+              "<h2>Final policies</h2>", comparison_section(comparison)]
+    if paper:
+        parts.append("<h2>The paper's figures (Section V)</h2>")
+        parts += [figure_html(spec, files) for spec, files in paper]
+    if extra:
+        parts.append("<h2>Beyond the paper</h2>")
+        parts += [figure_html(spec, files) for spec, files in extra]
+    parts.append(landscape_section(landscapes))
+    if skipped:
+        items = "".join(f"<li><b>{_esc(k)}</b>: {_esc(v)}</li>" for k, v in skipped.items())
+        parts.append(f'<h2>Figures not drawn</h2><ul class="note">{items}</ul>')
+    parts += ["<h2>Runs</h2>", runs_section(runs), "</body></html>"]
+    return "\n".join(parts)
