@@ -194,6 +194,7 @@ def _quote(path: Path) -> str:
 
 
 from riskplan.report.cli import register as _register_report; _register_report(app)
+from riskplan.bench import register as _register_bench; _register_bench(app)
 
 
 def main() -> None:

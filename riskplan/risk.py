@@ -29,7 +29,7 @@ def value_at_risk(z: np.ndarray, beta: float) -> np.ndarray | float:
     """beta-VaR (eq. 5/8): the ceil(beta W)-th smallest sample, along the last axis."""
     z = np.asarray(z, dtype=float)
     m = tail_count(beta, z.shape[-1])
-    return np.partition(z, m - 1, axis=-1)[..., m - 1]
+    return np.partition(z, m - 1, axis=-1)[..., m - 1][()]  # [()] gives a scalar for 1-D input
 
 
 def cvar(z: np.ndarray, beta: float) -> np.ndarray | float:
