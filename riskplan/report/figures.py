@@ -18,6 +18,7 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
 
 from riskplan.report.collect import Collection, Group, RunInfo, theta_columns
 from riskplan.report.stats import band, ecdf
@@ -64,6 +65,15 @@ def _figure(width: float, height: float, ncols: int = 1, nrows: int = 1, **kw) -
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, squeeze=False, **kw)
     return fig, axes
+
+
+def risk_name(g: Group) -> str:
+    """'risk-neutral' or 'risk-averse (CVaR β=0.1)': the legend of Figs. 1-2 whatever else differs."""
+    return "risk-neutral" if g.measure == "neutral" else f"risk-averse (CVaR β={g.beta:g})"
+
+
+def _iterations(ax) -> None:
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
 
 
 def _seeds(runs: list[RunInfo]) -> str:
@@ -159,10 +169,10 @@ def fig_paths(coll: Collection) -> FigureSpec | str:
             jitter = shift + (k - (len(episodes) - 1) / 2) * 0.05
             x, y = p.x.to_numpy(float) + jitter, p.y.to_numpy(float) + jitter
             ax.plot(x, y, "-", color=g.color, lw=1.3, alpha=0.85, zorder=3,
-                    label=f"{g.label}" if k == 0 else f"_{g.label} {ep}")
-            ax.plot(x[-1:], y[-1:], ls="none", marker="s", ms=6.5, color=g.color, mec="white", mew=0.8, zorder=4,
+                    label=risk_name(g) if k == 0 else f"_{g.label} {ep}")
+            ax.plot(x[-1:], y[-1:], ls="none", marker="s", ms=6, color=g.color, mec="white", mew=0.8, zorder=7,
                     label=f"_end {g.label} {ep}")
-        handles.append(Line2D([], [], color=g.color, lw=1.6, label=f"{g.label} (seed {run.seed})"))
+        handles.append(Line2D([], [], color=g.color, lw=1.6, label=f"{risk_name(g)}, seed {run.seed}"))
     handles += [Line2D([], [], ls="none", marker="s", ms=6, color="#555555", label="end point"),
                 Line2D([], [], ls="none", marker="*", ms=12, color=SOURCE_COLOUR, mec="black", label="source"),
                 Line2D([], [], ls="none", marker="o", ms=7, mfc="white", mec="black", label="start"),
@@ -184,10 +194,11 @@ def fig_cvar(coll: Collection) -> FigureSpec | str:
     fig, axes = _figure(4.6, 3.2)
     ax = axes[0, 0]
     for g in groups:
-        plot_band(ax, curve_table(g.runs, "cvar"), g.color, g.label + _seeds(g.runs))
+        plot_band(ax, curve_table(g.runs, "cvar"), g.color, risk_name(g) + _seeds(g.runs))
     betas = {g.beta for g in groups}
     level = f"{betas.pop():g}" if len(betas) == 1 else "\\beta"
     ax.set_xlabel("iteration")
+    _iterations(ax)
     ax.set_ylabel(f"CVaR$_{{{level}}}$ of total reward")
     ax.legend(loc="best")
     missing = "" if len(groups) == 2 else " (only one of the two policies is among these runs)"
@@ -209,6 +220,7 @@ def fig_team(coll: Collection) -> FigureSpec | str:
         plot_band(ax, curve_table(g.runs, "mean"), g.color, f"{name}: mean{_seeds(g.runs)}", "-")
         plot_band(ax, curve_table(g.runs, "cvar"), g.color, f"{name}: CVaR{_seeds(g.runs)}", "--")
     ax.set_xlabel("iteration")
+    _iterations(ax)
     ax.set_ylabel("total reward")
     ax.legend(loc="best", ncols=1)
     beta = teams[0].beta
@@ -237,6 +249,7 @@ def fig_consensus(coll: Collection) -> FigureSpec | str:
         return "the team runs log no positive consensus error"
     ax.set_yscale("log")
     ax.set_xlabel("iteration")
+    _iterations(ax)
     ax.set_ylabel(r"consensus error $\max_{i,j}\,\|\theta^i-\theta^j\|$")
     ax.legend(loc="best")
     return FigureSpec("fig4_consensus", "Fig. 4 — consensus error",
@@ -352,9 +365,11 @@ def fig_thetas(coll: Collection) -> FigureSpec | str:
                           f"robot {robot}", "-")
             plot_band(ax, curve_table(g.runs, col, -1), "#000000", "network average", "--")
             ax.set_ylabel(rf"$\theta_{{{col[6:]}}}$")
-            ax.set_title(f"{g.label}{_seeds(g.runs)}" if len(teams) > 1 else f"component {col[6:]}")
+            ax.set_title(f"{g.label}{_seeds(g.runs)}" if len(teams) > 1 else f"weight of source {int(col[6:]) + 1}")
             if row == len(teams) - 1:
                 ax.set_xlabel("iteration")
+                _iterations(ax)
+    _iterations(ax)
     axes[0, 0].legend(loc="best")
     return FigureSpec("team_thetas", "Per-robot parameters of the team runs",
                       "Each robot's θ^i (solid) and the network average (dashed, black) per iteration; consensus "
@@ -398,7 +413,7 @@ def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
         ax.set_xlabel(rf"$\theta_{{{a}}}$ (weight of source {a + 1})")
         ax.set_ylabel(rf"$\theta_{{{b}}}$ (weight of source {b + 1})")
         ax.grid(False)
-        ax.set_title(name[0].upper() + name[1:])
+        ax.set_title("(a) mean" if column == "mean" else "(b) CVaR")
     handles = [Line2D([], [], ls="none", marker="*", ms=11, color="white", mec="black", label="grid maximum"),
                Line2D([], [], ls="none", marker="o", ms=5, mfc="white", mec="black", label="θ0 (start)"),
                Line2D([], [], ls="none", marker="s", ms=5, color="#555555", label="final θ")]

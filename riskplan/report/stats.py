@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pandas as pd
@@ -46,7 +47,8 @@ def band(table: pd.DataFrame, log: bool = False) -> pd.DataFrame:
         values = np.where(values > 0, values, np.nan)
         values = np.log10(values)
     n = np.sum(np.isfinite(values), axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         mean = np.nanmean(np.where(np.isfinite(values), values, np.nan), axis=1) if values.size else np.array([])
         sd = np.nanstd(values, axis=1, ddof=1) if values.shape[1] > 1 else np.full(len(values), np.nan)
     half = np.array([t975(int(k) - 1) if k > 1 else math.nan for k in n]) * sd / np.sqrt(np.maximum(n, 1))
@@ -65,7 +67,9 @@ def wilson(successes: float, n: int) -> tuple[float, float]:
     denom = 1 + z * z / n
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
+    low = 0.0 if successes <= 0 else max(0.0, centre - half)
+    high = 1.0 if successes >= n else min(1.0, centre + half)
+    return low, high
 
 
 def ecdf(z) -> tuple[np.ndarray, np.ndarray]:
