@@ -6,6 +6,7 @@ import datetime as dt
 import functools
 import json
 import sys
+import warnings
 from pathlib import Path
 from typing import List, Optional
 
@@ -19,6 +20,7 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+warnings.formatwarning = lambda message, *args, **kwargs: f"warning: {message}\n"  # one plain line, no path
 PASS_THROUGH = {"allow_extra_args": True, "ignore_unknown_options": True}
 HYDRA_FLAGS = {"--cfg", "-c", "--package", "-p", "--resolve", "--info", "-i"}
 OVERRIDES_HELP = ("Hydra overrides, e.g. risk=neutral risk.beta=0.2 train.samples=2000 world.size=[16,16] "

@@ -1,0 +1,116 @@
+"""`riskplan train` and `riskplan check` through the real CLI: files, columns, introspection, help."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from riskplan.cli import app
+from riskplan.record import read_log
+
+runner = CliRunner()
+METRICS = ["iteration", "robot", "mean", "cvar", "value_at_risk", "std", "theta_0", "theta_1", "grad_norm",
+           "step_size", "consensus_error", "samples", "seconds"]
+EVAL = ["episode", "robot", "total_reward", "risky_steps", "source_reached", "steps"]
+TRAJECTORIES = ["policy", "episode", "robot", "step", "x", "y", "reward"]
+
+
+@pytest.fixture
+def in_tmp(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def only_run(root: Path) -> Path:
+    (run,) = list((root / "outputs" / "runs").iterdir())
+    return run
+
+
+def test_train_writes_every_contract_file(in_tmp, fast_overrides):
+    result = runner.invoke(app, ["train", *fast_overrides, "risk=neutral", "seed=3"])
+    assert result.exit_code == 0, result.output
+    run = only_run(in_tmp)
+    assert run.name.endswith("_paper_single")
+    assert f"run directory: {Path('outputs/runs') / run.name}" in result.output
+    assert "risk=neutral" in result.output and "CVaR" in result.output  # the one-line summary
+    for name in (".hydra/config.yaml", ".hydra/overrides.yaml", "run.mcap", "metrics.parquet", "eval.parquet",
+                 "trajectories.parquet", "summary.json", "checkpoint"):
+        assert (run / name).is_file(), name
+    assert yaml.safe_load((run / ".hydra/overrides.yaml").read_text())[-2:] == ["risk=neutral", "seed=3"]
+    metrics = pd.read_parquet(run / "metrics.parquet")
+    assert list(metrics.columns) == METRICS
+    assert list(metrics.iteration) == list(range(5)) and set(metrics.robot) == {0}
+    assert list(pd.read_parquet(run / "eval.parquet").columns) == EVAL
+    trajectories = pd.read_parquet(run / "trajectories.parquet")
+    assert list(trajectories.columns) == TRAJECTORIES
+    assert set(trajectories.policy) == {"initial", "final"}
+    summary = json.loads((run / "summary.json").read_text())
+    for name in ("mean", "cvar", "value_at_risk", "cvar_0.05", "cvar_0.1", "cvar_0.2"):
+        assert summary[name]["low"] <= summary[name]["value"] <= summary[name]["high"], name
+    assert summary["schema_version"] == 1 and summary["provenance"]["riskplan"]
+    log = read_log(run / "run.mcap")
+    assert log.complete and log.metadata["config"]["risk"]["measure"] == "neutral"
+    pd.testing.assert_frame_equal(log.metrics, metrics)
+    pd.testing.assert_frame_equal(log.eval, pd.read_parquet(run / "eval.parquet"))
+
+
+def test_team_run_has_per_robot_and_average_rows(in_tmp, fast_overrides):
+    result = runner.invoke(app, ["train", "experiment=paper_team", *fast_overrides])
+    assert result.exit_code == 0, result.output
+    run = only_run(in_tmp)
+    metrics = pd.read_parquet(run / "metrics.parquet")
+    assert set(metrics.robot) == {-1, 0, 1, 2}
+    per_iteration = metrics.groupby("iteration").consensus_error.nunique()
+    assert (per_iteration == 1).all()  # repeated on every row of an iteration
+    average = metrics[metrics.robot == -1].set_index("iteration")
+    robots = metrics[metrics.robot >= 0].groupby("iteration")
+    pd.testing.assert_series_equal(average.theta_0, robots.theta_0.mean(), check_names=False)
+    assert (average.samples == 3 * 500).all()
+    assert set(pd.read_parquet(run / "eval.parquet").robot) == {-1, 0, 1, 2}
+    log = read_log(run / "run.mcap")
+    assert log.metadata["network"]["edges"] and log.metadata["network"]["robots"] == 3
+
+
+def test_explicit_run_dir_and_same_second_runs_do_not_collide(in_tmp, fast_overrides):
+    result = runner.invoke(app, ["train", *fast_overrides, "hydra.run.dir=mine"])
+    assert result.exit_code == 0, result.output
+    assert (in_tmp / "mine" / "summary.json").is_file()
+    from riskplan.cli import _claim_run_dir
+
+    first, second = _claim_run_dir(in_tmp / "r", "x"), _claim_run_dir(in_tmp / "r", "x")
+    assert first != second and first.is_dir() and second.is_dir()
+
+
+def test_cfg_job_prints_the_config_without_running(in_tmp):
+    result = runner.invoke(app, ["train", "--cfg", "job", "risk=neutral", "train.samples=77"])
+    assert result.exit_code == 0, result.output
+    printed = yaml.safe_load(result.output)
+    assert printed["risk"]["measure"] == "neutral" and printed["train"]["samples"] == 77
+    assert not (in_tmp / "outputs").exists()
+
+
+def test_check_reports_team_assumptions(in_tmp):
+    result = runner.invoke(app, ["check", "experiment=paper_team", "team.graph=ring"])
+    assert result.exit_code == 0, result.output
+    assert "Assumption 5: holds" in result.output and "SLEM" in result.output
+    assert "Assumption 6" in result.output and "config OK" in result.output
+    assert not (in_tmp / "outputs").exists()
+
+
+def test_check_warns_when_assumption_6_fails(in_tmp):
+    with pytest.warns(UserWarning, match="Assumption 6"):
+        result = runner.invoke(app, ["check", "train.step_size.power=2"])
+    assert result.exit_code == 0
+    assert "Assumption 6" in result.output and "FAILS" in result.output
+
+
+@pytest.mark.parametrize("command", [[], ["train"], ["check"], ["bench"], ["report"], ["sweep"], ["reproduce"]])
+def test_help_explains_every_command(command):
+    result = runner.invoke(app, [*command, "--help"])
+    assert result.exit_code == 0, result.output
+    assert "Usage" in result.output
