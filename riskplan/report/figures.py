@@ -369,7 +369,6 @@ def fig_thetas(coll: Collection) -> FigureSpec | str:
             if row == len(teams) - 1:
                 ax.set_xlabel("iteration")
                 _iterations(ax)
-    _iterations(ax)
     axes[0, 0].legend(loc="best")
     return FigureSpec("team_thetas", "Per-robot parameters of the team runs",
                       "Each robot's θ^i (solid) and the network average (dashed, black) per iteration; consensus "

@@ -1,0 +1,345 @@
+"""`riskplan report` on small real runs: figures (checked on the matplotlib objects), report.csv recomputed from the
+run tables, broken/partial runs skipped with their reason, tables rebuilt from run.mcap, bad input, defaults."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+import riskplan
+from riskplan.cli import app
+from riskplan.report import build_report
+from riskplan.report.collect import collect
+from riskplan.report.figures import make_figures
+from riskplan.report.landscape import compute_landscape
+from riskplan.report.stats import seed_interval, wilson
+from riskplan.risk import cvar, value_at_risk
+
+FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
+CONDITIONS = {
+    "cvar_s0": [],
+    "cvar_s1": ["seed=1"],
+    "neutral_s0": ["risk=neutral"],
+    "neutral_s1": ["risk=neutral", "seed=1"],
+    "team_s0": ["experiment=paper_team"],
+    "team_s1": ["experiment=paper_team", "seed=1"],
+}
+NEUTRAL, AVERSE = "risk-neutral", "risk-averse (CVaR β=0.1)"
+runner = CliRunner()
+
+
+# ------------------------------------------------------------------------------------------------ fixtures
+@pytest.fixture(scope="session")
+def sweep(tmp_path_factory) -> Path:
+    """Six small real runs (CVaR, risk-neutral, team; seeds 0 and 1) and a small landscape on their world."""
+    root = tmp_path_factory.mktemp("sweep")
+    for name, extra in CONDITIONS.items():
+        riskplan.train(riskplan.compose(FAST + extra), root / name)
+    compute_landscape(riskplan.compose(FAST), root / "landscape", points=7, episodes=300,
+                      ranges=((-20.0, 60.0), (-20.0, 60.0)))
+    return root
+
+
+@pytest.fixture(scope="session")
+def coll(sweep):
+    return collect([sweep])
+
+
+@pytest.fixture(scope="session")
+def figures(coll):
+    specs, skipped = make_figures(coll)
+    assert not skipped, skipped
+    return {s.name: s for s in specs}
+
+
+def headline(run_dir: Path) -> int:
+    return -1 if yaml.safe_load((run_dir / ".hydra" / "config.yaml").read_text())["team"]["robots"] > 1 else 0
+
+
+def metrics_of(run_dir: Path, robot: int | None = None) -> pd.DataFrame:
+    m = pd.read_parquet(run_dir / "metrics.parquet")
+    return m.loc[m.robot == (headline(run_dir) if robot is None else robot)].sort_values("iteration")
+
+
+def eval_of(run_dir: Path) -> pd.DataFrame:
+    e = pd.read_parquet(run_dir / "eval.parquet")
+    return e.loc[e.robot == headline(run_dir)]
+
+
+def labelled(ax) -> dict:
+    return {line.get_label(): line for line in ax.get_lines() if not line.get_label().startswith("_")}
+
+
+def seed_mean(sweep: Path, names: list[str], column: str, robot: int | None = None) -> np.ndarray:
+    return np.mean([metrics_of(sweep / n, robot)[column].to_numpy() for n in names], axis=0)
+
+
+# ------------------------------------------------------------------------------------------------ grouping
+def test_runs_are_grouped_by_what_differs(coll):
+    assert len(coll.runs) == 6 and not coll.broken and len(coll.landscapes) == 1
+    assert {"risk.measure", "team.robots", "experiment"} <= set(coll.differing)
+    assert "seed" not in coll.differing
+    kinds = {(g.measure, g.robots): g for g in coll.groups}
+    assert set(kinds) == {("neutral", 1), ("cvar", 1), ("cvar", 3)}
+    assert all(g.seeds == [0, 1] for g in coll.groups)
+    assert "risk-neutral" in kinds["neutral", 1].label and "N=3" in kinds["cvar", 3].label
+    assert len({g.label for g in coll.groups}) == 3 and len({g.color for g in coll.groups}) == 3
+    neutral, averse = coll.paper_pair()
+    assert (neutral, averse) == (kinds["neutral", 1], kinds["cvar", 1])
+    assert coll.team_comparison() == (kinds["cvar", 1], [kinds["cvar", 3]])
+
+
+# ------------------------------------------------------------------------------------------------ paper figures
+def test_fig1_world_sources_start_and_final_paths(figures, sweep):
+    ax = figures["fig1_paths"].figure.axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (cell)", "y (cell)")
+    shade = np.asarray(ax.images[0].get_array())
+    x, y = np.meshgrid(np.arange(12), np.arange(12))
+    assert shade.shape == (12, 12) and np.array_equal(shade == 1, y > x)  # the risky half-plane y > x, grey
+    stars = [ln for ln in ax.get_lines() if ln.get_marker() == "*"]
+    assert len(stars) == 1 and sorted(zip(stars[0].get_xdata(), stars[0].get_ydata())) == [(3, 9), (9, 3)]
+    starts = [ln for ln in ax.get_lines() if ln.get_marker() == "o"]
+    assert [(float(a), float(b)) for a, b in zip(starts[0].get_xdata(), starts[0].get_ydata())] == [(0.0, 0.0)]
+    lines = labelled(ax)
+    assert {NEUTRAL, AVERSE} <= set(lines)
+    assert lines[NEUTRAL].get_color() != lines[AVERSE].get_color()
+    for name, run in ((NEUTRAL, "neutral_s0"), (AVERSE, "cvar_s0")):
+        colour = lines[name].get_color()
+        paths = [ln for ln in ax.get_lines() if ln.get_color() == colour and ln.get_linestyle() == "-"]
+        ends = [ln for ln in ax.get_lines() if ln.get_color() == colour and ln.get_marker() == "s"]
+        t = pd.read_parquet(sweep / run / "trajectories.parquet")
+        t = t.loc[(t.policy == "final") & (t.robot == 0)]
+        assert len(paths) == len(ends) == t.episode.nunique() == 3
+        for line, end, (_, episode) in zip(paths, ends, t.groupby("episode")):
+            episode = episode.sort_values("step")
+            assert np.array_equal(np.round(line.get_xdata()), episode.x) and np.array_equal(
+                np.round(line.get_ydata()), episode.y)  # the logged path, jittered by < 0.5 cell
+            assert (round(end.get_xdata()[0]), round(end.get_ydata()[0])) == (episode.x.iloc[-1], episode.y.iloc[-1])
+
+
+def test_fig2_cvar_per_iteration_is_the_across_seed_mean_with_a_band(figures, sweep):
+    ax = figures["fig2_cvar"].figure.axes[0]
+    assert ax.get_xlabel() == "iteration" and "CVaR" in ax.get_ylabel()
+    lines = labelled(ax)
+    assert set(lines) == {f"{NEUTRAL} (2 seeds)", f"{AVERSE} (2 seeds)"}
+    for name, runs in ((NEUTRAL, ["neutral_s0", "neutral_s1"]), (AVERSE, ["cvar_s0", "cvar_s1"])):
+        line = lines[f"{name} (2 seeds)"]
+        assert np.array_equal(line.get_xdata(), np.arange(5))
+        np.testing.assert_allclose(line.get_ydata(), seed_mean(sweep, runs, "cvar"), rtol=1e-12)
+    assert len(ax.collections) == 2  # one 95% band per curve
+
+
+def test_fig3_centralized_vs_distributed_mean_and_cvar(figures, sweep):
+    ax = figures["fig3_team"].figure.axes[0]
+    assert ax.get_xlabel() == "iteration" and ax.get_ylabel() == "total reward"
+    lines = labelled(ax)
+    expected = {f"{who}: {what} (2 seeds)" for who in ("centralized", "distributed (N=3)") for what in ("mean", "CVaR")}
+    assert set(lines) == expected
+    np.testing.assert_allclose(lines["distributed (N=3): mean (2 seeds)"].get_ydata(),
+                               seed_mean(sweep, ["team_s0", "team_s1"], "mean", robot=-1), rtol=1e-12)
+    np.testing.assert_allclose(lines["centralized: CVaR (2 seeds)"].get_ydata(),
+                               seed_mean(sweep, ["cvar_s0", "cvar_s1"], "cvar"), rtol=1e-12)
+    assert lines["centralized: CVaR (2 seeds)"].get_linestyle() == "--"
+
+
+def test_fig4_consensus_error_on_a_log_scale(figures, sweep):
+    ax = figures["fig4_consensus"].figure.axes[0]
+    assert ax.get_yscale() == "log" and ax.get_xlabel() == "iteration" and "theta" in ax.get_ylabel()
+    (line,) = labelled(ax).values()
+    errors = np.array([metrics_of(sweep / n, -1).consensus_error.to_numpy() for n in ("team_s0", "team_s1")])
+    assert np.all(errors[:, 0] == 0) and np.all(errors[:, 1:] > 0)
+    with np.errstate(divide="ignore"):
+        geometric = 10 ** np.log10(errors).mean(axis=0)
+    y = np.asarray(line.get_ydata(), float)
+    assert np.isnan(y[0])  # all robots start at theta0: zero error is not drawn on a log axis
+    np.testing.assert_allclose(y[1:], geometric[1:], rtol=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------ beyond the paper
+def test_reward_distribution_marks_var_and_cvar(figures, sweep, coll):
+    full, tail = figures["reward_distribution"].figure.axes[:2]
+    assert full.get_xlabel() == "total reward" and "CDF" in full.get_ylabel()
+    assert set(labelled(full)) == {f"{g.label} (2 seeds)" for g in coll.groups}
+    for g in coll.groups:
+        z = np.concatenate([eval_of(r.path).total_reward.to_numpy() for r in g.runs])
+        var = [ln for ln in full.get_lines() if ln.get_label() == f"_VaR {g.label}"]
+        cv = [ln for ln in full.get_lines() if ln.get_label() == f"_CVaR {g.label}"]
+        assert var[0].get_xdata()[0] == pytest.approx(value_at_risk(z, 0.1))
+        assert cv[0].get_xdata()[0] == pytest.approx(cvar(z, 0.1))
+        ecdf = labelled(full)[f"{g.label} (2 seeds)"]
+        assert np.all(np.diff(ecdf.get_ydata()) > 0) and ecdf.get_ydata()[-1] == 1.0
+
+
+def test_risk_frontier_has_one_point_per_group(figures, coll):
+    ax = figures["risk_frontier"].figure.axes[0]
+    assert ax.get_xlabel() == "mean total reward" and "CVaR" in ax.get_ylabel()
+    assert len(ax.containers) == len(coll.groups)
+    for container, g in zip(ax.containers, coll.groups):
+        point = container.lines[0]
+        values = [(eval_of(r.path).total_reward.mean(), cvar(eval_of(r.path).total_reward.to_numpy(), 0.1))
+                  for r in g.runs]
+        assert point.get_xdata()[0] == pytest.approx(np.mean([v[0] for v in values]))
+        assert point.get_ydata()[0] == pytest.approx(np.mean([v[1] for v in values]))
+
+
+def test_team_theta_trajectories_per_robot(figures, sweep):
+    axes = figures["team_thetas"].figure.axes
+    assert len(axes) == 2 and [ax.get_ylabel() for ax in axes] == [r"$\theta_{0}$", r"$\theta_{1}$"]
+    lines = labelled(axes[0])
+    assert set(lines) == {"robot 0", "robot 1", "robot 2", "network average"}
+    np.testing.assert_allclose(lines["robot 2"].get_ydata(),
+                               seed_mean(sweep, ["team_s0", "team_s1"], "theta_0", robot=2), rtol=1e-12)
+
+
+def test_landscape_heatmaps_with_training_paths(figures, sweep, coll):
+    fig = figures["landscape"].figure
+    heat = [ax for ax in fig.axes if ax.images]
+    assert len(heat) == 2
+    table = pd.read_parquet(sweep / "landscape" / "landscape.parquet")
+    for ax, column in zip(heat, ("mean", "cvar")):
+        assert ax.get_xlabel().startswith(r"$\theta_{0}$") and ax.get_ylabel().startswith(r"$\theta_{1}$")
+        grid = table.pivot(index="theta_1", columns="theta_0", values=column).to_numpy()
+        np.testing.assert_array_equal(np.asarray(ax.images[0].get_array()), grid)
+        best = table.loc[table[column].idxmax()]
+        star = labelled(ax)["grid maximum"]
+        assert (star.get_xdata()[0], star.get_ydata()[0]) == (best.theta_0, best.theta_1)
+        paths = [ln for ln in ax.get_lines() if ln.get_linestyle() == "-"]
+        assert len(paths) == 6  # every run was trained on this world
+        first = [ln for ln in paths if ln.get_label() == coll.groups[0].label][0]
+        run = coll.groups[0].runs[0]
+        np.testing.assert_allclose(first.get_xdata()[:-1], metrics_of(run.path).theta_0)
+        assert first.get_xdata()[-1] == pytest.approx(run.run.summary["theta_final"][0])
+
+
+# ------------------------------------------------------------------------------------------------ tables and page
+def test_report_csv_equals_numbers_recomputed_from_the_run_tables(sweep, tmp_path):
+    page = build_report([sweep], tmp_path / "out", ["png"])
+    out = page.parent
+    assert sorted(p.suffix for p in out.glob("fig*")) == [".png"] * 4
+    table = pd.read_csv(out / "report.csv")
+    assert len(table) == 3
+    for _, row in table.iterrows():
+        names = {("neutral", 1): ["neutral_s0", "neutral_s1"], ("cvar", 1): ["cvar_s0", "cvar_s1"],
+                 ("cvar", 3): ["team_s0", "team_s1"]}[(row["measure"], row["robots"])]
+        per_seed = []
+        for name in names:
+            e = eval_of(sweep / name)
+            z = e.total_reward.to_numpy()
+            per_seed.append({"mean": z.mean(), "cvar": cvar(z, 0.1), "value_at_risk": value_at_risk(z, 0.1),
+                             "risky_fraction": (e.risky_steps > 0).mean(),
+                             "reached_safe": (e.source_reached == 0).mean(),
+                             "reached_risky": (e.source_reached == 1).mean(),
+                             "reached_none": (e.source_reached == -1).mean()})
+        for key in per_seed[0]:
+            mean, low, high = seed_interval([v[key] for v in per_seed])
+            assert row[key] == pytest.approx(mean, rel=1e-12, abs=1e-12), key
+            assert (row[f"{key}_low"], row[f"{key}_high"]) == (pytest.approx(low, rel=1e-9, abs=1e-12),
+                                                               pytest.approx(high, rel=1e-9, abs=1e-12))
+        assert row["seeds"] == 2 and "Student-t" in row["interval"]
+    html = page.read_text()
+    for _, row in table.iterrows():
+        assert row["group"] in html and f"{row['cvar']:,.1f}" in html
+
+
+def test_single_run_intervals_are_the_run_summaries_bootstrap(sweep, tmp_path):
+    page = build_report([sweep / "cvar_s0"], tmp_path / "one", ["png"])
+    (row,) = pd.read_csv(page.parent / "report.csv").to_dict("records")
+    summary = json.loads((sweep / "cvar_s0" / "summary.json").read_text())
+    for key in ("mean", "cvar", "value_at_risk"):
+        assert row[key] == pytest.approx(summary[key]["value"], rel=1e-12)
+        assert row[f"{key}_low"] == pytest.approx(summary[key]["low"], rel=1e-12)
+        assert row[f"{key}_high"] == pytest.approx(summary[key]["high"], rel=1e-12)
+    e = eval_of(sweep / "cvar_s0")
+    low, high = wilson(float((e.risky_steps > 0).sum()), len(e))
+    assert (row["risky_fraction_low"], row["risky_fraction_high"]) == (pytest.approx(low), pytest.approx(high))
+
+
+def test_page_is_self_contained(sweep, tmp_path):
+    page = build_report([sweep], tmp_path / "page", ["png", "pdf"])
+    html = page.read_text()
+    sources = re.findall(r'<img[^>]*\ssrc="([^"]*)"', html)
+    assert len(sources) == 8 and all(s.startswith("data:image/png;base64,") for s in sources)
+    assert not re.search(r"(src|href)=\"(https?:)?//", html) and "url(" not in html
+    assert "<script" not in html and "<link" not in html
+    assert "Configurations that differ" in html and "risk.measure" in html and "team.robots" in html
+    for name in ("fig1_paths", "fig2_cvar", "fig3_team", "fig4_consensus", "landscape"):
+        assert (page.parent / f"{name}.png").is_file() and (page.parent / f"{name}.pdf").is_file()
+
+
+# ------------------------------------------------------------------------------------------------ broken runs
+def test_broken_runs_are_listed_and_missing_tables_rebuilt_from_the_log(sweep, tmp_path):
+    mixed = tmp_path / "mixed"
+    killed = mixed / "killed"  # a run killed mid-way: a truncated run.mcap and nothing else
+    shutil.copytree(sweep / "cvar_s0", killed)
+    for name in ("metrics.parquet", "eval.parquet", "trajectories.parquet", "summary.json", "checkpoint"):
+        (killed / name).unlink()
+    data = (killed / "run.mcap").read_bytes()
+    (killed / "run.mcap").write_bytes(data[: len(data) // 2])
+    bare = mixed / "bare"  # a finished run whose parquet tables are gone
+    shutil.copytree(sweep / "neutral_s0", bare)
+    for name in ("metrics.parquet", "eval.parquet", "trajectories.parquet"):
+        (bare / name).unlink()
+    garbage = mixed / "garbage"
+    (garbage / ".hydra").mkdir(parents=True)
+    shutil.copy(sweep / "cvar_s1" / ".hydra" / "config.yaml", garbage / ".hydra" / "config.yaml")
+    (garbage / "run.mcap").write_bytes(b"not a log at all")
+    failed = mixed / "failed"
+    (failed / ".hydra").mkdir(parents=True)
+    shutil.copy(sweep / "cvar_s1" / ".hydra" / "config.yaml", failed / ".hydra" / "config.yaml")
+    (failed / "status.json").write_text(json.dumps({"status": "failed", "error": "boom: theta not finite"}))
+
+    out = tmp_path / "report"
+    result = runner.invoke(app, ["report", str(mixed), "--out", str(out), "--format", "png"])
+    assert result.exit_code == 0, result.output
+    assert f"skipped {killed}: truncated" in result.output and f"rebuilt tables of {bare}" in result.output
+    runs = pd.read_csv(out / "runs.csv").set_index("path")
+    assert runs.loc[str(killed), "status"] == "skipped" and "truncated" in runs.loc[str(killed), "note"]
+    assert runs.loc[str(garbage), "status"] == "skipped" and "not an MCAP file" in runs.loc[str(garbage), "note"]
+    assert runs.loc[str(failed), "status"] == "skipped" and "boom: theta not finite" in runs.loc[str(failed), "note"]
+    assert runs.loc[str(bare), "status"] == "used" and "rebuilt" in runs.loc[str(bare), "note"]
+    (row,) = pd.read_csv(out / "report.csv").to_dict("records")
+    e = eval_of(sweep / "neutral_s0")  # the original tables: the log gives back the same numbers
+    assert row["mean"] == pytest.approx(e.total_reward.mean(), rel=1e-12)
+    assert row["cvar"] == pytest.approx(cvar(e.total_reward.to_numpy(), 0.1), rel=1e-12)
+    assert row["risky_fraction"] == pytest.approx((e.risky_steps > 0).mean())
+    html = (out / "report.html").read_text()
+    assert "Skipped 3 broken or partial run(s)" in html and str(killed) in html
+    assert not any(p.exists() for p in (bare / "metrics.parquet", bare / "eval.parquet"))  # inputs untouched
+
+
+# ------------------------------------------------------------------------------------------------ command line
+def test_a_path_without_runs_is_bad_input(tmp_path, sweep):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    out = tmp_path / "never"
+    for args in (["report", str(empty)], ["report", str(tmp_path / "missing")],
+                 ["report", str(sweep / "cvar_s0"), "--format", "png,gif"]):
+        result = runner.invoke(app, [*args, "--out", str(out)])
+        assert result.exit_code == 2, result.output
+        lines = result.output.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in result.output
+        assert not out.exists()
+    assert str(empty) in runner.invoke(app, ["report", str(empty)]).output
+
+
+def test_default_is_the_latest_reproduction(tmp_path, sweep, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    result = runner.invoke(app, ["report"])
+    assert result.exit_code == 2 and "riskplan reproduce" in result.output
+    older = tmp_path / "outputs" / "reproduce" / "2026-01-01_00-00-00"
+    newer = tmp_path / "outputs" / "reproduce" / "2026-01-02_00-00-00"
+    shutil.copytree(sweep / "cvar_s0", older / "sweep" / "a")
+    shutil.copytree(sweep / "neutral_s0", newer / "sweep" / "risk=neutral")
+    result = runner.invoke(app, ["report", "--format", "png"])
+    assert result.exit_code == 0, result.output
+    assert (newer / "report" / "report.html").is_file() and not (older / "report").exists()
+    runs = pd.read_csv(newer / "report" / "runs.csv")
+    assert list(runs.path) == [str(Path("outputs/reproduce/2026-01-02_00-00-00/sweep/risk=neutral"))]
