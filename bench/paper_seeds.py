@@ -44,13 +44,14 @@ def main(seeds: int) -> None:
             print(f"| {seed} | {t['cvar']:.0f} | {c['cvar']:.0f} | {(t['cvar'] - c['cvar']) / abs(c['cvar']):+.2%} | "
                   f"{err.max():.2f} -> {err[-1]:.3f} | {err[-1] / norm:.2%} | {t['wall']:.2f} |")
         print()
-        print("| team.consensus_rounds | final consensus error | peak | final CVaR_0.1 (average) |")
-        print("|---|---|---|---|")
-        for rounds in (1, 2, 4, 8):
-            team = train(compose(["experiment=paper_team", f"team.consensus_rounds={rounds}"]),
-                         Path(tmp) / f"r{rounds}")
-            err = team.metrics[team.metrics.robot == -1].consensus_error.to_numpy()
-            print(f"| {rounds} | {err[-1]:.2e} | {err.max():.2f} | {row(team, -1)['cvar']:.0f} |")
+        print("| team.order | team.consensus_rounds | final consensus error | peak | final CVaR_0.1 (average) |")
+        print("|---|---|---|---|---|")
+        for order in ("combine_then_adapt", "adapt_then_combine"):
+            for rounds in (1, 2, 4, 8):
+                team = train(compose(["experiment=paper_team", f"team.consensus_rounds={rounds}",
+                                      f"team.order={order}"]), Path(tmp) / f"r{order}{rounds}")
+                err = team.metrics[team.metrics.robot == -1].consensus_error.to_numpy()
+                print(f"| {order} | {rounds} | {err[-1]:.2e} | {err.max():.2f} | {row(team, -1)['cvar']:.0f} |")
 
 
 if __name__ == "__main__":

@@ -120,6 +120,7 @@ class TeamConf:
     max_gap: int = 10  # B of Assumption 5: a link delivers at least once every max_gap iterations
     stale: str = "arrival"  # arrival (paper eq. 14) | latest (newest value received from each neighbour)
     consensus_rounds: int = 1
+    order: str = "combine_then_adapt"  # eq. (14): mix, then add the own gradient step | adapt_then_combine
     starts: Optional[List[List[int]]] = None  # per-robot start cells; default world.start for all
     switching: SwitchingConf = field(default_factory=SwitchingConf)
 

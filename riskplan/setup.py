@@ -16,6 +16,7 @@ from riskplan.rollout import Kernel, make_kernel
 from riskplan.world import World, build_world
 
 MEASURES = ("cvar", "neutral")
+ORDERS = ("combine_then_adapt", "adapt_then_combine")
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,7 @@ def build_setup(cfg: DictConfig | dict) -> Setup:
     _check(train.checkpoint_every >= 1, "train.checkpoint_every", f"got {train.checkpoint_every}; expected >= 1")
     _check(train.bootstrap >= 1, "train.bootstrap", f"got {train.bootstrap}; expected >= 1 resamples")
 
+    _check(team.order in ORDERS, "team.order", f"got '{team.order}'; expected one of {', '.join(ORDERS)}")
     starts = None
     if team.starts is not None:
         starts = [list(s) for s in team.starts]

@@ -66,10 +66,7 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
     else:
         grads = mean_gradient(z, scores, cfg["train"]["baseline"])
     eps = step_size(l, cfg["train"]["step_size"])
-    mixed = thetas
-    for round_index in range(cfg["team"]["consensus_rounds"] if setup.team else 0):
-        mixed = setup.mixer.mix(mixed, l, round_index)
-    new_thetas = mixed + eps * grads
+    new_thetas = consensus_step(setup, thetas, grads, eps, l)
     if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(new_thetas))):
         raise NumericalTrouble(f"iteration {l}: theta or its gradient is not finite (theta={thetas.tolist()}, "
                                f"gradient={grads.tolist()}); lower train.step_size.initial")
@@ -82,6 +79,15 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
         rows.append(_row(l, AVERAGE, summary_stats(z.ravel(), beta), thetas.mean(axis=0), grads.mean(axis=0), eps,
                          error, episodes * n, seconds))
     return State(l + 1, new_thetas, setup.mixer.state(), state.rows + rows), rows
+
+
+def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int) -> np.ndarray:
+    """Eq. (14) combine-then-adapt, A theta + eps Delta (default), or adapt-then-combine, A (theta + eps Delta)."""
+    adapt_first = setup.config["team"]["order"] == "adapt_then_combine"
+    mixed = thetas + eps * grads if adapt_first else thetas
+    for round_index in range(setup.config["team"]["consensus_rounds"] if setup.team else 0):
+        mixed = setup.mixer.mix(mixed, l, round_index)
+    return mixed if adapt_first else mixed + eps * grads
 
 
 def train(config, out_dir: str | Path, *, resume: bool = False,
