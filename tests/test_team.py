@@ -45,3 +45,23 @@ def test_a_team_of_one_equals_a_centralized_run(tmp_path):
     b = train(compose([*FAST[1:], "team.graph=ring", "team.consensus_rounds=3"]), tmp_path / "ring_of_one")
     np.testing.assert_array_equal(a.metrics.theta_0, b.metrics.theta_0)
     np.testing.assert_array_equal(a.eval.total_reward, b.eval.total_reward)
+
+
+def test_per_robot_start_cells(tmp_path):
+    run = train(compose([*FAST[:-1], "train.paths=2", "train.iterations=2", "team.starts=[[0,0],[11,0],[0,11]]"]),
+                tmp_path / "starts")
+    first = run.trajectories[(run.trajectories.step == 0) & (run.trajectories.robot >= 0)]
+    starts = first.groupby("robot")[["x", "y"]].first()
+    assert starts.loc[0].tolist() == [0, 0] and starts.loc[1].tolist() == [11, 0] and starts.loc[2].tolist() == [0, 11]
+
+
+def test_starts_must_match_the_team_size():
+    with pytest.raises(BadInput) as err:
+        compose(["experiment=paper_team", "team.starts=[[0,0]]"])
+    assert err.value.where == "team.starts"
+
+
+def test_growing_sample_schedule(tmp_path):
+    run = train(compose(["train.iterations=4", "train.samples=100", "train.samples_growth=1.0",
+                         "train.eval_episodes=100", "train.bootstrap=5", "train.paths=1"]), tmp_path / "grow")
+    assert run.metrics.samples.tolist() == [100, 200, 300, 400]  # W_l = W (1 + l)^g
