@@ -60,6 +60,12 @@ def figures(coll):
     return {s.name: s for s in specs}
 
 
+@pytest.fixture(scope="session")
+def page(sweep, tmp_path_factory) -> Path:
+    """The report over the whole sweep, figures in PNG and PDF."""
+    return build_report([sweep], tmp_path_factory.mktemp("report") / "out", ["png", "pdf"])
+
+
 def headline(run_dir: Path) -> int:
     return -1 if yaml.safe_load((run_dir / ".hydra" / "config.yaml").read_text())["team"]["robots"] > 1 else 0
 
@@ -220,10 +226,8 @@ def test_landscape_heatmaps_with_training_paths(figures, sweep, coll):
 
 
 # ------------------------------------------------------------------------------------------------ tables and page
-def test_report_csv_equals_numbers_recomputed_from_the_run_tables(sweep, tmp_path):
-    page = build_report([sweep], tmp_path / "out", ["png"])
+def test_report_csv_equals_numbers_recomputed_from_the_run_tables(sweep, page):
     out = page.parent
-    assert sorted(p.suffix for p in out.glob("fig*")) == [".png"] * 4
     table = pd.read_csv(out / "report.csv")
     assert len(table) == 3
     for _, row in table.iterrows():
@@ -250,7 +254,8 @@ def test_report_csv_equals_numbers_recomputed_from_the_run_tables(sweep, tmp_pat
 
 
 def test_single_run_intervals_are_the_run_summaries_bootstrap(sweep, tmp_path):
-    page = build_report([sweep / "cvar_s0"], tmp_path / "one", ["png"])
+    page = build_report([sweep / "cvar_s0"], tmp_path / "one", ["svg"])
+    assert sorted(p.suffix for p in page.parent.glob("fig*")) == [".svg"] * 2  # Figs. 1-2 only: one policy
     (row,) = pd.read_csv(page.parent / "report.csv").to_dict("records")
     summary = json.loads((sweep / "cvar_s0" / "summary.json").read_text())
     for key in ("mean", "cvar", "value_at_risk"):
@@ -262,8 +267,7 @@ def test_single_run_intervals_are_the_run_summaries_bootstrap(sweep, tmp_path):
     assert (row["risky_fraction_low"], row["risky_fraction_high"]) == (pytest.approx(low), pytest.approx(high))
 
 
-def test_page_is_self_contained(sweep, tmp_path):
-    page = build_report([sweep], tmp_path / "page", ["png", "pdf"])
+def test_page_is_self_contained(page):
     html = page.read_text()
     sources = re.findall(r'<img[^>]*\ssrc="([^"]*)"', html)
     assert len(sources) == 8 and all(s.startswith("data:image/png;base64,") for s in sources)

@@ -145,17 +145,7 @@ class Collection:
 
     def paper_pair(self) -> tuple[Group | None, Group | None]:
         """The risk-neutral and risk-averse groups of Figs. 1-2: centralized if any, differing least."""
-        pool = [g for g in self.groups if not g.team] or list(self.groups)
-        neutral = [g for g in pool if g.measure == "neutral"]
-        averse = [g for g in pool if g.measure != "neutral"]
-        if neutral and averse:
-            def distance(pair):
-                a, b = pair
-                return (_distance(a.first.flat, b.first.flat), abs(b.beta - a.beta), abs(b.beta - 0.1))
-            return min(((a, b) for a in neutral for b in averse), key=distance)
-        if averse:
-            return None, min(averse, key=lambda g: abs(g.beta - 0.1))
-        return (neutral[0] if neutral else None), None
+        return paper_pair(self.groups)
 
     def team_comparison(self) -> tuple[Group | None, list[Group]]:
         """Fig. 3: the centralized group and the distributed groups it is compared with."""
@@ -171,6 +161,21 @@ class Collection:
         best = min(central, key=lambda c: (sum(_distance(c.first.flat, t.first.flat) for t in teams),
                                            abs(c.beta - teams[0].beta)))
         return best, teams
+
+
+def paper_pair(groups: list[Group]) -> tuple[Group | None, Group | None]:
+    """The risk-neutral and risk-averse groups of Figs. 1-2: centralized if any, differing least."""
+    pool = [g for g in groups if not g.team] or list(groups)
+    neutral = [g for g in pool if g.measure == "neutral"]
+    averse = [g for g in pool if g.measure != "neutral"]
+    if neutral and averse:
+        def distance(pair):
+            a, b = pair
+            return (_distance(a.first.flat, b.first.flat), abs(b.beta - a.beta), abs(b.beta - 0.1))
+        return min(((a, b) for a in neutral for b in averse), key=distance)
+    if averse:
+        return None, min(averse, key=lambda g: (abs(g.beta - 0.1), g.label))
+    return (neutral[0] if neutral else None), None
 
 
 def flatten(config: Any, prefix: str = "") -> dict[str, Any]:
@@ -345,7 +350,8 @@ def _describe(group: Group, keys: list[str], single: bool = False) -> str:
     for k in keys:
         if k in ("risk.measure", "risk.beta", "team.robots"):
             continue
-        parts.append(f"{k.split('.')[-1] if k.startswith('team.') else k}={_short(group.settings.get(k))}")
+        name = k.split(".", 1)[1] if k.startswith(("team.", "train.")) else k
+        parts.append(f"{name}={_short(group.settings.get(k))}")
     return ", ".join(parts) or "runs"
 
 
@@ -355,23 +361,24 @@ def _short(v: Any) -> str:
     if isinstance(v, _Missing):
         return "(absent)"
     text = str(v)
+    if text.startswith("["):
+        try:
+            values = json.loads(text)
+            if all(isinstance(x, (int, float)) for x in values):
+                text = "[" + ", ".join(f"{x:g}" for x in values) + "]"
+        except (ValueError, TypeError):
+            pass
     return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _colour(groups: list[Group]) -> None:
-    """Paper pair first (risk-neutral blue, risk-averse black), then the palette in order."""
-    neutral = next((g for g in groups if not g.team and g.measure == "neutral"), None)
-    averse = [g for g in groups if not g.team and g.measure != "neutral"]
-    averse_pick = min(averse, key=lambda g: abs(g.beta - 0.1)) if averse else None
-    ordered = [g for g in (neutral, averse_pick) if g is not None]
-    if neutral is None and averse_pick is not None:
-        ordered = [averse_pick]
-        averse_pick.color = PALETTE[1]
-    elif neutral is not None:
+    """The paper's pair first (risk-neutral blue, risk-averse black), then the palette in order."""
+    neutral, averse = paper_pair(groups)
+    if neutral is not None:
         neutral.color = PALETTE[0]
-        if averse_pick is not None:
-            averse_pick.color = PALETTE[1]
-    rest = [g for g in groups if g not in ordered]
-    palette = [c for c in PALETTE if c not in {g.color for g in ordered}]
-    for i, g in enumerate(rest):
+    if averse is not None:
+        averse.color = PALETTE[1]
+    taken = [g for g in (neutral, averse) if g is not None]
+    palette = [c for c in PALETTE if c not in {g.color for g in taken}]
+    for i, g in enumerate(g for g in groups if g not in taken):
         g.color = palette[i % len(palette)]

@@ -418,7 +418,7 @@ def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
                Line2D([], [], ls="none", marker="s", ms=5, color="#555555", label="final θ")]
     handles += [Line2D([], [], color=g.color, lw=1.6, label=g.label) for g in coll.groups
                 if any(r.group is g for r in runs)]
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(5, len(handles)))
+    fig.legend(handles=handles, loc="outside lower center", ncols=3)
     s = land.summary
     return FigureSpec(f"landscape{'' if index == 0 else f'_{index + 1}'}", "Objective landscape",
                       f"Mean and CVaR of the total reward over a {s.get('points', '?')}×{s.get('points', '?')} grid of "

@@ -111,7 +111,11 @@ def grid_thetas(theta0: np.ndarray, axes: tuple[int, int], ranges: tuple[tuple[f
 
 
 def evaluate_grid(setup, thetas: np.ndarray, episodes: int, beta: float, seed: int) -> pd.DataFrame:
-    """Mean, CVaR_beta, VaR_beta, std, P(risky), P(source j) of every theta, all on the same episode streams."""
+    """Mean, CVaR_beta, VaR_beta, std, P(risky), P(source j) of every theta, all on the same episode streams.
+
+    mean_se and cvar_se are the estimators' asymptotic standard errors at each point: std(Z)/sqrt(W) and
+    std((Z - v) 1{Z <= v}) / (beta sqrt(W)) (the influence function of the Rockafellar-Uryasev form).
+    """
     from riskplan.rollout import simulate
 
     world, kernel = setup.world, setup.kernel
@@ -131,11 +135,14 @@ def evaluate_grid(setup, thetas: np.ndarray, episodes: int, beta: float, seed: i
         cvar = var + np.minimum(zs - var[:, None], 0.0).sum(axis=1) / (beta * episodes)
         reached = batch.source_reached.reshape(p, episodes)
         part = {f"theta_{j}": block[:, j] for j in range(block.shape[1])}
+        tail = np.minimum(z - var[:, None], 0.0)  # (Z - v) 1{Z <= v}: CVaR = v + E[tail] / beta
         part.update({
             "mean": z.mean(axis=1),
             "cvar": cvar,
             "value_at_risk": var,
             "std": z.std(axis=1),
+            "mean_se": z.std(axis=1, ddof=1) / np.sqrt(episodes) if episodes > 1 else np.full(p, np.nan),
+            "cvar_se": tail.std(axis=1, ddof=1) / (beta * np.sqrt(episodes)) if episodes > 1 else np.full(p, np.nan),
             "risky_fraction": (batch.risky_steps.reshape(p, episodes) > 0).mean(axis=1),
             "mean_steps": batch.steps.reshape(p, episodes).mean(axis=1),
         })

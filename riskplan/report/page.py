@@ -113,7 +113,7 @@ def landscape_section(table: pd.DataFrame) -> str:
     if table.empty:
         return ""
     head = ["landscape", "β", "grid", "max mean at θ", "max CVaR at θ", "group", "objective", "final θ",
-            "distance to optimum", "objective at final θ", "gap to grid max"]
+            "distance to optimum", "objective at final θ", "gap to grid max", "SE at max"]
     rows = []
     for _, r in table.iterrows():
         rows.append([_esc(Path(r["landscape"]).name), f"{r['beta']:g}",
@@ -122,11 +122,14 @@ def landscape_section(table: pd.DataFrame) -> str:
                      f"{_esc(r['best_cvar_theta'])}: {_num(r['best_cvar'])}",
                      _esc(r.get("group", "–")), _esc(r.get("objective", "–")), _esc(r.get("final_theta", "–")),
                      _num(r.get("distance_to_optimum")), _num(r.get("landscape_at_final")),
-                     _num(r.get("gap_to_optimum"))])
-    return ("<h2>Landscape optima</h2>" + _table(head, rows, numeric={8, 9, 10})
+                     f"{_num(r.get('gap_to_optimum'))} ({_num(r.get('gap_percent'), 2)}%)"
+                     if pd.notna(r.get("gap_to_optimum")) else "–", _num(r.get("standard_error_at_optimum"))])
+    return ("<h2>Landscape optima</h2>" + _table(head, rows, numeric={8, 9, 10, 11})
             + '<p class="note">Objective: CVaR for risk-averse groups, mean for risk-neutral ones, as evaluated on '
               'the landscape grid; distance is Euclidean in θ between the across-seed mean final θ and the grid '
-              'maximum; the gap is the grid maximum minus the grid value nearest the final θ.</p>')
+              'maximum; the gap is the grid maximum minus the grid value nearest the final θ; SE is the estimator\'s '
+              'standard error at the maximum (one grid point, its episodes), the scale of the noise in the '
+              'surface.</p>')
 
 
 def runs_section(runs: pd.DataFrame) -> str:

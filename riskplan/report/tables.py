@@ -155,11 +155,18 @@ def landscape_table(coll: Collection) -> pd.DataFrame:
             opt = np.array([best[target]["theta"][a], best[target]["theta"][b]])
             nearest = int(np.argmin(((thetas - final) ** 2).sum(axis=1)))
             value_there = float(land.table[target].iloc[nearest])
+            se_column = f"{target}_se"
+            best_index = int(land.table[target].to_numpy().argmax())
+            se = float(land.table[se_column].iloc[best_index]) if se_column in land.table else math.nan
             rows.append({**base, "group": label, "seeds": len(runs), "objective": target,
                          "final_theta": f"({final[0]:.1f}, {final[1]:.1f})",
                          "distance_to_optimum": float(np.linalg.norm(final - opt)),
                          "landscape_at_final": value_there,
-                         "gap_to_optimum": best[target]["value"] - value_there})
+                         "gap_to_optimum": best[target]["value"] - value_there,
+                         "gap_percent": 100 * (best[target]["value"] - value_there) / abs(best[target]["value"]),
+                         "standard_error_at_optimum": se,
+                         "grid_step": float(np.diff(np.unique(thetas[:, 0]))[0]) if len(np.unique(thetas[:, 0])) > 1
+                         else math.nan})
     return pd.DataFrame(rows)
 
 
