@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import hashlib
 import json
 import signal
 import subprocess
@@ -21,7 +22,7 @@ from riskplan import foxglove as fx
 from riskplan.errors import BadInput
 from riskplan.record import BATCH_ROWS, RunLog, read_log, resume_log
 
-DATA = Path(__file__).parent / "data" / "foxglove"
+SCHEMAS = Path(fx.__file__).parent / "schemas"
 W, H, N, M = 12, 8, 3, 2
 
 
@@ -103,7 +104,8 @@ def write_full(path: Path, iterations: int = 5, n_eval: int = 100, seed: int = 0
     meta = {
         "config": {"seed": seed, "risk": {"beta": 0.1}, "list": [1, 2.5, "x"], "none": None},
         "provenance": {"git": "abc", "versions": {"numpy": np.__version__}},
-        "network": {"edges": [[0, 1], [1, 2]], "weights": np.eye(3)},
+        "network": {"robots": 3, "graph": "line", "edges": [[0, 1], [1, 0], [1, 2], [2, 1]],
+                    "weights": np.full((3, 3, 2), 1 / 3), "positions": None, "gamma": 1 / 3, "slem": 0.5},
     }
     rows: list[dict] = []
     traj = make_trajectories(rng)
@@ -111,8 +113,10 @@ def write_full(path: Path, iterations: int = 5, n_eval: int = 100, seed: int = 0
     summary = {"mean": 1.25, "cvar": {"0.1": -3.5, "ci": [-4.0, -3.0]}, "schema_version": 1, "sha": None}
     with RunLog(path) as log:
         for name, d in meta.items():
-            log.metadata(name, d)
+            if name != "network":
+                log.metadata(name, d)
         log.world_map(make_world())
+        log.network(meta["network"])
         for it in range(iterations):
             rr = make_rows(it, rng)
             rows += rr
@@ -120,7 +124,7 @@ def write_full(path: Path, iterations: int = 5, n_eval: int = 100, seed: int = 0
         log.trajectories(traj)
         log.evaluation(ev)
         log.summary(summary)
-    meta["network"]["weights"] = np.eye(3).tolist()
+    meta["network"]["weights"] = np.full((3, 3, 2), 1 / 3).tolist()
     return meta, rows, traj, ev, summary
 
 
@@ -372,14 +376,17 @@ def test_resume_in_place_and_from_scratch(tmp_path):
 
 # ------------------------------------------------------------------------------------------------ Foxglove
 def official(name: str) -> dict:
-    return json.loads((DATA / f"{name}.json").read_text())
+    return json.loads((SCHEMAS / f"foxglove.{name}.json").read_text())
 
 
-def test_embedded_schemas_are_the_vendored_official_ones():
+def test_shipped_schemas_are_the_vendored_official_files():
+    """Byte-for-byte the files extracted from @foxglove/schemas 2.1.0 (riskplan/schemas/README.md)."""
+    digests = {"Grid": "bca365b784614d9c60e3e03e3b4a0ef67975c80670f16d80e0e1e40df37f3b3d",
+               "SceneUpdate": "bc563208a8b4bb2eaecd17713405ef2d9ba87264ac73ae375ba5ab30368c8991"}
+    for name, digest in digests.items():
+        assert hashlib.sha256((SCHEMAS / f"foxglove.{name}.json").read_bytes()).hexdigest() == digest
+        assert official(name)["title"] == f"foxglove.{name}"
     assert fx.schema(fx.GRID) == official("Grid")
-    assert fx.schema(fx.SCENE_UPDATE) == official("SceneUpdate")
-    assert official("Grid")["title"] == "foxglove.Grid"
-    assert official("SceneUpdate")["title"] == "foxglove.SceneUpdate"
 
 
 def test_every_message_validates_against_its_schema(tmp_path):
@@ -401,7 +408,7 @@ def test_every_message_validates_against_its_schema(tmp_path):
         jsonschema.Draft202012Validator(embedded).validate(obj)
         seen[channel.topic] = seen.get(channel.topic, 0) + 1
     assert {"/world/map", "/world/markers", "/paths", "/metrics", "/theta", "/consensus_error",
-            "/trajectories", "/eval", "/summary"} <= set(seen)
+            "/trajectories", "/eval", "/summary", "/team/network", "/team/graph"} <= set(seen)
     schemas = {c.topic: s.name for s, c, _ in mcap_messages(path)}
     assert schemas["/world/map"] == "foxglove.Grid"
     assert schemas["/world/markers"] == schemas["/paths"] == "foxglove.SceneUpdate"
