@@ -91,7 +91,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Evaluate mean and CVaR of the total reward on a grid of theta (common random numbers, seeded)."""
         from riskplan.config import compose
-        from riskplan.report.landscape import compute_landscape
+        from riskplan.report.landscape import check_grid, compute_landscape
+        from riskplan.setup import build_setup
 
         args = list(overrides or [])
         cfg = compose(args)
@@ -100,10 +101,9 @@ def register(app: typer.Typer) -> None:
         pair = parse_floats(axes, "--axes", (2,))
         if any(v != int(v) for v in pair):
             raise BadInput("--axes", f"got '{axes}'; expected two whole source indices, e.g. 0,1")
-        if points < 2 or points > 1001:
+        if points > 1001:
             raise BadInput("--points", f"got {points}; expected 2..1001 grid points per axis")
-        if episodes < 1:
-            raise BadInput("--episodes", f"got {episodes}; expected at least 1 episode per grid point")
+        check_grid(build_setup(cfg), points, episodes, ranges, (int(pair[0]), int(pair[1])))
         target = out or LANDSCAPES_ROOT / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}_{cfg.experiment}"
         typer.echo(f"landscape directory: {target}")
         path = compute_landscape(cfg, target, points=points, episodes=episodes, ranges=ranges,

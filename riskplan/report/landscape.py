@@ -164,6 +164,26 @@ def run_landscape(overrides: list[str], out_dir: Path, *, points: int = DEFAULT_
                              overrides=list(overrides))
 
 
+def check_grid(setup, points: int, episodes: int, ranges, axes) -> tuple[tuple, tuple[int, int]]:
+    """Validate the grid options against the world; BadInput naming the option otherwise."""
+    sources = setup.world.sources
+    if sources < 2:
+        raise BadInput("world.sources", f"has {sources} source; the landscape needs at least 2 (one theta per axis)")
+    a, b = (int(axes[0]), int(axes[1]))
+    if not (0 <= a < sources and 0 <= b < sources and a != b):
+        raise BadInput("--axes", f"got {a},{b}; expected two different source indices in 0..{sources - 1}")
+    if points < 2:
+        raise BadInput("--points", f"got {points}; expected at least 2 grid points per axis")
+    if episodes < 1:
+        raise BadInput("--episodes", f"got {episodes}; expected at least 1 episode per grid point")
+    ranges = tuple(tuple(float(v) for v in r) for r in ranges) if ranges is not None else (DEFAULT_RANGE,
+                                                                                          DEFAULT_RANGE)
+    if len(ranges) != 2 or any(not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) for lo, hi in ranges):
+        text = ",".join(f"{v:g}" for r in ranges for v in r)
+        raise BadInput("--range", f"got {text}; expected LO,HI (both axes) or LO,HI,LO,HI, finite, with LO < HI")
+    return ranges, (a, b)
+
+
 def compute_landscape(cfg, out_dir: Path, *, points: int = DEFAULT_POINTS, episodes: int = DEFAULT_EPISODES,
                       ranges: tuple[tuple[float, float], ...] | None = None, axes: tuple[int, int] = (0, 1),
                       overrides: list[str] | None = None) -> Path:
@@ -175,19 +195,7 @@ def compute_landscape(cfg, out_dir: Path, *, points: int = DEFAULT_POINTS, episo
 
     setup = build_setup(cfg)
     config = setup.config
-    sources = setup.world.sources
-    if sources < 2:
-        raise BadInput("world.sources", f"has {sources} source; the landscape needs at least 2 (one theta per axis)")
-    a, b = (int(axes[0]), int(axes[1]))
-    if not (0 <= a < sources and 0 <= b < sources and a != b):
-        raise BadInput("--axes", f"got {a},{b}; expected two different source indices in 0..{sources - 1}")
-    if points < 2:
-        raise BadInput("--points", f"got {points}; expected at least 2 grid points per axis")
-    if episodes < 1:
-        raise BadInput("--episodes", f"got {episodes}; expected at least 1 episode per grid point")
-    ranges = tuple(ranges) if ranges is not None else (DEFAULT_RANGE, DEFAULT_RANGE)
-    if len(ranges) != 2 or any(not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) for lo, hi in ranges):
-        raise BadInput("--range", f"got {ranges}; expected LO,HI (both axes) or LO,HI,LO,HI with LO < HI")
+    ranges, (a, b) = check_grid(setup, points, episodes, ranges, axes)
     beta = float(config["risk"]["beta"])
     seed = int(config["seed"])
 
