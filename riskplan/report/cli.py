@@ -98,6 +98,8 @@ def register(app: typer.Typer) -> None:
         cfg = compose(args)
         bounds = parse_floats(theta_range, "--range", (2, 4))
         ranges = ((bounds[0], bounds[1]), (bounds[-2], bounds[-1]))
+        if not all(lo < hi for lo, hi in ranges):
+            raise BadInput("--range", f"got '{theta_range}'; expected LO < HI on each axis, e.g. --range=-20,60")
         pair = parse_floats(axes, "--axes", (2,))
         if any(v != int(v) for v in pair):
             raise BadInput("--axes", f"got '{axes}'; expected two whole source indices, e.g. 0,1")
