@@ -347,3 +347,18 @@ def test_default_is_the_latest_reproduction(tmp_path, sweep, monkeypatch):
     assert (newer / "report" / "report.html").is_file() and not (older / "report").exists()
     runs = pd.read_csv(newer / "report" / "runs.csv")
     assert list(runs.path) == [str(Path("outputs/reproduce/2026-01-02_00-00-00/sweep/risk=neutral"))]
+
+
+def test_landscape_table_measures_where_training_ended(page, sweep, coll):
+    table = pd.read_csv(page.parent / "landscape.csv")
+    assert sorted(table.group) == sorted(g.label for g in coll.groups)
+    grid = pd.read_parquet(sweep / "landscape" / "landscape.parquet")
+    for _, row in table.iterrows():
+        group = next(g for g in coll.groups if g.label == row["group"])
+        target = "mean" if group.measure == "neutral" else "cvar"
+        assert row["objective"] == target
+        best = grid.loc[grid[target].idxmax()]
+        final = np.mean([r.run.summary["theta_final"] for r in group.runs], axis=0)
+        assert row["distance_to_optimum"] == pytest.approx(np.hypot(*(final - [best.theta_0, best.theta_1])))
+        nearest = grid.iloc[((grid[["theta_0", "theta_1"]].to_numpy() - final) ** 2).sum(axis=1).argmin()]
+        assert row["gap_to_optimum"] == pytest.approx(best[target] - nearest[target])

@@ -225,7 +225,7 @@ def fig_team(coll: Collection) -> FigureSpec | str:
     ax.legend(loc="best", ncols=1)
     beta = teams[0].beta
     return FigureSpec("fig3_team", "Fig. 3 — mean and CVaR, centralized vs distributed",
-                      f"Mean (solid) and CVaR$_{{{beta:g}}}$ (dashed) of the total reward per iteration. "
+                      f"Mean (solid) and CVaR at level {beta:g} (dashed) of the total reward per iteration. "
                       f"Distributed: the network average over all robots' episodes (N·W_i of them); "
                       f"centralized: one robot with W episodes.", fig)
 

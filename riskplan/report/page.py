@@ -113,7 +113,8 @@ def landscape_section(table: pd.DataFrame) -> str:
     if table.empty:
         return ""
     head = ["landscape", "β", "grid", "max mean at θ", "max CVaR at θ", "group", "objective", "final θ",
-            "distance to optimum", "objective at final θ", "gap to grid max", "SE at max"]
+            "distance to optimum", "smoothed optimum (distance)", "objective at final θ", "gap to grid max",
+            "SE at max"]
     rows = []
     for _, r in table.iterrows():
         rows.append([_esc(Path(r["landscape"]).name), f"{r['beta']:g}",
@@ -121,13 +122,17 @@ def landscape_section(table: pd.DataFrame) -> str:
                      f"{_esc(r['best_mean_theta'])}: {_num(r['best_mean'])}",
                      f"{_esc(r['best_cvar_theta'])}: {_num(r['best_cvar'])}",
                      _esc(r.get("group", "–")), _esc(r.get("objective", "–")), _esc(r.get("final_theta", "–")),
-                     _num(r.get("distance_to_optimum")), _num(r.get("landscape_at_final")),
+                     _num(r.get("distance_to_optimum")),
+                     f"{_esc(r.get('smoothed_optimum_theta'))} ({_num(r.get('distance_to_smoothed_optimum'))})"
+                     if pd.notna(r.get("distance_to_smoothed_optimum")) else "–",
+                     _num(r.get("landscape_at_final")),
                      f"{_num(r.get('gap_to_optimum'))} ({_num(r.get('gap_percent'), 2)}%)"
                      if pd.notna(r.get("gap_to_optimum")) else "–", _num(r.get("standard_error_at_optimum"))])
-    return ("<h2>Landscape optima</h2>" + _table(head, rows, numeric={8, 9, 10, 11})
+    return ("<h2>Landscape optima</h2>" + _table(head, rows, numeric={8, 9, 10, 11, 12})
             + '<p class="note">Objective: CVaR for risk-averse groups, mean for risk-neutral ones, as evaluated on '
               'the landscape grid; distance is Euclidean in θ between the across-seed mean final θ and the grid '
-              'maximum; the gap is the grid maximum minus the grid value nearest the final θ; SE is the estimator\'s '
+              'maximum (smoothed: the maximum of the 3×3 moving average, robust to single noisy points); the gap is the '
+              'grid maximum minus the grid value nearest the final θ; SE is the estimator\'s '
               'standard error at the maximum (one grid point, its episodes), the scale of the noise in the '
               'surface.</p>')
 
@@ -139,9 +144,10 @@ def runs_section(runs: pd.DataFrame) -> str:
         status = _esc(r["status"])
         if r["status"] == "skipped":
             status = f'<span class="skipped">{status}</span>'
-        rows.append([f"<code>{_esc(r['path'])}</code>", status, _esc(r.get("group") or ""),
-                     _esc("" if pd.isna(r.get("seed")) else int(r["seed"])), _esc(r.get("note") or ""),
-                     _num(r.get("mean")), _num(r.get("cvar")), _esc(r.get("theta_final") or "")])
+        rows.append([f"<code>{_esc(r['path'])}</code>", status, "" if pd.isna(r.get("group")) else _esc(r.get("group")),
+                     _esc("" if pd.isna(r.get("seed")) else int(r["seed"])), "" if pd.isna(r.get("note")) else _esc(r.get("note")),
+                     _num(r.get("mean")), _num(r.get("cvar")),
+                     "" if pd.isna(r.get("theta_final")) else _esc(r.get("theta_final"))])
     return _table(head, rows, numeric={5, 6})
 
 

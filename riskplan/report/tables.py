@@ -158,9 +158,12 @@ def landscape_table(coll: Collection) -> pd.DataFrame:
             se_column = f"{target}_se"
             best_index = int(land.table[target].to_numpy().argmax())
             se = float(land.table[se_column].iloc[best_index]) if se_column in land.table else math.nan
+            smooth = land.smoothed_best(target)
             rows.append({**base, "group": label, "seeds": len(runs), "objective": target,
                          "final_theta": f"({final[0]:.1f}, {final[1]:.1f})",
                          "distance_to_optimum": float(np.linalg.norm(final - opt)),
+                         "smoothed_optimum_theta": f"({smooth['theta'][0]:.1f}, {smooth['theta'][1]:.1f})",
+                         "distance_to_smoothed_optimum": float(np.linalg.norm(final - np.array(smooth["theta"]))),
                          "landscape_at_final": value_there,
                          "gap_to_optimum": best[target]["value"] - value_there,
                          "gap_percent": 100 * (best[target]["value"] - value_there) / abs(best[target]["value"]),
