@@ -287,6 +287,7 @@ def fig_distribution(coll: Collection) -> FigureSpec | str:
         tail.plot([var], [g.beta], ls="none", marker="o", ms=4, color=g.color, label=f"_beta {g.label}")
     for ax in (full, tail):
         ax.set_xlabel("total reward")
+        ax.xaxis.set_major_locator(MaxNLocator(5))
     full.set_ylabel(r"empirical CDF  $P(Z \leq z)$")
     tail.set_ylim(0, top)
     zs = np.concatenate([pooled_rewards(g) for g in groups])
@@ -296,7 +297,7 @@ def fig_distribution(coll: Collection) -> FigureSpec | str:
     handles = [ln for ln in full.get_lines() if not ln.get_label().startswith("_")]
     handles += [Line2D([], [], color="#555555", ls="--", lw=1.0, label="VaR$_\\beta$"),
                 Line2D([], [], color="#555555", ls=":", lw=1.3, label="CVaR$_\\beta$")]
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(4, len(handles)))
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(3, len(handles)))
     return FigureSpec("reward_distribution", "Distribution of the total reward",
                       "Empirical CDF of the total reward of each final policy on its evaluation episodes (all seeds "
                       "pooled), with VaR (dashed) and CVaR (dotted) at each group's β; the right panel zooms into "
