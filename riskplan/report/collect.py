@@ -244,7 +244,14 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
     rebuilt = not all((path / f"{name}.parquet").is_file() for name in TABLES) or bool(
         run.problem and "rebuilt" in run.problem)
     flat = {k: v for k, v in flatten(run.config).items() if k not in IGNORED_KEYS}
-    return RunInfo(run, flat, rebuilt), ""
+    info = RunInfo(run, flat, rebuilt)
+    try:
+        usable = not info.eval_of().empty and not info.metrics_of().empty
+    except (AttributeError, KeyError) as err:
+        return None, f"tables lack a column: {err}"
+    if not usable:
+        return None, f"no metrics or evaluation rows for the headline policy (robot {info.headline})"
+    return info, ""
 
 
 def _failed_status(path: Path) -> str:
