@@ -31,6 +31,10 @@ def task(cfg: DictConfig) -> float | None:
 
     out = Path(HydraConfig.get().runtime.output_dir)
     single = HydraConfig.get().mode == RunMode.RUN
+    if not single:  # a sweep job: skips itself when finished, resumes when killed, logs to its own folder
+        from riskplan.sweepjob import sweep_job
+
+        return sweep_job(cfg, out)
     (out / STATUS).unlink(missing_ok=True)
     try:
         with _progress(single) as progress:

@@ -112,9 +112,12 @@ def _resume(run_dir: Path, args: list[str]) -> None:
     if not (run_dir / CHECKPOINT).is_file():
         raise BadInput(str(run_dir), "has no checkpoint yet (killed before the first one); start it again")
     for override in parse_overrides(args):
-        if override.key_or_group != "train.iterations":
+        if override.key_or_group != "train.iterations" or override.is_sweep_override():
             raise BadInput(f"override '{override.input_line}'", "cannot change a resumed run; "
                                                                  "only train.iterations=N may be given")
+    if not (run_dir / ".hydra" / "config.yaml").is_file():
+        raise BadInput(str(run_dir / ".hydra" / "config.yaml"), "is missing; a run cannot be resumed without "
+                                                                "its config")
     cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
     cfg.merge_with(OmegaConf.from_dotlist(args))
     typer.echo(f"resuming: {run_dir}")
@@ -197,6 +200,8 @@ def _quote(path: Path) -> str:
 
 from riskplan.report.cli import register as _register_report; _register_report(app)
 from riskplan.bench import register as _register_bench; _register_bench(app)
+from riskplan.sweep import register as _register_sweep; _register_sweep(app)
+from riskplan.reproduce import register as _register_reproduce; _register_reproduce(app)
 
 
 def main() -> None:

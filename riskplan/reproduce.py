@@ -1,0 +1,185 @@
+"""`riskplan reproduce`: every experiment of the paper's Section V, several seeds each, then the report.
+
+    outputs/reproduce/<timestamp>/
+        single/      sweep: experiment=paper_single risk=neutral,cvar seed=range(0,S)    (Figs. 1-2)
+        team/        sweep: experiment=paper_team seed=range(0,S)                         (Figs. 3-4; the
+                     centralized comparator is single/'s CVaR runs: W = 6000 against W_i = 2000 x 3 robots)
+        landscape/   mean and CVaR on a grid of theta for the paper world (when riskplan.report has it)
+        report/      report.html, figures, report.csv (when riskplan.report is there)
+        reproduce.json   what ran, with which options, and how long each part took
+
+The sweeps go through `riskplan sweep`'s machinery (a Hydra multirun, joblib on local cores), so re-running
+with `--out` on an existing reproduction runs only what is missing.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from riskplan.errors import BadInput
+
+REPRODUCE_ROOT = Path("outputs") / "reproduce"
+SEEDS = 5
+QUICK_SEEDS = 2
+# (folder, what it reproduces, overrides without the seeds)
+EXPERIMENTS = (
+    ("single", "Figs. 1-2: one robot, risk-neutral vs CVaR (W = 6000)",
+     ["experiment=paper_single", "risk=neutral,cvar"]),
+    ("team", "Figs. 3-4: three robots on a line graph (W_i = 2000), vs the centralized CVaR runs of single/",
+     ["experiment=paper_team"]),
+)
+# --quick: fewer iterations and evaluation episodes; the same experiments, for a first look
+QUICK = ["train.iterations=60", "train.eval_episodes=20000", "train.bootstrap=200", "train.paths=10"]
+LANDSCAPE = {"points": 41, "episodes": 4000}
+QUICK_LANDSCAPE = {"points": 21, "episodes": 1000}
+
+
+def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = None, jobs: int | None = None,
+              formats: str = "png,pdf") -> int:
+    """Run Section V and the report; return the exit code (1 when a job or the report failed)."""
+    from riskplan.sweep import claim_dir, print_table, report_outcome, run_sweep
+
+    seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
+    if seeds < 1:
+        raise BadInput("--seeds", f"got {seeds}; expected at least 1")
+    report_api = _report_api()
+    fmts = report_api["check_formats"](formats) if report_api else None
+    started = time.time()
+    target = Path(out) if out is not None else claim_dir(REPRODUCE_ROOT)
+    target.mkdir(parents=True, exist_ok=True)
+    typer.echo(f"reproduction directory: {target} ({'quick' if quick else 'full'}, {seeds} seeds)")
+    record = {"quick": quick, "seeds": seeds, "started": dt.datetime.now().isoformat(timespec="seconds"),
+              "parts": {}}
+    code = 0
+    outcomes = []
+    for folder, what, overrides in EXPERIMENTS:
+        args = [*overrides, f"seed=range(0,{seeds})", *(QUICK if quick else [])]
+        typer.echo(f"\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
+        outcome = run_sweep(args, jobs, sweep_dir=target / folder, title=folder)
+        outcomes.append(outcome)
+        code = max(code, report_outcome(outcome, folder))
+        record["parts"][folder] = {"overrides": args, "jobs": len(outcome.summary), "ran": outcome.ran,
+                                   "skipped": outcome.skipped, "failed": len(outcome.failed),
+                                   "seconds": round(outcome.seconds, 2)}
+    if report_api and report_api.get("compute_landscape"):
+        record["parts"]["landscape"] = _landscape(report_api, target / "landscape", quick)
+    _print_comparison(outcomes)
+    if report_api:
+        tic = time.time()
+        try:
+            page = report_api["build_report"]([target], target / "report", fmts)
+            typer.echo(f"report: {page}")
+            record["parts"]["report"] = {"seconds": round(time.time() - tic, 2), "page": str(page)}
+        except BadInput:
+            raise
+        except Exception as err:  # noqa: BLE001 - the runs are safe; say what failed
+            typer.echo(f"error: the report failed: {type(err).__name__}: {err} "
+                       f"(the runs are in {target}; try riskplan report {target})", err=True)
+            code = 1
+    else:
+        for outcome in outcomes:
+            print_table(outcome.summary, f"{outcome.sweep_dir}")
+    record["seconds"] = round(time.time() - started, 2)
+    (target / "reproduce.json").write_text(json.dumps(record, indent=2))
+    typer.echo(f"reproduced in {record['seconds']:.0f} s: {target}")
+    return code
+
+
+def _report_api() -> dict | None:
+    """riskplan.report's entry points, if that package is installed in this tree."""
+    try:
+        from riskplan.report import build_report, check_formats
+    except ImportError:
+        return None
+    api = {"build_report": build_report, "check_formats": check_formats}
+    try:
+        from riskplan.report.landscape import compute_landscape
+
+        api["compute_landscape"] = compute_landscape
+    except ImportError:
+        pass
+    return api
+
+
+def _landscape(api: dict, out: Path, quick: bool) -> dict:
+    """The objective landscape of the paper world (skipped when it is already there)."""
+    from riskplan.config import compose
+
+    grid = QUICK_LANDSCAPE if quick else LANDSCAPE
+    done = out / "status.json"
+    if done.is_file() and json.loads(done.read_text()).get("status") == "done":
+        typer.echo(f"\nlandscape: {out} (already there)")
+        return {"skipped": True, **grid}
+    typer.echo(f"\nobjective landscape: {grid['points']}x{grid['points']} theta grid, {grid['episodes']} "
+               f"episodes per point -> {out}")
+    tic = time.time()
+    api["compute_landscape"](compose(["experiment=paper_single"]), out, overrides=["experiment=paper_single"],
+                             **grid)
+    return {"seconds": round(time.time() - tic, 2), **grid}
+
+
+def _print_comparison(outcomes) -> None:
+    """Across seeds: the mean and CVaR of each condition (the paper's claims in four lines)."""
+    import pandas as pd
+    from rich.console import Console
+    from rich.table import Table
+
+    frames = []
+    for outcome in outcomes:
+        frame = outcome.summary.copy()
+        frame["sweep"] = outcome.sweep_dir.name
+        frames.append(frame)
+    if not frames:
+        return
+    data = pd.concat(frames, ignore_index=True)
+    data = data[data.status == "done"]
+    if data.empty:
+        return
+    if "risk" not in data:
+        data["risk"] = "cvar"
+    data["risk"] = data["risk"].fillna("cvar")
+    table = Table(title="Section V across seeds (mean ± sd of the per-seed figures on the evaluation episodes)",
+                  title_justify="left", show_edge=False, pad_edge=False)
+    for column in ("set-up", "objective", "seeds", "mean", "CVaR", "VaR"):
+        table.add_column(column, justify="left" if column in ("set-up", "objective") else "right")
+    for (sweep, risk), group in data.groupby(["sweep", "risk"], sort=False):
+        setup = "3 robots, line graph" if sweep == "team" else "1 robot (centralized)"
+        table.add_row(setup, "CVaR" if risk == "cvar" else "mean (risk-neutral)", str(len(group)),
+                      *(f"{group[c].mean():.1f} ± {group[c].std(ddof=1) if len(group) > 1 else 0:.1f}"
+                        for c in ("mean", "cvar", "value_at_risk")))
+    (Console() if sys.stdout.isatty() else Console(width=250)).print(table)
+
+
+def _shell(arg: str) -> str:
+    """Quote an argument for display as a shell command."""
+    return f"'{arg}'" if any(c in arg for c in "()[]{} *?$") else arg
+
+
+def register(app: typer.Typer) -> None:
+    """Add `reproduce` to the riskplan app."""
+    from riskplan.cli import bad_input_exits
+
+    @app.command(name="reproduce")
+    @bad_input_exits
+    def reproduce_command(
+        out: Optional[Path] = typer.Option(None, "--out", metavar="DIR",
+                                           help="Where to put it (default: outputs/reproduce/<timestamp>/). An "
+                                                "existing reproduction is completed: finished jobs are skipped."),
+        quick: bool = typer.Option(False, "--quick", help="Fewer iterations, episodes and seeds: a first look in "
+                                                          "well under a minute."),
+        seeds: Optional[int] = typer.Option(None, "--seeds", min=1, show_default=False,
+                                            help=f"Seeds per condition (default {SEEDS}, {QUICK_SEEDS} with "
+                                                 f"--quick)."),
+        jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, show_default=False,
+                                           help="Parallel jobs (default: the number of cores)."),
+        formats: str = typer.Option("png,pdf", "--format", help="Figure files of the report: any of png,pdf,svg."),
+    ) -> None:
+        """Run every experiment of the paper's Section V (several seeds each), then the report."""
+        raise typer.Exit(reproduce(out, quick, seeds, jobs, formats))

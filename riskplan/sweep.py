@@ -1,0 +1,625 @@
+"""`riskplan sweep`: a Hydra multirun over a grid of overrides, through a Hydra launcher plugin.
+
+What riskplan adds around Hydra's own multirun (which does the expanding, the launching and the job folders):
+- before anything runs: the overrides are parsed and every combination is composed against the schema (a
+  malformed override, an unknown key or a badly typed value is bad input, exit 2) and checked by the model; a
+  combination the model rejects fails alone when it runs, unless every combination is rejected (exit 2);
+- a fresh sweep directory per command (`outputs/sweeps/<timestamp>[_n]`, claimed with mkdir, so two sweeps
+  started in the same second never share one), or `hydra.sweep.dir=DIR` to resume a sweep;
+- jobs that already finished with the same config are skipped (`riskplan.sweepjob`), killed ones resume;
+- one live view of the sweep on the terminal, while Hydra's messages go to `sweep.log` and each job's output
+  to its own `job.log`;
+- `summary.parquet`: one row per job, with the overrides as columns, the final figures with their 95%
+  intervals, the wall time, the status and the error.
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime as dt
+import json
+import os
+import sys
+import threading
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from riskplan.errors import BadInput
+
+SWEEPS_ROOT = Path("outputs") / "sweeps"
+SUMMARY = "summary.parquet"
+DEFAULT_LAUNCHER = "joblib"
+FIGURES = ("mean", "cvar", "value_at_risk")
+EXTRA_CVARS = ("cvar_0.05", "cvar_0.1", "cvar_0.2")
+SWEEP_HELP = ("Hydra overrides; comma lists and range(...) sweep, e.g. risk.beta=0.05,0.1,0.2 'seed=range(0,5)' "
+              "team.graph=line,ring. hydra/launcher=submitit_slurm|submitit_local|ray selects a cluster launcher "
+              "(default: joblib on local cores); hydra.sweep.dir=DIR re-runs a sweep into DIR, skipping the jobs "
+              "that finished.")
+
+
+@dataclass
+class Job:
+    """One combination of the sweep."""
+
+    overrides: list[str]  # as Hydra passes them to the job (and writes them to .hydra/overrides.yaml)
+    sha: str  # riskplan.sweepjob.config_sha of its composed config
+    invalid: str | None = None  # why the model rejects it (the job will fail with this error)
+    path: Path | None = None  # its folder, once known
+
+    @property
+    def key(self) -> tuple[str, ...]:
+        return tuple(sorted(self.overrides))
+
+    @property
+    def name(self) -> str:
+        return self.path.name if self.path is not None else ",".join(self.overrides)
+
+
+@dataclass
+class Plan:
+    """A validated sweep, ready to launch."""
+
+    sweep_dir: Path
+    argv: list[str]  # Hydra's command line (after the program name)
+    jobs: list[Job]
+    launcher: str
+    workers: int | None
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Outcome:
+    """What a sweep left: its directory, the summary table and the jobs that did not finish."""
+
+    sweep_dir: Path
+    summary: "object"  # pandas.DataFrame
+    failed: list[tuple[str, str]]  # (job folder name, error)
+    ran: int
+    skipped: int
+    seconds: float
+    launcher_error: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed and self.launcher_error is None
+
+
+# ----------------------------------------------------------------------------------------------------- planning
+
+
+def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None) -> Plan:
+    """Parse, expand and validate a sweep; claim its directory last, so bad input leaves nothing behind."""
+    from riskplan.config import parse_overrides
+
+    for arg in args:
+        if arg.startswith("-"):
+            raise BadInput(f"option '{arg}'", "is not known to riskplan sweep; give Hydra overrides (key=value) "
+                                              "and --jobs N")
+    parsed = parse_overrides(args)
+    hydra_ovs = [o for o in parsed if o.is_hydra_override()]
+    task_ovs = [o for o in parsed if not o.is_hydra_override()]
+    for o in hydra_ovs:
+        if o.is_sweep_override():
+            raise BadInput(f"override '{o.input_line}'", "sweeps over Hydra's own settings are not supported; "
+                                                         "sweep over riskplan keys, e.g. risk.beta=0.1,0.2")
+    hydra_keys = {o.key_or_group: o for o in hydra_ovs}
+    launcher = str(hydra_keys["hydra/launcher"].value()) if "hydra/launcher" in hydra_keys else DEFAULT_LAUNCHER
+    explicit_dir = None
+    if "hydra.sweep.dir" in hydra_keys:
+        value = str(hydra_keys["hydra.sweep.dir"].value())
+        if "${" in value:
+            raise BadInput("hydra.sweep.dir", f"got '{value}'; give a plain path (without it, riskplan sweep uses "
+                                              f"outputs/sweeps/<timestamp>)")
+        explicit_dir = Path(value)
+    if sweep_dir is not None and explicit_dir is not None:
+        raise BadInput("hydra.sweep.dir", "is chosen by this command; do not give it")
+
+    combos = expand(task_ovs, args)
+    job_list, notes = validate(combos)
+    if all(job.invalid for job in job_list):
+        first = job_list[0].invalid
+        raise BadInput(*_split_bad(first, len(job_list)))
+
+    argv = ["-m", *args]
+    workers = None
+    if launcher == "joblib":
+        workers = jobs or cpu_count()
+        if "hydra.launcher.n_jobs" not in hydra_keys:
+            argv.append(f"hydra.launcher.n_jobs={workers}")
+    elif jobs is not None:
+        if launcher.startswith("submitit"):
+            argv.append(f"hydra.launcher.array_parallelism={jobs}")
+            workers = jobs
+        else:
+            raise BadInput("--jobs", f"applies to the joblib and submitit launchers, not to hydra/launcher={launcher}; "
+                                     f"size the {launcher} cluster instead")
+    if "hydra/launcher" not in hydra_keys:
+        argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
+    constant = constant_keys(combos)
+    if constant and not {"hydra.sweep.subdir", "hydra.job.config.override_dirname.exclude_keys"} & set(hydra_keys):
+        # folders named by what varies (risk.beta=0.1,seed=0), not by every fixed setting; the job's
+        # .hydra/overrides.yaml keeps them all, and resuming matches jobs by their full config anyway
+        argv.append("hydra.job.config.override_dirname.exclude_keys=["
+                    + ",".join(quote(k) for k in constant) + "]")
+    if "hydra/hydra_logging" not in hydra_keys:
+        argv.append("hydra/hydra_logging=riskplan_sweep")
+    if "hydra/job_logging" not in hydra_keys:
+        argv.append("hydra/job_logging=riskplan_job")
+
+    if sweep_dir is not None:
+        target = Path(sweep_dir)
+        target.mkdir(parents=True, exist_ok=True)
+    elif explicit_dir is not None:
+        target = explicit_dir
+        target.mkdir(parents=True, exist_ok=True)
+    else:
+        target = claim_dir(SWEEPS_ROOT)
+    if explicit_dir is None:
+        argv.append(f"hydra.sweep.dir={quote(target)}")
+    return Plan(target, argv, job_list, launcher, workers, notes)
+
+
+def expand(task_ovs: list, args: list[str]) -> list[list[str]]:
+    """Every combination, as Hydra's basic sweeper makes it (the same grammar, the same job overrides)."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.errors import HydraException
+
+    parser = _parser()
+    try:
+        reparsed = parser.parse_overrides([o.input_line for o in task_ovs])
+        batches = BasicSweeper.split_arguments(reparsed, None)
+    except HydraException as err:
+        raise BadInput("sweep", f"{_first_line(err)}; use comma lists, range(...), choice(...) or glob(...)") from None
+    combos = [list(job) for batch in batches for job in batch]
+    if not combos or (task_ovs and any(not job for job in combos)):
+        raise BadInput("sweep", f"'{' '.join(args)}' expands to no job; check empty range(...) values")
+    return combos
+
+
+def constant_keys(combos: list[list[str]]) -> list[str]:
+    """The override keys whose value is the same in every job, when some other key varies."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parser = OverridesParser.create()
+    values: dict[str, set[str]] = {}
+    for combo in combos:
+        for o in parser.parse_overrides(combo):
+            values.setdefault(o.key_or_group, set()).add(o.input_line)
+    constant = [k for k, v in values.items() if len(v) == 1]
+    return constant if len(constant) < len(values) else []
+
+
+def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
+    """Compose every combination against the schema (BadInput on the first failure), then check each with the
+    model. Compositions are shared between combinations that choose the same config groups."""
+    from hydra import compose, initialize_config_dir
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from riskplan import schema
+    from riskplan.config import CONF_DIR
+    from riskplan.config import compose as riskplan_compose
+    from riskplan.setup import build_setup
+    from riskplan.sweepjob import config_sha
+
+    parser = _parser()
+    schema.register()
+    GlobalHydra.instance().clear()
+    bases: dict[tuple[str, ...], object] = {}
+    jobs: list[Job] = []
+    notes: list[str] = []
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            for combo in combos:
+                parsed = parser.parse_overrides(combo)
+                groups = tuple(o.input_line for o in parsed if _is_group(o, CONF_DIR))
+                keys = [o for o in parsed if not _is_group(o, CONF_DIR)]
+                try:
+                    if groups not in bases:
+                        bases[groups] = compose(config_name="config", overrides=list(groups))
+                    cfg = copy.deepcopy(bases[groups])
+                    ConfigLoaderImpl._apply_overrides_to_config(keys, cfg)
+                except (HydraException, OmegaConfBaseException):
+                    riskplan_compose(combo, validate=False)  # raises BadInput naming the key
+                    cfg = compose(config_name="config", overrides=combo)  # composes after all: use Hydra's own
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    try:
+                        build_setup(cfg)
+                        invalid = None
+                    except BadInput as err:
+                        invalid = str(err)
+                for w in caught:
+                    if str(w.message) not in notes:
+                        notes.append(str(w.message))
+                jobs.append(Job(list(combo), config_sha(cfg), invalid))
+    finally:
+        GlobalHydra.instance().clear()
+    return jobs, notes
+
+
+def _parser():
+    """Hydra's override parser, with a config loader so that glob(...) over config groups works."""
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra._internal.utils import create_config_search_path
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    from riskplan.config import CONF_DIR
+
+    loader = ConfigLoaderImpl(config_search_path=create_config_search_path(str(CONF_DIR)))
+    return OverridesParser.create(config_loader=loader)
+
+
+def _is_group(override, conf_dir: Path) -> bool:
+    """Whether an override selects a config group option (experiment=..., risk=...) rather than sets a key."""
+    return override.package is not None or (conf_dir / override.key_or_group).is_dir()
+
+
+def _split_bad(message: str, count: int) -> tuple[str, str]:
+    """BadInput parts for 'every combination is invalid'."""
+    where, _, problem = message.partition(": ")
+    if count > 1:
+        problem = f"{problem} (in every one of the {count} combinations; nothing was run)"
+    return where, problem
+
+
+def claim_dir(root: Path) -> Path:
+    """Create root/<YYYY-MM-DD_HH-MM-SS>, or with _1, _2, ... when taken: mkdir is the lock."""
+    base = Path(root) / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}"
+    candidate, suffix = base, 1
+    while True:
+        try:
+            candidate.mkdir(parents=True)
+            return candidate
+        except FileExistsError:
+            candidate = base.with_name(f"{base.name}_{suffix}")
+            suffix += 1
+
+
+def quote(path: Path) -> str:
+    """A path as a Hydra override value."""
+    return "'" + str(path).replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+
+def cpu_count() -> int:
+    """Cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def _first_line(err: Exception) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+
+# ----------------------------------------------------------------------------------------------------- running
+
+
+def run_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None, title: str = "sweep",
+              out=None) -> Outcome:
+    """Plan, launch through Hydra, show progress, write summary.parquet. BadInput before anything runs."""
+    echo = out or (lambda text: typer.echo(text))
+    plan = plan_sweep(args, jobs, sweep_dir)
+    for note in plan.warnings:
+        typer.echo(f"warning: {note}", err=True)
+    started = time.time()
+    locate(plan.sweep_dir, plan.jobs)
+    from riskplan.sweepjob import is_finished
+
+    finished = {i for i, job in enumerate(plan.jobs) if job.path is not None and is_finished(job.path, job.sha)}
+    todo = len(plan.jobs) - len(finished)
+    where = f"{plan.launcher}" + (f", {plan.workers} workers" if plan.workers else "")
+    echo(f"{title} directory: {plan.sweep_dir}")
+    echo(f"{len(plan.jobs)} job{'s' if len(plan.jobs) != 1 else ''}: {todo} to run, {len(finished)} already "
+         f"finished ({where})")
+    launcher_error = None
+    if todo:
+        if plan.launcher == "joblib" and plan.workers:
+            os.environ["RISKPLAN_JOB_THREADS"] = str(max(1, cpu_count() // plan.workers))
+        with SweepView(plan.sweep_dir, plan.jobs, finished, title):
+            launcher_error = _launch(plan.argv)
+    locate(plan.sweep_dir, plan.jobs)
+    summary = summarize(plan.jobs)
+    write_summary(summary, plan.sweep_dir / SUMMARY)
+    failed = [(row.job, row.error or row.status) for row in summary.itertuples() if row.status != "done"]
+    return Outcome(plan.sweep_dir, summary, failed, todo, len(finished), time.time() - started, launcher_error)
+
+
+def _launch(argv: list[str]) -> str | None:
+    """Run Hydra's multirun; return the launcher's error, if it failed as a whole."""
+    from riskplan.app import run_hydra
+
+    try:
+        run_hydra(argv)
+    except SystemExit as stop:  # Hydra reports an exception in the launcher and exits 1
+        if stop.code not in (0, None):
+            return f"the launcher stopped (exit {stop.code}); see sweep.log"
+    except Exception as err:  # noqa: BLE001 - the jobs' own records say what finished
+        return f"the launcher stopped: {type(err).__name__}: {err}"
+    return None
+
+
+def locate(sweep_dir: Path, jobs: list[Job]) -> None:
+    """Find each job's folder by the overrides Hydra recorded in it (whatever hydra.sweep.subdir is)."""
+    import yaml
+
+    missing = {job.key: job for job in jobs if job.path is None}
+    if not missing or not Path(sweep_dir).is_dir():
+        return
+    for file in Path(sweep_dir).rglob("overrides.yaml"):
+        if file.parent.name != ".hydra":
+            continue
+        try:
+            overrides = yaml.safe_load(file.read_text()) or []
+        except (OSError, yaml.YAMLError):
+            continue
+        job = missing.pop(tuple(sorted(str(o) for o in overrides)), None)
+        if job is not None:
+            job.path = file.parent.parent
+        if not missing:
+            return
+
+
+def job_state(job: Job, since: float) -> tuple[str, dict | None]:
+    """pending | running | done | failed, as far as this launch is concerned (older records are pending)."""
+    from riskplan.sweepjob import read_status
+
+    if job.path is None:
+        return "pending", None
+    status = read_status(job.path)
+    if status is None or status.get("config_sha") != job.sha:
+        return "pending", status
+    state = status.get("status")
+    if state == "running" and status.get("started", 0) >= since - 2:
+        return "running", status
+    if state in ("done", "failed") and status.get("finished", 0) >= since - 2:
+        return state, status
+    return "pending", status
+
+
+# ----------------------------------------------------------------------------------------------------- summary
+
+
+def summarize(jobs: list[Job]):
+    """One row per job: its overrides as columns, final figures with 95% intervals, wall time, status, error."""
+    import pandas as pd
+
+    from riskplan.sweepjob import is_finished, read_status
+
+    rows = []
+    for job in jobs:
+        row: dict = {"job": job.name}
+        row.update(_override_columns(job.overrides))
+        status = read_status(job.path) if job.path is not None else None
+        summary = None
+        if job.path is None or status is None:
+            state, error = "not run", job.invalid or "the job never started (launcher stopped?)"
+        elif status.get("config_sha") != job.sha:
+            state, error = "not run", "its folder holds a run of another config"
+        elif status.get("status") == "done" and is_finished(job.path, job.sha, status):
+            state, error = "done", None
+            try:
+                summary = json.loads((job.path / "summary.json").read_text())
+            except (OSError, ValueError) as err:
+                state, error = "failed", f"unreadable summary.json: {err}"
+        elif status.get("status") == "done":
+            state, error = "failed", "finished, but some of its output files are missing"
+        elif status.get("status") == "running":
+            state, error = "interrupted", "killed while running; re-run the sweep to resume it"
+        else:
+            state, error = "failed", status.get("error") or "no error recorded"
+        for name in FIGURES:
+            figure = (summary or {}).get(name) or {}
+            row[name] = figure.get("value", float("nan"))
+            row[f"{name}_low"] = figure.get("low", float("nan"))
+            row[f"{name}_high"] = figure.get("high", float("nan"))
+        for name in EXTRA_CVARS:
+            row[name] = ((summary or {}).get(name) or {}).get("value", float("nan"))
+        row["beta"] = (summary or {}).get("beta", float("nan"))
+        row["wall_time"] = float(status["seconds"]) if status and state == "done" and "seconds" in status else float("nan")
+        row["train_time"] = (summary or {}).get("wall_time", float("nan"))
+        row["status"] = state
+        row["error"] = error
+        row["path"] = str(job.path) if job.path is not None else None
+        rows.append(row)
+    frame = pd.DataFrame(rows)
+    for column in frame.columns:  # a column mixing numbers and text is stored as text
+        kinds = {type(v) for v in frame[column] if v is not None and v == v}
+        if len(kinds) > 1 and not kinds <= {int, float, bool}:
+            frame[column] = frame[column].map(lambda v: None if v is None else str(v))
+    return frame
+
+
+def _override_columns(overrides: list[str]) -> dict:
+    """{key: value} of a job's overrides; numbers stay numbers, lists and dicts become their JSON text."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    out = {}
+    for o in OverridesParser.create().parse_overrides(overrides):
+        value = o.value()
+        if isinstance(value, (list, dict)):
+            value = json.dumps(value)
+        elif value is not None and not isinstance(value, (int, float, bool, str)):
+            value = str(value)
+        out[o.key_or_group] = value
+    return out
+
+
+def write_summary(frame, path: Path) -> None:
+    """Write summary.parquet atomically."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    frame.to_parquet(tmp, index=False)
+    os.replace(tmp, path)
+
+
+def varying_columns(frame) -> list[str]:
+    """The override columns whose value differs between jobs (all of them if none differs)."""
+    fixed = {"job", "status", "error", "path", "beta", "wall_time", "train_time", *EXTRA_CVARS,
+             *[f"{n}{s}" for n in FIGURES for s in ("", "_low", "_high")]}
+    overrides = [c for c in frame.columns if c not in fixed]
+    varying = [c for c in overrides if frame[c].astype(str).nunique() > 1]
+    return varying or overrides[:3]
+
+
+def print_table(frame, title: str, limit: int = 40) -> None:
+    """The summary as a terminal table (the varying overrides, status, figures with intervals, wall time)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, title_justify="left", show_edge=False, pad_edge=False)
+    keys = varying_columns(frame)
+    for key in keys:
+        table.add_column(key, no_wrap=True)
+    table.add_column("status", no_wrap=True)
+    for name, label in (("mean", "mean [95% CI]"), ("cvar", "CVaR [95% CI]"), ("value_at_risk", "VaR")):
+        table.add_column(label, justify="right", no_wrap=True)
+    table.add_column("wall s", justify="right", no_wrap=True)
+    for values in frame.head(limit).to_dict("records"):
+        cells = [str(values[k]) for k in keys]
+        status = values["status"]
+        cells.append(status if status == "done" else f"[red]{status}[/red]")
+        for name in ("mean", "cvar"):
+            v, lo, hi = values[name], values[f"{name}_low"], values[f"{name}_high"]
+            cells.append("" if v != v else f"{v:.1f} [{lo:.1f}, {hi:.1f}]")
+        var = values["value_at_risk"]
+        cells.append("" if var != var else f"{var:.1f}")
+        wall = values["wall_time"]
+        cells.append("" if wall != wall else f"{wall:.1f}")
+        table.add_row(*cells)
+    console = Console() if sys.stdout.isatty() else Console(width=250)
+    console.print(table)
+    if len(frame) > limit:
+        console.print(f"... {len(frame) - limit} more rows in {SUMMARY}")
+
+
+# ----------------------------------------------------------------------------------------------------- live view
+
+
+class SweepView:
+    """One live line for a running sweep (done / running / failed / ETA), redrawn from the jobs' status files.
+
+    On a terminal it is a rich progress bar; otherwise (CI, a pipe) one line per finished job. It writes to a
+    duplicate of stderr taken before launch, so it stays on the terminal even while a job runs in this process
+    and sends its own output to its folder.
+    """
+
+    def __init__(self, sweep_dir: Path, jobs: list[Job], finished: set[int], title: str, every: float = 0.5):
+        self.sweep_dir, self.jobs, self.finished, self.title, self.every = sweep_dir, jobs, finished, title, every
+        self.todo = [i for i in range(len(jobs)) if i not in finished]
+        self.reported: set[int] = set()
+        self.stop = threading.Event()
+
+    def __enter__(self):
+        from rich.console import Console
+
+        sys.stderr.flush()
+        self.stream = os.fdopen(os.dup(2), "w", buffering=1)
+        self.tty = self.stream.isatty()
+        self.console = Console(file=self.stream, force_terminal=self.tty or None)
+        self.since = time.time()
+        self.bar = None
+        if self.tty:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self.bar = Progress(TextColumn(f"[bold]{self.title}"), BarColumn(), MofNCompleteColumn(),
+                                TextColumn("{task.fields[state]}"), TimeElapsedColumn(),
+                                TextColumn("{task.fields[eta]}"), console=self.console, transient=False)
+            self.bar.__enter__()
+            self.task = self.bar.add_task(self.title, total=len(self.todo), state="", eta="")
+        self.thread = threading.Thread(target=self._loop, name="riskplan-sweep-view", daemon=True)
+        self.thread.start()
+        return self
+
+    def _loop(self) -> None:
+        while not self.stop.wait(self.every):
+            self.refresh()
+
+    def refresh(self) -> None:
+        """Read the jobs' status files and redraw."""
+        try:
+            if any(self.jobs[i].path is None for i in self.todo):
+                locate(self.sweep_dir, self.jobs)
+            counts = {"pending": 0, "running": 0, "done": 0, "failed": 0}
+            for i in self.todo:
+                state, status = job_state(self.jobs[i], self.since)
+                counts[state] += 1
+                if state in ("done", "failed") and i not in self.reported:
+                    self.reported.add(i)
+                    self._finished_line(i, state, status)
+            ended = counts["done"] + counts["failed"]
+            elapsed = time.time() - self.since
+            eta = (f"ETA {dt.timedelta(seconds=round(elapsed / ended * (len(self.todo) - ended)))}"
+                   if 0 < ended < len(self.todo) else "")
+            state = (f"done {counts['done']} · running {counts['running']} · failed {counts['failed']}"
+                     + (f" · skipped {len(self.finished)}" if self.finished else ""))
+            if self.bar is not None:
+                self.bar.update(self.task, completed=ended, state=state, eta=eta)
+        except Exception:  # noqa: BLE001 - the view must never break the sweep
+            pass
+
+    def _finished_line(self, i: int, state: str, status: dict | None) -> None:
+        job = self.jobs[i]
+        seconds = (status or {}).get("seconds")
+        took = f" ({seconds:.1f} s)" if isinstance(seconds, (int, float)) else ""
+        if state == "failed":
+            line = f"[red]failed[/red] {job.name}: {(status or {}).get('error')}"
+        else:
+            line = f"done {job.name}{took}"
+        if self.bar is not None:
+            if state == "failed":
+                self.bar.console.print(line, markup=True, highlight=False)
+        else:
+            self.console.print(f"[{len(self.reported)}/{len(self.todo)}] {line}", markup=True, highlight=False,
+                               soft_wrap=True)
+
+    def __exit__(self, *exc):
+        self.stop.set()
+        self.thread.join()
+        self.refresh()
+        if self.bar is not None:
+            self.bar.__exit__(*exc)
+        self.stream.close()
+        return False
+
+
+# ----------------------------------------------------------------------------------------------------- command
+
+
+def report_outcome(outcome: Outcome, title: str = "sweep") -> int:
+    """Print the summary table and the failures; return the exit code (0, or 1 when a job failed)."""
+    print_table(outcome.summary, f"{title}: {outcome.sweep_dir}")
+    typer.echo(f"summary: {outcome.sweep_dir / SUMMARY} ({outcome.ran} run, {outcome.skipped} skipped, "
+               f"{outcome.seconds:.1f} s)")
+    if outcome.launcher_error:
+        typer.echo(f"error: {outcome.launcher_error}", err=True)
+    if outcome.failed:
+        typer.echo(f"error: {len(outcome.failed)} of {len(outcome.summary)} jobs failed:", err=True)
+        for name, error in outcome.failed:
+            typer.echo(f"  {name}: {error}", err=True)
+    return 0 if outcome.ok else 1
+
+
+def register(app: typer.Typer) -> None:
+    """Add `sweep` to the riskplan app."""
+    from riskplan.cli import PASS_THROUGH, bad_input_exits
+
+    @app.command(context_settings=PASS_THROUGH)
+    @bad_input_exits
+    def sweep(
+        overrides: Optional[List[str]] = typer.Argument(None, help=SWEEP_HELP, show_default=False),
+        jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, show_default=False,
+                                           help="Jobs at once: joblib workers (default: the number of cores), or "
+                                                "submitit's array_parallelism."),
+    ) -> None:
+        """Run a grid of experiments (a Hydra multirun) into outputs/sweeps/<timestamp>/, one folder per job."""
+        outcome = run_sweep(list(overrides or []), jobs)
+        raise typer.Exit(report_outcome(outcome))
