@@ -299,6 +299,9 @@ def test_broken_runs_are_listed_and_missing_tables_rebuilt_from_the_log(sweep, t
     (failed / ".hydra").mkdir(parents=True)
     shutil.copy(sweep / "cvar_s1" / ".hydra" / "config.yaml", failed / ".hydra" / "config.yaml")
     (failed / "status.json").write_text(json.dumps({"status": "failed", "error": "boom: theta not finite"}))
+    hollow = mixed / "hollow"  # complete files, but no evaluation episodes
+    shutil.copytree(sweep / "cvar_s1", hollow)
+    pd.read_parquet(hollow / "eval.parquet").iloc[:0].to_parquet(hollow / "eval.parquet")
 
     out = tmp_path / "report"
     result = runner.invoke(app, ["report", str(mixed), "--out", str(out), "--format", "png"])
@@ -308,6 +311,7 @@ def test_broken_runs_are_listed_and_missing_tables_rebuilt_from_the_log(sweep, t
     assert runs.loc[str(killed), "status"] == "skipped" and "truncated" in runs.loc[str(killed), "note"]
     assert runs.loc[str(garbage), "status"] == "skipped" and "not an MCAP file" in runs.loc[str(garbage), "note"]
     assert runs.loc[str(failed), "status"] == "skipped" and "boom: theta not finite" in runs.loc[str(failed), "note"]
+    assert runs.loc[str(hollow), "status"] == "skipped" and "evaluation" in runs.loc[str(hollow), "note"]
     assert runs.loc[str(bare), "status"] == "used" and "rebuilt" in runs.loc[str(bare), "note"]
     (row,) = pd.read_csv(out / "report.csv").to_dict("records")
     e = eval_of(sweep / "neutral_s0")  # the original tables: the log gives back the same numbers
@@ -315,7 +319,7 @@ def test_broken_runs_are_listed_and_missing_tables_rebuilt_from_the_log(sweep, t
     assert row["cvar"] == pytest.approx(cvar(e.total_reward.to_numpy(), 0.1), rel=1e-12)
     assert row["risky_fraction"] == pytest.approx((e.risky_steps > 0).mean())
     html = (out / "report.html").read_text()
-    assert "Skipped 3 broken or partial run(s)" in html and str(killed) in html
+    assert "Skipped 4 broken or partial run(s)" in html and str(killed) in html
     assert not any(p.exists() for p in (bare / "metrics.parquet", bare / "eval.parquet"))  # inputs untouched
 
 
