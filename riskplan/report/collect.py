@@ -238,7 +238,8 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
         return None, failed
     missing = [name for name in ("metrics", "eval") if getattr(run, name) is None or getattr(run, name).empty]
     if missing:
-        return None, f"empty {' and '.join(missing)} table"
+        what = {"metrics": "metrics table (no iterations)", "eval": "eval table (no evaluation episodes)"}
+        return None, "empty " + " and ".join(what[m] for m in missing)
     if not run.config:
         return None, "no config (.hydra/config.yaml missing and none in run.mcap)"
     rebuilt = not all((path / f"{name}.parquet").is_file() for name in TABLES) or bool(
