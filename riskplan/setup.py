@@ -43,8 +43,9 @@ class Setup:
 
 def build_setup(cfg: DictConfig | dict) -> Setup:
     """Validate every key and build the run's objects; raises BadInput on the first problem."""
-    if not isinstance(cfg, DictConfig):
-        cfg = OmegaConf.create(cfg)
+    from riskplan.config import check_schema
+
+    cfg = check_schema(cfg if isinstance(cfg, DictConfig) else OmegaConf.create(cfg))  # types, unknown keys
     risk, train, team = cfg.risk, cfg.train, cfg.team
     if risk.measure not in MEASURES:
         raise BadInput("risk.measure", f"got '{risk.measure}'; expected one of {', '.join(MEASURES)} (risk=cvar or risk=neutral)")
@@ -75,6 +76,9 @@ def build_setup(cfg: DictConfig | dict) -> Setup:
     theta0 = np.array(list(train.theta0), dtype=float)
     _check(theta0.shape == (world.sources,) and bool(np.all(np.isfinite(theta0))), "train.theta0",
            f"got {list(train.theta0)}; expected {world.sources} finite numbers, one per source")
+    _check(math.isfinite(logit_bound(world, theta0)), "train.theta0",
+           f"got {list(train.theta0)}; theta . signal overflows the softmax (sum of |theta_j| x peak signal is not "
+           f"finite); give smaller values")
     network = build_network(team, world.sources, int(cfg.seed))
     return Setup(
         config=OmegaConf.to_container(cfg, resolve=True),
@@ -84,6 +88,15 @@ def build_setup(cfg: DictConfig | dict) -> Setup:
         mixer=Mixer(network, team, int(cfg.seed)),
         theta0=theta0,
     )
+
+
+def logit_bound(world: World, thetas: np.ndarray) -> float:
+    """Largest |logit| any policy in `thetas` (..., M) can produce: sum_j |theta_j| x peak |signal_j|.
+
+    When it is finite, no logit (or partial sum of one) overflows, so the softmax stays finite.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        return float(np.max(np.abs(np.asarray(thetas, dtype=float)) @ np.abs(world.source_amplitude)))
 
 
 def step_size(iteration: int, schedule: dict[str, Any]) -> float:
