@@ -26,7 +26,7 @@ from riskplan.consensus import consensus_error, network_metadata
 from riskplan.record import RunLog, resume_log
 from riskplan.risk import cvar_gradient, mean_gradient, summary_stats
 from riskplan.rollout import simulate
-from riskplan.setup import Setup, build_setup, samples_at, step_size
+from riskplan.setup import Setup, build_setup, logit_bound, samples_at, step_size
 from riskplan.summary import SCHEMA_VERSION, bootstrap_intervals, provenance
 from riskplan.world import world_map
 
@@ -34,6 +34,7 @@ CHECKPOINT = "checkpoint"
 AVERAGE = -1  # the `robot` id of the network average in team tables
 EVAL_BATCH = 100_000  # episodes per kernel call during evaluation (bounds memory for large teams)
 CRASH_ENV = "RISKPLAN_TEST_KILL_IN_CHECKPOINT"  # fault injection for the crash-safety tests
+STOP_ENV = "RISKPLAN_TEST_STOP_AFTER_ITERATION"  # SIGSTOP after logging this iteration, so a test can SIGKILL there
 
 
 class NumericalTrouble(RuntimeError):
@@ -70,6 +71,9 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
     if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(new_thetas))):
         raise NumericalTrouble(f"iteration {l}: theta or its gradient is not finite (theta={thetas.tolist()}, "
                                f"gradient={grads.tolist()}); lower train.step_size.initial")
+    if not math.isfinite(logit_bound(setup.world, new_thetas)):
+        raise NumericalTrouble(f"iteration {l}: the new theta={new_thetas.tolist()} overflows the softmax "
+                               f"(theta . signal is not finite); lower train.step_size.initial")
     error = consensus_error(thetas) if setup.team else math.nan
     seconds = time.perf_counter() - started
     stats = summary_stats(z, beta)
@@ -103,11 +107,20 @@ def train(config, out_dir: str | Path, *, resume: bool = False,
         state = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
         log = RunLog(out / "run.mcap")
         _log_header(log, setup)
-    else:
+    total = setup.config["train"]["iterations"]
+    if state is not None:
+        from riskplan.errors import BadInput
+
+        if state.iteration > total:
+            raise BadInput("train.iterations", f"got {total}, but {out} is checkpointed at iteration "
+                                               f"{state.iteration}; a resumed run can only be extended: give "
+                                               f"train.iterations >= {state.iteration}")
         setup.mixer.restore(state.mixer)
         log = resume_log(out / "run.mcap", out / "run.mcap.resume", state.iteration - 1)
         os.replace(out / "run.mcap.resume", out / "run.mcap")
-    total = setup.config["train"]["iterations"]
+        if _config_changed(out, setup.config):  # extended: the run's config now says the new train.iterations
+            _write_config(out, setup.config, replace=True)
+            log.metadata("config", setup.config)
     every = setup.config["train"]["checkpoint_every"]
     with log:
         while state.iteration < total:
@@ -117,6 +130,8 @@ def train(config, out_dir: str | Path, *, resume: bool = False,
                 save_checkpoint(out, state)
             if progress:
                 progress(state.iteration, total, rows[-1])
+            if os.environ.get(STOP_ENV) == str(state.iteration - 1):
+                os.kill(os.getpid(), signal.SIGSTOP)
         train_seconds = time.perf_counter() - wall
         metrics = pd.DataFrame(state.rows).sort_values(["iteration", "robot"], ignore_index=True)
         evaluation = evaluate(setup, state.thetas)
@@ -261,13 +276,18 @@ def load_checkpoint(out: Path, setup: Setup) -> State:
     path = out / CHECKPOINT
     if not path.exists():
         raise BadInput(str(out), "has no checkpoint to resume from; start it again with riskplan train")
-    payload = json.loads(path.read_text())
-    thetas = np.array(payload["thetas"], dtype=float)
+    try:
+        payload = json.loads(path.read_text())
+        thetas = np.array(payload["thetas"], dtype=float)
+        mixer = {k: np.array(v, dtype=payload["mixer_dtypes"][k]) for k, v in payload["mixer"].items()}
+        iteration, rows = int(payload["iteration"]), list(payload["rows"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+        raise BadInput(str(path), f"is damaged ({type(err).__name__}: {err}); it was not written by riskplan, "
+                                  f"which replaces checkpoints atomically: start the run again") from None
     if thetas.shape != (setup.robots, setup.world.sources):
         raise BadInput(str(out), f"checkpoint holds {thetas.shape} thetas, the config needs "
                                  f"{(setup.robots, setup.world.sources)}; only train.iterations may change on resume")
-    mixer = {k: np.array(v, dtype=payload["mixer_dtypes"][k]) for k, v in payload["mixer"].items()}
-    return State(payload["iteration"], thetas, mixer, payload["rows"])
+    return State(iteration, thetas, mixer, rows)
 
 
 def _row(l, robot, stats, theta, grad, eps, error, samples, seconds) -> dict:
@@ -278,12 +298,22 @@ def _row(l, robot, stats, theta, grad, eps, error, samples, seconds) -> dict:
             "samples": int(samples), "seconds": seconds}
 
 
-def _write_config(out: Path, config: dict) -> None:
-    """.hydra/config.yaml for runs started from the Python API (Hydra writes it for the CLI)."""
+def _write_config(out: Path, config: dict, replace: bool = False) -> None:
+    """.hydra/config.yaml for runs started from the Python API (Hydra writes it for the CLI), or `replace` it."""
     path = out / ".hydra" / "config.yaml"
-    if not path.exists():
+    if replace or not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
+        os.replace(tmp, path)
+
+
+def _config_changed(out: Path, config: dict) -> bool:
+    """Whether the run's .hydra/config.yaml differs from `config` (after `--resume ... train.iterations=N`)."""
+    from riskplan.config import check_schema
+
+    saved = OmegaConf.load(out / ".hydra" / "config.yaml")
+    return OmegaConf.to_container(check_schema(saved), resolve=True) != config
 
 
 def _log_header(log: RunLog, setup: Setup) -> None:
