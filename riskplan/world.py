@@ -254,6 +254,8 @@ def _dist(data: Any, where: str) -> Dist:
 
 def _motion(motion: Any, where: str) -> float:
     """Random-walk probability of a source's motion config."""
+    if not 0.0 <= float(motion.prob) <= 1.0:  # checked for static sources too: a probability outside [0, 1] is a typo
+        raise BadInput(f"{where}.prob", f"got {motion.prob}; expected a probability in [0, 1]")
     if motion.kind == "static":
         return 0.0
     if motion.kind != "random_walk":
