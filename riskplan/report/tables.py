@@ -112,8 +112,9 @@ def runs_table(coll: Collection) -> pd.DataFrame:
                              f"episodes"})
     for b in coll.broken:
         rows.append({"path": str(b.path), "status": "skipped", "note": b.reason})
-    return pd.DataFrame(rows, columns=["path", "status", "group", "seed", "note", "iterations", "mean", "cvar",
-                                       "value_at_risk", "theta_final"])
+    table = pd.DataFrame(rows, columns=["path", "status", "group", "seed", "note", "iterations", "mean", "cvar",
+                                        "value_at_risk", "theta_final"])
+    return table.astype({"seed": "Int64", "iterations": "Int64"})
 
 
 def runs_on(land, coll: Collection) -> list[RunInfo]:
