@@ -19,14 +19,14 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Optional
+from typing import List, Optional
 
 import typer
 
 from riskplan.errors import BadInput
 
 REPRODUCE_ROOT = Path("outputs") / "reproduce"
-SEEDS = 5
+SEEDS = 10
 QUICK_SEEDS = 2
 # (folder, what it reproduces, overrides without the seeds)
 EXPERIMENTS = (
@@ -42,25 +42,29 @@ QUICK_LANDSCAPE = {"points": 21, "episodes": 1000}
 
 
 def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = None, jobs: int | None = None,
-              formats: str = "png,pdf") -> int:
-    """Run Section V and the report; return the exit code (1 when a job or the report failed)."""
+              formats: str = "png,pdf", overrides: list[str] | None = None) -> int:
+    """Run Section V and the report; return the exit code (1 when a job or the report failed).
+
+    `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000.
+    """
     from riskplan.sweep import claim_dir, print_table, report_outcome, run_sweep
 
     seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
     if seeds < 1:
         raise BadInput("--seeds", f"got {seeds}; expected at least 1")
+    extra = _check_overrides(list(overrides or []), quick)
     report_api = _report_api()
     fmts = report_api["check_formats"](formats) if report_api else None
     started = time.time()
     target = Path(out) if out is not None else claim_dir(REPRODUCE_ROOT)
     target.mkdir(parents=True, exist_ok=True)
     typer.echo(f"reproduction directory: {target} ({'quick' if quick else 'full'}, {seeds} seeds)")
-    record = {"quick": quick, "seeds": seeds, "started": dt.datetime.now().isoformat(timespec="seconds"),
+    record = {"quick": quick, "seeds": seeds, "overrides": list(overrides or []), "started": dt.datetime.now().isoformat(timespec="seconds"),
               "parts": {}}
     code = 0
     outcomes = []
     for folder, what, overrides in EXPERIMENTS:
-        args = [*overrides, f"seed=range(0,{seeds})", *(QUICK if quick else [])]
+        args = [*overrides, f"seed=range(0,{seeds})", *extra]
         typer.echo(f"\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
         outcome = run_sweep(args, jobs, sweep_dir=target / folder, title=folder)
         outcomes.append(outcome)
@@ -69,7 +73,7 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
                                    "skipped": outcome.skipped, "failed": len(outcome.failed),
                                    "seconds": round(outcome.seconds, 2)}
     if report_api and report_api.get("compute_landscape"):
-        record["parts"]["landscape"] = _landscape(report_api, target / "landscape", quick)
+        record["parts"]["landscape"] = _landscape(report_api, target / "landscape", quick, list(overrides or []))
     _print_comparison(outcomes)
     if report_api:
         tic = time.time()
@@ -108,7 +112,24 @@ def _report_api() -> dict | None:
     return api
 
 
-def _landscape(api: dict, out: Path, quick: bool) -> dict:
+def _check_overrides(overrides: list[str], quick: bool) -> list[str]:
+    """The overrides every sweep gets (--quick's, then the user's), checked on both set-ups before anything runs."""
+    from riskplan.config import compose, parse_overrides
+
+    for override in parse_overrides(overrides):
+        if override.is_sweep_override() or override.is_hydra_override():
+            raise BadInput(f"override '{override.input_line}'", "reproduce takes plain key=value overrides for "
+                                                                "every experiment; run a grid with riskplan sweep")
+        if override.key_or_group in ("seed", "experiment"):
+            raise BadInput(f"override '{override.input_line}'", "is set by reproduce; use --seeds N, or riskplan "
+                                                                "sweep for other experiments")
+    extra = [*(QUICK if quick else []), *overrides]
+    for _, _, base in EXPERIMENTS:
+        compose([base[0], *extra])
+    return extra
+
+
+def _landscape(api: dict, out: Path, quick: bool, overrides: list[str]) -> dict:
     """The objective landscape of the paper world (skipped when it is already there)."""
     from riskplan.config import compose
 
@@ -120,8 +141,8 @@ def _landscape(api: dict, out: Path, quick: bool) -> dict:
     typer.echo(f"\nobjective landscape: {grid['points']}x{grid['points']} theta grid, {grid['episodes']} "
                f"episodes per point -> {out}")
     tic = time.time()
-    api["compute_landscape"](compose(["experiment=paper_single"]), out, overrides=["experiment=paper_single"],
-                             **grid)
+    args = ["experiment=paper_single", *overrides]
+    api["compute_landscape"](compose(args), out, overrides=args, **grid)
     return {"seconds": round(time.time() - tic, 2), **grid}
 
 
@@ -166,9 +187,14 @@ def register(app: typer.Typer) -> None:
     """Add `reproduce` to the riskplan app."""
     from riskplan.cli import bad_input_exits
 
-    @app.command(name="reproduce")
+    from riskplan.cli import PASS_THROUGH
+
+    @app.command(name="reproduce", context_settings=PASS_THROUGH)
     @bad_input_exits
     def reproduce_command(
+        overrides: Optional[List[str]] = typer.Argument(
+            None, show_default=False, help="Plain overrides for every experiment (no sweeps), e.g. train.samples=3000 "
+                                           "world.horizon=24."),
         out: Optional[Path] = typer.Option(None, "--out", metavar="DIR",
                                            help="Where to put it (default: outputs/reproduce/<timestamp>/). An "
                                                 "existing reproduction is completed: finished jobs are skipped."),
@@ -182,4 +208,4 @@ def register(app: typer.Typer) -> None:
         formats: str = typer.Option("png,pdf", "--format", help="Figure files of the report: any of png,pdf,svg."),
     ) -> None:
         """Run every experiment of the paper's Section V (several seeds each), then the report."""
-        raise typer.Exit(reproduce(out, quick, seeds, jobs, formats))
+        raise typer.Exit(reproduce(out, quick, seeds, jobs, formats, list(overrides or [])))

@@ -50,6 +50,7 @@ class Job:
     sha: str  # riskplan.sweepjob.config_sha of its composed config
     invalid: str | None = None  # why the model rejects it (the job will fail with this error)
     path: Path | None = None  # its folder, once known
+    label: str = ""  # the overrides that vary between jobs: its name until its folder exists
 
     @property
     def key(self) -> tuple[str, ...]:
@@ -57,7 +58,7 @@ class Job:
 
     @property
     def name(self) -> str:
-        return self.path.name if self.path is not None else ",".join(self.overrides)
+        return self.path.name if self.path is not None else (self.label or ",".join(self.overrides))
 
 
 @dataclass
@@ -132,15 +133,17 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         if "hydra.launcher.n_jobs" not in hydra_keys:
             argv.append(f"hydra.launcher.n_jobs={workers}")
     elif jobs is not None:
-        if launcher.startswith("submitit"):
+        if launcher == "submitit_slurm":
             argv.append(f"hydra.launcher.array_parallelism={jobs}")
             workers = jobs
         else:
-            raise BadInput("--jobs", f"applies to the joblib and submitit launchers, not to hydra/launcher={launcher}; "
-                                     f"size the {launcher} cluster instead")
+            raise BadInput("--jobs", f"applies to the joblib and submitit_slurm launchers, not to "
+                                     f"hydra/launcher={launcher}")
     if "hydra/launcher" not in hydra_keys:
         argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
     constant = constant_keys(combos)
+    for job in job_list:
+        job.label = ",".join(sorted(o for o in job.overrides if o.split("=", 1)[0].lstrip("+~") not in constant))
     if constant and not {"hydra.sweep.subdir", "hydra.job.config.override_dirname.exclude_keys"} & set(hydra_keys):
         # folders named by what varies (risk.beta=0.1,seed=0), not by every fixed setting; the job's
         # .hydra/overrides.yaml keeps them all, and resuming matches jobs by their full config anyway
@@ -150,6 +153,8 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         argv.append("hydra/hydra_logging=riskplan_sweep")
     if "hydra/job_logging" not in hydra_keys:
         argv.append("hydra/job_logging=riskplan_job")
+
+    check_hydra(argv[1 + len(args):] + [o.input_line for o in hydra_ovs], combos[0])
 
     if sweep_dir is not None:
         target = Path(sweep_dir)
@@ -179,6 +184,33 @@ def expand(task_ovs: list, args: list[str]) -> list[list[str]]:
     if not combos or (task_ovs and any(not job for job in combos)):
         raise BadInput("sweep", f"'{' '.join(args)}' expands to no job; check empty range(...) values")
     return combos
+
+
+def check_hydra(hydra_args: list[str], first_job: list[str]) -> None:
+    """Compose Hydra's own config (launcher and its settings) once: a bad one is bad input, before anything runs."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from riskplan import schema
+    from riskplan.config import CONF_DIR
+
+    schema.register()
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            compose(config_name="config", overrides=[*hydra_args, *first_job], return_hydra_config=True)
+    except (HydraException, OmegaConfBaseException) as err:
+        key = getattr(err, "full_key", None)
+        message = _first_line(err)
+        if "hydra/launcher" in message and "ray" in message:
+            message += " (pip install 'riskplan[ray]' for the Ray launcher)"
+        elif "hydra/launcher" in message and "submitit" in message:
+            message += " (pip install 'riskplan[slurm]' for the submitit launchers)"
+        raise BadInput(f"key '{key}'" if key else "hydra settings", message) from None
+    finally:
+        GlobalHydra.instance().clear()
 
 
 def constant_keys(combos: list[list[str]]) -> list[str]:
@@ -326,7 +358,7 @@ def run_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None =
         if plan.launcher == "joblib" and plan.workers:
             os.environ["RISKPLAN_JOB_THREADS"] = str(max(1, cpu_count() // plan.workers))
         with SweepView(plan.sweep_dir, plan.jobs, finished, title):
-            launcher_error = _launch(plan.argv)
+            launcher_error = _launch(plan.argv, plan.sweep_dir / "sweep.log")
     locate(plan.sweep_dir, plan.jobs)
     summary = summarize(plan.jobs)
     write_summary(summary, plan.sweep_dir / SUMMARY)
@@ -334,18 +366,35 @@ def run_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None =
     return Outcome(plan.sweep_dir, summary, failed, todo, len(finished), time.time() - started, launcher_error)
 
 
-def _launch(argv: list[str]) -> str | None:
-    """Run Hydra's multirun; return the launcher's error, if it failed as a whole."""
+def _launch(argv: list[str], log_file: Path) -> str | None:
+    """Run Hydra's multirun, its printed output going to sweep.log; return the launcher's error, if any."""
+    import contextlib
+
     from riskplan.app import run_hydra
 
-    try:
-        run_hydra(argv)
-    except SystemExit as stop:  # Hydra reports an exception in the launcher and exits 1
-        if stop.code not in (0, None):
-            return f"the launcher stopped (exit {stop.code}); see sweep.log"
-    except Exception as err:  # noqa: BLE001 - the jobs' own records say what finished
-        return f"the launcher stopped: {type(err).__name__}: {err}"
+    with open(log_file, "a", buffering=1) as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+        try:
+            run_hydra(argv)
+        except SystemExit as stop:  # Hydra prints an exception in the launcher, then exits 1
+            if stop.code not in (0, None):
+                return _launcher_error(log_file)
+        except Exception as err:  # noqa: BLE001 - the jobs' own records say what finished
+            import traceback
+
+            traceback.print_exc()
+            return f"the launcher stopped: {type(err).__name__}: {err} (see {log_file})"
     return None
+
+
+def _launcher_error(log_file: Path) -> str:
+    """The last line of the error Hydra printed into sweep.log."""
+    try:
+        lines = [line.strip() for line in log_file.read_text().splitlines() if line.strip()]
+    except OSError:
+        lines = []
+    errors = [line for line in lines if "Error" in line.split(":")[0] or "Exception" in line.split(":")[0]]
+    last = errors[-1] if errors else (lines[-1] if lines else "no message")
+    return f"the launcher stopped: {last[:300]} (see {log_file})"
 
 
 def locate(sweep_dir: Path, jobs: list[Job]) -> None:
@@ -559,8 +608,8 @@ class SweepView:
             elapsed = time.time() - self.since
             eta = (f"ETA {dt.timedelta(seconds=round(elapsed / ended * (len(self.todo) - ended)))}"
                    if 0 < ended < len(self.todo) else "")
-            state = (f"done {counts['done']} · running {counts['running']} · failed {counts['failed']}"
-                     + (f" · skipped {len(self.finished)}" if self.finished else ""))
+            state = (f"running {counts['running']} · failed {counts['failed']}"
+                     + (f" · skipped {len(self.finished)} finished before" if self.finished else ""))
             if self.bar is not None:
                 self.bar.update(self.task, completed=ended, state=state, eta=eta)
         except Exception:  # noqa: BLE001 - the view must never break the sweep

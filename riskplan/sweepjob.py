@@ -134,12 +134,12 @@ def job_output(path: Path):
     os.dup2(fd, 1)
     os.dup2(fd, 2)
     os.close(fd)
+    log = open(path, "a", buffering=1)  # Python-level writes too, whatever sys.stdout was replaced by
     try:
-        yield
+        with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+            yield
     finally:
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):
-                stream.flush()
+        log.close()
         os.dup2(saved[0], 1)
         os.dup2(saved[1], 2)
         os.close(saved[0])
