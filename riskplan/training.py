@@ -62,12 +62,13 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
                      rng.robot_keys(cfg["seed"], rng.TRAIN, l, n), episodes)
     z = batch.total_reward.reshape(n, episodes)
     scores = batch.score.reshape(n, episodes, -1)
-    if cfg["risk"]["measure"] == "cvar":
-        grads = cvar_gradient(z, scores, beta)
-    else:
-        grads = mean_gradient(z, scores, cfg["train"]["baseline"])
-    eps = step_size(l, cfg["train"]["step_size"])
-    new_thetas = consensus_step(setup, thetas, grads, eps, l)
+    with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are caught just below, in one line
+        if cfg["risk"]["measure"] == "cvar":
+            grads = cvar_gradient(z, scores, beta)
+        else:
+            grads = mean_gradient(z, scores, cfg["train"]["baseline"])
+        eps = step_size(l, cfg["train"]["step_size"])
+        new_thetas = consensus_step(setup, thetas, grads, eps, l)
     if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(new_thetas))):
         raise NumericalTrouble(f"iteration {l}: theta or its gradient is not finite (theta={thetas.tolist()}, "
                                f"gradient={grads.tolist()}); lower train.step_size.initial")
