@@ -141,7 +141,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
                                      f"hydra/launcher={launcher}")
     if "hydra/launcher" not in hydra_keys:
         argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
-    constant = constant_keys(combos)
+    constant = constant_keys(combos, {o.key_or_group for o in task_ovs if o.is_sweep_override()})
     for job in job_list:
         job.label = ",".join(sorted(o for o in job.overrides if o.split("=", 1)[0].lstrip("+~") not in constant))
     if constant and not {"hydra.sweep.subdir", "hydra.job.config.override_dirname.exclude_keys"} & set(hydra_keys):
@@ -164,8 +164,8 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         target.mkdir(parents=True, exist_ok=True)
     else:
         target = claim_dir(SWEEPS_ROOT)
-    if explicit_dir is None:
-        argv.append(f"hydra.sweep.dir={quote(target)}")
+    if explicit_dir is None:  # absolute: jobs on other machines (submitit, ray) may start in another directory
+        argv.append(f"hydra.sweep.dir={quote(target.resolve())}")
     return Plan(target, argv, job_list, launcher, workers, notes)
 
 
@@ -213,8 +213,9 @@ def check_hydra(hydra_args: list[str], first_job: list[str]) -> None:
         GlobalHydra.instance().clear()
 
 
-def constant_keys(combos: list[list[str]]) -> list[str]:
-    """The override keys whose value is the same in every job, when some other key varies."""
+def constant_keys(combos: list[list[str]], swept: set[str] = frozenset()) -> list[str]:
+    """The override keys left out of job folder names: those with one value in every job that were not typed as a
+    sweep (`seed=range(0,1)` keeps its key), as long as some key remains."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
     parser = OverridesParser.create()
@@ -222,7 +223,7 @@ def constant_keys(combos: list[list[str]]) -> list[str]:
     for combo in combos:
         for o in parser.parse_overrides(combo):
             values.setdefault(o.key_or_group, set()).add(o.input_line)
-    constant = [k for k, v in values.items() if len(v) == 1]
+    constant = [k for k, v in values.items() if len(v) == 1 and k not in swept]
     return constant if len(constant) < len(values) else []
 
 

@@ -1,0 +1,55 @@
+"""`riskplan reproduce` through the real command line, shrunk with plain overrides so that it stays small."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pandas as pd
+
+FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
+CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
+
+
+def riskplan(cwd, *args):
+    return subprocess.run([*CLI, *args], cwd=cwd, capture_output=True, text=True, timeout=300, env=dict(os.environ))
+
+
+def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
+    result = riskplan(tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", *FAST)
+    assert result.returncode == 0, result.stdout + result.stderr
+    roots = list((tmp_path / "outputs" / "reproduce").iterdir())
+    assert len(roots) == 1
+    root = roots[0]
+    single = pd.read_parquet(root / "single" / "summary.parquet")
+    team = pd.read_parquet(root / "team" / "summary.parquet")
+    assert sorted(single.risk) == ["cvar", "neutral"] and (single.status == "done").all()
+    assert len(team) == 1 and team.status.iloc[0] == "done"
+    config = (root / "team" / "seed=0" / ".hydra" / "config.yaml").read_text()
+    assert "robots: 3" in config and "iterations: 5" in config  # the user's overrides beat --quick's
+    assert (root / "single" / "multirun.yaml").is_file()
+    record = json.loads((root / "reproduce.json").read_text())
+    assert record["seeds"] == 1 and record["quick"] and set(record["parts"]) >= {"single", "team"}
+    assert "Section V across seeds" in result.stdout
+    import importlib.util
+
+    if importlib.util.find_spec("riskplan.report") is None:
+        return
+    assert (root / "report" / "report.html").is_file()
+    assert (root / "landscape" / "summary.json").is_file()
+
+    # completing an existing reproduction runs nothing again
+    again = riskplan(tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", "--out", str(root), *FAST)
+    assert again.returncode == 0, again.stderr
+    assert "2 jobs: 0 to run, 2 already finished" in again.stdout
+    assert "1 job: 0 to run, 1 already finished" in again.stdout
+
+
+def test_reproduce_rejects_sweeps_and_its_own_keys_as_bad_input(tmp_path):
+    for args in (["risk.beta=0.1,0.2"], ["seed=3"], ["train.iterations=abc"], ["--seeds", "0"]):
+        result = riskplan(tmp_path, "reproduce", *args)
+        assert result.returncode == 2, (args, result.stderr)
+        assert "Traceback" not in result.stderr
+    assert not (tmp_path / "outputs").exists()
