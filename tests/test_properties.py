@@ -1,0 +1,236 @@
+"""Property-based tests (hypothesis) of the risk estimators and of the reward-distribution grammar."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+from omegaconf import OmegaConf
+
+from riskplan import distributions as D
+from riskplan.errors import BadInput
+from riskplan.risk import cvar, cvar_gradient, mean_gradient, summary_stats, tail_count, value_at_risk
+
+settings.register_profile("riskplan", max_examples=150, deadline=None, derandomize=True)
+settings.load_profile("riskplan")
+
+# ----------------------------------------------------------------------------------------------- estimators
+LIMIT = 1e6
+values = st.floats(-LIMIT, LIMIT, allow_nan=False, allow_infinity=False)
+samples = hnp.arrays(np.float64, st.integers(1, 200), elements=values)
+betas = st.floats(1e-3, 1.0, exclude_min=False)
+
+
+def tol(*arrays) -> float:
+    """Round-off allowance for sums of numbers as large as those given."""
+    scale = max(float(np.max(np.abs(a))) if np.size(a) else 0.0 for a in arrays)
+    return 1e-9 * (1.0 + scale)
+
+
+@given(samples, betas)
+def test_cvar_below_var_below_max_and_above_min(z, beta):
+    c, v = cvar(z, beta), value_at_risk(z, beta)
+    assert z.min() - tol(z) <= c <= v <= z.max()
+
+
+@given(samples, betas)
+def test_var_is_the_ceil_beta_w_th_smallest_sample(z, beta):
+    m = tail_count(beta, z.size)
+    assert m == min(max(math.ceil(beta * z.size - 1e-9 * max(1.0, beta * z.size)), 1), z.size)
+    assert value_at_risk(z, beta) == np.sort(z)[m - 1]
+
+
+@given(samples, betas, betas)
+def test_cvar_is_monotone_in_beta(z, b1, b2):
+    low, high = sorted((b1, b2))
+    assert cvar(z, low) <= cvar(z, high) + tol(z)
+
+
+@given(samples)
+def test_cvar_at_beta_one_is_the_mean(z):
+    assert math.isclose(cvar(z, 1.0), z.mean(), rel_tol=0, abs_tol=tol(z))
+
+
+@given(st.integers(1, 60), st.integers(1, 60), st.data())
+def test_cvar_is_the_mean_of_the_m_lowest_when_beta_w_is_whole(m, extra, data):
+    w = m + extra - 1 if m + extra - 1 >= m else m
+    z = data.draw(hnp.arrays(np.float64, w, elements=values, unique=True))
+    assert math.isclose(cvar(z, m / w), np.sort(z)[:m].mean(), rel_tol=0, abs_tol=tol(z))
+
+
+@given(samples, betas, values)
+def test_translation_equivariance(z, beta, c):
+    shifted = z + c
+    assert value_at_risk(shifted, beta) == value_at_risk(z, beta) + c  # float addition keeps the order
+    assert math.isclose(cvar(shifted, beta), cvar(z, beta) + c, rel_tol=0, abs_tol=tol(z, shifted))
+
+
+@given(samples, betas, st.floats(1e-3, 1e3))
+def test_positive_scaling_equivariance(z, beta, a):
+    scaled = a * z
+    assert value_at_risk(scaled, beta) == a * value_at_risk(z, beta)  # float product keeps the order
+    assert math.isclose(cvar(scaled, beta), a * cvar(z, beta), rel_tol=1e-9, abs_tol=tol(scaled))
+
+
+@given(hnp.arrays(np.float64, st.tuples(st.integers(1, 4), st.integers(1, 50)), elements=values), betas)
+def test_batched_estimators_equal_row_by_row(z, beta):
+    stats = summary_stats(z, beta)
+    for i, row in enumerate(z):
+        assert cvar(z, beta)[i] == cvar(row, beta) == stats["cvar"][i]
+        assert value_at_risk(z, beta)[i] == value_at_risk(row, beta) == stats["value_at_risk"][i]
+        assert stats["mean"][i] == row.mean()
+
+
+@given(samples, betas, st.floats(-10, 10))
+def test_gradients_with_a_constant_score(z, beta, s):
+    """With the same score s for every trajectory, eq. (9) is s * (CVaR - VaR) and the baselined mean gradient is 0."""
+    scores = np.full((z.size, 1), s)
+    assert math.isclose(cvar_gradient(z, scores, beta)[0], s * (cvar(z, beta) - value_at_risk(z, beta)),
+                        rel_tol=1e-9, abs_tol=10 * tol(z))
+    assert math.isclose(mean_gradient(z, scores)[0], 0.0, abs_tol=10 * tol(z))
+    assert math.isclose(mean_gradient(z, scores, baseline=False)[0], s * z.mean(), rel_tol=1e-9, abs_tol=10 * tol(z))
+
+
+# ----------------------------------------------------------------------------------------------- grammar
+finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+pair = st.tuples(finite, finite).map(sorted)
+leaves = st.one_of(
+    finite,
+    st.integers(-10**6, 10**6),
+    finite.map(lambda c: {"constant": c}),
+    pair.map(lambda p: {"uniform": list(p)}),
+    st.tuples(finite, st.floats(0, 1e4)).map(lambda p: {"normal": list(p)}),
+    st.floats(0, 1).map(lambda p: {"bernoulli": p}),
+)
+
+
+def _wrap(children):
+    return st.one_of(
+        st.tuples(finite, children).map(lambda t: {"scale": t[0], "of": t[1]}),
+        st.tuples(pair, children).map(lambda t: {"clip": list(t[0]), "of": t[1]}),
+        st.lists(children, min_size=1, max_size=3).map(lambda items: {"sum": items}),
+        st.lists(st.tuples(st.floats(0.01, 10), children), min_size=1, max_size=3).map(
+            lambda items: {"mixture": [{"weight": w, "of": c} for w, c in items]}),
+    )
+
+
+distributions = st.recursive(leaves, _wrap, max_leaves=8)
+
+
+@given(distributions)
+def test_parser_round_trips(data):
+    dist = D.parse(data)
+    canonical = D.to_data(dist)
+    assert D.parse(canonical) == dist
+    assert D.to_data(D.parse(canonical)) == canonical
+    assert D.parse(yaml.safe_load(yaml.safe_dump(canonical))) == dist  # writable in YAML
+    assert D.parse(OmegaConf.to_container(OmegaConf.create({"r": canonical}))["r"]) == dist  # and through Hydra
+
+
+def support(dist: D.Dist) -> tuple[float, float]:
+    """An interval that holds every value of `dist`."""
+    if dist.kind == "constant":
+        return dist.params[0], dist.params[0]
+    if dist.kind == "uniform":
+        return dist.params
+    if dist.kind == "normal":
+        return (dist.params[0], dist.params[0]) if dist.params[1] == 0 else (-math.inf, math.inf)
+    if dist.kind == "bernoulli":
+        return 0.0, 1.0
+    inner = [support(c) for c in dist.children]
+    if dist.kind == "scale":
+        k = dist.params[0]
+        ends = [k * inner[0][0], k * inner[0][1]]
+        return (0.0, 0.0) if k == 0 else (min(ends), max(ends))
+    if dist.kind == "clip":
+        lo, hi = dist.params
+        return min(max(inner[0][0], lo), hi), min(max(inner[0][1], lo), hi)
+    if dist.kind == "sum":
+        return sum(i[0] for i in inner), sum(i[1] for i in inner)
+    return min(i[0] for i in inner), max(i[1] for i in inner)
+
+
+@given(distributions, st.integers(0, 2**32))
+def test_samples_stay_in_the_support(data, seed):
+    dist = D.parse(data)
+    lo, hi = support(dist)
+    assume(math.isfinite(lo - hi) or not (math.isfinite(lo) and math.isfinite(hi)))
+    draws = D.sample(dist, np.random.default_rng(seed), 200)
+    assert draws.shape == (200,) and not np.isnan(draws).any()
+    slack = 1e-9 * (1 + max(abs(lo) if math.isfinite(lo) else 0, abs(hi) if math.isfinite(hi) else 0)) * 16
+    assert (draws >= lo - slack).all() and (draws <= hi + slack).all()
+
+
+# Text without line breaks: a YAML key with a newline in it would make a two-line message (reported, not fixed here:
+# distributions.py quotes the kind with '...' rather than repr).
+plain_text = st.text(st.characters(blacklist_categories=("Cc", "Cs", "Zl", "Zp")), max_size=20)
+garbage = st.one_of(
+    plain_text,
+    st.none(),
+    st.booleans(),
+    st.floats(allow_nan=True, allow_infinity=True).filter(lambda x: not math.isfinite(x)),
+    st.lists(finite, max_size=3),
+    st.dictionaries(plain_text.filter(lambda k: k not in D.KINDS and k != "of"), finite, min_size=1,
+                    max_size=2),
+    st.just({"normal": [0, -1]}), st.just({"uniform": [2, 1]}), st.just({"bernoulli": 1.5}),
+    st.just({"normal": [0, 1], "uniform": [0, 1]}), st.just({"scale": 2}), st.just({"sum": []}),
+    st.just({"clip": [1, 0], "of": 1}), st.just({"mixture": [{"weight": 0, "of": 1}]}),
+    st.just({"mixture": [1, 2]}), st.just({"normal": "0, 1"}), st.just({"constant": "5"}),
+    st.just({"uniform": [0, 1], "of": 2}),
+)
+
+
+@given(st.recursive(garbage, lambda inner: st.one_of(
+    st.tuples(finite, inner).map(lambda t: {"scale": t[0], "of": t[1]}),
+    st.lists(inner, min_size=1, max_size=2).map(lambda items: {"sum": items}),
+), max_leaves=4))
+def test_parser_rejects_garbage_with_one_plain_line_naming_the_key(data):
+    try:
+        D.parse(data, "world.regions.0.reward")
+    except BadInput as err:
+        message = str(err)
+        assert "\n" not in message and message.startswith("world.regions.0.reward")
+        assert err.where.startswith("world.regions.0.reward")
+    else:
+        raise AssertionError(f"accepted {data!r}")
+
+
+json_like = st.recursive(
+    st.one_of(st.none(), st.booleans(), st.integers(-10**300, 10**300), st.floats(), plain_text),
+    lambda inner: st.one_of(st.lists(inner, max_size=3),
+                            st.dictionaries(st.sampled_from([*D.KINDS, "of", "weight", "x"]), inner, max_size=3)),
+    max_leaves=10,
+)
+
+
+@given(json_like)
+def test_parser_accepts_or_rejects_anything_cleanly(data):
+    """Whatever YAML gives it, the parser returns a distribution that round-trips or raises BadInput: no crash."""
+    try:
+        dist = D.parse(data)
+    except BadInput as err:
+        assert "\n" not in str(err) and str(err).startswith("reward")
+    else:
+        assert D.parse(D.to_data(dist)) == dist
+
+
+# Known parser bugs, outside this suite's files (riskplan/distributions.py); strict, so a fix makes these fail and
+# the markers can go.
+@pytest.mark.xfail(strict=True, raises=OverflowError, reason="_finite calls math.isfinite on an int too large for "
+                                                             "a float (a 400-digit YAML integer): traceback, exit 1")
+def test_an_integer_too_large_for_a_float_is_bad_input():
+    with pytest.raises(BadInput):
+        D.parse({"normal": [0, 10**400]})
+
+
+@pytest.mark.xfail(strict=True, reason="the unknown kind is quoted with '...', not repr: a key with a line break "
+                                       "gives a two-line message")
+def test_an_unknown_kind_with_a_line_break_gives_one_line():
+    with pytest.raises(BadInput) as err:
+        D.parse({"nor\nmal": [0, 1]})
+    assert "\n" not in str(err.value)
