@@ -140,8 +140,9 @@ def explain(err: Exception) -> tuple[str, str]:
     if missing:
         group, option = missing.groups()
         listed = re.search(r"Available options in '[^']*':\n((?:\t.*(?:\n|$))+)", text)
-        options = ([o.strip() for o in listed.group(1).splitlines() if o.strip()] if listed
-                   else sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml")))
+        options = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))  # riskplan's own (not the schema's)
+        if not options and listed:  # a group of Hydra or its plugins, e.g. hydra/launcher
+            options = [o.strip() for o in listed.group(1).splitlines() if o.strip()]
         return f"key '{group}'", f"no option '{option}'; available: {', '.join(options) or 'none'}"
     if "Could not override" in message:
         return f"key '{message.split(chr(39))[1]}'", "unknown key; run `riskplan check` to list the config's keys"
