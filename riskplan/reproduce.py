@@ -68,7 +68,7 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
         typer.echo(f"\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
         outcome = run_sweep(args, jobs, sweep_dir=target / folder, title=folder)
         outcomes.append(outcome)
-        code = max(code, report_outcome(outcome, folder))
+        code = max(code, report_outcome(outcome, folder, hint=False))
         record["parts"][folder] = {"overrides": args, "jobs": len(outcome.summary), "ran": outcome.ran,
                                    "skipped": outcome.skipped, "failed": len(outcome.failed),
                                    "seconds": round(outcome.seconds, 2)}
@@ -93,6 +93,12 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
     record["seconds"] = round(time.time() - started, 2)
     (target / "reproduce.json").write_text(json.dumps(record, indent=2))
     typer.echo(f"reproduced in {record['seconds']:.0f} s: {target}")
+    if code:
+        import shlex
+
+        again = ["--out", str(target), *(["--quick"] if quick else []), "--seeds", str(seeds), *(overrides or [])]
+        typer.echo(f"to retry what did not finish (finished jobs are skipped): riskplan reproduce "
+                   f"{shlex.join(again)}", err=True)
     return code
 
 

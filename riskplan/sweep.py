@@ -84,6 +84,7 @@ class Outcome:
     skipped: int
     seconds: float
     launcher_error: str | None = None
+    command: list[str] = field(default_factory=list)  # the `riskplan sweep` arguments that resume this sweep
 
     @property
     def ok(self) -> bool:
@@ -364,7 +365,9 @@ def run_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None =
     summary = summarize(plan.jobs)
     write_summary(summary, plan.sweep_dir / SUMMARY)
     failed = [(row.job, row.error or row.status) for row in summary.itertuples() if row.status != "done"]
-    return Outcome(plan.sweep_dir, summary, failed, todo, len(finished), time.time() - started, launcher_error)
+    resume = [a for a in args if not a.startswith("hydra.sweep.dir=")] + [f"hydra.sweep.dir={plan.sweep_dir}"]
+    return Outcome(plan.sweep_dir, summary, failed, todo, len(finished), time.time() - started, launcher_error,
+                   resume)
 
 
 def _launch(argv: list[str], log_file: Path) -> str | None:
@@ -379,6 +382,8 @@ def _launch(argv: list[str], log_file: Path) -> str | None:
         except SystemExit as stop:  # Hydra prints an exception in the launcher, then exits 1
             if stop.code not in (0, None):
                 return _launcher_error(log_file)
+        except KeyboardInterrupt:
+            return "interrupted (Ctrl-C)"
         except Exception as err:  # noqa: BLE001 - the jobs' own records say what finished
             import traceback
 
@@ -405,9 +410,7 @@ def locate(sweep_dir: Path, jobs: list[Job]) -> None:
     missing = {job.key: job for job in jobs if job.path is None}
     if not missing or not Path(sweep_dir).is_dir():
         return
-    for file in Path(sweep_dir).rglob("overrides.yaml"):
-        if file.parent.name != ".hydra":
-            continue
+    for file in _override_files(Path(sweep_dir)):
         try:
             overrides = yaml.safe_load(file.read_text()) or []
         except (OSError, yaml.YAMLError):
@@ -417,6 +420,17 @@ def locate(sweep_dir: Path, jobs: list[Job]) -> None:
             job.path = file.parent.parent
         if not missing:
             return
+
+
+def _override_files(root: Path):
+    """Every .hydra/overrides.yaml below root, not looking inside other hidden folders (.submitit, ...)."""
+    for here, dirs, files in os.walk(root):
+        if Path(here).name == ".hydra":
+            dirs[:] = []
+            if "overrides.yaml" in files:
+                yield Path(here) / "overrides.yaml"
+            continue
+        dirs[:] = [d for d in dirs if d == ".hydra" or not d.startswith(".")]
 
 
 def job_state(job: Job, since: float) -> tuple[str, dict | None]:
@@ -452,7 +466,7 @@ def summarize(jobs: list[Job]):
         status = read_status(job.path) if job.path is not None else None
         summary = None
         if job.path is None or status is None:
-            state, error = "not run", job.invalid or "the job never started (launcher stopped?)"
+            state, error = "not run", job.invalid or "not started: the sweep stopped before it"
         elif status.get("config_sha") != job.sha:
             state, error = "not run", "its folder holds a run of another config"
         elif status.get("status") == "done" and is_finished(job.path, job.sha, status):
@@ -644,7 +658,7 @@ class SweepView:
 # ----------------------------------------------------------------------------------------------------- command
 
 
-def report_outcome(outcome: Outcome, title: str = "sweep") -> int:
+def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) -> int:
     """Print the summary table and the failures; return the exit code (0, or 1 when a job failed)."""
     print_table(outcome.summary, f"{title}: {outcome.sweep_dir}")
     typer.echo(f"summary: {outcome.sweep_dir / SUMMARY} ({outcome.ran} run, {outcome.skipped} skipped, "
@@ -652,9 +666,14 @@ def report_outcome(outcome: Outcome, title: str = "sweep") -> int:
     if outcome.launcher_error:
         typer.echo(f"error: {outcome.launcher_error}", err=True)
     if outcome.failed:
-        typer.echo(f"error: {len(outcome.failed)} of {len(outcome.summary)} jobs failed:", err=True)
+        typer.echo(f"error: {len(outcome.failed)} of {len(outcome.summary)} jobs did not finish:", err=True)
         for name, error in outcome.failed:
             typer.echo(f"  {name}: {error}", err=True)
+    if hint and not outcome.ok and outcome.command:
+        import shlex
+
+        typer.echo(f"to retry the jobs that did not finish (finished ones are skipped): riskplan sweep "
+                   f"{shlex.join(outcome.command)}", err=True)
     return 0 if outcome.ok else 1
 
 
