@@ -112,7 +112,7 @@ def explain(err: Exception) -> tuple[str, str]:
     sweep = re.match(r"(?:Ambiguous value for argument|Sweep parameters) '(.+?)'", message)
     if sweep:
         return (f"override '{sweep.group(1)}'", "gives several values (a sweep); train and check take one value "
-                                                 "per key: run a grid with `riskplan sweep`, or write a list as [a,b]")
+                                                 "per key: run a grid with riskplan sweep, or write a list as [a,b]")
     converted = re.match(r"Value '(.*)' of type '\w+' could not be converted to (\w+)", message)
     if converted and key:
         value, kind = converted.groups()

@@ -77,8 +77,7 @@ def build_setup(cfg: DictConfig | dict) -> Setup:
     _check(theta0.shape == (world.sources,) and bool(np.all(np.isfinite(theta0))), "train.theta0",
            f"got {list(train.theta0)}; expected {world.sources} finite numbers, one per source")
     _check(math.isfinite(logit_bound(world, theta0)), "train.theta0",
-           f"got {list(train.theta0)}; theta . signal overflows the softmax (sum of |theta_j| x peak signal is not "
-           f"finite); give smaller values")
+           f"got {list(train.theta0)}; the softmax logits theta . signal overflow to infinity; give smaller values")
     network = build_network(team, world.sources, int(cfg.seed))
     return Setup(
         config=OmegaConf.to_container(cfg, resolve=True),
