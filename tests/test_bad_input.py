@@ -1,0 +1,102 @@
+"""Bad input everywhere: every row of the README's bad-input table is run through the real CLI (typer's CliRunner)
+in a scratch directory. Each must exit with code 2 and print exactly the table's line on stderr (one plain line,
+no traceback), and leave the directory exactly as it was: no run directory, no file touched."""
+
+from __future__ import annotations
+
+import re
+import shlex
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from riskplan import compose
+from riskplan.cli import app
+from riskplan.training import CHECKPOINT, train
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+BEGIN, END = "<!-- bad-input-table: begin -->", "<!-- bad-input-table: end -->"
+FAST = ["train.iterations=12", "train.samples=300", "train.eval_episodes=500", "train.bootstrap=20",
+        "train.paths=2", "train.checkpoint_every=5"]
+
+runner = CliRunner()
+
+
+def table_rows() -> list[tuple[str, str, list[str], str]]:
+    """(number, input, argv, expected stderr line) for each row of the README table."""
+    text = README.read_text()
+    body = text[text.index(BEGIN) + len(BEGIN):text.index(END)]
+    rows = []
+    for line in body.strip().splitlines()[2:]:  # skip the header and the --- row
+        number, what, command, expected = (cell.strip() for cell in line.strip().strip("|").split(" | "))
+        argv = shlex.split(command.strip("`"))
+        assert argv[0] == "riskplan", line
+        rows.append((number, what, argv[1:], expected.strip("`")))
+    return rows
+
+
+ROWS = table_rows()
+
+
+def test_the_table_has_at_least_25_distinct_inputs_across_every_command():
+    assert len(ROWS) >= 25
+    assert len({tuple(argv) for _, _, argv, _ in ROWS}) == len(ROWS)
+    commands = {argv[0] + (" --resume" if "--resume" in argv else "") for _, _, argv, _ in ROWS}
+    assert commands >= {"train", "train --resume", "check", "report", "sweep"}
+
+
+@pytest.fixture(scope="module")
+def template(tmp_path_factory) -> Path:
+    """The scratch directory's contents: the runs, the empty directory and the file the table names."""
+    root = tmp_path_factory.mktemp("bad_input")
+    runs = root / "outputs" / "runs"
+    done = runs / "done"
+    train(compose(FAST), done)  # a finished run, checkpointed at iteration 12
+    early = runs / "early"  # killed before its first checkpoint
+    shutil.copytree(done, early)
+    (early / CHECKPOINT).unlink()
+    for name in ("metrics.parquet", "eval.parquet", "trajectories.parquet", "summary.json"):
+        (early / name).unlink()
+    damaged = runs / "damaged"
+    shutil.copytree(done, damaged)
+    (damaged / CHECKPOINT).write_text('{"iteration": 1')
+    no_config = runs / "no_config"
+    shutil.copytree(done, no_config)
+    shutil.rmtree(no_config / ".hydra")
+    not_mcap = runs / "not_mcap"
+    shutil.copytree(done, not_mcap)
+    (not_mcap / "run.mcap").write_text("these are notes, not a log")
+    (root / "empty").mkdir()
+    (root / "notes.txt").write_text("not a run\n")
+    return root
+
+
+def snapshot(root: Path) -> dict[str, tuple[int, int, bytes]]:
+    """Every file and directory below root, with size, modification time and (for files) content."""
+    return {str(p.relative_to(root)): (p.stat().st_size if p.is_file() else -1, p.stat().st_mtime_ns,
+                                       p.read_bytes() if p.is_file() else b"")
+            for p in sorted(root.rglob("*"))}
+
+
+def pattern(expected: str) -> re.Pattern:
+    """The table's line as a regex: `…` stands for any text."""
+    return re.compile(".*".join(re.escape(part) for part in expected.split("…")))
+
+
+@pytest.mark.parametrize("number, what, argv, expected", ROWS, ids=[f"{r[0]}-{r[1]}" for r in ROWS])
+def test_bad_input(template, tmp_path, monkeypatch, number, what, argv, expected):
+    scratch = tmp_path / "scratch"
+    shutil.copytree(template, scratch)
+    monkeypatch.chdir(scratch)
+    before = snapshot(scratch)
+
+    result = runner.invoke(app, argv)
+
+    assert result.exit_code == 2, f"exit {result.exit_code}: {result.output}{result.exception!r}"
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, result.stderr
+    assert pattern(expected).fullmatch(lines[0]), f"\n got: {lines[0]}\nwant: {expected}"
+    assert "Traceback" not in result.output
+    assert snapshot(scratch) == before, "bad input left something behind"
