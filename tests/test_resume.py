@@ -160,6 +160,10 @@ def test_sigkill_part_way_then_resume_equals_the_uninterrupted_run(tmp_path, bas
     pd.testing.assert_frame_equal(killed.metrics.drop(columns="seconds"),
                                   pd.read_parquet(baseline / "metrics.parquet").iloc[:13].drop(columns="seconds"),
                                   check_exact=True)
+    from riskplan.report.collect import collect
+
+    (skipped,) = collect([out]).broken  # what `riskplan report` lists as skipped, with the reason
+    assert skipped.path == out and "truncated after iteration 12" in skipped.reason
 
     result = resume_cli(out)
     assert result.returncode == 0, result.stderr
