@@ -142,6 +142,8 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
                                      f"hydra/launcher={launcher}")
     if "hydra/launcher" not in hydra_keys:
         argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
+    if not task_ovs and "hydra.sweep.subdir" not in hydra_keys:
+        argv.append("hydra.sweep.subdir=defaults")  # one job without overrides: still a folder of its own
     constant = constant_keys(combos, {o.key_or_group for o in task_ovs if o.is_sweep_override()})
     for job in job_list:
         job.label = ",".join(sorted(o for o in job.overrides if o.split("=", 1)[0].lstrip("+~") not in constant))
@@ -365,7 +367,8 @@ def run_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None =
     summary = summarize(plan.jobs)
     write_summary(summary, plan.sweep_dir / SUMMARY)
     failed = [(row.job, row.error or row.status) for row in summary.itertuples() if row.status != "done"]
-    resume = [a for a in args if not a.startswith("hydra.sweep.dir=")] + [f"hydra.sweep.dir={plan.sweep_dir}"]
+    resume = ([a for a in args if not a.startswith("hydra.sweep.dir=")] + [f"hydra.sweep.dir={plan.sweep_dir}"]
+              + (["--jobs", str(jobs)] if jobs else []))
     return Outcome(plan.sweep_dir, summary, failed, todo, len(finished), time.time() - started, launcher_error,
                    resume)
 
@@ -661,7 +664,7 @@ class SweepView:
 def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) -> int:
     """Print the summary table and the failures; return the exit code (0, or 1 when a job failed)."""
     print_table(outcome.summary, f"{title}: {outcome.sweep_dir}")
-    typer.echo(f"summary: {outcome.sweep_dir / SUMMARY} ({outcome.ran} run, {outcome.skipped} skipped, "
+    typer.echo(f"summary: {outcome.sweep_dir / SUMMARY} ({outcome.ran} launched, {outcome.skipped} skipped, "
                f"{outcome.seconds:.1f} s)")
     if outcome.launcher_error:
         typer.echo(f"error: {outcome.launcher_error}", err=True)

@@ -68,11 +68,11 @@ def sweep_job(cfg: DictConfig, out: Path) -> float | None:
     prior = read_status(out)
     if is_finished(out, sha, prior):
         return prior.get("cvar")
-    threads = os.environ.get(THREADS_ENV)
+    threads = job_threads()
     if threads:
         import numba
 
-        numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     resume = (prior is not None and prior.get("status") == "running" and prior.get("config_sha") == sha
               and (out / "checkpoint").is_file())
     if not resume:
@@ -89,6 +89,22 @@ def sweep_job(cfg: DictConfig, out: Path) -> float | None:
     finished = time.time()
     write_status(out, {**record, **base, "finished": finished, "seconds": finished - started, "resumed": resume})
     return record.get("cvar")
+
+
+def job_threads() -> int | None:
+    """numba threads for this job: RISKPLAN_JOB_THREADS if set, else no more than the cores this process may run
+    on (a SLURM allocation) nor OMP_NUM_THREADS (which joblib's workers and Ray's tasks get); results do not
+    depend on it."""
+    explicit = os.environ.get(THREADS_ENV, "")
+    if explicit.isdigit():
+        return int(explicit)
+    limits = []
+    if hasattr(os, "sched_getaffinity"):
+        limits.append(len(os.sched_getaffinity(0)))
+    omp = os.environ.get("OMP_NUM_THREADS", "")
+    if omp.isdigit() and int(omp) > 0:
+        limits.append(int(omp))
+    return min(limits) if limits else None
 
 
 def _train(cfg: DictConfig, out: Path, resume: bool) -> dict:
