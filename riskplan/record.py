@@ -23,7 +23,8 @@ world dict (arrays as nested lists, indexed [x][y]).
 
 Durability: every public writing method ends by finishing the MCAP chunk in progress (chunk record + its message
 indexes) and flushing the file object to the OS, so the bytes survive a SIGKILL of the process as soon as the
-method returns (not a power cut: there is no fsync, except in `close`). The reader scans records sequentially and
+method returns (not a power cut: only `sync` and `close` fsync; training syncs before every checkpoint, and
+`resume_log` before it replaces the old log). The reader scans records sequentially and
 stops at the first one that is cut short or fails its CRC, so everything before it is readable.
 """
 
@@ -403,6 +404,13 @@ class RunLog:
         self._add(SUMMARY, _jsonable(summary), self._now())
         self._durable()
 
+    def sync(self) -> None:
+        """Make everything written so far survive a power cut (fsync). Training calls it before each checkpoint,
+        so a checkpoint on disk never gets ahead of the log that resume needs."""
+        self._check_open()
+        self._durable()
+        os.fsync(self._fh.fileno())
+
     def close(self) -> None:
         """Write the summary section and indexes, fsync and close. Idempotent."""
         if self._closed:
@@ -665,7 +673,7 @@ def resume_log(src: Path | str, dst: Path | str, last_iteration: int) -> RunLog:
                 t_max = max(t_max, raw.log_time)
         log._t = t_max
         log.last_iteration = int(last_iteration) if last_iteration >= 0 else None
-        log._durable()
+        log.sync()  # on disk before it replaces the old log: a power cut leaves one or the other, whole
         os.replace(tmp, dst)
     except BaseException:
         log._fh.close()

@@ -128,6 +128,7 @@ def train(config, out_dir: str | Path, *, resume: bool = False,
             state, rows = iterate(setup, state)
             log.iteration(rows)
             if state.iteration % every == 0 or state.iteration == total:
+                log.sync()  # the log of every checkpointed iteration is on disk before the checkpoint is
                 save_checkpoint(out, state)
             if progress:
                 progress(state.iteration, total, rows[-1])
