@@ -227,6 +227,46 @@ def test_resume_with_more_iterations_extends_a_finished_run(tmp_path, monkeypatc
     assert_log_holds_each_iteration_once(out, 30, (0,))
 
 
+def test_power_cut_state_resumes_each_checkpoint_is_backed_by_a_synced_log(tmp_path, monkeypatch, baseline):
+    """Simulate a power cut: only fsynced bytes survive. At every checkpoint rename, the checkpoint and the log as
+    of its last fsync must be enough to resume; resuming from one such state gives the uninterrupted run."""
+    out = tmp_path / "run"
+    synced: dict[str, bytes] = {}
+    states: dict[int, tuple[bytes, bytes]] = {}  # checkpoint iteration -> (checkpoint bytes, synced log bytes)
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd):
+        real_fsync(fd)
+        path = os.readlink(f"/proc/self/fd/{fd}")
+        if Path(path).is_file():
+            synced[path] = Path(path).read_bytes()
+
+    def replace(src, dst):
+        if Path(dst).name == CHECKPOINT:
+            body = synced[str(src)]
+            states[json.loads(body)["iteration"]] = (body, synced.get(str(out / "run.mcap"), b""))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
+    training.train(compose(FAST), out)
+    monkeypatch.undo()
+
+    assert sorted(states) == [5, 10, 15, 20, 25, 30]
+    for iteration, (_, log) in states.items():
+        (tmp_path / "synced.mcap").write_bytes(log)
+        assert list(read_log(tmp_path / "synced.mcap").metrics.iteration) == list(range(iteration))
+
+    cut = tmp_path / "cut"  # the disk after a power cut just after checkpoint 15
+    (cut / ".hydra").mkdir(parents=True)
+    (cut / ".hydra" / "config.yaml").write_bytes((out / ".hydra" / "config.yaml").read_bytes())
+    (cut / CHECKPOINT).write_bytes(states[15][0])
+    (cut / "run.mcap").write_bytes(states[15][1])
+    training.train(compose(FAST), cut, resume=True)
+    assert_same_outputs(cut, baseline)
+    assert_log_holds_each_iteration_once(cut, 30, (0,))
+
+
 # ----------------------------------------------------------------------------------------------- numerics
 def _fail_at(monkeypatch, name: str, iteration: int, bad):
     """Make riskplan.training.<name> return bad(result) from the given iteration on (the iteration is read off
