@@ -16,7 +16,7 @@ from riskplan import distributions as D
 from riskplan.errors import BadInput
 from riskplan.risk import cvar, cvar_gradient, mean_gradient, summary_stats, tail_count, value_at_risk
 
-settings.register_profile("riskplan", max_examples=150, deadline=None, derandomize=True)
+settings.register_profile("riskplan", max_examples=100, deadline=None, derandomize=True)
 settings.load_profile("riskplan")
 
 # ----------------------------------------------------------------------------------------------- estimators
