@@ -11,10 +11,41 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
+from typer.core import TyperGroup
 
 from riskplan.errors import BadInput
 
+
+
+# typer vendors click in recent releases and depends on it in older ones: find click's base exception either way
+ClickException = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
+
+
+class OneLineErrors(TyperGroup):
+    """Click's usage errors (unknown command, missing option value, ...) as one plain line, exit code 2."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        try:
+            code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except ClickException as err:
+            if type(err).__name__ == "NoArgsIsHelpError":  # bare `riskplan`: the help, as click shows it
+                err.show()
+            else:
+                where = err.ctx.command_path if getattr(err, "ctx", None) else prog_name or "riskplan"
+                message = " ".join(err.format_message().split())
+                typer.echo(f"error: {where}: {message} (see {where} --help)", err=True)
+            code = err.exit_code
+        except typer.Abort:
+            typer.echo("aborted", err=True)
+            code = 1
+        if not standalone_mode:
+            return code
+        sys.exit(code if isinstance(code, int) else 0)
+
+
 app = typer.Typer(
+    cls=OneLineErrors,
+    name="riskplan",
     help="Risk-averse sensor planning with (distributed) CVaR policy gradients: train, sweep, report, reproduce.",
     no_args_is_help=True,
     add_completion=False,
@@ -40,6 +71,13 @@ def bad_input_exits(command):
             raise typer.Exit(2) from None
 
     return wrapper
+
+
+def check_out_dir(path: Path | None) -> Path | None:
+    """An --out directory that exists or can be made; a file there is bad input."""
+    if path is not None and path.exists() and not path.is_dir():
+        raise BadInput("--out", f"{path} is a file; expected a directory (new, or one riskplan wrote)")
+    return path
 
 
 @app.command(context_settings=PASS_THROUGH)

@@ -56,7 +56,7 @@ def parse(data: Any, where: str = "reward") -> Dist:
     (kind,) = keys
     value = data[kind]
     if kind not in KINDS:
-        raise BadInput(where, f"unknown distribution '{kind}'; expected {VALID}")
+        raise BadInput(where, f"unknown distribution {kind!r}; expected {VALID}")
     if kind in WRAPPERS:
         if "of" not in data:
             raise BadInput(where, f"'{kind}' needs 'of: <distribution>'")
@@ -198,9 +198,14 @@ def _finite(value: Any, where: str) -> float:
     """A finite float, or BadInput."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise BadInput(where, f"got {value!r}; expected a number")
-    if not math.isfinite(value):
+    try:
+        number = float(value)
+    except OverflowError:  # a YAML integer with hundreds of digits
+        raise BadInput(where, f"got an integer of about 2^{value.bit_length()}; expected a number a float can hold "
+                              f"(|x| < 1.8e308)") from None
+    if not math.isfinite(number):
         raise BadInput(where, f"got {value!r}; expected a finite number")
-    return float(value)
+    return number
 
 
 def _pair(value: Any, where: str) -> tuple[float, float]:

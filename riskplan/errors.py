@@ -7,4 +7,5 @@ class BadInput(ValueError):
     def __init__(self, where: str, problem: str):
         self.where = where
         self.problem = problem
-        super().__init__(f"{where}: {problem}")
+        # one line whatever the user typed: a key or value with a line break is shown escaped
+        super().__init__(f"{where}: {problem}".replace("\r", "\\r").replace("\n", "\\n"))

@@ -4,6 +4,8 @@
         single/      sweep: experiment=paper_single risk=neutral,cvar seed=range(0,S)    (Figs. 1-2)
         team/        sweep: experiment=paper_team seed=range(0,S)                         (Figs. 3-4; the
                      centralized comparator is single/'s CVaR runs: W = 6000 against W_i = 2000 x 3 robots)
+        wander/      sweep: experiment=paper_single train.theta0=[0,0] seed=0,1           (the landscape's
+                     local optimum that theta0 = 0 falls into)
         landscape/   mean and CVaR on a grid of theta for the paper world (when riskplan.report has it)
         report/      report.html, figures, report.csv (when riskplan.report is there)
         reproduce.json   what ran, with which options, and how long each part took
@@ -28,12 +30,15 @@ from riskplan.errors import BadInput
 REPRODUCE_ROOT = Path("outputs") / "reproduce"
 SEEDS = 10
 QUICK_SEEDS = 2
-# (folder, what it reproduces, overrides without the seeds)
+# (folder, what it reproduces, overrides without the seeds, at most this many seeds or None for all)
 EXPERIMENTS = (
     ("single", "Figs. 1-2: one robot, risk-neutral vs CVaR (W = 6000)",
-     ["experiment=paper_single", "risk=neutral,cvar"]),
+     ["experiment=paper_single", "risk=neutral,cvar"], None),
     ("team", "Figs. 3-4: three robots on a line graph (W_i = 2000), vs the centralized CVaR runs of single/",
-     ["experiment=paper_team"]),
+     ["experiment=paper_team"], None),
+    # theta0 = 0 falls into the landscape's other optimum (wander in the safe region); two seeds show it
+    ("wander", "The landscape's local optimum: CVaR from theta0 = (0, 0), which wanders in the safe region",
+     ["experiment=paper_single", "train.theta0=[0,0]"], 2),
 )
 # --quick: fewer iterations and evaluation episodes; the same experiments, for a first look
 QUICK = ["train.iterations=60", "train.eval_episodes=20000", "train.bootstrap=200", "train.paths=10"]
@@ -63,8 +68,8 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
               "parts": {}}
     code = 0
     outcomes = []
-    for folder, what, overrides in EXPERIMENTS:
-        args = [*overrides, f"seed=range(0,{seeds})", *extra]
+    for folder, what, overrides, most in EXPERIMENTS:
+        args = [*overrides, f"seed=range(0,{min(seeds, most or seeds)})", *extra]
         typer.echo(f"\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
         outcome = run_sweep(args, jobs, sweep_dir=target / folder, title=folder)
         outcomes.append(outcome)
@@ -130,7 +135,7 @@ def _check_overrides(overrides: list[str], quick: bool) -> list[str]:
             raise BadInput(f"override '{override.input_line}'", "is set by reproduce; use --seeds N, or riskplan "
                                                                 "sweep for other experiments")
     extra = [*(QUICK if quick else []), *overrides]
-    for _, _, base in EXPERIMENTS:
+    for _, _, base, _ in EXPERIMENTS:
         compose([base[0], *extra])
     return extra
 
@@ -177,7 +182,7 @@ def _print_comparison(outcomes) -> None:
     for column in ("set-up", "objective", "seeds", "mean", "CVaR", "VaR"):
         table.add_column(column, justify="left" if column in ("set-up", "objective") else "right")
     for (sweep, risk), group in data.groupby(["sweep", "risk"], sort=False):
-        setup = "3 robots, line graph" if sweep == "team" else "1 robot (centralized)"
+        setup = {"team": "3 robots, line graph", "wander": "1 robot, θ0 = (0, 0)"}.get(sweep, "1 robot (centralized)")
         table.add_row(setup, "CVaR" if risk == "cvar" else "mean (risk-neutral)", str(len(group)),
                       *(f"{group[c].mean():.1f} ± {group[c].std(ddof=1) if len(group) > 1 else 0:.1f}"
                         for c in ("mean", "cvar", "value_at_risk")))
@@ -191,9 +196,7 @@ def _shell(arg: str) -> str:
 
 def register(app: typer.Typer) -> None:
     """Add `reproduce` to the riskplan app."""
-    from riskplan.cli import bad_input_exits
-
-    from riskplan.cli import PASS_THROUGH
+    from riskplan.cli import PASS_THROUGH, bad_input_exits, check_out_dir
 
     @app.command(name="reproduce", context_settings=PASS_THROUGH)
     @bad_input_exits
@@ -214,4 +217,4 @@ def register(app: typer.Typer) -> None:
         formats: str = typer.Option("png,pdf", "--format", help="Figure files of the report: any of png,pdf,svg."),
     ) -> None:
         """Run every experiment of the paper's Section V (several seeds each), then the report."""
-        raise typer.Exit(reproduce(out, quick, seeds, jobs, formats, list(overrides or [])))
+        raise typer.Exit(reproduce(check_out_dir(out), quick, seeds, jobs, formats, list(overrides or [])))

@@ -71,7 +71,7 @@ def build_setup(cfg: DictConfig | dict) -> Setup:
     if team.starts is not None:
         starts = [list(s) for s in team.starts]
         _check(len(starts) == team.robots, "team.starts",
-               f"gives {len(starts)} start cells for {team.robots} robots; give one [x, y] per robot or null")
+               f"gives {len(starts)} start cell{'' if len(starts) == 1 else 's'} for {team.robots} robots; give one [x, y] per robot or null")
     world = build_world(cfg.world, starts)
     theta0 = np.array(list(train.theta0), dtype=float)
     _check(theta0.shape == (world.sources,) and bool(np.all(np.isfinite(theta0))), "train.theta0",

@@ -197,7 +197,7 @@ def check_hydra(hydra_args: list[str], first_job: list[str]) -> None:
     from omegaconf.errors import OmegaConfBaseException
 
     from riskplan import schema
-    from riskplan.config import CONF_DIR
+    from riskplan.config import CONF_DIR, explain
 
     schema.register()
     GlobalHydra.instance().clear()
@@ -205,13 +205,10 @@ def check_hydra(hydra_args: list[str], first_job: list[str]) -> None:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             compose(config_name="config", overrides=[*hydra_args, *first_job], return_hydra_config=True)
     except (HydraException, OmegaConfBaseException) as err:
-        key = getattr(err, "full_key", None)
-        message = _first_line(err)
-        if "hydra/launcher" in message and "ray" in message:
-            message += " (pip install 'riskplan[ray]' for the Ray launcher)"
-        elif "hydra/launcher" in message and "submitit" in message:
-            message += " (pip install 'riskplan[slurm]' for the submitit launchers)"
-        raise BadInput(f"key '{key}'" if key else "hydra settings", message) from None
+        where, message = explain(err)
+        if where == "key 'hydra/launcher'":
+            message += " (pip install 'riskplan[slurm]' for submitit_local|submitit_slurm, 'riskplan[ray]' for ray)"
+        raise BadInput(where, message) from None
     finally:
         GlobalHydra.instance().clear()
 
@@ -240,7 +237,7 @@ def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
     from omegaconf.errors import OmegaConfBaseException
 
     from riskplan import schema
-    from riskplan.config import CONF_DIR
+    from riskplan.config import CONF_DIR, explain
     from riskplan.config import compose as riskplan_compose
     from riskplan.setup import build_setup
     from riskplan.sweepjob import config_sha

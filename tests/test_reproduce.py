@@ -31,12 +31,11 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "robots: 3" in config and "iterations: 5" in config  # the user's overrides beat --quick's
     assert (root / "single" / "multirun.yaml").is_file()
     record = json.loads((root / "reproduce.json").read_text())
-    assert record["seeds"] == 1 and record["quick"] and set(record["parts"]) >= {"single", "team"}
-    assert "Section V across seeds" in result.stdout
-    import importlib.util
-
-    if importlib.util.find_spec("riskplan.report") is None:
-        return
+    assert record["seeds"] == 1 and record["quick"] and set(record["parts"]) == {"single", "team", "wander", "landscape", "report"}
+    wander = pd.read_parquet(root / "wander" / "summary.parquet")
+    assert len(wander) == 1 and wander.status.iloc[0] == "done"
+    assert "- 0\n  - 0\n" in (root / "wander" / "seed=0" / ".hydra" / "config.yaml").read_text()  # theta0
+    assert "Section V across seeds" in result.stdout and "θ0 = (0, 0)" in result.stdout
     assert (root / "report" / "report.html").is_file()
     assert (root / "landscape" / "summary.json").is_file()
 

@@ -44,7 +44,7 @@ def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
 
 def register(app: typer.Typer) -> None:
     """Add `report` and `landscape` to the riskplan app."""
-    from riskplan.cli import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits
+    from riskplan.cli import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, check_out_dir
 
     @app.command()
     @bad_input_exits
@@ -62,7 +62,7 @@ def register(app: typer.Typer) -> None:
 
         fmts = check_formats(formats)
         inputs = list(paths) if paths else [latest_reproduction()]
-        target = out or default_out(inputs)
+        target = check_out_dir(out) or default_out(inputs)
         result = write_report(inputs, target, fmts)
         coll = result.collection
         for broken in coll.broken:
@@ -95,6 +95,7 @@ def register(app: typer.Typer) -> None:
         from riskplan.setup import build_setup
 
         args = list(overrides or [])
+        check_out_dir(out)
         cfg = compose(args)
         bounds = parse_floats(theta_range, "--range", (2, 4))
         ranges = ((bounds[0], bounds[1]), (bounds[-2], bounds[-1]))
