@@ -55,8 +55,9 @@ warnings.formatwarning = lambda message, *args, **kwargs: f"warning: {message}\n
 PASS_THROUGH = {"allow_extra_args": True, "ignore_unknown_options": True}
 HYDRA_FLAGS = {"--cfg", "-c", "--package", "-p", "--resolve", "--info", "-i"}
 OVERRIDES_HELP = ("Hydra overrides, e.g. risk=neutral risk.beta=0.2 train.samples=2000 world.size=[16,16] "
-                  "experiment=paper_team team.graph=ring. Hydra flags --cfg job|hydra|all, --package, --resolve, "
-                  "--info pass through to Hydra.")
+                  "experiment=paper_team team.graph=ring.")
+TRAIN_OVERRIDES_HELP = OVERRIDES_HELP + (" Hydra flags --cfg job|hydra|all, --package, --resolve, --info pass "
+                                         "through to Hydra.")
 
 
 def bad_input_exits(command):
@@ -73,6 +74,13 @@ def bad_input_exits(command):
     return wrapper
 
 
+def reject_hydra_flags(args: list[str], instead: str) -> None:
+    """Hydra's flags (--cfg, ...) belong to `train`; elsewhere they are bad input with a pointer."""
+    flags = sorted(HYDRA_FLAGS & set(args))
+    if flags:
+        raise BadInput(f"option '{flags[0]}'", f"only riskplan train passes Hydra's flags through; {instead}")
+
+
 def check_out_dir(path: Path | None) -> Path | None:
     """An --out directory that exists or can be made; a file there is bad input."""
     if path is not None and path.exists() and not path.is_dir():
@@ -83,7 +91,7 @@ def check_out_dir(path: Path | None) -> Path | None:
 @app.command(context_settings=PASS_THROUGH)
 @bad_input_exits
 def train(
-    overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_HELP, show_default=False),
+    overrides: Optional[List[str]] = typer.Argument(None, help=TRAIN_OVERRIDES_HELP, show_default=False),
     resume: Optional[Path] = typer.Option(
         None, "--resume", help="Continue the run in RUN_DIR from its last checkpoint (also: extend a finished run "
                                "with a larger train.iterations=...). Only train.iterations may be overridden.",
@@ -122,7 +130,9 @@ def check(overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_H
     from riskplan.consensus import describe
     from riskplan.setup import build_setup
 
-    cfg = compose(list(overrides or []), validate=False)
+    args = list(overrides or [])
+    reject_hydra_flags(args, "check prints the composed config itself")
+    cfg = compose(args, validate=False)
     setup = build_setup(cfg)
     typer.echo(OmegaConf.to_yaml(cfg).rstrip())
     typer.echo("")

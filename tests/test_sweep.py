@@ -123,7 +123,7 @@ def test_an_invalid_combination_and_a_raising_job_fail_alone(tmp_path):
     (["risk=cvar,foo"], "foo"),
     (["train.iterations=5,many"], "train.iterations"),
     (["risk.beta=2,3"], "risk.beta"),  # invalid in every combination: nothing to run
-    (["seed=0,1", "hydra/launcher=nosuch"], "hydra/launcher/nosuch"),
+    (["seed=0,1", "hydra/launcher=nosuch"], "key 'hydra/launcher': no option 'nosuch'; available: basic, joblib"),
     (["seed=0,1", "hydra/launcher=submitit_local", "--jobs", "2"], "--jobs"),
     (["risk.beta=interval(0,1)"], "sweep"),
 ])

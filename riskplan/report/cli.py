@@ -44,7 +44,7 @@ def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
 
 def register(app: typer.Typer) -> None:
     """Add `report` and `landscape` to the riskplan app."""
-    from riskplan.cli import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, check_out_dir
+    from riskplan.cli import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, check_out_dir, reject_hydra_flags
 
     @app.command()
     @bad_input_exits
@@ -95,6 +95,7 @@ def register(app: typer.Typer) -> None:
         from riskplan.setup import build_setup
 
         args = list(overrides or [])
+        reject_hydra_flags(args, "riskplan check prints the composed config")
         check_out_dir(out)
         cfg = compose(args)
         bounds = parse_floats(theta_range, "--range", (2, 4))
