@@ -222,8 +222,7 @@ def register(app: typer.Typer) -> None:
         quick: bool = typer.Option(False, "--quick", help="Fewer repeats and a shorter training run (about 15 s)."),
         json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
     ) -> None:
-        """Measure rollout throughput, training time, memory, JIT load time and team scaling, each with its
-        baseline from the same run. Targets are printed, never asserted: machines are noisy."""
+        """Speed, memory, JIT and team-scaling targets, each with a baseline measured in the same run."""
         import numba
         from rich.console import Console
 

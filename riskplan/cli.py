@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import datetime as dt
 import functools
 import json
 import sys
@@ -14,6 +13,7 @@ import typer
 from typer.core import TyperGroup
 
 from riskplan.errors import BadInput
+from riskplan.paths import claim_dir, hydra_quote
 
 
 
@@ -111,12 +111,12 @@ def train(
         return
     cfg = compose(args)
     explicit = _explicit_run_dir(args)
-    out = explicit or _claim_run_dir(Path("outputs") / "runs", cfg.experiment)
+    out = explicit or claim_dir(Path("outputs") / "runs", f"_{cfg.experiment}")
     typer.echo(f"run directory: {out}")
     from riskplan.app import run_hydra
 
     args = expand_overrides(args)
-    run_hydra(args if explicit else [*args, f"hydra.run.dir={_quote(out)}"])
+    run_hydra(args if explicit else [*args, f"hydra.run.dir={hydra_quote(out)}"])
     _finish(out)
 
 
@@ -228,28 +228,16 @@ def _explicit_run_dir(args: list[str]) -> Path | None:
     return None
 
 
-def _claim_run_dir(root: Path, experiment: str) -> Path:
-    """Create root/<YYYY-MM-DD_HH-MM-SS>_<experiment>, with a numeric suffix if taken (mkdir is the lock)."""
-    base = root / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}_{experiment}"
-    candidate, suffix = base, 1
-    while True:
-        try:
-            candidate.mkdir(parents=True)
-            return candidate
-        except FileExistsError:
-            candidate = base.with_name(f"{base.name}_{suffix}")
-            suffix += 1
+def _register_commands() -> None:
+    """Add the commands that live in their own modules (they import this one, so they are added last)."""
+    from riskplan import bench, reproduce, sweep
+    from riskplan.report import cli as report_cli
+
+    for module in (report_cli, bench, sweep, reproduce):
+        module.register(app)
 
 
-def _quote(path: Path) -> str:
-    """Quote a path for a Hydra override value."""
-    return "'" + str(path).replace("\\", "\\\\").replace("'", "\\'") + "'"
-
-
-from riskplan.report.cli import register as _register_report; _register_report(app)
-from riskplan.bench import register as _register_bench; _register_bench(app)
-from riskplan.sweep import register as _register_sweep; _register_sweep(app)
-from riskplan.reproduce import register as _register_reproduce; _register_reproduce(app)
+_register_commands()
 
 
 def main() -> None:

@@ -52,7 +52,8 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
 
     `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000.
     """
-    from riskplan.sweep import claim_dir, print_table, report_outcome, run_sweep
+    from riskplan.paths import claim_dir
+    from riskplan.sweep import print_table, report_outcome, run_sweep
 
     seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
     if seeds < 1:

@@ -30,6 +30,7 @@ from typing import List, Optional
 import typer
 
 from riskplan.errors import BadInput
+from riskplan.paths import claim_dir, hydra_quote
 
 SWEEPS_ROOT = Path("outputs") / "sweeps"
 SUMMARY = "summary.parquet"
@@ -151,7 +152,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         # folders named by what varies (risk.beta=0.1,seed=0), not by every fixed setting; the job's
         # .hydra/overrides.yaml keeps them all, and resuming matches jobs by their full config anyway
         argv.append("hydra.job.config.override_dirname.exclude_keys=["
-                    + ",".join(quote(k) for k in constant) + "]")
+                    + ",".join(hydra_quote(k) for k in constant) + "]")
     if "hydra/hydra_logging" not in hydra_keys:
         argv.append("hydra/hydra_logging=riskplan_sweep")
     if "hydra/job_logging" not in hydra_keys:
@@ -168,7 +169,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     else:
         target = claim_dir(SWEEPS_ROOT)
     if explicit_dir is None:  # absolute: jobs on other machines (submitit, ray) may start in another directory
-        argv.append(f"hydra.sweep.dir={quote(target.resolve())}")
+        argv.append(f"hydra.sweep.dir={hydra_quote(target.resolve())}")
     return Plan(target, argv, job_list, launcher, workers, notes)
 
 
@@ -301,24 +302,6 @@ def _split_bad(message: str, count: int) -> tuple[str, str]:
     if count > 1:
         problem = f"{problem} (in every one of the {count} combinations; nothing was run)"
     return where, problem
-
-
-def claim_dir(root: Path) -> Path:
-    """Create root/<YYYY-MM-DD_HH-MM-SS>, or with _1, _2, ... when taken: mkdir is the lock."""
-    base = Path(root) / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}"
-    candidate, suffix = base, 1
-    while True:
-        try:
-            candidate.mkdir(parents=True)
-            return candidate
-        except FileExistsError:
-            candidate = base.with_name(f"{base.name}_{suffix}")
-            suffix += 1
-
-
-def quote(path: Path) -> str:
-    """A path as a Hydra override value."""
-    return "'" + str(path).replace("\\", "\\\\").replace("'", "\\'") + "'"
 
 
 def cpu_count() -> int:

@@ -11,6 +11,7 @@ import yaml
 from typer.testing import CliRunner
 
 from riskplan.cli import app
+from riskplan.paths import claim_dir
 from riskplan.record import read_log
 
 runner = CliRunner()
@@ -80,10 +81,9 @@ def test_explicit_run_dir_and_same_second_runs_do_not_collide(in_tmp, fast_overr
     result = runner.invoke(app, ["train", *fast_overrides, "hydra.run.dir=mine"])
     assert result.exit_code == 0, result.output
     assert (in_tmp / "mine" / "summary.json").is_file()
-    from riskplan.cli import _claim_run_dir
-
-    first, second = _claim_run_dir(in_tmp / "r", "x"), _claim_run_dir(in_tmp / "r", "x")
+    first, second = claim_dir(in_tmp / "r", "_x"), claim_dir(in_tmp / "r", "_x")
     assert first != second and first.is_dir() and second.is_dir()
+    assert second.name == first.name + "_1" and first.name.endswith("_x")
 
 
 def test_cfg_job_prints_the_config_without_running(in_tmp):
