@@ -16,7 +16,7 @@ from numba import njit, prange
 from riskplan import distributions as D
 from riskplan.policy import tables
 from riskplan.rng import episode_state, next_uniform, normal_quantile
-from riskplan.world import MAX_STACK, MOVES, World
+from riskplan.world import MAX_STACK, World
 
 CHUNK = 64  # episodes per parallel work item: amortises the per-item scratch allocations
 
@@ -293,12 +293,3 @@ def _simulate(cum, score, thetas, starts, keys, episodes,
             out_reached[e] = reached
             out_steps[e] = steps
 
-
-def move_xy(cells: np.ndarray, height: int) -> tuple[np.ndarray, np.ndarray]:
-    """Cell indices to (x, y) arrays (paths use -1 past the end and map to -1)."""
-    x, y = np.divmod(cells, height)
-    ended = cells < 0
-    return np.where(ended, -1, x), np.where(ended, -1, y)
-
-
-__all__ = ["Batch", "Kernel", "make_kernel", "simulate", "move_xy", "MOVES"]

@@ -238,7 +238,7 @@ def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
     from omegaconf.errors import OmegaConfBaseException
 
     from riskplan import schema
-    from riskplan.config import CONF_DIR, explain
+    from riskplan.config import CONF_DIR
     from riskplan.config import compose as riskplan_compose
     from riskplan.setup import build_setup
     from riskplan.sweepjob import config_sha

@@ -26,6 +26,7 @@ from riskplan.consensus import consensus_error, network_metadata
 from riskplan.record import RunLog, resume_log
 from riskplan.risk import cvar_gradient, mean_gradient, summary_stats
 from riskplan.rollout import simulate
+from riskplan.runs import Run
 from riskplan.setup import Setup, build_setup, logit_bound, samples_at, step_size
 from riskplan.summary import SCHEMA_VERSION, bootstrap_intervals, provenance
 from riskplan.world import world_map
@@ -96,7 +97,7 @@ def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: flo
 
 
 def train(config, out_dir: str | Path, *, resume: bool = False,
-          progress: Callable[[int, int, dict], None] | None = None) -> "Run":
+          progress: Callable[[int, int, dict], None] | None = None) -> Run:
     """Train, evaluate and record one experiment into out_dir; with resume, continue from its checkpoint."""
     setup = build_setup(config)
     out = Path(out_dir)
@@ -146,7 +147,6 @@ def train(config, out_dir: str | Path, *, resume: bool = False,
     evaluation.to_parquet(out / "eval.parquet", index=False)
     trajectories.to_parquet(out / "trajectories.parquet", index=False)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=True))
-    from riskplan.runs import Run
 
     return Run(out, setup.config, metrics, evaluation, trajectories, summary, True)
 

@@ -21,7 +21,7 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 
 from riskplan.report.collect import Collection, Group, RunInfo, theta_columns
-from riskplan.report.stats import band, ecdf
+from riskplan.report.stats import band
 from riskplan.risk import cvar, value_at_risk
 
 STYLE = {

@@ -71,8 +71,3 @@ def wilson(successes: float, n: int) -> tuple[float, float]:
     high = 1.0 if successes >= n else min(1.0, centre + half)
     return low, high
 
-
-def ecdf(z) -> tuple[np.ndarray, np.ndarray]:
-    """Sorted values and their empirical CDF i/n."""
-    x = np.sort(np.asarray(z, dtype=float))
-    return x, np.arange(1, x.size + 1) / x.size
