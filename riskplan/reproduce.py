@@ -6,8 +6,8 @@
                      centralized comparator is single/'s CVaR runs: W = 6000 against W_i = 2000 x 3 robots)
         wander/      sweep: experiment=paper_single train.theta0=[0,0] seed=0,1           (the landscape's
                      local optimum that theta0 = 0 falls into)
-        landscape/   mean and CVaR on a grid of theta for the paper world (when riskplan.report has it)
-        report/      report.html, figures, report.csv (when riskplan.report is there)
+        landscape/   mean and CVaR on a grid of theta for the paper world
+        report/      report.html, figures, report.csv
         reproduce.json   what ran, with which options, and how long each part took
 
 The sweeps go through `riskplan sweep`'s machinery (a Hydra multirun, joblib on local cores), so re-running
@@ -36,14 +36,15 @@ EXPERIMENTS = (
      ["experiment=paper_single", "risk=neutral,cvar"], None),
     ("team", "Figs. 3-4: three robots on a line graph (W_i = 2000), vs the centralized CVaR runs of single/",
      ["experiment=paper_team"], None),
-    # theta0 = 0 falls into the landscape's other optimum (wander in the safe region); two seeds show it
-    ("wander", "The landscape's local optimum: CVaR from theta0 = (0, 0), which wanders in the safe region",
+    # theta0 = 0 falls into the landscape's other optimum: wander, reaching no source; two seeds show it
+    ("wander", "The landscape's local optimum: CVaR from theta0 = (0, 0), which wanders and reaches no source",
      ["experiment=paper_single", "train.theta0=[0,0]"], 2),
 )
 # --quick: fewer iterations and evaluation episodes; the same experiments, for a first look
 QUICK = ["train.iterations=60", "train.eval_episodes=20000", "train.bootstrap=200", "train.paths=10"]
-LANDSCAPE = {"points": 41, "episodes": 4000}
-QUICK_LANDSCAPE = {"points": 21, "episodes": 1000}
+# theta in [-30, 60]^2 in steps of 2 (3 with --quick): wide enough for where every reproduced run ends
+LANDSCAPE = {"points": 46, "episodes": 4000, "ranges": ((-30.0, 60.0), (-30.0, 60.0))}
+QUICK_LANDSCAPE = {"points": 31, "episodes": 1000, "ranges": ((-30.0, 60.0), (-30.0, 60.0))}
 
 
 def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = None, jobs: int | None = None,
@@ -53,14 +54,14 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
     `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000.
     """
     from riskplan.paths import claim_dir
-    from riskplan.sweep import print_table, report_outcome, run_sweep
+    from riskplan.report import build_report, check_formats
+    from riskplan.sweep import report_outcome, run_sweep
 
     seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
     if seeds < 1:
         raise BadInput("--seeds", f"got {seeds}; expected at least 1")
     extra = _check_overrides(list(overrides or []), quick)
-    report_api = _report_api()
-    fmts = report_api["check_formats"](formats) if report_api else None
+    fmts = check_formats(formats)
     started = time.time()
     target = Path(out) if out is not None else claim_dir(REPRODUCE_ROOT)
     target.mkdir(parents=True, exist_ok=True)
@@ -78,24 +79,19 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
         record["parts"][folder] = {"overrides": args, "jobs": len(outcome.summary), "ran": outcome.ran,
                                    "skipped": outcome.skipped, "failed": len(outcome.failed),
                                    "seconds": round(outcome.seconds, 2)}
-    if report_api and report_api.get("compute_landscape"):
-        record["parts"]["landscape"] = _landscape(report_api, target / "landscape", quick, list(overrides or []))
+    record["parts"]["landscape"] = _landscape(target / "landscape", quick, list(overrides or []))
     _print_comparison(outcomes)
-    if report_api:
-        tic = time.time()
-        try:
-            page = report_api["build_report"]([target], target / "report", fmts)
-            typer.echo(f"report: {page}")
-            record["parts"]["report"] = {"seconds": round(time.time() - tic, 2), "page": str(page)}
-        except BadInput:
-            raise
-        except Exception as err:  # noqa: BLE001 - the runs are safe; say what failed
-            typer.echo(f"error: the report failed: {type(err).__name__}: {err} "
-                       f"(the runs are in {target}; try riskplan report {target})", err=True)
-            code = 1
-    else:
-        for outcome in outcomes:
-            print_table(outcome.summary, f"{outcome.sweep_dir}")
+    tic = time.time()
+    try:
+        page = build_report([target], target / "report", fmts)
+        typer.echo(f"report: {page}")
+        record["parts"]["report"] = {"seconds": round(time.time() - tic, 2), "page": str(page)}
+    except BadInput:
+        raise
+    except Exception as err:  # noqa: BLE001 - the runs are safe; say what failed
+        typer.echo(f"error: the report failed: {type(err).__name__}: {err} "
+                   f"(the runs are in {target}; try riskplan report {target})", err=True)
+        code = 1
     record["seconds"] = round(time.time() - started, 2)
     (target / "reproduce.json").write_text(json.dumps(record, indent=2))
     typer.echo(f"reproduced in {record['seconds']:.0f} s: {target}")
@@ -106,22 +102,6 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
         typer.echo(f"to retry what did not finish (finished jobs are skipped): riskplan reproduce "
                    f"{shlex.join(again)}", err=True)
     return code
-
-
-def _report_api() -> dict | None:
-    """riskplan.report's entry points, if that package is installed in this tree."""
-    try:
-        from riskplan.report import build_report, check_formats
-    except ImportError:
-        return None
-    api = {"build_report": build_report, "check_formats": check_formats}
-    try:
-        from riskplan.report.landscape import compute_landscape
-
-        api["compute_landscape"] = compute_landscape
-    except ImportError:
-        pass
-    return api
 
 
 def _check_overrides(overrides: list[str], quick: bool) -> list[str]:
@@ -141,9 +121,10 @@ def _check_overrides(overrides: list[str], quick: bool) -> list[str]:
     return extra
 
 
-def _landscape(api: dict, out: Path, quick: bool, overrides: list[str]) -> dict:
+def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
     """The objective landscape of the paper world (skipped when it is already there)."""
     from riskplan.config import compose
+    from riskplan.report.landscape import compute_landscape
 
     grid = QUICK_LANDSCAPE if quick else LANDSCAPE
     done = out / "status.json"
@@ -154,7 +135,7 @@ def _landscape(api: dict, out: Path, quick: bool, overrides: list[str]) -> dict:
                f"episodes per point -> {out}")
     tic = time.time()
     args = ["experiment=paper_single", *overrides]
-    api["compute_landscape"](compose(args), out, overrides=args, **grid)
+    compute_landscape(compose(args), out, overrides=args, **grid)
     return {"seconds": round(time.time() - tic, 2), **grid}
 
 

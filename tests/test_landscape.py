@@ -128,7 +128,7 @@ def test_broken_landscape_is_listed_not_fatal(tmp_path, setup):
 def test_paper_world_optima_sit_where_the_paper_policies_end():
     """Coarse (9 x 9, 2000 episodes) but on the paper's world: CVaR peaks with a strong weight on the safe source
     and none on the risky one (trained CVaR theta ends near (46.5, -0.7)); the mean peaks towards the risky source
-    (risk-neutral theta near (-8, 35)); theta0 = 0 sits in the lower 'wander in the safe region' plateau."""
+    (risk-neutral theta near (-8, 35)); theta0 = 0 sits in the lower 'wander' plateau (no source reached)."""
     setup = build_setup(riskplan.compose([]))
     thetas = L.grid_thetas(setup.theta0, (0, 1), ((-20.0, 60.0), (-20.0, 60.0)), 9)
     table = L.evaluate_grid(setup, thetas, 2000, 0.1, seed=0)

@@ -22,7 +22,7 @@ def test_cvar_policy_is_risk_averse_figs_1_2(single):
     assert cvar(averse.total_reward, 0.1) - cvar(neutral.total_reward, 0.1) >= 500
     assert (averse.risky_steps > 0).mean() < 1 / 3
     assert (neutral.risky_steps > 0).mean() > 0.9
-    assert (averse.source_reached == 0).mean() > 0.8  # the safe source, not wandering in the safe region
+    assert (averse.source_reached == 0).mean() > 0.8  # the safe source, not a policy that wanders
     assert neutral.total_reward.mean() > averse.total_reward.mean()  # the risk-neutral one wins on average
 
 
