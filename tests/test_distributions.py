@@ -71,3 +71,13 @@ def test_kernel_normal_quantiles():
     draws = np.sort(kernel_sample({"normal": [0, 1]}, 100_000, seed=7))
     for q, value in ((0.01, -2.3263), (0.1, -1.2816), (0.5, 0.0), (0.9, 1.2816), (0.99, 2.3263)):
         assert draws[int(q * draws.size)] == pytest.approx(value, abs=0.03)
+
+
+@pytest.mark.parametrize("leaf", [{"constant": 3.0}, {"uniform": [1, 4]}, {"normal": [2, 3]}])
+@pytest.mark.parametrize("k", [200.0, -0.5])
+def test_a_scaled_leaf_compiles_to_one_op_that_draws_k_times_the_leaf(leaf, k):
+    """scale folds into its leaf (k*U[a,b], k*N(m,s), k*c): one op, the same draws up to rounding, any sign of k."""
+    ops, _ = D.compile_program(D.parse({"scale": k, "of": leaf}))
+    assert len(ops) == 1
+    np.testing.assert_allclose(kernel_sample({"scale": k, "of": leaf}, 1000), k * kernel_sample(leaf, 1000),
+                               rtol=1e-12, atol=1e-12)
