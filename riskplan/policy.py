@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from riskplan.world import World
 
@@ -30,7 +33,41 @@ def scores(features: np.ndarray, probs: np.ndarray) -> np.ndarray:
 def tables(world: World, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-policy cumulative move probabilities (P, C, 5) and scores (P, C, 5, M) for thetas (P, M)."""
     features = move_features(world)
-    probs = probabilities(features, thetas)
-    cum = np.cumsum(probs, axis=-1)
-    cum[..., -1] = 1.0  # guard the last bin against round-off so a uniform draw always lands
-    return cum, scores(features, probs)
+    cum = np.empty(thetas.shape[:1] + features.shape[:2])
+    score = np.empty(thetas.shape[:1] + features.shape)
+    _fill_tables(features, np.ascontiguousarray(thetas, dtype=np.float64), cum, score)
+    return cum, score
+
+
+@njit(cache=True)
+def _fill_tables(features, thetas, cum, score):
+    """`probabilities` (cumulated) and `scores` for every policy and cell, in one pass.
+
+    The same maths as the numpy functions above, as loops: every iteration of a 100-robot team builds 100 tables,
+    and this is ~6x faster than the numpy composition (tests/test_policy.py checks they agree).
+    """
+    mu = np.empty(5)
+    for p in range(thetas.shape[0]):
+        for c in range(features.shape[0]):
+            best = -np.inf
+            for a in range(5):
+                mu[a] = 0.0
+                for j in range(thetas.shape[1]):
+                    mu[a] += thetas[p, j] * features[c, a, j]
+                best = max(best, mu[a])
+            total = 0.0
+            for a in range(5):
+                mu[a] = math.exp(mu[a] - best)  # max-shift: no overflow for large theta
+                total += mu[a]
+            running = 0.0
+            for a in range(5):
+                mu[a] /= total
+                running += mu[a]
+                cum[p, c, a] = running
+            cum[p, c, 4] = 1.0  # guard the last bin against round-off so a uniform draw always lands
+            for j in range(thetas.shape[1]):
+                expected = 0.0
+                for a in range(5):
+                    expected += mu[a] * features[c, a, j]
+                for a in range(5):
+                    score[p, c, a, j] = features[c, a, j] - expected

@@ -39,10 +39,13 @@ def cvar(z: np.ndarray, beta: float) -> np.ndarray | float:
     return v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1])
 
 
-def cvar_gradient(z: np.ndarray, scores: np.ndarray, beta: float) -> np.ndarray:
-    """Eq. (9): (1 / (beta W)) sum_i score_i (z_i - v) 1{z_i <= v}; z (..., W), scores (..., W, M) -> (..., M)."""
+def cvar_gradient(z: np.ndarray, scores: np.ndarray, beta: float, var=None) -> np.ndarray:
+    """Eq. (9): (1 / (beta W)) sum_i score_i (z_i - v) 1{z_i <= v}; z (..., W), scores (..., W, M) -> (..., M).
+
+    `var`: value_at_risk(z, beta) when the caller has it already (it costs a partition of z).
+    """
     z = np.asarray(z, dtype=float)
-    weights = _tail_weights(z, value_at_risk(z, beta))
+    weights = _tail_weights(z, value_at_risk(z, beta) if var is None else var)
     return np.einsum("...w,...wm->...m", weights, np.asarray(scores, dtype=float)) / (beta * z.shape[-1])
 
 

@@ -64,8 +64,9 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
     z = batch.total_reward.reshape(n, episodes)
     scores = batch.score.reshape(n, episodes, -1)
     with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are caught just below, in one line
+        stats = summary_stats(z, beta)
         if cfg["risk"]["measure"] == "cvar":
-            grads = cvar_gradient(z, scores, beta)
+            grads = cvar_gradient(z, scores, beta, var=stats["value_at_risk"])
         else:
             grads = mean_gradient(z, scores, cfg["train"]["baseline"])
         eps = step_size(l, cfg["train"]["step_size"])
@@ -78,7 +79,6 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
                                f"(theta . signal is not finite); lower train.step_size.initial")
     error = consensus_error(thetas) if setup.team else math.nan
     seconds = time.perf_counter() - started
-    stats = summary_stats(z, beta)
     rows = [_row(l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, episodes, seconds)
             for i in range(n)]
     if setup.team:

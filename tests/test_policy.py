@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from riskplan.config import compose
-from riskplan.policy import move_features, probabilities, scores
+from riskplan.policy import move_features, probabilities, scores, tables
 from riskplan.setup import build_setup
 
 
@@ -46,3 +46,15 @@ def test_blocked_moves_see_their_own_cell(world):
     np.testing.assert_array_equal(features[corner, 4], features[corner, 2])
     signals = world.signals()
     assert signals.max() == pytest.approx(1.0)  # scale w = 2 pi sqrt(det): the peak is 1 at each source
+
+
+@pytest.mark.parametrize("thetas", [[[20.0, 20.0]], [[3.0, -1.5], [0.0, 0.0], [1e8, -1e8]]])
+def test_the_kernel_tables_are_the_numpy_policy_and_scores(world, thetas):
+    """tables() (numba loops, what the rollouts use) against probabilities() and scores() (numpy, eqs. 2-3)."""
+    thetas = np.asarray(thetas)
+    cum, score = tables(world, thetas)
+    features = move_features(world)
+    probs = probabilities(features, thetas)
+    np.testing.assert_allclose(np.diff(cum, prepend=0.0, axis=-1)[..., :4], probs[..., :4], rtol=1e-12, atol=1e-15)
+    assert np.all(cum[..., 4] == 1.0) and np.all(np.diff(cum, axis=-1) >= 0)
+    np.testing.assert_allclose(score, scores(features, probs), rtol=1e-12, atol=1e-12)
