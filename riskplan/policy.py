@@ -1,4 +1,8 @@
-"""Softmax policy of eqs. (2)-(3) and its score function d log mu / d theta (errata to eq. 10)."""
+"""Softmax policy of eqs. (2)-(3) and its score function d log mu / d theta (errata to eq. 10).
+
+`probabilities` and `scores` state the maths in numpy; `tables` builds the same quantities for the rollout kernel
+in one numba pass, for every policy of a batch.
+"""
 
 from __future__ import annotations
 
