@@ -6,6 +6,7 @@
                      centralized comparator is single/'s CVaR runs: W = 6000 against W_i = 2000 x 3 robots)
         wander/      sweep: experiment=paper_single train.theta0=[0,0] seed=0,1           (the landscape's
                      local optimum that theta0 = 0 falls into)
+        frontier/    sweep: experiment=paper_single risk.beta=0.05,0.2,0.5,1.0 seed=0,1   (the risk frontier)
         landscape/   mean and CVaR on a grid of theta for the paper world
         report/      report.html, figures, report.csv
         reproduce.json   what ran, with which options, and how long each part took
@@ -39,6 +40,9 @@ EXPERIMENTS = (
     # theta0 = 0 falls into the landscape's other optimum: wander, reaching no source; two seeds show it
     ("wander", "The landscape's local optimum: CVaR from theta0 = (0, 0), which wanders and reaches no source",
      ["experiment=paper_single", "train.theta0=[0,0]"], 2),
+    # with single/'s beta = 0.1 runs, the report's risk frontier (beta = 1 is the mean, through the CVaR gradient)
+    ("frontier", "Beyond the paper: the risk frontier, CVaR policies at beta = 0.05, 0.2, 0.5, 1",
+     ["experiment=paper_single", "risk.beta=0.05,0.2,0.5,1.0"], 2),
 )
 # --quick: fewer iterations and evaluation episodes; the same experiments, for a first look
 QUICK = ["train.iterations=60", "train.eval_episodes=20000", "train.bootstrap=200", "train.paths=10"]
@@ -70,8 +74,8 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
               "parts": {}}
     code = 0
     outcomes = []
-    for folder, what, overrides, most in EXPERIMENTS:
-        args = [*overrides, f"seed=range(0,{min(seeds, most or seeds)})", *extra]
+    for folder, what, experiment, most in EXPERIMENTS:
+        args = [*experiment, f"seed=range(0,{min(seeds, most or seeds)})", *_not_set_by(experiment, extra)]
         typer.echo(f"\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
         outcome = run_sweep(args, jobs, sweep_dir=target / folder, title=folder)
         outcomes.append(outcome)
@@ -121,6 +125,15 @@ def _check_overrides(overrides: list[str], quick: bool) -> list[str]:
     return extra
 
 
+def _not_set_by(experiment: list[str], extra: list[str]) -> list[str]:
+    """The extra overrides whose key the experiment does not set itself (frontier/ sweeps risk.beta, whatever the
+    user gave for the paper's set-ups)."""
+    from riskplan.config import parse_overrides
+
+    own = {o.key_or_group for o in parse_overrides(experiment)}
+    return [o.input_line for o in parse_overrides(extra) if o.key_or_group not in own]
+
+
 def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
     """The objective landscape of the paper world (skipped when it is already there)."""
     from riskplan.config import compose
@@ -163,9 +176,9 @@ def _print_comparison(outcomes) -> None:
                   title_justify="left", show_edge=False, pad_edge=False)
     for column in ("set-up", "objective", "seeds", "mean", "CVaR", "VaR"):
         table.add_column(column, justify="left" if column in ("set-up", "objective") else "right")
-    for (sweep, risk), group in data.groupby(["sweep", "risk"], sort=False):
+    for (sweep, risk, beta), group in data.groupby(["sweep", "risk", "beta"], sort=False):
         setup = {"team": "3 robots, line graph", "wander": "1 robot, θ0 = (0, 0)"}.get(sweep, "1 robot (centralized)")
-        table.add_row(setup, "CVaR" if risk == "cvar" else "mean (risk-neutral)", str(len(group)),
+        table.add_row(setup, f"CVaR_{beta:g}" if risk == "cvar" else "mean (risk-neutral)", str(len(group)),
                       *(f"{group[c].mean():.1f} ± {group[c].std(ddof=1) if len(group) > 1 else 0:.1f}"
                         for c in ("mean", "cvar", "value_at_risk")))
     (Console() if sys.stdout.isatty() else Console(width=250)).print(table)

@@ -18,7 +18,8 @@ def riskplan(cwd, *args):
 
 
 def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
-    result = riskplan(tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", *FAST)
+    # risk.beta: a user's value for the paper set-ups must not clash with the frontier's own beta sweep
+    result = riskplan(tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", *FAST, "risk.beta=0.1")
     assert result.returncode == 0, result.stdout + result.stderr
     roots = list((tmp_path / "outputs" / "reproduce").iterdir())
     assert len(roots) == 1
@@ -31,19 +32,25 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "robots: 3" in config and "iterations: 5" in config  # the user's overrides beat --quick's
     assert (root / "single" / "multirun.yaml").is_file()
     record = json.loads((root / "reproduce.json").read_text())
-    assert record["seeds"] == 1 and record["quick"] and set(record["parts"]) == {"single", "team", "wander", "landscape", "report"}
+    assert record["seeds"] == 1 and record["quick"] and set(record["parts"]) == {"single", "team", "wander", "frontier", "landscape", "report"}
     wander = pd.read_parquet(root / "wander" / "summary.parquet")
     assert len(wander) == 1 and wander.status.iloc[0] == "done"
     assert "- 0\n  - 0\n" in (root / "wander" / "seed=0" / ".hydra" / "config.yaml").read_text()  # theta0
     assert "Section V across seeds" in result.stdout and "θ0 = (0, 0)" in result.stdout
     assert (root / "report" / "report.html").is_file()
-    assert (root / "landscape" / "summary.json").is_file()
+    landscape = json.loads((root / "landscape" / "summary.json").read_text())
+    assert landscape["experiment"] == "paper_single" and landscape["theta_fixed"] == [20.0, 20.0]  # no wander/ theta0
+    frontier = pd.read_parquet(root / "frontier" / "summary.parquet")
+    assert sorted(frontier.beta) == [0.05, 0.2, 0.5, 1.0] and (frontier.status == "done").all()
+    assert "CVaR_0.05" in result.stdout and "CVaR_1" in result.stdout
 
     # completing an existing reproduction runs nothing again
-    again = riskplan(tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", "--out", str(root), *FAST)
+    again = riskplan(tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", "--out", str(root), *FAST,
+                     "risk.beta=0.1")
     assert again.returncode == 0, again.stderr
     assert "2 jobs: 0 to run, 2 already finished" in again.stdout
     assert "1 job: 0 to run, 1 already finished" in again.stdout
+    assert "4 jobs: 0 to run, 4 already finished" in again.stdout
 
 
 def test_reproduce_rejects_sweeps_and_its_own_keys_as_bad_input(tmp_path):

@@ -317,7 +317,7 @@ def fig_frontier(coll: Collection) -> FigureSpec | str:
     if len(coll.groups) < 2:
         return "needs at least two conditions (e.g. a risk.beta sweep)"
     alpha = frontier_beta(coll)
-    fig, axes = _figure(4.8, 3.6)
+    fig, axes = _figure(5.4, 3.4 + 0.22 * len(coll.groups))
     ax = axes[0, 0]
     points = []
     for g in coll.groups:
@@ -343,7 +343,7 @@ def fig_frontier(coll: Collection) -> FigureSpec | str:
                 ax.annotate(f"β={beta:g}", (x, y), xytext=(4, -10), textcoords="offset points", fontsize=7)
     ax.set_xlabel("mean total reward")
     ax.set_ylabel(f"CVaR$_{{{alpha:g}}}$ of total reward")
-    ax.legend(loc="best")
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=1)  # never over the points
     return FigureSpec("risk_frontier", "Risk frontier",
                       f"Evaluated mean vs CVaR at the common level {alpha:g} of each final policy (95% intervals); "
                       f"risk-averse runs that differ only in β are joined. Up and to the right is better on both.", fig)
@@ -425,7 +425,8 @@ def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
                       f"Mean and CVaR of the total reward over a {s.get('points', '?')}×{s.get('points', '?')} grid of "
                       f"(θ_{a}, θ_{b}), {s.get('episodes', '?')} episodes per point on common random numbers (seed "
                       f"{s.get('seed', '?')}); colours below the 5th percentile are clipped. Lines: the training "
-                      f"paths of the runs on this world (circle: θ0, square: final θ); star: the grid maximum.", fig)
+                      f"paths of the runs on this world that optimise the mean or CVaR at this β (circle: θ0, "
+                      f"square: final θ); star: the grid maximum.", fig)
 
 
 BUILDERS = (

@@ -118,11 +118,15 @@ def runs_table(coll: Collection) -> pd.DataFrame:
 
 
 def runs_on(land, coll: Collection) -> list[RunInfo]:
-    """The runs trained on the landscape's world (same world config and theta length)."""
+    """The runs trained on the landscape's world (same world config and theta length) for one of its objectives:
+    the mean, or CVaR at the landscape's beta (a beta sweep's other levels climb surfaces it does not show)."""
     world = {k: v for k, v in _flat_world(land.config).items()}
     out = []
     for r in coll.runs:
-        if _flat_world(r.config) == world and len(r.final_theta()) == len(land.summary.get("theta_fixed", [0, 0])):
+        risk = r.config.get("risk", {})
+        shown = risk.get("measure") == "neutral" or math.isclose(float(risk.get("beta", -1.0)), land.beta)
+        if (shown and _flat_world(r.config) == world
+                and len(r.final_theta()) == len(land.summary.get("theta_fixed", [0, 0]))):
             out.append(r)
     return out
 
