@@ -184,6 +184,21 @@ def test_reward_distribution_marks_var_and_cvar(figures, sweep, coll):
         assert np.all(np.diff(ecdf.get_ydata()) > 0) and ecdf.get_ydata()[-1] == 1.0
 
 
+def test_reward_distribution_with_a_beta_of_1_keeps_a_lower_tail(coll):
+    """A beta sweep reaching 1 (CVaR = mean) once broke the tail panel: it asked for quantiles up to 2."""
+    import copy
+
+    from riskplan.report.figures import fig_distribution
+
+    swept = copy.deepcopy(coll)
+    swept.groups[0].first.config["risk"]["beta"] = 1.0
+    spec = fig_distribution(swept)
+    tail = spec.figure.axes[1]
+    assert tail.get_ylim() == (0.0, 0.5)
+    marks = [ln for ln in tail.get_lines() if ln.get_label() == f"_beta {swept.groups[0].label}"]
+    assert marks[0].get_ydata()[0] == 1.0  # its (VaR, beta) mark sits above the panel, drawn but clipped
+
+
 def test_risk_frontier_has_one_point_per_group(figures, coll):
     ax = figures["risk_frontier"].figure.axes[0]
     assert ax.get_xlabel() == "mean total reward" and "CVaR" in ax.get_ylabel()

@@ -271,7 +271,7 @@ def fig_distribution(coll: Collection) -> FigureSpec | str:
     fig, axes = _figure(7.2, 3.3, ncols=2)
     full, tail = axes[0]
     probs = np.unique(np.concatenate([np.linspace(0, 1, 801), np.geomspace(1e-4, 0.5, 600)]))
-    top = max(0.3, 2 * max(g.beta for g in groups))
+    top = min(0.5, max(0.3, 2 * max(g.beta for g in groups)))  # a tail, also when a beta sweep reaches 1
     lows = []
     for g in groups:
         z = pooled_rewards(g)
@@ -297,7 +297,8 @@ def fig_distribution(coll: Collection) -> FigureSpec | str:
     handles = [ln for ln in full.get_lines() if not ln.get_label().startswith("_")]
     handles += [Line2D([], [], color="#555555", ls="--", lw=1.0, label="VaR$_\\beta$"),
                 Line2D([], [], color="#555555", ls=":", lw=1.3, label="CVaR$_\\beta$")]
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(3, len(handles)))
+    columns = 2 if len(handles) > 6 else min(3, len(handles))  # labels are long: many groups stack in two columns
+    fig.legend(handles=handles, loc="outside lower center", ncols=columns)
     return FigureSpec("reward_distribution", "Distribution of the total reward",
                       "Empirical CDF of the total reward of each final policy on its evaluation episodes (all seeds "
                       "pooled), with VaR (dashed) and CVaR (dotted) at each group's β; the right panel zooms into "
@@ -339,8 +340,13 @@ def fig_frontier(coll: Collection) -> FigureSpec | str:
             members.sort()
             ax.plot([m[1] for m in members], [m[2] for m in members], "-", color="#777777", lw=0.8, zorder=0,
                     label="_frontier")
-            for beta, x, y in members:
-                ax.annotate(f"β={beta:g}", (x, y), xytext=(4, -10), textcoords="offset points", fontsize=7)
+            xs, ys = np.array([m[1] for m in members]), np.array([m[2] for m in members])
+            near_x, near_y = 0.03 * np.ptp(xs) + 1e-9, 0.03 * np.ptp(ys) + 1e-9
+            for k, (beta, x, y) in enumerate(members):
+                # policies often cluster (the optimum jumps between beta levels): stack the labels of a cluster
+                stacked = int(np.sum((abs(xs[:k] - x) < near_x) & (abs(ys[:k] - y) < near_y)))
+                ax.annotate(f"β={beta:g}", (x, y), xytext=(6, -10 - 8 * stacked), textcoords="offset points",
+                            fontsize=7)
     ax.set_xlabel("mean total reward")
     ax.set_ylabel(f"CVaR$_{{{alpha:g}}}$ of total reward")
     fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=1)  # never over the points
