@@ -120,8 +120,8 @@ def _check_overrides(overrides: list[str], quick: bool) -> list[str]:
             raise BadInput(f"override '{override.input_line}'", "is set by reproduce; use --seeds N, or riskplan "
                                                                 "sweep for other experiments")
     extra = [*(QUICK if quick else []), *overrides]
-    for _, _, base, _ in EXPERIMENTS:
-        compose([base[0], *extra])
+    for setup in dict.fromkeys(base[0] for _, _, base, _ in EXPERIMENTS):  # each set-up once, not per experiment
+        compose([setup, *extra])
     return extra
 
 
