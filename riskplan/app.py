@@ -6,7 +6,10 @@ Going through Hydra's own main gives users what they expect of a Hydra app: `.hy
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import re
 import sys
 import traceback
 from pathlib import Path
@@ -19,9 +22,12 @@ from omegaconf import DictConfig
 
 from riskplan import schema
 from riskplan.errors import BadInput
+from riskplan.paths import write_atomic
 
 CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # absolute: conf/ is a symlinked data dir, not a package
 STATUS = "status.json"  # written in every job directory: {"status": "done" | "failed", "error": ...}
+_failure: list[str] = []  # the last single run's failure, for when status.json cannot be written (a full disk)
+_task_stderr: list = []  # the terminal's stderr, handed back to the task while Hydra's own output is captured
 
 
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
@@ -35,39 +41,83 @@ def task(cfg: DictConfig) -> float | None:
         from riskplan.sweepjob import sweep_job
 
         return sweep_job(cfg, out)
-    (out / STATUS).unlink(missing_ok=True)
-    try:
-        with _progress(single) as progress:
-            run = train(cfg, out, progress=progress)
-    except (BadInput, NumericalTrouble) as err:
-        _status(out, "failed", str(err))
-        return None
-    except Exception as err:  # a job that raises fails alone; its status records why, the others go on
-        _status(out, "failed", f"{type(err).__name__}: {err}", traceback.format_exc())
-        return None
-    _status(out, "done", None)
+    _failure.clear()
+    stderr = _task_stderr[-1] if _task_stderr else sys.stderr
+    with contextlib.redirect_stderr(stderr):
+        try:
+            write_status(out, "running", None)
+            with _progress(single) as progress:
+                run = train(cfg, out, progress=progress)
+        except (BadInput, NumericalTrouble) as err:
+            return _failed(out, str(err))
+        except OSError as err:  # a full disk, a directory removed under the run
+            where = f" {err.filename}" if err.filename else ""
+            return _failed(out, f"cannot write{where}: {err.strerror or err}; free space, then riskplan train "
+                                f"--resume {out}")
+        except Exception as err:  # a job that raises fails alone; its status records why, the others go on
+            return _failed(out, f"{type(err).__name__}: {err}", traceback.format_exc())
+        write_status(out, "done", None)
     return run.summary["cvar"]["value"]
 
 
-def run_hydra(args: list[str]) -> None:
-    """Call the Hydra app as if `riskplan <args>` were its command line."""
+def _failed(out: Path, error: str, trace: str | None = None) -> None:
+    """Record a single run's failure: in status.json if the disk takes it, and for the CLI in any case."""
+    _failure.append(error)
+    with contextlib.suppress(OSError):
+        write_status(out, "failed", error, trace)
+    return None
+
+
+def last_failure() -> str | None:
+    """The error of the last single run in this process that failed, if any."""
+    return _failure[-1] if _failure else None
+
+
+def run_hydra(args: list[str], capture: bool = False) -> None:
+    """Call the Hydra app as if `riskplan <args>` were its command line.
+
+    With `capture`, what Hydra itself prints on stderr (it prints a traceback for an error outside the task, e.g.
+    a full disk while it writes .hydra/) is held back, and a failure becomes one line (RunFailed); the task gets
+    the real stderr back for its progress bar.
+    """
     schema.register()
     GlobalHydra.instance().clear()
     argv = sys.argv
     sys.argv = ["riskplan", *args]
+    held = io.StringIO()
+    _task_stderr.append(sys.stderr)
     try:
-        task()
+        with contextlib.redirect_stderr(held) if capture else contextlib.nullcontext():
+            task()
+    except SystemExit as stop:
+        if not capture or stop.code in (0, None):
+            raise
+        raise RunFailed(_last_error(held.getvalue())) from None
     finally:
+        _task_stderr.pop()
         sys.argv = argv
         GlobalHydra.instance().clear()
+        if capture and held.getvalue() and not isinstance(sys.exc_info()[1], RunFailed):
+            sys.stderr.write(held.getvalue())
 
 
-def _status(out: Path, status: str, error: str | None, trace: str | None = None) -> None:
-    """Write the job's status file."""
+class RunFailed(RuntimeError):
+    """Hydra stopped a single run outside the task (it could not write the run directory)."""
+
+
+def _last_error(text: str) -> str:
+    """The exception line of what Hydra printed (`OSError: [Errno 28] No space left on device: ...`)."""
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    errors = [line for line in lines if re.match(r"^[\w.]*(Error|Exception)\b.*:", line)]
+    return errors[-1] if errors else (lines[-1] if lines else "Hydra stopped without a message")
+
+
+def write_status(out: Path, status: str, error: str | None, trace: str | None = None) -> None:
+    """Write the run's status file atomically (never a zero-byte or half file)."""
     record = {"status": status, "error": error}
     if trace:
         record["traceback"] = trace
-    (out / STATUS).write_text(json.dumps(record, indent=2))
+    write_atomic(Path(out) / STATUS, json.dumps(record, indent=2))
 
 
 def _progress(enabled: bool):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import json
+import shutil
 import sys
 import warnings
 from pathlib import Path
@@ -13,7 +14,8 @@ import typer
 from typer.core import TyperGroup
 
 from riskplan.errors import BadInput
-from riskplan.paths import claim_dir, hydra_quote
+from riskplan.lock import LOCK, hold, holder
+from riskplan.paths import check_output_dir, claim_dir, hydra_quote
 
 
 
@@ -54,6 +56,7 @@ app = typer.Typer(
 warnings.formatwarning = lambda message, *args, **kwargs: f"warning: {message}\n"  # one plain line, no path
 PASS_THROUGH = {"allow_extra_args": True, "ignore_unknown_options": True}
 HYDRA_FLAGS = {"--cfg", "-c", "--package", "-p", "--resolve", "--info", "-i"}
+MULTIRUN_FLAGS = {"-m", "--multirun"}
 OVERRIDES_HELP = ("Hydra overrides, e.g. risk=neutral risk.beta=0.2 train.samples=2000 world.size=[16,16] "
                   "experiment=paper_team team.graph=ring.")
 TRAIN_OVERRIDES_HELP = OVERRIDES_HELP + (" Hydra flags --cfg job|hydra|all, --package, --resolve, --info pass "
@@ -98,26 +101,76 @@ def train(
         metavar="RUN_DIR"),
 ) -> None:
     """Train one experiment (default: experiment=paper_single) into outputs/runs/<timestamp>_<experiment>/."""
-    from riskplan.config import compose, expand_overrides
+    from riskplan.app import RunFailed, run_hydra
+    from riskplan.config import check_hydra_args, compose, expand_overrides, parse_overrides
 
     args = list(overrides or [])
+    multirun = sorted(MULTIRUN_FLAGS & set(args))
+    if multirun:
+        raise BadInput(f"option '{multirun[0]}'", "riskplan train runs one experiment; run a multirun with riskplan "
+                                                  "sweep and the same overrides (e.g. riskplan sweep seed=0,1,2)")
     if resume is not None:
         _resume(resume, args)
         return
     if HYDRA_FLAGS & set(args):
-        from riskplan.app import run_hydra
-
+        check_hydra_args(args)
         run_hydra(args)
         return
     cfg = compose(args)
-    explicit = _explicit_run_dir(args)
-    out = explicit or claim_dir(Path("outputs") / "runs", f"_{cfg.experiment}")
-    typer.echo(f"run directory: {out}")
-    from riskplan.app import run_hydra
+    explicit = run_dir_override(parse_overrides(args))
+    if explicit is None:
+        out, made = claim_dir(Path("outputs") / "runs", f"_{cfg.experiment}"), True
+        args = [*args, f"hydra.run.dir={hydra_quote(out)}"]
+    else:
+        out, made = explicit, not explicit.exists()
+        check_new_run_dir(out, "hydra.run.dir")
+        out.mkdir(parents=True, exist_ok=True)
+    try:
+        with hold(out):
+            check_new_run_dir(out, "hydra.run.dir")  # again under the lock: another process may have won the race
+            typer.echo(f"run directory: {out}")
+            try:
+                run_hydra(expand_overrides(args), capture=True)
+            except RunFailed as err:
+                typer.echo(f"error: run failed: {err} (see {out})", err=True)
+                raise typer.Exit(1) from None
+            _finish(out)
+    except BadInput:
+        if made:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
 
-    args = expand_overrides(args)
-    run_hydra(args if explicit else [*args, f"hydra.run.dir={hydra_quote(out)}"])
-    _finish(out)
+
+def run_dir_override(parsed: list) -> Path | None:
+    """The hydra.run.dir=... the user typed, if any, as a plain path."""
+    for override in parsed:
+        if override.key_or_group == "hydra.run.dir":
+            value = str(override.value())
+            if "${" in value:
+                raise BadInput("hydra.run.dir", f"got '{value}'; give a plain path (without it, riskplan train "
+                                                f"uses outputs/runs/<timestamp>_<experiment>)")
+            check_output_dir(value, "hydra.run.dir")
+            return Path(value)
+    return None
+
+
+def check_new_run_dir(out: Path, key: str) -> None:
+    """A run starts only in a new or empty directory: never over another run's files (resume is explicit)."""
+    if not out.is_dir():
+        return
+    entries = [p for p in out.iterdir() if p.name != LOCK]
+    if not entries:
+        return
+    pid = holder(out)
+    if pid is not None:
+        raise BadInput(str(out), f"is in use by another riskplan process (pid {pid or 'unknown'}); one process "
+                                 f"writes a run directory at a time: wait for it to end or stop it")
+    from riskplan.runs import is_run_dir
+
+    if is_run_dir(out):
+        raise BadInput(key, f"{out} already holds a run; resume it with riskplan train --resume {out}, or give a "
+                            f"new directory")
+    raise BadInput(key, f"{out} is not empty and holds no run; give a new or empty directory")
 
 
 @app.command(context_settings=PASS_THROUGH)
@@ -147,48 +200,87 @@ def check(overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_H
 
 def _resume(run_dir: Path, args: list[str]) -> None:
     """`train --resume RUN_DIR [train.iterations=N]`."""
-    from omegaconf import OmegaConf
-
     from riskplan.config import parse_overrides
-    from riskplan.progress import TrainingBar
     from riskplan.runs import is_run_dir
-    from riskplan.training import CHECKPOINT, NumericalTrouble
-    from riskplan.training import train as train_run
+    from riskplan.training import CHECKPOINT
 
     if not run_dir.is_dir() or not is_run_dir(run_dir):
         raise BadInput(str(run_dir), "holds no run; give the directory of a riskplan train run to --resume")
-    if not (run_dir / CHECKPOINT).is_file():
-        raise BadInput(str(run_dir), "has no checkpoint yet (killed before the first one); start it again")
     for override in parse_overrides(args):
         if override.key_or_group != "train.iterations" or override.is_sweep_override():
             raise BadInput(f"override '{override.input_line}'", "cannot change a resumed run; "
                                                                  "only train.iterations=N may be given")
-    if not (run_dir / ".hydra" / "config.yaml").is_file():
-        raise BadInput(str(run_dir / ".hydra" / "config.yaml"), "is missing; a run cannot be resumed without "
-                                                                "its config")
-    cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
-    cfg.merge_with(OmegaConf.from_dotlist(args))
+    check_output_dir(run_dir, str(run_dir))
+    with hold(run_dir):  # before anything is read: another process may be writing it
+        if not (run_dir / CHECKPOINT).is_file():
+            raise BadInput(str(run_dir), "has no checkpoint yet (killed before the first one); start it again")
+        if not (run_dir / ".hydra" / "config.yaml").is_file():
+            raise BadInput(str(run_dir / ".hydra" / "config.yaml"), "is missing; a run cannot be resumed without "
+                                                                    "its config")
+        _resume_locked(run_dir, args)
+
+
+def _resume_locked(run_dir: Path, args: list[str]) -> None:
+    """The resume itself, under the run directory's lock."""
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    from riskplan.app import write_status
+    from riskplan.progress import TrainingBar
+    from riskplan.training import NumericalTrouble, prepare_resume
+    from riskplan.training import train as train_run
+
+    try:
+        cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
+        cfg.merge_with(OmegaConf.from_dotlist(args))
+    except (OmegaConfBaseException, ValueError, OSError) as err:  # yaml errors are ValueErrors
+        raise BadInput(str(run_dir / ".hydra" / "config.yaml"), f"cannot be read as a config "
+                                                                f"({type(err).__name__}); it was not written by "
+                                                                f"riskplan: start the run again") from None
+    setup = prepare_resume(cfg, run_dir)  # every check of config and checkpoint, before anything is written
     typer.echo(f"resuming: {run_dir}")
+    write_status(run_dir, "running", None)
     try:
         with TrainingBar() as progress:
-            train_run(cfg, run_dir, resume=True, progress=progress)
-    except NumericalTrouble as err:
-        typer.echo(f"error: {err}", err=True)
+            train_run(setup, run_dir, resume=True, progress=progress)
+    except (NumericalTrouble, OSError) as err:
+        message = str(err) if isinstance(err, NumericalTrouble) else _os_error(err, run_dir)
+        _try_status(run_dir, message)
+        typer.echo(f"error: {message}", err=True)
         raise typer.Exit(1) from None
-    (run_dir / "status.json").write_text(json.dumps({"status": "done", "error": None}, indent=2))
+    write_status(run_dir, "done", None)
     _finish(run_dir)
 
 
 def _finish(out: Path) -> None:
     """Print the one-line summary of a finished run, or its error with exit code 1."""
-    from riskplan.app import STATUS
+    from riskplan.app import STATUS, last_failure
 
-    status = json.loads((out / STATUS).read_text()) if (out / STATUS).is_file() else {"status": "failed",
-                                                                                      "error": "no status written"}
-    if status["status"] != "done":
-        typer.echo(f"error: run failed: {status['error']} (see {out})", err=True)
+    try:
+        status = json.loads((out / STATUS).read_text())
+    except (OSError, ValueError):
+        status = {"status": "failed", "error": last_failure() or "no status written"}
+    if status.get("status") != "done":
+        typer.echo(f"error: run failed: {status.get('error')} (see {out})", err=True)
         raise typer.Exit(1)
     typer.echo(summary_line(json.loads((out / "summary.json").read_text()), out))
+
+
+def _os_error(err: OSError, out: Path) -> str:
+    """One line for a failure to write at run time (a full disk, a vanished directory)."""
+    where = f" {err.filename}" if err.filename else ""
+    return (f"cannot write{where}: {err.strerror or err}; the last checkpoint is kept: free space, then riskplan "
+            f"train --resume {out}")
+
+
+def _try_status(out: Path, message: str) -> None:
+    """Record a failure in status.json if the disk still takes it (it may be the full disk that failed)."""
+    from riskplan.app import write_status
+
+    try:
+        write_status(out, "failed", message)
+    except OSError:
+        pass
 
 
 def summary_line(summary: dict, out: Path) -> str:
@@ -218,14 +310,6 @@ def _describe_world(setup) -> str:
         count = int((world.region_of == r).sum())
         lines.append(f"  region {r} '{name}': {count} cells{', risky' if world.region_risky[r] else ''}")
     return "\n".join(lines)
-
-
-def _explicit_run_dir(args: list[str]) -> Path | None:
-    """The hydra.run.dir=... the user typed, if any."""
-    for arg in args:
-        if arg.startswith("hydra.run.dir="):
-            return Path(arg.split("=", 1)[1].strip("'\""))
-    return None
 
 
 def _register_commands() -> None:

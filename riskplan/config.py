@@ -12,7 +12,7 @@ from hydra import initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import HydraException
-from omegaconf import DictConfig
+from omegaconf import DictConfig, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from riskplan import schema
@@ -31,7 +31,23 @@ def parse_overrides(overrides: list[str]) -> list:
             parsed.extend(parser.parse_overrides([text]))
         except HydraException:
             raise BadInput(f"override '{text}'", f"malformed; {GRAMMAR}") from None
+        if not parsed[-1].key_or_group:  # `=5`: Hydra parses an empty key
+            raise BadInput(f"override '{text}'", f"malformed; {GRAMMAR}")
     return parsed
+
+
+def check_groups(parsed: list) -> None:
+    """A config group set to null (`experiment=null`) is bad input naming the group's options, not a crash."""
+    for override in parsed:
+        group = override.key_or_group
+        if override.value() is None and not override.is_delete() and group_options(group) is not None:
+            raise BadInput(f"key '{group}'", f"cannot be null; available: {', '.join(group_options(group))}")
+
+
+def group_options(group: str) -> list[str] | None:
+    """The options of one of riskplan's own config groups (experiment, risk), None for anything else."""
+    folder = CONF_DIR / group
+    return sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else None
 
 
 def expand_overrides(overrides: list[str]) -> list[str]:
@@ -48,22 +64,46 @@ def expand_overrides(overrides: list[str]) -> list[str]:
 def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = True) -> DictConfig:
     """Compose conf/ with overrides, check the schema, then (optionally) the model's own constraints."""
     overrides = list(overrides)
+    parsed = parse_overrides(overrides)
+    check_groups(parsed)
     expanded = expand_overrides(overrides)
     schema.register()
     GlobalHydra.instance().clear()
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-            cfg = hydra_compose(config_name="config", overrides=expanded)
+            cfg = hydra_compose(config_name="config", overrides=expanded, return_hydra_config=True)
     except (HydraException, OmegaConfBaseException) as err:
         raise BadInput(*explain(err)) from None
+    except ValueError as err:  # Hydra's defaults list rejects some values outside its grammar
+        raise BadInput("config", f"{_first_line(err)}; {GRAMMAR}") from None
     finally:
         GlobalHydra.instance().clear()
+    from riskplan.hydra_checks import check_hydra_node
+
+    check_hydra_node(cfg, [o for o in parsed if o.is_hydra_override()])
+    with open_dict(cfg):
+        del cfg["hydra"]
     check_schema(cfg)
     if validate:
         from riskplan.setup import build_setup
 
         build_setup(cfg)
     return cfg
+
+
+def check_hydra_args(args: list[str]) -> None:
+    """The overrides among a command line with Hydra's flags (--cfg job ...), composed and checked: a bad one, or a
+    Hydra setting that names code, is BadInput before Hydra sees it."""
+    valued = {"--cfg", "-c", "--package", "-p", "--info", "-i"}
+    overrides, skip = [], False
+    for arg in args:
+        if skip and "=" not in arg:
+            skip = False
+            continue
+        skip = arg in valued
+        if not arg.startswith("-"):
+            overrides.append(arg)
+    compose(overrides, validate=False)
 
 
 def check_schema(cfg) -> DictConfig:
@@ -77,9 +117,35 @@ def check_schema(cfg) -> DictConfig:
     plain = OmegaConf.to_container(cfg) if isinstance(cfg, DictConfig) else cfg  # a typed node would let extras in
     _unknown_keys(plain, schema.RiskplanConf, "")
     try:
-        return OmegaConf.merge(OmegaConf.structured(schema.RiskplanConf), plain)
+        merged = OmegaConf.merge(OmegaConf.structured(schema.RiskplanConf), plain)
     except OmegaConfBaseException as err:
         raise BadInput(*explain(err)) from None
+    resolved(merged)
+    return merged
+
+
+def resolved(cfg: DictConfig) -> dict:
+    """The config with every interpolation resolved; one that cannot be (an unset variable, a missing key, a
+    self-reference, a value of the wrong type) is BadInput naming its key and the interpolation."""
+    from omegaconf import OmegaConf
+
+    try:
+        return OmegaConf.to_container(cfg, resolve=True)
+    except OmegaConfBaseException as err:
+        key = _dotted(getattr(err, "full_key", "") or "")
+        text = OmegaConf.to_container(cfg, resolve=False)
+        for part in filter(None, key.split(".")):
+            text = text[int(part)] if isinstance(text, list) else text.get(part) if isinstance(text, dict) else text
+        from riskplan.hydra_checks import interpolation_reason
+
+        raise BadInput(f"key '{key}'" if key else "config",
+                       f"the interpolation {text} cannot be resolved ({interpolation_reason(err)}); give a plain "
+                       f"value or an interpolation of another key") from None
+
+
+def _first_line(err: Exception) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
 
 
 def _unknown_keys(data: typing.Any, node: typing.Any, path: str) -> None:

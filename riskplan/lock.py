@@ -45,8 +45,12 @@ def hold(directory: Path | str, what: str = "run directory"):
         finally:
             _held[key][1] -= 1
         return
+    path = directory / LOCK
     try:
-        fd = os.open(directory / LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fd, created = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644), True
+        except FileExistsError:
+            fd, created = os.open(path, os.O_RDWR | os.O_CLOEXEC), False
     except OSError as err:
         raise BadInput(str(directory), f"cannot be written ({err.strerror}); give a {what} you can write") from None
     try:
@@ -64,6 +68,10 @@ def hold(directory: Path | str, what: str = "run directory"):
     _held[key] = [fd, 1]
     try:
         yield
+    except BadInput:
+        if created:  # refused before anything else was written: leave the directory as it was
+            path.unlink(missing_ok=True)
+        raise
     finally:
         del _held[key]
         os.close(fd)  # releases the flock

@@ -13,7 +13,7 @@ import math
 import os
 import signal
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -23,7 +23,10 @@ from omegaconf import OmegaConf
 
 from riskplan import rng
 from riskplan.consensus import consensus_error, network_metadata
-from riskplan.record import RunLog, resume_log
+from riskplan.errors import BadInput
+from riskplan.lock import hold
+from riskplan.paths import atomic_path, check_output_dir, write_atomic
+from riskplan.record import RunLog, read_log, resume_log
 from riskplan.risk import cvar_gradient, mean_gradient, summary_stats
 from riskplan.rollout import simulate
 from riskplan.runs import Run
@@ -32,6 +35,7 @@ from riskplan.summary import SCHEMA_VERSION, bootstrap_intervals, provenance
 from riskplan.world import world_map
 
 CHECKPOINT = "checkpoint"
+FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # written when a run ends
 AVERAGE = -1  # the `robot` id of the network average in team tables
 EVAL_BATCH = 100_000  # episodes per kernel call during evaluation (bounds memory for large teams)
 CRASH_ENV = "RISKPLAN_TEST_KILL_IN_CHECKPOINT"  # fault injection for the crash-safety tests
@@ -63,8 +67,10 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
                      rng.robot_keys(cfg["seed"], rng.TRAIN, l, n), episodes)
     z = batch.total_reward.reshape(n, episodes)
     scores = batch.score.reshape(n, episodes, -1)
+    check_finite(f"iteration {l}: an episode's total reward", z)
     with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are caught just below, in one line
         stats = summary_stats(z, beta)
+        check_finite(f"iteration {l}: the statistics of the total reward", *stats.values())
         if cfg["risk"]["measure"] == "cvar":
             grads = cvar_gradient(z, scores, beta, var=stats["value_at_risk"])
         else:
@@ -87,6 +93,13 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
     return State(l + 1, new_thetas, setup.mixer.state(), state.rows + rows), rows
 
 
+def check_finite(what: str, *arrays) -> None:
+    """NumericalTrouble unless every value is finite: a NaN or infinity is never recorded as a result."""
+    for values in arrays:
+        if not np.all(np.isfinite(values)):
+            raise NumericalTrouble(f"{what} is not finite (overflow); use smaller rewards or fewer steps")
+
+
 def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int) -> np.ndarray:
     """Eq. (14) combine-then-adapt, A theta + eps Delta (default), or adapt-then-combine, A (theta + eps Delta)."""
     adapt_first = setup.config["team"]["order"] == "adapt_then_combine"
@@ -98,32 +111,40 @@ def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: flo
 
 def train(config, out_dir: str | Path, *, resume: bool = False,
           progress: Callable[[int, int, dict], None] | None = None) -> Run:
-    """Train, evaluate and record one experiment into out_dir; with resume, continue from its checkpoint."""
-    setup = build_setup(config)
+    """Train, evaluate and record one experiment into out_dir; with resume, continue from its checkpoint.
+
+    `config` is a composed config (or a Setup built from one). The directory is locked for the whole run: a second
+    process writing it gets BadInput naming this one's pid. A fresh run refuses a directory that holds another run.
+    """
+    setup = config if isinstance(config, Setup) else build_setup(config)
     out = Path(out_dir)
+    check_output_dir(out, str(out))
     out.mkdir(parents=True, exist_ok=True)
-    _write_config(out, setup.config)
-    state = load_checkpoint(out, setup) if resume else None
-    wall = time.perf_counter()
-    if state is None:
+    with hold(out):
+        return _train_locked(setup, out, resume, progress)
+
+
+def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
+    """train() under the directory's lock."""
+    if resume:
+        state = load_checkpoint(out, setup)
+        log = resume_log(out / "run.mcap", out / "run.mcap", state.iteration - 1)
+        state = replace(state, rows=logged_rows(out / "run.mcap", state.iteration, setup.robots))
+        setup.mixer.restore(state.mixer)
+        if _config_changed(out, setup.config):  # extended: the run's config now says the new train.iterations
+            _write_config(out, setup.config, replace=True)
+            log.metadata("config", setup.config)
+        for name in FINISHED:  # an extended run is not finished until it finishes again
+            (out / name).unlink(missing_ok=True)
+    else:
+        refuse_existing_run(out, setup)
+        _write_config(out, setup.config)
         state = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
         log = RunLog(out / "run.mcap")
         _log_header(log, setup)
     total = setup.config["train"]["iterations"]
-    if state is not None:
-        from riskplan.errors import BadInput
-
-        if state.iteration > total:
-            raise BadInput("train.iterations", f"got {total}, but {out} is checkpointed at iteration "
-                                               f"{state.iteration}; a resumed run can only be extended: give "
-                                               f"train.iterations >= {state.iteration}")
-        setup.mixer.restore(state.mixer)
-        log = resume_log(out / "run.mcap", out / "run.mcap.resume", state.iteration - 1)
-        os.replace(out / "run.mcap.resume", out / "run.mcap")
-        if _config_changed(out, setup.config):  # extended: the run's config now says the new train.iterations
-            _write_config(out, setup.config, replace=True)
-            log.metadata("config", setup.config)
     every = setup.config["train"]["checkpoint_every"]
+    wall = time.perf_counter()
     with log:
         while state.iteration < total:
             state, rows = iterate(setup, state)
@@ -143,12 +164,35 @@ def train(config, out_dir: str | Path, *, resume: bool = False,
         log.trajectories(trajectories)
         log.evaluation(evaluation)
         log.summary(summary)
-    metrics.to_parquet(out / "metrics.parquet", index=False)
-    evaluation.to_parquet(out / "eval.parquet", index=False)
-    trajectories.to_parquet(out / "trajectories.parquet", index=False)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=True))
-
+    for name, table in (("metrics", metrics), ("eval", evaluation), ("trajectories", trajectories)):
+        with atomic_path(out / f"{name}.parquet") as tmp:
+            table.to_parquet(tmp, index=False)
+    write_atomic(out / "summary.json", json.dumps(summary, indent=2, allow_nan=False))
     return Run(out, setup.config, metrics, evaluation, trajectories, summary, True)
+
+
+def refuse_existing_run(out: Path, setup: Setup) -> None:
+    """A fresh run never writes over another run's files: BadInput naming --resume instead."""
+    if any((out / name).exists() for name in (*FINISHED, CHECKPOINT, "run.mcap")) or (
+            (out / ".hydra" / "config.yaml").is_file() and _config_changed(out, setup.config)):
+        raise BadInput(str(out), f"already holds a run; resume it with riskplan train --resume {out}, or give a "
+                                 f"new directory")
+
+
+def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
+    """The metrics rows of iterations 0..iterations-1 from run.mcap: what a checkpoint no longer copies.
+
+    Every iteration must be there with one row per robot (and the network average in a team); anything else means
+    the log and the checkpoint are not of one run, which is bad input.
+    """
+    metrics = read_log(path).metrics
+    metrics = metrics[metrics.iteration < iterations]
+    per_iteration = robots + (1 if robots > 1 else 0)
+    counts = metrics.groupby("iteration").size()
+    if len(counts) != iterations or (iterations and not bool((counts == per_iteration).all())):
+        raise BadInput(str(path), f"holds rows that do not match the checkpoint (iteration {iterations}, "
+                                  f"{per_iteration} rows per iteration); start the run again")
+    return metrics.to_dict("records")
 
 
 def starts(setup: Setup) -> np.ndarray:
@@ -217,8 +261,10 @@ def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.
     cfg = setup.config
     headline = AVERAGE if setup.team else 0
     z = evaluation.loc[evaluation.robot == headline]
+    check_finite("the evaluation's total reward", evaluation.total_reward.to_numpy())
     figures = bootstrap_intervals(z.total_reward.to_numpy(), cfg["risk"]["beta"], cfg["train"]["bootstrap"],
                                   cfg["seed"])
+    check_finite("the summary's figures", *[v for f in figures.values() for v in f.values()])
     steps = float(metrics.samples[metrics.robot >= 0].sum())
     per_policy = {}
     for robot, group in evaluation.groupby("robot"):
@@ -245,7 +291,7 @@ def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.
         "iterations": state.iteration,
         "eval_episodes": cfg["train"]["eval_episodes"],
         "wall_time": train_seconds,
-        "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else math.nan,
+        "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else None,
         "provenance": provenance(),
     }
 
@@ -255,8 +301,7 @@ def save_checkpoint(out: Path, state: State) -> None:
     tmp = out / f"{CHECKPOINT}.tmp"
     payload = {"iteration": state.iteration, "thetas": state.thetas.tolist(),
                "mixer": {k: np.asarray(v).tolist() for k, v in state.mixer.items()},
-               "mixer_dtypes": {k: str(np.asarray(v).dtype) for k, v in state.mixer.items()},
-               "rows": state.rows}
+               "mixer_dtypes": {k: str(np.asarray(v).dtype) for k, v in state.mixer.items()}}
     with open(tmp, "w") as handle:
         json.dump(payload, handle)
         handle.flush()
@@ -272,24 +317,48 @@ def save_checkpoint(out: Path, state: State) -> None:
 
 
 def load_checkpoint(out: Path, setup: Setup) -> State:
-    """The last good checkpoint of a run directory (a half-written temp file is ignored)."""
-    from riskplan.errors import BadInput
-
+    """The last good checkpoint of a run directory (a half-written temp file is ignored), checked against the
+    config: a checkpoint that cannot be this run's is bad input, never a run that continues."""
     path = out / CHECKPOINT
     if not path.exists():
         raise BadInput(str(out), "has no checkpoint to resume from; start it again with riskplan train")
     try:
         payload = json.loads(path.read_text())
         thetas = np.array(payload["thetas"], dtype=float)
-        mixer = {k: np.array(v, dtype=payload["mixer_dtypes"][k]) for k, v in payload["mixer"].items()}
-        iteration, rows = int(payload["iteration"]), list(payload["rows"])
+        mixer = {k: np.array(v, dtype=np.dtype(payload["mixer_dtypes"][k])) for k, v in payload["mixer"].items()}
+        iteration = payload["iteration"]
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
         raise BadInput(str(path), f"is damaged ({type(err).__name__}: {err}); it was not written by riskplan, "
                                   f"which replaces checkpoints atomically: start the run again") from None
+    if type(iteration) is not int or iteration < 1:
+        raise BadInput(str(path), f"holds iteration {iteration!r}; a checkpoint is written after iteration 1 or "
+                                  f"later: start the run again")
     if thetas.shape != (setup.robots, setup.world.sources):
         raise BadInput(str(out), f"checkpoint holds {thetas.shape} thetas, the config needs "
                                  f"{(setup.robots, setup.world.sources)}; only train.iterations may change on resume")
-    return State(iteration, thetas, mixer, rows)
+    if not (np.all(np.isfinite(thetas)) and math.isfinite(logit_bound(setup.world, thetas))):
+        raise BadInput(str(path), "holds a theta that is not finite (or overflows the softmax); start the run again")
+    expected = setup.mixer.state()
+    for key, value in mixer.items():
+        if key not in expected or value.shape != expected[key].shape or (
+                value.dtype.kind == "f" and not np.all(np.isfinite(value))):
+            raise BadInput(str(path), f"holds a consensus state '{key}' that does not fit this team (or is not "
+                                      f"finite); start the run again")
+    if set(mixer) != set(expected):
+        raise BadInput(str(path), "lacks part of the consensus state of this team; start the run again")
+    if iteration > setup.config["train"]["iterations"]:
+        raise BadInput("train.iterations", f"got {setup.config['train']['iterations']}, but {out} is checkpointed "
+                                           f"at iteration {iteration}; a resumed run can only be extended: give "
+                                           f"train.iterations >= {iteration}")
+    return State(iteration, thetas, mixer, [])
+
+
+def prepare_resume(config, out: Path) -> Setup:
+    """The Setup of a run to resume, after every check of its config, checkpoint and log (nothing is written)."""
+    setup = build_setup(config)
+    state = load_checkpoint(out, setup)
+    logged_rows(out / "run.mcap", state.iteration, setup.robots)
+    return setup
 
 
 def _row(l, robot, stats, theta, grad, eps, error, samples, seconds) -> dict:

@@ -150,9 +150,11 @@ def test_sigkill_part_way_then_resume_equals_the_uninterrupted_run(tmp_path, bas
     out = tmp_path / "run"
     assert kill_after_iteration(FAST, out, 12) == -signal.SIGKILL
 
-    # What the kill left: the checkpoint of iteration 10, a log with every flushed iteration, no tables.
+    # What the kill left: the checkpoint of iteration 10, a log with every flushed iteration, no tables, and a
+    # status that still says running.
     assert checkpoint_iteration(out) == 10
-    assert not any((out / f).exists() for f in ("summary.json", "metrics.parquet", "eval.parquet", "status.json"))
+    assert not any((out / f).exists() for f in ("summary.json", "metrics.parquet", "eval.parquet"))
+    assert json.loads((out / "status.json").read_text())["status"] == "running"
     killed = load_run(out)
     assert not killed.complete and "truncated after iteration 12" in killed.problem
     assert list(killed.metrics.iteration) == list(range(13)) and killed.summary is None
