@@ -64,7 +64,8 @@ TRAIN_OVERRIDES_HELP = OVERRIDES_HELP + (" Hydra flags --cfg job|hydra|all, --pa
 
 
 def bad_input_exits(command):
-    """Turn BadInput into one line on stderr and exit code 2 (no traceback)."""
+    """Turn BadInput into one line on stderr and exit code 2, and a failure to read or write files at run time
+    (a full disk) into one line and exit code 1: never a traceback."""
 
     @functools.wraps(command)
     def wrapper(*args, **kwargs):
@@ -73,6 +74,10 @@ def bad_input_exits(command):
         except BadInput as err:
             typer.echo(f"error: {err}", err=True)
             raise typer.Exit(2) from None
+        except OSError as err:
+            where = f" {err.filename}" if err.filename else ""
+            typer.echo(f"error: cannot write{where}: {err.strerror or err}", err=True)
+            raise typer.Exit(1) from None
 
     return wrapper
 
@@ -222,6 +227,7 @@ def _resume(run_dir: Path, args: list[str]) -> None:
 
 def _resume_locked(run_dir: Path, args: list[str]) -> None:
     """The resume itself, under the run directory's lock."""
+    import yaml
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
@@ -233,14 +239,18 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
     try:
         cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
         cfg.merge_with(OmegaConf.from_dotlist(args))
-    except (OmegaConfBaseException, ValueError, OSError) as err:  # yaml errors are ValueErrors
+    except (OmegaConfBaseException, ValueError, OSError, yaml.YAMLError) as err:
         raise BadInput(str(run_dir / ".hydra" / "config.yaml"), f"cannot be read as a config "
                                                                 f"({type(err).__name__}); it was not written by "
                                                                 f"riskplan: start the run again") from None
-    setup = prepare_resume(cfg, run_dir)  # every check of config and checkpoint, before anything is written
+    setup, finished = prepare_resume(cfg, run_dir)  # every check of config and checkpoint, before any write
+    if finished:  # nothing to do: a finished run is left exactly as it is
+        typer.echo(f"already finished: {run_dir}")
+        typer.echo(summary_line(json.loads((run_dir / "summary.json").read_text()), run_dir))
+        return
     typer.echo(f"resuming: {run_dir}")
-    write_status(run_dir, "running", None)
     try:
+        write_status(run_dir, "running", None)
         with TrainingBar() as progress:
             train_run(setup, run_dir, resume=True, progress=progress)
     except (NumericalTrouble, OSError) as err:
@@ -259,7 +269,9 @@ def _finish(out: Path) -> None:
     try:
         status = json.loads((out / STATUS).read_text())
     except (OSError, ValueError):
-        status = {"status": "failed", "error": last_failure() or "no status written"}
+        status = {"status": "failed", "error": "no status written"}
+    if last_failure():  # status.json may still say running: the disk that failed refused the failure too
+        status = {"status": "failed", "error": last_failure()}
     if status.get("status") != "done":
         typer.echo(f"error: run failed: {status.get('error')} (see {out})", err=True)
         raise typer.Exit(1)

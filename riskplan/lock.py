@@ -61,8 +61,9 @@ def hold(directory: Path | str, what: str = "run directory"):
         raise BadInput(str(directory), f"is in use by another riskplan process (pid {pid}); one process writes a "
                                        f"{what} at a time: wait for it to end or stop it") from None
     try:
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        if _read_pid(fd) != str(os.getpid()):  # unchanged when this process held it before: nothing is rewritten
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     except OSError:
         pass  # the lock holds without the pid note (a full disk); the loser then says "pid unknown"
     _held[key] = [fd, 1]

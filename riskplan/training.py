@@ -353,12 +353,14 @@ def load_checkpoint(out: Path, setup: Setup) -> State:
     return State(iteration, thetas, mixer, [])
 
 
-def prepare_resume(config, out: Path) -> Setup:
-    """The Setup of a run to resume, after every check of its config, checkpoint and log (nothing is written)."""
+def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
+    """The Setup of a run to resume, after every check of its config, checkpoint and log (nothing is written), and
+    whether the run is finished already (its checkpoint is at train.iterations and its tables are there)."""
     setup = build_setup(config)
     state = load_checkpoint(out, setup)
     logged_rows(out / "run.mcap", state.iteration, setup.robots)
-    return setup
+    done = state.iteration == setup.config["train"]["iterations"] and all((out / f).is_file() for f in FINISHED)
+    return setup, done
 
 
 def _row(l, robot, stats, theta, grad, eps, error, samples, seconds) -> dict:

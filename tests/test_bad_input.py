@@ -4,6 +4,7 @@ no traceback), and leave the directory exactly as it was: no run directory, no f
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
 import shutil
@@ -70,6 +71,19 @@ def template(tmp_path_factory) -> Path:
     (not_mcap / "run.mcap").write_text("these are notes, not a log")
     (root / "empty").mkdir()
     (root / "notes.txt").write_text("not a run\n")
+    # checkpoints and configs that cannot be this run's (resume validates them)
+    for name, edit in (("nan_theta", lambda c: {**c, "thetas": [[float("nan"), 1.0]]}),
+                       ("negative", lambda c: {**c, "iteration": -3})):
+        bad = runs / name
+        shutil.copytree(done, bad)
+        checkpoint = json.loads((bad / CHECKPOINT).read_text())
+        (bad / CHECKPOINT).write_text(json.dumps(edit(checkpoint)))
+    for name, text in (("unresolvable", "seed: ${oc.env:RISKPLAN_UNSET_VARIABLE}\n"), ("not_yaml", "seed: [0\n")):
+        bad = runs / name
+        shutil.copytree(done, bad)
+        config = bad / ".hydra" / "config.yaml"
+        config.write_text(text + "\n".join(line for line in config.read_text().splitlines()
+                                           if not line.startswith("seed:")) + "\n")
     return root
 
 

@@ -221,9 +221,12 @@ def test_resume_with_more_iterations_extends_a_finished_run(tmp_path, monkeypatc
     assert run.config["train"]["iterations"] == 30  # .hydra/config.yaml follows the extension
     assert read_log(out / "run.mcap").metadata["config"]["train"]["iterations"] == 30
 
-    # Resuming the finished run once more (nothing left to train) rewrites the same numbers.
+    # Resuming the finished run once more (nothing left to train) leaves every file exactly as it was.
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
     third = runner.invoke(app, ["train", "--resume", str(out)])
     assert third.exit_code == 0, third.output
+    assert "already finished" in third.output
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
     assert_same_outputs(out, baseline)
     assert_log_holds_each_iteration_once(out, 30, (0,))
 
