@@ -1,7 +1,8 @@
 """One writer per directory: an OS lock (flock) on DIR/.riskplan.lock, held for the life of a run or sweep job.
 
-The lock dies with its process (the kernel drops it), so a SIGKILLed run never leaves a stale lock. The file
-keeps the holder's pid, so the loser can say who holds it. Holding is re-entrant within a process (the CLI takes
+The lock dies with its process (the kernel drops it), so a SIGKILLed run never leaves a stale lock. The loser
+names the holder's pid, read from /proc/locks (so taking the lock rewrites nothing; where /proc/locks is missing,
+the holder writes its pid into the file instead). Holding is re-entrant within a process (the CLI takes
 the lock before Hydra starts; the training loop it calls takes it again), since two flock()s of one process on two
 file descriptions would otherwise block each other.
 """
@@ -24,8 +25,20 @@ def _key(directory: Path) -> str:
     return os.path.realpath(directory)
 
 
+PROC_LOCKS = Path("/proc/locks")
+
+
 def _read_pid(fd: int) -> str:
-    """The pid written by the holder (it may not have written it yet)."""
+    """The holder's pid: from /proc/locks by the file's device and inode, else the pid note in the file."""
+    info = os.fstat(fd)
+    where = f"{os.major(info.st_dev):02x}:{os.minor(info.st_dev):02x}:{info.st_ino}"
+    try:
+        for line in PROC_LOCKS.read_text().splitlines():
+            parts = line.split()
+            if "FLOCK" in parts and where in parts:
+                return parts[parts.index(where) - 1]
+    except OSError:
+        pass
     try:
         text = os.pread(fd, 32, 0).decode(errors="replace").strip()
     except OSError:
@@ -61,7 +74,7 @@ def hold(directory: Path | str, what: str = "run directory"):
         raise BadInput(str(directory), f"is in use by another riskplan process (pid {pid}); one process writes a "
                                        f"{what} at a time: wait for it to end or stop it") from None
     try:
-        if _read_pid(fd) != str(os.getpid()):  # unchanged when this process held it before: nothing is rewritten
+        if not PROC_LOCKS.exists():
             os.ftruncate(fd, 0)
             os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     except OSError:
