@@ -147,6 +147,28 @@ def bench_training(quick: bool) -> list[dict]:
     ]
 
 
+def bench_checkpoints(quick: bool) -> list[dict]:
+    """Many cheap iterations with a checkpoint every 10 against one checkpoint at the end: O(1) per checkpoint."""
+    from riskplan.config import compose
+    from riskplan.training import train
+
+    iterations = 1000 if quick else 4000
+    base = ["train.samples=20", f"train.iterations={iterations}", "train.eval_episodes=100", "train.bootstrap=5",
+            "train.paths=1"]
+    walls = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        train(compose([*base, "train.iterations=5"]), Path(tmp) / "warm-up")  # kernels loaded before timing
+        for every in (iterations, 10):
+            run = train(compose([*base, f"train.checkpoint_every={every}"]), Path(tmp) / f"every_{every}")
+            walls[every] = run.summary["wall_time"]
+        size = (Path(tmp) / "every_10" / "checkpoint").stat().st_size
+    ratio = walls[10] / walls[iterations]
+    return [{"measure": f"training, {iterations} iterations at W=20, a checkpoint every 10 (s)", "value": walls[10],
+             "unit": "s", "target": "< 2x one checkpoint at the end", "ok": ratio < 2.0, "baseline": walls[iterations],
+             "ratio": ratio, "note": f"baseline: one checkpoint at the end; each checkpoint is {size} bytes "
+                                     f"(the state, not the rows so far), fsynced with the log"}]
+
+
 def bench_jit() -> list[dict]:
     """First-call time with an empty numba cache (compile) vs a warm on-disk cache, in fresh processes."""
     code = ("import time; t = time.perf_counter(); import riskplan.bench as b; "
@@ -230,8 +252,8 @@ def register(app: typer.Typer) -> None:
         console.print(f"numba {numba.__version__}, {numba.get_num_threads()} threads "
                       f"({numba.config.THREADING_LAYER} layer), {os.cpu_count()} cores")
         rows: list[dict] = []
-        for section in (lambda: bench_rollout(quick), lambda: bench_training(quick), bench_jit,
-                        lambda: bench_team(quick)):
+        for section in (lambda: bench_rollout(quick), lambda: bench_training(quick),
+                        lambda: bench_checkpoints(quick), bench_jit, lambda: bench_team(quick)):
             for row in section():  # printed as each section ends: the whole benchmark takes ~20 s
                 mark = "met" if row["ok"] else "NOT MET"
                 console.print(f"[bold]{row['measure']}[/bold]: {row['value']:.4g} {row['unit']}  "
