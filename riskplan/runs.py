@@ -77,8 +77,78 @@ def load_run(path: str | Path) -> Run:
 
 
 def _config(path: Path) -> dict:
-    """The run's resolved config from .hydra/config.yaml (empty when missing)."""
+    """The run's config from .hydra/config.yaml, interpolations resolved (empty when the file is missing).
+
+    BadInput naming the file when it cannot be a config: unreadable, not valid YAML, not a mapping of keys, too
+    large, or with an interpolation that does not resolve (${oc.env:UNSET}, a missing key, a self-reference).
+    """
+    import re
+
     file = path / ".hydra" / "config.yaml"
     if not file.is_file():
         return {}
-    return yaml.safe_load(file.read_text()) or {}
+    try:
+        if file.stat().st_size > CONFIG_BYTES:
+            raise BadInput(str(file), f"is {file.stat().st_size} bytes, too large for a run's config "
+                                      f"(at most {CONFIG_BYTES}); it was not written by riskplan")
+        data = yaml.safe_load(file.read_text(encoding="utf-8"))
+    except OSError as err:
+        raise BadInput(str(file), f"cannot be read ({err.strerror or err})") from None
+    except UnicodeDecodeError:
+        raise BadInput(str(file), "is not text (not UTF-8); expected the YAML riskplan writes") from None
+    except yaml.YAMLError as err:
+        where = getattr(err, "problem_mark", None)
+        at = f" at line {where.line + 1}, column {where.column + 1}" if where is not None else ""
+        problem = getattr(err, "problem", None) or type(err).__name__
+        raise BadInput(str(file), f"is not valid YAML ({problem}{at})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise BadInput(str(file), f"holds a {_yaml_kind(data)}, not a mapping of config keys")
+    if _nodes(data) > CONFIG_NODES:
+        raise BadInput(str(file), f"expands to more than {CONFIG_NODES} values (YAML aliases?); "
+                                  "it was not written by riskplan")
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        resolved = OmegaConf.to_container(OmegaConf.create(data), resolve=True)
+    except (OmegaConfBaseException, ValueError, TypeError, KeyError, RecursionError) as err:
+        text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        unset = re.search(r"Environment variable '(.*?)' not found", text)
+        if unset:
+            text = f"the environment variable {unset.group(1)} is not set"
+        key = getattr(err, "full_key", None)
+        raise BadInput(str(file), f"has a value that cannot be resolved"
+                                  f"{f' at {key}' if key else ''} ({text})") from None
+    return resolved if isinstance(resolved, dict) else {}
+
+
+CONFIG_BYTES = 1_000_000  # a run's config is a few KB
+CONFIG_NODES = 100_000  # values in a config, counting each use of a YAML alias
+
+
+def _yaml_kind(data) -> str:
+    """'list', 'string', 'number', ... for a YAML document that is not a mapping."""
+    if isinstance(data, list):
+        return "list"
+    if isinstance(data, str):
+        return "string"
+    if isinstance(data, bool):
+        return "boolean"
+    if isinstance(data, (int, float)):
+        return "number"
+    return type(data).__name__
+
+
+def _nodes(data, limit: int = CONFIG_NODES) -> int:
+    """Values in a nested structure (aliases counted at each use), counting stops just past `limit`."""
+    count, stack = 0, [data]
+    while stack and count <= limit:
+        node = stack.pop()
+        count += 1
+        if isinstance(node, dict):
+            stack.extend(node.values())
+        elif isinstance(node, list):
+            stack.extend(node)
+    return count

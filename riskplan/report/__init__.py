@@ -39,44 +39,62 @@ class Report:
     skipped: dict[str, str]
 
 
-def build_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS) -> Path:
+def build_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS,
+                 key: str = "out_dir") -> Path:
     """Find the runs under `paths`, write figures, report.csv, runs.csv and report.html to out_dir; return the page.
 
-    Raises BadInput (before writing anything) for a path that holds no run or for an unknown format.
+    Raises BadInput (before writing anything) for a path that holds no run, for an unknown format, or for an
+    out_dir riskplan may not write into (see riskplan.report.output; `key` names it in the message). Raises
+    WriteFailed (an OSError, one line) when a file cannot be written: every file is written atomically.
     """
-    return write_report(paths, out_dir, formats).page
+    return write_report(paths, out_dir, formats, key).page
 
 
-def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS) -> Report:
+def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS,
+                 key: str = "out_dir") -> Report:
     """build_report, returning what was made (for the CLI's listing)."""
     from riskplan.report.collect import collect
     from riskplan.report.figures import make_figures, save
+    from riskplan.report.output import Output, WriteFailed, claim
     from riskplan.report.page import render
-    from riskplan.report.tables import comparison_table, landscape_table, runs_table
+    from riskplan.report.tables import comparison_table, csv_text, landscape_table, runs_table
+
+    from riskplan.runs import find_runs
 
     formats = check_formats(list(formats))
+    find_runs([Path(p) for p in paths])  # the inputs first (a missing path, one without runs), then --out
+    previous = claim(out_dir, "report", key)  # before reading any run: a bad --out is refused at once
     coll = collect([Path(p) for p in paths])
     comparison = comparison_table(coll)
     runs = runs_table(coll)
     landscapes = landscape_table(coll)
     specs, skipped = make_figures(coll)
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    output = Output(out_dir, "report", previous)
+    tables = ["report.csv", "runs.csv"] + ([] if landscapes.empty else ["landscape.csv"])
     figures = []
     try:
+        output.begin([f"{spec.name}.{fmt}" for spec in specs for fmt in formats] + tables + ["report.html"])
         for spec in specs:
-            figures.append((spec, save(spec, out, formats)))
+            figures.append((spec, save(spec, output, formats)))
+        output.write("report.csv", csv_text(comparison))
+        output.write("runs.csv", csv_text(runs))
+        if not landscapes.empty:
+            output.write("landscape.csv", csv_text(landscapes))
+        output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes))
+        output.finish()
+    except OSError as err:
+        output.abandon()
+        if not isinstance(err, WriteFailed):
+            raise output._fail("", err) from None
+        raise
     finally:
         for spec in specs:
             spec.figure.clear()
-    comparison.to_csv(out / "report.csv", index=False)
-    runs.to_csv(out / "runs.csv", index=False)
-    if not landscapes.empty:
-        landscapes.to_csv(out / "landscape.csv", index=False)
-    page = out / "report.html"
-    page.write_text(render(coll, figures, skipped, comparison, runs, landscapes), encoding="utf-8")
-    return Report(page, coll, [spec.name for spec in specs], skipped)
+    return Report(output.out / "report.html", coll, [spec.name for spec in specs], skipped)
 
 
-__all__ = ["build_report", "write_report", "Report", "check_formats", "FORMATS", "DEFAULT_FORMATS"]
+from riskplan.report.output import WriteFailed  # noqa: E402 - re-exported
+
+__all__ = ["build_report", "write_report", "Report", "WriteFailed", "check_formats", "FORMATS",
+           "DEFAULT_FORMATS"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 from pathlib import Path
 from typing import List, Optional
@@ -42,9 +43,21 @@ def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
     return values
 
 
+@contextlib.contextmanager
+def write_errors_exit():
+    """A file that cannot be written at run time (a full disk, ...): one line on stderr and exit code 1."""
+    from riskplan.report.output import WriteFailed
+
+    try:
+        yield
+    except WriteFailed as err:
+        typer.echo(f"error: {err}", err=True)
+        raise typer.Exit(1) from None
+
+
 def register(app: typer.Typer) -> None:
     """Add `report` and `landscape` to the riskplan app."""
-    from riskplan.cli import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, check_out_dir, reject_hydra_flags
+    from riskplan.cli import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
 
     @app.command()
     @bad_input_exits
@@ -52,9 +65,11 @@ def register(app: typer.Typer) -> None:
         paths: Optional[List[Path]] = typer.Argument(
             None, help="Run, sweep, reproduce or landscape directories (searched recursively). "
                        "Default: the newest folder in outputs/reproduce/.", show_default=False),
-        out: Optional[Path] = typer.Option(
-            None, "--out", help="Where to write report.html, report.csv, runs.csv and the figures. Default: "
-                                "DIR/report for one input DIR, else outputs/reports/<timestamp>/.", metavar="DIR"),
+        out: Optional[str] = typer.Option(
+            None, "--out", help="Where to write report.html, report.csv, runs.csv and the figures: a new or empty "
+                                "directory, or one a previous report wrote (it holds .riskplan-manifest.json). "
+                                "Default: DIR/report for one input DIR, else outputs/reports/<timestamp>/.",
+            metavar="DIR"),
         formats: str = typer.Option("png,pdf", "--format", help="Figure files to write: any of png,pdf,svg."),
     ) -> None:
         """Figures (the paper's Figs. 1-4 and more), tables and a self-contained report.html from finished runs."""
@@ -62,8 +77,9 @@ def register(app: typer.Typer) -> None:
 
         fmts = check_formats(formats)
         inputs = list(paths) if paths else [latest_reproduction()]
-        target = check_out_dir(out) or default_out(inputs)
-        result = write_report(inputs, target, fmts)
+        target = out if out is not None else default_out(inputs)  # a str: an empty --out stays empty, refused
+        with write_errors_exit():
+            result = write_report(inputs, target, fmts, key="--out")
         coll = result.collection
         for broken in coll.broken:
             typer.echo(f"skipped {broken.path}: {broken.reason}", err=True)
@@ -78,9 +94,9 @@ def register(app: typer.Typer) -> None:
     @bad_input_exits
     def landscape(
         overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_HELP, show_default=False),
-        out: Optional[Path] = typer.Option(
-            None, "--out", help="Output directory. Default: outputs/landscapes/<timestamp>_<experiment>/.",
-            metavar="DIR"),
+        out: Optional[str] = typer.Option(
+            None, "--out", help="Output directory: a new or empty one, or one a previous landscape wrote. Default: "
+                                "outputs/landscapes/<timestamp>_<experiment>/.", metavar="DIR"),
         points: int = typer.Option(41, "--points", help="Grid points per axis."),
         episodes: int = typer.Option(4000, "--episodes", help="Episodes per grid point (the same streams at "
                                                                "every point: common random numbers)."),
@@ -92,11 +108,17 @@ def register(app: typer.Typer) -> None:
         """Evaluate mean and CVaR of the total reward on a grid of theta (common random numbers, seeded)."""
         from riskplan.config import compose
         from riskplan.report.landscape import check_grid, compute_landscape
+        from riskplan.report.output import claim
         from riskplan.setup import build_setup
 
         args = list(overrides or [])
         reject_hydra_flags(args, "riskplan check prints the composed config")
-        check_out_dir(out)
+        if points < 2:
+            raise BadInput("--points", f"got {points}; expected at least 2 grid points per axis")
+        if episodes < 1:
+            raise BadInput("--episodes", f"got {episodes}; expected at least 1 episode per grid point")
+        if out is not None:
+            claim(out, "landscape", "--out")  # early: a bad --out is refused before the config is composed
         cfg = compose(args)
         bounds = parse_floats(theta_range, "--range", (2, 4))
         ranges = ((bounds[0], bounds[1]), (bounds[-2], bounds[-1]))
@@ -105,22 +127,26 @@ def register(app: typer.Typer) -> None:
         pair = parse_floats(axes, "--axes", (2,))
         if any(v != int(v) for v in pair):
             raise BadInput("--axes", f"got '{axes}'; expected two whole source indices, e.g. 0,1")
-        if points > 1001:
-            raise BadInput("--points", f"got {points}; expected 2..1001 grid points per axis")
-        check_grid(build_setup(cfg), points, episodes, ranges, (int(pair[0]), int(pair[1])))
-        target = out or LANDSCAPES_ROOT / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}_{cfg.experiment}"
+        check_grid(build_setup(cfg), points, episodes, ranges, (int(pair[0]), int(pair[1])))  # memory, time
+        target = Path(out) if out is not None else (
+            LANDSCAPES_ROOT / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}_{cfg.experiment}")
+        claim(target, "landscape", "--out")
         typer.echo(f"landscape directory: {target}")
-        path = compute_landscape(cfg, target, points=points, episodes=episodes, ranges=ranges,
-                                 axes=(int(pair[0]), int(pair[1])), overrides=args)
+        with write_errors_exit():
+            path = compute_landscape(cfg, target, points=points, episodes=episodes, ranges=ranges,
+                                     axes=(int(pair[0]), int(pair[1])), overrides=args, key="--out")
         import json
 
         s = json.loads((path / "summary.json").read_text())
         best = s["best"]
 
         def at(name: str) -> str:
+            if best[name]["theta"] is None or best[name]["value"] is None:
+                return "n/a (no finite value on the grid)"
             theta = ", ".join(f"{t:g}" for t in best[name]["theta"])
             return f"{best[name]['value']:.1f} at theta=({theta})"
 
+        rate = f"{s['episodes_per_s'] / 1e6:.2f} M" if s.get("episodes_per_s") is not None else "n/a"
         typer.echo(f"{points}x{points} grid x {episodes} episodes in {s['seconds']:.2f} s "
-                   f"({s['episodes_per_s'] / 1e6:.2f} M episodes/s): max mean {at('mean')}; "
+                   f"({rate} episodes/s): max mean {at('mean')}; "
                    f"max CVaR_{s['beta']:g} {at('cvar')} -> {path}")

@@ -73,8 +73,11 @@ class RunInfo:
 
     def final_theta(self) -> list[float]:
         """The headline policy's final theta (after the last update)."""
-        if self.run.summary and self.run.summary.get("theta_final") is not None:
-            return [float(t) for t in self.run.summary["theta_final"]]
+        if self.run.summary and isinstance(self.run.summary.get("theta_final"), list):
+            try:
+                return [math.nan if t is None else float(t) for t in self.run.summary["theta_final"]]
+            except (TypeError, ValueError):
+                pass  # a summary.json not written by riskplan: the metrics table has the same theta
         last = self.metrics_of().iloc[-1]
         return [float(last[c]) for c in theta_columns(self.run.metrics)]
 
@@ -213,7 +216,7 @@ def collect(paths: list[Path]) -> Collection:
             try:
                 landscapes.append(load_landscape(path))
             except Exception as err:  # noqa: BLE001 - a broken landscape is listed, never fatal
-                broken.append(Broken(path, f"landscape: {_reason(err)}"))
+                broken.append(Broken(path, f"landscape: {_reason(err, path)}"))
             continue
         info, problem = _load(path)
         if info is None:
@@ -230,7 +233,7 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
     try:
         run = load_run(path)
     except Exception as err:  # noqa: BLE001 - any failure to read a run skips it, with the reason
-        return None, failed or _reason(err)
+        return None, failed or _reason(err, path)
     if not run.complete:
         reason = run.problem or "incomplete run"
         return None, f"{failed}; {reason}" if failed else reason
@@ -242,6 +245,11 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
         return None, "empty " + " and ".join(what[m] for m in missing)
     if not run.config:
         return None, "no config (.hydra/config.yaml missing and none in run.mcap)"
+    if run.summary is not None and not isinstance(run.summary, dict):
+        return None, "summary.json is not a JSON object (it was not written by riskplan)"
+    problem = config_problem(run.config)
+    if problem:
+        return None, problem
     rebuilt = not all((path / f"{name}.parquet").is_file() for name in TABLES) or bool(
         run.problem and "rebuilt" in run.problem)
     flat = {k: v for k, v in flatten(run.config).items() if k not in IGNORED_KEYS}
@@ -269,10 +277,51 @@ def _failed_status(path: Path) -> str:
     return ""
 
 
-def _reason(err: BaseException) -> str:
-    """One line for an exception."""
+def _reason(err: BaseException, path: Path | None = None) -> str:
+    """One line for an exception (a path inside the run directory shown relative to it)."""
     text = str(err).strip().splitlines()[0] if str(err).strip() else ""
-    return f"{type(err).__name__}: {text}" if not isinstance(err, BadInput) else text
+    if not isinstance(err, BadInput):
+        return f"{type(err).__name__}: {text}"
+    if path is not None and err.where.startswith(f"{path}/"):
+        return f"{err.where[len(str(path)) + 1:]}: {err.problem}".replace("\n", "\\n")
+    return text
+
+
+_CHECKED: dict[str, str] = {}  # config (without its seed) as JSON -> problem ('' when fine): seeds share one check
+
+
+def config_problem(config: dict) -> str:
+    """Why a run's config cannot be reported (it fails the schema, or a value the report relies on is out of
+    range), or ''."""
+    from riskplan.config import check_schema
+    from riskplan.setup import MEASURES
+
+    seed = config.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        return f"config fails the schema: seed is {seed!r}; expected a whole number"
+    try:
+        key = json.dumps({k: v for k, v in config.items() if k != "seed"}, sort_keys=True, default=str)
+    except (TypeError, ValueError):
+        key = None
+    if key is not None and key in _CHECKED:
+        return _CHECKED[key]
+    try:
+        cfg = check_schema(config)
+        risk, robots = cfg.risk, cfg.team.robots
+        if risk.measure not in MEASURES:
+            raise BadInput("risk.measure", f"got '{risk.measure}'; expected one of {', '.join(MEASURES)}")
+        if not 0.0 < risk.beta <= 1.0:
+            raise BadInput("risk.beta", f"got {risk.beta}; expected 0 < beta <= 1")
+        if robots < 1:
+            raise BadInput("team.robots", f"got {robots}; expected a whole number >= 1")
+        problem = ""
+    except BadInput as err:
+        problem = f"config fails the schema: {err}"
+    except Exception as err:  # noqa: BLE001 - whatever the check trips on, the run is skipped, not fatal
+        problem = f"config fails the schema: {_reason(err)}"
+    if key is not None:
+        _CHECKED[key] = problem
+    return problem
 
 
 def _distance(a: dict, b: dict) -> int:

@@ -470,15 +470,22 @@ def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
     return specs, skipped
 
 
-def save(spec: FigureSpec, out_dir, formats: list[str]) -> dict[str, bytes | str]:
-    """Write the figure in each format to out_dir; returns {format: file name} and the PNG bytes for the page."""
+def save(spec: FigureSpec, output, formats: list[str]) -> dict[str, bytes | str]:
+    """Write the figure in each format (atomically) through `output` (a riskplan.report.output.Output, or a
+    directory); returns {format: file name} and the PNG bytes for the page."""
     import io
+    from pathlib import Path
 
+    from riskplan.report.output import Output
+
+    if not isinstance(output, Output):
+        output = Output(Path(output), "report", None)
     files: dict[str, bytes | str] = {}
     with matplotlib.rc_context(STYLE):
         for fmt in formats:
             name = f"{spec.name}.{fmt}"
-            spec.figure.savefig(out_dir / name, format=fmt, metadata=_metadata(fmt))
+            output.write_with(name, lambda tmp, fmt=fmt: spec.figure.savefig(tmp, format=fmt,
+                                                                             metadata=_metadata(fmt)))
             files[fmt] = name
         buffer = io.BytesIO()
         spec.figure.savefig(buffer, format="png", dpi=130)

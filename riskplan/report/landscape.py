@@ -22,6 +22,7 @@ import yaml
 
 from riskplan import rng
 from riskplan.errors import BadInput
+from riskplan.report.output import WriteFailed
 from riskplan.risk import tail_count
 
 KIND = "landscape"
@@ -64,12 +65,25 @@ class Landscape:
 
         va, vb, values = self.grid(column)
         smooth = sliding_window_view(np.pad(values, 1, mode="edge"), (3, 3)).mean(axis=(2, 3))
-        i, j = np.unravel_index(int(np.nanargmax(smooth)), smooth.shape)
+        if not np.isfinite(smooth).any():
+            return {"theta": None, "value": math.nan}
+        i, j = np.unravel_index(int(np.nanargmax(np.where(np.isfinite(smooth), smooth, np.nan))), smooth.shape)
         return {"theta": [float(va[j]), float(vb[i])], "value": float(smooth[i, j])}
 
+    def best_index(self, column: str) -> int | None:
+        """Position of the grid point maximising `column` among its finite values (None when there is none)."""
+        values = self.table[column].to_numpy(dtype=float)
+        finite = np.isfinite(values)
+        if not finite.any():
+            return None
+        return int(np.argmax(np.where(finite, values, -np.inf)))
+
     def best(self, column: str) -> dict:
-        """The grid point maximising `column`: its theta and value."""
-        row = self.table.loc[self.table[column].idxmax()]
+        """The grid point maximising `column`: its theta and value (theta None, value NaN when none is finite)."""
+        index = self.best_index(column)
+        if index is None:
+            return {"theta": None, "value": math.nan}
+        row = self.table.iloc[index]
         return {"theta": [float(row[c]) for c in _theta_columns(self.table)], "value": float(row[column])}
 
 
@@ -91,10 +105,13 @@ def load_landscape(path: Path) -> Landscape:
     path = Path(path)
     if not (path / TABLE).is_file():
         raise ValueError(f"no {TABLE} (the landscape did not finish)")
+    from riskplan.runs import _config
+
     table = pd.read_parquet(path / TABLE)
     summary = json.loads((path / "summary.json").read_text()) if (path / "summary.json").is_file() else {}
-    config_file = path / ".hydra" / "config.yaml"
-    config = yaml.safe_load(config_file.read_text()) if config_file.is_file() else {}
+    if not isinstance(summary, dict):
+        raise ValueError("summary.json is not a JSON object (it was not written by riskplan)")
+    config = _config(path)  # BadInput naming the file for invalid YAML, not a mapping, unresolvable values
     needed = {"mean", "cvar", "value_at_risk"}
     if not needed <= set(table.columns) or len(_theta_columns(table)) < 2:
         raise ValueError(f"{TABLE} lacks columns {sorted(needed - set(table.columns))} or theta columns")
@@ -190,15 +207,50 @@ def check_grid(setup, points: int, episodes: int, ranges, axes) -> tuple[tuple, 
     if len(ranges) != 2 or any(not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) for lo, hi in ranges):
         text = ",".join(f"{v:g}" for r in ranges for v in r)
         raise BadInput("--range", f"got {text}; expected LO,HI (both axes) or LO,HI,LO,HI, finite, with LO < HI")
+    check_size(points, episodes, sources, setup.kernel.horizon)
     return ranges, (a, b)
+
+
+def estimate(points: int, episodes: int, sources: int, horizon: int) -> tuple[float, float, float]:
+    """(bytes of the grid's table, bytes of one kernel call's episodes, seconds) of a landscape, upper bounds.
+
+    The table holds per grid point theta, the grid point's figures and P(source j) (and pandas copies it about
+    four times on the way to parquet); a kernel call holds min(CHUNK_EPISODES, points^2 x episodes) episodes
+    rounded up to whole grid points (simulate's outputs and evaluate_grid's sorted copies and temporaries); the
+    time is every episode running to the horizon at limits.STEPS_PER_SECOND.
+    """
+    from riskplan.limits import STEPS_PER_SECOND
+
+    cells = float(points) * float(points)
+    table = cells * (2 * sources + 12) * 8 * 4
+    per_call = max(1, CHUNK_EPISODES // max(episodes, 1))
+    chunk = min(float(per_call) * episodes, cells * episodes) * (160 + 16 * sources)
+    seconds = cells * episodes * max(int(horizon), 1) / STEPS_PER_SECOND
+    return table, chunk, seconds
+
+
+def check_size(points: int, episodes: int, sources: int, horizon: int) -> None:
+    """BadInput naming --points or --episodes when the grid would not fit in memory or time (riskplan.limits)."""
+    from riskplan.limits import check_memory, check_time
+
+    table, chunk, seconds = estimate(points, episodes, sources, horizon)
+    what = f"a {points}x{points} grid x {episodes} episodes"
+    check_memory("--episodes" if chunk > table else "--points", table + chunk, what)
+    check_time("--points/--episodes", seconds, what)
 
 
 def compute_landscape(cfg, out_dir: Path, *, points: int = DEFAULT_POINTS, episodes: int = DEFAULT_EPISODES,
                       ranges: tuple[tuple[float, float], ...] | None = None, axes: tuple[int, int] = (0, 1),
-                      overrides: list[str] | None = None) -> Path:
-    """Evaluate mean and CVaR on a points x points grid of (theta_a, theta_b) into a run-like directory."""
+                      overrides: list[str] | None = None, key: str = "out_dir") -> Path:
+    """Evaluate mean and CVaR on a points x points grid of (theta_a, theta_b) into a run-like directory.
+
+    Everything is checked before anything runs (BadInput: the options, the grid's memory and time, out_dir, which
+    must be new, empty or a previous landscape's; `key` names it); the grid is evaluated, then every file written
+    atomically (WriteFailed, an OSError, when one cannot be: the previous files stay whole).
+    """
     from omegaconf import OmegaConf
 
+    from riskplan.report.output import Output, claim
     from riskplan.setup import build_setup
     from riskplan.summary import provenance
 
@@ -207,21 +259,13 @@ def compute_landscape(cfg, out_dir: Path, *, points: int = DEFAULT_POINTS, episo
     ranges, (a, b) = check_grid(setup, points, episodes, ranges, axes)
     beta = float(config["risk"]["beta"])
     seed = int(config["seed"])
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "status.json").unlink(missing_ok=True)
-    hydra_dir = out / ".hydra"
-    hydra_dir.mkdir(exist_ok=True)
-    (hydra_dir / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
-    (hydra_dir / "overrides.yaml").write_text(yaml.safe_dump(list(overrides or [])))
+    previous = claim(out_dir, KIND, key)
 
     started = time.perf_counter()
     thetas = grid_thetas(setup.theta0, (a, b), ranges, points)
     table = evaluate_grid(setup, thetas, episodes, beta, seed)
     seconds = time.perf_counter() - started
-    table.to_parquet(out / TABLE, index=False)
-    land = Landscape(out, config, table, {"axes": [a, b]})
+    land = Landscape(Path(out_dir), config, table, {"axes": [a, b]})
     summary = {
         "kind": KIND,
         "schema_version": SCHEMA_VERSION,
@@ -236,9 +280,43 @@ def compute_landscape(cfg, out_dir: Path, *, points: int = DEFAULT_POINTS, episo
         "common_random_numbers": True,
         "best": {"mean": land.best("mean"), "cvar": land.best("cvar"), "value_at_risk": land.best("value_at_risk")},
         "seconds": seconds,
-        "episodes_per_s": points * points * episodes / seconds if seconds > 0 else math.nan,
+        "episodes_per_s": points * points * episodes / seconds if seconds > 0 else None,
         "provenance": provenance(),
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=True))
-    (out / "status.json").write_text(json.dumps({"status": "done", "error": None}, indent=2))
-    return out
+
+    output = Output(out_dir, KIND, previous)
+    try:
+        output.begin(sorted(FILES))
+        (output.out / "status.json").unlink(missing_ok=True)  # until the end: this landscape is not done
+        output.write(".hydra/config.yaml", OmegaConf.to_yaml(OmegaConf.create(config)))
+        output.write(".hydra/overrides.yaml", yaml.safe_dump(list(overrides or [])))
+        output.write_with(TABLE, lambda tmp: table.to_parquet(tmp, index=False))
+        output.write("summary.json", finite_json(summary))
+        output.write("status.json", finite_json({"status": "done", "error": None}))
+        output.finish()
+    except OSError as err:
+        output.abandon()
+        if not isinstance(err, WriteFailed):
+            raise output._fail("", err) from None
+        raise
+    return output.out
+
+
+FILES = (".hydra/config.yaml", ".hydra/overrides.yaml", TABLE, "summary.json", "status.json")
+
+
+def finite_json(data) -> str:
+    """JSON with every non-finite number (NaN, +-inf) written as null: strict JSON any reader accepts."""
+    return json.dumps(_finite(data), indent=2, allow_nan=False)
+
+
+def _finite(value):
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value

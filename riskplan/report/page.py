@@ -37,9 +37,27 @@ def _esc(value) -> str:
     return html.escape("" if value is None else str(value))
 
 
+MISSING = "n/a"  # what a missing or non-finite value shows as (never 'nan' or 'inf')
+
+
+def _missing(value) -> bool:
+    """None, NaN, pd.NA or +-inf."""
+    if value is None or value is pd.NA:
+        return True
+    try:
+        return not math.isfinite(value)
+    except (TypeError, ValueError):
+        return False
+
+
+def _text(value) -> str:
+    """Any cell value, escaped; missing ones as n/a."""
+    return MISSING if _missing(value) else _esc(value)
+
+
 def _num(value, digits: int = 1) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "–"
+    if _missing(value):
+        return MISSING
     if isinstance(value, float):
         return f"{value:,.{digits}f}"
     return _esc(value)
@@ -47,16 +65,12 @@ def _num(value, digits: int = 1) -> str:
 
 def _interval(row: pd.Series, name: str, percent: bool = False) -> str:
     value, low, high = row.get(name), row.get(f"{name}_low"), row.get(f"{name}_high")
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "–"
-    if percent:
-        text = f"{100 * value:.1f}%"
-        if low is not None and not math.isnan(low):
-            text += f" [{100 * low:.1f}, {100 * high:.1f}]"
-        return text
-    text = f"{value:,.1f}"
-    if low is not None and not math.isnan(low):
-        text += f" [{low:,.1f}, {high:,.1f}]"
+    if _missing(value):
+        return MISSING
+    scale, unit, fmt = (100.0, "%", ".1f") if percent else (1.0, "", ",.1f")
+    text = f"{scale * value:{fmt}}{unit}"
+    if not (_missing(low) or _missing(high)):
+        text += f" [{scale * low:{fmt}}, {scale * high:{fmt}}]"
     return text
 
 
@@ -118,17 +132,19 @@ def landscape_section(table: pd.DataFrame) -> str:
             "SE at max"]
     rows = []
     for _, r in table.iterrows():
-        rows.append([_esc(Path(r["landscape"]).name), f"{r['beta']:g}",
-                     f"{_esc(r.get('points'))}² × {_esc(r.get('episodes'))}",
-                     f"{_esc(r['best_mean_theta'])}: {_num(r['best_mean'])}",
-                     f"{_esc(r['best_cvar_theta'])}: {_num(r['best_cvar'])}",
-                     _esc(r.get("group", "–")), _esc(r.get("objective", "–")), _esc(r.get("final_theta", "–")),
+        gap_percent = r.get("gap_percent")
+        rows.append([_esc(Path(r["landscape"]).name), _num(r.get("beta"), 3),
+                     f"{_whole(r.get('points'))}² × {_whole(r.get('episodes'))}",
+                     f"{_text(r.get('best_mean_theta'))}: {_num(r.get('best_mean'))}",
+                     f"{_text(r.get('best_cvar_theta'))}: {_num(r.get('best_cvar'))}",
+                     _text(r.get("group")), _text(r.get("objective")), _text(r.get("final_theta")),
                      _num(r.get("distance_to_optimum")),
-                     f"{_esc(r.get('smoothed_optimum_theta'))} ({_num(r.get('distance_to_smoothed_optimum'))})"
-                     if pd.notna(r.get("distance_to_smoothed_optimum")) else "–",
+                     f"{_text(r.get('smoothed_optimum_theta'))} ({_num(r.get('distance_to_smoothed_optimum'))})"
+                     if not _missing(r.get("distance_to_smoothed_optimum")) else MISSING,
                      _num(r.get("landscape_at_final")),
-                     f"{_num(r.get('gap_to_optimum'))} ({_num(r.get('gap_percent'), 2)}%)"
-                     if pd.notna(r.get("gap_to_optimum")) else "–", _num(r.get("standard_error_at_optimum"))])
+                     _num(r.get("gap_to_optimum")) + ("" if _missing(gap_percent) else f" ({_num(gap_percent, 2)}%)")
+                     if not _missing(r.get("gap_to_optimum")) else MISSING,
+                     _num(r.get("standard_error_at_optimum"))])
     return ("<h2>Landscape optima</h2>" + _table(head, rows, numeric={8, 9, 10, 11, 12})
             + '<p class="note">Objective: CVaR for risk-averse groups, mean for risk-neutral ones, as evaluated on '
               'the landscape grid; distance is Euclidean in θ between the across-seed mean final θ and the grid '
@@ -138,6 +154,16 @@ def landscape_section(table: pd.DataFrame) -> str:
               'surface.</p>')
 
 
+def _whole(value) -> str:
+    """A count (points, episodes) that may be missing or stored as a float."""
+    if _missing(value):
+        return MISSING
+    try:
+        return f"{int(value)}" if float(value) == int(value) else _esc(value)
+    except (TypeError, ValueError):
+        return _esc(value)
+
+
 def runs_section(runs: pd.DataFrame) -> str:
     head = ["run directory", "status", "group", "seed", "note / reason", "mean", "CVaR", "final θ"]
     rows = []
@@ -145,10 +171,13 @@ def runs_section(runs: pd.DataFrame) -> str:
         status = _esc(r["status"])
         if r["status"] == "skipped":
             status = f'<span class="skipped">{status}</span>'
-        rows.append([f"<code>{_esc(r['path'])}</code>", status, "" if pd.isna(r.get("group")) else _esc(r.get("group")),
-                     _esc("" if pd.isna(r.get("seed")) else int(r["seed"])), "" if pd.isna(r.get("note")) else _esc(r.get("note")),
-                     _num(r.get("mean")), _num(r.get("cvar")),
-                     "" if pd.isna(r.get("theta_final")) else _esc(r.get("theta_final"))])
+        rows.append([f"<code>{_esc(r['path'])}</code>", status,
+                     "" if _missing(r.get("group")) else _esc(r.get("group")),
+                     "" if _missing(r.get("seed")) else _esc(int(r["seed"])),
+                     "" if _missing(r.get("note")) else _esc(r.get("note")),
+                     "" if r["status"] != "used" else _num(r.get("mean")),
+                     "" if r["status"] != "used" else _num(r.get("cvar")),
+                     "" if _missing(r.get("theta_final")) else _esc(r.get("theta_final"))])
     return _table(head, rows, numeric={5, 6})
 
 

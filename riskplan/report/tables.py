@@ -105,7 +105,7 @@ def runs_table(coll: Collection) -> pd.DataFrame:
                      "seed": r.seed, "note": "tables rebuilt from run.mcap" if r.rebuilt else "",
                      "iterations": int(r.run.metrics.iteration.max()) + 1,
                      "mean": v["mean"], "cvar": v["cvar"], "value_at_risk": v["value_at_risk"],
-                     "theta_final": " ".join(f"{t:.3f}" for t in r.final_theta())})
+                     "theta_final": " ".join(f"{t:.3f}" if math.isfinite(t) else "n/a" for t in r.final_theta())})
     for land in coll.landscapes:
         rows.append({"path": str(land.path), "status": "landscape", "group": "", "seed": land.summary.get("seed"),
                      "note": f"{land.summary.get('points', '?')}^2 grid x {land.summary.get('episodes', '?')} "
@@ -137,6 +137,30 @@ def _flat_world(config: dict) -> dict:
     return {k: v for k, v in flatten(config).items() if k.startswith("world.")}
 
 
+def csv_text(table: pd.DataFrame) -> str:
+    """A table as CSV text: a missing or non-finite value (NaN, +-inf) is an empty cell, never 'nan' or 'inf'."""
+    clean = table.copy()
+    for column in clean.columns:
+        if pd.api.types.is_float_dtype(clean[column]):
+            clean[column] = clean[column].where(np.isfinite(clean[column]))
+        elif clean[column].dtype == object:
+            clean[column] = clean[column].map(_finite_or_none)
+    return clean.to_csv(index=False)
+
+
+def _finite_or_none(value):
+    if isinstance(value, (float, np.floating)) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _ratio(numerator: float, denominator: float) -> float:
+    """numerator / denominator, NaN (shown as missing) when it is undefined."""
+    if not (math.isfinite(numerator) and math.isfinite(denominator)) or denominator == 0:
+        return math.nan
+    return numerator / denominator
+
+
 def landscape_table(coll: Collection) -> pd.DataFrame:
     """Per landscape and group on its world: the grid optima and the group's final theta, distance and gap."""
     rows = []
@@ -157,26 +181,36 @@ def landscape_table(coll: Collection) -> pd.DataFrame:
             finals = np.array([[r.final_theta()[a], r.final_theta()[b]] for r in runs])
             final = finals.mean(axis=0)
             target = "mean" if runs[0].group.measure == "neutral" else "cvar"
-            opt = np.array([best[target]["theta"][a], best[target]["theta"][b]])
+            found = best[target]["theta"] is not None
+            opt = np.array([best[target]["theta"][a], best[target]["theta"][b]]) if found else np.full(2, np.nan)
             nearest = int(np.argmin(((thetas - final) ** 2).sum(axis=1)))
             value_there = float(land.table[target].iloc[nearest])
             se_column = f"{target}_se"
-            best_index = int(land.table[target].to_numpy().argmax())
-            se = float(land.table[se_column].iloc[best_index]) if se_column in land.table else math.nan
+            best_index = land.best_index(target)
+            se = (float(land.table[se_column].iloc[best_index]) if se_column in land.table and best_index is not None
+                  else math.nan)
             smooth = land.smoothed_best(target)
+            smooth_theta = np.array(smooth["theta"] if smooth["theta"] is not None else [np.nan, np.nan], float)
+            gap = best[target]["value"] - value_there
             rows.append({**base, "group": label, "seeds": len(runs), "objective": target,
                          "final_theta": f"({final[0]:.1f}, {final[1]:.1f})",
                          "distance_to_optimum": float(np.linalg.norm(final - opt)),
-                         "smoothed_optimum_theta": f"({smooth['theta'][0]:.1f}, {smooth['theta'][1]:.1f})",
-                         "distance_to_smoothed_optimum": float(np.linalg.norm(final - np.array(smooth["theta"]))),
+                         "smoothed_optimum_theta": _fmt_pair(smooth_theta),
+                         "distance_to_smoothed_optimum": float(np.linalg.norm(final - smooth_theta)),
                          "landscape_at_final": value_there,
-                         "gap_to_optimum": best[target]["value"] - value_there,
-                         "gap_percent": 100 * (best[target]["value"] - value_there) / abs(best[target]["value"]),
+                         "gap_to_optimum": gap,
+                         "gap_percent": 100 * _ratio(gap, abs(best[target]["value"])),
                          "standard_error_at_optimum": se,
                          "grid_step": float(np.diff(np.unique(thetas[:, 0]))[0]) if len(np.unique(thetas[:, 0])) > 1
                          else math.nan})
     return pd.DataFrame(rows)
 
 
-def _fmt_theta(theta: list[float], a: int, b: int) -> str:
-    return f"({theta[a]:.1f}, {theta[b]:.1f})"
+def _fmt_theta(theta: list[float] | None, a: int, b: int) -> str:
+    return "n/a" if theta is None else _fmt_pair((theta[a], theta[b]))
+
+
+def _fmt_pair(pair) -> str:
+    if not all(math.isfinite(v) for v in pair):
+        return "n/a"
+    return f"({pair[0]:.1f}, {pair[1]:.1f})"

@@ -1,0 +1,79 @@
+"""What every command shares: one-line usage errors, the bad-input and run-time error exits, Hydra pass-through."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from pathlib import Path
+
+import typer
+from typer.core import TyperGroup
+
+from riskplan.errors import BadInput
+
+# typer vendors click in recent releases and depends on it in older ones: find click's base exception either way
+ClickException = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
+
+
+class OneLineErrors(TyperGroup):
+    """Click's usage errors (unknown command, missing option value, ...) as one plain line, exit code 2."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        try:
+            code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except ClickException as err:
+            if type(err).__name__ == "NoArgsIsHelpError":  # bare `riskplan`: the help, as click shows it
+                err.show()
+            else:
+                where = err.ctx.command_path if getattr(err, "ctx", None) else prog_name or "riskplan"
+                message = " ".join(err.format_message().split())
+                typer.echo(f"error: {where}: {message} (see {where} --help)", err=True)
+            code = err.exit_code
+        except typer.Abort:
+            typer.echo("aborted", err=True)
+            code = 1
+        if not standalone_mode:
+            return code
+        sys.exit(code if isinstance(code, int) else 0)
+
+
+PASS_THROUGH = {"allow_extra_args": True, "ignore_unknown_options": True}
+HYDRA_FLAGS = {"--cfg", "-c", "--package", "-p", "--resolve", "--info", "-i"}
+MULTIRUN_FLAGS = {"-m", "--multirun"}
+OVERRIDES_HELP = ("Hydra overrides, e.g. risk=neutral risk.beta=0.2 train.samples=2000 world.size=[16,16] "
+                  "experiment=paper_team team.graph=ring.")
+TRAIN_OVERRIDES_HELP = OVERRIDES_HELP + (" Hydra flags --cfg job|hydra|all, --package, --resolve, --info pass "
+                                         "through to Hydra.")
+
+
+def bad_input_exits(command):
+    """Turn BadInput into one line on stderr and exit code 2, and a failure to read or write files at run time
+    (a full disk) into one line and exit code 1: never a traceback."""
+
+    @functools.wraps(command)
+    def wrapper(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except BadInput as err:
+            typer.echo(f"error: {err}", err=True)
+            raise typer.Exit(2) from None
+        except OSError as err:
+            where = f" {err.filename}" if err.filename else ""
+            typer.echo(f"error: cannot write{where}: {err.strerror or err}", err=True)
+            raise typer.Exit(1) from None
+
+    return wrapper
+
+
+def reject_hydra_flags(args: list[str], instead: str) -> None:
+    """Hydra's flags (--cfg, ...) belong to `train`; elsewhere they are bad input with a pointer."""
+    flags = sorted(HYDRA_FLAGS & set(args))
+    if flags:
+        raise BadInput(f"option '{flags[0]}'", f"only riskplan train passes Hydra's flags through; {instead}")
+
+
+def check_out_dir(path: Path | None) -> Path | None:
+    """An --out directory that exists or can be made; a file there is bad input."""
+    if path is not None and path.exists() and not path.is_dir():
+        raise BadInput("--out", f"{path} is a file; expected a directory (new, or one riskplan wrote)")
+    return path

@@ -1,0 +1,246 @@
+"""`riskplan train` (one run, or --resume one) and `riskplan check` (compose and validate, run nothing)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from riskplan.commands.common import (HYDRA_FLAGS, MULTIRUN_FLAGS, OVERRIDES_HELP, PASS_THROUGH, TRAIN_OVERRIDES_HELP,
+                                      bad_input_exits, reject_hydra_flags)
+from riskplan.errors import BadInput
+from riskplan.lock import LOCK, hold, holder
+from riskplan.paths import check_output_dir, claim_dir, hydra_quote
+
+
+def register(app: typer.Typer) -> None:
+    """Add `train` and `check` to the riskplan app."""
+    app.command(context_settings=PASS_THROUGH)(bad_input_exits(train))
+    app.command(context_settings=PASS_THROUGH)(bad_input_exits(check))
+
+
+def train(
+    overrides: Optional[List[str]] = typer.Argument(None, help=TRAIN_OVERRIDES_HELP, show_default=False),
+    resume: Optional[Path] = typer.Option(
+        None, "--resume", help="Continue the run in RUN_DIR from its last checkpoint (also: extend a finished run "
+                               "with a larger train.iterations=...). Only train.iterations may be overridden.",
+        metavar="RUN_DIR"),
+) -> None:
+    """Train one experiment (default: experiment=paper_single) into outputs/runs/<timestamp>_<experiment>/."""
+    from riskplan.app import RunFailed, run_hydra
+    from riskplan.config import check_hydra_args, compose, expand_overrides, parse_overrides
+
+    args = list(overrides or [])
+    multirun = sorted(MULTIRUN_FLAGS & set(args))
+    if multirun:
+        raise BadInput(f"option '{multirun[0]}'", "riskplan train runs one experiment; run a multirun with riskplan "
+                                                  "sweep and the same overrides (e.g. riskplan sweep seed=0,1,2)")
+    if resume is not None:
+        _resume(resume, args)
+        return
+    if HYDRA_FLAGS & set(args):
+        check_hydra_args(args)
+        run_hydra(args)
+        return
+    cfg = compose(args)
+    explicit = run_dir_override(parse_overrides(args))
+    if explicit is None:
+        out, made = claim_dir(Path("outputs") / "runs", f"_{cfg.experiment}"), True
+        args = [*args, f"hydra.run.dir={hydra_quote(out)}"]
+    else:
+        out, made = explicit, not explicit.exists()
+        check_new_run_dir(out, "hydra.run.dir")
+        out.mkdir(parents=True, exist_ok=True)
+    try:
+        with hold(out):
+            check_new_run_dir(out, "hydra.run.dir")  # again under the lock: another process may have won the race
+            typer.echo(f"run directory: {out}")
+            try:
+                run_hydra(expand_overrides(args), capture=True)
+            except RunFailed as err:
+                typer.echo(f"error: run failed: {err} (see {out})", err=True)
+                raise typer.Exit(1) from None
+            _finish(out)
+    except BadInput:
+        if made:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def run_dir_override(parsed: list) -> Path | None:
+    """The hydra.run.dir=... the user typed, if any, as a plain path."""
+    for override in parsed:
+        if override.key_or_group == "hydra.run.dir":
+            value = str(override.value())
+            if "${" in value:
+                raise BadInput("hydra.run.dir", f"got '{value}'; give a plain path (without it, riskplan train "
+                                                f"uses outputs/runs/<timestamp>_<experiment>)")
+            check_output_dir(value, "hydra.run.dir")
+            return Path(value)
+    return None
+
+
+def check_new_run_dir(out: Path, key: str) -> None:
+    """A run starts only in a new or empty directory: never over another run's files (resume is explicit)."""
+    if not out.is_dir():
+        return
+    entries = [p for p in out.iterdir() if p.name != LOCK]
+    if not entries:
+        return
+    pid = holder(out)
+    if pid is not None:
+        raise BadInput(str(out), f"is in use by another riskplan process (pid {pid or 'unknown'}); one process "
+                                 f"writes a run directory at a time: wait for it to end or stop it")
+    from riskplan.runs import is_run_dir
+
+    if is_run_dir(out):
+        raise BadInput(key, f"{out} already holds a run; resume it with riskplan train --resume {out}, or give a "
+                            f"new directory")
+    raise BadInput(key, f"{out} is not empty and holds no run; give a new or empty directory")
+
+
+def check(overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_HELP, show_default=False)) -> None:
+    """Compose and validate a config without running it; print it, the world, the team and Assumptions 5-6."""
+    from omegaconf import OmegaConf
+
+    from riskplan.config import compose
+    from riskplan.consensus import describe
+    from riskplan.setup import build_setup
+
+    args = list(overrides or [])
+    reject_hydra_flags(args, "check prints the composed config itself")
+    cfg = compose(args, validate=False)
+    setup = build_setup(cfg)
+    typer.echo(OmegaConf.to_yaml(cfg).rstrip())
+    typer.echo("")
+    typer.echo(_describe_world(setup))
+    power = cfg.train.step_size.power
+    holds = 0.5 < power <= 1.0
+    typer.echo(f"Assumption 6 (sum eps = inf, sum eps^2 < inf): {'holds' if holds else 'FAILS'} "
+               f"(eps_l = {cfg.train.step_size.initial} / (1 + l/{cfg.train.step_size.decay})^{power})")
+    typer.echo(describe(setup.network, cfg.team))
+    typer.echo("config OK")
+
+
+def _resume(run_dir: Path, args: list[str]) -> None:
+    """`train --resume RUN_DIR [train.iterations=N]`."""
+    from riskplan.config import parse_overrides
+    from riskplan.runs import is_run_dir
+    from riskplan.training import CHECKPOINT
+
+    if not run_dir.is_dir() or not is_run_dir(run_dir):
+        raise BadInput(str(run_dir), "holds no run; give the directory of a riskplan train run to --resume")
+    for override in parse_overrides(args):
+        if override.key_or_group != "train.iterations" or override.is_sweep_override():
+            raise BadInput(f"override '{override.input_line}'", "cannot change a resumed run; "
+                                                                 "only train.iterations=N may be given")
+    check_output_dir(run_dir, str(run_dir))
+    with hold(run_dir):  # before anything is read: another process may be writing it
+        if not (run_dir / CHECKPOINT).is_file():
+            raise BadInput(str(run_dir), "has no checkpoint yet (killed before the first one); start it again")
+        if not (run_dir / ".hydra" / "config.yaml").is_file():
+            raise BadInput(str(run_dir / ".hydra" / "config.yaml"), "is missing; a run cannot be resumed without "
+                                                                    "its config")
+        _resume_locked(run_dir, args)
+
+
+def _resume_locked(run_dir: Path, args: list[str]) -> None:
+    """The resume itself, under the run directory's lock."""
+    import yaml
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    from riskplan.app import write_status
+    from riskplan.progress import TrainingBar
+    from riskplan.training import NumericalTrouble, prepare_resume
+    from riskplan.training import train as train_run
+
+    try:
+        cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
+        cfg.merge_with(OmegaConf.from_dotlist(args))
+    except (OmegaConfBaseException, ValueError, OSError, yaml.YAMLError) as err:
+        raise BadInput(str(run_dir / ".hydra" / "config.yaml"), f"cannot be read as a config "
+                                                                f"({type(err).__name__}); it was not written by "
+                                                                f"riskplan: start the run again") from None
+    setup, finished = prepare_resume(cfg, run_dir)  # every check of config and checkpoint, before any write
+    if finished:  # nothing to do: a finished run is left exactly as it is
+        typer.echo(f"already finished: {run_dir}")
+        typer.echo(summary_line(json.loads((run_dir / "summary.json").read_text()), run_dir))
+        return
+    typer.echo(f"resuming: {run_dir}")
+    try:
+        write_status(run_dir, "running", None)
+        with TrainingBar() as progress:
+            train_run(setup, run_dir, resume=True, progress=progress)
+    except (NumericalTrouble, OSError) as err:
+        message = str(err) if isinstance(err, NumericalTrouble) else _os_error(err, run_dir)
+        _try_status(run_dir, message)
+        typer.echo(f"error: {message}", err=True)
+        raise typer.Exit(1) from None
+    write_status(run_dir, "done", None)
+    _finish(run_dir)
+
+
+def _finish(out: Path) -> None:
+    """Print the one-line summary of a finished run, or its error with exit code 1."""
+    from riskplan.app import STATUS, last_failure
+
+    try:
+        status = json.loads((out / STATUS).read_text())
+    except (OSError, ValueError):
+        status = {"status": "failed", "error": "no status written"}
+    if last_failure():  # status.json may still say running: the disk that failed refused the failure too
+        status = {"status": "failed", "error": last_failure()}
+    if status.get("status") != "done":
+        typer.echo(f"error: run failed: {status.get('error')} (see {out})", err=True)
+        raise typer.Exit(1)
+    typer.echo(summary_line(json.loads((out / "summary.json").read_text()), out))
+
+
+def _os_error(err: OSError, out: Path) -> str:
+    """One line for a failure to write at run time (a full disk, a vanished directory)."""
+    where = f" {err.filename}" if err.filename else ""
+    return (f"cannot write{where}: {err.strerror or err}; the last checkpoint is kept: free space, then riskplan "
+            f"train --resume {out}")
+
+
+def _try_status(out: Path, message: str) -> None:
+    """Record a failure in status.json if the disk still takes it (it may be the full disk that failed)."""
+    from riskplan.app import write_status
+
+    try:
+        write_status(out, "failed", message)
+    except OSError:
+        pass
+
+
+def summary_line(summary: dict, out: Path) -> str:
+    """One line: what ran, how long, the headline figures with 95% intervals."""
+
+    def fig(name: str) -> str:
+        f = summary[name]
+        return f"{f['value']:.1f} [{f['low']:.1f}, {f['high']:.1f}]"
+
+    reached = ", ".join(f"{k} {v:.1%}" for k, v in summary["source_reached"].items())
+    return (f"{summary['experiment']} risk={summary['risk']} beta={summary['beta']:g} robots={summary['robots']}: "
+            f"{summary['iterations']} iterations in {summary['wall_time']:.2f} s | eval {summary['eval_episodes']} "
+            f"episodes: mean {fig('mean')}, CVaR {fig('cvar')}, VaR {fig('value_at_risk')} | "
+            f"P(risky) {summary['risky_fraction']:.1%} | reached {reached} -> {out}")
+
+
+def _describe_world(setup) -> str:
+    """A few lines on the world: grid, start, sources, regions."""
+    world = setup.world
+    lines = [f"world: {world.width}x{world.height} grid, horizon K={world.horizon}, "
+             f"{int(world.obstacle.sum())} obstacle cells, stop at source: {world.stop_at_source}"]
+    for j, name in enumerate(world.source_names):
+        x, y = world.xy(world.source_cells[j])
+        kind = "static" if world.source_motion[j] == 0 else f"random walk p={world.source_motion[j]:g}"
+        lines.append(f"  source {j} '{name}' at ({x}, {y}), {kind}, peak signal {world.source_amplitude[j]:.3g}")
+    for r, name in enumerate(world.region_names):
+        count = int((world.region_of == r).sum())
+        lines.append(f"  region {r} '{name}': {count} cells{', risky' if world.region_risky[r] else ''}")
+    return "\n".join(lines)

@@ -1,0 +1,363 @@
+"""Hardening of `riskplan report` and `riskplan landscape` (issue 10): runs with broken configs are skipped with
+their reason; --out is refused when it holds files riskplan did not write (a manifest marks what the command
+wrote, so re-running into its own output works); every file is written atomically, so a full disk (a real tmpfs)
+leaves the previous files whole and no temp or empty file; a read-only target (a real read-only bind mount) is one
+line; the landscape is bounded in memory and time before it runs; summary.json is strict JSON; missing values in
+the report's outputs are empty cells or n/a, never nan or inf."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+import riskplan
+from riskplan.cli import app
+from riskplan.errors import BadInput
+from riskplan.report.landscape import compute_landscape
+from riskplan.runs import load_run
+
+TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
+LAND = ["--points", "3", "--episodes", "20"]
+MANIFEST = ".riskplan-manifest.json"  # riskplan.report.output.MANIFEST
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def done(tmp_path_factory) -> Path:
+    """One tiny finished run (copied by the tests that change it)."""
+    out = tmp_path_factory.mktemp("hardening") / "done"
+    riskplan.train(riskplan.compose(TINY), out)
+    return out
+
+
+def invoke(*args: str, code: int):
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exit_code == code, f"exit {result.exit_code}: {result.output}{result.exception!r}"
+    assert "Traceback" not in result.output
+    return result
+
+
+def one_error_line(result) -> str:
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+    return lines[0]
+
+
+def snapshot(root: Path) -> dict[str, bytes | None]:
+    """Every entry below root: file contents (None for a directory)."""
+    return {str(p.relative_to(root)): (p.read_bytes() if p.is_file() else None) for p in sorted(root.rglob("*"))}
+
+
+def bad_files(root: Path) -> list[str]:
+    """Temp files and empty files below root (an interrupted or failed write would leave them)."""
+    return [str(p) for p in root.rglob("*") if p.is_file() and (p.name.endswith(".tmp") or p.stat().st_size == 0)]
+
+
+# ------------------------------------------------------------------------------------------------ broken configs
+BROKEN = {  # run name -> (config text or a function of the good text, what the reason says)
+    "invalid_yaml": ("seed: [0\n", "is not valid YAML"),
+    "a_list": ("- seed\n- 0\n", "holds a list, not a mapping of config keys"),
+    "a_string": ("just words\n", "holds a string, not a mapping"),
+    "unknown_key": (lambda t: t.replace("  measure: cvar", "  measur: cvar"), "config fails the schema: key "
+                                                                             "'risk.measur': unknown key"),
+    "wrong_type": (lambda t: t.replace("  beta: 0.1", "  beta: abc"), "config fails the schema: key 'risk.beta': "
+                                                                     "got 'abc'; expected a number"),
+    "out_of_range": (lambda t: t.replace("  beta: 0.1", "  beta: 7"), "config fails the schema: risk.beta: got 7"),
+    "env_unset": (lambda t: t.replace("  beta: 0.1", "  beta: ${oc.env:RISKPLAN_TEST_SURELY_UNSET}"),
+                  "cannot be resolved at risk.beta (the environment variable RISKPLAN_TEST_SURELY_UNSET is not set)"),
+    "missing_key": (lambda t: t.replace("  beta: 0.1", "  beta: ${risk.nowhere}"),
+                    "cannot be resolved at risk.beta (Interpolation key 'risk.nowhere' not found)"),
+    "self_reference": (lambda t: t.replace("seed: 0", "seed: ${seed}", 1),
+                       "cannot be resolved at seed (Recursive interpolation detected)"),
+}
+
+
+def test_runs_with_broken_configs_are_skipped_with_the_reason(done, tmp_path, monkeypatch):
+    monkeypatch.delenv("RISKPLAN_TEST_SURELY_UNSET", raising=False)
+    mixed = tmp_path / "mixed"
+    shutil.copytree(done, mixed / "good")
+    good = (done / ".hydra" / "config.yaml").read_text()
+    assert "  beta: 0.1" in good and "  measure: cvar" in good and good.startswith("seed: 0")
+    for name, (text, _) in BROKEN.items():
+        shutil.copytree(done, mixed / name)
+        (mixed / name / ".hydra" / "config.yaml").write_text(text(good) if callable(text) else text)
+    land = mixed / "land_broken"  # a landscape whose config is broken: listed, not fatal
+    compute_landscape(riskplan.compose(TINY), land, points=3, episodes=20)
+    (land / ".hydra" / "config.yaml").write_text("risk: ${nope}\n")
+
+    out = tmp_path / "report"
+    result = invoke("report", mixed, "--out", out, "--format", "png", code=0)
+    skipped = [line for line in result.stderr.splitlines() if line.startswith("skipped ")]
+    assert len(skipped) == len(BROKEN) + 1, result.stderr
+    for name, (_, reason) in BROKEN.items():
+        line = next(line for line in skipped if line.startswith(f"skipped {mixed / name}: "))
+        assert reason in line, line
+    assert any(line.startswith(f"skipped {land}: landscape: .hydra/config.yaml: ") for line in skipped)
+    runs = pd.read_csv(out / "runs.csv").set_index("path")
+    assert runs.loc[str(mixed / "good"), "status"] == "used"
+    assert (runs.drop(str(mixed / "good")).status == "skipped").all()
+    assert "1 run(s) in 1 group(s)" in result.stdout and (out / "report.html").is_file()
+    # the library says the same, naming the file
+    with pytest.raises(BadInput, match=r"config\.yaml: has a value that cannot be resolved at seed"):
+        load_run(mixed / "self_reference")
+
+
+# ------------------------------------------------------------------------------------------------ --out ownership
+def test_report_refuses_an_out_directory_holding_other_files(done, tmp_path):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("months of work")
+    (mine / "report.html").write_text("my own page")
+    before = snapshot(tmp_path)
+    line = one_error_line(invoke("report", done, "--out", mine, code=2))
+    assert line.startswith(f"error: --out: {mine} holds files riskplan report did not write (")
+    assert "report.html" in line and "thesis.tex" in line
+    assert snapshot(tmp_path) == before
+
+    land = tmp_path / "land"  # a landscape's directory is not the report's
+    invoke("landscape", *TINY, *LAND, "--out", land, code=0)
+    before = snapshot(tmp_path)
+    line = one_error_line(invoke("report", done, "--out", land, code=2))
+    assert line == (f"error: --out: {land} holds the output of riskplan landscape; give riskplan report a "
+                    f"directory of its own")
+    line = one_error_line(invoke("report", done, "--out", done, code=2))  # the run itself
+    assert "holds files riskplan report did not write (.hydra/config.yaml, " in line
+    assert snapshot(tmp_path) == before
+
+
+def test_report_reruns_into_its_own_output_and_drops_its_stale_files(done, tmp_path):
+    out = tmp_path / "report"
+    invoke("report", done, "--out", out, "--format", "png,svg", code=0)
+    manifest = json.loads((out / MANIFEST).read_text())
+    assert manifest["kind"] == "report" and set(manifest["files"]) == {p.name for p in out.iterdir()} - {MANIFEST}
+    assert (out / "fig2_cvar.svg").is_file()
+
+    invoke("report", done, "--out", out, "--format", "pdf", code=0)  # its own directory: accepted
+    names = {p.name for p in out.iterdir()}
+    assert "fig2_cvar.pdf" in names and not any(n.endswith((".png", ".svg")) for n in names)
+    assert set(json.loads((out / MANIFEST).read_text())["files"]) == names - {MANIFEST}
+
+    (out / "notes.md").write_text("added by hand")  # a foreign file in it: refused, left alone
+    before = snapshot(out)
+    line = one_error_line(invoke("report", done, "--out", out, code=2))
+    assert line == (f"error: --out: {out} holds files riskplan report did not write (notes.md); give a new or "
+                    f"empty directory, or remove them")
+    assert snapshot(out) == before
+    (out / "notes.md").unlink()
+
+    (out / MANIFEST).write_text("{not json")
+    line = one_error_line(invoke("report", done, "--out", out, code=2))
+    assert "holds a damaged .riskplan-manifest.json" in line
+
+    (out / MANIFEST).unlink()  # a report written before manifests existed is still recognised
+    invoke("report", done, "--out", out, "--format", "png", code=0)
+    assert json.loads((out / MANIFEST).read_text())["kind"] == "report"
+
+
+def test_landscape_out_ownership(done, tmp_path):
+    land = tmp_path / "land"
+    invoke("landscape", *TINY, *LAND, "--out", land, code=0)
+    first = pd.read_parquet(land / "landscape.parquet")
+    invoke("landscape", *TINY, *LAND, "seed=3", "--out", land, code=0)  # its own directory: re-run
+    assert json.loads((land / "summary.json").read_text())["seed"] == 3
+    assert not pd.read_parquet(land / "landscape.parquet").equals(first)
+
+    report = tmp_path / "report"
+    invoke("report", done, "--out", report, "--format", "png", code=0)
+    before = snapshot(tmp_path)
+    for target, expected in ((report, f"error: --out: {report} holds the output of riskplan report; give riskplan "
+                                      f"landscape a directory of its own"),
+                             (done, f"error: --out: {done} holds files riskplan landscape did not write (")):
+        line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", target, code=2))
+        assert line.startswith(expected), line
+    assert snapshot(tmp_path) == before
+
+    (land / MANIFEST).unlink()  # a landscape written before manifests existed
+    invoke("landscape", *TINY, *LAND, "--out", land, code=0)
+    (land / "extra.txt").write_text("x")
+    line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", land, code=2))
+    assert line.endswith("(extra.txt); give a new or empty directory, or remove them")
+
+
+@pytest.mark.parametrize("where, expected", [
+    ("/proc/riskplan_report", "error: --out: /proc/riskplan_report is under /proc, a kernel filesystem; give a "
+                              "directory on a disk"),
+    ("/", "error: --out: / is the filesystem root; give a directory of its own, e.g. outputs/runs/mine"),
+    ("", "error: --out: got ''; give a directory path"),
+    ("FILE", "error: --out: FILE is a file; expected a directory"),
+])
+@pytest.mark.parametrize("command", ["report", "landscape"])
+def test_out_that_cannot_be_an_output_directory(done, tmp_path, monkeypatch, where, expected, command):
+    monkeypatch.chdir(tmp_path)
+    Path("FILE").write_text("a file")
+    before = snapshot(tmp_path)
+    args = ["report", done, "--format", "png"] if command == "report" else ["landscape", *TINY, *LAND]
+    assert one_error_line(invoke(*args, "--out", where, code=2)) == expected
+    assert snapshot(tmp_path) == before
+
+
+# ------------------------------------------------------------------------------------------------ real mounts
+def _root_mount(*args: str) -> None:
+    if os.geteuid() != 0:
+        pytest.skip("needs root to mount (tmpfs, read-only bind mounts); chmod means nothing to root")
+    result = subprocess.run(["mount", *args], capture_output=True, text=True)
+    if result.returncode != 0:
+        pytest.skip(f"mount {' '.join(args)} failed: {result.stderr.strip()}")
+
+
+@contextlib.contextmanager
+def tmpfs(path: Path, size: str):
+    path.mkdir(parents=True, exist_ok=True)
+    _root_mount("-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path))
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", str(path)], check=False)
+
+
+@contextlib.contextmanager
+def read_only(source: Path, target: Path):
+    target.mkdir(parents=True, exist_ok=True)
+    _root_mount("--bind", str(source), str(target))
+    try:
+        result = subprocess.run(["mount", "-o", "remount,bind,ro", str(target)], capture_output=True, text=True)
+        if result.returncode != 0:
+            pytest.skip(f"remount read-only failed: {result.stderr.strip()}")
+        yield target
+    finally:
+        subprocess.run(["umount", str(target)], check=False)
+
+
+def fill(disk: Path) -> None:
+    """Write a file until the filesystem is full."""
+    with open(disk / "filler", "wb") as handle:
+        with contextlib.suppress(OSError):
+            while True:
+                handle.write(b"\0" * 65536)
+                handle.flush()
+
+
+def test_full_disk_leaves_the_previous_report_and_landscape_whole(done, tmp_path):
+    with tmpfs(tmp_path / "disk", "2m") as disk:
+        report, land = disk / "report", disk / "land"
+        invoke("report", done, "--out", report, "--format", "png", code=0)
+        invoke("landscape", *TINY, *LAND, "--out", land, code=0)
+        before = {report: snapshot(report), land: snapshot(land)}
+        fill(disk)
+        for args, target in ((["report", done, "--format", "png"], report), (["landscape", *TINY, *LAND], land)):
+            line = one_error_line(invoke(*args, "--out", target, code=1))
+            assert line.startswith(f"error: {target}/") and "could not be written (No space left on device)" in line
+            assert snapshot(target) == before[target], "a previous file was changed"
+        for args, target in ((["report", done, "--format", "png"], disk / "new_report"),
+                             (["landscape", *TINY, *LAND], disk / "new_land")):
+            line = one_error_line(invoke(*args, "--out", target, code=1))
+            assert "No space left on device" in line
+            assert not target.exists() or not any(target.iterdir())
+        assert [p for p in bad_files(disk) if Path(p).name != "filler"] == []
+        assert json.loads((land / "status.json").read_text())["status"] == "done"
+
+
+def test_read_only_targets_are_one_line_and_nothing_is_written(done, tmp_path):
+    source = tmp_path / "source"
+    shutil.copytree(done, source / "run")
+    invoke("report", source / "run", "--format", "png", code=0)  # source/run/report, the default
+    with read_only(source, tmp_path / "ro") as ro:
+        before = snapshot(ro)
+        cases = [
+            (["report", ro / "run", "--format", "png"],
+             f"error: --out: {ro}/run/report is on a read-only filesystem; give a directory you can write"),
+            (["report", ro / "run", "--out", ro / "elsewhere"],
+             f"error: --out: {ro}/elsewhere is on a read-only filesystem; give a directory you can write"),
+            (["landscape", *TINY, *LAND, "--out", ro / "land"],
+             f"error: --out: {ro}/land is on a read-only filesystem; give a directory you can write"),
+        ]
+        for args, expected in cases:
+            assert one_error_line(invoke(*args, code=2)) == expected
+        assert snapshot(ro) == before
+
+
+# ------------------------------------------------------------------------------------------------ landscape limits
+def test_landscape_grid_is_bounded_by_memory_and_time_before_it_runs(tmp_path, monkeypatch):
+    monkeypatch.delenv("RISKPLAN_MEMORY_GB", raising=False)
+    monkeypatch.delenv("RISKPLAN_MAX_HOURS", raising=False)
+    out = tmp_path / "land"
+    line = one_error_line(invoke("landscape", "--points", "100000", "--out", out, code=2))
+    assert line.startswith("error: --points: a 100000x100000 grid x 4000 episodes needs about ")
+    assert line.endswith("; lower it, or raise the limit with RISKPLAN_MEMORY_GB=<GB>")
+    line = one_error_line(invoke("landscape", "--points", "2", "--episodes", "2000000000", "--out", out, code=2))
+    assert line.startswith("error: --episodes: a 2x2 grid x 2000000000 episodes needs about ")
+    line = one_error_line(invoke("landscape", "--points", "1000", "--episodes", "100000", "--out", out, code=2))
+    assert line.startswith("error: --points/--episodes: a 1000x1000 grid x 100000 episodes would take about ")
+    assert line.endswith("more than the 24.0 h allowed; lower it, or raise the limit with RISKPLAN_MAX_HOURS=<hours>")
+    monkeypatch.setenv("RISKPLAN_MAX_HOURS", "1e-9")  # the limit is the environment's
+    line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", out, code=2))
+    assert "RISKPLAN_MAX_HOURS" in line
+    monkeypatch.delenv("RISKPLAN_MAX_HOURS")
+    monkeypatch.setenv("RISKPLAN_MEMORY_GB", "0.000001")
+    line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", out, code=2))
+    assert "more than the 1 KB allowed (RISKPLAN_MEMORY_GB)" in line
+    for args, expected in ((["--points", "1"], "error: --points: got 1; expected at least 2 grid points per axis"),
+                           (["--episodes", "0"], "error: --episodes: got 0; expected at least 1 episode per grid "
+                                                 "point")):
+        assert one_error_line(invoke("landscape", *args, "--out", out, code=2)) == expected
+    assert not out.exists()
+
+
+def test_landscape_summary_is_strict_json(tmp_path, monkeypatch):
+    from riskplan.report import landscape as L
+
+    real = L.evaluate_grid
+
+    def without_cvar(*args, **kwargs):
+        table = real(*args, **kwargs)
+        table["cvar"] = np.nan  # nothing finite to maximise
+        table.loc[0, "value_at_risk"] = np.inf
+        return table
+
+    monkeypatch.setattr(L, "evaluate_grid", without_cvar)
+    monkeypatch.setattr(L.time, "perf_counter", lambda: 0.0)  # no time passes: episodes/s undefined
+    out = tmp_path / "land"
+    result = invoke("landscape", *TINY, *LAND, "--out", out, code=0)
+    assert "max CVaR_0.1 n/a (no finite value on the grid)" in result.stdout
+    text = (out / "summary.json").read_text()
+    summary = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+    assert summary["best"]["cvar"] == {"theta": None, "value": None} and summary["episodes_per_s"] is None
+    assert summary["best"]["value_at_risk"]["value"] is not None  # the infinite point is not the maximum
+    from riskplan.report.landscape import finite_json
+
+    assert finite_json({"a": [float("nan"), float("-inf"), 1.5]}) == json.dumps({"a": [None, None, 1.5]}, indent=2)
+
+
+# ------------------------------------------------------------------------------------------------ missing values
+def test_missing_values_are_empty_cells_or_na_never_nan_or_inf(done, tmp_path):
+    inputs = tmp_path / "inputs"
+    shutil.copytree(done, inputs / "run")
+    flat = inputs / "flat"  # a landscape on the run's world whose objective is 0 everywhere: the gap in % is 0/0
+    compute_landscape(riskplan.compose(TINY), flat, points=3, episodes=20)
+    table = pd.read_parquet(flat / "landscape.parquet")
+    table[["mean", "cvar", "value_at_risk"]] = 0.0
+    table.to_parquet(flat / "landscape.parquet")
+    other = inputs / "other"  # a landscape of another world: no group on it, so its group cells are missing
+    compute_landscape(riskplan.compose([*TINY, "world.horizon=30"]), other, points=3, episodes=20)
+
+    out = tmp_path / "report"
+    invoke("report", inputs, "--out", out, "--format", "png", code=0)
+    for name in ("report.csv", "runs.csv", "landscape.csv"):
+        text = (out / name).read_text().lower()
+        assert "nan" not in text and "inf" not in text, name
+    land = pd.read_csv(out / "landscape.csv").set_index("landscape")
+    assert pd.isna(land.loc[str(flat), "gap_percent"]) and land.loc[str(flat), "gap_to_optimum"] == 0
+    assert pd.isna(land.loc[str(other), "group"])
+    html = (out / "report.html").read_text()
+    cells = [c.lower() for c in pd.Series(html.split("<td")).str.extract(r"^[^>]*>(.*?)</td>")[0].dropna()]
+    assert not any(c in ("nan", "inf", "-inf", "none") or "nan" in c.split() for c in cells)
+    assert "<td>n/a</td>" in html
