@@ -8,7 +8,8 @@ Python API (the same composition, validation and files as the CLI):
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
+from riskplan.version import __version__
+
 __all__ = ["compose", "train", "load_run", "__version__"]
 
 

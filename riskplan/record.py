@@ -271,7 +271,7 @@ class RunLog:
     def _setup(self, fh) -> None:
         self._fh = fh
         self._w = Writer(fh, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
-        from riskplan import __version__
+        from riskplan.version import __version__
 
         self._w.start(profile="", library=f"riskplan {__version__}")
         self._schema_ids: dict[str, int] = {}

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit, prange
 
-from riskplan import __version__
+from riskplan.version import __version__
 from riskplan.risk import cvar, tail_count, value_at_risk
 from riskplan.rng import BOOTSTRAP, episode_state, next_uniform, stream_key
 

@@ -178,7 +178,7 @@ class Output:
         self._manifest(sorted(set(self.previous) | set(self.planned)))
 
     def _manifest(self, files: list[str]) -> None:
-        from riskplan import __version__
+        from riskplan.version import __version__
 
         data = json.dumps({"kind": self.kind, "written_by": f"riskplan {self.kind} {__version__}",
                            "files": files}, indent=1)

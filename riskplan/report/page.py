@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from riskplan import __version__
+from riskplan.version import __version__
 from riskplan.report.collect import Collection
 from riskplan.report.figures import FigureSpec
 
