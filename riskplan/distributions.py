@@ -12,6 +12,10 @@ Grammar (every node is a number or a one-key mapping, plus `of:` for wrappers):
   {clip: [lo, hi], of: D}               min(max(D, lo), hi)
 The paper's risky cell reward `200*a + d`, a ~ U[0,1], d ~ N(0, 100^2), clipped to [-1e4, 1e4], is
   {clip: [-1e4, 1e4], of: {sum: [{scale: 200, of: {uniform: [0, 1]}}, {normal: [0, 100]}]}}
+
+Limits: a tree nests at most MAX_LEVELS levels, and every node's draws are bounded in size by REWARD_LIMIT
+(`check_bound`, interval arithmetic; a normal counts as |mean| + NORMAL_SPREAD std), so no draw, partial sum or
+intermediate of the kernel's formulas overflows; riskplan.world bounds an episode's total the same way.
 """
 
 from __future__ import annotations
@@ -31,6 +35,9 @@ LEAVES = ("constant", "uniform", "normal", "bernoulli")
 WRAPPERS = ("scale", "clip")
 KINDS = LEAVES + ("mixture", "sum") + WRAPPERS
 VALID = "a number or one of {" + ", ".join(KINDS) + "}, e.g. {normal: [0, 100]}"
+MAX_LEVELS = 32  # nesting depth of a reward tree (a sum or mixture takes a list, so deep trees are never needed)
+REWARD_LIMIT = 1e100  # bound on |draw| of any node and on |an episode's total reward|: squares and sums stay finite
+NORMAL_SPREAD = 40.0  # a normal draw counts as |mean| + 40 std (the kernel's inverse CDF never exceeds 8.3 std)
 
 
 @dataclass(frozen=True)
@@ -42,8 +49,11 @@ class Dist:
     children: tuple["Dist", ...] = ()
 
 
-def parse(data: Any, where: str = "reward") -> Dist:
+def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
     """Parse YAML-like data into a Dist tree; BadInput names `where` on any error."""
+    if level > MAX_LEVELS:
+        raise BadInput(where, f"the reward program nests more than {MAX_LEVELS} levels deep; flatten it "
+                              f"(a sum or a mixture takes a list of any length)")
     if isinstance(data, bool):
         raise BadInput(where, f"got {data!r}; expected {VALID}")
     if isinstance(data, (int, float)):
@@ -60,7 +70,7 @@ def parse(data: Any, where: str = "reward") -> Dist:
     if kind in WRAPPERS:
         if "of" not in data:
             raise BadInput(where, f"'{kind}' needs 'of: <distribution>'")
-        child = parse(data["of"], f"{where}.of")
+        child = parse(data["of"], f"{where}.of", level + 1)
         if kind == "scale":
             return Dist("scale", (_finite(value, f"{where}.scale"),), (child,))
         lo, hi = _pair(value, f"{where}.clip")
@@ -88,7 +98,7 @@ def parse(data: Any, where: str = "reward") -> Dist:
         return Dist("bernoulli", (p,))
     items = _list(value, f"{where}.{kind}")
     if kind == "sum":
-        return Dist("sum", (), tuple(parse(item, f"{where}.sum.{i}") for i, item in enumerate(items)))
+        return Dist("sum", (), tuple(parse(item, f"{where}.sum.{i}", level + 1) for i, item in enumerate(items)))
     weights, children = [], []
     for i, item in enumerate(items):
         here = f"{where}.mixture.{i}"
@@ -98,7 +108,7 @@ def parse(data: Any, where: str = "reward") -> Dist:
         if weight < 0:
             raise BadInput(f"{here}.weight", f"weight {weight} is negative")
         weights.append(weight)
-        children.append(parse(item["of"], f"{here}.of"))
+        children.append(parse(item["of"], f"{here}.of", level + 1))
     if sum(weights) <= 0:
         raise BadInput(f"{where}.mixture", "weights sum to 0; give at least one positive weight")
     return Dist("mixture", tuple(weights), tuple(children))
@@ -134,7 +144,7 @@ def sample(dist: Dist, rng: np.random.Generator, n: int) -> np.ndarray:
         return np.clip(sample(dist.children[0], rng, n), dist.params[0], dist.params[1])
     if dist.kind == "sum":
         return np.sum([sample(c, rng, n) for c in dist.children], axis=0)
-    weights = np.asarray(dist.params) / sum(dist.params)
+    weights = np.asarray(normalised(dist.params))
     choice = rng.choice(len(weights), size=n, p=weights)
     draws = np.stack([sample(c, rng, n) for c in dist.children])
     return draws[choice, np.arange(n)]
@@ -176,13 +186,65 @@ def compile_program(dist: Dist) -> tuple[np.ndarray, np.ndarray]:
         elif node.kind == "sum":
             ops.append((OP_SUM, len(node.children))); params.append((0.0, 0.0))
         else:
-            total = sum(node.params)
-            for w in node.params:
-                ops.append((OP_CONST, 0)); params.append((w / total, 0.0))
+            for w in normalised(node.params):
+                ops.append((OP_CONST, 0)); params.append((w, 0.0))
             ops.append((OP_MIXTURE, len(node.children))); params.append((0.0, 0.0))
 
     emit(dist)
     return np.asarray(ops, dtype=np.int64).reshape(-1, 2), np.asarray(params, dtype=np.float64).reshape(-1, 2)
+
+
+def normalised(weights: tuple[float, ...] | list[float]) -> list[float]:
+    """Mixture weights divided by their sum; when that sum overflows, by the largest weight first (then it cannot)."""
+    total = sum(weights)
+    if math.isfinite(total):
+        return [w / total for w in weights]
+    top = max(weights)
+    scaled = [w / top for w in weights]
+    total = sum(scaled)
+    return [w / total for w in scaled]
+
+
+def bound(dist: Dist) -> float:
+    """An upper bound on |draw| (interval arithmetic; a normal counts as |mean| + NORMAL_SPREAD std); may be inf."""
+    if dist.kind == "constant":
+        return abs(dist.params[0])
+    if dist.kind == "uniform":
+        return max(abs(dist.params[0]), abs(dist.params[1]))
+    if dist.kind == "normal":
+        return abs(dist.params[0]) + NORMAL_SPREAD * dist.params[1]
+    if dist.kind == "bernoulli":
+        return 1.0
+    if dist.kind == "scale":
+        k = abs(dist.params[0])
+        return 0.0 if k == 0 else k * bound(dist.children[0])
+    if dist.kind == "clip":
+        b, (lo, hi) = bound(dist.children[0]), dist.params
+        return max(abs(min(max(-b, lo), hi)), abs(min(max(b, lo), hi)))
+    if dist.kind == "sum":
+        return sum(bound(c) for c in dist.children)
+    return max(bound(c) for c in dist.children)
+
+
+def check_bound(dist: Dist, where: str = "reward") -> float:
+    """bound(dist), after checking that no node (so no intermediate of the kernel) exceeds REWARD_LIMIT.
+
+    The deepest offending node is named, with the same dotted path `parse` uses.
+    """
+    for i, child in enumerate(dist.children):
+        if dist.kind == "sum":
+            here = f"{where}.sum.{i}"
+        elif dist.kind == "mixture":
+            here = f"{where}.mixture.{i}.of"
+        else:
+            here = f"{where}.of"
+        check_bound(child, here)
+    value = bound(dist)
+    if not value <= REWARD_LIMIT:
+        raise BadInput(where, f"can draw values of about {min(value, 1.8e308):.3g} in size, beyond the limit of "
+                              f"{REWARD_LIMIT:g} on any reward (it keeps sums, means, variances and gradients finite); "
+                              f"give smaller values")
+    return value
 
 
 def depth(dist: Dist) -> int:

@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit
 
 MASK = (1 << 64) - 1
+SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63 (checked by riskplan.setup): none alias under MASK
 GOLDEN = 0x9E3779B97F4A7C15
 
 # Stream purposes: independent streams for each use of randomness.

@@ -10,10 +10,12 @@ from typing import Any
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from riskplan.consensus import Mixer, Network, build_network
+from riskplan import budget
+from riskplan.consensus import Mixer, Network, build_network, check_settings
 from riskplan.errors import BadInput
+from riskplan.rng import SEED_LIMIT
 from riskplan.rollout import Kernel, make_kernel
-from riskplan.world import World, build_world
+from riskplan.world import World, build_world, grid_size
 
 MEASURES = ("cvar", "neutral")
 ORDERS = ("combine_then_adapt", "adapt_then_combine")
@@ -65,6 +67,14 @@ def build_setup(cfg: DictConfig | dict) -> Setup:
     _check(train.paths >= 0, "train.paths", f"got {train.paths}; expected >= 0")
     _check(train.checkpoint_every >= 1, "train.checkpoint_every", f"got {train.checkpoint_every}; expected >= 1")
     _check(train.bootstrap >= 1, "train.bootstrap", f"got {train.bootstrap}; expected >= 1 resamples")
+    seed = cfg.seed if abs(cfg.seed) < 10**30 else budget.show(cfg.seed)
+    _check(0 <= cfg.seed < SEED_LIMIT, "seed", f"got {seed}; expected a whole number 0 <= seed < 2^63 "
+                                               f"(9223372036854775808); seeds are not reduced modulo 2^64")
+
+    # Sizes first, on the raw config: nothing big is allocated before the memory and time estimates pass.
+    settings = check_settings(team)
+    width, height = grid_size(cfg.world.size)
+    budget.check(budget.sizes_of(cfg, width, height, len(cfg.world.sources), settings.robots))
 
     _check(team.order in ORDERS, "team.order", f"got '{team.order}'; expected one of {', '.join(ORDERS)}")
     starts = None
@@ -79,6 +89,7 @@ def build_setup(cfg: DictConfig | dict) -> Setup:
     _check(math.isfinite(logit_bound(world, theta0)), "train.theta0",
            f"got {list(train.theta0)}; the softmax logits theta . signal overflow to infinity; give smaller values")
     network = build_network(team, world.sources, int(cfg.seed))
+    budget.check(budget.sizes_of(cfg, world.width, world.height, world.sources, network.robots))  # before the Mixer
     return Setup(
         config=OmegaConf.to_container(cfg, resolve=True),
         world=world,
@@ -99,8 +110,11 @@ def logit_bound(world: World, thetas: np.ndarray) -> float:
 
 
 def step_size(iteration: int, schedule: dict[str, Any]) -> float:
-    """eps_l = initial / (1 + l / decay)^power."""
-    return schedule["initial"] / (1.0 + iteration / schedule["decay"]) ** schedule["power"]
+    """eps_l = initial / (1 + l / decay)^power (0 once the denominator overflows a float)."""
+    try:
+        return schedule["initial"] / (1.0 + iteration / schedule["decay"]) ** schedule["power"]
+    except OverflowError:  # (1 + l/decay)^power beyond 1.8e308: the step is 0 to double precision
+        return 0.0
 
 
 def samples_at(iteration: int, train: dict[str, Any]) -> int:

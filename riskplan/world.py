@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from riskplan import distributions
 from riskplan.distributions import Dist
@@ -18,6 +19,8 @@ from riskplan.errors import BadInput
 MOVES = np.array([[1, 0], [-1, 0], [0, 0], [0, 1], [0, -1]], dtype=np.int64)  # E, W, Stay, N, S
 MOVE_NAMES = ("E", "W", "Stay", "N", "S")
 MAX_STACK = 64  # stack slots of the kernel's reward-program interpreter
+SIGNAL_LIMIT = 1e100  # largest peak |signal| w / (2 pi sqrt(det Sigma)): keeps logits and scores finite
+PRECISION_LIMIT = 1e150  # largest |entry| of Sigma^-1: the quadratic form stays finite on any allowed grid
 
 
 @dataclass(frozen=True)
@@ -75,7 +78,7 @@ class World:
 
 def build_world(world: Any, starts: list | None = None) -> World:
     """Build and validate a World from the `world` config node (and optional per-robot starts)."""
-    width, height = _size(world.size)
+    width, height = grid_size(world.size)
     cells = width * height
     obstacle = np.zeros((width, height), dtype=bool)
     for i, cell in enumerate(world.obstacles):
@@ -105,17 +108,34 @@ def build_world(world: Any, starts: list | None = None) -> World:
         x, y = _cell(source.position, width, height, f"{here}.position")
         if obstacle[x * height + y]:
             raise BadInput(f"{here}.position", f"({x}, {y}) is an obstacle; move the source or the obstacle")
+        if x * height + y in src_cells:
+            other = src_cells.index(x * height + y)
+            raise BadInput(f"{here}.position", f"({x}, {y}) is also the cell of world.sources.{other}; two sources "
+                                               f"on one cell cannot be told apart; give each source its own cell")
         cov = _covariance(source.covariance, f"{here}.covariance")
-        det = float(np.linalg.det(cov))
-        scale = 2.0 * math.pi * math.sqrt(det) if source.scale is None else float(source.scale)
-        if not math.isfinite(scale):
-            raise BadInput(f"{here}.scale", f"got {source.scale!r}; expected a finite number or null (peak 1)")
-        inv = np.linalg.inv(cov)
+        with np.errstate(all="ignore"):
+            det = float(np.linalg.det(cov))
+            inv = np.linalg.inv(cov)
+        if not (math.isfinite(det) and np.all(np.isfinite(inv)) and np.max(np.abs(inv)) <= PRECISION_LIMIT):
+            raise BadInput(f"{here}.covariance", f"{cov.tolist()} is too extreme: its determinant or inverse "
+                                                 f"overflows (inverse entries must stay below {PRECISION_LIMIT:g}); "
+                                                 f"give entries between about 1e-100 and 1e100")
+        if source.scale is None:
+            peak = 1.0  # w = 2 pi sqrt(det Sigma): exactly 1, even where sqrt(det) would round
+        else:
+            scale = float(source.scale)
+            if not math.isfinite(scale):
+                raise BadInput(f"{here}.scale", f"got {source.scale!r}; expected a finite number or null (peak 1)")
+            peak = scale / (2.0 * math.pi * math.sqrt(det))
+            if not abs(peak) <= SIGNAL_LIMIT:
+                raise BadInput(f"{here}.scale", f"got {scale:g}; the signal would peak at about {abs(peak):.3g}, "
+                                                f"beyond the limit of {SIGNAL_LIMIT:g} that keeps logits and scores "
+                                                f"finite; give a smaller scale, or null for a peak of 1")
         names.append(source.name or f"source_{j}")
         src_cells.append(x * height + y)
         rewards.append(_dist(source.reward, f"{here}.reward"))
         motion.append(_motion(source.motion, f"{here}.motion"))
-        amplitude.append(scale / (2.0 * math.pi * math.sqrt(det)))
+        amplitude.append(peak)
         precision.append((inv[0, 0], inv[0, 1], inv[1, 1]))
 
     region_of = np.full(cells, -1, dtype=np.int64)
@@ -128,12 +148,18 @@ def build_world(world: Any, starts: list | None = None) -> World:
         region_risky.append(bool(region.risky))
         region_rewards.append(_dist(region.reward, f"{here}.reward"))
 
+    next_cell = _next_cell(width, height, obstacle)
+    if obstacle.any():
+        _check_reachable(next_cell, obstacle, start_cells, where if starts is None else None, src_cells, motion,
+                         height)
+    _check_total_reward(rewards, region_rewards, horizon, bool(world.stop_at_source))
+
     return World(
         width=width,
         height=height,
         horizon=horizon,
         stop_at_source=bool(world.stop_at_source),
-        next_cell=_next_cell(width, height, obstacle),
+        next_cell=next_cell,
         obstacle=obstacle,
         region_of=region_of,
         region_names=tuple(region_names),
@@ -147,6 +173,76 @@ def build_world(world: Any, starts: list | None = None) -> World:
         source_precision=np.array(precision, dtype=np.float64).reshape(-1, 3),
         starts=np.array(start_cells, dtype=np.int64),
     )
+
+
+def _check_reachable(next_cell: np.ndarray, obstacle: np.ndarray, starts: list[int], start_key: str | None,
+                     sources: list[int], motion: list[float], height: int) -> None:
+    """Every static source can be reached from every start cell through free cells (the 4 moves).
+
+    A pair that cannot is blamed on the side in the smaller walled-off pocket: the start when it is shut in, the
+    source when it is. Mobile sources walk over obstacles, so only static ones are checked.
+    """
+    label = _components(next_cell, obstacle)
+    size = np.bincount(label[label >= 0])
+    for i, start in enumerate(starts):
+        here = start_key or f"team.starts.{i}"
+        for j, (cell, prob) in enumerate(zip(sources, motion)):
+            if prob > 0 or label[cell] == label[start]:
+                continue
+            sx, sy = divmod(start, height)
+            cx, cy = divmod(cell, height)
+            if size[label[start]] < size[label[cell]]:
+                free = int(size[label[start]])
+                raise BadInput(here, f"({sx}, {sy}) is walled in by obstacles (a pocket of {free} free "
+                                     f"cell{'' if free == 1 else 's'}): world.sources.{j} at ({cx}, {cy}) cannot be "
+                                     f"reached from it; remove obstacles or move the start")
+            raise BadInput(f"world.sources.{j}.position", f"({cx}, {cy}) is walled off by obstacles: it cannot be "
+                                                          f"reached from the start ({sx}, {sy}); remove obstacles or "
+                                                          f"move the source")
+
+
+@njit(cache=True)
+def _components(next_cell, obstacle):
+    """Label of the connected free region of every cell (-1 for obstacles): one breadth-first pass over the grid."""
+    cells = next_cell.shape[0]
+    label = np.full(cells, -1, dtype=np.int64)
+    queue = np.empty(cells, dtype=np.int64)
+    count = 0
+    for seed in range(cells):
+        if obstacle[seed] or label[seed] >= 0:
+            continue
+        label[seed] = count
+        head, tail = 0, 1
+        queue[0] = seed
+        while head < tail:
+            cell = queue[head]
+            head += 1
+            for a in range(5):
+                nxt = next_cell[cell, a]
+                if label[nxt] < 0:
+                    label[nxt] = count
+                    queue[tail] = nxt
+                    tail += 1
+        count += 1
+    return label
+
+
+def _check_total_reward(sources: list[Dist], regions: list[Dist], horizon: int, stop_at_source: bool) -> None:
+    """No episode's total reward can exceed REWARD_LIMIT in size (each program was bounded when parsed)."""
+    limit = distributions.REWARD_LIMIT
+    first = lambda pair: pair[0]  # noqa: E731 - ties name the first program listed
+    region = max(((distributions.bound(d), f"world.regions.{r}.reward") for r, d in enumerate(regions)),
+                 default=(0.0, ""), key=first)
+    source = max(((distributions.bound(d), f"world.sources.{j}.reward") for j, d in enumerate(sources)), key=first)
+    source_steps = 1.0 if stop_at_source else float(horizon)
+    total = float(horizon) * region[0] + source_steps * source[0]
+    if total <= limit:
+        return
+    bound, key = region if float(horizon) * region[0] >= source_steps * source[0] else source
+    paid = "step" if key.startswith("world.regions") or not stop_at_source else "episode"
+    raise BadInput(key, f"draws up to about {bound:.3g} per {paid}; over world.horizon={horizon} moves an episode's "
+                        f"total reward could reach about {min(total, 1.8e308):.3g}, beyond the limit of {limit:g} "
+                        f"that keeps means, variances and gradients finite; give smaller rewards or a shorter horizon")
 
 
 def world_map(world: World, starts: np.ndarray) -> dict:
@@ -197,9 +293,13 @@ def _region_cells(region: Any, width: int, height: int, where: str) -> np.ndarra
         return (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
     if given[0] == "halfplane":
         hp = list(region.halfplane)
-        if len(hp) != 3 or hp[0] == 0 == hp[1]:
+        if len(hp) != 3 or not all(math.isfinite(v) for v in hp):
+            raise BadInput(f"{where}.halfplane", f"got {hp}; expected [a, b, c] of finite numbers for a*x + b*y > c")
+        if hp[0] == 0 == hp[1]:
             raise BadInput(f"{where}.halfplane", f"got {hp}; expected [a, b, c] for a*x + b*y > c with (a, b) != 0")
-        return hp[0] * x + hp[1] * y > hp[2]
+        top = max(abs(v) for v in hp)
+        a, b, c = (v / top for v in hp) if top > 1.0 else hp  # same half-plane, no overflow of a*x + b*y
+        return a * x + b * y > c
     member = np.zeros((width, height), dtype=bool)
     for i, cell in enumerate(region.cells):
         cx, cy = _cell(cell, width, height, f"{where}.cells.{i}")
@@ -207,8 +307,8 @@ def _region_cells(region: Any, width: int, height: int, where: str) -> np.ndarra
     return member.ravel()
 
 
-def _size(size: Any) -> tuple[int, int]:
-    """Validated (width, height)."""
+def grid_size(size: Any) -> tuple[int, int]:
+    """Validated (width, height), before any array is built (riskplan.budget bounds width * height)."""
     values = list(size)
     if len(values) != 2 or any(int(v) != v or v < 1 for v in values):
         raise BadInput("world.size", f"got {values}; expected [width, height] of whole numbers >= 1")
@@ -236,7 +336,9 @@ def _covariance(cov: Any, where: str) -> np.ndarray:
         raise BadInput(where, f"got {matrix.tolist()}; expected a finite 2x2 matrix [[a, b], [b, c]]")
     if matrix[0, 1] != matrix[1, 0]:
         raise BadInput(where, f"{matrix.tolist()} is not symmetric; the off-diagonal entries must be equal")
-    if matrix[0, 0] <= 0 or np.linalg.det(matrix) <= 0:
+    with np.errstate(all="ignore"):  # a determinant that overflows is caught by the caller, with a reason
+        det = np.linalg.det(matrix)
+    if matrix[0, 0] <= 0 or det <= 0:
         raise BadInput(where, f"{matrix.tolist()} is not positive definite; need a > 0 and a*c - b^2 > 0")
     return matrix
 
@@ -245,10 +347,15 @@ def _dist(data: Any, where: str) -> Dist:
     """Parse a reward distribution whose program fits the kernel's stack."""
     from omegaconf import OmegaConf
 
-    plain = OmegaConf.to_container(data) if OmegaConf.is_config(data) else data
-    dist = distributions.parse(plain, where)
+    try:
+        plain = OmegaConf.to_container(data) if OmegaConf.is_config(data) else data
+        dist = distributions.parse(plain, where)
+    except RecursionError:
+        raise BadInput(where, f"the reward program nests more than {distributions.MAX_LEVELS} levels deep; flatten "
+                              f"it (a sum or a mixture takes a list of any length)") from None
     if distributions.depth(dist) > MAX_STACK:
         raise BadInput(where, f"nests too deeply; at most {MAX_STACK} stack slots")
+    distributions.check_bound(dist, where)
     return dist
 
 

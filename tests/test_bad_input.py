@@ -84,6 +84,13 @@ def template(tmp_path_factory) -> Path:
         config = bad / ".hydra" / "config.yaml"
         config.write_text(text + "\n".join(line for line in config.read_text().splitlines()
                                            if not line.startswith("seed:")) + "\n")
+    # rows 160-179 (report and landscape --out): a landscape's directory and a report's directory, each with the
+    # manifest its command writes
+    from riskplan.report import build_report
+    from riskplan.report.landscape import compute_landscape
+
+    compute_landscape(compose(FAST), root / "outputs" / "landscapes" / "land", points=3, episodes=20)
+    build_report([done], root / "outputs" / "reports" / "old", ["png"])
     return root
 
 

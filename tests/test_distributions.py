@@ -81,3 +81,62 @@ def test_a_scaled_leaf_compiles_to_one_op_that_draws_k_times_the_leaf(leaf, k):
     assert len(ops) == 1
     np.testing.assert_allclose(kernel_sample({"scale": k, "of": leaf}, 1000), k * kernel_sample(leaf, 1000),
                                rtol=1e-12, atol=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------- hardening (issue 10)
+
+
+@pytest.mark.parametrize("weights", [[1e308, 1e308], [1.7e308, 1.7e308, 1.7e308, 1.7e308], [1.5e308, 1.5e308]])
+def test_mixture_weights_whose_sum_overflows_still_pick_each_component_equally(weights):
+    # sum(w) is inf, so w / sum(w) was 0 for every component: the kernel always drew the last one, numpy raised
+    data = {"mixture": [{"weight": w, "of": k} for k, w in enumerate(weights)]}
+    n, k = 20_000, len(weights)
+    for draws in (kernel_sample(data, n, seed=3), D.sample(D.parse(data), np.random.default_rng(3), n)):
+        counts = np.bincount(draws.astype(int), minlength=k)
+        p = 1.0 / k
+        assert np.all(np.abs(counts / n - p) < 5 * np.sqrt(p * (1 - p) / n)), counts
+
+
+def test_normalised_weights_are_unchanged_when_the_sum_is_finite():
+    weights = (0.99, 0.01, 3.0)
+    assert D.normalised(weights) == [w / sum(weights) for w in weights]
+    assert D.normalised((1e308, 1e308)) == [0.5, 0.5]
+
+
+@pytest.mark.parametrize("data, where", [
+    (1e200, "reward"),
+    ({"uniform": [-1e308, 1e308]}, "reward"),  # hi - lo overflows to inf in the kernel's lo + (hi - lo) u
+    ({"normal": [0, 1e300]}, "reward"),
+    ({"scale": 1e300, "of": {"uniform": [0, 1]}}, "reward"),
+    ({"sum": [1, {"constant": 1e101}]}, "reward.sum.1"),
+    ({"clip": [-1, 1], "of": {"sum": [6e99, 6e99]}}, "reward.of"),  # an intermediate beyond the limit
+    ({"mixture": [{"weight": 1, "of": 0}, {"weight": 1, "of": {"normal": [1e100, 1e98]}}]}, "reward.mixture.1.of"),
+])
+def test_programs_that_could_overflow_are_rejected_naming_the_node(data, where):
+    with pytest.raises(BadInput) as err:
+        D.check_bound(D.parse(data), "reward")
+    assert err.value.where == where
+    assert "beyond the limit of 1e+100" in err.value.problem
+
+
+def test_bounds_are_interval_arithmetic():
+    assert D.bound(D.parse(PAPER_RISKY)) == 200 + 40 * 100  # clip [-1e4, 1e4] does not bind
+    assert D.bound(D.parse({"clip": [5, 7], "of": {"normal": [0, 1e6]}})) == 7
+    assert D.bound(D.parse({"clip": [5, 7], "of": 1})) == 5  # clipped up to the lower bound
+    assert D.bound(D.parse({"scale": 0, "of": {"sum": [1e308, 1e308]}})) == 0  # never 0 * inf
+    assert D.bound(D.parse({"sum": [{"bernoulli": 0.5}, {"uniform": [-3, 2]}]})) == 4
+    assert D.check_bound(D.parse({"normal": [0, 1e98]})) == pytest.approx(4e99)
+
+
+def test_a_deeply_nested_program_is_one_line_not_a_recursion_error():
+    data: object = 1.0
+    for _ in range(5000):
+        data = {"scale": 1, "of": data}
+    with pytest.raises(BadInput) as err:
+        D.parse(data)
+    assert "nests more than 32 levels deep" in str(err.value)
+    assert err.value.where == "reward" + ".of" * 32
+    shallow: object = 1.0
+    for _ in range(31):
+        shallow = {"scale": 1, "of": shallow}
+    assert D.bound(D.parse(shallow)) == 1
