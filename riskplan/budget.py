@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from riskplan import limits
 
-EVAL_BATCH = 100_000  # riskplan.training.EVAL_BATCH: episodes per kernel call during evaluation
+EVAL_BATCH = 100_000  # episodes per kernel call during evaluation (training uses it; it bounds memory)
 ITERATION_STEPS = 10_000  # fixed cost of an iteration (gradient, logging, fsync-free bookkeeping)
 # The paper's defaults: the key named in a message is the one furthest above its default.
 DEFAULTS = {

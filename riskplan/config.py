@@ -31,9 +31,17 @@ def parse_overrides(overrides: list[str]) -> list:
             parsed.extend(parser.parse_overrides([text]))
         except HydraException:
             raise BadInput(f"override '{text}'", f"malformed; {GRAMMAR}") from None
+        except RecursionError:  # the override grammar recurses once per bracket
+            raise BadInput(f"override '{_short(text)}'", "is nested too deeply to parse; reward programs may nest "
+                                                         "at most 32 levels") from None
         if not parsed[-1].key_or_group:  # `=5`: Hydra parses an empty key
             raise BadInput(f"override '{text}'", f"malformed; {GRAMMAR}")
     return parsed
+
+
+def _short(text: str, limit: int = 60) -> str:
+    """A long value shortened for a one-line message."""
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def check_groups(parsed: list) -> None:
@@ -76,6 +84,8 @@ def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = Tru
         raise BadInput(*explain(err)) from None
     except ValueError as err:  # Hydra's defaults list rejects some values outside its grammar
         raise BadInput("config", f"{_first_line(err)}; {GRAMMAR}") from None
+    except RecursionError:
+        raise BadInput("config", "is nested too deeply; reward programs may nest at most 32 levels") from None
     finally:
         GlobalHydra.instance().clear()
     from riskplan.hydra_checks import check_hydra_node

@@ -23,6 +23,7 @@ from omegaconf import OmegaConf
 
 from riskplan import rng
 from riskplan.consensus import consensus_error, network_metadata
+from riskplan.budget import EVAL_BATCH
 from riskplan.errors import BadInput
 from riskplan.lock import hold
 from riskplan.paths import atomic_path, check_output_dir, write_atomic
@@ -37,7 +38,6 @@ from riskplan.world import world_map
 CHECKPOINT = "checkpoint"
 FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # written when a run ends
 AVERAGE = -1  # the `robot` id of the network average in team tables
-EVAL_BATCH = 100_000  # episodes per kernel call during evaluation (bounds memory for large teams)
 CRASH_ENV = "RISKPLAN_TEST_KILL_IN_CHECKPOINT"  # fault injection for the crash-safety tests
 STOP_ENV = "RISKPLAN_TEST_STOP_AFTER_ITERATION"  # SIGSTOP after logging this iteration, so a test can SIGKILL there
 

@@ -161,7 +161,7 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
     try:
         cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
         cfg.merge_with(OmegaConf.from_dotlist(args))
-    except (OmegaConfBaseException, ValueError, OSError, yaml.YAMLError) as err:
+    except (OmegaConfBaseException, ValueError, OSError, RecursionError, yaml.YAMLError) as err:
         raise BadInput(str(run_dir / ".hydra" / "config.yaml"), f"cannot be read as a config "
                                                                 f"({type(err).__name__}); it was not written by "
                                                                 f"riskplan: start the run again") from None
