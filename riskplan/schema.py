@@ -1,15 +1,36 @@
-"""Typed schema of every config key (Hydra structured configs): a typo or a wrong type fails at composition."""
+"""Typed schema of every config key (Hydra structured configs): a typo or a wrong type fails at composition.
+
+The same dataclasses are the engine's frozen parameters: `riskplan.params.typed` turns a composed, validated config
+into a RiskplanConf once, and the engine and training loop read its attributes (never raw dicts).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import FrozenInstanceError, dataclass, field
+from pathlib import Path
 from typing import Any, List, Optional
 
 from hydra.core.config_store import ConfigStore
+from omegaconf import DictConfig, OmegaConf
+
+CONF_DIR = Path(__file__).resolve().parent / "conf"  # conf/ is a symlinked data dir inside the package
+
+
+class Frozen:
+    """Instances cannot change once built. Not `dataclass(frozen=True)`: OmegaConf turns those into read-only nodes,
+    which Hydra cannot merge the YAML and the overrides into."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in self.__dict__:
+            raise FrozenInstanceError(f"cannot assign to field '{name}': the config is frozen")
+        object.__setattr__(self, name, value)
+
+    def __delattr__(self, name: str) -> None:
+        raise FrozenInstanceError(f"cannot delete field '{name}': the config is frozen")
 
 
 @dataclass
-class RiskConf:
+class RiskConf(Frozen):
     """The objective: `cvar` optimises CVaR_beta, `neutral` the mean; beta is also the reporting level."""
 
     measure: str = "cvar"
@@ -17,7 +38,7 @@ class RiskConf:
 
 
 @dataclass
-class StepSizeConf:
+class StepSizeConf(Frozen):
     """eps_l = initial / (1 + l/decay)^power; Assumption 6 holds for power in (0.5, 1]."""
 
     initial: float = 0.1
@@ -26,7 +47,7 @@ class StepSizeConf:
 
 
 @dataclass
-class TrainConf:
+class TrainConf(Frozen):
     """Policy-gradient loop settings."""
 
     iterations: int = 200
@@ -42,7 +63,7 @@ class TrainConf:
 
 
 @dataclass
-class MotionConf:
+class MotionConf(Frozen):
     """Source motion: `static`, or `random_walk` moving to a random 4-neighbour with probability `prob` per step."""
 
     kind: str = "static"
@@ -50,7 +71,7 @@ class MotionConf:
 
 
 @dataclass
-class SourceConf:
+class SourceConf(Frozen):
     """One source: Gaussian signal eq. (1) and a random reward paid on reaching it."""
 
     position: List[int] = field(default_factory=lambda: [0, 0])
@@ -62,7 +83,7 @@ class SourceConf:
 
 
 @dataclass
-class RegionConf:
+class RegionConf(Frozen):
     """A named cell set with a per-step reward; give exactly one of rect, halfplane, cells."""
 
     name: str = ""
@@ -74,7 +95,7 @@ class RegionConf:
 
 
 @dataclass
-class WorldConf:
+class WorldConf(Frozen):
     """Grid world of paper Section II/V."""
 
     size: List[int] = field(default_factory=lambda: [12, 12])
@@ -87,14 +108,14 @@ class WorldConf:
 
 
 @dataclass
-class DelayConf:
+class DelayConf(Frozen):
     """Message delays in iterations: uniform on 0..max (B0 of Assumption 5)."""
 
     max: int = 0
 
 
 @dataclass
-class SwitchingConf:
+class SwitchingConf(Frozen):
     """Time-varying graph: each link is up with probability `up` per iteration, jointly connected within `window`."""
 
     enabled: bool = False
@@ -103,7 +124,7 @@ class SwitchingConf:
 
 
 @dataclass
-class TeamConf:
+class TeamConf(Frozen):
     """Robots and their communication graph (paper Section IV); robots=1 is a centralized run."""
 
     robots: int = 1
@@ -126,7 +147,7 @@ class TeamConf:
 
 
 @dataclass
-class RiskplanConf:
+class RiskplanConf(Frozen):
     """The whole experiment."""
 
     seed: int = 0
@@ -135,6 +156,11 @@ class RiskplanConf:
     train: TrainConf = field(default_factory=TrainConf)
     world: WorldConf = field(default_factory=WorldConf)
     team: TeamConf = field(default_factory=TeamConf)
+
+
+def structured() -> DictConfig:
+    """The schema as a typed OmegaConf node, for merging a config onto it."""
+    return OmegaConf.structured(RiskplanConf)
 
 
 def register() -> None:

@@ -5,16 +5,16 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
-from typing import Any
-
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from riskplan import budget
 from riskplan.consensus import Mixer, Network, build_network, check_settings
 from riskplan.errors import BadInput
+from riskplan.params import as_dict, typed
 from riskplan.rng import SEED_LIMIT
 from riskplan.rollout import Kernel, make_kernel
+from riskplan.schema import RiskplanConf, StepSizeConf, TrainConf
 from riskplan.world import World, build_world, grid_size
 
 MEASURES = ("cvar", "neutral")
@@ -23,9 +23,10 @@ ORDERS = ("combine_then_adapt", "adapt_then_combine")
 
 @dataclass(frozen=True)
 class Setup:
-    """A validated experiment: config, world, kernel arrays, team network."""
+    """A validated experiment: its frozen config, world, kernel arrays, team network."""
 
-    config: dict
+    params: RiskplanConf  # what the engine and the training loop read
+    config: dict  # the same as plain data, for the records (.hydra/config.yaml, run.mcap metadata)
     world: World
     kernel: Kernel
     network: Network
@@ -43,11 +44,9 @@ class Setup:
         return self.network.robots > 1
 
 
-def build_setup(cfg: DictConfig | dict) -> Setup:
+def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
     """Validate every key and build the run's objects; raises BadInput on the first problem."""
-    from riskplan.config import check_schema
-
-    cfg = check_schema(cfg if isinstance(cfg, DictConfig) else OmegaConf.create(cfg))  # types, unknown keys
+    cfg = typed(cfg)  # types, unknown keys, interpolations: the frozen config everything below reads
     risk, train, team = cfg.risk, cfg.train, cfg.team
     if risk.measure not in MEASURES:
         raise BadInput("risk.measure", f"got '{risk.measure}'; expected one of {', '.join(MEASURES)} (risk=cvar or risk=neutral)")
@@ -91,7 +90,8 @@ def build_setup(cfg: DictConfig | dict) -> Setup:
     network = build_network(team, world.sources, int(cfg.seed))
     budget.check(budget.sizes_of(cfg, world.width, world.height, world.sources, network.robots))  # before the Mixer
     return Setup(
-        config=OmegaConf.to_container(cfg, resolve=True),
+        params=cfg,
+        config=as_dict(cfg),
         world=world,
         kernel=make_kernel(world),
         network=network,
@@ -109,17 +109,17 @@ def logit_bound(world: World, thetas: np.ndarray) -> float:
         return float(np.max(np.abs(np.asarray(thetas, dtype=float)) @ np.abs(world.source_amplitude)))
 
 
-def step_size(iteration: int, schedule: dict[str, Any]) -> float:
+def step_size(iteration: int, schedule: StepSizeConf) -> float:
     """eps_l = initial / (1 + l / decay)^power (0 once the denominator overflows a float)."""
     try:
-        return schedule["initial"] / (1.0 + iteration / schedule["decay"]) ** schedule["power"]
+        return schedule.initial / (1.0 + iteration / schedule.decay) ** schedule.power
     except OverflowError:  # (1 + l/decay)^power beyond 1.8e308: the step is 0 to double precision
         return 0.0
 
 
-def samples_at(iteration: int, train: dict[str, Any]) -> int:
+def samples_at(iteration: int, train: TrainConf) -> int:
     """W_l = ceil(samples * (1 + l)^samples_growth)."""
-    return int(math.ceil(train["samples"] * (1.0 + iteration) ** train["samples_growth"]))
+    return int(math.ceil(train.samples * (1.0 + iteration) ** train.samples_growth))
 
 
 def _check(ok: bool, key: str, problem: str) -> None:

@@ -26,6 +26,7 @@ from riskplan.consensus import consensus_error, network_metadata
 from riskplan.budget import EVAL_BATCH
 from riskplan.errors import BadInput
 from riskplan.lock import hold
+from riskplan.params import as_dict, typed
 from riskplan.paths import atomic_path, check_output_dir, write_atomic
 from riskplan.record import RunLog, read_log, resume_log
 from riskplan.risk import cvar_gradient, mean_gradient, summary_stats
@@ -58,24 +59,24 @@ class State:
 
 def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
     """One iteration of the team loop: rollouts, gradients, consensus, step. Returns the new state and rows."""
-    cfg = setup.config
+    params = setup.params
     started = time.perf_counter()
     l, thetas = state.iteration, state.thetas
-    n, beta = setup.robots, cfg["risk"]["beta"]
-    episodes = samples_at(l, cfg["train"])
+    n, beta = setup.robots, params.risk.beta
+    episodes = samples_at(l, params.train)
     batch = simulate(setup.world, setup.kernel, thetas, starts(setup),
-                     rng.robot_keys(cfg["seed"], rng.TRAIN, l, n), episodes)
+                     rng.robot_keys(params.seed, rng.TRAIN, l, n), episodes)
     z = batch.total_reward.reshape(n, episodes)
     scores = batch.score.reshape(n, episodes, -1)
     check_finite(f"iteration {l}: an episode's total reward", z)
     with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are caught just below, in one line
         stats = summary_stats(z, beta)
         check_finite(f"iteration {l}: the statistics of the total reward", *stats.values())
-        if cfg["risk"]["measure"] == "cvar":
+        if params.risk.measure == "cvar":
             grads = cvar_gradient(z, scores, beta, var=stats["value_at_risk"])
         else:
-            grads = mean_gradient(z, scores, cfg["train"]["baseline"])
-        eps = step_size(l, cfg["train"]["step_size"])
+            grads = mean_gradient(z, scores, params.train.baseline)
+        eps = step_size(l, params.train.step_size)
         new_thetas = consensus_step(setup, thetas, grads, eps, l)
     if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(new_thetas))):
         raise NumericalTrouble(f"iteration {l}: theta or its gradient is not finite (theta={thetas.tolist()}, "
@@ -102,9 +103,9 @@ def check_finite(what: str, *arrays) -> None:
 
 def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int) -> np.ndarray:
     """Eq. (14) combine-then-adapt, A theta + eps Delta (default), or adapt-then-combine, A (theta + eps Delta)."""
-    adapt_first = setup.config["team"]["order"] == "adapt_then_combine"
+    adapt_first = setup.params.team.order == "adapt_then_combine"
     mixed = thetas + eps * grads if adapt_first else thetas
-    for round_index in range(setup.config["team"]["consensus_rounds"] if setup.team else 0):
+    for round_index in range(setup.params.team.consensus_rounds if setup.team else 0):
         mixed = setup.mixer.mix(mixed, l, round_index)
     return mixed if adapt_first else mixed + eps * grads
 
@@ -142,8 +143,8 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
         state = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
         log = RunLog(out / "run.mcap")
         _log_header(log, setup)
-    total = setup.config["train"]["iterations"]
-    every = setup.config["train"]["checkpoint_every"]
+    total = setup.params.train.iterations
+    every = setup.params.train.checkpoint_every
     wall = time.perf_counter()
     with log:
         while state.iteration < total:
@@ -212,13 +213,13 @@ def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
     """The final policies on fresh episodes (own stream), one row per episode."""
-    count = setup.config["train"]["eval_episodes"]
+    count = setup.params.train.eval_episodes
     ids, evaluated, cells = policies(setup, thetas)
     frames = []
     for p, robot in enumerate(ids):
         parts = []
         for first in range(0, count, EVAL_BATCH):
-            key = np.array([rng.stream_key(setup.config["seed"], rng.EVAL, p, first)], dtype=np.uint64)
+            key = np.array([rng.stream_key(setup.params.seed, rng.EVAL, p, first)], dtype=np.uint64)
             size = min(EVAL_BATCH, count - first)
             parts.append(simulate(setup.world, setup.kernel, evaluated[p:p + 1], cells[p:p + 1], key, size))
         frames.append(pd.DataFrame({
@@ -234,11 +235,11 @@ def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
 
 def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
     """A few sampled paths of the initial and the final policies (own stream), one row per step."""
-    count = setup.config["train"]["paths"]
+    count = setup.params.train.paths
     frames = []
     for name, policy_thetas in (("initial", np.tile(setup.theta0, (setup.robots, 1))), ("final", thetas)):
         ids, evaluated, cells = policies(setup, policy_thetas)
-        keys = rng.robot_keys(setup.config["seed"], rng.PATHS, 0 if name == "initial" else 1, len(ids))
+        keys = rng.robot_keys(setup.params.seed, rng.PATHS, 0 if name == "initial" else 1, len(ids))
         batch = simulate(setup.world, setup.kernel, evaluated, cells, keys, count, record=True)
         alive = batch.path_cells >= 0
         episode, step = np.nonzero(alive)
@@ -258,18 +259,17 @@ def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
 def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.DataFrame,
               train_seconds: float) -> dict:
     """summary.json: headline policy's figures with intervals, per-policy basics, timing, provenance."""
-    cfg = setup.config
+    params = setup.params
     headline = AVERAGE if setup.team else 0
     z = evaluation.loc[evaluation.robot == headline]
     check_finite("the evaluation's total reward", evaluation.total_reward.to_numpy())
-    figures = bootstrap_intervals(z.total_reward.to_numpy(), cfg["risk"]["beta"], cfg["train"]["bootstrap"],
-                                  cfg["seed"])
+    figures = bootstrap_intervals(z.total_reward.to_numpy(), params.risk.beta, params.train.bootstrap, params.seed)
     check_finite("the summary's figures", *[v for f in figures.values() for v in f.values()])
     steps = float(metrics.samples[metrics.robot >= 0].sum())
     per_policy = {}
     for robot, group in evaluation.groupby("robot"):
         per_policy[str(robot)] = {
-            **{k: float(v) for k, v in summary_stats(group.total_reward.to_numpy(), cfg["risk"]["beta"]).items()},
+            **{k: float(v) for k, v in summary_stats(group.total_reward.to_numpy(), params.risk.beta).items()},
             "risky_fraction": float((group.risky_steps > 0).mean()),
             "source_reached": {name: float((group.source_reached == j).mean())
                                for j, name in enumerate(setup.world.source_names)} | {
@@ -278,9 +278,9 @@ def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.
     _, final_thetas, _ = policies(setup, state.thetas)
     return {
         "schema_version": SCHEMA_VERSION,
-        "experiment": cfg["experiment"],
-        "risk": cfg["risk"]["measure"],
-        "beta": cfg["risk"]["beta"],
+        "experiment": params.experiment,
+        "risk": params.risk.measure,
+        "beta": params.risk.beta,
         "robots": setup.robots,
         "headline_robot": headline,
         **figures,
@@ -289,7 +289,7 @@ def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.
         "theta_final": final_thetas[-1].tolist() if setup.team else final_thetas[0].tolist(),
         "policies": per_policy,
         "iterations": state.iteration,
-        "eval_episodes": cfg["train"]["eval_episodes"],
+        "eval_episodes": params.train.eval_episodes,
         "wall_time": train_seconds,
         "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else None,
         "provenance": provenance(),
@@ -346,8 +346,8 @@ def load_checkpoint(out: Path, setup: Setup) -> State:
                                       f"finite); start the run again")
     if set(mixer) != set(expected):
         raise BadInput(str(path), "lacks part of the consensus state of this team; start the run again")
-    if iteration > setup.config["train"]["iterations"]:
-        raise BadInput("train.iterations", f"got {setup.config['train']['iterations']}, but {out} is checkpointed "
+    if iteration > setup.params.train.iterations:
+        raise BadInput("train.iterations", f"got {setup.params.train.iterations}, but {out} is checkpointed "
                                            f"at iteration {iteration}; a resumed run can only be extended: give "
                                            f"train.iterations >= {iteration}")
     return State(iteration, thetas, mixer, [])
@@ -359,7 +359,7 @@ def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
     setup = build_setup(config)
     state = load_checkpoint(out, setup)
     logged_rows(out / "run.mcap", state.iteration, setup.robots)
-    done = state.iteration == setup.config["train"]["iterations"] and all((out / f).is_file() for f in FINISHED)
+    done = state.iteration == setup.params.train.iterations and all((out / f).is_file() for f in FINISHED)
     return setup, done
 
 
@@ -383,10 +383,7 @@ def _write_config(out: Path, config: dict, replace: bool = False) -> None:
 
 def _config_changed(out: Path, config: dict) -> bool:
     """Whether the run's .hydra/config.yaml differs from `config` (after `--resume ... train.iterations=N`)."""
-    from riskplan.config import check_schema
-
-    saved = OmegaConf.load(out / ".hydra" / "config.yaml")
-    return OmegaConf.to_container(check_schema(saved), resolve=True) != config
+    return as_dict(typed(OmegaConf.load(out / ".hydra" / "config.yaml"))) != config
 
 
 def _log_header(log: RunLog, setup: Setup) -> None:

@@ -279,7 +279,7 @@ def _next_cell(width: int, height: int, obstacle: np.ndarray) -> np.ndarray:
 
 def _region_cells(region: Any, width: int, height: int, where: str) -> np.ndarray:
     """Membership mask (C,) of a region given as exactly one of rect, halfplane, cells."""
-    given = [k for k in ("rect", "halfplane", "cells") if region[k] is not None]
+    given = [k for k in ("rect", "halfplane", "cells") if getattr(region, k) is not None]
     if len(given) != 1:
         raise BadInput(where, f"gives {given or 'no shape'}; give exactly one of rect, halfplane, cells")
     x, y = np.divmod(np.arange(width * height), height)

@@ -7,6 +7,7 @@ import pytest
 
 from riskplan.config import compose
 from riskplan.errors import BadInput
+from riskplan.schema import StepSizeConf
 from riskplan.setup import build_setup, step_size
 
 FAST = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
@@ -113,8 +114,8 @@ def test_the_largest_seed_is_accepted():
 
 
 def test_a_step_size_whose_denominator_overflows_is_zero_not_an_error():
-    assert step_size(199, {"initial": 0.1, "decay": 50.0, "power": 1000.0}) == 0.0
-    assert step_size(10, {"initial": 0.1, "decay": 50.0, "power": 1.0}) == 0.1 / 1.2
+    assert step_size(199, StepSizeConf(initial=0.1, decay=50.0, power=1000.0)) == 0.0
+    assert step_size(10, StepSizeConf(initial=0.1, decay=50.0, power=1.0)) == 0.1 / 1.2
 
 
 def test_huge_gaps_and_windows_run():

@@ -293,7 +293,7 @@ _CHECKED: dict[str, str] = {}  # config (without its seed) as JSON -> problem ('
 def config_problem(config: dict) -> str:
     """Why a run's config cannot be reported (it fails the schema, or a value the report relies on is out of
     range), or ''."""
-    from riskplan.config import check_schema
+    from riskplan.params import check_schema
     from riskplan.setup import MEASURES
 
     seed = config.get("seed", 0)

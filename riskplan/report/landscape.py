@@ -257,8 +257,7 @@ def compute_landscape(cfg, out_dir: Path, *, points: int = DEFAULT_POINTS, episo
     setup = build_setup(cfg)
     config = setup.config
     ranges, (a, b) = check_grid(setup, points, episodes, ranges, axes)
-    beta = float(config["risk"]["beta"])
-    seed = int(config["seed"])
+    beta, seed = setup.params.risk.beta, setup.params.seed
     previous = claim(out_dir, KIND, key)
 
     started = time.perf_counter()
