@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from riskplan import graphs
+from riskplan.checks import finite, one_of, whole
 from riskplan.errors import BadInput
 
 WEIGHTS = ("metropolis", "max_degree", "lazy", "matrix")
@@ -75,30 +76,6 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def _integer(team: Any, key: str, low: int, meaning: str) -> int:
-    """An integer setting >= low, or BadInput naming team.<key>."""
-    value = _get(team, key)
-    if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < low:
-        raise BadInput(f"team.{key}", f"is {value!r}; {meaning} must be an integer >= {low}")
-    return int(value)
-
-
-def _number(team: Any, key: str) -> float:
-    """A finite real setting, or BadInput naming team.<key>."""
-    value = _get(team, key)
-    if not isinstance(value, numbers.Real) or isinstance(value, bool) or not math.isfinite(value):
-        raise BadInput(f"team.{key}", f"is {value!r}; expected a finite number")
-    return float(value)
-
-
-def _choice(team: Any, key: str, valid: tuple[str, ...]) -> str:
-    """A setting that must be one of `valid`."""
-    value = _get(team, key)
-    if value not in valid:
-        raise BadInput(f"team.{key}", f"unknown value {value!r}; valid: {', '.join(valid)}")
-    return str(value)
-
-
 @dataclass(frozen=True)
 class Settings:
     """The validated scalar team settings the Mixer needs."""
@@ -116,19 +93,20 @@ class Settings:
 
 def check_settings(team: Any) -> Settings:
     """Validate the team's scalar keys (robots, names, delays, drops, gaps, rounds, switching)."""
-    robots = _integer(team, "robots", 1, "the number of robots")
-    _choice(team, "graph", graphs.GRAPHS)
-    _choice(team, "weights", WEIGHTS)
-    stale = _choice(team, "stale", STALE)
-    max_delay = _integer(team, "delay.max", 0, "the largest message delay in iterations (B0)")
-    drop = _number(team, "drop")
+    robots = whole(_get(team, "robots"), "team.robots", 1, "the number of robots")
+    one_of(_get(team, "graph"), "team.graph", graphs.GRAPHS)
+    one_of(_get(team, "weights"), "team.weights", WEIGHTS)
+    stale = one_of(_get(team, "stale"), "team.stale", STALE)
+    max_delay = whole(_get(team, "delay.max"), "team.delay.max", 0, "the largest message delay in iterations (B0)")
+    drop = finite(_get(team, "drop"), "team.drop")
     if not 0.0 <= drop < 1.0:
         raise BadInput("team.drop", f"is {drop:g}; the drop probability must be in [0, 1)")
-    max_gap = _integer(team, "max_gap", 1, "the longest gap between deliveries on a link (B)")
-    rounds = _integer(team, "consensus_rounds", 1, "the number of consensus rounds per iteration")
-    _integer(team, "resample", 0, "the number of random_geometric redraws")
-    window = _integer(team, "switching.window", 1, "the switching window (iterations)")
-    up = _number(team, "switching.up")
+    max_gap = whole(_get(team, "max_gap"), "team.max_gap", 1, "the longest gap between deliveries on a link (B)")
+    rounds = whole(_get(team, "consensus_rounds"), "team.consensus_rounds", 1,
+                   "the number of consensus rounds per iteration")
+    whole(_get(team, "resample"), "team.resample", 0, "the number of random_geometric redraws")
+    window = whole(_get(team, "switching.window"), "team.switching.window", 1, "the switching window (iterations)")
+    up = finite(_get(team, "switching.up"), "team.switching.up")
     if not 0.0 < up <= 1.0:
         raise BadInput("team.switching.up", f"is {up:g}; the per-iteration link-up probability must be in (0, 1]")
     switching = bool(_get(team, "switching.enabled", False))
@@ -176,7 +154,7 @@ def _adjacency(team: Any, graph: str, robots: int, directed: bool, seed: int) ->
     if graph == "edges":
         return graphs.edges_adjacency(_plain(_get(team, "edges")), robots, directed), None
     if graph == "random_geometric":
-        radius = _number(team, "radius")
+        radius = finite(_get(team, "radius"), "team.radius")
         if radius <= 0:
             raise BadInput("team.radius", f"is {radius:g}; the link radius must be > 0 (the unit square is 1 x 1)")
         return graphs.random_geometric(robots, radius, int(_get(team, "resample")), seed)

@@ -26,6 +26,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from riskplan.checks import finite
 from riskplan.errors import BadInput
 
 # Opcodes of the postfix program run by the rollout kernel (riskplan.rollout.eval_program).
@@ -57,7 +58,7 @@ def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
     if isinstance(data, bool):
         raise BadInput(where, f"got {data!r}; expected {VALID}")
     if isinstance(data, (int, float)):
-        return Dist("constant", (_finite(data, where),))
+        return Dist("constant", (finite(data, where),))
     if not isinstance(data, Mapping):
         raise BadInput(where, f"got {data!r}; expected {VALID}")
     keys = set(data) - {"of"}
@@ -72,7 +73,7 @@ def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
             raise BadInput(where, f"'{kind}' needs 'of: <distribution>'")
         child = parse(data["of"], f"{where}.of", level + 1)
         if kind == "scale":
-            return Dist("scale", (_finite(value, f"{where}.scale"),), (child,))
+            return Dist("scale", (finite(value, f"{where}.scale"),), (child,))
         lo, hi = _pair(value, f"{where}.clip")
         if lo > hi:
             raise BadInput(f"{where}.clip", f"lower bound {lo} exceeds upper bound {hi}")
@@ -80,7 +81,7 @@ def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
     if "of" in data:
         raise BadInput(where, f"'{kind}' takes no 'of'")
     if kind == "constant":
-        return Dist("constant", (_finite(value, where),))
+        return Dist("constant", (finite(value, where),))
     if kind == "uniform":
         lo, hi = _pair(value, f"{where}.uniform")
         if lo > hi:
@@ -92,7 +93,7 @@ def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
             raise BadInput(f"{where}.normal", f"standard deviation {std} is negative; give [mean, std] with std >= 0")
         return Dist("normal", (mean, std))
     if kind == "bernoulli":
-        p = _finite(value, f"{where}.bernoulli")
+        p = finite(value, f"{where}.bernoulli")
         if not 0.0 <= p <= 1.0:
             raise BadInput(f"{where}.bernoulli", f"probability {p} is outside [0, 1]")
         return Dist("bernoulli", (p,))
@@ -104,7 +105,7 @@ def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
         here = f"{where}.mixture.{i}"
         if not isinstance(item, Mapping) or set(item) != {"weight", "of"}:
             raise BadInput(here, "expected {weight: w, of: <distribution>}")
-        weight = _finite(item["weight"], f"{here}.weight")
+        weight = finite(item["weight"], f"{here}.weight")
         if weight < 0:
             raise BadInput(f"{here}.weight", f"weight {weight} is negative")
         weights.append(weight)
@@ -265,26 +266,12 @@ def pack_programs(dists: list[Dist]) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return offsets, ops, params
 
 
-def _finite(value: Any, where: str) -> float:
-    """A finite float, or BadInput."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise BadInput(where, f"got {value!r}; expected a number")
-    try:
-        number = float(value)
-    except OverflowError:  # a YAML integer with hundreds of digits
-        raise BadInput(where, f"got an integer of about 2^{value.bit_length()}; expected a number a float can hold "
-                              f"(|x| < 1.8e308)") from None
-    if not math.isfinite(number):
-        raise BadInput(where, f"got {value!r}; expected a finite number")
-    return number
-
-
 def _pair(value: Any, where: str) -> tuple[float, float]:
     """Two finite floats, or BadInput."""
     items = _list(value, where)
     if len(items) != 2:
         raise BadInput(where, f"got {list(items)!r}; expected a pair [a, b]")
-    return _finite(items[0], where), _finite(items[1], where)
+    return finite(items[0], where), finite(items[1], where)
 
 
 def _list(value: Any, where: str) -> list:

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from riskplan.checks import is_whole
 from riskplan.errors import BadInput
 
 GRAPHS = ("line", "ring", "star", "complete", "grid", "random_geometric", "edges")
@@ -75,7 +76,7 @@ def _edge(edge, k: int, robots: int) -> tuple[int, int]:
         pair = None if isinstance(edge, str) else list(edge)
     except TypeError:
         pair = None
-    if pair is None or len(pair) != 2 or not all(_is_int(x) for x in pair):
+    if pair is None or len(pair) != 2 or not all(is_whole(x) for x in pair):
         raise BadInput("team.edges", f"entry {k} is {_show(edge)}; each edge must be a pair [i, j] of robot indices")
     i, j = int(pair[0]), int(pair[1])
     if not (0 <= i < robots and 0 <= j < robots):
@@ -143,11 +144,6 @@ def format_edges(adjacency: np.ndarray, directed: bool, limit: int = 40) -> str:
         return "none"
     more = f", ... ({len(text) - limit} more)" if len(text) > limit else ""
     return ", ".join(text[:limit]) + more
-
-
-def _is_int(value) -> bool:
-    """An integer that is not a bool."""
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 def _show(value) -> str:

@@ -28,8 +28,9 @@ def _key(directory: Path) -> str:
 PROC_LOCKS = Path("/proc/locks")
 
 
-def _read_pid(fd: int) -> str:
-    """The holder's pid: from /proc/locks by the file's device and inode, else the pid note in the file."""
+def _read_pid(fd: int, proc_only: bool = False) -> str | None:
+    """The holder's pid: from /proc/locks by the file's device and inode, else the pid note in the file (with
+    `proc_only`, None when /proc/locks lists no lock on the file)."""
     info = os.fstat(fd)
     where = f"{os.major(info.st_dev):02x}:{os.minor(info.st_dev):02x}:{info.st_ino}"
     try:
@@ -39,6 +40,8 @@ def _read_pid(fd: int) -> str:
                 return parts[parts.index(where) - 1]
     except OSError:
         pass
+    if proc_only:
+        return None
     try:
         text = os.pread(fd, 32, 0).decode(errors="replace").strip()
     except OSError:
@@ -92,17 +95,24 @@ def hold(directory: Path | str, what: str = "run directory"):
 
 
 def holder(directory: Path | str) -> int | None:
-    """The pid of the process that holds DIR's lock, or None when nobody does (0 when the pid is unknown)."""
-    directory = Path(directory)
+    """The pid of the process that holds DIR's lock, or None when nobody does (0 when the pid is unknown).
+
+    Read from /proc/locks without touching the lock (a probe lock could make a real taker fail at that instant);
+    only where /proc/locks is missing does it probe with a shared lock.
+    """
     try:
-        fd = os.open(directory / LOCK, os.O_RDONLY | os.O_CLOEXEC)
+        fd = os.open(Path(directory) / LOCK, os.O_RDONLY | os.O_CLOEXEC)
     except OSError:
         return None
     try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-    except OSError:
-        pid = _read_pid(fd)
+        if PROC_LOCKS.exists():
+            pid = _read_pid(fd, proc_only=True)
+            return None if pid is None else int(pid)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            pid = _read_pid(fd)
+            return int(pid) if pid.isdigit() else 0
+        return None
+    finally:
         os.close(fd)
-        return int(pid) if pid.isdigit() else 0
-    os.close(fd)
-    return None

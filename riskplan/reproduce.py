@@ -12,7 +12,10 @@
         reproduce.json   what ran, with which options, and how long each part took
 
 The sweeps go through `riskplan sweep`'s machinery (a Hydra multirun, joblib on local cores), so re-running
-with `--out` on an existing reproduction runs only what is missing.
+with `--out` on an existing reproduction runs only what is missing. One process at a time writes a reproduction
+directory (its lock is held for the whole command). `--seeds N` is bounded before anything runs: the four sweeps
+together may hold at most RISKPLAN_MAX_JOBS jobs (default 10,000) and an estimated RISKPLAN_MAX_HOURS of
+simulation (default 24).
 """
 
 from __future__ import annotations
@@ -57,18 +60,77 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
 
     `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000.
     """
-    from riskplan.paths import claim_dir
-    from riskplan.report import build_report, check_formats
-    from riskplan.sweep import report_outcome, run_sweep
+    from riskplan import lock
+    from riskplan.paths import check_output_dir, claim_dir
+    from riskplan.report import check_formats
 
     seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
     if seeds < 1:
         raise BadInput("--seeds", f"got {seeds}; expected at least 1")
-    extra = _check_overrides(list(overrides or []), quick)
+    jobs_total = check_seeds(seeds)
+    extra, configs = _check_overrides(list(overrides or []), quick)
+    check_work(seeds, jobs_total, configs, list(overrides or []))
     fmts = check_formats(formats)
-    started = time.time()
+    if out is not None:
+        check_output_dir(out, "--out")
     target = Path(out) if out is not None else claim_dir(REPRODUCE_ROOT)
     target.mkdir(parents=True, exist_ok=True)
+    with lock.hold(target, "reproduction directory"):
+        return _reproduce(target, quick, seeds, jobs, fmts, list(overrides or []), extra)
+
+
+def experiment_jobs(seeds: int) -> list[int]:
+    """Jobs of each sweep of EXPERIMENTS with this many seeds (counted from the overrides, nothing expanded)."""
+    from riskplan.config import parse_overrides
+    from riskplan.sweep import sweep_size
+
+    counts = []
+    for _, _, experiment, most in EXPERIMENTS:
+        counts.append(sweep_size(parse_overrides(experiment))[0] * min(seeds, most or seeds))
+    return counts
+
+
+def check_seeds(seeds: int) -> int:
+    """Bad input when the sweeps with `seeds` seeds hold more jobs than RISKPLAN_MAX_JOBS; the total otherwise."""
+    from riskplan.limits import JOBS_ENV, job_budget
+
+    total = sum(experiment_jobs(seeds))
+    budget = job_budget()
+    if total > budget:
+        raise BadInput("--seeds", f"got {seeds}: the four sweeps would hold {total} jobs, more than the {budget} "
+                                  f"allowed; give fewer seeds, or raise the limit with {JOBS_ENV}=<jobs>")
+    return total
+
+
+def job_steps(cfg) -> float:
+    """Trajectory-step equivalents one job takes (riskplan.budget's estimate of a run: training, evaluation,
+    bootstrap, logging)."""
+    from riskplan import budget
+
+    width, height = (int(v) for v in cfg.world.size)
+    sizes = budget.sizes_of(cfg, width, height, len(cfg.world.sources), int(cfg.team.robots))
+    return sum(amount for amount, _, _ in budget.estimate(sizes)[1])
+
+
+def check_work(seeds: int, total_jobs: int, configs: dict, overrides: list[str]) -> None:
+    """Bad input when the sweeps are estimated to simulate for longer than RISKPLAN_MAX_HOURS."""
+    from riskplan.limits import STEPS_PER_SECOND, check_time
+
+    steps = 0.0
+    for (_, _, experiment, _), jobs in zip(EXPERIMENTS, experiment_jobs(seeds)):
+        steps += jobs * job_steps(configs[experiment[0]])
+    what = f"reproducing with {seeds} seeds ({total_jobs} jobs" + (f", {' '.join(overrides)})" if overrides else ")")
+    check_time("--seeds and overrides" if overrides else "--seeds", steps / STEPS_PER_SECOND, what)
+
+
+def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, overrides: list[str],
+               extra: list[str]) -> int:
+    """The reproduction into `target`, whose lock this process holds."""
+    from riskplan.paths import write_atomic
+    from riskplan.report import build_report
+    from riskplan.sweep import report_outcome, run_sweep
+
+    started = time.time()
     typer.echo(f"reproduction directory: {target} ({'quick' if quick else 'full'}, {seeds} seeds)")
     record = {"quick": quick, "seeds": seeds, "overrides": list(overrides or []), "started": dt.datetime.now().isoformat(timespec="seconds"),
               "parts": {}}
@@ -97,7 +159,7 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
                    f"(the runs are in {target}; try riskplan report {target})", err=True)
         code = 1
     record["seconds"] = round(time.time() - started, 2)
-    (target / "reproduce.json").write_text(json.dumps(record, indent=2))
+    write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
     typer.echo(f"reproduced in {record['seconds']:.0f} s: {target}")
     if code:
         import shlex
@@ -108,8 +170,9 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
     return code
 
 
-def _check_overrides(overrides: list[str], quick: bool) -> list[str]:
-    """The overrides every sweep gets (--quick's, then the user's), checked on both set-ups before anything runs."""
+def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict]:
+    """The overrides every sweep gets (--quick's, then the user's), checked on both set-ups before anything runs;
+    and the composed config of each set-up (by its experiment=... override)."""
     from riskplan.config import compose, parse_overrides
 
     for override in parse_overrides(overrides):
@@ -120,9 +183,10 @@ def _check_overrides(overrides: list[str], quick: bool) -> list[str]:
             raise BadInput(f"override '{override.input_line}'", "is set by reproduce; use --seeds N, or riskplan "
                                                                 "sweep for other experiments")
     extra = [*(QUICK if quick else []), *overrides]
+    configs = {}
     for setup in dict.fromkeys(base[0] for _, _, base, _ in EXPERIMENTS):  # each set-up once, not per experiment
-        compose([setup, *extra])
-    return extra
+        configs[setup] = compose([setup, *extra])
+    return extra, configs
 
 
 def _not_set_by(experiment: list[str], extra: list[str]) -> list[str]:
@@ -141,7 +205,11 @@ def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
 
     grid = QUICK_LANDSCAPE if quick else LANDSCAPE
     done = out / "status.json"
-    if done.is_file() and json.loads(done.read_text()).get("status") == "done":
+    try:
+        finished = json.loads(done.read_text()).get("status") == "done"
+    except (OSError, ValueError, AttributeError):
+        finished = False
+    if finished:
         typer.echo(f"\nlandscape: {out} (already there)")
         return {"skipped": True, **grid}
     typer.echo(f"\nobjective landscape: {grid['points']}x{grid['points']} theta grid, {grid['episodes']} "

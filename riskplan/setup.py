@@ -10,7 +10,7 @@ from omegaconf import DictConfig
 
 from riskplan import budget
 from riskplan.consensus import Mixer, Network, build_network, check_settings
-from riskplan.errors import BadInput
+from riskplan.checks import require
 from riskplan.params import as_dict, typed
 from riskplan.rng import SEED_LIMIT
 from riskplan.rollout import Kernel, make_kernel
@@ -48,45 +48,45 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
     """Validate every key and build the run's objects; raises BadInput on the first problem."""
     cfg = typed(cfg)  # types, unknown keys, interpolations: the frozen config everything below reads
     risk, train, team = cfg.risk, cfg.train, cfg.team
-    if risk.measure not in MEASURES:
-        raise BadInput("risk.measure", f"got '{risk.measure}'; expected one of {', '.join(MEASURES)} (risk=cvar or risk=neutral)")
-    _check(0.0 < risk.beta <= 1.0, "risk.beta", f"got {risk.beta}; expected 0 < beta <= 1")
-    _check(train.iterations >= 1, "train.iterations", f"got {train.iterations}; expected a whole number >= 1")
-    _check(train.samples >= 1, "train.samples", f"got {train.samples}; expected W >= 1")
-    _check(math.isfinite(train.samples_growth) and train.samples_growth >= 0, "train.samples_growth",
-           f"got {train.samples_growth}; expected a finite exponent >= 0")
+    require(risk.measure in MEASURES, "risk.measure", f"got '{risk.measure}'; expected one of {', '.join(MEASURES)} "
+                                                      f"(risk=cvar or risk=neutral)")
+    require(0.0 < risk.beta <= 1.0, "risk.beta", f"got {risk.beta}; expected 0 < beta <= 1")
+    require(train.iterations >= 1, "train.iterations", f"got {train.iterations}; expected a whole number >= 1")
+    require(train.samples >= 1, "train.samples", f"got {train.samples}; expected W >= 1")
+    require(math.isfinite(train.samples_growth) and train.samples_growth >= 0, "train.samples_growth",
+            f"got {train.samples_growth}; expected a finite exponent >= 0")
     sched = train.step_size
-    _check(math.isfinite(sched.initial) and sched.initial >= 0, "train.step_size.initial",
-           f"got {sched.initial}; expected a finite step >= 0")
-    _check(math.isfinite(sched.decay) and sched.decay > 0, "train.step_size.decay", f"got {sched.decay}; expected > 0")
-    _check(math.isfinite(sched.power) and sched.power >= 0, "train.step_size.power", f"got {sched.power}; expected >= 0")
+    require(math.isfinite(sched.initial) and sched.initial >= 0, "train.step_size.initial",
+            f"got {sched.initial}; expected a finite step >= 0")
+    require(math.isfinite(sched.decay) and sched.decay > 0, "train.step_size.decay", f"got {sched.decay}; expected > 0")
+    require(math.isfinite(sched.power) and sched.power >= 0, "train.step_size.power", f"got {sched.power}; expected >= 0")
     if not 0.5 < sched.power <= 1.0:
         warnings.warn(f"train.step_size.power={sched.power} breaks Assumption 6 (needs 0.5 < power <= 1)", stacklevel=2)
-    _check(train.eval_episodes >= 1, "train.eval_episodes", f"got {train.eval_episodes}; expected >= 1")
-    _check(train.paths >= 0, "train.paths", f"got {train.paths}; expected >= 0")
-    _check(train.checkpoint_every >= 1, "train.checkpoint_every", f"got {train.checkpoint_every}; expected >= 1")
-    _check(train.bootstrap >= 1, "train.bootstrap", f"got {train.bootstrap}; expected >= 1 resamples")
+    require(train.eval_episodes >= 1, "train.eval_episodes", f"got {train.eval_episodes}; expected >= 1")
+    require(train.paths >= 0, "train.paths", f"got {train.paths}; expected >= 0")
+    require(train.checkpoint_every >= 1, "train.checkpoint_every", f"got {train.checkpoint_every}; expected >= 1")
+    require(train.bootstrap >= 1, "train.bootstrap", f"got {train.bootstrap}; expected >= 1 resamples")
     seed = cfg.seed if abs(cfg.seed) < 10**30 else budget.show(cfg.seed)
-    _check(0 <= cfg.seed < SEED_LIMIT, "seed", f"got {seed}; expected a whole number 0 <= seed < 2^63 "
-                                               f"(9223372036854775808); seeds are not reduced modulo 2^64")
+    require(0 <= cfg.seed < SEED_LIMIT, "seed", f"got {seed}; expected a whole number 0 <= seed < 2^63 "
+                                                f"(9223372036854775808); seeds are not reduced modulo 2^64")
 
     # Sizes first, on the raw config: nothing big is allocated before the memory and time estimates pass.
     settings = check_settings(team)
     width, height = grid_size(cfg.world.size)
     budget.check(budget.sizes_of(cfg, width, height, len(cfg.world.sources), settings.robots))
 
-    _check(team.order in ORDERS, "team.order", f"got '{team.order}'; expected one of {', '.join(ORDERS)}")
+    require(team.order in ORDERS, "team.order", f"got '{team.order}'; expected one of {', '.join(ORDERS)}")
     starts = None
     if team.starts is not None:
         starts = [list(s) for s in team.starts]
-        _check(len(starts) == team.robots, "team.starts",
-               f"gives {len(starts)} start cell{'' if len(starts) == 1 else 's'} for {team.robots} robots; give one [x, y] per robot or null")
+        require(len(starts) == team.robots, "team.starts",
+                f"gives {len(starts)} start cell{'' if len(starts) == 1 else 's'} for {team.robots} robots; give one [x, y] per robot or null")
     world = build_world(cfg.world, starts)
     theta0 = np.array(list(train.theta0), dtype=float)
-    _check(theta0.shape == (world.sources,) and bool(np.all(np.isfinite(theta0))), "train.theta0",
-           f"got {list(train.theta0)}; expected {world.sources} finite numbers, one per source")
-    _check(math.isfinite(logit_bound(world, theta0)), "train.theta0",
-           f"got {list(train.theta0)}; the softmax logits theta . signal overflow to infinity; give smaller values")
+    require(theta0.shape == (world.sources,) and bool(np.all(np.isfinite(theta0))), "train.theta0",
+            f"got {list(train.theta0)}; expected {world.sources} finite numbers, one per source")
+    require(math.isfinite(logit_bound(world, theta0)), "train.theta0",
+            f"got {list(train.theta0)}; the softmax logits theta . signal overflow to infinity; give smaller values")
     network = build_network(team, world.sources, int(cfg.seed))
     budget.check(budget.sizes_of(cfg, world.width, world.height, world.sources, network.robots))  # before the Mixer
     return Setup(
@@ -120,9 +120,3 @@ def step_size(iteration: int, schedule: StepSizeConf) -> float:
 def samples_at(iteration: int, train: TrainConf) -> int:
     """W_l = ceil(samples * (1 + l)^samples_growth)."""
     return int(math.ceil(train.samples * (1.0 + iteration) ** train.samples_growth))
-
-
-def _check(ok: bool, key: str, problem: str) -> None:
-    """Raise BadInput(key, problem) unless ok."""
-    if not ok:
-        raise BadInput(key, problem)

@@ -4,9 +4,15 @@ What riskplan adds around Hydra's own multirun (which does the expanding, the la
 - before anything runs: the overrides are parsed and every combination is composed against the schema (a
   malformed override, an unknown key or a badly typed value is bad input, exit 2) and checked by the model; a
   combination the model rejects fails alone when it runs, unless every combination is rejected (exit 2);
+- a sweep may hold at most RISKPLAN_MAX_JOBS combinations (default 10,000), counted before they are expanded;
+  two combinations that compose to the same config are bad input;
 - a fresh sweep directory per command (`outputs/sweeps/<timestamp>[_n]`, claimed with mkdir, so two sweeps
-  started in the same second never share one), or `hydra.sweep.dir=DIR` to resume a sweep;
-- jobs that already finished with the same config are skipped (`riskplan.sweepjob`), killed ones resume;
+  started in the same second never share one), or `hydra.sweep.dir=DIR` to resume a sweep; the driver holds the
+  sweep directory's lock for the whole launch, so two drivers never run in one directory;
+- job folders named by what varies, with anything that is not [A-Za-z0-9._=,+-] percent-encoded
+  (`riskplan.sweepjob.folder_name`), so they are always direct children of the sweep directory;
+- jobs that already finished with the same config are skipped (`riskplan.sweepjob`), killed ones resume; local
+  workers die with the driver;
 - one live view of the sweep on the terminal, while Hydra's messages go to `sweep.log` and each job's output
   to its own `job.log`;
 - `summary.parquet`: one row per job, with the overrides as columns, the final figures with their 95%
@@ -30,7 +36,7 @@ from typing import List, Optional
 import typer
 
 from riskplan.errors import BadInput
-from riskplan.paths import claim_dir, hydra_quote
+from riskplan.paths import atomic_path, check_output_dir, claim_dir, hydra_quote
 
 SWEEPS_ROOT = Path("outputs") / "sweeps"
 SUMMARY = "summary.parquet"
@@ -52,6 +58,7 @@ class Job:
     invalid: str | None = None  # why the model rejects it (the job will fail with this error)
     path: Path | None = None  # its folder, once known
     label: str = ""  # the overrides that vary between jobs: its name until its folder exists
+    folder: str | None = None  # the folder name Hydra will give it (None when the user set hydra.sweep.subdir)
 
     @property
     def key(self) -> tuple[str, ...]:
@@ -72,6 +79,7 @@ class Plan:
     launcher: str
     workers: int | None
     warnings: list[str] = field(default_factory=list)
+    workers_arg: int | None = None  # index in argv of the hydra.launcher.n_jobs=... riskplan added
 
 
 @dataclass
@@ -114,30 +122,39 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     launcher = str(hydra_keys["hydra/launcher"].value()) if "hydra/launcher" in hydra_keys else DEFAULT_LAUNCHER
     explicit_dir = None
     if "hydra.sweep.dir" in hydra_keys:
-        value = str(hydra_keys["hydra.sweep.dir"].value())
+        raw = hydra_keys["hydra.sweep.dir"].value()
+        value = "" if raw is None else str(raw)
         if "${" in value:
             raise BadInput("hydra.sweep.dir", f"got '{value}'; give a plain path (without it, riskplan sweep uses "
                                               f"outputs/sweeps/<timestamp>)")
+        if sweep_dir is None:
+            check_output_dir(value, "hydra.sweep.dir")
         explicit_dir = Path(value)
     if sweep_dir is not None and explicit_dir is not None:
         raise BadInput("hydra.sweep.dir", "is chosen by this command; do not give it")
 
+    check_size(task_ovs)
+    if "hydra.sweep.subdir" in hydra_keys:
+        check_subdir(hydra_keys["hydra.sweep.subdir"].value(), len(task_ovs) > 0)
     combos = expand(task_ovs, args)
     job_list, notes = validate(combos)
+    check_duplicates(job_list, task_ovs)
     if all(job.invalid for job in job_list):
         first = job_list[0].invalid
         raise BadInput(*_split_bad(first, len(job_list)))
 
     argv = ["-m", *args]
     workers = None
+    workers_arg = None
     if launcher == "joblib":
-        workers = jobs or cpu_count()
+        workers = min(jobs or cpu_count(), len(job_list))  # more workers than jobs would idle
         if "hydra.launcher.n_jobs" not in hydra_keys:
+            workers_arg = len(argv)
             argv.append(f"hydra.launcher.n_jobs={workers}")
     elif jobs is not None:
         if launcher == "submitit_slurm":
-            argv.append(f"hydra.launcher.array_parallelism={jobs}")
-            workers = jobs
+            workers = min(jobs, len(job_list))
+            argv.append(f"hydra.launcher.array_parallelism={workers}")
         else:
             raise BadInput("--jobs", f"applies to the joblib and submitit_slurm launchers, not to "
                                      f"hydra/launcher={launcher}")
@@ -145,6 +162,12 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
     if not task_ovs and "hydra.sweep.subdir" not in hydra_keys:
         argv.append("hydra.sweep.subdir=defaults")  # one job without overrides: still a folder of its own
+    elif "hydra.sweep.subdir" not in hydra_keys:
+        # folder names that stay one path component, whatever the values hold ('/', '..', '%', NUL)
+        from riskplan.sweepjob import SUBDIR
+
+        argv.append(f"hydra.sweep.subdir={hydra_quote(SUBDIR)}")
+        argv.append("+hydra.callbacks.riskplan_folders._target_=riskplan.sweepjob.FolderNames")
     constant = constant_keys(combos, {o.key_or_group for o in task_ovs if o.is_sweep_override()})
     for job in job_list:
         job.label = ",".join(sorted(o for o in job.overrides if o.split("=", 1)[0].lstrip("+~") not in constant))
@@ -158,7 +181,9 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     if "hydra/job_logging" not in hydra_keys:
         argv.append("hydra/job_logging=riskplan_job")
 
-    check_hydra(argv[1 + len(args):] + [o.input_line for o in hydra_ovs], combos[0])
+    naming = check_hydra(argv[1 + len(args):] + [o.input_line for o in hydra_ovs], combos[0])
+    if task_ovs and "hydra.sweep.subdir" not in hydra_keys:
+        name_folders(job_list, naming, task_ovs)
 
     if sweep_dir is not None:
         target = Path(sweep_dir)
@@ -170,7 +195,155 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         target = claim_dir(SWEEPS_ROOT)
     if explicit_dir is None:  # absolute: jobs on other machines (submitit, ray) may start in another directory
         argv.append(f"hydra.sweep.dir={hydra_quote(target.resolve())}")
-    return Plan(target, argv, job_list, launcher, workers, notes)
+    return Plan(target, argv, job_list, launcher, workers, notes, workers_arg)
+
+
+def sweep_size(task_ovs: list) -> tuple[int, object]:
+    """How many combinations the overrides make, from their parsed values (a range is never listed), and the
+    swept override with the most values."""
+    import math
+
+    from hydra.core.override_parser.types import ChoiceSweep, RangeSweep
+
+    parser = _parser()
+    total, biggest, most = 1, None, 0
+    for override in task_ovs:
+        if not override.is_sweep_override():
+            continue
+        value = override.value()
+        if isinstance(value, RangeSweep):
+            if any(isinstance(v, float) and not math.isfinite(v) for v in (value.start, value.stop, value.step)):
+                raise BadInput(f"override '{override.input_line}'", "has a range bound or step that is not a finite "
+                                                                    "number; give finite numbers, e.g. range(0,5) or "
+                                                                    "range(0,1,0.25)")
+            if not value.step:
+                raise BadInput(f"override '{override.input_line}'", "has a range step of 0; give a step that is "
+                                                                    "not 0, e.g. range(0,5) or range(0,1,0.25)")
+            count = _range_length(value.start, value.stop, value.step)
+        elif isinstance(value, ChoiceSweep):
+            count = len(value.list)
+        else:  # glob(...) over a config group's options: few
+            try:
+                reparsed = parser.parse_overrides([override.input_line])[0]
+                count = sum(1 for _ in reparsed.sweep_string_iterator())
+            except Exception:  # noqa: BLE001 - expand() reports a bad glob
+                count = 1
+        total *= count
+        if count > most:
+            biggest, most = override, count
+    return total, biggest
+
+
+def _range_length(start, stop, step) -> int | float:
+    """len(range(start, stop, step)) for ints of any size and for floats, without listing it (inf when unbounded;
+    0 for a zero or undefined step, which expand() then reports)."""
+    import math
+    from fractions import Fraction
+
+    try:
+        if all(isinstance(v, int) for v in (start, stop, step)):
+            return max(0, math.ceil(Fraction(stop - start, step))) if step else 0
+        ratio = (float(stop) - float(start)) / float(step)
+    except (ZeroDivisionError, TypeError, ValueError, OverflowError):
+        return 0
+    if math.isnan(ratio):
+        return 0
+    return max(0, math.ceil(ratio)) if math.isfinite(ratio) else math.inf
+
+
+def check_subdir(value, several: bool) -> None:
+    """A hydra.sweep.subdir of the user's: without an interpolation it must be one relative folder, and it cannot
+    serve several jobs (they would share it)."""
+    import posixpath
+
+    text = "" if value is None else str(value)
+    if "${" in text:
+        return  # per job (${hydra.job.num}, ...): the user's naming
+    parts = [p for p in text.replace("\\", "/").split("/") if p not in ("", ".")]
+    if not parts or posixpath.isabs(text) or ".." in parts or "\x00" in text:
+        raise BadInput("hydra.sweep.subdir", f"got {text!r}; give a folder inside the sweep directory, e.g. "
+                                             f"job_${{hydra.job.num}}, or leave it out (riskplan names each job's "
+                                             f"folder from its overrides)")
+    if several:
+        raise BadInput("hydra.sweep.subdir", f"got {text!r}: every job of the sweep would write into that one "
+                                             f"folder; use an interpolation such as job_${{hydra.job.num}}, or leave "
+                                             f"it out (riskplan names each job's folder from its overrides)")
+
+
+def check_size(task_ovs: list) -> None:
+    """A sweep larger than the job budget (RISKPLAN_MAX_JOBS) is bad input, before anything is expanded."""
+    from riskplan.limits import check_jobs
+
+    total, biggest = sweep_size(task_ovs)
+    swept = [o for o in task_ovs if o.is_sweep_override()]
+    key = f"override '{biggest.input_line}'" if len(swept) == 1 and biggest is not None else "sweep"
+    check_jobs(key, total)
+
+
+def check_duplicates(job_list: list[Job], task_ovs: list) -> None:
+    """Two combinations that compose to one config (seed=0,0 or risk.beta=0.1,0.10) would be one job twice, in two
+    folders or one: bad input naming the override."""
+    seen: dict[str, Job] = {}
+    for job in job_list:
+        other = seen.setdefault(job.sha, job)
+        if other is job:
+            continue
+        mine, theirs = _by_key(job.overrides), _by_key(other.overrides)
+        differ = [k for k in theirs if theirs[k] != mine.get(k)]
+        by_key = {o.key_or_group: o for o in task_ovs}
+        if differ:
+            key = differ[0]
+            line = by_key[key].input_line if key in by_key else key
+            raise BadInput(f"override '{line}'", f"gives {theirs[key]} and {mine[key]}, which compose to the same "
+                                                 f"config (one job twice); give each value once")
+        for override in task_ovs:
+            value = _repeated(override) if override.is_sweep_override() else None
+            if value is not None:
+                raise BadInput(f"override '{override.input_line}'", f"gives the value {value} twice (one job "
+                                                                    f"twice); give each value once")
+        raise BadInput("sweep", f"gives the combination {job.label or ','.join(sorted(job.overrides))} twice (one "
+                                f"job twice); give each combination once")
+
+
+def _by_key(overrides: list[str]) -> dict[str, str]:
+    """{key: 'key=value'} of a job's overrides."""
+    return {line.split("=", 1)[0].lstrip("+~"): line for line in overrides}
+
+
+def _repeated(override) -> str | None:
+    """A value a sweep override lists twice (as Hydra passes it to the job: 0.10 is 0.1), or None."""
+    try:
+        values = list(override.sweep_string_iterator())
+    except Exception:  # noqa: BLE001
+        return None
+    seen: set[str] = set()
+    for value in values:
+        if value in seen:
+            return value
+        seen.add(value)
+    return None
+
+
+def name_folders(job_list: list[Job], naming: dict, task_ovs: list) -> None:
+    """The folder each job gets (Hydra's override_dirname through riskplan.sweepjob.folder_name); two jobs that
+    would share one are bad input."""
+    from hydra._internal.config_loader_impl import get_overrides_dirname
+
+    from riskplan.sweepjob import folder_name
+
+    parser = _parser()
+    owners: dict[str, Job] = {}
+    for job in job_list:
+        dirname = get_overrides_dirname(parser.parse_overrides(job.overrides), list(naming["exclude_keys"]),
+                                        str(naming["item_sep"]), str(naming["kv_sep"]))
+        job.folder = folder_name(dirname)
+        other = owners.setdefault(job.folder, job)
+        if other is not job:
+            swept = [o for o in task_ovs if o.is_sweep_override()] or task_ovs
+            raise BadInput(f"override '{swept[0].input_line}'",
+                           f"makes two combinations share the job folder {job.folder} "
+                           f"({','.join(sorted(other.overrides))} and {','.join(sorted(job.overrides))}); give "
+                           f"values that differ in their text, or set hydra.sweep.subdir")
 
 
 def expand(task_ovs: list, args: list[str]) -> list[list[str]]:
@@ -182,7 +355,7 @@ def expand(task_ovs: list, args: list[str]) -> list[list[str]]:
     try:
         reparsed = parser.parse_overrides([o.input_line for o in task_ovs])
         batches = BasicSweeper.split_arguments(reparsed, None)
-    except HydraException as err:
+    except (HydraException, ValueError, TypeError, ArithmeticError) as err:
         raise BadInput("sweep", f"{_first_line(err)}; use comma lists, range(...), choice(...) or glob(...)") from None
     combos = [list(job) for batch in batches for job in batch]
     if not combos or (task_ovs and any(not job for job in combos)):
@@ -190,8 +363,9 @@ def expand(task_ovs: list, args: list[str]) -> list[list[str]]:
     return combos
 
 
-def check_hydra(hydra_args: list[str], first_job: list[str]) -> None:
-    """Compose Hydra's own config (launcher and its settings) once: a bad one is bad input, before anything runs."""
+def check_hydra(hydra_args: list[str], first_job: list[str]) -> dict:
+    """Compose Hydra's own config (launcher and its settings) once: a bad one is bad input, before anything runs.
+    Returns hydra.job.config.override_dirname (exclude_keys, item_sep, kv_sep), which names the job folders."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
     from hydra.errors import HydraException
@@ -202,9 +376,12 @@ def check_hydra(hydra_args: list[str], first_job: list[str]) -> None:
 
     schema.register()
     GlobalHydra.instance().clear()
+    from omegaconf import OmegaConf
+
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-            compose(config_name="config", overrides=[*hydra_args, *first_job], return_hydra_config=True)
+            cfg = compose(config_name="config", overrides=[*hydra_args, *first_job], return_hydra_config=True)
+            return OmegaConf.to_container(cfg.hydra.job.config.override_dirname, resolve=True)
     except (HydraException, OmegaConfBaseException) as err:
         where, message = explain(err)
         if where == "key 'hydra/launcher'":
@@ -323,16 +500,26 @@ def _first_line(err: Exception) -> str:
 def run_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None, title: str = "sweep",
               out=None) -> Outcome:
     """Plan, launch through Hydra, show progress, write summary.parquet. BadInput before anything runs."""
-    echo = out or (lambda text: typer.echo(text))
+    from riskplan import lock
+
     plan = plan_sweep(args, jobs, sweep_dir)
+    with lock.hold(plan.sweep_dir, "sweep directory"):  # one driver per sweep directory, for the whole launch
+        return _run_plan(plan, args, jobs, title, out)
+
+
+def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out) -> Outcome:
+    from riskplan.sweepjob import DRIVER_ENV, THREADS_ENV, is_finished
+
+    echo = out or (lambda text: typer.echo(text))
     for note in plan.warnings:
         typer.echo(f"warning: {note}", err=True)
     started = time.time()
     locate(plan.sweep_dir, plan.jobs)
-    from riskplan.sweepjob import is_finished
-
     finished = {i for i, job in enumerate(plan.jobs) if job.path is not None and is_finished(job.path, job.sha)}
     todo = len(plan.jobs) - len(finished)
+    if plan.workers_arg is not None and plan.workers and todo and todo < plan.workers:
+        plan.workers = todo  # no more workers than jobs to run: each gets more threads
+        plan.argv[plan.workers_arg] = f"hydra.launcher.n_jobs={todo}"
     where = f"{plan.launcher}" + (f", {plan.workers} workers" if plan.workers else "")
     echo(f"{title} directory: {plan.sweep_dir}")
     echo(f"{len(plan.jobs)} job{'s' if len(plan.jobs) != 1 else ''}: {todo} to run, {len(finished)} already "
@@ -340,9 +527,14 @@ def run_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None =
     launcher_error = None
     if todo:
         if plan.launcher == "joblib" and plan.workers:
-            os.environ["RISKPLAN_JOB_THREADS"] = str(max(1, cpu_count() // plan.workers))
+            os.environ[THREADS_ENV] = str(max(1, cpu_count() // plan.workers))
+        os.environ[DRIVER_ENV] = str(os.getpid())  # local workers SIGKILL themselves when this process is gone
         with SweepView(plan.sweep_dir, plan.jobs, finished, title):
             launcher_error = _launch(plan.argv, plan.sweep_dir / "sweep.log")
+    for job in plan.jobs:  # a job found under another name (an older naming) ran in its own folder now
+        if job.folder is not None and job.path is not None and job.path.name != job.folder \
+                and (plan.sweep_dir / job.folder).is_dir():
+            job.path = None
     locate(plan.sweep_dir, plan.jobs)
     summary = summarize(plan.jobs)
     write_summary(summary, plan.sweep_dir / SUMMARY)
@@ -393,16 +585,29 @@ def locate(sweep_dir: Path, jobs: list[Job]) -> None:
     missing = {job.key: job for job in jobs if job.path is None}
     if not missing or not Path(sweep_dir).is_dir():
         return
+    elsewhere: dict[tuple[str, ...], Path] = {}  # found, but not in the folder the job is named for
     for file in _override_files(Path(sweep_dir)):
         try:
             overrides = yaml.safe_load(file.read_text()) or []
         except (OSError, yaml.YAMLError):
             continue
-        job = missing.pop(tuple(sorted(str(o) for o in overrides)), None)
-        if job is not None:
-            job.path = file.parent.parent
+        if not isinstance(overrides, list):
+            continue
+        key = tuple(sorted(str(o) for o in overrides))
+        job = missing.get(key)
+        if job is None:
+            continue
+        folder = file.parent.parent
+        if job.folder is None or folder.name == job.folder:
+            job.path = folder
+            del missing[key]
+        else:
+            elsewhere.setdefault(key, folder)
         if not missing:
             return
+    for key, folder in elsewhere.items():
+        if key in missing:
+            missing[key].path = folder
 
 
 def _override_files(root: Path):
@@ -418,19 +623,25 @@ def _override_files(root: Path):
 
 def job_state(job: Job, since: float) -> tuple[str, dict | None]:
     """pending | running | done | failed, as far as this launch is concerned (older records are pending)."""
+    from riskplan import lock
     from riskplan.sweepjob import read_status
 
     if job.path is None:
         return "pending", None
     status = read_status(job.path)
-    if status is None or status.get("config_sha") != job.sha:
-        return "pending", status
-    state = status.get("status")
-    if state == "running" and status.get("started", 0) >= since - 2:
+    if status is not None and status.get("config_sha") == job.sha:
+        state = status.get("status")
+        if state == "running" and _number(status.get("started")) >= since - 2:
+            return "running", status
+        if state in ("done", "failed") and _number(status.get("finished")) >= since - 2:
+            return state, status
+    if lock.holder(job.path) is not None:  # a job of this launch about to start, or one of another process
         return "running", status
-    if state in ("done", "failed") and status.get("finished", 0) >= since - 2:
-        return state, status
     return "pending", status
+
+
+def _number(value) -> float:
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else 0.0
 
 
 # ----------------------------------------------------------------------------------------------------- summary
@@ -440,6 +651,7 @@ def summarize(jobs: list[Job]):
     """One row per job: its overrides as columns, final figures with 95% intervals, wall time, status, error."""
     import pandas as pd
 
+    from riskplan import lock
     from riskplan.sweepjob import is_finished, read_status
 
     rows = []
@@ -447,8 +659,13 @@ def summarize(jobs: list[Job]):
         row: dict = {"job": job.name}
         row.update(_override_columns(job.overrides))
         status = read_status(job.path) if job.path is not None else None
+        holder = lock.holder(job.path) if job.path is not None else None
         summary = None
-        if job.path is None or status is None:
+        if holder is not None and holder != os.getpid():
+            status = None  # whatever its status says, that process owns it now
+            state, error = "running", (f"running in another process (pid {holder or 'unknown'}); re-run the sweep "
+                                       f"when that process has ended")
+        elif job.path is None or status is None:
             state, error = "not run", job.invalid or "not started: the sweep stopped before it"
         elif status.get("config_sha") != job.sha:
             state, error = "not run", "its folder holds a run of another config"
@@ -472,7 +689,8 @@ def summarize(jobs: list[Job]):
         for name in EXTRA_CVARS:
             row[name] = ((summary or {}).get(name) or {}).get("value", float("nan"))
         row["beta"] = (summary or {}).get("beta", float("nan"))
-        row["wall_time"] = float(status["seconds"]) if status and state == "done" and "seconds" in status else float("nan")
+        row["wall_time"] = (float(status["seconds"]) if status and state == "done"
+                            and isinstance(status.get("seconds"), (int, float)) else float("nan"))
         row["train_time"] = (summary or {}).get("wall_time", float("nan"))
         row["status"] = state
         row["error"] = error
@@ -502,10 +720,9 @@ def _override_columns(overrides: list[str]) -> dict:
 
 
 def write_summary(frame, path: Path) -> None:
-    """Write summary.parquet atomically."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    frame.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
+    """Write summary.parquet atomically (no half file, and no temp file left on a full disk)."""
+    with atomic_path(path) as tmp:
+        frame.to_parquet(tmp, index=False)
 
 
 def varying_columns(frame) -> list[str]:

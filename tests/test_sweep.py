@@ -127,6 +127,11 @@ def test_an_invalid_combination_and_a_raising_job_fail_alone(tmp_path):
     (["seed=0,1", "hydra/launcher=nosuch"], "key 'hydra/launcher': no option 'nosuch'; available: basic, joblib"),
     (["seed=0,1", "hydra/launcher=submitit_local", "--jobs", "2"], "--jobs"),
     (["risk.beta=interval(0,1)"], "sweep"),
+    (["seed=0,0"], "override 'seed=0,0': gives the value 0 twice"),  # one job twice
+    (["seed=range(0,100000000)"], "RISKPLAN_MAX_JOBS"),  # refused before the combinations are listed
+    (["seed=0,1", "hydra.sweep.dir=/proc/riskplan"], "hydra.sweep.dir: /proc/riskplan is under /proc"),
+    (["seed=0,1", "hydra.sweep.subdir=same"], "hydra.sweep.subdir"),  # every job in one folder
+    (["seed=0", "hydra.sweep.subdir=../out"], "hydra.sweep.subdir"),  # outside the sweep directory
 ])
 def test_bad_input_exits_2_before_anything_runs(tmp_path, args, names):
     result = riskplan(tmp_path, "sweep", *FAST, *args)
