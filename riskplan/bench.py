@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import random
 import subprocess
@@ -11,10 +10,8 @@ import tempfile
 import time
 import tracemalloc
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
-import typer
 
 from riskplan.distributions import Dist
 
@@ -234,31 +231,3 @@ def bench_team(quick: bool) -> list[dict]:
                  "note": "peak allocation at N*W_i = " + ", ".join(f"{int(a)}: {b:.1f} MB" for a, b in growth)
                          + "; baseline = largest MB, ratio = R^2 of a linear fit"})
     return rows
-
-
-def register(app: typer.Typer) -> None:
-    """Add `riskplan bench` to the CLI."""
-
-    @app.command()
-    def bench(
-        quick: bool = typer.Option(False, "--quick", help="Fewer repeats and a shorter training run (about 15 s)."),
-        json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
-    ) -> None:
-        """Speed, memory, JIT and team-scaling targets, each with a baseline measured in the same run."""
-        import numba
-        from rich.console import Console
-
-        console = Console(soft_wrap=True)  # one line per figure, also in a log file
-        console.print(f"numba {numba.__version__}, {numba.get_num_threads()} threads "
-                      f"({numba.config.THREADING_LAYER} layer), {os.cpu_count()} cores")
-        rows: list[dict] = []
-        for section in (lambda: bench_rollout(quick), lambda: bench_training(quick),
-                        lambda: bench_checkpoints(quick), bench_jit, lambda: bench_team(quick)):
-            for row in section():  # printed as each section ends: the whole benchmark takes ~20 s
-                mark = "met" if row["ok"] else "NOT MET"
-                console.print(f"[bold]{row['measure']}[/bold]: {row['value']:.4g} {row['unit']}  "
-                              f"(target {row['target']}: {mark})")
-                console.print(f"    baseline {row['baseline']:.4g}, ratio {row['ratio']:.3g}; {row['note']}")
-                rows.append(row)
-        if json_out:
-            json_out.write_text(json.dumps(rows, indent=2, default=float))

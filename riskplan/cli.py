@@ -10,8 +10,7 @@ import warnings
 
 import typer
 
-from riskplan.commands.common import (OVERRIDES_HELP, PASS_THROUGH, OneLineErrors, bad_input_exits,  # noqa: F401
-                                      check_out_dir, reject_hydra_flags)
+from riskplan.commands.common import OneLineErrors
 
 app = typer.Typer(
     cls=OneLineErrors,
@@ -26,11 +25,9 @@ warnings.formatwarning = lambda message, *args, **kwargs: f"warning: {message}\n
 
 def _register_commands() -> None:
     """Add every command, in the order `riskplan --help` lists them."""
-    from riskplan import bench, reproduce, sweep
-    from riskplan.commands import train
-    from riskplan.report import cli as report_cli
+    from riskplan.commands import bench, report, reproduce, sweep, train
 
-    for module in (train, report_cli, bench, sweep, reproduce):
+    for module in (train, report, bench, sweep, reproduce):
         module.register(app)
 
 

@@ -71,6 +71,10 @@ def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = Tru
     overrides = list(overrides)
     parsed = parse_overrides(overrides)
     check_groups(parsed)
+    for override in parsed:
+        if override.key_or_group == "hydra.mode":
+            raise BadInput(f"override '{override.input_line}'", "riskplan train and check run one experiment; run "
+                                                                "several with riskplan sweep (e.g. seed=0,1,2)")
     expanded = expand_overrides(overrides)
     schema.register()
     GlobalHydra.instance().clear()

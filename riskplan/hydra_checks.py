@@ -30,12 +30,9 @@ DOTTED = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)+")
 
 
 def check_hydra_node(cfg: DictConfig, hydra_overrides: list) -> None:
-    """BadInput for a Hydra override that cannot work in one run, fails to resolve, or names code to run."""
+    """BadInput for a Hydra override that fails to resolve, or a Hydra setting that names code to run."""
     for override in hydra_overrides:
         key = override.key_or_group
-        if key == "hydra.mode":
-            raise BadInput(f"override '{override.input_line}'", "riskplan train and check run one experiment; run "
-                                                                "several with riskplan sweep (e.g. seed=0,1,2)")
         if "/" in key or override.is_delete():
             continue
         try:

@@ -31,7 +31,6 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -371,16 +370,19 @@ def check_hydra(hydra_args: list[str], first_job: list[str]) -> dict:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
+    from omegaconf import OmegaConf
+
     from riskplan import schema
-    from riskplan.config import CONF_DIR, explain
+    from riskplan.config import CONF_DIR, explain, parse_overrides
+    from riskplan.hydra_checks import check_hydra_node
 
     schema.register()
     GlobalHydra.instance().clear()
-    from omegaconf import OmegaConf
 
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             cfg = compose(config_name="config", overrides=[*hydra_args, *first_job], return_hydra_config=True)
+            check_hydra_node(cfg, [o for o in parse_overrides(hydra_args) if o.is_hydra_override()])
             return OmegaConf.to_container(cfg.hydra.job.config.override_dirname, resolve=True)
     except (HydraException, OmegaConfBaseException) as err:
         where, message = explain(err)
@@ -875,20 +877,3 @@ def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) ->
         typer.echo(f"to retry the jobs that did not finish (finished ones are skipped): riskplan sweep "
                    f"{shlex.join(outcome.command)}", err=True)
     return 0 if outcome.ok else 1
-
-
-def register(app: typer.Typer) -> None:
-    """Add `sweep` to the riskplan app."""
-    from riskplan.cli import PASS_THROUGH, bad_input_exits
-
-    @app.command(context_settings=PASS_THROUGH)
-    @bad_input_exits
-    def sweep(
-        overrides: Optional[List[str]] = typer.Argument(None, help=SWEEP_HELP, show_default=False),
-        jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, show_default=False,
-                                           help="Jobs at once: joblib workers (default: the number of cores), or "
-                                                "submitit's array_parallelism."),
-    ) -> None:
-        """Run a grid of experiments (a Hydra multirun) into outputs/sweeps/<timestamp>/, one folder per job."""
-        outcome = run_sweep(list(overrides or []), jobs)
-        raise typer.Exit(report_outcome(outcome))

@@ -1,4 +1,4 @@
-"""`riskplan report` and `riskplan landscape`, registered on the main typer app by riskplan.cli."""
+"""`riskplan report` (figures, tables and report.html from finished runs) and `riskplan landscape`."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from typing import List, Optional
 
 import typer
 
+from riskplan.commands.common import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
 from riskplan.errors import BadInput
 
 REPRODUCE_ROOT = Path("outputs") / "reproduce"
@@ -57,7 +58,6 @@ def write_errors_exit():
 
 def register(app: typer.Typer) -> None:
     """Add `report` and `landscape` to the riskplan app."""
-    from riskplan.cli import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
 
     @app.command()
     @bad_input_exits

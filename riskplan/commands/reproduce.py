@@ -1,0 +1,35 @@
+"""`riskplan reproduce`: every experiment of the paper's Section V, then the report (the work is riskplan.reproduce's)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from riskplan.commands.common import PASS_THROUGH, bad_input_exits, check_out_dir
+from riskplan.reproduce import QUICK_SEEDS, SEEDS, reproduce
+
+
+def register(app: typer.Typer) -> None:
+    """Add `reproduce` to the riskplan app."""
+    @app.command(name="reproduce", context_settings=PASS_THROUGH)
+    @bad_input_exits
+    def reproduce_command(
+        overrides: Optional[List[str]] = typer.Argument(
+            None, show_default=False, help="Plain overrides for every experiment (no sweeps), e.g. train.samples=3000 "
+                                           "world.horizon=24."),
+        out: Optional[Path] = typer.Option(None, "--out", metavar="DIR",
+                                           help="Where to put it (default: outputs/reproduce/<timestamp>/). An "
+                                                "existing reproduction is completed: finished jobs are skipped."),
+        quick: bool = typer.Option(False, "--quick", help="Fewer iterations, episodes and seeds: a first look in "
+                                                          "well under a minute."),
+        seeds: Optional[int] = typer.Option(None, "--seeds", min=1, show_default=False,
+                                            help=f"Seeds per condition (default {SEEDS}, {QUICK_SEEDS} with "
+                                                 f"--quick)."),
+        jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, show_default=False,
+                                           help="Parallel jobs (default: the number of cores)."),
+        formats: str = typer.Option("png,pdf", "--format", help="Figure files of the report: any of png,pdf,svg."),
+    ) -> None:
+        """Run every experiment of the paper's Section V (several seeds each), then the report."""
+        raise typer.Exit(reproduce(check_out_dir(out), quick, seeds, jobs, formats, list(overrides or [])))

@@ -1,0 +1,61 @@
+"""The layered house: lint-imports keeps the contract in pyproject.toml, and nothing below the config layer reads raw
+config dicts."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+# Everything that takes the typed config rather than composing it: the engine and the run layer.
+BELOW_CONFIG = ("world", "distributions", "policy", "rollout", "risk", "consensus", "graphs", "rng", "setup",
+                "training", "record", "runs", "summary", "budget", "sweepjob", "app")
+
+
+def lint_imports() -> list[str]:
+    """The lint-imports command next to this interpreter."""
+    script = Path(sys.executable).with_name("lint-imports")
+    if not script.is_file() and shutil.which("lint-imports") is None:
+        pytest.skip("import-linter is not installed (pip install -e '.[test]' installs it)")
+    return [str(script) if script.is_file() else "lint-imports"]
+
+
+def test_the_layer_contract_is_kept():
+    done = subprocess.run(lint_imports(), cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "1 kept, 0 broken" in done.stdout
+
+
+def test_an_up_import_breaks_the_contract(tmp_path):
+    """A copy of the package where the engine imports the training loop: lint-imports must refuse it."""
+    copy = tmp_path / "repo"
+    shutil.copytree(ROOT / "riskplan", copy / "riskplan", symlinks=True,
+                    ignore=shutil.ignore_patterns("__pycache__", "conf"))
+    shutil.copy(ROOT / "pyproject.toml", copy / "pyproject.toml")
+    consensus = copy / "riskplan" / "consensus.py"
+    consensus.write_text(consensus.read_text() + "\nfrom riskplan.training import AVERAGE  # noqa: E402\n")
+    env = {"PYTHONPATH": str(copy), "PATH": str(Path(sys.executable).parent)}
+    done = subprocess.run(lint_imports(), cwd=copy, capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode != 0
+    assert "riskplan.consensus is not allowed to import riskplan.training" in done.stdout
+
+
+def test_no_raw_config_reads_below_the_config_layer():
+    pattern = re.compile(r"""\b(cfg|config|conf|params)\[["']""")
+    offenders = [f"{name}.py:{n}: {line.strip()}" for name in BELOW_CONFIG
+                 for n, line in enumerate((ROOT / "riskplan" / f"{name}.py").read_text().splitlines(), 1)
+                 if pattern.search(line)]
+    assert offenders == []
+
+
+def test_nothing_imports_the_cli_module():
+    importers = [str(p.relative_to(ROOT)) for p in (ROOT / "riskplan").rglob("*.py")
+                 if p.name not in ("cli.py", "__main__.py")
+                 and re.search(r"^\s*(from riskplan\.cli |from riskplan import cli|import riskplan\.cli)",
+                               p.read_text(), re.M)]
+    assert importers == []
