@@ -166,4 +166,3 @@ def structured() -> DictConfig:
 def register() -> None:
     """Register the schema so conf/config.yaml can extend it."""
     ConfigStore.instance().store(name="riskplan_schema", node=RiskplanConf)
-    ConfigStore.instance().store(group="risk", name="risk_schema", node=RiskConf)

@@ -47,7 +47,6 @@ RESOLVER = "riskplan.folder"  # ${riskplan.folder:${hydra.job.override_dirname}}
 SUBDIR = "${" + RESOLVER + ":${hydra.job.override_dirname}}"
 SAFE = frozenset(string.ascii_letters + string.digits + "._=,+-")  # kept as they are in folder names
 NAME_MAX = 255  # bytes in a file name (ext4, xfs, NFS)
-LOCK_TRIES = 10  # tries, 0.1 s apart, before a job decides its folder is held by another process
 OUTPUTS = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet", "run.mcap")
 STALE = ("checkpoint", "checkpoint.tmp", "run.mcap", "run.mcap.resume", "summary.json", "metrics.parquet",
          "eval.parquet", "trajectories.parquet")
@@ -148,22 +147,15 @@ def sweep_job(cfg: DictConfig, out: Path) -> float | None:
 
 
 def _lock_folder(stack: contextlib.ExitStack, out: Path) -> bool:
-    """Take the job folder's lock into `stack`; False when another process holds it.
-
-    A few tries 0.1 s apart: `riskplan.lock.holder` (the sweep's live view asking who runs a job) holds a shared
-    lock for an instant, which must not make a job give up its own folder.
-    """
+    """Take the job folder's lock into `stack`; False when another process holds it."""
     from riskplan import lock
     from riskplan.errors import BadInput
 
-    for attempt in range(LOCK_TRIES):
-        try:
-            stack.enter_context(lock.hold(out, "sweep job folder"))
-            return True
-        except BadInput:
-            if attempt + 1 < LOCK_TRIES:
-                time.sleep(0.1)
-    return False
+    try:
+        stack.enter_context(lock.hold(out, "sweep job folder"))
+    except BadInput:
+        return False
+    return True
 
 
 def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | None:
