@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import logging
 import re
 import sys
 import traceback
@@ -86,6 +87,7 @@ def run_hydra(args: list[str], capture: bool = False) -> None:
     sys.argv = ["riskplan", *args]
     held = io.StringIO()
     _task_stderr.append(sys.stderr)
+    logs = _logging_state()
     try:
         with contextlib.redirect_stderr(held) if capture else contextlib.nullcontext():
             task()
@@ -97,8 +99,29 @@ def run_hydra(args: list[str], capture: bool = False) -> None:
         _task_stderr.pop()
         sys.argv = argv
         GlobalHydra.instance().clear()
+        _restore_logging(logs)
         if capture and held.getvalue() and not isinstance(sys.exc_info()[1], RunFailed):
             sys.stderr.write(held.getvalue())
+
+
+def _logging_state() -> dict:
+    """The level and handlers of the root logger and of every named logger, before Hydra configures logging."""
+    loggers = [logging.getLogger()] + [logging.getLogger(name) for name in logging.root.manager.loggerDict]
+    return {logger: (logger.level, list(logger.handlers), logger.propagate) for logger in loggers}
+
+
+def _restore_logging(state: dict) -> None:
+    """Undo Hydra's logging set-up: its handlers (the run's app.log, a console bound to this call's stdout) are
+    closed, so a later log record in this process (a notebook, a test) never writes to a closed stream or a run's
+    log file."""
+    for logger in [logging.getLogger()] + [logging.getLogger(name) for name in logging.root.manager.loggerDict]:
+        level, handlers, propagate = state.get(logger, (logging.NOTSET, [], True))
+        for handler in logger.handlers:
+            if handler not in handlers:
+                handler.close()
+        logger.handlers[:] = handlers
+        logger.setLevel(level)
+        logger.propagate = propagate
 
 
 class RunFailed(RuntimeError):
