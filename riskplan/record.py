@@ -24,8 +24,9 @@ world dict (arrays as nested lists, indexed [x][y]).
 Durability: every public writing method ends by finishing the MCAP chunk in progress (chunk record + its message
 indexes) and flushing the file object to the OS, so the bytes survive a SIGKILL of the process as soon as the
 method returns (not a power cut: only `sync` and `close` fsync; training syncs before every checkpoint, and
-`resume_log` before it replaces the old log). The reader scans records sequentially and
-stops at the first one that is cut short or fails its CRC, so everything before it is readable.
+`resume_log` before it replaces the old log). The reader (the mcap package's StreamReader) reads
+records sequentially and stops at the first one that is cut short or fails its CRC, so everything before it is
+readable.
 """
 
 from __future__ import annotations
@@ -41,10 +42,9 @@ from typing import Any, Iterable
 
 import numpy as np
 import pandas as pd
-from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import breakup_chunk
+from mcap.records import Channel, Footer, Message, Metadata
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from riskplan import foxglove as fx
@@ -72,8 +72,8 @@ WORLD_TOPICS = (WORLD_MAP, WORLD_MARKERS, NETWORK, NETWORK_SCENE)  # written onc
 
 METRICS_BASE = {
     "iteration": "int64", "robot": "int64", "mean": "float64", "cvar": "float64", "value_at_risk": "float64",
-    "std": "float64", "grad_norm": "float64", "step_size": "float64", "consensus_error": "float64",
-    "samples": "int64", "seconds": "float64",
+    "std": "float64", "grad_norm": "float64", "step_size": "float64", "beta_l": "float64",
+    "consensus_error": "float64", "samples": "int64", "seconds": "float64",
 }
 EVAL_COLUMNS = {
     "episode": "int64", "robot": "int64", "total_reward": "float64", "risky_steps": "int64",
@@ -98,8 +98,10 @@ OWN_SCHEMAS: dict[str, dict] = {
         "type": "object",
         "properties": {
             "iteration": _INT, "robot": _INT, "mean": _FLOAT, "cvar": _FLOAT, "value_at_risk": _FLOAT,
-            "std": _FLOAT, "grad_norm": _FLOAT, "step_size": _FLOAT, "consensus_error": _FLOAT,
-            "samples": _INT, "seconds": _FLOAT,
+            "std": _FLOAT, "grad_norm": _FLOAT, "step_size": _FLOAT,
+            "beta_l": {**_FLOAT, "description": "beta_l, the CVaR level of the iteration's gradient (risk.schedule; "
+                                                "1 for the mean gradient); cvar and value_at_risk are at risk.beta"},
+            "consensus_error": _FLOAT, "samples": _INT, "seconds": _FLOAT,
         },
         "patternProperties": {"^theta_[0-9]+$": _FLOAT},
         "required": ["iteration", "robot"],
@@ -458,17 +460,6 @@ class _Scan:
     stop: str | None  # why reading stopped early
 
 
-_READERS = {
-    Opcode.HEADER: Header.read,
-    Opcode.FOOTER: Footer.read,
-    Opcode.SCHEMA: Schema.read,
-    Opcode.CHANNEL: Channel.read,
-    Opcode.CHUNK: Chunk.read,
-    Opcode.METADATA: Metadata.read,
-    Opcode.DATA_END: DataEnd.read,
-}
-
-
 def _read_bytes(path: Path | str) -> bytes:
     try:
         return Path(path).read_bytes()
@@ -477,57 +468,48 @@ def _read_bytes(path: Path | str) -> bytes:
 
 
 def _scan(data: bytes, where: str) -> _Scan:
-    """Read records in order, stopping (without raising) at the first truncated or corrupt one."""
+    """Read records in order with the mcap package's StreamReader, stopping (without raising) at the first record
+    that is cut short or fails its CRC: everything before it is kept."""
     out = _Scan([], [], False, None)
     if data[:8] != MAGIC:
         if len(data) < 8 and MAGIC.startswith(data):
             out.stop = f"file ends at byte {len(data)}, inside the MCAP magic"
             return out
         raise BadInput(where, "not an MCAP file (bad magic bytes)")
+    if len(data) >= 9 and data[8] != Opcode.HEADER:
+        raise BadInput(where, "not an MCAP file (no header record after the magic)")
+    stream = io.BytesIO(data)
     topics: dict[int, str] = {}
-    pos, n = 8, len(data)
-    first = True
-    while True:
-        if pos + 9 > n:
-            out.stop = f"file ends at byte {n}, inside a record header"
-            return out
-        opcode = data[pos]
-        length = int.from_bytes(data[pos + 1 : pos + 9], "little")
-        end = pos + 9 + length
-        if end > n:
-            out.stop = f"file ends at byte {n}, inside a record that starts at byte {pos}"
-            return out
-        if first and opcode != Opcode.HEADER:
-            raise BadInput(where, "not an MCAP file (no header record after the magic)")
-        first = False
-        try:
-            if opcode == Opcode.MESSAGE:
-                rec = Message.read(ReadDataStream(io.BytesIO(data[pos + 9 : end])), length)
-                inner = [rec]
-            elif opcode in _READERS:
-                rec = _READERS[opcode](ReadDataStream(io.BytesIO(data[pos + 9 : end])))
-                inner = breakup_chunk(rec, validate_crc=True) if isinstance(rec, Chunk) else [rec]
-            else:
-                inner = []
-        except Exception as e:  # noqa: BLE001 - any decoding failure ends the readable part
-            out.stop = f"corrupt record at byte {pos} ({type(e).__name__})"
-            return out
-        for r in inner:
-            if isinstance(r, Channel):
-                topics[r.id] = r.topic
-            elif isinstance(r, Message):
-                topic = topics.get(r.channel_id)
+    pos, footer = 8, False  # pos: where the record being read starts (after the last record handed out)
+    try:
+        for record in StreamReader(stream, validate_crcs=True).records:
+            if isinstance(record, Channel):
+                topics[record.id] = record.topic
+            elif isinstance(record, Message):
+                topic = topics.get(record.channel_id)
                 if topic is not None:
-                    out.messages.append(_Raw(topic, r.log_time, r.publish_time, r.data))
-            elif isinstance(r, Metadata):
-                out.metadata.append((r.name, dict(r.metadata)))
-            elif isinstance(r, Footer):
-                if data[end : end + 8] == MAGIC:
-                    out.closed = True
-                else:
-                    out.stop = f"file ends at byte {n}, inside the closing magic"
-                return out
-        pos = end
+                    out.messages.append(_Raw(topic, record.log_time, record.publish_time, record.data))
+            elif isinstance(record, Metadata):
+                out.metadata.append((record.name, dict(record.metadata)))
+            footer = isinstance(record, Footer)
+            pos = stream.tell()
+    except Exception as err:  # noqa: BLE001 - any failure ends the readable part, whatever the reader raised
+        out.stop = _stop_reason(data, pos, footer, err)
+        return out
+    out.closed = True
+    return out
+
+
+def _stop_reason(data: bytes, pos: int, after_footer: bool, err: Exception) -> str:
+    """Why reading stopped at the record that starts at byte `pos` (or at the closing magic after the footer)."""
+    n = len(data)
+    if after_footer:
+        return f"file ends at byte {n}, inside the closing magic"
+    if pos + 9 > n:
+        return f"file ends at byte {n}, inside a record header"
+    if pos + 9 + int.from_bytes(data[pos + 1:pos + 9], "little") > n:
+        return f"file ends at byte {n}, inside a record that starts at byte {pos}"
+    return f"corrupt record at byte {pos} ({type(err).__name__})"
 
 
 def _decode_metadata(m: dict[str, str]) -> Any:
