@@ -20,11 +20,15 @@ def compose(overrides=()):
     return _compose(list(overrides))
 
 
-def train(config, out_dir):
-    """Train, evaluate and record one experiment into out_dir; returns its Run (riskplan.training.train)."""
+def train(config, out_dir, progress: bool = True):
+    """Train, evaluate and record one experiment into out_dir; returns its Run (riskplan.training.train).
+
+    With `progress`, a live bar on a terminal or in a Jupyter notebook (nothing is printed elsewhere)."""
+    from riskplan.progress import TrainingBar, silent
     from riskplan.training import train as _train
 
-    return _train(config, out_dir)
+    with TrainingBar() if progress else silent() as bar:
+        return _train(config, out_dir, progress=bar)
 
 
 def load_run(path):

@@ -17,7 +17,7 @@ app = typer.Typer(
     name="riskplan",
     help="Risk-averse sensor planning with (distributed) CVaR policy gradients: train, sweep, report, reproduce.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,  # riskplan --install-completion [bash|zsh|fish|powershell]
     pretty_exceptions_enable=False,
 )
 warnings.formatwarning = lambda message, *args, **kwargs: f"warning: {message}\n"  # one plain line, no path

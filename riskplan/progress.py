@@ -18,7 +18,7 @@ class TrainingBar:
         self._bar = Progress(
             TextColumn("[bold]train"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[stats]}"),
             TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True,
-            disable=not sys.stderr.isatty(),
+            disable=not (sys.stderr.isatty() or console.is_jupyter),  # a live bar on a terminal or in a notebook
         )
         self._bar.__enter__()
         self._task = None

@@ -27,6 +27,40 @@ class Run:
     complete: bool
     problem: str | None = field(default=None)
 
+    def headline(self) -> str:
+        """What ran and how it ended, in one line: experiment, objective, team, iterations, CVaR with its interval."""
+        risk = self.config.get("risk", {})
+        robots = self.config.get("team", {}).get("robots", 1)
+        what = f"{self.config.get('experiment', '?')}, {risk.get('measure', '?')} beta={risk.get('beta', '?')}"
+        what += f", {robots} robots" if robots != 1 else ""
+        iterations = int(self.metrics.iteration.max()) + 1 if len(self.metrics) else 0
+        if not self.complete or not self.summary:
+            return f"{what}, {iterations} iterations, incomplete: {self.problem}"
+        cvar = self.summary.get("cvar", {})
+        return (f"{what}, {iterations} iterations, CVaR {cvar.get('value', float('nan')):.1f} "
+                f"[{cvar.get('low', float('nan')):.1f}, {cvar.get('high', float('nan')):.1f}]")
+
+    def __repr__(self) -> str:
+        return f"Run('{self.path}': {self.headline()})"
+
+    def _repr_html_(self) -> str:
+        """A small table for notebooks: the run, its status and the headline figures with their 95% intervals."""
+        from html import escape
+
+        rows = [("run", str(self.path)), ("what", self.headline().split(", CVaR")[0])]
+        if self.complete and self.summary:
+            for name in ("mean", "cvar", "value_at_risk"):
+                f = self.summary.get(name, {})
+                rows.append((name, f"{f.get('value', float('nan')):.1f} [{f.get('low', float('nan')):.1f}, "
+                                   f"{f.get('high', float('nan')):.1f}]"))
+            rows.append(("P(risky)", f"{self.summary.get('risky_fraction', float('nan')):.1%}"))
+        else:
+            rows.append(("status", f"incomplete: {self.problem}"))
+        rows.append(("tables", ", ".join(f"{name} {len(getattr(self, name))} rows" for name in TABLES)))
+        body = "".join(f"<tr><th style='text-align:left'>{escape(k)}</th><td style='text-align:left'>{escape(v)}</td>"
+                       f"</tr>" for k, v in rows)
+        return f"<table><caption style='text-align:left'><b>riskplan Run</b></caption>{body}</table>"
+
 
 def is_run_dir(path: Path) -> bool:
     """A run directory holds a run.mcap or a .hydra/config.yaml."""

@@ -1,0 +1,85 @@
+"""Package hygiene: licence and citation files that agree with the package, shell completion, a readable Run in a
+terminal and in a notebook, and a progress bar in notebooks."""
+
+from __future__ import annotations
+
+import io
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+import yaml
+from rich.console import Console
+from typer.testing import CliRunner
+
+import riskplan
+import riskplan.progress as progress
+from riskplan.cli import app
+
+ROOT = Path(__file__).resolve().parents[1]
+FAST = ["train.iterations=3", "train.samples=100", "train.eval_episodes=300", "train.bootstrap=5", "train.paths=1"]
+
+
+def test_the_licence_file_is_the_one_pyproject_declares():
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["license"] == {"file": "LICENSE"}
+    assert (ROOT / "LICENSE").read_text().startswith("MIT License")
+    assert "License :: OSI Approved :: MIT License" in project["classifiers"]
+
+
+def test_citation_cff_cites_this_version_and_the_paper():
+    citation = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert citation["cff-version"] == "1.2.0" and citation["type"] == "software"
+    assert citation["version"] == riskplan.__version__ and citation["license"] == "MIT"
+    (paper,) = citation["references"]
+    title = next(line for line in (ROOT.parent / "shared" / "paper.md").read_text().splitlines()
+                 if line.startswith("# ")) if (ROOT.parent / "shared" / "paper.md").is_file() else None
+    assert paper["title"] == "Risk-Averse Sensor Planning using Distributed Policy Gradient"
+    assert title is None or title == f"# {paper['title']}"
+    assert [a["family-names"] for a in paper["authors"]] == ["Ma", "Dentcheva", "Zavlanos"]
+
+
+def test_shell_completion_is_on_and_completes_commands_and_options():
+    shown = CliRunner().invoke(app, ["--show-completion", "bash"])
+    assert shown.exit_code == 0 and "_RISKPLAN_COMPLETE=complete_bash" in shown.output
+    script = Path(sys.executable).with_name("riskplan")
+    if not script.is_file():
+        pytest.skip("the riskplan console script is not installed next to this interpreter")
+    for words, cword, want in (("riskplan tr", "1", "train"), ("riskplan report --f", "2", "--format")):
+        env = {**os.environ, "COMP_WORDS": words, "COMP_CWORD": cword, "_RISKPLAN_COMPLETE": "complete_bash"}
+        done = subprocess.run([str(script)], env=env, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0 and done.stdout.split() == [want]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    return riskplan.train(riskplan.compose(FAST), tmp_path_factory.mktemp("run") / "run", progress=False)
+
+
+def test_a_run_reads_in_one_line_and_as_a_table_in_a_notebook(run, tmp_path):
+    cvar = run.summary["cvar"]
+    assert repr(run) == (f"Run('{run.path}': paper_single, cvar beta=0.1, 3 iterations, CVaR {cvar['value']:.1f} "
+                         f"[{cvar['low']:.1f}, {cvar['high']:.1f}])")
+    html = run._repr_html_()
+    assert html.startswith("<table>") and f"{cvar['value']:.1f}" in html and "metrics 3 rows" in html
+    killed = riskplan.load_run(run.path)
+    killed.complete, killed.problem = False, "truncated after iteration 1 (<test>)"
+    assert "incomplete: truncated after iteration 1 (&lt;test&gt;)" in killed._repr_html_()  # escaped
+    assert repr(killed).endswith("3 iterations, incomplete: truncated after iteration 1 (<test>))")
+
+
+@pytest.mark.filterwarnings("ignore:install \"ipywidgets\"")  # the bar's live widget needs riskplan[notebook]
+def test_the_training_bar_runs_in_a_notebook(monkeypatch):
+    monkeypatch.setattr(progress, "console", Console(force_jupyter=True, file=io.StringIO()))
+    bar = progress.TrainingBar()
+    with bar as update:
+        update(1, 3, {"mean": 1.0, "cvar": 2.0})
+        assert not bar._bar.disable  # shown in Jupyter although stderr is not a terminal
+    monkeypatch.setattr(progress, "console", Console(force_jupyter=False, force_terminal=False, file=io.StringIO()))
+    quiet = progress.TrainingBar()
+    with quiet as update:  # neither a notebook nor a terminal (pytest's stderr): no bar, the callback still works
+        update(1, 3, {"mean": 1.0, "cvar": 2.0})
+        assert quiet._bar.disable
