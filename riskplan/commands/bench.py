@@ -9,8 +9,6 @@ from typing import Optional
 
 import typer
 
-from riskplan.bench import bench_checkpoints, bench_jit, bench_rollout, bench_team, bench_training
-
 
 def register(app: typer.Typer) -> None:
     """Add `riskplan bench` to the CLI."""
@@ -23,6 +21,8 @@ def register(app: typer.Typer) -> None:
         """Speed, memory, JIT and team-scaling targets, each with a baseline measured in the same run."""
         import numba
         from rich.console import Console
+
+        from riskplan.bench import bench_checkpoints, bench_jit, bench_rollout, bench_team, bench_training
 
         console = Console(soft_wrap=True)  # one line per figure, also in a log file
         console.print(f"numba {numba.__version__}, {numba.get_num_threads()} threads "
