@@ -44,6 +44,14 @@ def make_setup(config: Any = None) -> Setup:
     return build_setup(config)
 
 
+def env_setup(config: Any, render_mode: str | None, modes: list[str]) -> tuple[Setup, np.ndarray]:
+    """What both environments build first: the render mode checked, the Setup, every robot's start cell."""
+    if render_mode is not None and render_mode not in modes:
+        raise ValueError(f"render_mode {render_mode!r} is not one of {modes}")
+    setup = make_setup(config)
+    return setup, robot_starts(setup)
+
+
 def robot_starts(setup: Setup) -> np.ndarray:
     """Start cell of each of the team's robots (all at world.start unless team.starts is given)."""
     cells = setup.world.starts

@@ -27,7 +27,7 @@ try:
 except ImportError as err:  # pragma: no cover - the optional extra is missing
     raise ImportError("riskplan.envs.SensorPlanningEnv needs Gymnasium: pip install 'riskplan[envs]'") from err
 
-from riskplan.envs.core import Worlds, make_setup, robot_starts, signal_bounds
+from riskplan.envs.core import Worlds, env_setup, signal_bounds
 from riskplan.world import MOVE_NAMES, World
 
 ENV_ID = "riskplan/SensorPlanning-v0"
@@ -78,12 +78,9 @@ class SensorPlanningEnv(gymnasium.Env):
     def __init__(self, config: Any = None, *, robot: int = 0, render_mode: str | None = None):
         """`config`: riskplan overrides, a composed config or a Setup (riskplan.envs.make_setup); `robot`: whose
         start cell to use when team.starts gives several."""
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode {render_mode!r} is not one of {self.metadata['render_modes']}")
-        self.setup = make_setup(config)
+        self.setup, starts = env_setup(config, render_mode, self.metadata["render_modes"])
         self.world = self.setup.world
         self.render_mode = render_mode
-        starts = robot_starts(self.setup)
         if not 0 <= robot < len(starts):
             raise ValueError(f"robot {robot} is not one of the team's robots 0..{len(starts) - 1}")
         self._worlds = Worlds(self.world, starts[robot:robot + 1])

@@ -23,7 +23,7 @@ try:
 except ImportError as err:  # pragma: no cover - the optional extra is missing
     raise ImportError("riskplan.envs.SensorTeamEnv needs PettingZoo: pip install 'riskplan[envs]'") from err
 
-from riskplan.envs.core import Worlds, make_setup, robot_starts
+from riskplan.envs.core import Worlds, env_setup
 from riskplan.envs.gym import infos, observation_space, observations, render_ansi
 from riskplan.world import MOVE_NAMES
 
@@ -35,12 +35,9 @@ class SensorTeamEnv(ParallelEnv):
 
     def __init__(self, config: Any = None, *, render_mode: str | None = None):
         """`config`: riskplan overrides, a composed config or a Setup; the team is team.robots robots."""
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode {render_mode!r} is not one of {self.metadata['render_modes']}")
-        self.setup = make_setup(config)
+        self.setup, starts = env_setup(config, render_mode, self.metadata["render_modes"])
         self.world = self.setup.world
         self.render_mode = render_mode
-        starts = robot_starts(self.setup)
         self._worlds = Worlds(self.world, starts, group=np.zeros(len(starts), dtype=np.int64))  # one shared copy
         self.possible_agents = [f"robot_{i}" for i in range(len(starts))]
         self.agents: list[str] = []
