@@ -28,11 +28,12 @@ from riskplan.errors import BadInput
 from riskplan.lock import hold
 from riskplan.params import as_dict, typed
 from riskplan.paths import atomic_path, check_output_dir, write_atomic
+from riskplan.foxglove_layout import write_layout
 from riskplan.record import RunLog, read_log, resume_log
 from riskplan.risk import cvar_gradient, mean_gradient, summary_stats
 from riskplan.rollout import simulate
 from riskplan.runs import Run
-from riskplan.setup import Setup, build_setup, logit_bound, samples_at, step_size
+from riskplan.setup import Setup, build_setup, logit_bound, risk_level, samples_at, step_size
 from riskplan.summary import SCHEMA_VERSION, bootstrap_intervals, provenance
 from riskplan.world import world_map
 
@@ -73,8 +74,10 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
         stats = summary_stats(z, beta)
         check_finite(f"iteration {l}: the statistics of the total reward", *stats.values())
         if params.risk.measure == "cvar":
-            grads = cvar_gradient(z, scores, beta, var=stats["value_at_risk"])
+            level = risk_level(l, params.risk)  # soft risk: beta_l; the paper's beta when risk.schedule.kind=none
+            grads = cvar_gradient(z, scores, level, var=stats["value_at_risk"] if level == beta else None)
         else:
+            level = 1.0  # the mean gradient is CVaR_1's
             grads = mean_gradient(z, scores, params.train.baseline)
         eps = step_size(l, params.train.step_size)
         new_thetas = consensus_step(setup, thetas, grads, eps, l)
@@ -86,11 +89,11 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
                                f"(theta . signal is not finite); lower train.step_size.initial")
     error = consensus_error(thetas) if setup.team else math.nan
     seconds = time.perf_counter() - started
-    rows = [_row(l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, episodes, seconds)
-            for i in range(n)]
+    rows = [_row(l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, episodes, seconds,
+                 level) for i in range(n)]
     if setup.team:
         rows.append(_row(l, AVERAGE, summary_stats(z.ravel(), beta), thetas.mean(axis=0), grads.mean(axis=0), eps,
-                         error, episodes * n, seconds))
+                         error, episodes * n, seconds, level))
     return State(l + 1, new_thetas, setup.mixer.state(), state.rows + rows), rows
 
 
@@ -102,7 +105,11 @@ def check_finite(what: str, *arrays) -> None:
 
 
 def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int) -> np.ndarray:
-    """Eq. (14) combine-then-adapt, A theta + eps Delta (default), or adapt-then-combine, A (theta + eps Delta)."""
+    """Eq. (14) combine-then-adapt, A theta + eps Delta (default), adapt-then-combine, A (theta + eps Delta), or
+    gradient tracking, A theta + eps y with y the robot's tracker of the average gradient (consensus.Mixer.track)."""
+    if setup.params.team.order == "gradient_tracking" and setup.team:
+        mixed, tracker = setup.mixer.track(thetas, grads, l)
+        return mixed + eps * tracker
     adapt_first = setup.params.team.order == "adapt_then_combine"
     mixed = thetas + eps * grads if adapt_first else thetas
     for round_index in range(setup.params.team.consensus_rounds if setup.team else 0):
@@ -168,6 +175,7 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
     for name, table in (("metrics", metrics), ("eval", evaluation), ("trajectories", trajectories)):
         with atomic_path(out / f"{name}.parquet") as tmp:
             table.to_parquet(tmp, index=False)
+    write_layout(out, setup.robots, (setup.world.width, setup.world.height))  # before summary.json: done means all
     write_atomic(out / "summary.json", json.dumps(summary, indent=2, allow_nan=False))
     return Run(out, setup.config, metrics, evaluation, trajectories, summary, True)
 
@@ -363,11 +371,12 @@ def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
     return setup, done
 
 
-def _row(l, robot, stats, theta, grad, eps, error, samples, seconds) -> dict:
-    """One metrics.parquet row."""
+def _row(l, robot, stats, theta, grad, eps, error, samples, seconds, level) -> dict:
+    """One metrics.parquet row (`level`: beta_l, the CVaR level of the iteration's gradient; stats are at beta)."""
     return {"iteration": l, "robot": robot, **{k: float(v) for k, v in stats.items()},
             **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
-            "grad_norm": float(np.linalg.norm(grad)), "step_size": eps, "consensus_error": error,
+            "grad_norm": float(np.linalg.norm(grad)), "step_size": eps, "beta_l": float(level),
+            "consensus_error": error,
             "samples": int(samples), "seconds": seconds}
 
 

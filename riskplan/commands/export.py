@@ -1,0 +1,52 @@
+"""`riskplan export`: finished runs into MLflow or TensorBoard, or a Foxglove layout into each run directory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from riskplan.commands.common import bad_input_exits
+
+
+def register(app: typer.Typer) -> None:
+    """Add `riskplan export` to the CLI."""
+
+    @app.command()
+    @bad_input_exits
+    def export(
+        paths: Optional[List[Path]] = typer.Argument(
+            None, help="Run, sweep or reproduce directories (searched recursively).", show_default=False),
+        to: Optional[str] = typer.Option(
+            None, "--to", help="mlflow (a tracking store), tensorboard (event files) or foxglove "
+                               "(foxglove_layout.json into each run directory).", show_default=False),
+        uri: Optional[str] = typer.Option(
+            None, "--uri", help="mlflow: a tracking URI (sqlite:///mlflow.db, http://host:5000) or a file store "
+                                "directory, default outputs/mlruns; tensorboard: the log directory, default "
+                                "outputs/tensorboard; foxglove: none.", show_default=False),
+        experiment: str = typer.Option("riskplan", "--experiment", help="The MLflow experiment to log into."),
+    ) -> None:
+        """Replay finished runs into MLflow or TensorBoard: metrics per iteration and robot, the summary with its
+        intervals, the config as parameters, seed groups as tags. A run exported before is replaced when it
+        changed and left as it is otherwise; broken runs are skipped with their reason."""
+        from riskplan.export import ExportFailed, export_runs
+
+        def echo(done) -> None:
+            typer.echo(f"{done.action} {done.path} -> {done.where}")
+
+        if not experiment.strip():
+            from riskplan.errors import BadInput
+
+            raise BadInput("--experiment", "got ''; give an MLflow experiment name, e.g. riskplan")
+        try:
+            result = export_runs(list(paths or []), to, uri, experiment=experiment, echo=echo)
+        except ExportFailed as err:
+            typer.echo(f"error: {err}", err=True)
+            raise typer.Exit(1) from None
+        for broken in result.skipped:
+            typer.echo(f"skipped {broken.path}: {broken.reason}", err=True)
+        where = result.destination + (f" (experiment {experiment})" if result.target == "mlflow" else "")
+        typer.echo(f"{len(result.done)} run(s) to {result.target}: {result.count('exported')} exported, "
+                   f"{result.count('replaced')} replaced, {result.count('unchanged')} unchanged, "
+                   f"{len(result.skipped)} skipped -> {where}")

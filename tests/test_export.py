@@ -1,0 +1,281 @@
+"""`riskplan export`: runs replayed into MLflow and TensorBoard are read back with the libraries' own readers
+(MlflowClient over the file store, TensorBoard's EventAccumulator) and compared with the runs' metrics.parquet
+and summary.json; re-exports neither duplicate nor go stale; broken runs are skipped; the Foxglove layout names
+only topics the run's log holds."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from riskplan import compose, train
+from riskplan.cli import app
+from riskplan.export import metric_prefix, param_value, summary_figures, tensorboard_name
+from riskplan.foxglove_layout import LAYOUT_FILE, layout, panels, topics, write_layout
+from riskplan.report.collect import flatten
+from riskplan.sweepjob import config_sha
+
+TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> Path:
+    """Two seeds of one centralized condition, a team of 3, and a run killed before it finished."""
+    root = tmp_path_factory.mktemp("export") / "runs"
+    train(compose(TINY + ["seed=0"]), root / "single_0")
+    train(compose(TINY + ["seed=1"]), root / "single_1")
+    train(compose(TINY + ["experiment=paper_team"]), root / "team")
+    killed = root / "killed"
+    shutil.copytree(root / "single_0", killed)
+    for name in ("metrics.parquet", "eval.parquet", "trajectories.parquet", "summary.json"):
+        (killed / name).unlink()
+    data = (killed / "run.mcap").read_bytes()
+    (killed / "run.mcap").write_bytes(data[: len(data) // 2])
+    return root
+
+
+GOOD = ("single_0", "single_1", "team")
+
+
+def metrics(run: Path) -> pd.DataFrame:
+    return pd.read_parquet(run / "metrics.parquet")
+
+
+def summary(run: Path) -> dict:
+    return json.loads((run / "summary.json").read_text())
+
+
+def config(run: Path) -> dict:
+    import yaml
+
+    return yaml.safe_load((run / ".hydra" / "config.yaml").read_text())
+
+
+def expected_series(run: Path) -> dict[str, list[tuple[int, float]]]:
+    """key -> [(step, value)] as the export should write it, from metrics.parquet and summary.json."""
+    m = metrics(run)
+    s = summary(run)
+    headline = int(s["headline_robot"])
+    out: dict[str, list] = {}
+    for robot, rows in m.groupby("robot"):
+        for c in m.columns:
+            if c in ("iteration", "robot"):
+                continue
+            points = [(int(i), float(v)) for i, v in zip(rows.iteration, rows[c]) if math.isfinite(v)]
+            if points:
+                out[f"{metric_prefix(int(robot), headline)}/{c}"] = points
+    last = int(m.iteration.max()) + 1
+    for k, v in summary_figures(s).items():
+        out[f"summary/{k}"] = [(last, v)]
+    return out
+
+
+def invoke(*args: str):
+    result = runner.invoke(app, ["export", *args])
+    assert "Traceback" not in result.output
+    return result
+
+
+# ------------------------------------------------------------------------------------------- MLflow
+def mlflow_runs(store: Path) -> dict[str, object]:
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=store.resolve().as_uri())
+    experiment = client.get_experiment_by_name("riskplan")
+    found = client.search_runs([experiment.experiment_id])
+    return client, {Path(r.data.tags["riskplan.run_dir"]).name: r for r in found}
+
+
+@pytest.fixture
+def file_store(monkeypatch):
+    monkeypatch.setenv("MLFLOW_ALLOW_FILE_STORE", "true")  # MLflow >= 3.7 wants it to open a file store
+
+
+def test_mlflow_holds_every_metric_summary_param_and_tag(runs, tmp_path, file_store):
+    pytest.importorskip("mlflow")
+    store = tmp_path / "mlruns"
+    result = invoke(str(runs), "--to", "mlflow", "--uri", str(store))
+    assert result.exit_code == 0, result.output
+    assert f"skipped {runs / 'killed'}:" in result.stderr
+    assert "3 run(s) to mlflow: 3 exported, 0 replaced, 0 unchanged, 1 skipped" in result.stdout
+
+    client, found = mlflow_runs(store)
+    assert sorted(found) == sorted(GOOD)
+    for name in GOOD:
+        run_dir, run = runs / name, found[name]
+        assert run.info.status == "FINISHED" and run.info.run_name == name
+        # the config as params, flattened with dotted keys
+        assert run.data.params == {k: param_value(v) for k, v in flatten(config(run_dir)).items()}
+        assert run.data.params["risk.beta"] == "0.1" and run.data.params["seed"] in ("0", "1")
+        # every metric history, step = iteration, exactly the parquet / summary.json value
+        series = expected_series(run_dir)
+        assert set(run.data.metrics) == set(series)
+        for key, points in series.items():
+            history = sorted((m.step, m.value) for m in client.get_metric_history(run.info.run_id, key))
+            assert history == points, key
+        s = summary(run_dir)
+        assert run.data.metrics["summary/cvar"] == s["cvar"]["value"]
+        assert run.data.metrics["summary/cvar_low"] == s["cvar"]["low"]
+        assert run.data.metrics["summary/cvar_high"] == s["cvar"]["high"]
+        tags = run.data.tags
+        assert tags["riskplan.run_dir"] == str(run_dir.resolve())
+        assert tags["riskplan.config_sha"] == config_sha(config(run_dir))
+        assert tags["riskplan.headline_robot"] == str(s["headline_robot"])
+        assert tags["riskplan.provenance.git_sha"] == str(s["provenance"]["git_sha"])
+    # robots: per-robot prefixes for the team, the headline (network average) under train/
+    assert {"robot_0/cvar", "robot_1/cvar", "robot_2/cvar", "train/cvar"} <= set(found["team"].data.metrics)
+    assert not any(k.startswith("robot_") for k in found["single_0"].data.metrics)
+    assert "train/consensus_error" not in found["single_0"].data.metrics  # NaN for one robot: not logged
+    # seed groups: the two seeds share a group, the team is another
+    group = {name: (found[name].data.tags["riskplan.group"], found[name].data.tags["riskplan.group_sha"])
+             for name in GOOD}
+    assert group["single_0"] == group["single_1"] != group["team"]
+
+
+def test_mlflow_reexport_is_idempotent_and_replaces_a_changed_run(runs, tmp_path, file_store):
+    pytest.importorskip("mlflow")
+    mine = tmp_path / "runs"
+    shutil.copytree(runs / "single_0", mine / "single_0")
+    store = tmp_path / "mlruns"
+    assert invoke(str(mine), "--to", "mlflow", "--uri", f"file:{store}").exit_code == 0
+    _, first = mlflow_runs(store)
+
+    again = invoke(str(mine), "--to", "mlflow", "--uri", f"file:{store}")
+    assert again.exit_code == 0 and "0 exported, 0 replaced, 1 unchanged" in again.stdout
+    _, second = mlflow_runs(store)
+    assert [r.info.run_id for r in second.values()] == [r.info.run_id for r in first.values()]
+
+    s = summary(mine / "single_0")  # the run changed (as after --resume train.iterations=N)
+    s["cvar"]["value"] += 1.0
+    (mine / "single_0" / "summary.json").write_text(json.dumps(s))
+    third = invoke(str(mine), "--to", "mlflow", "--uri", f"file:{store}")
+    assert third.exit_code == 0 and "0 exported, 1 replaced, 0 unchanged" in third.stdout
+    _, after = mlflow_runs(store)  # active runs only: the old one is deleted, not duplicated
+    assert len(after) == 1 and after["single_0"].info.run_id != first["single_0"].info.run_id
+    assert after["single_0"].data.metrics["summary/cvar"] == s["cvar"]["value"]
+
+
+# ------------------------------------------------------------------------------------------- TensorBoard
+def accumulator(directory: Path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(directory), size_guidance={"scalars": 0, "tensors": 0})
+    acc.Reload()
+    return acc
+
+
+def test_tensorboard_scalars_per_step_equal_the_run_within_float32(runs, tmp_path):
+    pytest.importorskip("tensorboard")
+    logdir = tmp_path / "tb"
+    result = invoke(str(runs), "--to", "tensorboard", "--uri", str(logdir))
+    assert result.exit_code == 0, result.output
+    assert "3 exported, 0 replaced, 0 unchanged, 1 skipped" in result.stdout
+    assert sorted(p.name for p in logdir.iterdir()) == sorted(tensorboard_name((runs / n).resolve()) for n in GOOD)
+    for name in GOOD:
+        acc = accumulator(logdir / tensorboard_name((runs / name).resolve()))
+        series = expected_series(runs / name)
+        assert set(acc.Tags()["scalars"]) == set(series)
+        for key, points in series.items():
+            got = [(e.step, e.value) for e in acc.Scalars(key)]
+            assert got == [(step, float(np.float32(v))) for step, v in points], key
+        assert {"_hparams_/session_start_info", "riskplan/run"} <= set(acc.Tags()["tensors"])
+        text = acc.Tensors("riskplan/run")[0].tensor_proto.string_val[0].decode()
+        assert str((runs / name).resolve()) in text and config_sha(config(runs / name)) in text
+
+
+def test_tensorboard_reexport_replaces_one_subdirectory_per_run(runs, tmp_path):
+    pytest.importorskip("tensorboard")
+    mine = tmp_path / "runs"
+    shutil.copytree(runs / "team", mine / "team")
+    logdir = tmp_path / "tb"
+    assert invoke(str(mine), "--to", "tensorboard", "--uri", str(logdir)).exit_code == 0
+    again = invoke(str(mine), "--to", "tensorboard", "--uri", str(logdir))
+    assert "0 exported, 0 replaced, 1 unchanged" in again.stdout
+    s = summary(mine / "team")
+    s["mean"]["value"] = 1234.5
+    (mine / "team" / "summary.json").write_text(json.dumps(s))
+    third = invoke(str(mine), "--to", "tensorboard", "--uri", str(logdir))
+    assert "0 exported, 1 replaced, 0 unchanged" in third.stdout
+    (only,) = list(logdir.iterdir())  # no duplicate, no temp directory left
+    assert len(list(only.glob("events.out.tfevents.*"))) == 1
+    assert [e.value for e in accumulator(only).Scalars("summary/mean")] == [1234.5]
+
+
+def test_a_write_failure_is_one_line_exit_1_and_keeps_the_previous_export(runs, tmp_path, monkeypatch):
+    pytest.importorskip("tensorboard")
+    from riskplan.export import TensorboardTarget
+
+    mine = tmp_path / "runs"
+    shutil.copytree(runs / "single_0", mine / "single_0")
+    logdir = tmp_path / "tb"
+    assert invoke(str(mine), "--to", "tensorboard", "--uri", str(logdir)).exit_code == 0
+    before = {p.name: p.read_bytes() for p in logdir.rglob("*") if p.is_file()}
+    (mine / "single_0" / "summary.json").write_text(json.dumps({**summary(mine / "single_0"), "wall_time": 9.0}))
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(TensorboardTarget, "_events", staticmethod(full))
+    result = invoke(str(mine), "--to", "tensorboard", "--uri", str(logdir))
+    assert result.exit_code == 1
+    assert result.stderr.splitlines() == [f"error: tensorboard {logdir}: could not be written "
+                                          f"(OSError: [Errno 28] No space left on device)"]
+    assert {p.name: p.read_bytes() for p in logdir.rglob("*") if p.is_file()} == before
+    assert not [p for p in logdir.iterdir() if p.name.startswith(".")]
+
+
+def test_a_missing_optional_package_is_bad_input_and_writes_nothing(runs, tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "mlflow", None)  # as if it were not installed
+    monkeypatch.chdir(tmp_path)
+    result = invoke(str(runs), "--to", "mlflow")
+    assert result.exit_code == 2
+    assert result.stderr.splitlines() == ["error: --to: mlflow needs the mlflow-skinny package, which is not "
+                                          "installed; pip install 'riskplan[mlflow]'"]
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------- Foxglove
+def mcap_topics(run: Path) -> set[str]:
+    from mcap.reader import make_reader
+
+    with open(run / "run.mcap", "rb") as f:
+        return {channel.topic for channel in make_reader(f).get_summary().channels.values()}
+
+
+@pytest.mark.parametrize("name, robots", [("single_0", 1), ("team", 3)])
+def test_foxglove_layout_references_only_topics_of_the_run(runs, tmp_path, name, robots):
+    run = tmp_path / name
+    shutil.copytree(runs / name, run)
+    result = invoke(str(run), "--to", "foxglove")
+    assert result.exit_code == 0 and "1 exported" in result.stdout
+    data = json.loads((run / LAYOUT_FILE).read_text())
+    assert set(panels(data["layout"])) == set(data["configById"])  # every panel placed, none dangling
+    assert {p.split("!")[0] for p in data["configById"]} >= {"3D", "Plot", "RawMessages"}
+    used = topics(data)
+    assert used <= mcap_topics(run)
+    assert {"/world/map", "/world/markers", "/paths", "/team/graph", "/metrics", "/summary"} <= used
+    plotted = [p["value"] for panel in data["configById"].values() for p in panel.get("paths", [])]
+    wanted = ["/metrics{robot==0}.cvar"] if robots == 1 else [
+        "/metrics{robot==-1}.cvar", "/metrics{robot==0}.cvar", "/metrics{robot==1}.cvar", "/metrics{robot==2}.cvar"]
+    assert [p for p in plotted if p.endswith(".cvar")] == wanted
+    assert [p.replace(".mean", ".cvar") for p in plotted if p.endswith(".mean")] == wanted
+    grid = next(c for c in data["configById"].values() if c.get("followTf") == "grid")
+    assert set(grid["topics"]) == {"/world/map", "/world/markers", "/paths"}
+    assert invoke(str(run), "--to", "foxglove").stdout.endswith("0 exported, 0 replaced, 1 unchanged, 0 skipped "
+                                                                "-> each run directory\n")
+
+
+def test_write_layout_is_what_export_writes(runs, tmp_path):
+    path = write_layout(tmp_path, robots=3, size=(12, 12))
+    assert json.loads(path.read_text()) == layout(3, (12, 12))
+    assert json.loads(path.read_text()) == json.loads(json.dumps(layout(3)))  # plain JSON, no NaN
