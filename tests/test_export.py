@@ -256,8 +256,11 @@ def mcap_topics(run: Path) -> set[str]:
 def test_foxglove_layout_references_only_topics_of_the_run(runs, tmp_path, name, robots):
     run = tmp_path / name
     shutil.copytree(runs / name, run)
+    written = (run / LAYOUT_FILE).read_text()  # every training run ships its layout
+    (run / LAYOUT_FILE).unlink()  # an older run without one gets it from riskplan export --to foxglove
     result = invoke(str(run), "--to", "foxglove")
     assert result.exit_code == 0 and "1 exported" in result.stdout
+    assert (run / LAYOUT_FILE).read_text() == written
     data = json.loads((run / LAYOUT_FILE).read_text())
     assert set(panels(data["layout"])) == set(data["configById"])  # every panel placed, none dangling
     assert {p.split("!")[0] for p in data["configById"]} >= {"3D", "Plot", "RawMessages"}
