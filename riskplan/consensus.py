@@ -22,6 +22,7 @@ from riskplan.errors import BadInput
 
 WEIGHTS = ("metropolis", "max_degree", "lazy", "matrix")
 STALE = ("arrival", "latest")
+TRACKING = "gradient_tracking"  # team.order whose robots also exchange gradient trackers (Mixer.track)
 TOL = 1e-9  # row-stochasticity tolerance
 MIX_STREAM = 7919  # delays and drops: default_rng([seed, 7919, iteration, round])
 SWITCH_STREAM = 7927  # switching links: default_rng([seed, 7927, iteration])
@@ -236,6 +237,23 @@ def check_weights(weights: np.ndarray, adjacency: np.ndarray, where: str) -> Non
         raise BadInput(where, problem)
 
 
+def check_tracking(network: Network, team: Any) -> None:
+    """team.order=gradient_tracking needs doubly stochastic weights: with a column of A that does not sum to 1,
+    mixing changes the sum of the trackers, which then no longer track the sum of the gradients."""
+    if network.robots == 1:
+        return
+    columns = network.weights.sum(axis=0)  # (N, M): column j of A per parameter
+    bad = np.abs(columns - 1.0) > TOL
+    if bad.any():
+        j, m = (int(k) for k in np.argwhere(bad)[0])
+        where = ("team.diagonal" if _get(team, "diagonal") is not None
+                 else "team.matrix" if _get(team, "weights") == "matrix" else "team.weights")
+        raise BadInput(where, f"column {j} (parameter {m}) of A sums to {columns[j, m]:.6g}, but "
+                              f"team.order={TRACKING} needs doubly stochastic weights (every column summing to 1 "
+                              f"too) so that the trackers keep the sum of the gradients; use weights=metropolis on "
+                              f"an undirected graph, or another order")
+
+
 # ---------------------------------------------------------------------------------------------- measures
 
 
@@ -284,6 +302,9 @@ class Mixer:
         if self.settings.robots != network.robots:
             raise BadInput("team.robots", f"is {self.settings.robots} but the network has {network.robots} robots")
         self.seed = int(seed) & MASK
+        self.tracking = str(_get(team, "order", "combine_then_adapt")) == TRACKING
+        if self.tracking:
+            check_tracking(network, team)
         n, m = network.robots, network.n_params
         slots, rounds = self.settings.max_delay + 1, self.settings.rounds
         # Messages in flight, one per (arrival iteration mod B0+1, round, link): a newer send overwrites an
@@ -303,6 +324,18 @@ class Mixer:
             "forced": np.zeros((n, n), dtype=bool),  # last call: sends forced by max_gap
             "used_sent": np.full((n, n), -1, dtype=np.int64),  # last call: send iteration of the mixed value
         }
+        if self.tracking:
+            # Gradient tracking (track): the trackers y and their push-sum weights v ride in the same messages as
+            # theta, as running sums; the last axis holds [y (M), v (M)].
+            self._state.update({
+                "pending_sums": np.zeros((slots, rounds, n, n, 2 * m)),  # the sender's running sums per message
+                "sums": np.zeros((rounds, n, 2 * m)),  # S^j: sum of all [y, v] robot j has sent in round r
+                "seen_sums": np.zeros((rounds, n, n, 2 * m)),  # rho^{ij}: the newest S^j robot i has taken in
+                "seen_sent": np.full((rounds, n, n), -1, dtype=np.int64),  # its send iteration, -1 = none yet
+                # [z^i_{l-1}, v^i_l]: robot i's mixed tracker (before Delta_l - Delta_{l-1}) and push-sum weight
+                "tracker": np.concatenate([np.zeros((n, m)), np.ones((n, m))], axis=1),
+                "gradient": np.zeros((n, m)),  # Delta^i_{l-1}, the gradient last added to the tracker
+            })
 
     # Diagnostics of the last call, for tests and logs.
     @property
@@ -353,15 +386,61 @@ class Mixer:
         return s["up"]
 
     def mix(self, thetas: np.ndarray, iteration: int, round_index: int = 0) -> np.ndarray:
-        """One consensus round of eq. (14) at slot (iteration, round_index): (N, M) in, (N, M) out."""
+        """One consensus round of eq. (14) at slot (iteration, round_index): (N, M) in, (N, M) out.
+
+        A gradient-tracking Mixer sends a zero tracker with it (use `track` for the tracking update)."""
         thetas = np.asarray(thetas, dtype=float)
+        return self._round(thetas, np.zeros_like(thetas) if self.tracking else None, iteration, round_index)[0]
+
+    def track(self, thetas: np.ndarray, grads: np.ndarray, iteration: int) -> tuple[np.ndarray, np.ndarray]:
+        """Gradient tracking (team.order=gradient_tracking: DIGing, MD-PGT without momentum) at iteration l.
+
+        y^i_l = z^i_{l-1} + Delta^i_l - Delta^i_{l-1}, with z_{-1} = Delta_{-1} = 0 so that y_0 = Delta_0. Every robot
+        sends (theta^i_l, y^i_l, v^i_l) in one message per round (one delay and drop draw for all). Returns
+        (A theta_l, y_l / v_l) and keeps z_l = A y_l and A v_l for the next call; the caller steps
+        theta_{l+1} = A theta_l + eps_l y_l / v_l. The trackers y and the push-sum weights v (v_0 = 1) are mixed as
+        running sums (`_mix_sums`), so sum_i y^i_l plus the tracker mass still in flight (`in_flight`) equals
+        sum_i Delta^i_l under any delays, drops and switching, as long as A is doubly stochastic (checked when the
+        Mixer is built). Without delays and drops v stays 1 and this is DIGing's y_{l+1} = A y_l + Delta_{l+1} -
+        Delta_l exactly; with them, dividing by v undoes the bursts of late mass (a link that delivers three
+        iterations of tracker at once delivers three iterations of weight too), the push-sum correction.
+        """
+        if not self.tracking:
+            raise ValueError("track needs a Mixer of a team with team.order=gradient_tracking")
+        thetas, grads = np.asarray(thetas, dtype=float), np.asarray(grads, dtype=float)
+        if grads.shape != thetas.shape:
+            raise ValueError(f"expected gradients of shape {thetas.shape}, got {grads.shape}")
+        if self.network.robots == 1:
+            return thetas.copy(), grads.copy()  # no one to track with: eq. (11), bit for bit
+        s, m = self._state, self.network.n_params
+        tracker = s["tracker"][:, :m] + (grads - s["gradient"])
+        mass = s["tracker"][:, m:]
+        mixed, carried = thetas, np.concatenate([tracker, mass], axis=1)
+        for round_index in range(self.settings.rounds):
+            mixed, carried = self._round(mixed, carried, iteration, round_index)
+        s["tracker"], s["gradient"] = carried, grads.copy()
+        return mixed, tracker / mass
+
+    def in_flight(self) -> np.ndarray:
+        """(2M,) tracker and push-sum weight mass sent but not yet taken in, [y part, v part]: the sum over
+        rounds and links of a^{ij} (S^j - rho^{ij})."""
+        if not self.tracking:
+            return np.zeros(2 * self.network.n_params)
+        s, w = self._state, self.network.weights
+        owed = s["sums"][:, None, :, :] - s["seen_sums"]  # (R, N, N, 2M): [r, i, j] what j sent that i lacks
+        links = self.network.adjacency[None, :, :, None]
+        return (np.where(links, owed, 0.0) * np.concatenate([w, w], axis=2)[None]).sum(axis=(0, 1, 2))
+
+    def _round(self, thetas: np.ndarray, carried: np.ndarray | None, iteration: int,
+               round_index: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """One round at slot (iteration, round_index): mixed thetas, and the mixed trackers when `carried`."""
         n, m = self.network.robots, self.network.n_params
         if thetas.shape != (n, m):
             raise ValueError(f"expected thetas of shape ({n}, {m}), got {thetas.shape}")
         if not 0 <= round_index < self.settings.rounds:
             raise ValueError(f"round_index {round_index} outside 0..{self.settings.rounds - 1} (team.consensus_rounds)")
         if n == 1:
-            return thetas.copy()
+            return thetas.copy(), None if carried is None else carried.copy()
         iteration = int(iteration)
         s = self._state
         if not s["started"]:
@@ -369,11 +448,34 @@ class Mixer:
             s["last_delivered"][:] = iteration - 1
             s["last_up"][:] = iteration - 1
             s["started"] = np.array(True)
-        self._send(thetas, iteration, round_index)
-        weights, values = self._received(thetas, iteration, round_index)
-        return np.einsum("ijm,ijm->im", weights, values)
+        self._send(thetas, carried, iteration, round_index)
+        weights, values, arrived = self._received(thetas, iteration, round_index)
+        mixed = np.einsum("ijm,ijm->im", weights, values)
+        return mixed, None if carried is None else self._mix_sums(carried, arrived, iteration, round_index)
 
-    def _send(self, thetas: np.ndarray, iteration: int, round_index: int) -> None:
+    def _mix_sums(self, carried: np.ndarray, arrived: np.ndarray, iteration: int, round_index: int) -> np.ndarray:
+        """Trackers after one round, mixed as running sums: robot i takes a^{ij} (S^j - rho^{ij}) from each link.
+
+        S^j is the sum of every tracker robot j has sent in this round slot, and rho^{ij} the newest S^j that robot
+        i has taken in. A message newer than rho^{ij} hands over all the mass sent on the link since then, so a
+        dropped or delayed tracker is late, never lost or counted twice, and an older message arriving after a
+        newer one is ignored. With no delays or drops the increment is a^{ij} y^j: the plain A y of DIGing.
+        """
+        s, slot = self._state, iteration % (self.settings.max_delay + 1)
+        sent = s["pending_sent"][slot, round_index]
+        fresh = arrived & (sent > s["seen_sent"][round_index])
+        sums = s["pending_sums"][slot, round_index]
+        seen = s["seen_sums"][round_index]
+        increment = np.where(fresh[:, :, None], sums - seen, 0.0)
+        seen[fresh] = sums[fresh]
+        s["seen_sent"][round_index] = np.where(fresh, sent, s["seen_sent"][round_index])
+        w = np.concatenate([self.network.weights] * (carried.shape[1] // self.network.n_params), axis=2)
+        diagonal = np.arange(len(w))
+        off = w.copy()
+        off[diagonal, diagonal, :] = 0.0
+        return w[diagonal, diagonal, :] * carried + np.einsum("ijm,ijm->im", off, increment)
+
+    def _send(self, thetas: np.ndarray, carried: np.ndarray | None, iteration: int, round_index: int) -> None:
         """Put this slot's messages in flight: delay, drop, forced delivery (Assumption 5 (3)-(4))."""
         s, cfg = self._state, self.settings
         # A fresh generator per slot: no random state crosses iterations, so resume is bit-identical.
@@ -392,9 +494,14 @@ class Mixer:
         s["pending"][slot, round_index, receiver, sender, :] = thetas[sender]
         s["pending_sent"][slot, round_index, receiver, sender] = iteration
         s["pending_due"][slot, round_index, receiver, sender] = due
+        if carried is not None:  # the tracker rides in the same message: its sender's running sum
+            s["sums"][round_index] += carried
+            s["pending_sums"][slot, round_index, receiver, sender, :] = s["sums"][round_index][sender]
 
-    def _received(self, thetas: np.ndarray, iteration: int, round_index: int) -> tuple[np.ndarray, np.ndarray]:
-        """Effective (N, N, M) weights and the values they multiply, after arrivals at this slot."""
+    def _received(self, thetas: np.ndarray, iteration: int,
+                  round_index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Effective (N, N, M) weights and the values they multiply, after arrivals at this slot; and the
+        (N, N) links whose message arrived now."""
         s, cfg, adjacency = self._state, self.settings, self.network.adjacency
         slot = iteration % (cfg.max_delay + 1)
         arrived = adjacency & (s["pending_due"][slot, round_index] == iteration)
@@ -418,7 +525,7 @@ class Mixer:
         effective[diagonal, diagonal, :] = w[diagonal, diagonal, :] + idle
         values = np.where(use[:, :, None], neighbour, 0.0)  # stale slots never meet a weight, even as 0 * inf
         values[diagonal, diagonal, :] = thetas
-        return effective, values
+        return effective, values, arrived
 
 
 # ---------------------------------------------------------------------------------------------- reports
@@ -489,4 +596,22 @@ def describe(network: Network, team: Any) -> str:
     lines.append(rate)
     if cfg.max_delay or cfg.drop or cfg.switching:
         lines.append("  (delays, drops and switching slow this down; the SLEM rate is a best case)")
+    lines.append(describe_order(str(_get(team, "order", "combine_then_adapt")), cfg))
     return "\n".join(lines)
+
+
+def describe_order(order: str, cfg: Settings) -> str:
+    """One line for `riskplan check`: what team.order does each iteration, and for gradient tracking what is exact."""
+    rounds = f"A^{cfg.rounds}" if cfg.rounds > 1 else "A"
+    if order == "adapt_then_combine":
+        return f"order: adapt_then_combine: theta <- {rounds} (theta + eps Delta) (the gradient steps are mixed too)"
+    if order != TRACKING:
+        return (f"order: combine_then_adapt (eq. 14): theta <- {rounds} theta + eps Delta; the consensus error keeps "
+                f"a floor of about eps |Delta^i - Delta^j|")
+    text = (f"order: gradient_tracking: theta <- {rounds} theta + eps y / v, y <- {rounds} y + Delta_new - Delta_old "
+            f"(y_0 = Delta_0); y and the push-sum weight v (v_0 = 1) travel with theta in one message, as running "
+            f"sums")
+    if cfg.max_delay or cfg.drop or cfg.switching:
+        return text + ("; sum_i y^i + the mass in flight = sum_i Delta^i exactly; late mass arrives within "
+                       f"B + B0 = {cfg.max_gap + cfg.max_delay} iterations, so the trackers lag, never drift")
+    return text + "; no delays or drops: v = 1 and sum_i y^i = sum_i Delta^i exactly (DIGing)"

@@ -30,11 +30,24 @@ class Frozen:
 
 
 @dataclass
+class ScheduleConf(Frozen):
+    """Soft risk (CeSoR): the CVaR gradient at level beta_l, from `start` to risk.beta over `iterations`, then beta.
+
+    kind: none (the paper: beta_l = beta throughout) | linear | exponential (geometric interpolation).
+    """
+
+    kind: str = "none"
+    start: float = 1.0
+    iterations: int = 100
+
+
+@dataclass
 class RiskConf(Frozen):
     """The objective: `cvar` optimises CVaR_beta, `neutral` the mean; beta is also the reporting level."""
 
     measure: str = "cvar"
     beta: float = 0.1
+    schedule: ScheduleConf = field(default_factory=ScheduleConf)
 
 
 @dataclass
@@ -141,7 +154,7 @@ class TeamConf(Frozen):
     max_gap: int = 10  # B of Assumption 5: a link delivers at least once every max_gap iterations
     stale: str = "arrival"  # arrival (paper eq. 14) | latest (newest value received from each neighbour)
     consensus_rounds: int = 1
-    order: str = "combine_then_adapt"  # eq. (14): mix, then add the own gradient step | adapt_then_combine
+    order: str = "combine_then_adapt"  # eq. (14) | adapt_then_combine | gradient_tracking (Mixer.track)
     starts: Optional[List[List[int]]] = None  # per-robot start cells; default world.start for all
     switching: SwitchingConf = field(default_factory=SwitchingConf)
 

@@ -14,11 +14,12 @@ from riskplan.checks import require
 from riskplan.params import as_dict, typed
 from riskplan.rng import SEED_LIMIT
 from riskplan.rollout import Kernel, make_kernel
-from riskplan.schema import RiskplanConf, StepSizeConf, TrainConf
+from riskplan.schema import RiskConf, RiskplanConf, StepSizeConf, TrainConf
 from riskplan.world import World, build_world, grid_size
 
 MEASURES = ("cvar", "neutral")
-ORDERS = ("combine_then_adapt", "adapt_then_combine")
+ORDERS = ("combine_then_adapt", "adapt_then_combine", "gradient_tracking")
+SCHEDULES = ("none", "linear", "exponential")  # risk.schedule.kind
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,7 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
     require(risk.measure in MEASURES, "risk.measure", f"got '{risk.measure}'; expected one of {', '.join(MEASURES)} "
                                                       f"(risk=cvar or risk=neutral)")
     require(0.0 < risk.beta <= 1.0, "risk.beta", f"got {risk.beta}; expected 0 < beta <= 1")
+    check_schedule(risk)
     require(train.iterations >= 1, "train.iterations", f"got {train.iterations}; expected a whole number >= 1")
     require(train.samples >= 1, "train.samples", f"got {train.samples}; expected W >= 1")
     require(math.isfinite(train.samples_growth) and train.samples_growth >= 0, "train.samples_growth",
@@ -115,6 +117,34 @@ def step_size(iteration: int, schedule: StepSizeConf) -> float:
         return schedule.initial / (1.0 + iteration / schedule.decay) ** schedule.power
     except OverflowError:  # (1 + l/decay)^power beyond 1.8e308: the step is 0 to double precision
         return 0.0
+
+
+def check_schedule(risk: RiskConf) -> None:
+    """The soft-risk schedule's keys (checked whatever the kind, so a bad value never waits for kind to change)."""
+    plan = risk.schedule
+    require(plan.kind in SCHEDULES, "risk.schedule.kind",
+            f"got '{plan.kind}'; expected one of {', '.join(SCHEDULES)}")
+    require(math.isfinite(plan.start) and 0.0 < plan.start <= 1.0, "risk.schedule.start",
+            f"got {plan.start}; expected 0 < start <= 1")
+    require(plan.start >= risk.beta, "risk.schedule.start",
+            f"got {plan.start}, below risk.beta={risk.beta}; the schedule goes from start down to beta, so "
+            f"expected beta <= start <= 1")
+    require(plan.iterations >= 1, "risk.schedule.iterations",
+            f"got {plan.iterations}; expected a whole number of iterations >= 1")
+
+
+def risk_level(iteration: int, risk: RiskConf) -> float:
+    """beta_l, the CVaR level of iteration l's gradient (soft risk, CeSoR): risk.beta with kind=none; otherwise
+    from start at l = 0 to risk.beta at l = schedule.iterations, linearly or geometrically, then risk.beta."""
+    plan, beta = risk.schedule, risk.beta
+    if plan.kind == "none" or iteration >= plan.iterations:
+        return beta
+    if iteration <= 0:
+        return plan.start
+    fraction = iteration / plan.iterations
+    if plan.kind == "linear":
+        return plan.start + (beta - plan.start) * fraction
+    return plan.start * (beta / plan.start) ** fraction  # exponential: log beta_l linear in l
 
 
 def samples_at(iteration: int, train: TrainConf) -> int:

@@ -53,10 +53,14 @@ def coll(sweep):
     return collect([sweep])
 
 
+OTHER_RUNS = {"soft_risk", "consensus_orders"}  # figures of runs this sweep does not hold (tests/test_soft_risk.py
+# and tests/test_tracking.py draw them)
+
+
 @pytest.fixture(scope="session")
 def figures(coll):
     specs, skipped = make_figures(coll)
-    assert not skipped, skipped
+    assert set(skipped) <= OTHER_RUNS, skipped
     return {s.name: s for s in specs}
 
 

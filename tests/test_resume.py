@@ -34,6 +34,7 @@ from riskplan.training import CHECKPOINT, CRASH_ENV, STOP_ENV, NumericalTrouble
 FAST = ["train.iterations=30", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50",
         "train.paths=3", "train.checkpoint_every=5"]
 TEAM = [*FAST, "experiment=paper_team", "team.delay.max=2", "team.drop=0.2"]  # delays and drops: mixer state
+TRACKING = [*TEAM, "team.order=gradient_tracking"]  # the trackers, their running sums and the last gradients too
 TABLES = ("metrics", "eval", "trajectories")
 WALL_CLOCK = {"wall_time", "throughput_episodes_per_s"}  # summary.json fields that measure time, not results
 TIMEOUT = 300
@@ -203,6 +204,20 @@ def test_team_run_killed_twice_resumes_to_the_uninterrupted_run(tmp_path, team_b
     result = resume_cli(out)
     assert result.returncode == 0, result.stderr
     assert_same_outputs(out, team_baseline)
+    assert_log_holds_each_iteration_once(out, 30, (-1, 0, 1, 2))
+
+
+def test_gradient_tracking_run_killed_resumes_to_the_uninterrupted_run(tmp_path):
+    reference = tmp_path / "reference"
+    result = train_cli(TRACKING, reference)
+    assert result.returncode == 0, result.stderr
+    out = tmp_path / "run"
+    assert kill_after_iteration(TRACKING, out, 12) == -signal.SIGKILL
+    assert checkpoint_iteration(out) == 10
+    assert "tracker" in json.loads((out / CHECKPOINT).read_text())["mixer"]
+    result = resume_cli(out)
+    assert result.returncode == 0, result.stderr
+    assert_same_outputs(out, reference)
     assert_log_holds_each_iteration_once(out, 30, (-1, 0, 1, 2))
 
 

@@ -258,6 +258,43 @@ def fig_consensus(coll: Collection) -> FigureSpec | str:
                       "robots agree exactly (error 0) are not drawn on the log axis.", fig)
 
 
+def fig_orders(coll: Collection) -> FigureSpec | str:
+    """Consensus error vs iteration for each team.order, one panel per set-up (the groups' other settings)."""
+    order_key = "team.order"
+    teams = [g for g in coll.groups if g.team]
+    orders = {str(g.config.get("team", {}).get("order", "combine_then_adapt")) for g in teams}
+    if len(orders) < 2:
+        return "no team runs that differ in team.order"
+    setups: dict[tuple, list[Group]] = {}
+    for g in teams:
+        rest = tuple(sorted((k, str(v)) for k, v in g.settings.items() if k != order_key))
+        setups.setdefault(rest, []).append(g)
+    panels = [(rest, gs) for rest, gs in setups.items() if len(gs) > 1][:3]
+    if not panels:
+        return "no set-up was run with more than one team.order"
+    fig, axes = _figure(4.2 * len(panels), 3.2, ncols=len(panels))
+    colours = dict(zip(("combine_then_adapt", "adapt_then_combine", "gradient_tracking"), ROBOT_COLOURS))
+    for ax, (rest, gs) in zip(axes[0], panels):
+        for g in sorted(gs, key=lambda g: str(g.config["team"].get("order"))):
+            order = str(g.config["team"].get("order", "combine_then_adapt"))
+            table = curve_table(g.runs, "consensus_error")
+            if np.any(table.to_numpy(float) > 0):
+                plot_band(ax, table, colours.get(order, g.color), order + _seeds(g.runs), log=True)
+        ax.set_yscale("log")
+        ax.set_xlabel("iteration")
+        _iterations(ax)
+        ax.set_title(f"N={gs[0].robots}, {gs[0].config['team'].get('graph')}"
+                     + "".join(f", {k.split('.', 1)[-1]}={v}" for k, v in rest
+                               if k in ("team.delay.max", "team.drop", "team.consensus_rounds")))
+        ax.legend(loc="best")
+    axes[0, 0].set_ylabel(r"consensus error $\max_{i,j}\,\|\theta^i-\theta^j\|$")
+    return FigureSpec("consensus_orders", "Consensus error by team.order",
+                      "The largest distance between two robots' parameters per iteration for each order of "
+                      "consensus and gradient steps (combine-then-adapt is the paper's eq. 14; gradient tracking "
+                      "steps along a tracker of the network-average gradient). Geometric mean across seeds with a "
+                      "95% band; one panel per set-up.", fig)
+
+
 def pooled_rewards(g: Group) -> np.ndarray:
     """The headline policy's evaluation rewards of every seed of a group."""
     return np.concatenate([r.eval_of().total_reward.to_numpy(float) for r in g.runs])
@@ -382,6 +419,62 @@ def fig_thetas(coll: Collection) -> FigureSpec | str:
                       "pulls the robots together while each follows its own gradient estimate.", fig)
 
 
+def fig_soft_risk(coll: Collection) -> FigureSpec | str:
+    """Soft risk: CVaR per iteration and the paths of theta, each risk.schedule group against its kind=none twin."""
+    from riskplan.report.collect import schedule_pairs
+
+    pairs = schedule_pairs(coll.groups)[:3]
+    if not pairs:
+        return "no runs with a soft-risk schedule (risk.schedule.kind=linear or exponential)"
+    if len(theta_columns(pairs[0][0].first.run.metrics)) < 2:
+        return "the soft-risk runs' world has fewer than two sources (no theta plane to draw)"
+    fig, axes = _figure(8.2, 3.6, ncols=2)
+    curves, paths = axes[0]
+    levels = curves.twinx()
+    levels.grid(False)
+    shown: list[Group] = []
+    for scheduled, plain in pairs:
+        for g in ([plain] if plain is not None else []) + [scheduled]:
+            if g in shown:
+                continue
+            shown.append(g)
+            name = f"{g.label}{_seeds(g.runs)}"
+            plot_band(curves, curve_table(g.runs, "cvar"), g.color, name, "-" if g is scheduled else "--")
+            for k, r in enumerate(g.runs):
+                m = r.metrics_of()
+                xs = np.append(m.theta_0.to_numpy(float), r.final_theta()[0])
+                ys = np.append(m.theta_1.to_numpy(float), r.final_theta()[1])
+                paths.plot(xs, ys, "-" if g is scheduled else "--", color=g.color, lw=1.1, alpha=0.85,
+                           label=name if k == 0 else f"_{name} {r.seed}")
+                paths.plot(xs[-1:], ys[-1:], ls="none", marker="s", ms=5, color=g.color, mec="white", label="_end")
+        if "beta_l" in scheduled.first.run.metrics:
+            levels.plot(*_level_curve(scheduled), ":", color=scheduled.color, lw=1.2, label="_level")
+    starts = {tuple(r.metrics_of()[["theta_0", "theta_1"]].iloc[0]) for g in shown for r in g.runs}
+    for x, y in starts:
+        paths.plot([x], [y], ls="none", marker="o", ms=6, mfc="white", mec="black", zorder=5, label="_start")
+    beta = pairs[0][0].beta
+    curves.set_xlabel("iteration")
+    _iterations(curves)
+    curves.set_ylabel(f"CVaR$_{{{beta:g}}}$ of total reward (training episodes)")
+    levels.set_ylabel(r"$\beta_l$ (dotted)")
+    levels.set_ylim(0, 1.05)
+    curves.set_title("(a) CVaR at β and the gradient's level β_l")
+    paths.set_xlabel(r"$\theta_0$ (weight of source 1)")
+    paths.set_ylabel(r"$\theta_1$ (weight of source 2)")
+    paths.set_title("(b) θ per iteration (circle θ0, square final)")
+    fig.legend(*curves.get_legend_handles_labels(), loc="outside lower center", ncols=2)
+    return FigureSpec("soft_risk", "Soft risk (CeSoR schedule) against the paper's fixed β",
+                      "Left: CVaR at risk.beta of each iteration's training episodes (solid: a soft-risk schedule, "
+                      "dashed: the same runs with risk.schedule.kind=none), and the schedule's level β_l (dotted, "
+                      "right axis), the CVaR level its gradient ascends. Right: the paths of θ.", fig)
+
+
+def _level_curve(g: Group) -> tuple[np.ndarray, np.ndarray]:
+    """(iterations, beta_l) of a group (the schedule is the same for every seed)."""
+    m = g.first.metrics_of()
+    return m.iteration.to_numpy(float), m.beta_l.to_numpy(float)
+
+
 def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
     """Mean and CVaR heatmaps over the theta grid, with the training paths of the runs on that world."""
     from riskplan.report.tables import runs_on
@@ -440,9 +533,11 @@ BUILDERS = (
     ("fig2_cvar", fig_cvar),
     ("fig3_team", fig_team),
     ("fig4_consensus", fig_consensus),
+    ("consensus_orders", fig_orders),
     ("reward_distribution", fig_distribution),
     ("risk_frontier", fig_frontier),
     ("team_thetas", fig_thetas),
+    ("soft_risk", fig_soft_risk),
 )
 
 
