@@ -13,7 +13,7 @@ sources, rounded up), and the costs are in trajectory-step equivalents of limits
   paths       250 B and 400 steps per recorded step (trajectories.parquet, the /paths replay in run.mcap)
   rows        (2000 + 200 M) B and 2000 steps per metrics row (kept for the checkpoint and the log)
   messages    (64 + 80 M) B per (delay slot, round, ordered robot pair) of the consensus buffers (and their
-              checkpoint), 100 steps each per checkpoint
+              checkpoint), twice that with gradient tracking, 100 steps each per checkpoint
   network     (1000 + 400 M) B and 300 steps per ordered robot pair (weights, checks, logged graph)
 """
 
@@ -54,6 +54,7 @@ class Sizes:
     resample: int
     geometric: bool
     checkpoint_every: int
+    tracking: bool = False  # team.order=gradient_tracking: trackers travel with theta (about twice the buffers)
 
 
 def sizes_of(cfg, width: int, height: int, sources: int, robots: int) -> Sizes:
@@ -62,7 +63,7 @@ def sizes_of(cfg, width: int, height: int, sources: int, robots: int) -> Sizes:
     return Sizes(width, height, max(int(sources), 1), robots, int(cfg.world.horizon), int(train.iterations),
                  int(train.samples), float(train.samples_growth), int(train.eval_episodes), int(train.bootstrap),
                  int(train.paths), int(team.delay.max), int(team.consensus_rounds), int(team.resample),
-                 team.graph == "random_geometric", int(train.checkpoint_every))
+                 team.graph == "random_geometric", int(train.checkpoint_every), team.order == "gradient_tracking")
 
 
 def check(sizes: Sizes) -> None:
@@ -120,7 +121,8 @@ def estimate(s: Sizes) -> tuple[list[Part], list[Part]]:
         (_prod(record, 250.0), f"its recorded paths ({_num(record)} steps)", [paths, horizon, robots]),
         (_prod(s.iterations, rows, 2000.0 + 200.0 * m), f"its metrics ({_num(_prod(s.iterations, rows))} rows)",
          [iterations, robots]),
-        (_prod(slots, 64.0 + 80.0 * m), f"its consensus message buffers ({_num(slots)} slots)",
+        (_prod(slots, (64.0 + 80.0 * m) * (2.0 if s.tracking else 1.0)),
+         f"its consensus message buffers ({_num(slots)} slots)",
          [delay, rounds, robots]),
         (_prod(pairs, 1000.0 + 400.0 * m), f"its network of {show(s.robots)} robots", [robots]),
         (_prod(s.bootstrap, 100.0) + _prod(s.eval_episodes, 16.0),
