@@ -15,7 +15,7 @@ import re
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
+from omegaconf.errors import InterpolationToMissingValueError, MissingMandatoryValue, OmegaConfBaseException
 
 from riskplan.errors import BadInput
 
@@ -37,8 +37,8 @@ def check_hydra_node(cfg: DictConfig, hydra_overrides: list) -> None:
             continue
         try:
             OmegaConf.select(cfg, key, throw_on_missing=False)
-        except MissingMandatoryValue:
-            pass  # refers to a value Hydra sets when the job starts (hydra.runtime.output_dir, ...)
+        except (MissingMandatoryValue, InterpolationToMissingValueError):
+            pass  # refers to a value Hydra sets when the job starts (hydra.runtime.output_dir, hydra.job.num, ...)
         except OmegaConfBaseException as err:
             reason = interpolation_reason(err)
             raise BadInput(f"key '{key}'", f"the interpolation {override.value()} cannot be resolved ({reason}); "
@@ -85,5 +85,8 @@ def _allowed_class(name: Any, modules: tuple[str, ...]) -> bool:
         found = getattr(importlib.import_module(module), attribute)
     except (ImportError, AttributeError):
         return False
-    # an attribute of an allowed module that is itself imported from elsewhere (os.system...) is refused
-    return inspect.isclass(found) and found.__module__ == module and found.__qualname__ == attribute
+    # an attribute of an allowed module that is itself imported from elsewhere (os.system...) is refused; a class
+    # a package re-exports from its own submodules (optuna.samplers.TPESampler, from optuna.samplers._tpe) is not
+    home = getattr(found, "__module__", None) or ""
+    return (inspect.isclass(found) and (home == module or home.startswith(module + "."))
+            and found.__qualname__ == attribute)

@@ -17,6 +17,11 @@ What riskplan adds around Hydra's own multirun (which does the expanding, the la
   to its own `job.log`;
 - `summary.parquet`: one row per job, with the overrides as columns, the final figures with their 95%
   intervals, the wall time, the status and the error.
+
+An optimising sweeper (hydra/sweeper=optuna) chooses the jobs as it goes (`plan_optimiser`): its search space is
+checked with sample values instead of every combination, each trial runs as a sweep job in a numbered folder and
+returns its CVaR (None when it failed, which optuna records as a failed trial), and summary.parquet has one row
+per trial.
 """
 
 from __future__ import annotations
@@ -45,7 +50,8 @@ EXTRA_CVARS = ("cvar_0.05", "cvar_0.1", "cvar_0.2")
 SWEEP_HELP = ("Hydra overrides; comma lists and range(...) sweep, e.g. risk.beta=0.05,0.1,0.2 'seed=range(0,5)' "
               "team.graph=line,ring. hydra/launcher=submitit_slurm|submitit_local|ray selects a cluster launcher "
               "(default: joblib on local cores); hydra.sweep.dir=DIR re-runs a sweep into DIR, skipping the jobs "
-              "that finished.")
+              "that finished. hydra/sweeper=optuna 'risk.beta=interval(0.05,1)' hydra.sweeper.n_trials=12 runs "
+              "an Optuna study instead of a grid (pip install 'riskplan[optuna]'); its trials return their CVaR.")
 
 
 @dataclass
@@ -58,6 +64,7 @@ class Job:
     path: Path | None = None  # its folder, once known
     label: str = ""  # the overrides that vary between jobs: its name until its folder exists
     folder: str | None = None  # the folder name Hydra will give it (None when the user set hydra.sweep.subdir)
+    trial: int = -1  # under an optimising sweeper: its trial number (hydra.job.num)
 
     @property
     def key(self) -> tuple[str, ...]:
@@ -79,6 +86,9 @@ class Plan:
     workers: int | None
     warnings: list[str] = field(default_factory=list)
     workers_arg: int | None = None  # index in argv of the hydra.launcher.n_jobs=... riskplan added
+    sweeper: str = "basic"  # another one (optuna) chooses the jobs as it goes: `jobs` is empty until they ran
+    trials: int | None = None  # how many jobs such a sweeper runs, when known
+    search: list[str] = field(default_factory=list)  # the keys it searches
 
 
 @dataclass
@@ -93,6 +103,8 @@ class Outcome:
     seconds: float
     launcher_error: str | None = None
     command: list[str] = field(default_factory=list)  # the `riskplan sweep` arguments that resume this sweep
+    best: str | None = None  # an optimising sweeper's best trial, as it reports it
+    optimiser: bool = False
 
     @property
     def ok(self) -> bool:
@@ -104,12 +116,13 @@ class Outcome:
 
 def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None) -> Plan:
     """Parse, expand and validate a sweep; claim its directory last, so bad input leaves nothing behind."""
-    from riskplan.config import parse_overrides
+    from riskplan.config import expand_shorthands, parse_overrides
 
     for arg in args:
         if arg.startswith("-"):
             raise BadInput(f"option '{arg}'", "is not known to riskplan sweep; give Hydra overrides (key=value) "
                                               "and --jobs N")
+    args = expand_shorthands(args)  # risk.schedule=none,linear -> risk.schedule.kind=none,linear
     parsed = parse_overrides(args)
     hydra_ovs = [o for o in parsed if o.is_hydra_override()]
     task_ovs = [o for o in parsed if not o.is_hydra_override()]
@@ -131,6 +144,14 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         explicit_dir = Path(value)
     if sweep_dir is not None and explicit_dir is not None:
         raise BadInput("hydra.sweep.dir", "is chosen by this command; do not give it")
+    sweeper = str(hydra_keys["hydra/sweeper"].value()) if "hydra/sweeper" in hydra_keys else "basic"
+    if sweeper != "basic":  # an optimiser: it chooses the jobs as it goes
+        return plan_optimiser(args, task_ovs, hydra_ovs, launcher, sweeper, jobs, sweep_dir, explicit_dir)
+    for o in task_ovs:
+        if o.is_interval_sweep():
+            raise BadInput(f"override '{o.input_line}'", "interval(...) is a search space for an optimising "
+                                                         "sweeper (hydra/sweeper=optuna); a grid takes comma "
+                                                         "lists, range(...), choice(...) or glob(...)")
 
     check_size(task_ovs)
     if "hydra.sweep.subdir" in hydra_keys:
@@ -184,6 +205,12 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     if task_ovs and "hydra.sweep.subdir" not in hydra_keys:
         name_folders(job_list, naming, task_ovs)
 
+    target = _target_dir(sweep_dir, explicit_dir, argv)
+    return Plan(target, argv, job_list, launcher, workers, notes, workers_arg)
+
+
+def _target_dir(sweep_dir: Path | None, explicit_dir: Path | None, argv: list[str]) -> Path:
+    """The sweep directory, made or claimed now that the input is known to be good."""
     if sweep_dir is not None:
         target = Path(sweep_dir)
         target.mkdir(parents=True, exist_ok=True)
@@ -194,7 +221,162 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         target = claim_dir(SWEEPS_ROOT)
     if explicit_dir is None:  # absolute: jobs on other machines (submitit, ray) may start in another directory
         argv.append(f"hydra.sweep.dir={hydra_quote(target.resolve())}")
-    return Plan(target, argv, job_list, launcher, workers, notes, workers_arg)
+    return target
+
+
+OPTIMISER_FORMS = "choice(...), comma lists, range(...) or interval(...)"
+
+
+def plan_optimiser(args: list[str], task_ovs: list, hydra_ovs: list, launcher: str, sweeper: str,
+                   jobs: int | None, sweep_dir: Path | None, explicit_dir: Path | None) -> Plan:
+    """A sweep whose sweeper chooses the jobs as it goes (hydra/sweeper=optuna): the combinations are not known
+    before it runs, so the search space is checked instead. Every swept key is composed with a sample value of the
+    type the sweeper will draw (every value of a choice), which makes an unknown key or a badly typed value bad
+    input; a sample the model rejects is a warning (its trials fail alone), unless every sample is rejected for a
+    key that is not searched (bad input). The trials run as jobs of the grid do (sweepjob), in folders numbered by
+    trial; each returns its CVaR to the sweeper, or None when it failed (optuna records that trial as failed)."""
+    from riskplan.sweepjob import TRIAL_SUBDIR
+
+    hydra_keys = {o.key_or_group: o for o in hydra_ovs}
+    search = [o for o in task_ovs if o.is_sweep_override()]
+    fixed = [o for o in task_ovs if not o.is_sweep_override()]
+    samples = {o.key_or_group: search_samples(o, sweeper) for o in search}
+    base = [o.input_line for o in fixed] + [f"{o.get_key_element()}={samples[o.key_or_group][0]}" for o in search]
+    combos = [base]
+    for i, o in enumerate(search):
+        for value in samples[o.key_or_group][1:]:
+            combo = list(base)
+            combo[len(fixed) + i] = f"{o.get_key_element()}={value}"
+            combos.append(combo)
+    try:
+        sample_jobs, notes = validate(combos)
+    except BadInput as err:  # name the search-space override whose sample does not compose
+        for o in search:
+            if err.where in (f"key '{o.key_or_group}'", o.key_or_group) and not o.is_choice_sweep():
+                raise BadInput(err.where, f"{err.problem} (from override '{o.input_line}', composed with the "
+                                          f"sample value {samples[o.key_or_group][0]})") from None
+        raise
+    searched = {o.key_or_group for o in search}
+    rejected = [job.invalid for job in sample_jobs if job.invalid]
+    if rejected and len(rejected) == len(sample_jobs) and rejected[0].partition(": ")[0] not in searched:
+        where, _, problem = rejected[0].partition(": ")
+        raise BadInput(where, f"{problem} (in every trial; nothing was run)")
+    for job, error in zip(sample_jobs, (j.invalid for j in sample_jobs)):
+        if error:
+            tried = ",".join(job.overrides[len(fixed):])
+            notes.append(f"{error} (with the sample {tried}); trials there will fail alone")
+
+    argv = ["-m", *args]
+    if sweeper == "optuna":
+        if "hydra.sweeper.direction" not in hydra_keys:
+            argv.append("hydra.sweeper.direction=maximize")  # the trials return their CVaR: higher is better
+        if jobs is not None and "hydra.sweeper.n_jobs" not in hydra_keys:
+            argv.append(f"hydra.sweeper.n_jobs={jobs}")  # trials per batch: as many as run at once
+    if "hydra/launcher" not in hydra_keys:
+        argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
+    if "hydra.sweep.subdir" in hydra_keys:
+        check_subdir(hydra_keys["hydra.sweep.subdir"].value(), True)
+    else:  # trial_007,risk.beta=0.31: numbered, so two trials that drew the same values never share a folder
+        argv.append(f"hydra.sweep.subdir={hydra_quote(TRIAL_SUBDIR)}")
+        argv.append("+hydra.callbacks.riskplan_folders._target_=riskplan.sweepjob.FolderNames")
+    constant = [o.key_or_group for o in fixed] if search else []
+    if constant and not {"hydra.sweep.subdir", "hydra.job.config.override_dirname.exclude_keys"} & set(hydra_keys):
+        argv.append("hydra.job.config.override_dirname.exclude_keys=["
+                    + ",".join(hydra_quote(k) for k in constant) + "]")
+    if "hydra/hydra_logging" not in hydra_keys:
+        argv.append("hydra/hydra_logging=riskplan_sweep")
+    if "hydra/job_logging" not in hydra_keys:
+        argv.append("hydra/job_logging=riskplan_job")
+    _, settings = check_hydra(argv[1 + len(args):] + [o.input_line for o in hydra_ovs], base, sweeper=True)
+    trials, batch = check_optimiser(sweeper, settings, search)
+
+    workers = None
+    workers_arg = None
+    if launcher == "joblib":
+        workers = min(jobs or cpu_count(), *(n for n in (batch, trials) if n))
+        if "hydra.launcher.n_jobs" not in hydra_keys:
+            workers_arg = len(argv)
+            argv.append(f"hydra.launcher.n_jobs={workers}")
+    elif jobs is not None:
+        if launcher == "submitit_slurm":
+            workers = min(jobs, *(n for n in (batch, trials) if n))
+            argv.append(f"hydra.launcher.array_parallelism={workers}")
+        else:
+            raise BadInput("--jobs", f"applies to the joblib and submitit_slurm launchers, not to "
+                                     f"hydra/launcher={launcher}")
+    target = _target_dir(sweep_dir, explicit_dir, argv)
+    return Plan(target, argv, [], launcher, workers, notes, workers_arg, sweeper=sweeper, trials=trials,
+                search=sorted(searched))
+
+
+def search_samples(override, sweeper: str) -> list[str]:
+    """Values to compose a search-space override with, of the types the sweeper will draw: every value of a
+    choice, the start of a range (and its next value), the middle of an interval (an int for an int interval)."""
+    import math
+
+    from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, RangeSweep
+
+    value = override.value()
+    line = f"override '{override.input_line}'"
+    if isinstance(value, ChoiceSweep):
+        return list(override.sweep_string_iterator())
+    if isinstance(value, RangeSweep):
+        bounds = (value.start, value.stop, value.step)
+        if any(not isinstance(v, (int, float)) or not math.isfinite(v) for v in bounds) or not value.step:
+            raise BadInput(line, "has a range bound or step that is not a finite number, or a step of 0; give "
+                                 "finite numbers, e.g. range(0,5) or range(0,1,0.25)")
+        if (value.stop - value.start) / value.step < 0:
+            raise BadInput(line, "is an empty range; give a start below the stop, e.g. range(0,5)")
+        first = value.start if all(isinstance(v, int) for v in bounds) else float(value.start)
+        return [repr(first)]
+    if isinstance(value, IntervalSweep):
+        start, end = value.start, value.end
+        if any(not isinstance(v, (int, float)) or not math.isfinite(v) for v in (start, end)):
+            raise BadInput(line, "has a bound that is not a finite number; give finite numbers, e.g. "
+                                 "interval(0.05,1)")
+        if not start < end:
+            raise BadInput(line, f"has its lower bound {start} not below its upper bound {end}; give "
+                                 f"interval(low,high) with low < high")
+        log = "log" in value.tags
+        if log and start <= 0:
+            raise BadInput(line, f"is a log interval from {start}; a log interval needs a lower bound above 0")
+        if isinstance(start, int) and isinstance(end, int):
+            return [repr(int(round(math.sqrt(start * end))) if log else (start + end) // 2)]
+        return [repr(math.sqrt(start * end) if log else (start + end) / 2)]
+    raise BadInput(line, f"the {sweeper} sweeper takes {OPTIMISER_FORMS}, not glob(...)")
+
+
+def check_optimiser(sweeper: str, settings: dict, search: list) -> tuple[int | None, int | None]:
+    """The optuna sweeper's settings that would fail only once it runs; returns (trials, trials per batch)."""
+    from riskplan.limits import check_jobs
+
+    if sweeper != "optuna":
+        return None, None
+    trials, batch = settings.get("n_trials"), settings.get("n_jobs")
+    for key, value in (("hydra.sweeper.n_trials", trials), ("hydra.sweeper.n_jobs", batch)):
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            raise BadInput(key, f"got {value!r}; expected a whole number >= 1")
+    check_jobs("hydra.sweeper.n_trials", trials)
+    direction = settings.get("direction")
+    if isinstance(direction, (list, tuple)):
+        raise BadInput("hydra.sweeper.direction", f"got {list(direction)}: several objectives; riskplan's trials "
+                                                  f"return one (the CVaR), so give maximize or minimize")
+    if str(direction) not in ("maximize", "minimize"):
+        raise BadInput("hydra.sweeper.direction", f"got {direction!r}; expected maximize or minimize")
+    if settings.get("custom_search_space") is not None:
+        raise BadInput("hydra.sweeper.custom_search_space", f"got {settings['custom_search_space']!r}: it names a "
+                                                            f"function to run, and config strings are never code; "
+                                                            f"give the search space as overrides, e.g. "
+                                                            f"'risk.beta=interval(0.05,1)'")
+    rate = settings.get("max_failure_rate")
+    if not isinstance(rate, (int, float)) or isinstance(rate, bool) or not 0 <= rate <= 1:
+        raise BadInput("hydra.sweeper.max_failure_rate", f"got {rate!r}; expected a number from 0 to 1")
+    sampler = str((settings.get("sampler") or {}).get("_target_", ""))
+    for o in search:
+        if sampler.endswith("GridSampler") and o.is_interval_sweep():
+            raise BadInput(f"override '{o.input_line}'", "the grid sampler takes choice(...), comma lists or "
+                                                         "range(...), not interval(...)")
+    return trials, batch
 
 
 def sweep_size(task_ovs: list) -> tuple[int, object]:
@@ -362,9 +544,10 @@ def expand(task_ovs: list, args: list[str]) -> list[list[str]]:
     return combos
 
 
-def check_hydra(hydra_args: list[str], first_job: list[str]) -> dict:
+def check_hydra(hydra_args: list[str], first_job: list[str], sweeper: bool = False):
     """Compose Hydra's own config (launcher and its settings) once: a bad one is bad input, before anything runs.
-    Returns hydra.job.config.override_dirname (exclude_keys, item_sep, kv_sep), which names the job folders."""
+    Returns hydra.job.config.override_dirname (exclude_keys, item_sep, kv_sep), which names the job folders, and
+    with `sweeper` also hydra.sweeper (its settings, enums as text)."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
     from hydra.errors import HydraException
@@ -383,11 +566,16 @@ def check_hydra(hydra_args: list[str], first_job: list[str]) -> dict:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             cfg = compose(config_name="config", overrides=[*hydra_args, *first_job], return_hydra_config=True)
             check_hydra_node(cfg, [o for o in parse_overrides(hydra_args) if o.is_hydra_override()])
-            return OmegaConf.to_container(cfg.hydra.job.config.override_dirname, resolve=True)
+            naming = OmegaConf.to_container(cfg.hydra.job.config.override_dirname, resolve=True)
+            if sweeper:
+                return naming, OmegaConf.to_container(cfg.hydra.sweeper, resolve=True, enum_to_str=True)
+            return naming
     except (HydraException, OmegaConfBaseException) as err:
         where, message = explain(err)
         if where == "key 'hydra/launcher'":
             message += " (pip install 'riskplan[slurm]' for submitit_local|submitit_slurm, 'riskplan[ray]' for ray)"
+        if where == "key 'hydra/sweeper'":
+            message += " (pip install 'riskplan[optuna]' for optuna)"
         raise BadInput(where, message) from None
     finally:
         GlobalHydra.instance().clear()
@@ -515,6 +703,8 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out) ->
     echo = out or (lambda text: typer.echo(text))
     for note in plan.warnings:
         typer.echo(f"warning: {note}", err=True)
+    if plan.sweeper != "basic":
+        return _run_optimiser(plan, args, jobs, title, echo)
     started = time.time()
     locate(plan.sweep_dir, plan.jobs)
     finished = {i for i, job in enumerate(plan.jobs) if job.path is not None and is_finished(job.path, job.sha)}
@@ -545,6 +735,109 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out) ->
               + (["--jobs", str(jobs)] if jobs else []))
     return Outcome(plan.sweep_dir, summary, failed, todo, len(finished), time.time() - started, launcher_error,
                    resume)
+
+
+def _run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, echo) -> Outcome:
+    """Launch a sweep whose sweeper chooses the trials; then one summary row per trial it ran."""
+    from riskplan.sweepjob import DRIVER_ENV, THREADS_ENV
+
+    started = time.time()
+    where = f"{plan.launcher}" + (f", {plan.workers} workers" if plan.workers else "")
+    echo(f"{title} directory: {plan.sweep_dir}")
+    count = f"{plan.trials} trials" if plan.trials else "trials"
+    echo(f"{count} chosen by hydra/sweeper={plan.sweeper} over {', '.join(plan.search) or 'no key'}, each "
+         f"returning its CVaR ({where})")
+    if plan.launcher == "joblib" and plan.workers:
+        os.environ[THREADS_ENV] = str(max(1, cpu_count() // plan.workers))
+    os.environ[DRIVER_ENV] = str(os.getpid())
+    if plan.sweeper == "optuna":  # optuna's messages go where Hydra's go (sweep.log), not to the terminal
+        try:
+            import optuna
+
+            optuna.logging.disable_default_handler()
+            optuna.logging.enable_propagation()
+        except ImportError:
+            pass
+    with SweepView(plan.sweep_dir, [], set(), title, total=plan.trials,
+                   discover=lambda since: discover_trials(plan.sweep_dir, since)):
+        launcher_error = _launch(plan.argv, plan.sweep_dir / "sweep.log")
+    trials = trial_jobs(plan.sweep_dir, started)
+    summary = summarize(trials)
+    if len(summary):
+        summary.insert(1, "trial", [job.trial for job in trials])
+    write_summary(summary, plan.sweep_dir / SUMMARY)
+    failed = [(row.job, row.error or row.status) for row in summary.itertuples() if row.status != "done"]
+    if plan.trials and len(trials) < plan.trials and launcher_error is None:
+        launcher_error = (f"the sweeper ran {len(trials)} of {plan.trials} trials (see "
+                          f"{plan.sweep_dir / 'sweep.log'})")
+    resume = ([a for a in args if not a.startswith("hydra.sweep.dir=")] + [f"hydra.sweep.dir={plan.sweep_dir}"]
+              + (["--jobs", str(jobs)] if jobs else []))
+    from riskplan.sweepjob import read_status
+
+    earlier = sum(1 for job in trials if _number((read_status(job.path) or {}).get("finished")) < started - 2
+                  and (read_status(job.path) or {}).get("status") == "done")  # finished before: skipped now
+    outcome = Outcome(plan.sweep_dir, summary, failed, len(trials) - earlier, earlier, time.time() - started,
+                      launcher_error, resume)
+    outcome.best = best_trial(plan.sweep_dir, started)
+    outcome.optimiser = True
+    return outcome
+
+
+def discover_trials(sweep_dir: Path, since: float) -> list[Job]:
+    """The job folders Hydra wrote since `since` (each launch rewrites a job's .hydra/), as Jobs of any config."""
+    import yaml
+
+    found = []
+    for file in _override_files(Path(sweep_dir)):
+        try:
+            if file.stat().st_mtime < since - 2:
+                continue
+            overrides = yaml.safe_load(file.read_text()) or []
+        except (OSError, yaml.YAMLError):
+            continue
+        if isinstance(overrides, list):
+            folder = file.parent.parent
+            found.append(Job([str(o) for o in overrides], None, path=folder, label=folder.name))
+    return found
+
+
+def trial_jobs(sweep_dir: Path, since: float) -> list[Job]:
+    """The trials launched since `since`, in the sweeper's order (hydra.job.num), each with the fingerprint of
+    its composed config."""
+    import yaml
+
+    from riskplan.errors import BadInput as _Bad
+
+    trials = discover_trials(sweep_dir, since)
+    for job in trials:
+        try:
+            hydra_yaml = yaml.safe_load((job.path / ".hydra" / "hydra.yaml").read_text())
+            job.trial = int(hydra_yaml["hydra"]["job"]["num"])
+        except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError):
+            job.trial = -1
+        try:
+            checked, _ = validate([job.overrides])
+            job.sha, job.invalid = checked[0].sha, checked[0].invalid
+        except _Bad as err:
+            job.sha, job.invalid = "", str(err)
+    return sorted(trials, key=lambda j: (j.trial, j.name))
+
+
+def best_trial(sweep_dir: Path, since: float) -> str | None:
+    """What the sweeper reports as its best (optuna's optimization_results.yaml), written by this launch."""
+    import yaml
+
+    file = Path(sweep_dir) / "optimization_results.yaml"
+    try:
+        if file.stat().st_mtime < since - 2:
+            return None
+        result = yaml.safe_load(file.read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return None
+    if not isinstance(result, dict) or "best_params" not in result:
+        return None
+    params = ",".join(f"{k}={v}" for k, v in (result.get("best_params") or {}).items())
+    return f"best trial: {params} with CVaR {result.get('best_value')} ({file.name})"
 
 
 def _launch(argv: list[str], log_file: Path) -> str | None:
@@ -631,7 +924,7 @@ def job_state(job: Job, since: float) -> tuple[str, dict | None]:
     if job.path is None:
         return "pending", None
     status = read_status(job.path)
-    if status is not None and status.get("config_sha") == job.sha:
+    if status is not None and (job.sha is None or status.get("config_sha") == job.sha):
         state = status.get("status")
         if state == "running" and _number(status.get("started")) >= since - 2:
             return "running", status
@@ -691,6 +984,10 @@ def summarize(jobs: list[Job]):
         for name in EXTRA_CVARS:
             row[name] = ((summary or {}).get(name) or {}).get("value", float("nan"))
         row["beta"] = (summary or {}).get("beta", float("nan"))
+        row["risky_fraction"] = (summary or {}).get("risky_fraction", float("nan"))
+        reached = (summary or {}).get("source_reached") or {}
+        for name, value in (reached.items() if isinstance(reached, dict) else ()):
+            row[f"reached_{name}"] = value
         row["wall_time"] = (float(status["seconds"]) if status and state == "done"
                             and isinstance(status.get("seconds"), (int, float)) else float("nan"))
         row["train_time"] = (summary or {}).get("wall_time", float("nan"))
@@ -699,6 +996,11 @@ def summarize(jobs: list[Job]):
         row["path"] = str(job.path) if job.path is not None else None
         rows.append(row)
     frame = pd.DataFrame(rows)
+    reached = [c for c in frame.columns if str(c).startswith("reached_")]
+    if reached:  # right after risky_fraction, whichever job first had them
+        rest = [c for c in frame.columns if c not in reached]
+        at = rest.index("risky_fraction") + 1
+        frame = frame[rest[:at] + reached + rest[at:]]
     for column in frame.columns:  # a column mixing numbers and text is stored as text
         kinds = {type(v) for v in frame[column] if v is not None and v == v}
         if len(kinds) > 1 and not kinds <= {int, float, bool}:
@@ -729,9 +1031,9 @@ def write_summary(frame, path: Path) -> None:
 
 def varying_columns(frame) -> list[str]:
     """The override columns whose value differs between jobs (all of them if none differs)."""
-    fixed = {"job", "status", "error", "path", "beta", "wall_time", "train_time", *EXTRA_CVARS,
-             *[f"{n}{s}" for n in FIGURES for s in ("", "_low", "_high")]}
-    overrides = [c for c in frame.columns if c not in fixed]
+    fixed = {"job", "trial", "status", "error", "path", "beta", "wall_time", "train_time", "risky_fraction",
+             *EXTRA_CVARS, *[f"{n}{s}" for n in FIGURES for s in ("", "_low", "_high")]}
+    overrides = [c for c in frame.columns if c not in fixed and not str(c).startswith("reached_")]
     varying = [c for c in overrides if frame[c].astype(str).nunique() > 1]
     return varying or overrides[:3]
 
@@ -742,12 +1044,15 @@ def print_table(frame, title: str, limit: int = 40) -> None:
     from rich.table import Table
 
     table = Table(title=title, title_justify="left", show_edge=False, pad_edge=False)
-    keys = varying_columns(frame)
+    keys = (["trial"] if "trial" in frame.columns else []) + varying_columns(frame)
+    reached = [c for c in frame.columns if str(c).startswith("reached_")]
     for key in keys:
         table.add_column(key, no_wrap=True)
     table.add_column("status", no_wrap=True)
     for name, label in (("mean", "mean [95% CI]"), ("cvar", "CVaR [95% CI]"), ("value_at_risk", "VaR")):
         table.add_column(label, justify="right", no_wrap=True)
+    for column in reached:
+        table.add_column(column, justify="right", no_wrap=True)
     table.add_column("wall s", justify="right", no_wrap=True)
     for values in frame.head(limit).to_dict("records"):
         cells = [str(values[k]) for k in keys]
@@ -758,6 +1063,9 @@ def print_table(frame, title: str, limit: int = 40) -> None:
             cells.append("" if v != v else f"{v:.1f} [{lo:.1f}, {hi:.1f}]")
         var = values["value_at_risk"]
         cells.append("" if var != var else f"{var:.1f}")
+        for column in reached:
+            share = values[column]
+            cells.append("" if share is None or share != share else f"{share:.0%}")
         wall = values["wall_time"]
         cells.append("" if wall != wall else f"{wall:.1f}")
         table.add_row(*cells)
@@ -778,9 +1086,12 @@ class SweepView:
     and sends its own output to its folder.
     """
 
-    def __init__(self, sweep_dir: Path, jobs: list[Job], finished: set[int], title: str, every: float = 0.5):
+    def __init__(self, sweep_dir: Path, jobs: list[Job], finished: set[int], title: str, every: float = 0.5,
+                 total: int | None = None, discover=None):
         self.sweep_dir, self.jobs, self.finished, self.title, self.every = sweep_dir, jobs, finished, title, every
         self.todo = [i for i in range(len(jobs)) if i not in finished]
+        self.discover = discover  # an optimiser's trials: found as the sweeper launches them (discover(since))
+        self.total = total
         self.reported: set[int] = set()
         self.stop = threading.Event()
 
@@ -800,7 +1111,7 @@ class SweepView:
                                 TextColumn("{task.fields[state]}"), TimeElapsedColumn(),
                                 TextColumn("{task.fields[eta]}"), console=self.console, transient=False)
             self.bar.__enter__()
-            self.task = self.bar.add_task(self.title, total=len(self.todo), state="", eta="")
+            self.task = self.bar.add_task(self.title, total=self._total(), state="", eta="")
         self.thread = threading.Thread(target=self._loop, name="riskplan-sweep-view", daemon=True)
         self.thread.start()
         return self
@@ -809,9 +1120,18 @@ class SweepView:
         while not self.stop.wait(self.every):
             self.refresh()
 
+    def _total(self) -> int:
+        return max(self.total or 0, len(self.todo))
+
     def refresh(self) -> None:
         """Read the jobs' status files and redraw."""
         try:
+            if self.discover is not None:
+                known = {job.path for job in self.jobs}
+                for job in self.discover(self.since):
+                    if job.path not in known:
+                        self.jobs.append(job)
+                        self.todo.append(len(self.jobs) - 1)
             if any(self.jobs[i].path is None for i in self.todo):
                 locate(self.sweep_dir, self.jobs)
             counts = {"pending": 0, "running": 0, "done": 0, "failed": 0}
@@ -823,12 +1143,12 @@ class SweepView:
                     self._finished_line(i, state, status)
             ended = counts["done"] + counts["failed"]
             elapsed = time.time() - self.since
-            eta = (f"ETA {dt.timedelta(seconds=round(elapsed / ended * (len(self.todo) - ended)))}"
-                   if 0 < ended < len(self.todo) else "")
+            eta = (f"ETA {dt.timedelta(seconds=round(elapsed / ended * (self._total() - ended)))}"
+                   if 0 < ended < self._total() else "")
             state = (f"running {counts['running']} · failed {counts['failed']}"
                      + (f" · skipped {len(self.finished)} finished before" if self.finished else ""))
             if self.bar is not None:
-                self.bar.update(self.task, completed=ended, state=state, eta=eta)
+                self.bar.update(self.task, completed=ended, total=self._total(), state=state, eta=eta)
         except Exception:  # noqa: BLE001 - the view must never break the sweep
             pass
 
@@ -844,7 +1164,7 @@ class SweepView:
             if state == "failed":
                 self.bar.console.print(line, markup=True, highlight=False)
         else:
-            self.console.print(f"[{len(self.reported)}/{len(self.todo)}] {line}", markup=True, highlight=False,
+            self.console.print(f"[{len(self.reported)}/{self._total()}] {line}", markup=True, highlight=False,
                                soft_wrap=True)
 
     def __exit__(self, *exc):
@@ -865,15 +1185,20 @@ def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) ->
     print_table(outcome.summary, f"{title}: {outcome.sweep_dir}")
     typer.echo(f"summary: {outcome.sweep_dir / SUMMARY} ({outcome.ran} launched, {outcome.skipped} skipped, "
                f"{outcome.seconds:.1f} s)")
+    if outcome.best:
+        typer.echo(outcome.best)
     if outcome.launcher_error:
         typer.echo(f"error: {outcome.launcher_error}", err=True)
     if outcome.failed:
-        typer.echo(f"error: {len(outcome.failed)} of {len(outcome.summary)} jobs did not finish:", err=True)
+        typer.echo(f"error: {len(outcome.failed)} of {len(outcome.summary)} "
+                   f"{'trials' if outcome.optimiser else 'jobs'} did not finish:", err=True)
         for name, error in outcome.failed:
             typer.echo(f"  {name}: {error}", err=True)
     if hint and not outcome.ok and outcome.command:
         import shlex
 
-        typer.echo(f"to retry the jobs that did not finish (finished ones are skipped): riskplan sweep "
-                   f"{shlex.join(outcome.command)}", err=True)
+        what = ("to run the study again in this directory (a trial that draws the values of a finished one, as "
+                "with a seeded sampler, is skipped)" if outcome.optimiser
+                else "to retry the jobs that did not finish (finished ones are skipped)")
+        typer.echo(f"{what}: riskplan sweep {shlex.join(outcome.command)}", err=True)
     return 0 if outcome.ok else 1

@@ -17,7 +17,11 @@ started apart from the driver are not its descendants and outlive it, as they sh
 
 Job folders are named by `folder_name` (registered as the OmegaConf resolver `riskplan.folder`, which
 `riskplan sweep` puts in `hydra.sweep.subdir`): Hydra's `override_dirname` with every character outside
-[A-Za-z0-9._=,+-] percent-encoded, so a swept value never nests or escapes the sweep directory.
+[A-Za-z0-9._=,+-] percent-encoded, so a swept value never nests or escapes the sweep directory. Under an
+optimising sweeper (optuna) `riskplan.trial` names them `trial_007,<override_dirname>` the same way.
+
+A job returns its CVaR to the sweeper, or None when it failed or another process holds its folder: the optuna
+sweeper records a None as a failed trial and goes on (a number such as -inf would be taken as measured).
 """
 
 from __future__ import annotations
@@ -45,6 +49,8 @@ THREADS_ENV = "RISKPLAN_JOB_THREADS"  # numba threads per job, set by `riskplan 
 DRIVER_ENV = "RISKPLAN_SWEEP_DRIVER_PID"  # the `riskplan sweep` process: its local workers die with it
 RESOLVER = "riskplan.folder"  # ${riskplan.folder:${hydra.job.override_dirname}}: a safe job folder name
 SUBDIR = "${" + RESOLVER + ":${hydra.job.override_dirname}}"
+TRIAL_RESOLVER = "riskplan.trial"  # the same for the trials of an optimising sweeper, numbered
+TRIAL_SUBDIR = "${" + TRIAL_RESOLVER + ":${hydra.job.num},${hydra.job.override_dirname}}"
 SAFE = frozenset(string.ascii_letters + string.digits + "._=,+-")  # kept as they are in folder names
 NAME_MAX = 255  # bytes in a file name (ext4, xfs, NFS)
 OUTPUTS = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet", "run.mcap")
@@ -85,7 +91,14 @@ def folder_name(dirname: str) -> str:
     return encoded
 
 
+def trial_folder(num, dirname) -> str:
+    """A trial's folder under an optimising sweeper (optuna): its number first, so two trials that drew the same
+    values get folders of their own, then what it drew (`trial_007,risk.beta=0.31`)."""
+    return folder_name(f"trial_{int(num):03d},{dirname}" if str(dirname) else f"trial_{int(num):03d}")
+
+
 OmegaConf.register_new_resolver(RESOLVER, folder_name, replace=True)
+OmegaConf.register_new_resolver(TRIAL_RESOLVER, trial_folder, replace=True)
 
 
 class FolderNames(Callback):
