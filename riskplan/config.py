@@ -15,7 +15,7 @@ from riskplan.errors import BadInput
 from riskplan.params import check_schema, explain
 from riskplan.schema import CONF_DIR
 
-__all__ = ["CONF_DIR", "GRAMMAR", "check_hydra_args", "compose", "explain", "expand_overrides", "parse_overrides"]
+__all__ = ["CONF_DIR", "GRAMMAR", "check_hydra_args", "compose", "explain", "expand_overrides", "expand_shorthands", "parse_overrides"]
 GRAMMAR = "expected key=value (e.g. risk.beta=0.2), key=a,b for sweeps, or group=option (e.g. risk=neutral)"
 
 
@@ -56,7 +56,9 @@ def group_options(group: str) -> list[str] | None:
 
 
 def expand_overrides(overrides: list[str]) -> list[str]:
-    """Make `...reward={...}` replace a distribution instead of merging into it (Hydra merges dicts)."""
+    """Make `...reward={...}` replace a distribution instead of merging into it (Hydra merges dicts), and expand
+    the shorthands (`risk.schedule=linear` is `risk.schedule.kind=linear`)."""
+    overrides = expand_shorthands(overrides)
     expanded = []
     for text, parsed in zip(overrides, parse_overrides(overrides)):
         key = parsed.key_or_group
@@ -64,6 +66,23 @@ def expand_overrides(overrides: list[str]) -> list[str]:
             expanded.append(f"{key}=0")
         expanded.append(text)
     return expanded
+
+
+SHORTHANDS = {"risk.schedule": "risk.schedule.kind"}  # a key given a plain value (or a sweep of them) -> its key
+
+
+def expand_shorthands(overrides: list[str]) -> list[str]:
+    """`risk.schedule=linear` (or `=none,linear` in a sweep) -> `risk.schedule.kind=...`; a mapping value
+    (`risk.schedule={kind:linear,iterations:50}`) and every other override are left as they are."""
+    out = []
+    for text, parsed in zip(overrides, parse_overrides(overrides)):
+        key = parsed.key_or_group
+        if key in SHORTHANDS and not parsed.is_delete() and (
+                parsed.is_sweep_override() or not isinstance(parsed.value(), (dict, list))):
+            prefix, _, value = text.partition("=")
+            text = prefix.replace(key, SHORTHANDS[key], 1) + "=" + value
+        out.append(text)
+    return out
 
 
 def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = True) -> DictConfig:

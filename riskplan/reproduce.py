@@ -6,6 +6,7 @@
                      centralized comparator is single/'s CVaR runs: W = 6000 against W_i = 2000 x 3 robots)
         wander/      sweep: experiment=paper_single train.theta0=[0,0] seed=0,1           (the landscape's
                      local optimum that theta0 = 0 falls into)
+        soft_risk/   sweep: wander/'s runs with risk.schedule.kind=linear                (soft risk, CeSoR)
         frontier/    sweep: experiment=paper_single risk.beta=0.05,0.2,0.5,1.0 seed=0,1   (the risk frontier)
         landscape/   mean and CVaR on a grid of theta for the paper world
         report/      report.html, figures, report.csv
@@ -13,7 +14,7 @@
 
 The sweeps go through `riskplan sweep`'s machinery (a Hydra multirun, joblib on local cores), so re-running
 with `--out` on an existing reproduction runs only what is missing. One process at a time writes a reproduction
-directory (its lock is held for the whole command). `--seeds N` is bounded before anything runs: the four sweeps
+directory (its lock is held for the whole command). `--seeds N` is bounded before anything runs: the sweeps
 together may hold at most RISKPLAN_MAX_JOBS jobs (default 10,000) and an estimated RISKPLAN_MAX_HOURS of
 simulation (default 24).
 """
@@ -42,6 +43,9 @@ EXPERIMENTS = (
     # theta0 = 0 falls into the landscape's other optimum: wander, reaching no source; two seeds show it
     ("wander", "The landscape's local optimum: CVaR from theta0 = (0, 0), which wanders and reaches no source",
      ["experiment=paper_single", "train.theta0=[0,0]"], 2),
+    # soft risk (CeSoR): the same start, the gradient's CVaR level falling linearly from 1 to beta; vs wander/
+    ("soft_risk", "Beyond the paper: soft risk from theta0 = (0, 0), CVaR level linear from 1 to beta (vs wander/)",
+     ["experiment=paper_single", "train.theta0=[0,0]", "risk.schedule.kind=linear"], 2),
     # with single/'s beta = 0.1 runs, the report's risk frontier (beta = 1 is the mean, through the CVaR gradient)
     ("frontier", "Beyond the paper: the risk frontier, CVaR policies at beta = 0.05, 0.2, 0.5, 1",
      ["experiment=paper_single", "risk.beta=0.05,0.2,0.5,1.0"], 2),
@@ -96,7 +100,8 @@ def check_seeds(seeds: int) -> int:
     total = sum(experiment_jobs(seeds))
     budget = job_budget()
     if total > budget:
-        raise BadInput("--seeds", f"got {seeds}: the four sweeps would hold {total} jobs, more than the {budget} "
+        raise BadInput("--seeds", f"got {seeds}: the {len(EXPERIMENTS)} sweeps would hold {total} jobs, more than "
+                                  f"the {budget} "
                                   f"allowed; give fewer seeds, or raise the limit with {JOBS_ENV}=<jobs>")
     return total
 
@@ -244,7 +249,8 @@ def _print_comparison(outcomes) -> None:
     for column in ("set-up", "objective", "seeds", "mean", "CVaR", "VaR"):
         table.add_column(column, justify="left" if column in ("set-up", "objective") else "right")
     for (sweep, risk, beta), group in data.groupby(["sweep", "risk", "beta"], sort=False):
-        setup = {"team": "3 robots, line graph", "wander": "1 robot, θ0 = (0, 0)"}.get(sweep, "1 robot (centralized)")
+        setup = {"team": "3 robots, line graph", "wander": "1 robot, θ0 = (0, 0)",
+                 "soft_risk": "1 robot, θ0 = (0, 0), soft risk (linear)"}.get(sweep, "1 robot (centralized)")
         table.add_row(setup, f"CVaR_{beta:g}" if risk == "cvar" else "mean (risk-neutral)", str(len(group)),
                       *(f"{group[c].mean():.1f} ± {group[c].std(ddof=1) if len(group) > 1 else 0:.1f}"
                         for c in ("mean", "cvar", "value_at_risk")))

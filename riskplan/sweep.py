@@ -191,15 +191,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     constant = constant_keys(combos, {o.key_or_group for o in task_ovs if o.is_sweep_override()})
     for job in job_list:
         job.label = ",".join(sorted(o for o in job.overrides if o.split("=", 1)[0].lstrip("+~") not in constant))
-    if constant and not {"hydra.sweep.subdir", "hydra.job.config.override_dirname.exclude_keys"} & set(hydra_keys):
-        # folders named by what varies (risk.beta=0.1,seed=0), not by every fixed setting; the job's
-        # .hydra/overrides.yaml keeps them all, and resuming matches jobs by their full config anyway
-        argv.append("hydra.job.config.override_dirname.exclude_keys=["
-                    + ",".join(hydra_quote(k) for k in constant) + "]")
-    if "hydra/hydra_logging" not in hydra_keys:
-        argv.append("hydra/hydra_logging=riskplan_sweep")
-    if "hydra/job_logging" not in hydra_keys:
-        argv.append("hydra/job_logging=riskplan_job")
+    add_naming_and_logging(argv, hydra_keys, constant)
 
     naming = check_hydra(argv[1 + len(args):] + [o.input_line for o in hydra_ovs], combos[0])
     if task_ovs and "hydra.sweep.subdir" not in hydra_keys:
@@ -280,13 +272,7 @@ def plan_optimiser(args: list[str], task_ovs: list, hydra_ovs: list, launcher: s
         argv.append(f"hydra.sweep.subdir={hydra_quote(TRIAL_SUBDIR)}")
         argv.append("+hydra.callbacks.riskplan_folders._target_=riskplan.sweepjob.FolderNames")
     constant = [o.key_or_group for o in fixed] if search else []
-    if constant and not {"hydra.sweep.subdir", "hydra.job.config.override_dirname.exclude_keys"} & set(hydra_keys):
-        argv.append("hydra.job.config.override_dirname.exclude_keys=["
-                    + ",".join(hydra_quote(k) for k in constant) + "]")
-    if "hydra/hydra_logging" not in hydra_keys:
-        argv.append("hydra/hydra_logging=riskplan_sweep")
-    if "hydra/job_logging" not in hydra_keys:
-        argv.append("hydra/job_logging=riskplan_job")
+    add_naming_and_logging(argv, hydra_keys, constant)
     _, settings = check_hydra(argv[1 + len(args):] + [o.input_line for o in hydra_ovs], base, sweeper=True)
     trials, batch = check_optimiser(sweeper, settings, search)
 
@@ -525,6 +511,19 @@ def name_folders(job_list: list[Job], naming: dict, task_ovs: list) -> None:
                            f"makes two combinations share the job folder {job.folder} "
                            f"({','.join(sorted(other.overrides))} and {','.join(sorted(job.overrides))}); give "
                            f"values that differ in their text, or set hydra.sweep.subdir")
+
+
+def add_naming_and_logging(argv: list[str], hydra_keys: dict, constant: list[str]) -> None:
+    """riskplan's Hydra settings for a sweep, unless the user gave their own: job folders named by what varies
+    (risk.beta=0.1,seed=0), not by every fixed setting (the job's .hydra/overrides.yaml keeps them all, and resuming
+    matches jobs by their full config anyway), and logging into sweep.log and each job's job.log."""
+    if constant and not {"hydra.sweep.subdir", "hydra.job.config.override_dirname.exclude_keys"} & set(hydra_keys):
+        argv.append("hydra.job.config.override_dirname.exclude_keys=["
+                    + ",".join(hydra_quote(k) for k in constant) + "]")
+    if "hydra/hydra_logging" not in hydra_keys:
+        argv.append("hydra/hydra_logging=riskplan_sweep")
+    if "hydra/job_logging" not in hydra_keys:
+        argv.append("hydra/job_logging=riskplan_job")
 
 
 def expand(task_ovs: list, args: list[str]) -> list[list[str]]:

@@ -32,7 +32,13 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "robots: 3" in config and "iterations: 5" in config  # the user's overrides beat --quick's
     assert (root / "single" / "multirun.yaml").is_file()
     record = json.loads((root / "reproduce.json").read_text())
-    assert record["seeds"] == 1 and record["quick"] and set(record["parts"]) == {"single", "team", "wander", "frontier", "landscape", "report"}
+    assert record["seeds"] == 1 and record["quick"] and set(record["parts"]) == {"single", "team", "wander", "soft_risk", "frontier", "landscape",
+                                                                      "report"}
+    soft = pd.read_parquet(root / "soft_risk" / "summary.parquet")
+    assert len(soft) == 1 and soft.status.iloc[0] == "done"
+    soft_config = (root / "soft_risk" / "seed=0" / ".hydra" / "config.yaml").read_text()
+    assert "kind: linear" in soft_config and "- 0\n  - 0\n" in soft_config  # wander/'s theta0, with the schedule
+    assert (root / "report" / "soft_risk.png").is_file() and (root / "report" / "soft_risk.csv").is_file()
     wander = pd.read_parquet(root / "wander" / "summary.parquet")
     assert len(wander) == 1 and wander.status.iloc[0] == "done"
     assert "- 0\n  - 0\n" in (root / "wander" / "seed=0" / ".hydra" / "config.yaml").read_text()  # theta0

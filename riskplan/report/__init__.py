@@ -57,7 +57,7 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
     from riskplan.report.figures import make_figures, save
     from riskplan.report.output import Output, WriteFailed, claim
     from riskplan.report.page import render
-    from riskplan.report.tables import comparison_table, csv_text, landscape_table, runs_table
+    from riskplan.report.tables import comparison_table, csv_text, landscape_table, runs_table, soft_risk_table
 
     from riskplan.runs import find_runs
 
@@ -68,10 +68,12 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
     comparison = comparison_table(coll)
     runs = runs_table(coll)
     landscapes = landscape_table(coll)
+    soft = soft_risk_table(coll)
     specs, skipped = make_figures(coll)
 
     output = Output(out_dir, "report", previous)
-    tables = ["report.csv", "runs.csv"] + ([] if landscapes.empty else ["landscape.csv"])
+    tables = ["report.csv", "runs.csv"] + ([] if landscapes.empty else ["landscape.csv"]) + (
+        [] if soft.empty else ["soft_risk.csv"])
     figures = []
     try:
         output.begin([f"{spec.name}.{fmt}" for spec in specs for fmt in formats] + tables + ["report.html"])
@@ -81,7 +83,9 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
         output.write("runs.csv", csv_text(runs))
         if not landscapes.empty:
             output.write("landscape.csv", csv_text(landscapes))
-        output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes))
+        if not soft.empty:
+            output.write("soft_risk.csv", csv_text(soft))
+        output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes, soft))
         output.finish()
     except OSError as err:
         output.abandon()

@@ -6,6 +6,7 @@ Groups are labelled by the fewest differing keys that tell them apart (risk meas
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
@@ -16,15 +17,17 @@ import pandas as pd
 
 from riskplan.errors import BadInput
 from riskplan.runs import TABLES, Run, find_runs, load_run
+from riskplan.schema import ScheduleConf
 
 # Keys that never define a condition: the seeds of one condition are pooled.
 IGNORED_KEYS = ("seed",)
 # Keys tried first when labelling groups (in this order); the rest follow alphabetically.
-LABEL_PRIORITY = ("risk.measure", "risk.beta", "team.robots", "team.graph", "team.weights", "team.delay.max",
+LABEL_PRIORITY = ("risk.measure", "risk.beta", "risk.schedule.kind", "team.robots", "team.graph", "team.weights", "team.delay.max",
                   "team.drop", "team.consensus_rounds", "train.samples", "train.theta0", "experiment")
 # Okabe-Ito palette (colour-blind safe); the paper's pair is blue (risk-neutral) and black (risk-averse).
 PALETTE = ("#0072B2", "#000000", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#E69F00", "#999999")
 AVERAGE = -1  # robot id of a team's network average
+SCHEDULE_DEFAULTS = {f"risk.schedule.{k}": v for k, v in dataclasses.asdict(ScheduleConf()).items()}
 
 
 @dataclass
@@ -117,6 +120,11 @@ class Group:
         return float(self.config.get("risk", {}).get("beta", 0.1))
 
     @property
+    def schedule(self) -> str:
+        """risk.schedule.kind: none (the paper), linear or exponential."""
+        return str(self.first.flat.get("risk.schedule.kind", "none"))
+
+    @property
     def robots(self) -> int:
         return self.first.robots
 
@@ -164,6 +172,21 @@ class Collection:
         best = min(central, key=lambda c: (sum(_distance(c.first.flat, t.first.flat) for t in teams),
                                            abs(c.beta - teams[0].beta)))
         return best, teams
+
+
+def schedule_pairs(groups: list[Group]) -> list[tuple[Group, Group | None]]:
+    """Each soft-risk group (risk.schedule.kind other than none) with the group that differs from it only in
+    risk.schedule.* (its paper-schedule comparator, e.g. reproduce's wander/ for soft_risk/), or None."""
+    def rest(g: Group) -> dict:
+        return {k: v for k, v in g.first.flat.items() if not k.startswith("risk.schedule.")}
+
+    pairs = []
+    for g in groups:
+        if g.schedule == "none" or g.measure != "cvar":
+            continue
+        same = [c for c in groups if c.schedule == "none" and c.measure == "cvar" and rest(c) == rest(g)]
+        pairs.append((g, same[0] if same else None))
+    return pairs
 
 
 def paper_pair(groups: list[Group]) -> tuple[Group | None, Group | None]:
@@ -253,6 +276,8 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
     rebuilt = not all((path / f"{name}.parquet").is_file() for name in TABLES) or bool(
         run.problem and "rebuilt" in run.problem)
     flat = {k: v for k, v in flatten(run.config).items() if k not in IGNORED_KEYS}
+    for key, value in SCHEDULE_DEFAULTS.items():  # runs from before risk.schedule existed ran without one
+        flat.setdefault(key, value)
     info = RunInfo(run, flat, rebuilt)
     try:
         usable = not info.eval_of().empty and not info.metrics_of().empty
@@ -407,7 +432,8 @@ def _describe(group: Group, keys: list[str], single: bool = False) -> str:
     for k in keys:
         if k in ("risk.measure", "risk.beta", "team.robots"):
             continue
-        name = k.split(".", 1)[1] if k.startswith(("team.", "train.")) else k
+        name = "schedule" if k == "risk.schedule.kind" else k.split(".", 1)[1] if k.startswith(
+            ("team.", "train.", "risk.schedule.")) else k
         parts.append(f"{name}={_short(group.settings.get(k))}")
     return ", ".join(parts) or "runs"
 

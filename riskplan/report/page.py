@@ -154,6 +154,28 @@ def landscape_section(table: pd.DataFrame) -> str:
               'surface.</p>')
 
 
+def soft_risk_section(table: pd.DataFrame | None) -> str:
+    """soft_risk.csv: per seed, each soft-risk group against its twin with the paper's fixed beta."""
+    if table is None or table.empty:
+        return ""
+    reached = [c for c in table.columns if c.startswith("reached_")]
+    head = ["group", "schedule", "seed", "mean", "CVaR<sub>β</sub>"] + [
+        f"P(reach {_esc(c[len('reached_'):])})" for c in reached] + ["final θ"]
+    rows = []
+    for _, r in table.iterrows():
+        schedule = _esc(r["schedule"]) + ("" if r["schedule"] == "none" else
+                                          f" ({_num(r.get('schedule_start'), 2)} → β = {r['beta']:g} over "
+                                          f"{_whole(r.get('schedule_iterations'))} iterations)")
+        rows.append([_esc(r["group"]), schedule, _esc(r["seed"]), _num(r.get("mean")), _num(r.get("cvar"))]
+                    + [_num(100 * r[c], 1) + "%" if not _missing(r[c]) else MISSING for c in reached]
+                    + [_text(r.get("theta_final"))])
+    return ("<h2>Soft risk</h2>" + _table(head, rows, numeric=set(range(3, 5 + len(reached))))
+            + '<p class="note">Each seed\'s final policy on its evaluation episodes, CVaR at risk.beta. A soft-risk '
+              'schedule (CeSoR) ascends CVaR at a level β_l that falls from risk.schedule.start to β over '
+              'risk.schedule.iterations; kind none is the paper\'s fixed β. The same numbers are in '
+              '<code>soft_risk.csv</code>.</p>')
+
+
 def _whole(value) -> str:
     """A count (points, episodes) that may be missing or stored as a float."""
     if _missing(value):
@@ -191,7 +213,8 @@ def figure_html(spec: FigureSpec, files: dict) -> str:
 
 
 def render(coll: Collection, figures: list[tuple[FigureSpec, dict]], skipped: dict[str, str],
-           comparison: pd.DataFrame, runs: pd.DataFrame, landscapes: pd.DataFrame) -> str:
+           comparison: pd.DataFrame, runs: pd.DataFrame, landscapes: pd.DataFrame,
+           soft_risk: pd.DataFrame | None = None) -> str:
     """The whole page."""
     now = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     inputs = ", ".join(f"<code>{_esc(p)}</code>" for p in coll.inputs)
@@ -219,6 +242,7 @@ def render(coll: Collection, figures: list[tuple[FigureSpec, dict]], skipped: di
         parts.append("<h2>Beyond the paper</h2>")
         parts += [figure_html(spec, files) for spec, files in extra]
     parts.append(landscape_section(landscapes))
+    parts.append(soft_risk_section(soft_risk))
     if skipped:
         items = "".join(f"<li><b>{_esc(k)}</b>: {_esc(v)}</li>" for k, v in skipped.items())
         parts.append(f'<h2>Figures not drawn</h2><ul class="note">{items}</ul>')

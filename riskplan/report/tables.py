@@ -7,6 +7,7 @@
   Student-t interval over the seeds. This is report.csv.
 - `runs_table`: every run found, used or skipped (with the reason).
 - `landscape_table`: per landscape, its optima and how far each group's trained theta ended from them.
+- `soft_risk_table`: per seed, each soft-risk group (risk.schedule) against its twin with the paper's fixed beta.
 """
 
 from __future__ import annotations
@@ -115,6 +116,29 @@ def runs_table(coll: Collection) -> pd.DataFrame:
     table = pd.DataFrame(rows, columns=["path", "status", "group", "seed", "note", "iterations", "mean", "cvar",
                                         "value_at_risk", "theta_final"])
     return table.astype({"seed": "Int64", "iterations": "Int64"})
+
+
+def soft_risk_table(coll: Collection) -> pd.DataFrame:
+    """soft_risk.csv: per seed, each soft-risk group (risk.schedule.kind other than none) and the group that differs
+    from it only in risk.schedule (kind=none, the paper): the final policy's evaluated figures at risk.beta."""
+    from riskplan.report.collect import schedule_pairs
+
+    rows = []
+    seen: set[int] = set()
+    for scheduled, plain in schedule_pairs(coll.groups):
+        for g in ([plain] if plain is not None else []) + [scheduled]:
+            if id(g) in seen:
+                continue
+            seen.add(id(g))
+            for r in g.runs:
+                values = run_values(r, g.beta)
+                rows.append({"group": g.label, "schedule": g.schedule,
+                             "schedule_start": r.flat.get("risk.schedule.start"),
+                             "schedule_iterations": r.flat.get("risk.schedule.iterations"),
+                             "beta": g.beta, "seed": r.seed, "mean": values["mean"], "cvar": values["cvar"],
+                             **{k: v for k, v in values.items() if k.startswith("reached_")},
+                             "theta_final": " ".join(f"{t:.1f}" for t in r.final_theta())})
+    return pd.DataFrame(rows)
 
 
 def runs_on(land, coll: Collection) -> list[RunInfo]:
