@@ -4,13 +4,15 @@ Python API (the same composition, validation and files as the CLI):
     cfg = riskplan.compose(["risk=neutral", "seed=3"])
     run = riskplan.train(cfg, "outputs/runs/my_run")
     run = riskplan.load_run("outputs/runs/my_run")   # .metrics .eval .trajectories .config .summary .complete
+    done = riskplan.sweep(["risk.beta=0.05,0.1", "seed=range(0,3)"])   # .summary (DataFrame) .sweep_dir .ok
+    page = riskplan.report([done.sweep_dir])           # -> <sweep_dir>/report/report.html
 """
 
 from __future__ import annotations
 
 from riskplan.version import __version__
 
-__all__ = ["compose", "train", "load_run", "__version__"]
+__all__ = ["compose", "train", "load_run", "sweep", "report", "__version__"]
 
 
 def compose(overrides=()):
@@ -36,3 +38,24 @@ def load_run(path):
     from riskplan.runs import load_run as _load_run
 
     return _load_run(path)
+
+
+def sweep(overrides=(), jobs=None, sweep_dir=None):
+    """Run a grid of experiments (or an Optuna study) as `riskplan sweep OVERRIDES --jobs JOBS` does, into a new
+    outputs/sweeps/<timestamp>/ or `sweep_dir` (finished jobs there are skipped). Returns the outcome: `.summary`
+    (the summary.parquet table), `.sweep_dir`, `.failed` [(job, error)], `.ok` (riskplan.sweeping.run_sweep)."""
+    from riskplan.sweeping import run_sweep
+
+    return run_sweep(list(overrides), jobs, sweep_dir, out=lambda text: None)
+
+
+def report(paths, out_dir=None, formats=("png", "pdf")):
+    """Figures, tables and report.html from the finished runs below `paths`, as `riskplan report` does; into
+    `out_dir` (default: PATH/report for one path, else outputs/reports/<timestamp>/). Returns the page's path
+    (riskplan.reporting.build_report)."""
+    from pathlib import Path
+
+    from riskplan.reporting import build_report, default_out
+
+    inputs = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
+    return build_report(inputs, Path(out_dir) if out_dir is not None else default_out(inputs), list(formats))

@@ -42,7 +42,7 @@ from typing import Any, Callable
 from riskplan.errors import BadInput
 from riskplan.foxglove_layout import LAYOUT_FILE, layout_for
 from riskplan.paths import check_output_dir, write_atomic
-from riskplan.report.collect import Broken, RunInfo, collect, flatten
+from riskplan.reporting.collect import Broken, RunInfo, collect, flatten
 from riskplan.sweepjob import config_sha
 
 TARGETS = ("mlflow", "tensorboard", "foxglove")
@@ -311,7 +311,7 @@ class MlflowTarget:
                 break
 
     def write(self, rec: Record) -> Exported:
-        from mlflow.entities import Metric, Param, RunTag
+        from mlflow.entities import Metric, Param
         from mlflow.utils.validation import (MAX_METRICS_PER_BATCH, MAX_PARAM_VAL_LENGTH,
                                              MAX_PARAMS_TAGS_PER_BATCH, MAX_TAG_VAL_LENGTH)
 

@@ -30,8 +30,8 @@ from pathlib import Path
 import typer
 
 from riskplan.errors import BadInput
+from riskplan.reporting import REPRODUCE_ROOT
 
-REPRODUCE_ROOT = Path("outputs") / "reproduce"
 SEEDS = 10
 QUICK_SEEDS = 2
 # (folder, what it reproduces, overrides without the seeds, at most this many seeds or None for all)
@@ -65,7 +65,7 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
     """
     from riskplan import lock
     from riskplan.paths import check_output_dir, claim_dir
-    from riskplan.report import check_formats
+    from riskplan.reporting import check_formats
 
     seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
     if seeds < 1:
@@ -85,7 +85,7 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
 def experiment_jobs(seeds: int) -> list[int]:
     """Jobs of each sweep of EXPERIMENTS with this many seeds (counted from the overrides, nothing expanded)."""
     from riskplan.config import parse_overrides
-    from riskplan.sweep import sweep_size
+    from riskplan.sweeping import sweep_size
 
     counts = []
     for _, _, experiment, most in EXPERIMENTS:
@@ -131,8 +131,8 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
                extra: list[str]) -> int:
     """The reproduction into `target`, whose lock this process holds."""
     from riskplan.paths import write_atomic
-    from riskplan.report import build_report
-    from riskplan.sweep import report_outcome, run_sweep
+    from riskplan.reporting import build_report
+    from riskplan.sweeping import report_outcome, run_sweep
 
     started = time.time()
     typer.echo(f"reproduction directory: {target} ({'quick' if quick else 'full'}, {seeds} seeds)")
@@ -205,7 +205,7 @@ def _not_set_by(experiment: list[str], extra: list[str]) -> list[str]:
 def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
     """The objective landscape of the paper world (skipped when it is already there)."""
     from riskplan.config import compose
-    from riskplan.report.landscape import compute_landscape
+    from riskplan.reporting.landscape import compute_landscape
 
     grid = QUICK_LANDSCAPE if quick else LANDSCAPE
     done = out / "status.json"

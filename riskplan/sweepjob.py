@@ -1,6 +1,6 @@
 """One job of a sweep, as it runs inside a launcher's worker (joblib, submitit, ray).
 
-Kept apart from `riskplan.sweep` (the command side) so that workers import only what a job needs.
+Kept apart from `riskplan.sweeping` (the command side) so that workers import only what a job needs.
 
 A job's `status.json` says where it stands: "running" while it trains, then "done" or "failed" (with the error
 and the traceback). It also holds `config_sha`, a fingerprint of the job's resolved config: a re-run of the

@@ -86,8 +86,8 @@ def template(tmp_path_factory) -> Path:
                                            if not line.startswith("seed:")) + "\n")
     # rows 160-179 (report and landscape --out): a landscape's directory and a report's directory, each with the
     # manifest its command writes
-    from riskplan.report import build_report
-    from riskplan.report.landscape import compute_landscape
+    from riskplan.reporting import build_report
+    from riskplan.reporting.landscape import compute_landscape
 
     compute_landscape(compose(FAST), root / "outputs" / "landscapes" / "land", points=3, episodes=20)
     build_report([done], root / "outputs" / "reports" / "old", ["png"])

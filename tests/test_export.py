@@ -19,7 +19,7 @@ from riskplan import compose, train
 from riskplan.cli import app
 from riskplan.export import metric_prefix, param_value, summary_figures, tensorboard_name
 from riskplan.foxglove_layout import LAYOUT_FILE, layout, panels, topics, write_layout
-from riskplan.report.collect import flatten
+from riskplan.reporting.collect import flatten
 from riskplan.sweepjob import config_sha
 
 TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]

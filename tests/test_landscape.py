@@ -14,8 +14,8 @@ from typer.testing import CliRunner
 import riskplan
 from riskplan import rng
 from riskplan.cli import app
-from riskplan.report import landscape as L
-from riskplan.report.collect import collect
+from riskplan.reporting import landscape as L
+from riskplan.reporting.collect import collect
 from riskplan.risk import cvar, value_at_risk
 from riskplan.rollout import simulate
 from riskplan.setup import build_setup

@@ -79,7 +79,7 @@ def test_an_optuna_study_runs_isolates_failed_trials_and_resumes(tmp_path):
     stamps = {p: (tmp_path / p / "run.mcap").stat().st_mtime_ns for p in done.path}
     again = riskplan(tmp_path, "sweep", *STUDY, f"hydra.sweep.dir={sweep}")
     assert again.returncode == 1, again.stderr
-    assert f"(2 launched, 2 skipped," in again.stdout
+    assert "(2 launched, 2 skipped," in again.stdout
     assert {p: (tmp_path / p / "run.mcap").stat().st_mtime_ns for p in done.path} == stamps
     second = pd.read_parquet(sweep / "summary.parquet")
     assert list(second.status) == list(summary.status) and list(second["risk.beta"]) == list(summary["risk.beta"])

@@ -83,3 +83,20 @@ def test_the_training_bar_runs_in_a_notebook(monkeypatch):
     with quiet as update:  # neither a notebook nor a terminal (pytest's stderr): no bar, the callback still works
         update(1, 3, {"mean": 1.0, "cvar": 2.0})
         assert quiet._bar.disable
+
+
+def test_sweep_and_report_are_api_functions(tmp_path, monkeypatch):
+    """riskplan.sweep and riskplan.report do what the commands do (the submodules sweeping/reporting do not shadow
+    them), and return what a notebook wants: the summary table and the page."""
+    monkeypatch.chdir(tmp_path)
+    import riskplan.reporting  # noqa: F401 - importing the submodules must leave the functions in place
+    import riskplan.sweeping  # noqa: F401
+
+    done = riskplan.sweep([*FAST, "seed=0,1"], jobs=1)
+    assert done.ok and list(done.summary.status) == ["done", "done"] and list(done.summary.seed) == [0, 1]
+    assert done.sweep_dir.parent == Path("outputs") / "sweeps" and (done.sweep_dir / "summary.parquet").is_file()
+    again = riskplan.sweep([*FAST, "seed=0,1"], sweep_dir=done.sweep_dir)
+    assert again.ran == 0 and again.skipped == 2  # finished jobs are skipped
+    page = riskplan.report(done.sweep_dir)
+    assert page == done.sweep_dir / "report" / "report.html" and page.is_file()
+    assert "<html" in page.read_text()[:200].lower()

@@ -16,11 +16,11 @@ from typer.testing import CliRunner
 
 import riskplan
 from riskplan.cli import app
-from riskplan.report import build_report
-from riskplan.report.collect import collect
-from riskplan.report.figures import make_figures
-from riskplan.report.landscape import compute_landscape
-from riskplan.report.stats import seed_interval, wilson
+from riskplan.reporting import build_report
+from riskplan.reporting.collect import collect
+from riskplan.reporting.figures import make_figures
+from riskplan.reporting.landscape import compute_landscape
+from riskplan.reporting.stats import seed_interval, wilson
 from riskplan.risk import cvar, value_at_risk
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
@@ -192,7 +192,7 @@ def test_reward_distribution_with_a_beta_of_1_keeps_a_lower_tail(coll):
     """A beta sweep reaching 1 (CVaR = mean) once broke the tail panel: it asked for quantiles up to 2."""
     import copy
 
-    from riskplan.report.figures import fig_distribution
+    from riskplan.reporting.figures import fig_distribution
 
     swept = copy.deepcopy(coll)
     swept.groups[0].first.config["risk"]["beta"] = 1.0

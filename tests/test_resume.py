@@ -162,7 +162,7 @@ def test_sigkill_part_way_then_resume_equals_the_uninterrupted_run(tmp_path, bas
     pd.testing.assert_frame_equal(killed.metrics.drop(columns="seconds"),
                                   pd.read_parquet(baseline / "metrics.parquet").iloc[:13].drop(columns="seconds"),
                                   check_exact=True)
-    from riskplan.report.collect import collect
+    from riskplan.reporting.collect import collect
 
     (skipped,) = collect([out]).broken  # what `riskplan report` lists as skipped, with the reason
     assert skipped.path == out and "truncated after iteration 12" in skipped.reason

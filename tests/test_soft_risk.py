@@ -130,7 +130,7 @@ def test_a_killed_scheduled_run_resumes_to_the_uninterrupted_run(tmp_path):
 
 
 def test_the_report_compares_a_schedule_with_its_fixed_beta_twin(tmp_path):
-    from riskplan.report import write_report
+    from riskplan.reporting import write_report
 
     for name, extra in (("none", []), ("linear", LINEAR)):
         train(compose([*FAST, *extra]), tmp_path / "runs" / name)

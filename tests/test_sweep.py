@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from riskplan.paths import claim_dir
-from riskplan.sweep import constant_keys, expand
+from riskplan.sweeping import constant_keys, expand
 from riskplan.sweepjob import config_sha
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]

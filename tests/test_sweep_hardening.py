@@ -19,7 +19,7 @@ import pytest
 from riskplan import lock
 from riskplan.errors import BadInput
 from riskplan.config import parse_overrides
-from riskplan.sweep import sweep_size
+from riskplan.sweeping import sweep_size
 from riskplan.sweepjob import NAME_MAX, folder_name, write_status
 
 TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]

@@ -231,8 +231,8 @@ def test_check_describes_the_order(tmp_path, monkeypatch):
 
 
 def test_report_draws_the_consensus_error_of_each_order(tmp_path):
-    from riskplan.report.collect import collect
-    from riskplan.report.figures import fig_orders
+    from riskplan.reporting.collect import collect
+    from riskplan.reporting.figures import fig_orders
 
     for order in ("combine_then_adapt", "gradient_tracking"):
         train(compose([*FAST[:-1], f"team.order={order}"]), tmp_path / order)

@@ -11,27 +11,7 @@ import typer
 
 from riskplan.commands.common import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
 from riskplan.errors import BadInput
-
-REPRODUCE_ROOT = Path("outputs") / "reproduce"
-REPORTS_ROOT = Path("outputs") / "reports"
-LANDSCAPES_ROOT = Path("outputs") / "landscapes"
-
-
-def latest_reproduction(root: Path = REPRODUCE_ROOT) -> Path:
-    """The newest folder in outputs/reproduce/ (names are timestamps; ties broken by modification time)."""
-    folders = [p for p in root.iterdir() if p.is_dir()] if root.is_dir() else []
-    if not folders:
-        raise BadInput(str(root), "holds no reproduction; run `riskplan reproduce` first or give run or sweep "
-                                  "directories: riskplan report DIR...")
-    return max(folders, key=lambda p: (p.name, p.stat().st_mtime))
-
-
-def default_out(paths: list[Path]) -> Path:
-    """<path>/report for one input path, else outputs/reports/<timestamp>/."""
-    if len(paths) == 1:
-        return paths[0] / "report"
-    return REPORTS_ROOT / dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-
+from riskplan.reporting import LANDSCAPES_ROOT, default_out, latest_reproduction
 
 def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
     """'a,b,...' -> floats, with one of the allowed counts."""
@@ -47,7 +27,7 @@ def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
 @contextlib.contextmanager
 def write_errors_exit():
     """A file that cannot be written at run time (a full disk, ...): one line on stderr and exit code 1."""
-    from riskplan.report.output import WriteFailed
+    from riskplan.reporting.output import WriteFailed
 
     try:
         yield
@@ -73,7 +53,7 @@ def register(app: typer.Typer) -> None:
         formats: str = typer.Option("png,pdf", "--format", help="Figure files to write: any of png,pdf,svg."),
     ) -> None:
         """Figures (the paper's Figs. 1-4 and more), tables and a self-contained report.html from finished runs."""
-        from riskplan.report import check_formats, write_report
+        from riskplan.reporting import check_formats, write_report
 
         fmts = check_formats(formats)
         inputs = list(paths) if paths else [latest_reproduction()]
@@ -107,8 +87,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Evaluate mean and CVaR of the total reward on a grid of theta (common random numbers, seeded)."""
         from riskplan.config import compose
-        from riskplan.report.landscape import check_grid, compute_landscape
-        from riskplan.report.output import claim
+        from riskplan.reporting.landscape import check_grid, compute_landscape
+        from riskplan.reporting.output import claim
         from riskplan.setup import build_setup
 
         args = list(overrides or [])

@@ -1,4 +1,4 @@
-"""`riskplan sweep`: a grid of experiments through a Hydra launcher (the work is riskplan.sweep's)."""
+"""`riskplan sweep`: a grid of experiments through a Hydra launcher (the work is riskplan.sweeping's)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import List, Optional
 import typer
 
 from riskplan.commands.common import PASS_THROUGH, bad_input_exits
-from riskplan.sweep import SWEEP_HELP, report_outcome, run_sweep
+from riskplan.sweeping import SWEEP_HELP, report_outcome, run_sweep
 
 
 def register(app: typer.Typer) -> None:

@@ -20,8 +20,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 
-from riskplan.report.collect import Collection, Group, RunInfo, theta_columns
-from riskplan.report.stats import band
+from riskplan.reporting.collect import Collection, Group, RunInfo, theta_columns
+from riskplan.reporting.stats import band
 from riskplan.risk import cvar, value_at_risk
 
 STYLE = {
@@ -350,7 +350,7 @@ def frontier_beta(coll: Collection) -> float:
 
 def fig_frontier(coll: Collection) -> FigureSpec | str:
     """Risk frontier: evaluated mean vs CVaR at one common level, one point per group, beta sweeps joined."""
-    from riskplan.report.tables import group_row
+    from riskplan.reporting.tables import group_row
 
     if len(coll.groups) < 2:
         return "needs at least two conditions (e.g. a risk.beta sweep)"
@@ -421,7 +421,7 @@ def fig_thetas(coll: Collection) -> FigureSpec | str:
 
 def fig_soft_risk(coll: Collection) -> FigureSpec | str:
     """Soft risk: CVaR per iteration and the paths of theta, each risk.schedule group against its kind=none twin."""
-    from riskplan.report.collect import schedule_pairs
+    from riskplan.reporting.collect import schedule_pairs
 
     pairs = schedule_pairs(coll.groups)[:3]
     if not pairs:
@@ -477,7 +477,7 @@ def _level_curve(g: Group) -> tuple[np.ndarray, np.ndarray]:
 
 def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
     """Mean and CVaR heatmaps over the theta grid, with the training paths of the runs on that world."""
-    from riskplan.report.tables import runs_on
+    from riskplan.reporting.tables import runs_on
 
     a, b = land.axes
     fig, axes = _figure(8.2, 3.9, ncols=2)
@@ -566,12 +566,12 @@ def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
 
 
 def save(spec: FigureSpec, output, formats: list[str]) -> dict[str, bytes | str]:
-    """Write the figure in each format (atomically) through `output` (a riskplan.report.output.Output, or a
+    """Write the figure in each format (atomically) through `output` (a riskplan.reporting.output.Output, or a
     directory); returns {format: file name} and the PNG bytes for the page."""
     import io
     from pathlib import Path
 
-    from riskplan.report.output import Output
+    from riskplan.reporting.output import Output
 
     if not isinstance(output, Output):
         output = Output(Path(output), "report", None)

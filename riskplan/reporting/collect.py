@@ -150,7 +150,7 @@ class Collection:
     inputs: list[Path]
     runs: list[RunInfo]
     broken: list[Broken]
-    landscapes: list  # riskplan.report.landscape.Landscape
+    landscapes: list  # riskplan.reporting.landscape.Landscape
     groups: list[Group]
     differing: list[str]  # config keys that differ between groups
 
@@ -227,7 +227,7 @@ def theta_columns(metrics: pd.DataFrame) -> list[str]:
 
 def collect(paths: list[Path]) -> Collection:
     """Find, load and group every run under `paths`; BadInput only for a path that holds no run at all."""
-    from riskplan.report.landscape import is_landscape_dir, load_landscape
+    from riskplan.reporting.landscape import is_landscape_dir, load_landscape
 
     inputs = [Path(p) for p in paths]
     found = find_runs(inputs)  # BadInput for a missing path or one without any run

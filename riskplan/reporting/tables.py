@@ -17,8 +17,8 @@ import math
 import numpy as np
 import pandas as pd
 
-from riskplan.report.collect import Collection, Group, RunInfo
-from riskplan.report.stats import seed_interval, wilson
+from riskplan.reporting.collect import Collection, Group, RunInfo
+from riskplan.reporting.stats import seed_interval, wilson
 from riskplan.risk import cvar, value_at_risk
 from riskplan.summary import bootstrap_intervals
 
@@ -121,7 +121,7 @@ def runs_table(coll: Collection) -> pd.DataFrame:
 def soft_risk_table(coll: Collection) -> pd.DataFrame:
     """soft_risk.csv: per seed, each soft-risk group (risk.schedule.kind other than none) and the group that differs
     from it only in risk.schedule (kind=none, the paper): the final policy's evaluated figures at risk.beta."""
-    from riskplan.report.collect import schedule_pairs
+    from riskplan.reporting.collect import schedule_pairs
 
     rows = []
     seen: set[int] = set()
@@ -156,7 +156,7 @@ def runs_on(land, coll: Collection) -> list[RunInfo]:
 
 
 def _flat_world(config: dict) -> dict:
-    from riskplan.report.collect import flatten
+    from riskplan.reporting.collect import flatten
 
     return {k: v for k, v in flatten(config).items() if k.startswith("world.")}
 

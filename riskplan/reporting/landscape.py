@@ -22,7 +22,7 @@ import yaml
 
 from riskplan import rng
 from riskplan.errors import BadInput
-from riskplan.report.output import WriteFailed
+from riskplan.reporting.output import WriteFailed
 from riskplan.risk import tail_count
 
 KIND = "landscape"
@@ -250,7 +250,7 @@ def compute_landscape(cfg, out_dir: Path, *, points: int = DEFAULT_POINTS, episo
     """
     from omegaconf import OmegaConf
 
-    from riskplan.report.output import Output, claim
+    from riskplan.reporting.output import Output, claim
     from riskplan.setup import build_setup
     from riskplan.summary import provenance
 

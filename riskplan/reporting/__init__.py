@@ -8,6 +8,7 @@ Broken or partial runs are listed with the reason and skipped; a path holding no
 
 from __future__ import annotations
 
+import datetime as dt
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,6 +16,26 @@ from riskplan.errors import BadInput
 
 FORMATS = ("png", "pdf", "svg")
 DEFAULT_FORMATS = ("png", "pdf")
+
+REPRODUCE_ROOT = Path("outputs") / "reproduce"  # where riskplan reproduce claims its folders
+REPORTS_ROOT = Path("outputs") / "reports"
+LANDSCAPES_ROOT = Path("outputs") / "landscapes"
+
+
+def latest_reproduction(root: Path = REPRODUCE_ROOT) -> Path:
+    """The newest folder in outputs/reproduce/ (names are timestamps; ties broken by modification time)."""
+    folders = [p for p in root.iterdir() if p.is_dir()] if root.is_dir() else []
+    if not folders:
+        raise BadInput(str(root), "holds no reproduction; run `riskplan reproduce` first or give run or sweep "
+                                  "directories: riskplan report DIR...")
+    return max(folders, key=lambda p: (p.name, p.stat().st_mtime))
+
+
+def default_out(paths: list[Path]) -> Path:
+    """<path>/report for one input path, else outputs/reports/<timestamp>/."""
+    if len(paths) == 1:
+        return paths[0] / "report"
+    return REPORTS_ROOT / dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
 
 
 def check_formats(formats: list[str] | str) -> list[str]:
@@ -34,7 +55,7 @@ class Report:
     """What write_report made: the page, the collection it drew from, the figure names and those not drawn."""
 
     page: Path
-    collection: object  # riskplan.report.collect.Collection
+    collection: object  # riskplan.reporting.collect.Collection
     figures: list[str]
     skipped: dict[str, str]
 
@@ -44,7 +65,7 @@ def build_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
     """Find the runs under `paths`, write figures, report.csv, runs.csv and report.html to out_dir; return the page.
 
     Raises BadInput (before writing anything) for a path that holds no run, for an unknown format, or for an
-    out_dir riskplan may not write into (see riskplan.report.output; `key` names it in the message). Raises
+    out_dir riskplan may not write into (see riskplan.reporting.output; `key` names it in the message). Raises
     WriteFailed (an OSError, one line) when a file cannot be written: every file is written atomically.
     """
     return write_report(paths, out_dir, formats, key).page
@@ -53,11 +74,11 @@ def build_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
 def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS,
                  key: str = "out_dir") -> Report:
     """build_report, returning what was made (for the CLI's listing)."""
-    from riskplan.report.collect import collect
-    from riskplan.report.figures import make_figures, save
-    from riskplan.report.output import Output, WriteFailed, claim
-    from riskplan.report.page import render
-    from riskplan.report.tables import comparison_table, csv_text, landscape_table, runs_table, soft_risk_table
+    from riskplan.reporting.collect import collect
+    from riskplan.reporting.figures import make_figures, save
+    from riskplan.reporting.output import Output, WriteFailed, claim
+    from riskplan.reporting.page import render
+    from riskplan.reporting.tables import comparison_table, csv_text, landscape_table, runs_table, soft_risk_table
 
     from riskplan.runs import find_runs
 
@@ -98,7 +119,7 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
     return Report(output.out / "report.html", coll, [spec.name for spec in specs], skipped)
 
 
-from riskplan.report.output import WriteFailed  # noqa: E402 - re-exported
+from riskplan.reporting.output import WriteFailed  # noqa: E402 - re-exported
 
 __all__ = ["build_report", "write_report", "Report", "WriteFailed", "check_formats", "FORMATS",
            "DEFAULT_FORMATS"]

@@ -11,8 +11,8 @@ from pathlib import Path
 import pandas as pd
 
 from riskplan.version import __version__
-from riskplan.report.collect import Collection
-from riskplan.report.figures import FigureSpec
+from riskplan.reporting.collect import Collection
+from riskplan.reporting.figures import FigureSpec
 
 CSS = """
 body { font-family: "DejaVu Sans", Helvetica, Arial, sans-serif; margin: 2em auto; max-width: 1100px;
