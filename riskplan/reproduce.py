@@ -58,15 +58,17 @@ QUICK_LANDSCAPE = {"points": 31, "episodes": 1000, "ranges": ((-30.0, 60.0), (-3
 
 
 def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = None, jobs: int | None = None,
-              formats: str = "png,pdf", overrides: list[str] | None = None) -> int:
+              formats: str = "png,pdf", overrides: list[str] | None = None, *, since: float | None = None) -> int:
     """Run Section V and the report; return the exit code (1 when a job or the report failed).
 
-    `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000.
+    `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000. `since`: when the
+    command started (epoch seconds; the CLI gives its process's start), so the time breakdown includes start-up.
     """
     from riskplan import lock
     from riskplan.paths import check_output_dir, claim_dir
     from riskplan.reporting import check_formats
 
+    entered = time.time()
     seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
     if seeds < 1:
         raise BadInput("--seeds", f"got {seeds}; expected at least 1")
@@ -78,8 +80,10 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
         check_output_dir(out, "--out")
     target = Path(out) if out is not None else claim_dir(REPRODUCE_ROOT)
     target.mkdir(parents=True, exist_ok=True)
+    checked = time.time()
     with lock.hold(target, "reproduction directory"):
-        return _reproduce(target, quick, seeds, jobs, fmts, list(overrides or []), extra)
+        return _reproduce(target, quick, seeds, jobs, fmts, list(overrides or []), extra,
+                          {"since": since, "entered": entered, "checked": checked})
 
 
 def experiment_jobs(seeds: int) -> list[int]:
@@ -128,8 +132,9 @@ def check_work(seeds: int, total_jobs: int, configs: dict, overrides: list[str])
 
 
 def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, overrides: list[str],
-               extra: list[str]) -> int:
-    """The reproduction into `target`, whose lock this process holds."""
+               extra: list[str], clock: dict | None = None) -> int:
+    """The reproduction into `target`, whose lock this process holds (`clock`: when reproduce() was entered and
+    when its checks ended, for the time breakdown)."""
     from riskplan.paths import write_atomic
     from riskplan.reporting import build_report
     from riskplan.sweeping import report_outcome, run_sweep
@@ -143,14 +148,19 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
     for folder, what, experiment, most in EXPERIMENTS:
         args = [*experiment, f"seed=range(0,{min(seeds, most or seeds)})", *_not_set_by(experiment, extra)]
         typer.echo(f"\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
+        tic = time.time()
         outcome = run_sweep(args, jobs, sweep_dir=target / folder, title=folder)
+        toc = time.time()
         outcomes.append(outcome)
         code = max(code, report_outcome(outcome, folder, hint=False))
         record["parts"][folder] = {"overrides": args, "jobs": len(outcome.summary), "ran": outcome.ran,
                                    "skipped": outcome.skipped, "failed": len(outcome.failed),
-                                   "seconds": round(outcome.seconds, 2)}
+                                   "seconds": round(outcome.seconds, 2), "wall": round(toc - tic, 2),
+                                   "timing": _sweep_timing(outcome, tic, toc)}
     record["parts"]["landscape"] = _landscape(target / "landscape", quick, list(overrides or []))
+    tic = time.time()
     _print_comparison(outcomes)
+    record["parts"]["comparison"] = {"seconds": round(time.time() - tic, 2)}
     tic = time.time()
     try:
         page = build_report([target], target / "report", fmts)
@@ -163,7 +173,13 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
                    f"(the runs are in {target}; try riskplan report {target})", err=True)
         code = 1
     record["seconds"] = round(time.time() - started, 2)
+    try:  # never fails the reproduction: it only says where the time went
+        record["breakdown"] = time_breakdown(record, clock or {}, started)
+        print_breakdown(record["breakdown"])
+    except Exception as err:  # noqa: BLE001
+        typer.echo(f"(no time breakdown: {type(err).__name__}: {err})", err=True)
     write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
+    stop_workers()
     typer.echo(f"reproduced in {record['seconds']:.0f} s: {target}")
     if code:
         import shlex
@@ -255,6 +271,137 @@ def _print_comparison(outcomes) -> None:
                       *(f"{group[c].mean():.1f} ± {group[c].std(ddof=1) if len(group) > 1 else 0:.1f}"
                         for c in ("mean", "cvar", "value_at_risk")))
     (Console() if sys.stdout.isatty() else Console(width=250)).print(table)
+
+
+def stop_workers() -> None:
+    """End the sweeps' idle joblib (loky) worker processes now. Every job has finished and written its files;
+    left alone, they are shut down gracefully at interpreter exit, which took 2-4 s after the last line here."""
+    if "joblib.externals.loky.reusable_executor" not in sys.modules:  # no sweep ran in worker processes
+        return
+    executor = getattr(sys.modules["joblib.externals.loky.reusable_executor"], "_executor", None)
+    if executor is not None:
+        executor.shutdown(wait=False, kill_workers=True)
+
+
+def process_started() -> float | None:
+    """When this process started (epoch seconds, Linux /proc; None elsewhere): the CLI's `since`."""
+    return _started_of("self")
+
+
+def _started_of(pid) -> float | None:
+    """When process `pid` started (epoch seconds) from /proc/<pid>/stat and /proc/stat's btime; None if unknown."""
+    import os
+
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        boot = next(float(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines()
+                    if line.startswith("btime "))
+        return boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return None
+
+
+def _sweep_timing(outcome, tic: float, toc: float) -> dict:
+    """Where a sweep's wall time went, from its jobs' status.json (started, finished, seconds, pid), their
+    summary.json (wall_time: the training loop) and metrics.parquet (iteration 0's extra time in a worker's first
+    job: the numba cache load). Only the jobs that ran in this launch count."""
+    import os
+
+    import pandas as pd
+
+    launched = toc - outcome.seconds  # _run_plan's start: planning (composing and validating every job) is before
+    jobs = []
+    for path in outcome.summary.get("path", pd.Series(dtype=object)).dropna():
+        try:
+            status = json.loads((Path(path) / "status.json").read_text())
+            summary = json.loads((Path(path) / "summary.json").read_text())
+        except (OSError, ValueError):
+            continue
+        if status.get("status") != "done" or not isinstance(status.get("started"), (int, float)) \
+                or status["started"] < launched - 2:
+            continue
+        jobs.append({"path": str(path), "pid": status.get("pid"), "started": status["started"],
+                     "finished": status["finished"], "seconds": status["seconds"],
+                     "training": float(summary.get("wall_time") or 0.0)})
+    timing = {"planning": round(launched - tic, 3), "jobs": len(jobs)}
+    if not jobs:
+        return timing
+    first, last = min(j["started"] for j in jobs), max(j["finished"] for j in jobs)
+    timing.update({"to_first_job": round(first - launched, 3), "running": round(last - first, 3),
+                   "after_last_job": round(toc - last, 3), "job_seconds": round(sum(j["seconds"] for j in jobs), 3),
+                   "training": round(sum(j["training"] for j in jobs), 3), "workers": {}})
+    for pid in dict.fromkeys(j["pid"] for j in jobs):
+        own = sorted((j for j in jobs if j["pid"] == pid), key=lambda j: j["started"])
+        load = None
+        try:
+            seconds = pd.read_parquet(Path(own[0]["path"]) / "metrics.parquet", columns=["iteration", "seconds"])
+            per = seconds.groupby("iteration").seconds.first()
+            if len(per) > 1:
+                load = max(0.0, float(per.iloc[0] - per.iloc[1:].median()))
+        except (OSError, ValueError, KeyError, ImportError):
+            pass
+        spawned = _started_of(pid) if pid != os.getpid() else None  # a one-job sweep runs in this process
+        timing["workers"][str(pid)] = {"jobs": len(own), "first_job": own[0]["started"],
+                                       "spawned": spawned, "numba_load": load}
+    return timing
+
+
+def time_breakdown(record: dict, clock: dict, started: float) -> dict:
+    """Wall seconds of the command by part, and inside the sweeps' jobs (core-seconds, summed over the jobs)."""
+    sweeps = [record["parts"][folder] for folder, *_ in EXPERIMENTS if folder in record["parts"]]
+    timings = [part.get("timing", {}) for part in sweeps]
+    begun = clock.get("since")
+    ended = started + record["seconds"]
+    wall = {
+        "start-up (interpreter, imports)": (clock["entered"] - begun) if begun and "entered" in clock else None,
+        "checks (compose each set-up, budget)": (clock["checked"] - clock["entered"]) if "checked" in clock
+        else None,
+        "sweeps: planning (compose and validate every job)": sum(t.get("planning", 0.0) for t in timings),
+        "sweeps: launch to first job (Hydra, worker start and imports)": sum(t.get("to_first_job", 0.0)
+                                                                             for t in timings),
+        "sweeps: jobs running (first start to last finish)": sum(t.get("running", 0.0) for t in timings),
+        "sweeps: after the last job (summary, Hydra)": sum(t.get("after_last_job", 0.0) for t in timings),
+        "landscape": record["parts"].get("landscape", {}).get("seconds", 0.0),
+        "comparison table": record["parts"].get("comparison", {}).get("seconds", 0.0),
+        "report (figures, tables, page)": record["parts"].get("report", {}).get("seconds", 0.0),
+    }
+    known = sum(v for v in wall.values() if v is not None)
+    total = ended - (begun or clock.get("entered", started))
+    wall["other (lock, directories, record)"] = max(0.0, total - known)
+    workers: dict[str, dict] = {}
+    for t in timings:
+        for pid, w in t.get("workers", {}).items():
+            entry = workers.setdefault(pid, {"jobs": 0, "spawned": w["spawned"], "first_job": w["first_job"],
+                                             "numba_load": w["numba_load"]})
+            entry["jobs"] += w["jobs"]
+    jobs = {
+        "jobs": sum(t.get("jobs", 0) for t in timings),
+        "workers": len(workers),
+        "worker start to its first job (imports, unpickling)": sum(
+            w["first_job"] - w["spawned"] for w in workers.values() if w["spawned"]),
+        "numba cache load (iteration 0's extra, first job of each worker)": sum(
+            w["numba_load"] or 0.0 for w in workers.values()),
+        "training loop (summary wall_time)": sum(t.get("training", 0.0) for t in timings),
+        "set-up, evaluation episodes, bootstrap, files (job seconds - wall_time)": sum(
+            t.get("job_seconds", 0.0) - t.get("training", 0.0) for t in timings),
+    }
+    jobs["training loop (summary wall_time)"] -= jobs["numba cache load (iteration 0's extra, first job of each "
+                                                      "worker)"]
+    return {"total": round(total, 2), "wall": {k: None if v is None else round(v, 2) for k, v in wall.items()},
+            "jobs": {k: round(v, 2) if isinstance(v, float) else v for k, v in jobs.items()}}
+
+
+def print_breakdown(breakdown: dict) -> None:
+    """Where the time went, as two short tables."""
+    typer.echo(f"\nwhere the time went ({breakdown['total']:.1f} s from the command's start to its end):")
+    for name, seconds in breakdown["wall"].items():
+        typer.echo(f"  {'?' if seconds is None else f'{seconds:6.1f}'} s  {name}")
+    jobs = breakdown["jobs"]
+    typer.echo(f"inside the {jobs['jobs']} jobs that ran, on {jobs['workers']} worker processes (seconds summed over "
+               f"jobs; they run in parallel):")
+    for name, seconds in jobs.items():
+        if name not in ("jobs", "workers"):
+            typer.echo(f"  {seconds:6.1f} s  {name}")
 
 
 def _shell(arg: str) -> str:

@@ -32,8 +32,18 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "robots: 3" in config and "iterations: 5" in config  # the user's overrides beat --quick's
     assert (root / "single" / "multirun.yaml").is_file()
     record = json.loads((root / "reproduce.json").read_text())
-    assert record["seeds"] == 1 and record["quick"] and set(record["parts"]) == {"single", "team", "wander", "soft_risk", "frontier", "landscape",
-                                                                      "report"}
+    assert record["seeds"] == 1 and record["quick"] and set(record["parts"]) == {
+        "single", "team", "wander", "soft_risk", "frontier", "landscape", "comparison", "report"}
+    # where the time went: measured from the jobs' own records (no timed assertion, only the structure)
+    assert "where the time went" in result.stdout
+    breakdown = record["breakdown"]
+    assert breakdown["jobs"]["jobs"] == 9 and breakdown["jobs"]["workers"] >= 1  # 2 + 1 + 1 + 1 + 4 jobs ran
+    assert all(v is None or v >= 0 for v in breakdown["wall"].values())
+    assert breakdown["wall"]["report (figures, tables, page)"] > 0 and breakdown["total"] > 0
+    assert breakdown["jobs"]["training loop (summary wall_time)"] >= 0
+    for folder, jobs in (("single", 2), ("team", 1), ("frontier", 4)):
+        timing = record["parts"][folder]["timing"]
+        assert timing["jobs"] == jobs and timing["planning"] >= 0 and timing["running"] >= 0
     soft = pd.read_parquet(root / "soft_risk" / "summary.parquet")
     assert len(soft) == 1 and soft.status.iloc[0] == "done"
     soft_config = (root / "soft_risk" / "seed=0" / ".hydra" / "config.yaml").read_text()
@@ -57,6 +67,7 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "2 jobs: 0 to run, 2 already finished" in again.stdout
     assert "1 job: 0 to run, 1 already finished" in again.stdout
     assert "4 jobs: 0 to run, 4 already finished" in again.stdout
+    assert json.loads((root / "reproduce.json").read_text())["breakdown"]["jobs"]["jobs"] == 0
 
 
 def test_reproduce_rejects_sweeps_and_its_own_keys_as_bad_input(tmp_path):

@@ -8,7 +8,7 @@ from typing import List, Optional
 import typer
 
 from riskplan.commands.common import PASS_THROUGH, bad_input_exits, check_out_dir
-from riskplan.reproduce import QUICK_SEEDS, SEEDS, reproduce
+from riskplan.reproduce import QUICK_SEEDS, SEEDS, process_started, reproduce
 
 
 def register(app: typer.Typer) -> None:
@@ -32,4 +32,5 @@ def register(app: typer.Typer) -> None:
         formats: str = typer.Option("png,pdf", "--format", help="Figure files of the report: any of png,pdf,svg."),
     ) -> None:
         """Run every experiment of the paper's Section V (several seeds each), then the report."""
-        raise typer.Exit(reproduce(check_out_dir(out), quick, seeds, jobs, formats, list(overrides or [])))
+        raise typer.Exit(reproduce(check_out_dir(out), quick, seeds, jobs, formats, list(overrides or []),
+                                   since=process_started()))
