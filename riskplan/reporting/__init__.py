@@ -76,7 +76,7 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
     """build_report, returning what was made (for the CLI's listing)."""
     from riskplan.reporting.collect import collect
     from riskplan.reporting.figures import make_figures, save
-    from riskplan.reporting.output import Output, WriteFailed, claim
+    from riskplan.reporting.output import Output, claim
     from riskplan.reporting.page import render
     from riskplan.reporting.tables import comparison_table, csv_text, landscape_table, runs_table, soft_risk_table
 
@@ -97,22 +97,16 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
         [] if soft.empty else ["soft_risk.csv"])
     figures = []
     try:
-        output.begin([f"{spec.name}.{fmt}" for spec in specs for fmt in formats] + tables + ["report.html"])
-        for spec in specs:
-            figures.append((spec, save(spec, output, formats)))
-        output.write("report.csv", csv_text(comparison))
-        output.write("runs.csv", csv_text(runs))
-        if not landscapes.empty:
-            output.write("landscape.csv", csv_text(landscapes))
-        if not soft.empty:
-            output.write("soft_risk.csv", csv_text(soft))
-        output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes, soft))
-        output.finish()
-    except OSError as err:
-        output.abandon()
-        if not isinstance(err, WriteFailed):
-            raise output._fail("", err) from None
-        raise
+        with output.writing([f"{spec.name}.{fmt}" for spec in specs for fmt in formats] + tables + ["report.html"]):
+            for spec in specs:
+                figures.append((spec, save(spec, output, formats)))
+            output.write("report.csv", csv_text(comparison))
+            output.write("runs.csv", csv_text(runs))
+            if not landscapes.empty:
+                output.write("landscape.csv", csv_text(landscapes))
+            if not soft.empty:
+                output.write("soft_risk.csv", csv_text(soft))
+            output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes, soft))
     finally:
         for spec in specs:
             spec.figure.clear()

@@ -22,7 +22,6 @@ import yaml
 
 from riskplan import rng
 from riskplan.errors import BadInput
-from riskplan.reporting.output import WriteFailed
 from riskplan.risk import tail_count
 
 KIND = "landscape"
@@ -284,20 +283,13 @@ def compute_landscape(cfg, out_dir: Path, *, points: int = DEFAULT_POINTS, episo
     }
 
     output = Output(out_dir, KIND, previous)
-    try:
-        output.begin(sorted(FILES))
+    with output.writing(sorted(FILES)):
         (output.out / "status.json").unlink(missing_ok=True)  # until the end: this landscape is not done
         output.write(".hydra/config.yaml", OmegaConf.to_yaml(OmegaConf.create(config)))
         output.write(".hydra/overrides.yaml", yaml.safe_dump(list(overrides or [])))
         output.write_with(TABLE, lambda tmp: table.to_parquet(tmp, index=False))
         output.write("summary.json", finite_json(summary))
         output.write("status.json", finite_json({"status": "done", "error": None}))
-        output.finish()
-    except OSError as err:
-        output.abandon()
-        if not isinstance(err, WriteFailed):
-            raise output._fail("", err) from None
-        raise
     return output.out
 
 

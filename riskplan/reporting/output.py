@@ -200,6 +200,20 @@ class Output:
         with self.path(name) as tmp:
             writer(tmp)
 
+    @contextlib.contextmanager
+    def writing(self, names: list[str]):
+        """Plan `names`; the block writes them, then the previous run's leftovers go. A failure removes what this
+        run created and is one WriteFailed line (a full disk, ...)."""
+        try:
+            self.begin(names)
+            yield self
+            self.finish()
+        except OSError as err:
+            self.abandon()
+            if not isinstance(err, WriteFailed):
+                raise self._fail("", err) from None
+            raise
+
     def finish(self) -> None:
         """Remove files of the previous run that this one did not write again; the manifest lists this run's."""
         for name in set(self.previous) - set(self.planned):
