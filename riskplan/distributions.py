@@ -38,7 +38,7 @@ KINDS = LEAVES + ("mixture", "sum") + WRAPPERS
 VALID = "a number or one of {" + ", ".join(KINDS) + "}, e.g. {normal: [0, 100]}"
 MAX_LEVELS = 32  # nesting depth of a reward tree (a sum or mixture takes a list, so deep trees are never needed)
 REWARD_LIMIT = 1e100  # bound on |draw| of any node and on |an episode's total reward|: squares and sums stay finite
-NORMAL_SPREAD = 40.0  # a normal draw counts as |mean| + 40 std (the kernel's inverse CDF never exceeds 8.3 std)
+NORMAL_SPREAD = 40.0  # a normal draw counts as |mean| + 40 std (the kernel's ziggurat never exceeds 14 std)
 
 
 @dataclass(frozen=True)

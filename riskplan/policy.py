@@ -34,9 +34,13 @@ def scores(features: np.ndarray, probs: np.ndarray) -> np.ndarray:
     return features - expected[..., None, :]
 
 
-def tables(world: World, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-policy cumulative move probabilities (P, C, 5) and scores (P, C, 5, M) for thetas (P, M)."""
-    features = move_features(world)
+def tables(world: World, thetas: np.ndarray, features: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-policy cumulative move probabilities (P, C, 5) and scores (P, C, 5, M) for thetas (P, M).
+
+    `features` is move_features(world) when the caller keeps it (riskplan.rollout.Kernel does: computing it is
+    most of a small batch's fixed cost).
+    """
+    features = move_features(world) if features is None else features
     cum = np.empty(thetas.shape[:1] + features.shape[:2])
     score = np.empty(thetas.shape[:1] + features.shape)
     _fill_tables(features, np.ascontiguousarray(thetas, dtype=np.float64), cum, score)

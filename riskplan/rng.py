@@ -53,15 +53,93 @@ def episode_state(key, episode):
 
 
 @njit(inline="always")
+def next_bits(state):
+    """Advance a stream: (new state, 53 random bits m as a uint64); the uniform of `next_uniform` is bits_uniform(m)."""
+    state = state + np.uint64(GOLDEN)
+    return state, mix(state) >> np.uint64(11)
+
+
+@njit(inline="always")
+def bits_uniform(m):
+    """The uniform (m + 0.5) / 2^53 in the open interval (0, 1) of 53 random bits m."""
+    return (m + 0.5) * (1.0 / 9007199254740992.0)
+
+
+@njit(inline="always")
 def next_uniform(state):
     """Advance a stream: (new state, uniform in the open interval (0, 1))."""
+    state, m = next_bits(state)
+    return state, bits_uniform(m)
+
+
+def _ziggurat(layers: int = 256, r: float = 3.6541528853610088) -> tuple[np.ndarray, np.ndarray]:
+    """Marsaglia-Tsang ziggurat of exp(-x^2/2) in `layers` strips of equal area v (Doornik's ZIGNOR layout).
+
+    Returns x (layers + 1,): x[0] = v / f(r) is the base strip's width (rectangle plus tail), x[1] = r, x[i + 1]
+    the edge of the strip above x[i], x[layers] = 0; and ratio[i] = x[i + 1] / x[i], the fast-accept bound.
+    """
+    f = math.exp(-0.5 * r * r)
+    v = r * f + math.sqrt(math.pi / 2.0) * math.erfc(r / math.sqrt(2.0))  # base strip: rectangle + tail
+    x = np.zeros(layers + 1)
+    x[0], x[1] = v / f, r
+    for i in range(2, layers):
+        x[i] = math.sqrt(-2.0 * math.log(v / x[i - 1] + f))
+        f = math.exp(-0.5 * x[i] * x[i])
+    return x, x[1:] / x[:-1]
+
+
+ZIG_X, ZIG_RATIO = _ziggurat()
+ZIG_R = float(ZIG_X[1])
+
+
+@njit(inline="always")
+def next_normal(state):
+    """Advance a stream: (new state, a standard normal draw), by the ziggurat (exact; tests/test_kernel_speed_paths).
+
+    One 64-bit word gives the strip (low 8 bits) and a signed uniform (top 52 bits); 99% of draws are accepted at
+    once, the rest (`_normal_edge`: wedges and the tail beyond r) take more words of the same stream. |draw| < 14.
+    """
     state = state + np.uint64(GOLDEN)
-    return state, ((mix(state) >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
+    bits = mix(state)
+    i = np.int64(bits & np.uint64(255))
+    u = ((bits >> np.uint64(12)) + 0.5) * (1.0 / 2251799813685248.0) - 1.0  # (-1, 1), never 0, symmetric
+    if abs(u) < ZIG_RATIO[i]:
+        return state, u * ZIG_X[i]
+    return _normal_edge(state, i, u)
+
+
+@njit
+def _normal_edge(state, i, u):
+    """The ziggurat's rare paths (1% of draws), out of line so the fast path stays small."""
+    while True:
+        if i == 0:  # the tail beyond r (Marsaglia 1964)
+            while True:
+                state, a = next_uniform(state)
+                state, b = next_uniform(state)
+                t = -math.log(a) / ZIG_R
+                if -2.0 * math.log(b) >= t * t:
+                    return state, ZIG_R + t if u > 0.0 else -(ZIG_R + t)
+        z = u * ZIG_X[i]  # a wedge: accept under the curve
+        f0 = math.exp(-0.5 * (ZIG_X[i] * ZIG_X[i] - z * z))
+        f1 = math.exp(-0.5 * (ZIG_X[i + 1] * ZIG_X[i + 1] - z * z))
+        state, c = next_uniform(state)
+        if f1 + c * (f0 - f1) < 1.0:
+            return state, z
+        state = state + np.uint64(GOLDEN)  # rejected: start again from the next word
+        bits = mix(state)
+        i = np.int64(bits & np.uint64(255))
+        u = ((bits >> np.uint64(12)) + 0.5) * (1.0 / 2251799813685248.0) - 1.0
+        if abs(u) < ZIG_RATIO[i]:
+            return state, u * ZIG_X[i]
 
 
 @njit(inline="always")
 def normal_quantile(p):
-    """Inverse standard-normal CDF (Acklam's rational approximation, relative error < 1.2e-9)."""
+    """Inverse standard-normal CDF (Acklam's rational approximation, relative error < 1.2e-9).
+
+    The kernel's normal sampler before the ziggurat (`simulate(..., reference=True)`): the reference that
+    tests/test_kernel_speed_paths.py compares the ziggurat and the kernel's return distributions against.
+    """
     if p < 0.02425:
         q = math.sqrt(-2.0 * math.log(p))
         return (((((-7.784894002430293e-03 * q - 3.223964580411365e-01) * q - 2.400758277161838e00) * q
