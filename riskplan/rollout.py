@@ -193,6 +193,20 @@ def simulate(
 
 
 @njit(cache=True, inline="always")
+def _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state):
+    """The entered cell's reward clip(c + w U + s N, lo, hi) from its coefficients; (reward, new state)."""
+    u = 0.0
+    g = 0.0
+    if draw_uniform:
+        state, u = next_uniform(state)
+    if draw_normal:
+        state, g = next_normal(state)
+    reward = min(max(cell_affine[cell, 0] + cell_affine[cell, 1] * u + cell_affine[cell, 2] * g, cell_affine[cell, 3]),
+                 cell_affine[cell, 4])
+    return reward, state
+
+
+@njit(cache=True, inline="always")
 def _draw(ops, params, first, last, stack, state, inverse_normal=False):
     """Run one postfix reward program (riskplan.distributions) and return (value, state).
 
@@ -357,14 +371,7 @@ def _simulate_affine(bins, score, starts, keys, episodes, next_cell, cell_affine
                     acc[j] += score[p, cell, a, j]
                 cell = next_cell[cell, a]
                 steps += 1
-                u = 0.0
-                g = 0.0
-                if draw_uniform:
-                    state, u = next_uniform(state)
-                if draw_normal:
-                    state, g = next_normal(state)
-                reward = min(max(cell_affine[cell, 0] + cell_affine[cell, 1] * u + cell_affine[cell, 2] * g,
-                                 cell_affine[cell, 3]), cell_affine[cell, 4])
+                reward, state = _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state)
                 risky += cell_risky[cell]
                 hit = source_at[cell]
                 if hit >= 0:
@@ -436,14 +443,7 @@ def _simulate(bins, score, thetas, starts, keys, episodes,
                 steps += 1
                 reward = 0.0
                 if affine:  # no branch on the region: both draws every step, the cell's coefficients pick the law
-                    u = 0.0
-                    g = 0.0
-                    if draw_uniform:
-                        state, u = next_uniform(state)
-                    if draw_normal:
-                        state, g = next_normal(state)
-                    reward = min(max(cell_affine[cell, 0] + cell_affine[cell, 1] * u + cell_affine[cell, 2] * g,
-                                     cell_affine[cell, 3]), cell_affine[cell, 4])
+                    reward, state = _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state)
                     risky += cell_risky[cell]
                 else:
                     region = region_of[cell]
