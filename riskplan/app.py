@@ -89,7 +89,8 @@ def run_hydra(args: list[str], capture: bool = False) -> None:
     _task_stderr.append(sys.stderr)
     logs = _logging_state()
     try:
-        with contextlib.redirect_stderr(held) if capture else contextlib.nullcontext():
+        with contextlib.redirect_stderr(held) if capture else contextlib.nullcontext(), \
+                _without_repeat_compositions(multirun="-m" in args or "--multirun" in args):
             task()
     except SystemExit as stop:
         if not capture or stop.code in (0, None):
@@ -102,6 +103,34 @@ def run_hydra(args: list[str], capture: bool = False) -> None:
         _restore_logging(logs)
         if capture and held.getvalue() and not isinstance(sys.exc_info()[1], RunFailed):
             sys.stderr.write(held.getvalue())
+
+
+@contextlib.contextmanager
+def _without_repeat_compositions(multirun: bool):
+    """Skip two compositions Hydra repeats that riskplan has already done: `Hydra.get_mode` composes the config
+    only to read hydra.mode (riskplan's commands fix the mode: train runs, sweep multiruns), and the basic sweeper
+    composes every job once more to validate it (`plan_sweep` composed and validated each one, and Hydra's own
+    comment there calls it slow for large sweeps). Each takes 0.07-0.1 s: per job, in a sweep's driver.
+
+    Both are Hydra internals (hydra-core is pinned to 1.3.x): if they move, nothing is skipped. Optimising
+    sweepers (optuna) choose their own jobs, so they still validate them."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra._internal.hydra import Hydra
+
+    mode = RunMode.MULTIRUN if multirun else RunMode.RUN
+    replacements = {(Hydra, "get_mode"): lambda *args, **kwargs: mode,
+                    (BasicSweeper, "validate_batch_is_legal"): lambda *args, **kwargs: None}
+    originals = {key: key[0].__dict__.get(key[1]) for key in replacements if hasattr(*key)}
+    try:
+        for owner, name in originals:
+            setattr(owner, name, replacements[owner, name])
+        yield
+    finally:
+        for (owner, name), own in originals.items():
+            if own is None:  # inherited (Sweeper's): uncover it again
+                delattr(owner, name)
+            else:
+                setattr(owner, name, own)
 
 
 def _logging_state() -> dict:

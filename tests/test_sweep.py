@@ -188,3 +188,24 @@ def test_expansion_is_hydras_and_folders_name_what_varies():
 def test_config_fingerprint_ignores_order_and_the_hydra_node():
     assert config_sha({"a": 1, "b": {"c": 2}}) == config_sha({"b": {"c": 2}, "a": 1, "hydra": {"x": 1}})
     assert config_sha({"a": 1}) != config_sha({"a": 2})
+
+
+def test_hydras_repeat_compositions_are_skipped_only_inside_a_launch():
+    """run_hydra skips Hydra's mode-probing composition and the basic sweeper's second composition of every job
+    (the planner composed them); both are Hydra's own again afterwards, and the optimising sweepers keep theirs."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra._internal.hydra import Hydra
+    from hydra.plugins.sweeper import Sweeper
+    from hydra.types import RunMode
+
+    from riskplan.app import _without_repeat_compositions
+
+    get_mode = Hydra.get_mode
+    with _without_repeat_compositions(multirun=True):
+        assert Hydra.get_mode(None, "config", ["seed=0,1"]) is RunMode.MULTIRUN
+        assert BasicSweeper.validate_batch_is_legal(None, [["seed=not-a-number"]]) is None
+        assert Sweeper.validate_batch_is_legal is not BasicSweeper.validate_batch_is_legal
+    with _without_repeat_compositions(multirun=False):
+        assert Hydra.get_mode(None, "config", []) is RunMode.RUN
+    assert Hydra.get_mode is get_mode
+    assert "validate_batch_is_legal" not in BasicSweeper.__dict__

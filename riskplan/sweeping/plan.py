@@ -25,6 +25,9 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     hydra_ovs = [o for o in parsed if o.is_hydra_override()]
     task_ovs = [o for o in parsed if not o.is_hydra_override()]
     for o in hydra_ovs:
+        if o.key_or_group == "hydra.mode":
+            raise BadInput(f"override '{o.input_line}'", "riskplan sweep always runs a multirun; drop it (one run: "
+                                                         "riskplan train)")
         if o.is_sweep_override():
             raise BadInput(f"override '{o.input_line}'", "sweeps over Hydra's own settings are not supported; "
                                                          "sweep over riskplan keys, e.g. risk.beta=0.1,0.2")
