@@ -38,10 +38,9 @@ import os
 import time as _time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable
+from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
-import pandas as pd
 from mcap.opcode import Opcode
 from mcap.records import Channel, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader
@@ -49,6 +48,9 @@ from mcap.writer import CompressionType, Writer
 
 from riskplan import foxglove as fx
 from riskplan.errors import BadInput
+
+if TYPE_CHECKING:  # pandas loads only when a table is written or read: not before a run's first iteration
+    import pandas as pd
 
 MAGIC = b"\x89MCAP0\r\n"
 BATCH_ROWS = 20_000
@@ -220,6 +222,8 @@ def _float(v: Any) -> float:
 
 
 def _isna(v: Any) -> bool:
+    import pandas as pd
+
     return v is None or v is pd.NA or v is pd.NaT or (isinstance(v, float) and v != v)
 
 
@@ -237,6 +241,8 @@ def _encode_column(s: pd.Series) -> tuple[str, list]:
 
 
 def _decode_column(dtype: str, values: list) -> Any:
+    import pandas as pd
+
     try:
         dt = pd.api.types.pandas_dtype(dtype)
     except (TypeError, ValueError):
@@ -259,6 +265,8 @@ def _decode_column(dtype: str, values: list) -> Any:
 
 
 def _empty(columns: dict[str, str]) -> pd.DataFrame:
+    import pandas as pd
+
     return pd.DataFrame({c: pd.Series([], dtype=d) for c, d in columns.items()})
 
 
@@ -538,6 +546,8 @@ def _iteration_messages(msgs: Iterable[_Raw]) -> tuple[dict[str, list[tuple[_Raw
 
 
 def _column(values: list) -> Any:
+    import pandas as pd
+
     if values and all(type(v) is int for v in values):
         return np.asarray(values, dtype=np.int64)
     if values and all(type(v) is bool for v in values):
@@ -548,6 +558,8 @@ def _column(values: list) -> Any:
 
 
 def _metrics_frame(rows: list[dict]) -> pd.DataFrame:
+    import pandas as pd
+
     if not rows:
         return _empty(METRICS_BASE)
     cols = list(dict.fromkeys(k for r in rows for k in r))
@@ -556,6 +568,8 @@ def _metrics_frame(rows: list[dict]) -> pd.DataFrame:
 
 
 def _table_frame(batches: list[dict], empty: dict[str, str]) -> pd.DataFrame:
+    import pandas as pd
+
     if not batches:
         return _empty(empty)
     dtypes = batches[0]["dtypes"]

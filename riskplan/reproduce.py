@@ -73,17 +73,32 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
     if seeds < 1:
         raise BadInput("--seeds", f"got {seeds}; expected at least 1")
     jobs_total = check_seeds(seeds)
-    extra, configs = _check_overrides(list(overrides or []), quick)
-    check_work(seeds, jobs_total, configs, list(overrides or []))
-    fmts = check_formats(formats)
-    if out is not None:
-        check_output_dir(out, "--out")
+    warmed = _warm_workers(jobs, seeds)  # the workers start while the checks run
+    try:
+        extra, configs = _check_overrides(list(overrides or []), quick)
+        check_work(seeds, jobs_total, configs, list(overrides or []))
+        fmts = check_formats(formats)
+        if out is not None:
+            check_output_dir(out, "--out")
+    except BadInput:
+        stop_workers()
+        raise
     target = Path(out) if out is not None else claim_dir(REPRODUCE_ROOT)
     target.mkdir(parents=True, exist_ok=True)
     checked = time.time()
     with lock.hold(target, "reproduction directory"):
         return _reproduce(target, quick, seeds, jobs, fmts, list(overrides or []), extra,
-                          {"since": since, "entered": entered, "checked": checked})
+                          {"since": since, "entered": entered, "checked": checked}, warmed)
+
+
+def _warm_workers(jobs: int | None, seeds: int):
+    """Start and warm up the sweeps' local workers in the background (riskplan.sweeping.warm_workers); returns
+    the function that waits for them, or None when the sweeps run their jobs in this process (one worker)."""
+    from riskplan.sweeping import warm_workers
+    from riskplan.sweeping.jobs import cpu_count
+
+    workers = min(jobs or cpu_count(), max(experiment_jobs(seeds)))
+    return warm_workers(workers) if workers > 1 else None
 
 
 def experiment_jobs(seeds: int) -> list[int]:
@@ -132,14 +147,28 @@ def check_work(seeds: int, total_jobs: int, configs: dict, overrides: list[str])
 
 
 def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, overrides: list[str],
-               extra: list[str], clock: dict | None = None) -> int:
+               extra: list[str], clock: dict | None = None, warmed=None) -> int:
     """The reproduction into `target`, whose lock this process holds (`clock`: when reproduce() was entered and
-    when its checks ended, for the time breakdown)."""
+    when its checks ended, for the time breakdown; `warmed`: waits for the warmed-up workers, see _warm_workers)."""
+    import threading
+
     from riskplan.paths import write_atomic
     from riskplan.reporting import build_report
     from riskplan.sweeping import report_outcome, run_sweep
 
     started = time.time()
+    # the report's modules (matplotlib, pandas) load while this process mostly waits for the sweeps' jobs
+    importing = threading.Thread(target=_import_report_modules, name="riskplan-report-imports", daemon=True)
+    importing.start()
+    warm_up: dict = {}
+
+    def wait_for_workers() -> None:
+        if warmed is not None and not warm_up:
+            tic = time.time()
+            workers = warmed()
+            warm_up.update({"workers": len(workers), "seconds": [round(s, 2) for _, s in workers],
+                            "waited": round(time.time() - tic, 2)})
+
     typer.echo(f"reproduction directory: {target} ({'quick' if quick else 'full'}, {seeds} seeds)")
     record = {"quick": quick, "seeds": seeds, "overrides": list(overrides or []), "started": dt.datetime.now().isoformat(timespec="seconds"),
               "parts": {}}
@@ -149,7 +178,7 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
         args = [*experiment, f"seed=range(0,{min(seeds, most or seeds)})", *_not_set_by(experiment, extra)]
         typer.echo(f"\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
         tic = time.time()
-        outcome = run_sweep(args, jobs, sweep_dir=target / folder, title=folder)
+        outcome = run_sweep(args, jobs, sweep_dir=target / folder, title=folder, before_launch=wait_for_workers)
         toc = time.time()
         outcomes.append(outcome)
         code = max(code, report_outcome(outcome, folder, hint=False))
@@ -157,11 +186,15 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
                                    "skipped": outcome.skipped, "failed": len(outcome.failed),
                                    "seconds": round(outcome.seconds, 2), "wall": round(toc - tic, 2),
                                    "timing": _sweep_timing(outcome, tic, toc)}
+    if warm_up:
+        record["warm_up"] = warm_up
+    stop_workers()  # before the report, which may fork: no idle workers, nor their threads, in this process
     record["parts"]["landscape"] = _landscape(target / "landscape", quick, list(overrides or []))
     tic = time.time()
     _print_comparison(outcomes)
     record["parts"]["comparison"] = {"seconds": round(time.time() - tic, 2)}
     tic = time.time()
+    importing.join()
     try:
         page = build_report([target], target / "report", fmts)
         typer.echo(f"report: {page}")
@@ -179,7 +212,6 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
     except Exception as err:  # noqa: BLE001
         typer.echo(f"(no time breakdown: {type(err).__name__}: {err})", err=True)
     write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
-    stop_workers()
     typer.echo(f"reproduced in {record['seconds']:.0f} s: {target}")
     if code:
         import shlex
@@ -188,6 +220,18 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
         typer.echo(f"to retry what did not finish (finished jobs are skipped): riskplan reproduce "
                    f"{shlex.join(again)}", err=True)
     return code
+
+
+def _import_report_modules() -> None:
+    """Import what the report needs (a head start, on a background thread; a failure shows in the report)."""
+    import importlib
+
+    for name in ("riskplan.reporting.collect", "riskplan.reporting.figures", "riskplan.reporting.page",
+                 "riskplan.reporting.tables"):
+        try:
+            importlib.import_module(name)
+        except Exception:  # noqa: BLE001 - build_report imports them again and says what is wrong
+            return
 
 
 def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict]:
@@ -357,8 +401,10 @@ def time_breakdown(record: dict, clock: dict, started: float) -> dict:
         "checks (compose each set-up, budget)": (clock["checked"] - clock["entered"]) if "checked" in clock
         else None,
         "sweeps: planning (compose and validate every job)": sum(t.get("planning", 0.0) for t in timings),
+        "sweeps: waiting for the warmed-up workers": record.get("warm_up", {}).get("waited", 0.0),
         "sweeps: launch to first job (Hydra, worker start and imports)": sum(t.get("to_first_job", 0.0)
-                                                                             for t in timings),
+                                                                             for t in timings)
+        - record.get("warm_up", {}).get("waited", 0.0),
         "sweeps: jobs running (first start to last finish)": sum(t.get("running", 0.0) for t in timings),
         "sweeps: after the last job (summary, Hydra)": sum(t.get("after_last_job", 0.0) for t in timings),
         "landscape": record["parts"].get("landscape", {}).get("seconds", 0.0),
@@ -374,11 +420,13 @@ def time_breakdown(record: dict, clock: dict, started: float) -> dict:
             entry = workers.setdefault(pid, {"jobs": 0, "spawned": w["spawned"], "first_job": w["first_job"],
                                              "numba_load": w["numba_load"]})
             entry["jobs"] += w["jobs"]
+    warm = record.get("warm_up")
     jobs = {
         "jobs": sum(t.get("jobs", 0) for t in timings),
         "workers": len(workers),
-        "worker start to its first job (imports, unpickling)": sum(
-            w["first_job"] - w["spawned"] for w in workers.values() if w["spawned"]),
+        **({"worker warm-up (imports, numba cache; while the checks and planning ran)": sum(warm["seconds"])}
+           if warm else {"worker start to its first job (imports, unpickling)": sum(
+               w["first_job"] - w["spawned"] for w in workers.values() if w["spawned"])}),
         "numba cache load (iteration 0's extra, first job of each worker)": sum(
             w["numba_load"] or 0.0 for w in workers.values()),
         "training loop (summary wall_time)": sum(t.get("training", 0.0) for t in timings),

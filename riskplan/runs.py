@@ -5,11 +5,14 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import pandas as pd
 import yaml
 
 from riskplan.errors import BadInput
+
+if TYPE_CHECKING:  # pandas loads when a run's tables are read, not on `riskplan train`'s way to its first iteration
+    import pandas as pd
 
 TABLES = ("metrics", "eval", "trajectories")
 
@@ -85,6 +88,8 @@ def find_runs(paths: list[Path]) -> list[Path]:
 
 def load_run(path: str | Path) -> Run:
     """Load a run: parquet tables when all are there, else rebuilt from run.mcap (a killed run included)."""
+    import pandas as pd
+
     path = Path(path)
     if not path.is_dir() or not is_run_dir(path):
         raise BadInput(str(path), "holds no run (no run.mcap or .hydra/config.yaml); give a run directory")

@@ -253,6 +253,27 @@ def watch_driver(every: float = 0.2) -> bool:
     return True
 
 
+WARM_UP = (["experiment=paper_single"], ["experiment=paper_team"])  # the kernel paths of one robot and of a team
+WARM_UP_SIZE = ["train.iterations=2", "train.samples=8", "train.eval_episodes=8", "train.bootstrap=2", "train.paths=1"]
+
+
+def warm_up() -> tuple[int, float]:
+    """Import what a job needs and load the compiled kernels from numba's cache, by training tiny runs in a scratch
+    directory: `riskplan reproduce` runs this on its sweep workers while it checks and plans, so that its first
+    jobs start at once. Returns (this worker's pid, seconds taken)."""
+    import tempfile
+
+    from riskplan.config import compose
+    from riskplan.training import train
+
+    started = time.time()
+    watch_driver()
+    with tempfile.TemporaryDirectory(prefix="riskplan-warm-up-") as scratch:
+        for number, experiment in enumerate(WARM_UP):
+            train(compose([*experiment, *WARM_UP_SIZE]), Path(scratch) / str(number), progress=False)
+    return os.getpid(), time.time() - started
+
+
 def job_threads() -> int | None:
     """numba threads for this job: RISKPLAN_JOB_THREADS if set, else no more than the cores this process may run
     on (a SLURM allocation) nor OMP_NUM_THREADS (which joblib's workers and Ray's tasks get); results do not

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from riskplan.sweeping.grid import constant_keys, expand, sweep_size
 from riskplan.sweeping.jobs import SUMMARY, SWEEPS_ROOT, Job, Outcome, Plan
+from riskplan.sweeping.launch import warm_workers
 from riskplan.sweeping.plan import plan_sweep
 from riskplan.sweeping.run import run_sweep
 from riskplan.sweeping.summary import report_outcome, summarize
@@ -42,4 +43,4 @@ SWEEP_HELP = ("Hydra overrides; comma lists and range(...) sweep, e.g. risk.beta
               "an Optuna study instead of a grid (pip install 'riskplan[optuna]'); its trials return their CVaR.")
 
 __all__ = ["SUMMARY", "SWEEPS_ROOT", "SWEEP_HELP", "Job", "Outcome", "Plan", "constant_keys", "expand", "plan_sweep",
-           "report_outcome", "run_sweep", "summarize", "sweep_size"]
+           "report_outcome", "run_sweep", "summarize", "sweep_size", "warm_workers"]

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
-
+from riskplan.sweeping.jobs import cpu_count
 
 
 def launch(argv: list[str], log_file: Path) -> str | None:
@@ -38,3 +39,40 @@ def _launcher_error(log_file: Path) -> str:
     errors = [line for line in lines if "Error" in line.split(":")[0] or "Exception" in line.split(":")[0]]
     last = errors[-1] if errors else (lines[-1] if lines else "no message")
     return f"the launcher stopped: {last[:300]} (see {log_file})"
+
+
+def warm_workers(workers: int):
+    """Spawn the `workers` joblib (loky) processes of the local sweeps to come now, and warm each up (imports and
+    numba's cache: riskplan.sweepjob.warm_up), on a background thread. Returns a function that waits for them and
+    gives [(pid, seconds)], or [] when the warm-up failed (the sweeps then start workers of their own).
+
+    joblib reuses a loky executor made with the same arguments, so the call uses the joblib launcher's own
+    settings, and the environment `_run_plan` gives a sweep's workers is set before they are spawned."""
+    import dataclasses
+    import threading
+
+    from hydra_plugins.hydra_joblib_launcher.config import JobLibLauncherConf
+    from joblib import Parallel, delayed
+
+    from riskplan.sweepjob import DRIVER_ENV, THREADS_ENV, warm_up
+
+    os.environ[THREADS_ENV] = str(max(1, cpu_count() // workers))
+    os.environ[DRIVER_ENV] = str(os.getpid())
+    settings = {key: value for key, value in dataclasses.asdict(JobLibLauncherConf()).items() if key != "_target_"}
+    settings.update(n_jobs=workers, backend="loky")
+    warmed: list[tuple[int, float]] = []
+
+    def run() -> None:
+        try:
+            warmed.extend(Parallel(**settings)(delayed(warm_up)() for _ in range(workers)))
+        except Exception:  # noqa: BLE001 - a head start only: nothing depends on it
+            warmed.clear()
+
+    thread = threading.Thread(target=run, name="riskplan-warm-up", daemon=True)
+    thread.start()
+
+    def wait() -> list[tuple[int, float]]:
+        thread.join()
+        return list(warmed)
+
+    return wait

@@ -17,16 +17,18 @@ from riskplan.sweeping.view import SweepView
 
 
 def run_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None, title: str = "sweep",
-              out=None) -> Outcome:
-    """Plan, launch through Hydra, show progress, write summary.parquet. BadInput before anything runs."""
+              out=None, before_launch=None) -> Outcome:
+    """Plan, launch through Hydra, show progress, write summary.parquet. BadInput before anything runs.
+
+    `before_launch`: called between planning and launching (reproduce waits there for its warmed-up workers)."""
     from riskplan import lock
 
     plan = plan_sweep(args, jobs, sweep_dir)
     with lock.hold(plan.sweep_dir, "sweep directory"):  # one driver per sweep directory, for the whole launch
-        return _run_plan(plan, args, jobs, title, out)
+        return _run_plan(plan, args, jobs, title, out, before_launch)
 
 
-def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out) -> Outcome:
+def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, before_launch=None) -> Outcome:
     from riskplan.sweepjob import DRIVER_ENV, THREADS_ENV, is_finished
 
     echo = out or (lambda text: typer.echo(text))
@@ -50,6 +52,8 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out) ->
         if plan.launcher == "joblib" and plan.workers:
             os.environ[THREADS_ENV] = str(max(1, cpu_count() // plan.workers))
         os.environ[DRIVER_ENV] = str(os.getpid())  # local workers SIGKILL themselves when this process is gone
+        if before_launch is not None:
+            before_launch()
         with SweepView(plan.sweep_dir, plan.jobs, finished, title):
             launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log")
     for job in plan.jobs:  # a job found under another name (an older naming) ran in its own folder now
