@@ -1,0 +1,32 @@
+"""riskplan.params.typed: one frozen config per composed config, remembered, and never for a bad one."""
+
+import pytest
+from omegaconf import OmegaConf
+
+from riskplan.config import compose
+from riskplan.errors import BadInput
+from riskplan.params import TYPED_MEMO, typed
+
+
+def test_the_same_config_is_typed_once_and_another_gets_its_own():
+    cfg = compose(["experiment=paper_team"], validate=False)
+    first = typed(cfg)
+    assert typed(OmegaConf.create(OmegaConf.to_container(cfg))) is first  # equal content, another node
+    other = typed(compose(["experiment=paper_team", "seed=3"], validate=False))
+    assert other is not first and (other.seed, first.seed) == (3, 0)
+    with pytest.raises(AttributeError):
+        first.seed = 5  # shared, so frozen
+
+
+def test_a_bad_config_raises_every_time_and_old_entries_are_dropped():
+    bad = OmegaConf.to_container(compose([], validate=False))
+    bad["risk"]["beta"] = "abc"
+    for _ in range(2):
+        with pytest.raises(BadInput, match="risk.beta"):
+            typed(bad)
+    base = compose([], validate=False)
+    first = typed(base)
+    for seed in range(1, TYPED_MEMO + 1):  # enough other configs to push the first one out
+        typed(compose([f"seed={seed}"], validate=False))
+    again = typed(base)
+    assert again == first and again is not first
