@@ -67,6 +67,7 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
     from riskplan import lock
     from riskplan.paths import check_output_dir, claim_dir
     from riskplan.reporting import check_formats
+    from riskplan.reporting.parallel import workers as report_workers
 
     entered = time.time()
     seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
@@ -78,6 +79,7 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
         extra, configs = _check_overrides(list(overrides or []), quick)
         check_work(seeds, jobs_total, configs, list(overrides or []))
         fmts = check_formats(formats)
+        report_workers()  # a bad RISKPLAN_REPORT_WORKERS is bad input now, not after the sweeps
         if out is not None:
             check_output_dir(out, "--out")
     except BadInput:

@@ -3,23 +3,34 @@ run tables, broken/partial runs skipped with their reason, tables rebuilt from r
 
 from __future__ import annotations
 
+import base64
+import io
 import json
+import multiprocessing
+import os
 import re
 import shutil
+import sys
+import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from matplotlib.artist import Artist
+from PIL import Image
 from typer.testing import CliRunner
 
 import riskplan
 from riskplan.cli import app
-from riskplan.reporting import build_report
+from riskplan.errors import BadInput
+from riskplan.reporting import build_report, write_report
 from riskplan.reporting.collect import collect
 from riskplan.reporting.figures import make_figures
 from riskplan.reporting.landscape import compute_landscape
+from riskplan.reporting.parallel import WORKERS_ENV, shared_map
 from riskplan.reporting.stats import seed_interval, wilson
 from riskplan.risk import cvar, value_at_risk
 
@@ -385,3 +396,116 @@ def test_landscape_table_measures_where_training_ended(page, sweep, coll):
         assert row["distance_to_optimum"] == pytest.approx(np.hypot(*(final - [best.theta_0, best.theta_1])))
         nearest = grid.iloc[((grid[["theta_0", "theta_1"]].to_numpy() - final) ** 2).sum(axis=1).argmin()]
         assert row["gap_to_optimum"] == pytest.approx(best[target] - nearest[target])
+
+
+# ------------------------------------------------------------------------------------------------ drawn on every CPU
+linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="worker processes are forked on Linux")
+
+
+class Unfinished(Artist):
+    """An artist matplotlib fails to draw: in every process, or only in a forked worker (which first leaves a
+    marker file, and this process waits for it, so that the worker surely takes a figure)."""
+
+    def __init__(self, marker: Path | None = None):
+        super().__init__()
+        self.parent, self.marker = os.getpid(), marker
+
+    def draw(self, renderer):
+        if self.marker is None or os.getpid() != self.parent:
+            if self.marker is not None:
+                self.marker.touch()
+            raise RuntimeError("half-drawn")
+        deadline = time.monotonic() + 60
+        while not self.marker.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+
+
+def with_artist(monkeypatch, artist: Callable[[], Artist], names: set[str] | None = None) -> None:
+    """make_figures adds an artist() to the figures named (to every figure when names is None)."""
+    from riskplan.reporting import figures
+
+    make = figures.make_figures
+
+    def patched(coll):
+        specs, skipped = make(coll)
+        for spec in specs:
+            if names is None or spec.name in names:
+                spec.figure.add_artist(artist())
+        return specs, skipped
+
+    monkeypatch.setattr(figures, "make_figures", patched)
+
+
+def files_of(out: Path) -> dict[str, bytes]:
+    """Every file, report.html without the minute it was generated."""
+    files = {p.name: p.read_bytes() for p in out.iterdir()}
+    files["report.html"] = re.sub(rb"generated [0-9: -]+", b"", files["report.html"])
+    return files
+
+
+@linux_only
+def test_worker_processes_write_the_same_files_as_one_process(sweep, tmp_path, monkeypatch):
+    with_artist(monkeypatch, Unfinished, {"fig2_cvar"})
+    made = {}
+    for workers in (1, 2):
+        monkeypatch.setenv(WORKERS_ENV, str(workers))
+        made[workers] = write_report([sweep], tmp_path / str(workers), ["png", "pdf", "svg"])
+    assert made[1].skipped == made[2].skipped and made[1].figures == made[2].figures
+    assert made[2].skipped["fig2_cvar"] == "failed: RuntimeError: half-drawn" and "fig2_cvar" not in made[2].figures
+    one, two = files_of(tmp_path / "1"), files_of(tmp_path / "2")
+    assert one == two
+    assert {f"{name}.{fmt}" for name in made[2].figures for fmt in ("png", "pdf", "svg")} < set(two)
+    assert not any(name.startswith("fig2_cvar") for name in two)
+
+
+@linux_only
+def test_a_figure_failing_in_a_worker_is_skipped_and_the_others_written(sweep, tmp_path, monkeypatch):
+    monkeypatch.setenv(WORKERS_ENV, "2")
+    with_artist(monkeypatch, lambda: Unfinished(tmp_path / "worker-failed"))
+    made = write_report([sweep], tmp_path / "report", ["png", "pdf"])
+    failed = {name for name, why in made.skipped.items() if why == "failed: RuntimeError: half-drawn"}
+    assert failed and made.figures  # the worker's figures failed, this process drew the others
+    assert set(made.skipped) - failed <= OTHER_RUNS and len(failed) + len(made.figures) == 8
+    out = tmp_path / "report"
+    manifest = set(json.loads((out / ".riskplan-manifest.json").read_text())["files"])
+    drawn = {f"{name}.{fmt}" for name in made.figures for fmt in ("png", "pdf")}
+    assert drawn <= manifest and drawn <= {p.name for p in out.iterdir()}
+    assert not any(name.split(".")[0] in failed for name in manifest | {p.name for p in out.iterdir()})
+    html = made.page.read_text()
+    assert all(f'<figure id="{name}">' in html for name in made.figures)
+    assert all(f"<li><b>{name}</b>: failed: RuntimeError: half-drawn</li>" in html for name in failed)
+
+
+def test_page_images_are_the_figure_files_at_130_dpi(page):
+    html = page.read_text()
+    images = re.findall(r'<figure id="([^"]+)"><img src="data:image/png;base64,([^"]+)"', html)
+    assert len(images) == 8
+    for name, data in images:
+        shown = Image.open(io.BytesIO(base64.b64decode(data))).convert("RGB")
+        file = Image.open(page.parent / f"{name}.png")
+        assert file.info["dpi"] == pytest.approx((200, 200), abs=0.01)
+        assert shown.size == (round(file.width * 130 / 200), round(file.height * 130 / 200))
+        same = np.asarray(file.convert("RGB").resize(shown.size, Image.BILINEAR), float)
+        assert np.abs(np.asarray(shown, float) - same).mean() < 4  # the same picture (0-255 per channel)
+
+
+@linux_only
+def test_work_no_worker_delivered_is_done_in_this_process(monkeypatch):
+    parent = os.getpid()
+
+    def square(x):  # a worker dies at once
+        if os.getpid() != parent:
+            os._exit(1)
+        return x * x
+
+    monkeypatch.setenv(WORKERS_ENV, "3")
+    assert shared_map(square, list(range(7)), cost=lambda x: x % 3) == [x * x for x in range(7)]
+
+    def refused(process):
+        raise OSError(11, "Resource temporarily unavailable")  # fork: no pids left
+
+    monkeypatch.setattr(multiprocessing.context.ForkProcess, "start", refused)
+    assert shared_map(square, list(range(7)), cost=float) == [x * x for x in range(7)]
+    monkeypatch.setenv(WORKERS_ENV, "two")
+    with pytest.raises(BadInput, match=WORKERS_ENV):
+        shared_map(square, [1, 2], cost=float)

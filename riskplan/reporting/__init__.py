@@ -75,9 +75,10 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
                  key: str = "out_dir") -> Report:
     """build_report, returning what was made (for the CLI's listing)."""
     from riskplan.reporting.collect import collect
-    from riskplan.reporting.figures import make_figures, save
+    from riskplan.reporting.figures import figure_files, make_figures
     from riskplan.reporting.output import Output, claim
     from riskplan.reporting.page import render
+    from riskplan.reporting.parallel import shared_map
     from riskplan.reporting.tables import comparison_table, csv_text, landscape_table, runs_table, soft_risk_table
 
     from riskplan.runs import find_runs
@@ -91,26 +92,36 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
     landscapes = landscape_table(coll)
     soft = soft_risk_table(coll)
     specs, skipped = make_figures(coll)
+    try:
+        # every figure drawn to bytes first, on all CPUs (a figure's size is a fair guess of its cost); the files
+        # are then written here, in order
+        drawn = shared_map(lambda spec: figure_files(spec, formats), specs,
+                           cost=lambda spec: spec.figure.get_size_inches().prod())
+    finally:
+        for spec in specs:
+            spec.figure.clear()
+    figures = []
+    for spec, files in zip(specs, drawn):
+        if isinstance(files, str):
+            skipped[spec.name] = files
+        else:
+            figures.append((spec, files))
 
     output = Output(out_dir, "report", previous)
     tables = ["report.csv", "runs.csv"] + ([] if landscapes.empty else ["landscape.csv"]) + (
         [] if soft.empty else ["soft_risk.csv"])
-    figures = []
-    try:
-        with output.writing([f"{spec.name}.{fmt}" for spec in specs for fmt in formats] + tables + ["report.html"]):
-            for spec in specs:
-                figures.append((spec, save(spec, output, formats)))
-            output.write("report.csv", csv_text(comparison))
-            output.write("runs.csv", csv_text(runs))
-            if not landscapes.empty:
-                output.write("landscape.csv", csv_text(landscapes))
-            if not soft.empty:
-                output.write("soft_risk.csv", csv_text(soft))
-            output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes, soft))
-    finally:
-        for spec in specs:
-            spec.figure.clear()
-    return Report(output.out / "report.html", coll, [spec.name for spec in specs], skipped)
+    with output.writing([f"{spec.name}.{fmt}" for spec, _ in figures for fmt in formats] + tables + ["report.html"]):
+        for spec, files in figures:
+            for fmt in formats:
+                output.write(f"{spec.name}.{fmt}", files[fmt])
+        output.write("report.csv", csv_text(comparison))
+        output.write("runs.csv", csv_text(runs))
+        if not landscapes.empty:
+            output.write("landscape.csv", csv_text(landscapes))
+        if not soft.empty:
+            output.write("soft_risk.csv", csv_text(soft))
+        output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes, soft))
+    return Report(output.out / "report.html", coll, [spec.name for spec, _ in figures], skipped)
 
 
 from riskplan.reporting.output import WriteFailed  # noqa: E402 - re-exported

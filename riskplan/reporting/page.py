@@ -203,10 +203,11 @@ def runs_section(runs: pd.DataFrame) -> str:
     return _table(head, rows, numeric={5, 6})
 
 
-def figure_html(spec: FigureSpec, files: dict) -> str:
-    data = base64.b64encode(files["png_bytes"]).decode("ascii")
-    links = " · ".join(f'<a href="{_esc(name)}">{_esc(fmt.upper())}</a>' for fmt, name in files.items()
-                       if fmt != "png_bytes")
+def figure_html(spec: FigureSpec, files: dict[str, bytes]) -> str:
+    """The figure's page image inline, linking its files (figures.figure_files: {format: bytes, "page": PNG})."""
+    data = base64.b64encode(files["page"]).decode("ascii")
+    links = " · ".join(f'<a href="{_esc(f"{spec.name}.{fmt}")}">{_esc(fmt.upper())}</a>' for fmt in files
+                       if fmt != "page")
     return (f'<figure id="{_esc(spec.name)}"><img src="data:image/png;base64,{data}" alt="{_esc(spec.title)}">'
             f"<figcaption><b>{_esc(spec.title)}.</b> {_esc(spec.caption)}"
             + (f" <span class=\"note\">Files: {links}.</span>" if links else "") + "</figcaption></figure>")
