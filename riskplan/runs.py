@@ -11,6 +11,8 @@ import yaml
 
 from riskplan.errors import BadInput
 
+SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's when PyYAML has it: 10x faster, as safe
+
 if TYPE_CHECKING:  # pandas loads when a run's tables are read, not on `riskplan train`'s way to its first iteration
     import pandas as pd
 
@@ -130,7 +132,7 @@ def _config(path: Path) -> dict:
         if file.stat().st_size > CONFIG_BYTES:
             raise BadInput(str(file), f"is {file.stat().st_size} bytes, too large for a run's config "
                                       f"(at most {CONFIG_BYTES}); it was not written by riskplan")
-        data = yaml.safe_load(file.read_text(encoding="utf-8"))
+        data = yaml.load(file.read_text(encoding="utf-8"), Loader=SAFE_LOADER)
     except OSError as err:
         raise BadInput(str(file), f"cannot be read ({err.strerror or err})") from None
     except UnicodeDecodeError:
