@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
+from numba import njit, prange
 
 from riskplan import graphs
 from riskplan.checks import finite, one_of, whole
@@ -27,6 +29,7 @@ TOL = 1e-9  # row-stochasticity tolerance
 MIX_STREAM = 7919  # delays and drops: default_rng([seed, 7919, iteration, round])
 SWITCH_STREAM = 7927  # switching links: default_rng([seed, 7927, iteration])
 MASK = (1 << 64) - 1
+INT64_MAX = (1 << 63) - 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -270,14 +273,60 @@ def second_largest_eigenvalue_modulus(weights2d: np.ndarray) -> float:
 
 
 def consensus_error(thetas: np.ndarray) -> float:
-    """max_{i,j} ||theta^i - theta^j||_2 over the rows of an (N, M) array; 0.0 for N = 1."""
+    """max_{i,j} ||theta^i - theta^j||_2 over the rows of an (N, M) array; 0.0 for N = 1.
+
+    Exact: the very number of the brute force over all pairs (`_largest_squared_gap` of every row against all
+    rows), found    without its N x N x M temporaries. Around the centroid c, any pair is at most r_i + r_j apart (r = |theta - c|),
+    so the rows are taken farthest first, each against all rows, until no pair of the rows left can beat the best
+    gap found (`_gap_bound`, which allows for rounding). A round cloud needs a few dozen rows; the worst case (every
+    row as far from c) takes them all, in blocks.
+    """
     t = np.asarray(thetas, dtype=float)
     if t.ndim != 2:
         raise ValueError(f"expected thetas of shape (N, M), got {t.shape}")
-    if len(t) <= 1:
+    n, m = t.shape
+    if n <= 1:
         return 0.0
-    gaps = t[:, None, :] - t[None, :, :]
-    return float(np.sqrt((gaps**2).sum(axis=-1)).max())
+    if (t == t[0]).all():
+        return 0.0  # every gap is exactly 0 (this also covers M = 0)
+    if n <= _GAP_ROWS or not np.isfinite(t).all():
+        return float(np.sqrt(_largest_squared_gap(t, np.arange(n))))
+    with np.errstate(over="ignore"):  # huge rows give infinite radii: no pruning, the brute force's own answer
+        radii = np.sqrt(((t - t.mean(axis=0)) ** 2).sum(axis=-1))
+    order = np.argsort(-radii, kind="stable")
+    radii = radii[order]
+    best, done, k = -np.inf, 0, _GAP_ROWS
+    while done < n:
+        best = np.maximum(best, _largest_squared_gap(t, order[done:k]))
+        done = k
+        if done >= n - 1 or _gap_bound(radii[done] + radii[done + 1], m) ** 2 <= best:
+            break  # every pair not compared has both rows within radii[done] of c
+        k = min(n, 2 * k)
+    return float(np.sqrt(best))
+
+
+_GAP_ROWS = 32  # rows compared with all rows in the first block of consensus_error
+_GAP_BLOCK = 1 << 20  # at most this many numbers in one block's (rows, N, M) temporary
+
+
+def _largest_squared_gap(t: np.ndarray, rows: np.ndarray) -> float:
+    """max over `rows` i and all j of the brute force's squared gap sum_m (t_im - t_jm)^2 (computed alike)."""
+    per_block = max(1, _GAP_BLOCK // max(1, t.size))
+    best = -np.inf
+    for first in range(0, len(rows), per_block):
+        gaps = t[rows[first:first + per_block], None, :] - t[None, :, :]
+        best = np.maximum(best, (gaps**2).sum(axis=-1).max())  # NaN stays NaN, as in the brute force
+    return best
+
+
+def _gap_bound(radii_sum: float, m: int) -> float:
+    """An upper bound on any computed gap |theta^i - theta^j| of two rows whose computed radii sum to `radii_sum`.
+
+    The exact gap is at most the exact radii's sum (triangle inequality); each computed norm is within a relative
+    (M + 3) 2^-53 of its exact value, and an underflowing square loses at most 2^-1074 each. The slack below is
+    orders of magnitude wider than that and still tight enough to stop early.
+    """
+    return radii_sum * (1.0 + (m + 4) * 2.0**-40) + 1e-150
 
 
 # ---------------------------------------------------------------------------------------------- mixing
@@ -336,34 +385,94 @@ class Mixer:
                 "tracker": np.concatenate([np.zeros((n, m)), np.ones((n, m))], axis=1),
                 "gradient": np.zeros((n, m)),  # Delta^i_{l-1}, the gradient last added to the tracker
             })
+        # Synchronous teams (no delays, drops or switching; not gradient tracking): every message arrives in its own
+        # slot, so `_sync_round` mixes sum_j a^{ij} theta^j directly and notes in `_synced` what the rounds did to
+        # the arrays above, which are brought up to date only when something reads them (`_catch_up`).
+        self._sync = not self.tracking and self.settings.max_delay == 0 and self.settings.drop == 0.0 \
+            and not self.settings.switching
+        self._synced: _Synced | None = None
+        self._links: _Links | None = None  # built by the first synchronous round
+        self._shared = False  # a snapshot() holds the arrays of _state: copy them before changing them in place
 
     # Diagnostics of the last call, for tests and logs.
     @property
     def delivered(self) -> np.ndarray:
         """(N, N) bool: links whose message sent in the last call was not dropped."""
+        self._catch_up()
         return self._state["delivered"].copy()
 
     @property
     def forced(self) -> np.ndarray:
         """(N, N) bool: links whose send in the last call was forced through by max_gap."""
+        self._catch_up()
         return self._state["forced"].copy()
 
     @property
     def used_sent(self) -> np.ndarray:
         """(N, N) int: iteration at which the neighbour value mixed in the last call was sent (-1: none)."""
+        self._catch_up()
         return self._state["used_sent"].copy()
 
     def state(self) -> dict[str, np.ndarray]:
         """Everything a resumed Mixer needs, as numpy arrays (copies)."""
-        return {key: np.array(value, copy=True) for key, value in self._state.items()}
+        arrays = {key: np.array(value, copy=True) for key, value in self._state.items()}
+        if self._synced is not None:
+            self._apply_synced(arrays, self._synced)
+        return arrays
 
-    def restore(self, state: dict[str, np.ndarray]) -> "Mixer":
-        """Load a state() taken from a Mixer of the same team; returns self."""
+    def snapshot(self) -> "MixerState":
+        """The state() of this moment as a read-only mapping that copies nothing until it is read (a checkpoint
+        reads it; most iterations' snapshots are never read). Its arrays are the state()'s, bit for bit."""
+        self._shared = True
+        synced = None if self._synced is None else self._synced.copy()
+        return MixerState(dict(self._state), synced, self._apply_synced)
+
+    def restore(self, state: Mapping[str, np.ndarray]) -> "Mixer":
+        """Load a state() (or snapshot()) taken from a Mixer of the same team; returns self."""
         for key, current in self._state.items():
             if key not in state or np.shape(state[key]) != current.shape:
                 raise ValueError(f"checkpoint's consensus state '{key}' does not match this team's network/settings")
         self._state = {key: np.array(state[key], dtype=value.dtype, copy=True) for key, value in self._state.items()}
+        self._synced, self._shared = None, False
         return self
+
+    def _own(self) -> None:
+        """Copy the arrays a snapshot shares before they change in place."""
+        if self._shared:
+            self._state = {key: np.array(value, copy=True) for key, value in self._state.items()}
+            self._shared = False
+
+    def _catch_up(self) -> None:
+        """Bring the arrays up to date with the synchronous rounds since they were last (before reading them or
+        mixing by the general rules)."""
+        self._own()
+        if self._synced is not None:
+            self._apply_synced(self._state, self._synced)
+            self._synced = None
+
+    def _apply_synced(self, s: dict[str, np.ndarray], synced: "_Synced") -> None:
+        """Write into `s` (arrays of this Mixer's state, changed in place) what the synchronous rounds in `synced`
+        did: exactly what `_send` and `_received` would have written, every link sending and hearing every slot."""
+        adjacency, cfg = self.network.adjacency, self.settings
+        receiver, sender = np.nonzero(adjacency)
+        if synced.first is not None:  # the rounds started the Mixer (see _round)
+            s["last_delivered"][:] = synced.first - 1
+            s["last_up"][:] = synced.first - 1
+            s["started"] = np.array(True)
+        s["last_delivered"][receiver, sender] = synced.last
+        s["delivered"] = adjacency.copy()
+        s["forced"] = np.zeros_like(adjacency)
+        for round_index, (iteration, sent) in synced.sent.items():  # slot 0: with B0 = 0 a message is due at once
+            s["pending"][0, round_index, receiver, sender, :] = sent[sender]
+            s["pending_sent"][0, round_index, receiver, sender] = iteration
+            s["pending_due"][0, round_index, receiver, sender] = -1  # consumed on arrival
+        stamp, latest = synced.latest
+        s["latest"][receiver, sender, :] = latest[sender]
+        s["latest_stamp"][receiver, sender] = stamp
+        if cfg.stale == "arrival":
+            s["used_sent"] = np.where(adjacency, synced.last, -1)
+        else:
+            s["used_sent"] = np.where(s["latest_stamp"] >= 0, s["latest_stamp"] // cfg.rounds, -1)
 
     def links_up(self, iteration: int) -> np.ndarray:
         """(N, N) bool links up at `iteration` (all links unless switching is enabled)."""
@@ -412,6 +521,7 @@ class Mixer:
             raise ValueError(f"expected gradients of shape {thetas.shape}, got {grads.shape}")
         if self.network.robots == 1:
             return thetas.copy(), grads.copy()  # no one to track with: eq. (11), bit for bit
+        self._catch_up()  # _round would replace _state under `s` otherwise
         s, m = self._state, self.network.n_params
         tracker = s["tracker"][:, :m] + (grads - s["gradient"])
         mass = s["tracker"][:, m:]
@@ -426,6 +536,7 @@ class Mixer:
         rounds and links of a^{ij} (S^j - rho^{ij})."""
         if not self.tracking:
             return np.zeros(2 * self.network.n_params)
+        self._catch_up()
         s, w = self._state, self.network.weights
         owed = s["sums"][:, None, :, :] - s["seen_sums"]  # (R, N, N, 2M): [r, i, j] what j sent that i lacks
         links = self.network.adjacency[None, :, :, None]
@@ -442,6 +553,11 @@ class Mixer:
         if n == 1:
             return thetas.copy(), None if carried is None else carried.copy()
         iteration = int(iteration)
+        if carried is None and self._sync:
+            mixed = self._sync_round(thetas, iteration, round_index)
+            if mixed is not None:
+                return mixed, None
+        self._catch_up()
         s = self._state
         if not s["started"]:
             # Gaps are counted from just before the first iteration mixed.
@@ -449,9 +565,31 @@ class Mixer:
             s["last_up"][:] = iteration - 1
             s["started"] = np.array(True)
         self._send(thetas, carried, iteration, round_index)
-        weights, values, arrived = self._received(thetas, iteration, round_index)
-        mixed = np.einsum("ijm,ijm->im", weights, values)
+        mixed, arrived = self._received(thetas, iteration, round_index)
         return mixed, None if carried is None else self._mix_sums(carried, arrived, iteration, round_index)
+
+    def _sync_round(self, thetas: np.ndarray, iteration: int, round_index: int) -> np.ndarray | None:
+        """A round of a synchronous team (no delays, drops or switching): every link delivers in the slot it sends,
+        so robot i mixes sum_j a^{ij} theta^j (with stale=latest, the newest value each link holds) exactly as
+        `_received` would, in the same order of sums, without the (N, N, M) buffers. The arrays of the state are
+        left as they were and `_synced` records what to write into them. None when the general rules must decide:
+        a slot no later than the newest value the arrays already hold (a Mixer set back in time)."""
+        cfg, synced = self.settings, self._synced
+        stamp = iteration * cfg.rounds + round_index
+        if synced is None and stamp <= int(self._state["latest_stamp"].max()):
+            return None
+        sent = np.array(thetas, copy=True)
+        if synced is None:
+            first = None if bool(self._state["started"]) else iteration
+            self._synced = synced = _Synced(first, iteration, {}, (stamp, sent))
+        elif stamp > synced.latest[0]:
+            synced.latest = (stamp, sent)  # a repeated or older slot is not newer: the links keep what they hold
+        synced.last = iteration
+        synced.sent[round_index] = (iteration, sent)
+        neighbour = sent if cfg.stale == "arrival" else synced.latest[1]
+        if self._links is None and self.network.n_params > 1:
+            self._links = _Links(self.network)
+        return _mix_linked(self.network, self._links, thetas, neighbour)
 
     def _mix_sums(self, carried: np.ndarray, arrived: np.ndarray, iteration: int, round_index: int) -> np.ndarray:
         """Trackers after one round, mixed as running sums: robot i takes a^{ij} (S^j - rho^{ij}) from each link.
@@ -478,54 +616,296 @@ class Mixer:
     def _send(self, thetas: np.ndarray, carried: np.ndarray | None, iteration: int, round_index: int) -> None:
         """Put this slot's messages in flight: delay, drop, forced delivery (Assumption 5 (3)-(4))."""
         s, cfg = self._state, self.settings
-        # A fresh generator per slot: no random state crosses iterations, so resume is bit-identical.
+        # A fresh generator per slot: no random state crosses iterations, so resume is bit-identical. With B0 = 0
+        # the delays are all 0 and integers(0, 1) draws nothing; with drop 0 every message is kept: both skipped.
         rng = np.random.default_rng([self.seed, MIX_STREAM, iteration & MASK, round_index])
-        delay = rng.integers(0, cfg.max_delay + 1, size=(self.network.robots,) * 2)
-        kept = rng.random(delay.shape) >= cfg.drop
-        overdue = self.network.adjacency & (iteration - s["last_delivered"] >= cfg.max_gap)
-        sent = self._links_up(iteration) & kept
-        s["forced"] = overdue & ~sent
-        sent = sent | overdue
-        s["delivered"] = sent
-        s["last_delivered"] = np.where(sent, iteration, s["last_delivered"])
-        receiver, sender = np.nonzero(sent)
-        due = iteration + delay[receiver, sender]
-        slot = due % (cfg.max_delay + 1)
-        s["pending"][slot, round_index, receiver, sender, :] = thetas[sender]
-        s["pending_sent"][slot, round_index, receiver, sender] = iteration
-        s["pending_due"][slot, round_index, receiver, sender] = due
+        shape = (self.network.robots,) * 2
+        delay = rng.integers(0, cfg.max_delay + 1, size=shape) if cfg.max_delay else _NO_INTS
+        kept = rng.random(shape) >= cfg.drop if cfg.drop else _NO_FLAGS
+        sums, pending_sums = _NO_FLOATS, _NO_PENDING
         if carried is not None:  # the tracker rides in the same message: its sender's running sum
             s["sums"][round_index] += carried
-            s["pending_sums"][slot, round_index, receiver, sender, :] = s["sums"][round_index][sender]
+            sums, pending_sums = s["sums"][round_index], s["pending_sums"]
+        max_gap = min(cfg.max_gap, INT64_MAX)  # a gap of an int64 iteration never exceeds it: same as any larger B
+        args = (self.network.adjacency, self._links_up(iteration), kept, delay, iteration, max_gap, round_index,
+                np.ascontiguousarray(thetas), sums, s["last_delivered"], s["delivered"], s["forced"], s["pending"],
+                s["pending_sent"], s["pending_due"], pending_sums)
+        if shape[0] * shape[1] >= PARALLEL_ENTRIES:
+            _send_parallel(*args)
+        else:
+            _send_links(*args, 0, shape[0])
 
-    def _received(self, thetas: np.ndarray, iteration: int,
-                  round_index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Effective (N, N, M) weights and the values they multiply, after arrivals at this slot; and the
-        (N, N) links whose message arrived now."""
+    def _received(self, thetas: np.ndarray, iteration: int, round_index: int) -> tuple[np.ndarray, np.ndarray]:
+        """The mixed thetas after this slot's arrivals, and the (N, N) links whose message arrived now.
+
+        A link mixes the value that arrived (stale=arrival) or the newest it holds (stale=latest); a neighbour with
+        nothing to offer hands its weight to robot i itself, keeping each row stochastic; a late message never
+        replaces a newer one, and stale slots never meet a weight, even as 0 * inf."""
         s, cfg, adjacency = self._state, self.settings, self.network.adjacency
         slot = iteration % (cfg.max_delay + 1)
-        arrived = adjacency & (s["pending_due"][slot, round_index] == iteration)
-        s["pending_due"][slot, round_index][arrived] = -1  # consumed
-        values = s["pending"][slot, round_index]
-        stamp = s["pending_sent"][slot, round_index] * cfg.rounds + round_index
-        newer = arrived & (stamp > s["latest_stamp"])  # a late message must not replace a newer one
-        s["latest"][newer] = values[newer]
-        s["latest_stamp"] = np.where(newer, stamp, s["latest_stamp"])
-        if cfg.stale == "arrival":
-            use, neighbour = arrived, values
-            s["used_sent"] = np.where(arrived, s["pending_sent"][slot, round_index], -1)
+        n = self.network.robots
+        arrived, use = np.empty((n, n), dtype=bool), np.empty((n, n), dtype=bool)
+        parallel = n * n >= PARALLEL_ENTRIES
+        args = (adjacency, iteration, round_index, cfg.rounds, cfg.stale == "latest", s["pending"][slot, round_index],
+                s["pending_sent"][slot, round_index], s["pending_due"][slot, round_index], s["latest"],
+                s["latest_stamp"], s["used_sent"], arrived, use)
+        if parallel:
+            _receive_parallel(*args)
         else:
-            use, neighbour = s["latest_stamp"] >= 0, s["latest"]
-            s["used_sent"] = np.where(use, s["latest_stamp"] // cfg.rounds, -1)
+            _receive_links(*args, 0, n)
+        neighbour = s["pending"][slot, round_index] if cfg.stale == "arrival" else s["latest"]
         w = self.network.weights
+        if self.network.n_params > 1:
+            mixed = np.empty((n, self.network.n_params))
+            args = (w, adjacency, use, neighbour, np.ascontiguousarray(thetas), mixed)
+            if parallel:
+                _mix_used_parallel(*args)
+            else:
+                _mix_used(*args, 0, n)
+            return mixed, arrived
+        # One parameter: numpy's own sums (pairwise over j for idle, its einsum order), as they always were.
         effective = w * use[:, :, None]
-        # A neighbour with nothing to offer hands its weight to robot i itself, keeping each row stochastic.
         idle = (w * (adjacency & ~use)[:, :, None]).sum(axis=1)
-        diagonal = np.arange(len(w))
+        diagonal = np.arange(n)
         effective[diagonal, diagonal, :] = w[diagonal, diagonal, :] + idle
-        values = np.where(use[:, :, None], neighbour, 0.0)  # stale slots never meet a weight, even as 0 * inf
+        values = np.where(use[:, :, None], neighbour, 0.0)
         values[diagonal, diagonal, :] = thetas
-        return effective, values, arrived
+        return np.einsum("ijm,ijm->im", effective, values), arrived
+
+
+# The kernels below run over a range of rows (robots i); from PARALLEL_ENTRIES links or (N, N) entries on, their
+# _parallel drivers run ROWS rows at a time in parallel. A row is always one thread's: the numbers do not depend
+# on the thread count.
+PARALLEL_ENTRIES = 1 << 15
+ROWS = 16
+_NO_INTS = np.zeros((0, 0), dtype=np.int64)  # placeholders for the kernels' optional arrays
+_NO_FLAGS = np.zeros((0, 0), dtype=bool)
+_NO_FLOATS = np.zeros((0, 0))
+_NO_PENDING = np.zeros((0, 0, 0, 0, 0))
+
+
+@njit(parallel=True, cache=True)
+def _send_parallel(adjacency, up, kept, delay, iteration, max_gap, round_index, thetas, sums, last_delivered,
+                   delivered, forced, pending, pending_sent, pending_due, pending_sums):
+    """`_send_links` of every row, ROWS at a time in parallel."""
+    chunks = (adjacency.shape[0] + ROWS - 1) // ROWS
+    for chunk in prange(chunks):
+        _send_links(adjacency, up, kept, delay, iteration, max_gap, round_index, thetas, sums, last_delivered,
+                    delivered, forced, pending, pending_sent, pending_due, pending_sums, chunk * ROWS,
+                    min(adjacency.shape[0], (chunk + 1) * ROWS))
+
+
+@njit(cache=True)
+def _send_links(adjacency, up, kept, delay, iteration, max_gap, round_index, thetas, sums, last_delivered,
+                delivered, forced, pending, pending_sent, pending_due, pending_sums, first, last):
+    """Mixer._send per link of rows first..last-1: a link that is up sends unless dropped (`kept`, empty: none is);
+    one without a delivery for max_gap iterations is forced through; a sent message is due `delay` later (empty:
+    at once) in slot due mod B0+1, carrying theta^j (and the running sums `sums`, unless empty)."""
+    n = adjacency.shape[0]
+    slots = pending.shape[0]
+    for i in range(first, last):
+        for j in range(n):
+            overdue = adjacency[i, j] and iteration - last_delivered[i, j] >= max_gap
+            sent = up[i, j] and (kept.shape[0] == 0 or kept[i, j])
+            forced[i, j] = overdue and not sent
+            sent = sent or overdue
+            delivered[i, j] = sent
+            if sent:
+                last_delivered[i, j] = iteration
+                due = iteration + (delay[i, j] if delay.shape[0] else 0)
+                slot = due % slots
+                pending[slot, round_index, i, j, :] = thetas[j, :]
+                pending_sent[slot, round_index, i, j] = iteration
+                pending_due[slot, round_index, i, j] = due
+                if sums.shape[0]:
+                    pending_sums[slot, round_index, i, j, :] = sums[j, :]
+
+
+@njit(parallel=True, cache=True)
+def _receive_parallel(adjacency, iteration, round_index, rounds, latest_rule, pending, pending_sent, pending_due,
+                      latest, latest_stamp, used_sent, arrived, use):
+    """`_receive_links` of every row, ROWS at a time in parallel."""
+    chunks = (adjacency.shape[0] + ROWS - 1) // ROWS
+    for chunk in prange(chunks):
+        _receive_links(adjacency, iteration, round_index, rounds, latest_rule, pending, pending_sent, pending_due,
+                       latest, latest_stamp, used_sent, arrived, use, chunk * ROWS,
+                       min(adjacency.shape[0], (chunk + 1) * ROWS))
+
+
+@njit(cache=True)
+def _receive_links(adjacency, iteration, round_index, rounds, latest_rule, pending, pending_sent, pending_due,
+                   latest, latest_stamp, used_sent, arrived, use, first, last):
+    """Mixer._received's bookkeeping per link of rows first..last-1, on one slot's (N, N[, M]) buffers: arrivals are
+    consumed, a newer arrival (stamp l R + r) becomes the link's latest value, and `use` says which links mix a
+    neighbour value: the arrived ones (stale=arrival) or those holding any (stale=latest)."""
+    n, m = latest.shape[0], latest.shape[2]
+    for i in range(first, last):  # selects rather than branches: arrivals come in no order a branch predictor learns
+        for j in range(n):
+            sent = pending_sent[i, j]
+            here = adjacency[i, j] and pending_due[i, j] == iteration
+            arrived[i, j] = here
+            pending_due[i, j] = -1 if here else pending_due[i, j]  # consumed
+            stamp = sent * rounds + round_index
+            newer = here and stamp > latest_stamp[i, j]
+            for k in range(m):
+                latest[i, j, k] = pending[i, j, k] if newer else latest[i, j, k]
+            held = stamp if newer else latest_stamp[i, j]
+            latest_stamp[i, j] = held
+            if latest_rule:
+                use[i, j] = held >= 0
+                used_sent[i, j] = held // rounds if held >= 0 else -1
+            else:
+                use[i, j] = here
+                used_sent[i, j] = sent if here else -1
+
+
+@njit(parallel=True, cache=True)
+def _mix_used_parallel(weights, adjacency, use, neighbour, own, out):
+    """`_mix_used` of every row, ROWS at a time in parallel."""
+    chunks = (own.shape[0] + ROWS - 1) // ROWS
+    for chunk in prange(chunks):
+        _mix_used(weights, adjacency, use, neighbour, own, out, chunk * ROWS, min(own.shape[0], (chunk + 1) * ROWS))
+
+
+@njit(cache=True)
+def _mix_used(weights, adjacency, use, neighbour, own, out, first, last):
+    """Rows first..last-1 of sum_j e^{ij}_m v^{ij}_m for M > 1, with e^{ij} = a^{ij}, v^{ij} = neighbour^{ij} on the links in `use`,
+    e^{ii} = a^{ii} + idle^i (idle: the weights of the links not in use, summed over j in order) and v^{ii} = own^i:
+    numpy's einsum and sums of `_received`, bit for bit (see `_mix_linked`: terms of +0.0 are left out)."""
+    n, m = own.shape
+    for i in range(first, last):
+        for k in range(m):
+            idle = 0.0
+            for j in range(n):
+                a = weights[i, j, k]  # loaded either way, so that the choices below need no branch
+                idle += a if adjacency[i, j] and not use[i, j] else 0.0  # + 0.0 leaves a sum >= +0.0 as it is
+            diagonal = weights[i, i, k] + idle
+            total = 0.0
+            for j in range(i):  # a term not in use is +0.0 (a * 0.0): left out, even where a * value is not finite
+                term = weights[i, j, k] * neighbour[i, j, k]
+                total += term if use[i, j] else 0.0
+            total += diagonal * own[i, k]
+            for j in range(i + 1, n):
+                term = weights[i, j, k] * neighbour[i, j, k]
+                total += term if use[i, j] else 0.0
+            out[i, k] = total
+
+
+@dataclass
+class _Synced:
+    """What the synchronous rounds since the Mixer's arrays were last brought up to date did (Mixer._sync_round)."""
+
+    first: int | None  # the first iteration mixed, when these rounds started the Mixer
+    last: int  # the iteration of the last round
+    sent: dict[int, tuple[int, np.ndarray]] = field(default_factory=dict)  # round -> (iteration, thetas) last sent
+    latest: tuple[int, np.ndarray] | None = None  # (slot stamp l R + r, thetas): the newest value on every link
+
+    def copy(self) -> "_Synced":
+        """A copy that later rounds leave alone (the thetas themselves are never changed)."""
+        return _Synced(self.first, self.last, dict(self.sent), self.latest)
+
+
+class MixerState(Mapping):
+    """A Mixer's state at one moment (Mixer.snapshot): a read-only mapping of its arrays, built on first access."""
+
+    def __init__(self, arrays: dict[str, np.ndarray], synced: _Synced | None,
+                 apply: Callable[[dict[str, np.ndarray], _Synced], None]):
+        self._base, self._synced, self._apply = arrays, synced, apply
+        self._arrays: dict[str, np.ndarray] | None = None
+
+    def _built(self) -> dict[str, np.ndarray]:
+        if self._arrays is None:
+            arrays = {key: np.array(value, copy=True) for key, value in self._base.items()}
+            if self._synced is not None:
+                self._apply(arrays, self._synced)
+            self._arrays, self._base, self._synced = arrays, arrays, None
+        return self._arrays
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return self._built()[key]
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._base
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._base)
+
+    def __len__(self) -> int:
+        return len(self._base)
+
+
+class _Links:
+    """The links of row i of A with the diagonal, in order of j (compressed rows), and their weights a^{ij}_m."""
+
+    def __init__(self, network: Network):
+        n = network.robots
+        linked = network.adjacency | np.eye(n, dtype=bool)
+        receiver, sender = np.nonzero(linked)  # row by row, j increasing
+        self.starts = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(linked.sum(axis=1), out=self.starts[1:])
+        self.senders = sender.astype(np.int64)
+        self.own = np.flatnonzero(receiver == sender)  # where each row's diagonal entry sits
+        self.weights = np.ascontiguousarray(network.weights[receiver, sender])  # (links + N, M)
+
+
+def _mix_linked(network: Network, links: "_Links | None", own: np.ndarray, neighbour: np.ndarray) -> np.ndarray:
+    """sum_j a^{ij}_m v^{ij}_m with v^{ii} = own^i, v^{ij} = neighbour^j on links and 0 elsewhere: the einsum of
+    `_received`, bit for bit. With M > 1 numpy's inner loop runs over m, so each sum over j is taken one term after
+    the other, from 0.0; the terms off the links are a^{ij} * 0.0 = +0.0, which leave such a sum as it is (it is
+    never -0.0), so the kernel adds the links alone. With M = 1 numpy's inner loop is the sum over j itself, in its
+    own order: the very same einsum does it here."""
+    n, m = own.shape
+    if m == 1 or links is None:
+        values = np.where(network.adjacency[:, :, None], neighbour[None, :, :], 0.0)
+        values[np.arange(n), np.arange(n), :] = own
+        return np.einsum("ijm,ijm->im", network.weights, values)
+    out = np.empty((n, m))
+    args = (links.starts, links.senders, links.own, links.weights, np.ascontiguousarray(own),
+            np.ascontiguousarray(neighbour), out)
+    if len(links.senders) >= PARALLEL_ENTRIES:
+        _mix_links_parallel(*args)
+    else:
+        _mix_links(*args, 0, n)
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _mix_links_parallel(starts, senders, diagonal, weights, own, neighbour, out):
+    """`_mix_links` of every row, ROWS at a time in parallel (each row by one thread)."""
+    chunks = (own.shape[0] + ROWS - 1) // ROWS
+    for chunk in prange(chunks):
+        _mix_links(starts, senders, diagonal, weights, own, neighbour, out, chunk * ROWS,
+                   min(own.shape[0], (chunk + 1) * ROWS))
+
+
+@njit(cache=True)
+def _mix_links(starts, senders, diagonal, weights, own, neighbour, out, first, last):
+    """`_mix_linked` for M > 1, rows first..last-1: each robot's row summed over its links in order of j."""
+    m = own.shape[1]
+    for i in range(first, last):
+        d = diagonal[i]
+        for k in range(0, m - 1, 2):  # two parameters at a time: two independent chains of additions
+            one, two = 0.0, 0.0
+            for p in range(starts[i], d):
+                j = senders[p]
+                one += weights[p, k] * neighbour[j, k]
+                two += weights[p, k + 1] * neighbour[j, k + 1]
+            one += weights[d, k] * own[i, k]
+            two += weights[d, k + 1] * own[i, k + 1]
+            for p in range(d + 1, starts[i + 1]):
+                j = senders[p]
+                one += weights[p, k] * neighbour[j, k]
+                two += weights[p, k + 1] * neighbour[j, k + 1]
+            out[i, k], out[i, k + 1] = one, two
+        if m % 2:
+            k = m - 1
+            total = 0.0
+            for p in range(starts[i], d):
+                total += weights[p, k] * neighbour[senders[p], k]
+            total += weights[d, k] * own[i, k]
+            for p in range(d + 1, starts[i + 1]):
+                total += weights[p, k] * neighbour[senders[p], k]
+            out[i, k] = total
 
 
 # ---------------------------------------------------------------------------------------------- reports

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from riskplan.world import World
 
@@ -34,6 +34,10 @@ def scores(features: np.ndarray, probs: np.ndarray) -> np.ndarray:
     return features - expected[..., None, :]
 
 
+PARALLEL_POLICIES = 16  # from this many policies on, `tables` fills them in parallel (below: no parallel region)
+CHUNK = 8  # policies per parallel work item
+
+
 def tables(world: World, thetas: np.ndarray, features: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-policy cumulative move probabilities (P, C, 5) and scores (P, C, 5, M) for thetas (P, M).
 
@@ -43,19 +47,32 @@ def tables(world: World, thetas: np.ndarray, features: np.ndarray | None = None)
     features = move_features(world) if features is None else features
     cum = np.empty(thetas.shape[:1] + features.shape[:2])
     score = np.empty(thetas.shape[:1] + features.shape)
-    _fill_tables(features, np.ascontiguousarray(thetas, dtype=np.float64), cum, score)
+    thetas = np.ascontiguousarray(thetas, dtype=np.float64)
+    if len(thetas) >= PARALLEL_POLICIES:
+        _fill_tables_parallel(features, thetas, cum, score)
+    else:
+        _fill_tables(features, thetas, cum, score, 0, len(thetas))
     return cum, score
 
 
+@njit(parallel=True, cache=True)
+def _fill_tables_parallel(features, thetas, cum, score):
+    """`_fill_tables` of all policies, CHUNK at a time in parallel: each policy's numbers are one thread's, the
+    same whatever the thread count."""
+    chunks = (thetas.shape[0] + CHUNK - 1) // CHUNK
+    for chunk in prange(chunks):
+        _fill_tables(features, thetas, cum, score, chunk * CHUNK, min(thetas.shape[0], (chunk + 1) * CHUNK))
+
+
 @njit(cache=True)
-def _fill_tables(features, thetas, cum, score):
-    """`probabilities` (cumulated) and `scores` for every policy and cell, in one pass.
+def _fill_tables(features, thetas, cum, score, first, last):
+    """`probabilities` (cumulated) and `scores` for policies first..last-1 and every cell, in one pass.
 
     The same maths as the numpy functions above, as loops: every iteration of a 100-robot team builds 100 tables,
     and this is ~6x faster than the numpy composition (tests/test_policy.py checks they agree).
     """
     mu = np.empty(5)
-    for p in range(thetas.shape[0]):
+    for p in range(first, last):
         for c in range(features.shape[0]):
             best = -np.inf
             for a in range(5):

@@ -34,8 +34,14 @@ def stream_key(*parts: int) -> int:
 
 
 def robot_keys(seed: int, purpose: int, iteration: int, robots: int) -> np.ndarray:
-    """One uint64 key per robot for an iteration's episodes."""
-    return np.array([stream_key(seed, purpose, iteration, r) for r in range(robots)], dtype=np.uint64)
+    """One uint64 key per robot for an iteration's episodes: stream_key(seed, purpose, iteration, r) for every r,
+    its last fold done for all robots at once in uint64 arithmetic (which wraps modulo 2^64, as MASK does)."""
+    if robots <= 4:  # a few robots: Python ints are quicker than numpy's small-array overhead
+        return np.array([stream_key(seed, purpose, iteration, r) for r in range(robots)], dtype=np.uint64)
+    z = np.uint64((stream_key(seed, purpose, iteration) + GOLDEN) & MASK) + np.arange(robots, dtype=np.uint64)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
 
 
 @njit(inline="always")

@@ -15,10 +15,9 @@ import signal
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
-import pandas as pd
 from omegaconf import OmegaConf
 
 from riskplan import rng
@@ -36,6 +35,9 @@ from riskplan.runs import Run
 from riskplan.setup import Setup, build_setup, logit_bound, risk_level, samples_at, step_size
 from riskplan.summary import SCHEMA_VERSION, bootstrap_intervals, provenance
 from riskplan.world import world_map
+
+if TYPE_CHECKING:  # pandas (0.2-0.4 s to import, with pyarrow) loads after the training loop, see _train_locked
+    import pandas as pd
 
 CHECKPOINT = "checkpoint"
 FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # written when a run ends
@@ -89,12 +91,11 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
                                f"(theta . signal is not finite); lower train.step_size.initial")
     error = consensus_error(thetas) if setup.team else math.nan
     seconds = time.perf_counter() - started
-    rows = [_row(l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, episodes, seconds,
-                 level) for i in range(n)]
+    rows = _robot_rows(l, stats, thetas, grads, eps, error, episodes, seconds, level)
     if setup.team:
         rows.append(_row(l, AVERAGE, summary_stats(z.ravel(), beta), thetas.mean(axis=0), grads.mean(axis=0), eps,
                          error, episodes * n, seconds, level))
-    return State(l + 1, new_thetas, setup.mixer.state(), state.rows + rows), rows
+    return State(l + 1, new_thetas, setup.mixer.snapshot(), state.rows + rows), rows  # copied when read
 
 
 def check_finite(what: str, *arrays) -> None:
@@ -165,6 +166,8 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
             if os.environ.get(STOP_ENV) == str(state.iteration - 1):
                 os.kill(os.getpid(), signal.SIGSTOP)
         train_seconds = time.perf_counter() - wall
+        import pandas as pd  # only now: the first iteration does not wait for it (`riskplan bench`'s start-up row)
+
         metrics = pd.DataFrame(state.rows).sort_values(["iteration", "robot"], ignore_index=True)
         evaluation = evaluate(setup, state.thetas)
         trajectories = sample_paths(setup, state.thetas)
@@ -221,6 +224,8 @@ def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
     """The final policies on fresh episodes (own stream), one row per episode."""
+    import pandas as pd
+
     count = setup.params.train.eval_episodes
     ids, evaluated, cells = policies(setup, thetas)
     frames = []
@@ -243,6 +248,8 @@ def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
 
 def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
     """A few sampled paths of the initial and the final policies (own stream), one row per step."""
+    import pandas as pd
+
     count = setup.params.train.paths
     frames = []
     for name, policy_thetas in (("initial", np.tile(setup.theta0, (setup.robots, 1))), ("final", thetas)):
@@ -369,6 +376,32 @@ def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
     logged_rows(out / "run.mcap", state.iteration, setup.robots)
     done = state.iteration == setup.params.train.iterations and all((out / f).is_file() for f in FINISHED)
     return setup, done
+
+
+def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, level) -> list[dict]:
+    """`_row` of every robot i (stats[k][i], thetas[i], grads[i]): the same dicts, copies of one template with the
+    values every robot shares, filled in column by column."""
+    n, m = thetas.shape
+    if n <= 4:  # a centralized run or a small team: one _row each is quicker
+        return [_row(l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, samples, seconds,
+                     level) for i in range(n)]
+    template = _row(l, 0, {k: 0.0 for k in stats}, np.zeros(m), np.zeros(1), eps, error, samples, seconds, level)
+    columns = {"robot": range(n), **{k: np.asarray(v, dtype=float).tolist() for k, v in stats.items()},
+               **{f"theta_{j}": column for j, column in enumerate(np.asarray(thetas, dtype=float).T.tolist())},
+               "grad_norm": _norms(grads)}
+    rows = [template.copy() for _ in range(n)]
+    for key, column in columns.items():  # existing keys: the template's order stays
+        for row, value in zip(rows, column):
+            row[key] = value
+    return rows
+
+
+def _norms(vectors: np.ndarray) -> list[float]:
+    """np.linalg.norm of each row, bit for bit: that is sqrt(x.dot(x)), and numpy's vecdot (numpy >= 2) takes each
+    row's dot product by the very function x.dot(x) calls (the dtype's dot, a BLAS ddot)."""
+    if hasattr(np, "vecdot"):
+        return np.sqrt(np.vecdot(vectors, vectors)).tolist()
+    return [math.sqrt(x.dot(x)) for x in vectors]
 
 
 def _row(l, robot, stats, theta, grad, eps, error, samples, seconds, level) -> dict:
