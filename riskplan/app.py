@@ -105,6 +105,36 @@ def run_hydra(args: list[str], capture: bool = False) -> None:
             sys.stderr.write(held.getvalue())
 
 
+def run_composed(config: DictConfig) -> None:
+    """Hydra's single run of a config riskplan composed and checked already, with its hydra node (config.compose
+    with_hydra=True): what `Hydra.run` does after composing, so the config is not composed a second time (0.1 s of
+    `riskplan train`'s start). The run's directory is hydra.run.dir; `.hydra/`, logging and callbacks are Hydra's.
+    A failure outside the task (Hydra cannot write `.hydra/`: a full disk) is RunFailed, one line."""
+    from hydra._internal.callbacks import Callbacks
+    from hydra.core.utils import configure_log, run_job
+    from hydra.types import HydraContext
+    from omegaconf import open_dict
+
+    with open_dict(config.hydra):
+        config.hydra.mode = RunMode.RUN
+    _task_stderr.append(sys.stderr)
+    logs = _logging_state()
+    try:
+        configure_log(config.hydra.hydra_logging, config.hydra.verbose)
+        callbacks = Callbacks(config)
+        callbacks.on_run_start(config=config, config_name="config")
+        done = run_job(hydra_context=HydraContext(config_loader=None, callbacks=callbacks),
+                       task_function=task.__wrapped__, config=config, job_dir_key="hydra.run.dir",
+                       job_subdir_key=None)
+        callbacks.on_run_end(config=config, config_name="config", job_return=done)
+        done.return_value  # noqa: B018 - raises what the task raised (it records its own failures)
+    except Exception as err:  # noqa: BLE001 - outside the task: Hydra's own writes
+        raise RunFailed(f"{type(err).__name__}: {err}") from None
+    finally:
+        _task_stderr.pop()
+        _restore_logging(logs)
+
+
 @contextlib.contextmanager
 def _without_repeat_compositions(multirun: bool):
     """Skip two compositions Hydra repeats that riskplan has already done: `Hydra.get_mode` composes the config

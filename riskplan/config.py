@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
@@ -85,8 +87,12 @@ def expand_shorthands(overrides: list[str]) -> list[str]:
     return out
 
 
-def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = True) -> DictConfig:
-    """Compose conf/ with overrides, check the schema, then (optionally) the model's own constraints."""
+def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = True,
+            with_hydra: bool = False) -> DictConfig:
+    """Compose conf/ with overrides, check the schema, then (optionally) the model's own constraints.
+
+    With `with_hydra`, the config checked is returned with its hydra node (what Hydra would run: `riskplan train`
+    hands it to riskplan.app.run_composed instead of letting Hydra compose it again)."""
     overrides = list(overrides)
     parsed = parse_overrides(overrides)
     check_groups(parsed)
@@ -111,6 +117,7 @@ def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = Tru
     from riskplan.hydra_checks import check_hydra_node
 
     check_hydra_node(cfg, [o for o in parsed if o.is_hydra_override()])
+    full = copy.deepcopy(cfg) if with_hydra else None
     with open_dict(cfg):
         del cfg["hydra"]
     check_schema(cfg)
@@ -118,7 +125,7 @@ def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = Tru
         from riskplan.setup import build_setup
 
         build_setup(cfg)
-    return cfg
+    return cfg if full is None else full
 
 
 def check_hydra_args(args: list[str]) -> None:

@@ -30,8 +30,10 @@ def train(
         metavar="RUN_DIR"),
 ) -> None:
     """Train one experiment (default: experiment=paper_single) into outputs/runs/<timestamp>_<experiment>/."""
-    from riskplan.app import RunFailed, run_hydra
-    from riskplan.config import check_hydra_args, compose, expand_overrides, parse_overrides
+    from omegaconf import open_dict
+
+    from riskplan.app import RunFailed, run_composed, run_hydra
+    from riskplan.config import check_hydra_args, compose, parse_overrides
 
     args = list(overrides or [])
     multirun = sorted(MULTIRUN_FLAGS & set(args))
@@ -45,11 +47,13 @@ def train(
         check_hydra_args(args)
         run_hydra(args)
         return
-    cfg = compose(args)
+    cfg = compose(args, with_hydra=True)  # checked, and run as it is: Hydra does not compose it again
     explicit = run_dir_override(parse_overrides(args))
     if explicit is None:
         out, made = claim_dir(Path("outputs") / "runs", f"_{cfg.experiment}"), True
-        args = [*args, f"hydra.run.dir={hydra_quote(out)}"]
+        with open_dict(cfg.hydra):  # as if given as an override
+            cfg.hydra.run.dir = str(out)
+            cfg.hydra.overrides.hydra.append(f"hydra.run.dir={hydra_quote(out)}")
     else:
         out, made = explicit, not explicit.exists()
         check_new_run_dir(out, "hydra.run.dir")
@@ -59,7 +63,7 @@ def train(
             check_new_run_dir(out, "hydra.run.dir")  # again under the lock: another process may have won the race
             typer.echo(f"run directory: {out}")
             try:
-                run_hydra(expand_overrides(args), capture=True)
+                run_composed(cfg)
             except RunFailed as err:
                 typer.echo(f"error: run failed: {err} (see {out})", err=True)
                 raise typer.Exit(1) from None
