@@ -246,8 +246,12 @@ def bench_startup(quick: bool) -> list[dict]:
     ]
 
 
+TEAM_SAMPLES = 100_000  # total samples per iteration of the team benchmarks and the scaling study's robots (N * W_i)
+
+
 def bench_team(quick: bool) -> list[dict]:
-    """100 robots on a random geometric graph, W_i = 1000, vs one robot with the same total samples."""
+    """100 robots (W_i = 1000) and 1000 robots (W_i = 100) on a random geometric graph, vs one robot with the same
+    total samples (W = 100000)."""
     from riskplan.config import compose
     from riskplan.setup import build_setup
     from riskplan.training import State, iterate
@@ -264,11 +268,15 @@ def bench_team(quick: bool) -> list[dict]:
 
         return best_time(step, 3, 3 if quick else 10)
 
-    team = iteration_time(["team.robots=100", "team.graph=random_geometric", "train.samples=1000"])
-    central = iteration_time(["train.samples=100000"])
-    rows = [{"measure": "team iteration, 100 robots RGG, W_i=1000 (s)", "value": team, "unit": "s",
-             "target": "<= 1.5x centralized", "ok": team <= 1.5 * central, "baseline": central,
-             "ratio": team / central, "note": "baseline: one robot, W=100000 (same total samples)"}]
+    central = iteration_time([f"train.samples={TEAM_SAMPLES}"])
+    rows = []
+    for robots in (100, 1000):
+        team = iteration_time([f"team.robots={robots}", "team.graph=random_geometric",
+                               f"train.samples={TEAM_SAMPLES // robots}"])
+        rows.append({"measure": f"team iteration, {robots} robots RGG, W_i={TEAM_SAMPLES // robots} (s)",
+                     "value": team, "unit": "s", "target": "<= 1.5x centralized", "ok": team <= 1.5 * central,
+                     "baseline": central, "ratio": team / central,
+                     "note": f"baseline: one robot, W={TEAM_SAMPLES} (same total samples)"})
     sizes = [(25, 1000), (50, 1000), (100, 1000), (100, 2000), (200, 2000)]
     growth = []
     for robots, samples in sizes[:3] if quick else sizes:
@@ -294,7 +302,6 @@ def bench_team(quick: bool) -> list[dict]:
 PAPER_SOURCES = ("{name:safe,position:[9,3],covariance:[[16.0,0.0],[0.0,16.0]],scale:null,reward:1000.0}",
                  "{name:risky,position:[3,9],covariance:[[16.0,0.0],[0.0,16.0]],scale:null,"
                  "reward:{normal:[2000.0,2000.0]}}")
-TEAM_SAMPLES = 100_000  # total samples per iteration along the robots dimension (N * W_i), as bench_team's
 
 
 def source_overrides(count: int) -> list[str]:
