@@ -253,7 +253,7 @@ def watch_driver(every: float = 0.2) -> bool:
     return True
 
 
-WARM_UP = (["experiment=paper_single"], ["experiment=paper_team"])  # the kernel paths of one robot and of a team
+WARM_UP = (["experiment=paper_single"],)  # loads the kernels every job runs (a team's own few load in its job)
 WARM_UP_SIZE = ["train.iterations=2", "train.samples=8", "train.eval_episodes=8", "train.bootstrap=2", "train.paths=1"]
 
 
