@@ -168,7 +168,8 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
         if warmed is not None and not warm_up:
             tic = time.time()
             workers = warmed()
-            warm_up.update({"workers": len(workers), "seconds": [round(s, 2) for _, s in workers],
+            warm_up.update({"workers": len(workers), "pids": [pid for pid, _ in workers],
+                            "seconds": [round(s, 2) for _, s in workers],
                             "waited": round(time.time() - tic, 2)})
 
     typer.echo(f"reproduction directory: {target} ({'quick' if quick else 'full'}, {seeds} seeds)")

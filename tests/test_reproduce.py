@@ -41,6 +41,11 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert all(v is None or v >= 0 for v in breakdown["wall"].values())
     assert breakdown["wall"]["report (figures, tables, page)"] > 0 and breakdown["total"] > 0
     assert breakdown["jobs"]["training loop (summary wall_time)"] >= 0
+    # one sweep worker was warmed up while reproduce planned, and the sweeps ran their jobs on it
+    warm = record["warm_up"]
+    assert warm["workers"] == 1 and len(warm["seconds"]) == 1 and warm["seconds"][0] > 0
+    job_pids = {json.loads(p.read_text())["pid"] for p in root.glob("*/*/status.json")}
+    assert warm["pids"][0] in job_pids
     for folder, jobs in (("single", 2), ("team", 1), ("frontier", 4)):
         timing = record["parts"][folder]["timing"]
         assert timing["jobs"] == jobs and timing["planning"] >= 0 and timing["running"] >= 0
