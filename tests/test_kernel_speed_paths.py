@@ -17,7 +17,7 @@ from riskplan import distributions as D
 from riskplan import rng
 from riskplan.config import compose
 from riskplan.risk import cvar
-from riskplan.rollout import _bins, _pick, _pick_bits, affine_form, simulate
+from riskplan.rollout import _pick, _pick_bits, affine_form, move_bins, simulate
 from riskplan.setup import build_setup
 
 N = 2_000_000
@@ -235,6 +235,18 @@ def test_integer_bins_pick_exactly_the_float_compares_move():
     cum = np.cumsum(raw / raw.sum(axis=2, keepdims=True), axis=2)
     cum[0, :4] = [[0.5, 0.5, 0.75, 1 - 2**-53, 1.0], [0.0, 2**-60, 0.5 - 2**-54, 1.0, 1.0],
                   [0.1, 0.2, 0.30000000000000004, 1 + 2**-52, 1.0], [2**-53, 2**-52, 3 * 2**-53, 0.25, 1.0]]
-    bins = np.empty((1, 500, 4), dtype=np.int64)
-    _bins(cum, bins)
+    bins = move_bins(cum)
     assert _picks_agree(cum, bins, 2**53)
+
+
+def test_integer_bins_are_exact_where_the_closed_form_changes_rounding():
+    """Around 1/2 (X = 2^52, where m + 0.5 stops being exact), at powers of two and next to 0 and 1."""
+    near = [b + k * 2.0**-54 for b in (0.5, 0.25, 0.75, 1.0) for k in range(-6, 7)]
+    near += [np.nextafter(b, d) for b in (0.5, 0.25, 0.75, 1.0, 0.0) for d in (-1.0, 2.0)]
+    near += [2.0**-e for e in range(1, 60)] + [1 - 2.0**-e for e in range(1, 54)]
+    near += [0.5 - 2.0**-e for e in range(2, 55)]
+    values = np.array([v for v in near if 0.0 <= v <= 1.0])
+    values = np.resize(values, (len(values) + 3) // 4 * 4).reshape(-1, 4)
+    for shift in range(4):  # every value at every move index
+        cum = np.concatenate([np.roll(values, shift, axis=1), np.ones((len(values), 1))], axis=1)[None]
+        assert _picks_agree(cum, move_bins(cum), 2**53)
