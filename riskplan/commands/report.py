@@ -11,7 +11,6 @@ import typer
 
 from riskplan.commands.common import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
 from riskplan.errors import BadInput
-from riskplan.reporting import LANDSCAPES_ROOT, default_out, latest_reproduction
 
 def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
     """'a,b,...' -> floats, with one of the allowed counts."""
@@ -53,7 +52,7 @@ def register(app: typer.Typer) -> None:
         formats: str = typer.Option("png,pdf", "--format", help="Figure files to write: any of png,pdf,svg."),
     ) -> None:
         """Figures (the paper's Figs. 1-4 and more), tables and a self-contained report.html from finished runs."""
-        from riskplan.reporting import check_formats, write_report
+        from riskplan.reporting import check_formats, default_out, latest_reproduction, write_report
 
         fmts = check_formats(formats)
         inputs = list(paths) if paths else [latest_reproduction()]
@@ -87,6 +86,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Evaluate mean and CVaR of the total reward on a grid of theta (common random numbers, seeded)."""
         from riskplan.config import compose
+        from riskplan.reporting import LANDSCAPES_ROOT
         from riskplan.reporting.landscape import check_grid, compute_landscape
         from riskplan.reporting.output import claim
         from riskplan.setup import build_setup

@@ -7,7 +7,12 @@ from typing import List, Optional
 import typer
 
 from riskplan.commands.common import PASS_THROUGH, bad_input_exits
-from riskplan.sweeping import SWEEP_HELP, report_outcome, run_sweep
+
+SWEEP_HELP = ("Hydra overrides; comma lists and range(...) sweep, e.g. risk.beta=0.05,0.1,0.2 'seed=range(0,5)' "
+              "team.graph=line,ring. hydra/launcher=submitit_slurm|submitit_local|ray selects a cluster launcher "
+              "(default: joblib on local cores); hydra.sweep.dir=DIR re-runs a sweep into DIR, skipping the jobs "
+              "that finished. hydra/sweeper=optuna 'risk.beta=interval(0.05,1)' hydra.sweeper.n_trials=12 runs "
+              "an Optuna study instead of a grid (pip install 'riskplan[optuna]'); its trials return their CVaR.")
 
 
 def register(app: typer.Typer) -> None:
@@ -21,5 +26,7 @@ def register(app: typer.Typer) -> None:
                                                 "submitit's array_parallelism."),
     ) -> None:
         """Run a grid of experiments (a Hydra multirun) into outputs/sweeps/<timestamp>/, one folder per job."""
+        from riskplan.sweeping import report_outcome, run_sweep  # here: `riskplan train` starts without it
+
         outcome = run_sweep(list(overrides or []), jobs)
         raise typer.Exit(report_outcome(outcome))

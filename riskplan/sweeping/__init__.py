@@ -36,11 +36,5 @@ from riskplan.sweeping.plan import plan_sweep
 from riskplan.sweeping.run import run_sweep
 from riskplan.sweeping.summary import report_outcome, summarize
 
-SWEEP_HELP = ("Hydra overrides; comma lists and range(...) sweep, e.g. risk.beta=0.05,0.1,0.2 'seed=range(0,5)' "
-              "team.graph=line,ring. hydra/launcher=submitit_slurm|submitit_local|ray selects a cluster launcher "
-              "(default: joblib on local cores); hydra.sweep.dir=DIR re-runs a sweep into DIR, skipping the jobs "
-              "that finished. hydra/sweeper=optuna 'risk.beta=interval(0.05,1)' hydra.sweeper.n_trials=12 runs "
-              "an Optuna study instead of a grid (pip install 'riskplan[optuna]'); its trials return their CVaR.")
-
-__all__ = ["SUMMARY", "SWEEPS_ROOT", "SWEEP_HELP", "Job", "Outcome", "Plan", "constant_keys", "expand", "plan_sweep",
+__all__ = ["SUMMARY", "SWEEPS_ROOT", "Job", "Outcome", "Plan", "constant_keys", "expand", "plan_sweep",
            "report_outcome", "run_sweep", "summarize", "sweep_size", "warm_workers"]
