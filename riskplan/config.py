@@ -14,7 +14,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from riskplan import schema
 from riskplan.errors import BadInput
-from riskplan.params import check_schema, explain
+from riskplan.params import explain, typed
 from riskplan.schema import CONF_DIR
 
 __all__ = ["CONF_DIR", "GRAMMAR", "check_hydra_args", "compose", "explain", "expand_overrides", "expand_shorthands", "parse_overrides"]
@@ -120,7 +120,7 @@ def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = Tru
     full = copy.deepcopy(cfg) if with_hydra else None
     with open_dict(cfg):
         del cfg["hydra"]
-    check_schema(cfg)
+    typed(cfg)  # the schema check, remembered: build_setup below types the same config
     if validate:
         from riskplan.setup import build_setup
 
