@@ -664,13 +664,21 @@ class Mixer:
                 _mix_used(*args, 0, n)
             return mixed, arrived
         # One parameter: numpy's own sums (pairwise over j for idle, its einsum order), as they always were.
-        effective = w * use[:, :, None]
-        idle = (w * (adjacency & ~use)[:, :, None]).sum(axis=1)
-        diagonal = np.arange(n)
-        effective[diagonal, diagonal, :] = w[diagonal, diagonal, :] + idle
-        values = np.where(use[:, :, None], neighbour, 0.0)
-        values[diagonal, diagonal, :] = thetas
-        return np.einsum("ijm,ijm->im", effective, values), arrived
+        return mix_numpy(w, adjacency, use, neighbour, thetas), arrived
+
+
+def mix_numpy(weights: np.ndarray, adjacency: np.ndarray, use: np.ndarray, neighbour: np.ndarray,
+              own: np.ndarray) -> np.ndarray:
+    """sum_j a^{ij} theta^j over the links in `use` (neighbour values), each idle link's weight handed to robot i
+    itself (`own`), by numpy: the rule the per-link kernels below follow, summed in numpy's order."""
+    n = len(own)
+    effective = weights * use[:, :, None]
+    idle = (weights * (adjacency & ~use)[:, :, None]).sum(axis=1)
+    diagonal = np.arange(n)
+    effective[diagonal, diagonal, :] = weights[diagonal, diagonal, :] + idle
+    values = np.where(use[:, :, None], neighbour, 0.0)  # stale slots never meet a weight, even as 0 * inf
+    values[diagonal, diagonal, :] = own
+    return np.einsum("ijm,ijm->im", effective, values)
 
 
 # The kernels below run over a range of rows (robots i); from PARALLEL_ENTRIES links or (N, N) entries on, their

@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 
 import riskplan
 from riskplan import rng
-from riskplan.consensus import Mixer, MixerState, build_network, consensus_error
+from riskplan.consensus import Mixer, MixerState, build_network, consensus_error, mix_numpy
 from riskplan.policy import move_features, probabilities, scores, tables
 from riskplan.risk import summary_stats
 from riskplan.schema import TeamConf
@@ -200,18 +200,6 @@ def test_synchronous_rounds_equal_the_general_rules(stale, m, graph, rounds, rea
         assert_same_state(snapshot, expected)
 
 
-def numpy_mix(weights, adjacency, use, neighbour, own):
-    """The former numpy body of Mixer._received: effective weights, idle weight to the diagonal, einsum."""
-    n = len(own)
-    effective = weights * use[:, :, None]
-    idle = (weights * (adjacency & ~use)[:, :, None]).sum(axis=1)
-    diagonal = np.arange(n)
-    effective[diagonal, diagonal, :] = weights[diagonal, diagonal, :] + idle
-    values = np.where(use[:, :, None], neighbour, 0.0)
-    values[diagonal, diagonal, :] = own
-    return np.einsum("ijm,ijm->im", effective, values)
-
-
 @pytest.mark.parametrize("m", [2, 3, 5, 8, 11])
 @pytest.mark.parametrize("n", [3, 40, 200])
 def test_mixing_kernels_add_in_numpy_einsum_order(n, m):
@@ -229,14 +217,14 @@ def test_mixing_kernels_add_in_numpy_einsum_order(n, m):
     neighbour[g.random((n, n)) < 0.05] = np.inf  # stale slots may hold anything; those in use must stay finite
     for use in (adjacency & (g.random((n, n)) < 0.6), adjacency, np.zeros_like(adjacency)):
         neighbour_in_use = np.where(use[:, :, None] & ~np.isfinite(neighbour), 1.0, neighbour)
-        expected = numpy_mix(weights, adjacency, use, neighbour_in_use, own)
+        expected = mix_numpy(weights, adjacency, use, neighbour_in_use, own)
         serial, parallel = np.empty((n, m)), np.empty((n, m))
         _mix_used(weights, adjacency, use, neighbour_in_use, own, serial, 0, n)
         _mix_used_parallel(weights, adjacency, use, neighbour_in_use, own, parallel)
         assert np.array_equal(serial, expected) and np.array_equal(parallel, expected)
     network = Network(n, adjacency, weights, None, "edges", False, 0.1)
     sent = g.normal(size=(n, m)) * 10.0 ** g.integers(-8, 8, size=(n, m))
-    expected = numpy_mix(weights, adjacency, adjacency, np.broadcast_to(sent, (n, n, m)), own)
+    expected = mix_numpy(weights, adjacency, adjacency, np.broadcast_to(sent, (n, n, m)), own)
     links = _Links(network)
     assert np.array_equal(_mix_linked(network, links, own, sent), expected)
     serial, parallel = np.empty((n, m)), np.empty((n, m))
