@@ -1,4 +1,5 @@
-"""Hydra's multirun, launched in this process, its printed output going to sweep.log."""
+"""Hydra's multirun, launched in this process, its printed output going to sweep.log; and the local workers
+started ahead of it (`warm_workers`)."""
 
 from __future__ import annotations
 
