@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from riskplan import compose, train
-from riskplan.risk import cvar
+from riskplan.engine.risk_measures import cvar
 
 
 def row(run, robot):

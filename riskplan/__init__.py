@@ -16,26 +16,26 @@ __all__ = ["compose", "train", "load_run", "sweep", "report", "__version__"]
 
 
 def compose(overrides=()):
-    """Compose and validate a config from Hydra overrides (riskplan.config.compose)."""
-    from riskplan.config import compose as _compose
+    """Compose and validate a config from Hydra overrides (riskplan.run.compose.compose)."""
+    from riskplan.run.compose import compose as _compose
 
     return _compose(list(overrides))
 
 
 def train(config, out_dir, progress: bool = True):
-    """Train, evaluate and record one experiment into out_dir; returns its Run (riskplan.training.train).
+    """Train, evaluate and record one experiment into out_dir; returns its Run (riskplan.run.training.train).
 
     With `progress`, a live bar on a terminal or in a Jupyter notebook (nothing is printed elsewhere)."""
-    from riskplan.progress import TrainingBar, silent
-    from riskplan.training import train as _train
+    from riskplan.util.progress import TrainingBar, silent
+    from riskplan.run.training import train as _train
 
     with TrainingBar() if progress else silent() as bar:
         return _train(config, out_dir, progress=bar)
 
 
 def load_run(path):
-    """Load a run directory (tables rebuilt from run.mcap if needed) (riskplan.runs.load_run)."""
-    from riskplan.runs import load_run as _load_run
+    """Load a run directory (tables rebuilt from run.mcap if needed) (riskplan.run.results.load_run)."""
+    from riskplan.run.results import load_run as _load_run
 
     return _load_run(path)
 
@@ -43,8 +43,8 @@ def load_run(path):
 def sweep(overrides=(), jobs=None, sweep_dir=None):
     """Run a grid of experiments (or an Optuna study) as `riskplan sweep OVERRIDES --jobs JOBS` does, into a new
     outputs/sweeps/<timestamp>/ or `sweep_dir` (finished jobs there are skipped). Returns the outcome: `.summary`
-    (the summary.parquet table), `.sweep_dir`, `.failed` [(job, error)], `.ok` (riskplan.sweeping.run_sweep)."""
-    from riskplan.sweeping import run_sweep
+    (the summary.parquet table), `.sweep_dir`, `.failed` [(job, error)], `.ok` (riskplan.experiments.sweeping.run_sweep)."""
+    from riskplan.experiments.sweeping import run_sweep
 
     return run_sweep(list(overrides), jobs, sweep_dir, out=lambda text: None)
 
@@ -52,10 +52,10 @@ def sweep(overrides=(), jobs=None, sweep_dir=None):
 def report(paths, out_dir=None, formats=("png", "pdf")):
     """Figures, tables and report.html from the finished runs below `paths`, as `riskplan report` does; into
     `out_dir` (default: PATH/report for one path, else outputs/reports/<timestamp>/). Returns the page's path
-    (riskplan.reporting.build_report)."""
+    (riskplan.experiments.reporting.build_report)."""
     from pathlib import Path
 
-    from riskplan.reporting import build_report, default_out
+    from riskplan.experiments.reporting import build_report, default_out
 
     inputs = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
     return build_report(inputs, Path(out_dir) if out_dir is not None else default_out(inputs), list(formats))

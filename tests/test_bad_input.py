@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from riskplan import compose
 from riskplan.cli import app
-from riskplan.training import CHECKPOINT, train
+from riskplan.run.training import CHECKPOINT, train
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 BEGIN, END = "<!-- bad-input-table: begin -->", "<!-- bad-input-table: end -->"
@@ -86,8 +86,8 @@ def template(tmp_path_factory) -> Path:
                                            if not line.startswith("seed:")) + "\n")
     # rows 160-179 (report and landscape --out): a landscape's directory and a report's directory, each with the
     # manifest its command writes
-    from riskplan.reporting import build_report
-    from riskplan.reporting.landscape import compute_landscape
+    from riskplan.experiments.reporting import build_report
+    from riskplan.experiments.landscape import compute_landscape
 
     compute_landscape(compose(FAST), root / "outputs" / "landscapes" / "land", points=3, episodes=20)
     build_report([done], root / "outputs" / "reports" / "old", ["png"])

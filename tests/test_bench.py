@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from riskplan import rng
-from riskplan.bench import python_rollouts
-from riskplan.config import compose
-from riskplan.rollout import simulate
-from riskplan.setup import build_setup
+from riskplan.engine import rng
+from riskplan.experiments.benchmarks import python_rollouts
+from riskplan.run.compose import compose
+from riskplan.engine.rollout import simulate
+from riskplan.run.build import build_setup
 
 
 def test_python_baseline_matches_the_kernel_in_distribution():
@@ -28,7 +28,7 @@ def test_scaling_measures_every_dimension_against_the_baseline_row(tmp_path, mon
     import json
     import math
 
-    from riskplan import bench
+    from riskplan.experiments import benchmarks as bench
 
     monkeypatch.setattr(bench, "ROUND_SECONDS", 0.001)  # structure only: no timed assertion
     small = ["train.samples=200"]
@@ -67,7 +67,7 @@ def test_scaling_measures_every_dimension_against_the_baseline_row(tmp_path, mon
 
 
 def test_the_scaling_dimensions_span_the_issue_and_many_sources_compose():
-    from riskplan import bench
+    from riskplan.experiments import benchmarks as bench
 
     dims = bench.scaling_dimensions()
     values = {name: [v for v, _ in points] for name, points in dims.items()}

@@ -1,4 +1,4 @@
-"""The summary's percentile bootstrap (riskplan.summary): exact resampling law on tiny samples, and interval widths
+"""The summary's percentile bootstrap (riskplan.run.intervals): exact resampling law on tiny samples, and interval widths
 against the asymptotic standard errors of the mean and of CVaR for a normal sample."""
 
 import itertools
@@ -8,7 +8,7 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
-from riskplan.summary import REPORT_BETAS, _bootstrap, bootstrap_intervals
+from riskplan.run.intervals import REPORT_BETAS, _bootstrap, bootstrap_intervals
 from riskplan.risk import tail_count
 
 STD = NormalDist()

@@ -11,8 +11,8 @@ import yaml
 from typer.testing import CliRunner
 
 from riskplan.cli import app
-from riskplan.paths import claim_dir
-from riskplan.record import read_log
+from riskplan.util.paths import claim_dir
+from riskplan.run.record import read_log
 
 runner = CliRunner()
 METRICS = ["iteration", "robot", "mean", "cvar", "value_at_risk", "std", "theta_0", "theta_1", "grad_norm",

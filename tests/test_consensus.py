@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from riskplan import graphs
-from riskplan.consensus import (
+from riskplan.engine.team import graphs
+from riskplan.engine.team.consensus import (
     MIX_STREAM,
     Mixer,
     Network,
@@ -21,8 +21,8 @@ from riskplan.consensus import (
     network_metadata,
     second_largest_eigenvalue_modulus,
 )
-from riskplan.errors import BadInput
-from riskplan.schema import TeamConf
+from riskplan.util.errors import BadInput
+from riskplan.config.schema import TeamConf
 
 
 def make_team(**values):

@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 import yaml
 
-from riskplan import compose, rng
-from riskplan.rollout import simulate
-from riskplan.setup import build_setup
-from riskplan.training import starts, train
+from riskplan import compose
+from riskplan.engine import rng
+from riskplan.engine.rollout import simulate
+from riskplan.run.build import build_setup
+from riskplan.run.training import starts, train
 from test_resume import FAST, TEAM, assert_same_outputs, run_cli, train_cli
 
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from riskplan import distributions as D
-from riskplan.errors import BadInput
-from riskplan.rollout import _draw
-from riskplan.world import MAX_STACK
+from riskplan.engine import distributions as D
+from riskplan.util.errors import BadInput
+from riskplan.engine.rollout import _draw
+from riskplan.engine.world import MAX_STACK
 
 PAPER_RISKY = {"clip": [-1e4, 1e4], "of": {"sum": [{"scale": 200, "of": {"uniform": [0, 1]}}, {"normal": [0, 100]}]}}
 

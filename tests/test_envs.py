@@ -1,6 +1,6 @@
 """riskplan.envs: the Gymnasium and PettingZoo environments follow the numba kernel's world.
 
-The distribution tests compare environment episodes with `riskplan.rollout.simulate` under the same softmax policy:
+The distribution tests compare environment episodes with `riskplan.engine.rollout.simulate` under the same softmax policy:
 mean, quantiles and CVaR of the total reward, risky steps, moves and the source reached. Each tolerance is 4
 standard errors of the difference, estimated from the two samples themselves (never a fixed number).
 """
@@ -19,13 +19,13 @@ pettingzoo = pytest.importorskip("pettingzoo")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 from pettingzoo.test import parallel_api_test, parallel_seed_test  # noqa: E402
 
-from riskplan import rng as R  # noqa: E402
+from riskplan.engine import rng as R  # noqa: E402
 from riskplan.envs import (SensorPlanningEnv, SensorTeamEnv, SoftmaxPolicy, Worlds, make_setup,  # noqa: E402
                            run_episodes)
-from riskplan.envs.gym import ENV_ID  # noqa: E402
-from riskplan.policy import move_features  # noqa: E402
+from riskplan.experiments.environments.gym import ENV_ID  # noqa: E402
+from riskplan.engine.policy import move_features  # noqa: E402
 from riskplan.risk import cvar, value_at_risk  # noqa: E402
-from riskplan.rollout import simulate  # noqa: E402
+from riskplan.engine.rollout import simulate  # noqa: E402
 
 TRAINED, THETA0 = (46.6, -0.8), (20.0, 20.0)  # the paper's trained CVaR policy and its initial one
 KERNEL_EPISODES = 200_000
@@ -98,7 +98,7 @@ def agree(label: str, env, ker) -> None:
 
 
 class Outcomes:
-    """Episode outcomes collected from an environment loop, named as riskplan.rollout.Batch names them."""
+    """Episode outcomes collected from an environment loop, named as riskplan.engine.rollout.Batch names them."""
 
     def __init__(self):
         self.rows: list[tuple[float, int, int, int]] = []
@@ -179,7 +179,7 @@ def test_the_gym_env_passes_the_gymnasium_checker(overrides):
 
 
 def test_gymnasium_make_finds_the_env_by_module_path():
-    env = gymnasium.make(f"riskplan.envs.gym:{ENV_ID}", config=["world.horizon=3"])
+    env = gymnasium.make(f"riskplan.envs:{ENV_ID}", config=["world.horizon=3"])
     obs, _ = env.reset(seed=0)
     assert env.observation_space.contains(obs)
     assert env.unwrapped.world.horizon == 3

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from riskplan import rng
-from riskplan.policy import move_features, probabilities
+from riskplan.engine import rng
+from riskplan.engine.policy import move_features, probabilities
 from riskplan.risk import cvar_gradient, mean_gradient, tail_count
-from riskplan.rollout import simulate
-from riskplan.schema import RiskplanConf
-from riskplan.setup import build_setup
+from riskplan.engine.rollout import simulate
+from riskplan.config.schema import RiskplanConf
+from riskplan.run.build import build_setup
 
 TINY = {
     "world": {

@@ -17,10 +17,10 @@ from typer.testing import CliRunner
 
 from riskplan import compose, train
 from riskplan.cli import app
-from riskplan.export import metric_prefix, param_value, summary_figures, tensorboard_name
-from riskplan.foxglove_layout import LAYOUT_FILE, layout, panels, topics, write_layout
-from riskplan.reporting.collect import flatten
-from riskplan.sweepjob import config_sha
+from riskplan.experiments.exporting import metric_prefix, param_value, summary_figures, tensorboard_name
+from riskplan.run.foxglove_layout import LAYOUT_FILE, layout, panels, topics, write_layout
+from riskplan.experiments.reporting.collect import flatten
+from riskplan.experiments.sweep_worker import config_sha
 
 TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 runner = CliRunner()
@@ -211,7 +211,7 @@ def test_tensorboard_reexport_replaces_one_subdirectory_per_run(runs, tmp_path):
 
 def test_a_write_failure_is_one_line_exit_1_and_keeps_the_previous_export(runs, tmp_path, monkeypatch):
     pytest.importorskip("tensorboard")
-    from riskplan.export import TensorboardTarget
+    from riskplan.experiments.exporting import TensorboardTarget
 
     mine = tmp_path / "runs"
     shutil.copytree(runs / "single_0", mine / "single_0")

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from numba import njit
 
-from riskplan import distributions as D
-from riskplan import rng
-from riskplan.config import compose
+from riskplan.engine import distributions as D
+from riskplan.engine import rng
+from riskplan.run.compose import compose
 from riskplan.risk import cvar
-from riskplan.rollout import _pick, _pick_bits, affine_form, move_bins, simulate
-from riskplan.setup import build_setup
+from riskplan.engine.rollout import _pick, _pick_bits, affine_form, move_bins, simulate
+from riskplan.run.build import build_setup
 
 N = 2_000_000
 KS_999 = 1.95  # P(sqrt(n) * KS distance > 1.95) ~ 0.001 under the exact law (Kolmogorov's limit distribution)
@@ -72,7 +72,7 @@ def test_normal_sampler_is_the_standard_normal(sampler):
     for cut in (0.2152419, 1.0, 2.0, rng.ZIG_R, 4.5):
         p = math.erfc(cut / math.sqrt(2.0))  # P(|Z| > cut)
         assert abs(np.mean(np.abs(z) > cut) - p) < 4 * math.sqrt(p * (1 - p) / n) + 1.0 / n
-    assert np.all(np.abs(z) < 14.0)  # the bound riskplan.distributions.NORMAL_SPREAD relies on
+    assert np.all(np.abs(z) < 14.0)  # the bound riskplan.engine.distributions.NORMAL_SPREAD relies on
 
 
 def test_ziggurat_tables_have_equal_strips():
@@ -128,7 +128,7 @@ def _yaml(data) -> str:
     {"clip": [-1, 2], "of": {"scale": -2, "of": {"sum": [{"uniform": [0, 3]}, {"normal": [0, 0.5]}]}}},
 ])
 def test_affine_form_has_the_law_of_the_program(data):
-    """clip(c + w U + s N, lo, hi) in numpy against the program sampled by riskplan.distributions."""
+    """clip(c + w U + s N, lo, hi) in numpy against the program sampled by riskplan.engine.distributions."""
     n = 400_000
     c, w, s, lo, hi = affine_form(D.parse(data))
     gen = np.random.default_rng(5)

@@ -12,13 +12,13 @@ import yaml
 from typer.testing import CliRunner
 
 import riskplan
-from riskplan import rng
+from riskplan.engine import rng
 from riskplan.cli import app
-from riskplan.reporting import landscape as L
-from riskplan.reporting.collect import collect
+from riskplan.experiments import landscape as L
+from riskplan.experiments.reporting.collect import collect
 from riskplan.risk import cvar, value_at_risk
-from riskplan.rollout import simulate
-from riskplan.setup import build_setup
+from riskplan.engine.rollout import simulate
+from riskplan.run.build import build_setup
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
 runner = CliRunner()

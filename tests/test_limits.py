@@ -1,13 +1,15 @@
-"""Sizes that would exhaust memory or time are bad input before anything big is allocated (riskplan.budget)."""
+"""Sizes that would exhaust memory or time are bad input before anything big is allocated (riskplan.run.budget)."""
 
 from __future__ import annotations
 
 import pytest
 
-from riskplan import budget, limits, setup as setup_code
-from riskplan.config import compose
-from riskplan.errors import BadInput
-from riskplan.setup import build_setup
+from riskplan.run import budget
+from riskplan.util import limits
+from riskplan.run import build as setup_code
+from riskplan.run.compose import compose
+from riskplan.util.errors import BadInput
+from riskplan.run.build import build_setup
 
 FAST = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 

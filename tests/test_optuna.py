@@ -20,7 +20,7 @@ import yaml
 
 pytest.importorskip("hydra_plugins.hydra_optuna_sweeper", reason="the optuna extra is not installed")
 
-from riskplan.sweepjob import trial_folder  # noqa: E402
+from riskplan.experiments.sweep_worker import trial_folder  # noqa: E402
 
 TINY = ["train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]

@@ -16,7 +16,7 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 import riskplan
-import riskplan.progress as progress
+import riskplan.util.progress as progress
 from riskplan.cli import app
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,8 +89,8 @@ def test_sweep_and_report_are_api_functions(tmp_path, monkeypatch):
     """riskplan.sweep and riskplan.report do what the commands do (the submodules sweeping/reporting do not shadow
     them), and return what a notebook wants: the summary table and the page."""
     monkeypatch.chdir(tmp_path)
-    import riskplan.reporting  # noqa: F401 - importing the submodules must leave the functions in place
-    import riskplan.sweeping  # noqa: F401
+    import riskplan.experiments.reporting  # noqa: F401 - importing the submodules must leave the functions in place
+    import riskplan.experiments.sweeping  # noqa: F401
 
     done = riskplan.sweep([*FAST, "seed=0,1"], jobs=1)
     assert done.ok and list(done.summary.status) == ["done", "done"] and list(done.summary.seed) == [0, 1]

@@ -1,11 +1,11 @@
-"""riskplan.params.typed: one frozen config per composed config, remembered, and never for a bad one."""
+"""riskplan.config.typed.typed: one frozen config per composed config, remembered, and never for a bad one."""
 
 import pytest
 from omegaconf import OmegaConf
 
-from riskplan.config import compose
-from riskplan.errors import BadInput
-from riskplan.params import TYPED_MEMO, typed
+from riskplan.run.compose import compose
+from riskplan.util.errors import BadInput
+from riskplan.config.typed import TYPED_MEMO, typed
 
 
 def test_the_same_config_is_typed_once_and_another_gets_its_own():

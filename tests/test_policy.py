@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from riskplan.config import compose
-from riskplan.policy import move_features, probabilities, scores, tables
-from riskplan.setup import build_setup
+from riskplan.run.compose import compose
+from riskplan.engine.policy import move_features, probabilities, scores, tables
+from riskplan.run.build import build_setup
 
 
 @pytest.fixture(scope="module")

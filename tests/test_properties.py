@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from omegaconf import OmegaConf
 
-from riskplan import distributions as D
-from riskplan.errors import BadInput
+from riskplan.engine import distributions as D
+from riskplan.util.errors import BadInput
 from riskplan.risk import cvar, cvar_gradient, mean_gradient, summary_stats, tail_count, value_at_risk
 
 settings.register_profile("riskplan", max_examples=100, deadline=None, derandomize=True)

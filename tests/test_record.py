@@ -18,9 +18,9 @@ import pandas as pd
 import pytest
 from mcap.reader import make_reader
 
-from riskplan import foxglove as fx
-from riskplan.errors import BadInput
-from riskplan.record import BATCH_ROWS, RunLog, read_log, resume_log
+from riskplan.run import foxglove_scene as fx
+from riskplan.util.errors import BadInput
+from riskplan.run.record import BATCH_ROWS, RunLog, read_log, resume_log
 
 SCHEMAS = Path(fx.__file__).parent / "schemas"
 W, H, N, M = 12, 8, 3, 2
@@ -283,7 +283,7 @@ def test_sigkill_mid_run_keeps_reported_iterations(tmp_path):
         import numpy as np
         sys.path.insert(0, {str(Path(__file__).parent)!r})
         from test_record import make_rows, make_world
-        from riskplan.record import RunLog
+        from riskplan.run.record import RunLog
         rng = np.random.default_rng(0)
         log = RunLog({str(path)!r})
         log.metadata("config", {{"n": 1}})

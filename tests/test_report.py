@@ -25,13 +25,13 @@ from typer.testing import CliRunner
 
 import riskplan
 from riskplan.cli import app
-from riskplan.errors import BadInput
-from riskplan.reporting import build_report, write_report
-from riskplan.reporting.collect import collect
-from riskplan.reporting.figures import make_figures
-from riskplan.reporting.landscape import compute_landscape
-from riskplan.reporting.parallel import WORKERS_ENV, shared_map
-from riskplan.reporting.stats import seed_interval, wilson
+from riskplan.util.errors import BadInput
+from riskplan.experiments.reporting import build_report, write_report
+from riskplan.experiments.reporting.collect import collect
+from riskplan.experiments.reporting.figures import make_figures
+from riskplan.experiments.landscape import compute_landscape
+from riskplan.experiments.reporting.parallel import WORKERS_ENV, shared_map
+from riskplan.experiments.reporting.stats import seed_interval, wilson
 from riskplan.risk import cvar, value_at_risk
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
@@ -203,7 +203,7 @@ def test_reward_distribution_with_a_beta_of_1_keeps_a_lower_tail(coll):
     """A beta sweep reaching 1 (CVaR = mean) once broke the tail panel: it asked for quantiles up to 2."""
     import copy
 
-    from riskplan.reporting.figures import fig_distribution
+    from riskplan.experiments.reporting.figures import fig_distribution
 
     swept = copy.deepcopy(coll)
     swept.groups[0].first.config["risk"]["beta"] = 1.0
@@ -422,7 +422,7 @@ class Unfinished(Artist):
 
 def with_artist(monkeypatch, artist: Callable[[], Artist], names: set[str] | None = None) -> None:
     """make_figures adds an artist() to the figures named (to every figure when names is None)."""
-    from riskplan.reporting import figures
+    from riskplan.experiments.reporting import figures
 
     make = figures.make_figures
 

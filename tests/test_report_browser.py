@@ -20,7 +20,7 @@ import time
 import pytest
 
 import riskplan
-from riskplan.reporting import build_report
+from riskplan.experiments.reporting import build_report
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
 CANDIDATES = ("chromium-headless-shell", "chromium", "chromium-browser", "chrome-headless-shell", "google-chrome",

@@ -21,13 +21,13 @@ from typer.testing import CliRunner
 
 import riskplan
 from riskplan.cli import app
-from riskplan.errors import BadInput
-from riskplan.reporting.landscape import compute_landscape
-from riskplan.runs import load_run
+from riskplan.util.errors import BadInput
+from riskplan.experiments.landscape import compute_landscape
+from riskplan.run.results import load_run
 
 TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 LAND = ["--points", "3", "--episodes", "20"]
-MANIFEST = ".riskplan-manifest.json"  # riskplan.reporting.output.MANIFEST
+MANIFEST = ".riskplan-manifest.json"  # riskplan.experiments.output_manifest.MANIFEST
 runner = CliRunner()
 
 
@@ -313,7 +313,7 @@ def test_landscape_grid_is_bounded_by_memory_and_time_before_it_runs(tmp_path, m
 
 
 def test_landscape_summary_is_strict_json(tmp_path, monkeypatch):
-    from riskplan.reporting import landscape as L
+    from riskplan.experiments import landscape as L
 
     real = L.evaluate_grid
 
@@ -332,7 +332,7 @@ def test_landscape_summary_is_strict_json(tmp_path, monkeypatch):
     summary = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
     assert summary["best"]["cvar"] == {"theta": None, "value": None} and summary["episodes_per_s"] is None
     assert summary["best"]["value_at_risk"]["value"] is not None  # the infinite point is not the maximum
-    from riskplan.reporting.landscape import finite_json
+    from riskplan.experiments.landscape import finite_json
 
     assert finite_json({"a": [float("nan"), float("-inf"), 1.5]}) == json.dumps({"a": [None, None, 1.5]}, indent=2)
 

@@ -25,11 +25,11 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-import riskplan.training as training
+import riskplan.run.training as training
 from riskplan import compose, load_run
 from riskplan.cli import app
-from riskplan.record import read_log
-from riskplan.training import CHECKPOINT, CRASH_ENV, STOP_ENV, NumericalTrouble
+from riskplan.run.record import read_log
+from riskplan.run.training import CHECKPOINT, CRASH_ENV, STOP_ENV, NumericalTrouble
 
 FAST = ["train.iterations=30", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50",
         "train.paths=3", "train.checkpoint_every=5"]
@@ -162,7 +162,7 @@ def test_sigkill_part_way_then_resume_equals_the_uninterrupted_run(tmp_path, bas
     pd.testing.assert_frame_equal(killed.metrics.drop(columns="seconds"),
                                   pd.read_parquet(baseline / "metrics.parquet").iloc[:13].drop(columns="seconds"),
                                   check_exact=True)
-    from riskplan.reporting.collect import collect
+    from riskplan.experiments.reporting.collect import collect
 
     (skipped,) = collect([out]).broken  # what `riskplan report` lists as skipped, with the reason
     assert skipped.path == out and "truncated after iteration 12" in skipped.reason
@@ -288,7 +288,7 @@ def test_power_cut_state_resumes_each_checkpoint_is_backed_by_a_synced_log(tmp_p
 
 # ----------------------------------------------------------------------------------------------- numerics
 def _fail_at(monkeypatch, name: str, iteration: int, bad):
-    """Make riskplan.training.<name> return bad(result) from the given iteration on (the iteration is read off
+    """Make riskplan.run.training.<name> return bad(result) from the given iteration on (the iteration is read off
     the `samples_at` call that opens every iteration)."""
     original, seen = getattr(training, name), {"l": 0}
     original_samples = training.samples_at

@@ -6,10 +6,10 @@ import numba
 import numpy as np
 import pytest
 
-from riskplan import rng
-from riskplan.config import compose
-from riskplan.rollout import simulate
-from riskplan.setup import build_setup
+from riskplan.engine import rng
+from riskplan.run.compose import compose
+from riskplan.engine.rollout import simulate
+from riskplan.run.build import build_setup
 
 
 @pytest.fixture(scope="module")

@@ -21,13 +21,13 @@ import pytest
 from test_resume import assert_same_outputs, child_env, riskplan_command, run_cli, train_cli
 from typer.testing import CliRunner
 
-import riskplan.training as training
+import riskplan.run.training as training
 from riskplan import compose, load_run
 from riskplan.cli import app
-from riskplan.errors import BadInput
-from riskplan.lock import LOCK, hold, holder
-from riskplan.record import RunLog
-from riskplan.training import CHECKPOINT, STOP_ENV, NumericalTrouble, prepare_resume
+from riskplan.util.errors import BadInput
+from riskplan.util.lock import LOCK, hold, holder
+from riskplan.run.record import RunLog
+from riskplan.run.training import CHECKPOINT, STOP_ENV, NumericalTrouble, prepare_resume
 
 FAST = ["train.iterations=12", "train.samples=300", "train.eval_episodes=1000", "train.bootstrap=20",
         "train.paths=2", "train.checkpoint_every=4"]
@@ -121,8 +121,8 @@ def test_the_lock_is_reentrant_within_a_process_and_exclusive_between_processes(
     with hold(tmp_path):
         with hold(tmp_path):  # the CLI holds it while Hydra runs the training loop, which takes it again
             assert holder(tmp_path) == os.getpid()
-        probe = subprocess.run(["python", "-c", "import sys; from riskplan.lock import hold\n"
-                                                "from riskplan.errors import BadInput\n"
+        probe = subprocess.run(["python", "-c", "import sys; from riskplan.util.lock import hold\n"
+                                                "from riskplan.util.errors import BadInput\n"
                                                 f"try:\n    with hold({str(tmp_path)!r}): sys.exit(0)\n"
                                                 "except BadInput as err:\n    print(err); sys.exit(3)"],
                                capture_output=True, text=True, timeout=60)

@@ -9,14 +9,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from riskplan import compose, rng
-from riskplan.config import expand_overrides, expand_shorthands
-from riskplan.record import read_log
+from riskplan import compose
+from riskplan.engine import rng
+from riskplan.run.compose import expand_overrides, expand_shorthands
+from riskplan.run.record import read_log
 from riskplan.risk import cvar_gradient
-from riskplan.rollout import simulate
-from riskplan.schema import RiskConf, ScheduleConf
-from riskplan.setup import build_setup, risk_level, step_size
-from riskplan.training import starts, train
+from riskplan.engine.rollout import simulate
+from riskplan.config.schema import RiskConf, ScheduleConf
+from riskplan.run.build import build_setup, risk_level, step_size
+from riskplan.run.training import starts, train
 from test_resume import assert_same_outputs, kill_after_iteration, resume_cli, train_cli
 
 FAST = ["train.iterations=8", "train.samples=400", "train.eval_episodes=1000", "train.bootstrap=20",
@@ -130,7 +131,7 @@ def test_a_killed_scheduled_run_resumes_to_the_uninterrupted_run(tmp_path):
 
 
 def test_the_report_compares_a_schedule_with_its_fixed_beta_twin(tmp_path):
-    from riskplan.reporting import write_report
+    from riskplan.experiments.reporting import write_report
 
     for name, extra in (("none", []), ("linear", LINEAR)):
         train(compose([*FAST, *extra]), tmp_path / "runs" / name)

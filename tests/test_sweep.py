@@ -12,9 +12,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from riskplan.paths import claim_dir
-from riskplan.sweeping import constant_keys, expand
-from riskplan.sweepjob import config_sha
+from riskplan.util.paths import claim_dir
+from riskplan.experiments.sweeping import constant_keys, expand
+from riskplan.experiments.sweep_worker import config_sha
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
 CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
@@ -175,7 +175,7 @@ def test_two_sweeps_in_the_same_second_get_their_own_directories(tmp_path):
 
 
 def test_expansion_is_hydras_and_folders_name_what_varies():
-    from riskplan.config import parse_overrides
+    from riskplan.run.compose import parse_overrides
 
     args = ["risk.beta=0.05,0.1", "seed=range(0,3)", "team.graph=line", "train.iterations=5"]
     combos = expand(parse_overrides(args), args)
@@ -198,7 +198,7 @@ def test_hydras_repeat_compositions_are_skipped_only_inside_a_launch():
     from hydra.plugins.sweeper import Sweeper
     from hydra.types import RunMode
 
-    from riskplan.app import _without_repeat_compositions
+    from riskplan.experiments.hydra_app import _without_repeat_compositions
 
     get_mode = Hydra.get_mode
     with _without_repeat_compositions(multirun=True):

@@ -16,11 +16,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from riskplan import lock
-from riskplan.errors import BadInput
-from riskplan.config import parse_overrides
-from riskplan.sweeping import sweep_size
-from riskplan.sweepjob import NAME_MAX, folder_name, write_status
+from riskplan.util import lock
+from riskplan.util.errors import BadInput
+from riskplan.run.compose import parse_overrides
+from riskplan.experiments.sweeping import sweep_size
+from riskplan.experiments.sweep_worker import NAME_MAX, folder_name, write_status
 
 TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from riskplan import compose, train
-from riskplan.consensus import second_largest_eigenvalue_modulus
-from riskplan.errors import BadInput
-from riskplan.setup import build_setup
+from riskplan.engine.team.consensus import second_largest_eigenvalue_modulus
+from riskplan.util.errors import BadInput
+from riskplan.run.build import build_setup
 
 FAST = ["experiment=paper_team", "train.iterations=40", "train.samples=1000", "train.eval_episodes=1000",
         "train.bootstrap=10", "train.paths=1"]

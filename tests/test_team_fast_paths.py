@@ -12,13 +12,13 @@ import pytest
 from omegaconf import OmegaConf
 
 import riskplan
-from riskplan import rng
-from riskplan.consensus import Mixer, MixerState, build_network, consensus_error, mix_numpy
-from riskplan.policy import move_features, probabilities, scores, tables
+from riskplan.engine import rng
+from riskplan.engine.team.consensus import Mixer, MixerState, build_network, consensus_error, mix_numpy
+from riskplan.engine.policy import move_features, probabilities, scores, tables
 from riskplan.risk import summary_stats
-from riskplan.schema import TeamConf
-from riskplan.setup import build_setup
-from riskplan.training import _robot_rows, _row, train
+from riskplan.config.schema import TeamConf
+from riskplan.run.build import build_setup
+from riskplan.run.training import _robot_rows, _row, train
 
 
 def make_team(**values):
@@ -204,7 +204,7 @@ def test_synchronous_rounds_equal_the_general_rules(stale, m, graph, rounds, rea
 @pytest.mark.parametrize("n", [3, 40, 200])
 def test_mixing_kernels_add_in_numpy_einsum_order(n, m):
     """Terms of wildly different sizes, so that any other order of the sums would round differently."""
-    from riskplan.consensus import Network, _Links, _mix_linked, _mix_links, _mix_links_parallel, _mix_used, \
+    from riskplan.engine.team.consensus import Network, _Links, _mix_linked, _mix_links, _mix_links_parallel, _mix_used, \
         _mix_used_parallel
 
     g = np.random.default_rng(n * m)
@@ -321,9 +321,9 @@ def test_zero_range_integers_draw_nothing():
     {"switching": {"enabled": True, "up": 0.5, "window": 2}},
 ])
 def test_mixing_does_not_depend_on_the_thread_count(values, monkeypatch):
-    import riskplan.consensus
+    import riskplan.engine.team.consensus
 
-    monkeypatch.setattr(riskplan.consensus, "PARALLEL_ENTRIES", 1)  # the parallel drivers, even for 30 robots
+    monkeypatch.setattr(riskplan.engine.team.consensus, "PARALLEL_ENTRIES", 1)  # the parallel drivers, even for 30 robots
     team = make_team(robots=30, graph="random_geometric", **values)
     net = build_network(team, 2, 0)
     thetas = np.random.default_rng(0).normal(size=(30, 2))
@@ -342,7 +342,7 @@ def test_mixing_does_not_depend_on_the_thread_count(values, monkeypatch):
             numba.set_num_threads(previous)
     assert all(np.array_equal(a, b) for a, b in zip(results[0][0], results[1][0]))
     assert_same_state(results[0][1], results[1][1])
-    monkeypatch.setattr(riskplan.consensus, "PARALLEL_ENTRIES", 1 << 62)  # and the serial kernels alike
+    monkeypatch.setattr(riskplan.engine.team.consensus, "PARALLEL_ENTRIES", 1 << 62)  # and the serial kernels alike
     mixer, mixed = Mixer(net, team, 3), thetas
     for l in range(6):
         for r in range(team.consensus_rounds):
@@ -392,7 +392,7 @@ def test_robot_rows_are_the_per_robot_rows(n):
 
 @pytest.mark.parametrize("m", [1, 2, 3, 40])
 def test_row_norms_are_numpy_norms_bit_for_bit(m):
-    from riskplan.training import _norms
+    from riskplan.run.training import _norms
 
     g = np.random.default_rng(m)
     vectors = g.normal(size=(2000, m)) * 10.0 ** g.integers(-150, 150, size=(2000, m))

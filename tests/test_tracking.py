@@ -13,10 +13,10 @@ from typer.testing import CliRunner
 
 from riskplan import compose, train
 from riskplan.cli import app
-from riskplan.consensus import Mixer, build_network, consensus_error, second_largest_eigenvalue_modulus
-from riskplan.errors import BadInput
-from riskplan.schema import TeamConf
-from riskplan.training import CHECKPOINT, load_checkpoint
+from riskplan.engine.team.consensus import Mixer, build_network, consensus_error, second_largest_eigenvalue_modulus
+from riskplan.util.errors import BadInput
+from riskplan.config.schema import TeamConf
+from riskplan.run.training import CHECKPOINT, load_checkpoint
 
 runner = CliRunner()
 FAST = ["experiment=paper_team", "train.iterations=6", "train.samples=300", "train.eval_episodes=300",
@@ -179,7 +179,7 @@ def test_checkpoint_holds_the_tracker_and_a_checkpoint_without_it_is_bad_input(t
     cfg = compose([*FAST, "team.delay.max=1", "team.drop=0.2"])
     out = tmp_path / "run"
     train(cfg, out)
-    from riskplan.setup import build_setup
+    from riskplan.run.build import build_setup
 
     payload = json.loads((out / CHECKPOINT).read_text())
     assert {"tracker", "gradient", "sums", "seen_sums", "pending_sums", "seen_sent"} <= set(payload["mixer"])
@@ -231,8 +231,8 @@ def test_check_describes_the_order(tmp_path, monkeypatch):
 
 
 def test_report_draws_the_consensus_error_of_each_order(tmp_path):
-    from riskplan.reporting.collect import collect
-    from riskplan.reporting.figures import fig_orders
+    from riskplan.experiments.reporting.collect import collect
+    from riskplan.experiments.reporting.figures import fig_orders
 
     for order in ("combine_then_adapt", "gradient_tracking"):
         train(compose([*FAST[:-1], f"team.order={order}"]), tmp_path / order)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from riskplan.config import compose
-from riskplan.errors import BadInput
-from riskplan.schema import StepSizeConf
-from riskplan.setup import build_setup, step_size
+from riskplan.run.compose import compose
+from riskplan.util.errors import BadInput
+from riskplan.config.schema import StepSizeConf
+from riskplan.run.build import build_setup, step_size
 
 FAST = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 

@@ -1,4 +1,4 @@
-"""`riskplan bench`: the speed and memory targets, each printed with its baseline (the measures are riskplan.bench's)."""
+"""`riskplan bench`: the speed and memory targets, each printed with its baseline (the measures are riskplan.experiments.benchmarks's)."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ def register(app: typer.Typer) -> None:
         if scaling:
             _scaling(console, quick, json_out, plot, csv_out)
             return
-        from riskplan.bench import (bench_checkpoints, bench_jit, bench_rollout, bench_startup, bench_team,
+        from riskplan.experiments.benchmarks import (bench_checkpoints, bench_jit, bench_rollout, bench_startup, bench_team,
                                     bench_training)
 
         rows: list[dict] = []
@@ -55,7 +55,7 @@ def register(app: typer.Typer) -> None:
 
 def _scaling(console, quick: bool, json_out: Optional[Path], plot: Path, csv_out: Optional[Path]) -> None:
     """`riskplan bench --scaling`: the table, the slopes beyond the cache, the plot and the files."""
-    from riskplan.bench import bench_scaling, cache_bytes, plot_scaling, scaling_slopes, scaling_table
+    from riskplan.experiments.benchmarks import bench_scaling, cache_bytes, plot_scaling, scaling_slopes, scaling_table
 
     console.print("building every world, then timing each once per round (the best round is kept) ...")
     rows = bench_scaling(quick)

@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 from typer.core import TyperGroup
 
-from riskplan.errors import BadInput
+from riskplan.util.errors import BadInput
 
 # typer vendors click in recent releases and depends on it in older ones: find click's base exception either way
 ClickException = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")

@@ -30,13 +30,13 @@ def register(app: typer.Typer) -> None:
         """Replay finished runs into MLflow or TensorBoard: metrics per iteration and robot, the summary with its
         intervals, the config as parameters, seed groups as tags. A run exported before is replaced when it
         changed and left as it is otherwise; broken runs are skipped with their reason."""
-        from riskplan.export import ExportFailed, export_runs
+        from riskplan.experiments.exporting import ExportFailed, export_runs
 
         def echo(done) -> None:
             typer.echo(f"{done.action} {done.path} -> {done.where}")
 
         if not experiment.strip():
-            from riskplan.errors import BadInput
+            from riskplan.util.errors import BadInput
 
             raise BadInput("--experiment", "got ''; give an MLflow experiment name, e.g. riskplan")
         try:

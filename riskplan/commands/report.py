@@ -10,7 +10,7 @@ from typing import List, Optional
 import typer
 
 from riskplan.commands.common import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
-from riskplan.errors import BadInput
+from riskplan.util.errors import BadInput
 
 def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
     """'a,b,...' -> floats, with one of the allowed counts."""
@@ -26,7 +26,7 @@ def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
 @contextlib.contextmanager
 def write_errors_exit():
     """A file that cannot be written at run time (a full disk, ...): one line on stderr and exit code 1."""
-    from riskplan.reporting.output import WriteFailed
+    from riskplan.experiments.output_manifest import WriteFailed
 
     try:
         yield
@@ -52,7 +52,7 @@ def register(app: typer.Typer) -> None:
         formats: str = typer.Option("png,pdf", "--format", help="Figure files to write: any of png,pdf,svg."),
     ) -> None:
         """Figures (the paper's Figs. 1-4 and more), tables and a self-contained report.html from finished runs."""
-        from riskplan.reporting import check_formats, default_out, latest_reproduction, write_report
+        from riskplan.experiments.reporting import check_formats, default_out, latest_reproduction, write_report
 
         fmts = check_formats(formats)
         inputs = list(paths) if paths else [latest_reproduction()]
@@ -85,11 +85,11 @@ def register(app: typer.Typer) -> None:
                                                         "train.theta0."),
     ) -> None:
         """Evaluate mean and CVaR of the total reward on a grid of theta (common random numbers, seeded)."""
-        from riskplan.config import compose
-        from riskplan.reporting import LANDSCAPES_ROOT
-        from riskplan.reporting.landscape import check_grid, compute_landscape
-        from riskplan.reporting.output import claim
-        from riskplan.setup import build_setup
+        from riskplan.run.compose import compose
+        from riskplan.experiments.reporting import LANDSCAPES_ROOT
+        from riskplan.experiments.landscape import check_grid, compute_landscape
+        from riskplan.experiments.output_manifest import claim
+        from riskplan.run.build import build_setup
 
         args = list(overrides or [])
         reject_hydra_flags(args, "riskplan check prints the composed config")

@@ -1,4 +1,4 @@
-"""`riskplan reproduce`: every experiment of the paper's Section V, then the report (the work is riskplan.reproduce's)."""
+"""`riskplan reproduce`: every experiment of the paper's Section V, then the report (the work is riskplan.experiments.reproduction's)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import List, Optional
 import typer
 
 from riskplan.commands.common import PASS_THROUGH, bad_input_exits, check_out_dir
-from riskplan.reproduce import QUICK_SEEDS, SEEDS, process_started, reproduce
+from riskplan.experiments.reproduction import QUICK_SEEDS, SEEDS, process_started, reproduce
 
 
 def register(app: typer.Typer) -> None:

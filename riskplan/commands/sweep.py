@@ -1,4 +1,4 @@
-"""`riskplan sweep`: a grid of experiments through a Hydra launcher (the work is riskplan.sweeping's)."""
+"""`riskplan sweep`: a grid of experiments through a Hydra launcher (the work is riskplan.experiments.sweeping's)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ def register(app: typer.Typer) -> None:
                                                 "submitit's array_parallelism."),
     ) -> None:
         """Run a grid of experiments (a Hydra multirun) into outputs/sweeps/<timestamp>/, one folder per job."""
-        from riskplan.sweeping import report_outcome, run_sweep  # here: `riskplan train` starts without it
+        from riskplan.experiments.sweeping import report_outcome, run_sweep  # here: `riskplan train` starts without it
 
         outcome = run_sweep(list(overrides or []), jobs)
         raise typer.Exit(report_outcome(outcome))

@@ -11,9 +11,9 @@ import typer
 
 from riskplan.commands.common import (HYDRA_FLAGS, MULTIRUN_FLAGS, OVERRIDES_HELP, PASS_THROUGH, TRAIN_OVERRIDES_HELP,
                                       bad_input_exits, reject_hydra_flags)
-from riskplan.errors import BadInput
-from riskplan.lock import LOCK, hold, holder
-from riskplan.paths import check_output_dir, claim_dir, hydra_quote
+from riskplan.util.errors import BadInput
+from riskplan.util.lock import LOCK, hold, holder
+from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote
 
 
 def register(app: typer.Typer) -> None:
@@ -32,8 +32,8 @@ def train(
     """Train one experiment (default: experiment=paper_single) into outputs/runs/<timestamp>_<experiment>/."""
     from omegaconf import open_dict
 
-    from riskplan.app import RunFailed, run_composed, run_hydra
-    from riskplan.config import check_hydra_args, compose, parse_overrides
+    from riskplan.experiments.hydra_app import RunFailed, run_composed, run_hydra
+    from riskplan.run.compose import check_hydra_args, compose, parse_overrides
 
     args = list(overrides or [])
     multirun = sorted(MULTIRUN_FLAGS & set(args))
@@ -98,7 +98,7 @@ def check_new_run_dir(out: Path, key: str) -> None:
     if pid is not None:
         raise BadInput(str(out), f"is in use by another riskplan process (pid {pid or 'unknown'}); one process "
                                  f"writes a run directory at a time: wait for it to end or stop it")
-    from riskplan.runs import is_run_dir
+    from riskplan.run.results import is_run_dir
 
     if is_run_dir(out):
         raise BadInput(key, f"{out} already holds a run; resume it with riskplan train --resume {out}, or give a "
@@ -110,9 +110,9 @@ def check(overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_H
     """Compose and validate a config without running it; print it, the world, the team and Assumptions 5-6."""
     from omegaconf import OmegaConf
 
-    from riskplan.config import compose
-    from riskplan.consensus import describe
-    from riskplan.setup import build_setup
+    from riskplan.run.compose import compose
+    from riskplan.engine.team.consensus import describe
+    from riskplan.run.build import build_setup
 
     args = list(overrides or [])
     reject_hydra_flags(args, "check prints the composed config itself")
@@ -131,9 +131,9 @@ def check(overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_H
 
 def _resume(run_dir: Path, args: list[str]) -> None:
     """`train --resume RUN_DIR [train.iterations=N]`."""
-    from riskplan.config import parse_overrides
-    from riskplan.runs import is_run_dir
-    from riskplan.training import CHECKPOINT
+    from riskplan.run.compose import parse_overrides
+    from riskplan.run.results import is_run_dir
+    from riskplan.run.training import CHECKPOINT
 
     if not run_dir.is_dir() or not is_run_dir(run_dir):
         raise BadInput(str(run_dir), "holds no run; give the directory of a riskplan train run to --resume")
@@ -157,10 +157,10 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
-    from riskplan.app import write_status
-    from riskplan.progress import TrainingBar
-    from riskplan.training import NumericalTrouble, prepare_resume
-    from riskplan.training import train as train_run
+    from riskplan.experiments.hydra_app import write_status
+    from riskplan.util.progress import TrainingBar
+    from riskplan.run.training import NumericalTrouble, prepare_resume
+    from riskplan.run.training import train as train_run
 
     try:
         cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
@@ -190,7 +190,7 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
 
 def _finish(out: Path) -> None:
     """Print the one-line summary of a finished run, or its error with exit code 1."""
-    from riskplan.app import STATUS, last_failure
+    from riskplan.experiments.hydra_app import STATUS, last_failure
 
     try:
         status = json.loads((out / STATUS).read_text())
@@ -213,7 +213,7 @@ def _os_error(err: OSError, out: Path) -> str:
 
 def _try_status(out: Path, message: str) -> None:
     """Record a failure in status.json if the disk still takes it (it may be the full disk that failed)."""
-    from riskplan.app import write_status
+    from riskplan.experiments.hydra_app import write_status
 
     try:
         write_status(out, "failed", message)

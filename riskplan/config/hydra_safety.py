@@ -1,0 +1,92 @@
+"""Checks of Hydra's own config node before Hydra runs: config strings are never code.
+
+Hydra instantiates `_target_` classes (callbacks, launchers, sweepers) and hands its logging sections to
+`logging.config.dictConfig`, which imports `class` and calls `()` factories. A user override can put any dotted
+name there (`+hydra.callbacks.x._target_=os.makedirs`), so every such name is checked against an allow-list of
+exact classes before anything is imported or run: Hydra's own plugins and callbacks, installed `hydra_plugins`
+launchers and sweepers, the standard logging handlers and formatters, and riskplan's own classes.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import re
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import InterpolationToMissingValueError, MissingMandatoryValue, OmegaConfBaseException
+
+from riskplan.util.errors import BadInput
+
+# Modules whose classes may be named by _target_ (checked as exact classes of these modules, see _allowed_class).
+TARGET_MODULES = ("hydra._internal.core_plugins.", "hydra.experimental.callbacks", "hydra_plugins.", "riskplan.",
+                  "optuna.samplers", "optuna.pruners")
+# Modules whose classes logging's dictConfig may import (`class:`) or call (`():`).
+LOGGING_MODULES = ("logging", "logging.handlers", "colorlog", "riskplan.")
+STREAMS = ("ext://sys.stdout", "ext://sys.stderr")
+CALLABLE_KEYS = ("_target_", "()", "class")
+DOTTED = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)+")
+
+
+def check_hydra_node(cfg: DictConfig, hydra_overrides: list) -> None:
+    """BadInput for a Hydra override that fails to resolve, or a Hydra setting that names code to run."""
+    for override in hydra_overrides:
+        key = override.key_or_group
+        if "/" in key or override.is_delete():
+            continue
+        try:
+            OmegaConf.select(cfg, key, throw_on_missing=False)
+        except (MissingMandatoryValue, InterpolationToMissingValueError):
+            pass  # refers to a value Hydra sets when the job starts (hydra.runtime.output_dir, hydra.job.num, ...)
+        except OmegaConfBaseException as err:
+            reason = interpolation_reason(err)
+            raise BadInput(f"key '{key}'", f"the interpolation {override.value()} cannot be resolved ({reason}); "
+                                           f"give a plain value") from None
+    check_callables(OmegaConf.to_container(cfg.hydra, resolve=False), "hydra")
+
+
+def interpolation_reason(err: Exception) -> str:
+    """The first line of an OmegaConf resolution error, without its wrapper text."""
+    text = str(err).strip()
+    line = text.splitlines()[0] if text else type(err).__name__
+    return line.replace("KeyError raised while resolving interpolation: ", "").replace('"', "")
+
+
+def check_callables(node: Any, path: str) -> None:
+    """Walk Hydra's node: every _target_, logging class and () factory must be an allowed class."""
+    if isinstance(node, dict):
+        for key, value in node.items():
+            here = f"{path}.{key}"
+            if key in CALLABLE_KEYS:
+                logging_section = "logging" in path.split(".")[1] if "." in path else False
+                modules = LOGGING_MODULES if (logging_section or key != "_target_") else TARGET_MODULES
+                if not _allowed_class(value, modules):
+                    raise BadInput(f"key '{here}'", f"got {value!r}; config strings are never code: only Hydra's "
+                                                    f"own, Hydra plugin, logging and riskplan classes are allowed "
+                                                    f"here (see the README's security note)")
+            elif key == "stream" and isinstance(value, str) and value.startswith("ext://") and value not in STREAMS:
+                raise BadInput(f"key '{here}'", f"got {value!r}; a logging stream must be one of {', '.join(STREAMS)}")
+            else:
+                check_callables(value, here)
+    elif isinstance(node, list):
+        for index, value in enumerate(node):
+            check_callables(value, f"{path}.{index}")
+
+
+def _allowed_class(name: Any, modules: tuple[str, ...]) -> bool:
+    """Whether `name` is exactly `module.Class` for an allowed module (checked before the module is imported)."""
+    if not isinstance(name, str) or not DOTTED.fullmatch(name):
+        return False
+    module, _, attribute = name.rpartition(".")
+    if not any(module == m.rstrip(".") or (m.endswith(".") and module.startswith(m)) for m in modules):
+        return False
+    try:
+        found = getattr(importlib.import_module(module), attribute)
+    except (ImportError, AttributeError):
+        return False
+    # an attribute of an allowed module that is itself imported from elsewhere (os.system...) is refused; a class
+    # a package re-exports from its own submodules (optuna.samplers.TPESampler, from optuna.samplers._tpe) is not
+    home = getattr(found, "__module__", None) or ""
+    return (inspect.isclass(found) and (home == module or home.startswith(module + "."))
+            and found.__qualname__ == attribute)

@@ -1,0 +1,181 @@
+"""Typed schema of every config key (Hydra structured configs): a typo or a wrong type fails at composition.
+
+The same dataclasses are the engine's frozen parameters: `riskplan.config.typed.typed` turns a composed, validated config
+into a RiskplanConf once, and the engine and training loop read its attributes (never raw dicts).
+"""
+
+from __future__ import annotations
+
+from dataclasses import FrozenInstanceError, dataclass, field
+from pathlib import Path
+from typing import Any, List, Optional
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import DictConfig, OmegaConf
+
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # riskplan/conf: a symlinked data dir inside the package
+
+
+class Frozen:
+    """Instances cannot change once built. Not `dataclass(frozen=True)`: OmegaConf turns those into read-only nodes,
+    which Hydra cannot merge the YAML and the overrides into."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in self.__dict__:
+            raise FrozenInstanceError(f"cannot assign to field '{name}': the config is frozen")
+        object.__setattr__(self, name, value)
+
+    def __delattr__(self, name: str) -> None:
+        raise FrozenInstanceError(f"cannot delete field '{name}': the config is frozen")
+
+
+@dataclass
+class ScheduleConf(Frozen):
+    """Soft risk (CeSoR): the CVaR gradient at level beta_l, from `start` to risk.beta over `iterations`, then beta.
+
+    kind: none (the paper: beta_l = beta throughout) | linear | exponential (geometric interpolation).
+    """
+
+    kind: str = "none"
+    start: float = 1.0
+    iterations: int = 100
+
+
+@dataclass
+class RiskConf(Frozen):
+    """The objective: `cvar` optimises CVaR_beta, `neutral` the mean; beta is also the reporting level."""
+
+    measure: str = "cvar"
+    beta: float = 0.1
+    schedule: ScheduleConf = field(default_factory=ScheduleConf)
+
+
+@dataclass
+class StepSizeConf(Frozen):
+    """eps_l = initial / (1 + l/decay)^power; Assumption 6 holds for power in (0.5, 1]."""
+
+    initial: float = 0.1
+    decay: float = 50.0
+    power: float = 1.0
+
+
+@dataclass
+class TrainConf(Frozen):
+    """Policy-gradient loop settings."""
+
+    iterations: int = 200
+    samples: int = 6000
+    samples_growth: float = 0.0  # W_l = ceil(samples * (1 + l)^samples_growth); > 0 makes W_l -> inf (Theorem 1)
+    step_size: StepSizeConf = field(default_factory=StepSizeConf)
+    theta0: List[float] = field(default_factory=lambda: [20.0, 20.0])
+    baseline: bool = True  # mean baseline in the risk-neutral gradient
+    eval_episodes: int = 100_000
+    paths: int = 20  # sampled paths per policy and robot in trajectories.parquet
+    checkpoint_every: int = 10
+    bootstrap: int = 1000  # resamples for the summary's 95% intervals
+
+
+@dataclass
+class MotionConf(Frozen):
+    """Source motion: `static`, or `random_walk` moving to a random 4-neighbour with probability `prob` per step."""
+
+    kind: str = "static"
+    prob: float = 0.0
+
+
+@dataclass
+class SourceConf(Frozen):
+    """One source: Gaussian signal eq. (1) and a random reward paid on reaching it."""
+
+    position: List[int] = field(default_factory=lambda: [0, 0])
+    covariance: List[Any] = field(default_factory=lambda: [[16.0, 0.0], [0.0, 16.0]])  # [[a, b], [b, c]], SPD
+    scale: Optional[float] = None  # w; None means 2*pi*sqrt(det covariance), so the signal peaks at 1
+    reward: Any = 0.0
+    motion: MotionConf = field(default_factory=MotionConf)
+    name: str = ""
+
+
+@dataclass
+class RegionConf(Frozen):
+    """A named cell set with a per-step reward; give exactly one of rect, halfplane, cells."""
+
+    name: str = ""
+    reward: Any = 0.0
+    risky: bool = False
+    rect: Optional[List[int]] = None  # [x0, y0, x1, y1], inclusive corners
+    halfplane: Optional[List[float]] = None  # [a, b, c]: the cells with a*x + b*y > c ("y > x" is [-1, 1, 0])
+    cells: Optional[List[List[int]]] = None  # [[x, y], ...]
+
+
+@dataclass
+class WorldConf(Frozen):
+    """Grid world of paper Section II/V."""
+
+    size: List[int] = field(default_factory=lambda: [12, 12])
+    start: List[int] = field(default_factory=lambda: [0, 0])
+    horizon: int = 20
+    stop_at_source: bool = True
+    obstacles: List[List[int]] = field(default_factory=list)
+    sources: List[SourceConf] = field(default_factory=list)
+    regions: List[RegionConf] = field(default_factory=list)
+
+
+@dataclass
+class DelayConf(Frozen):
+    """Message delays in iterations: uniform on 0..max (B0 of Assumption 5)."""
+
+    max: int = 0
+
+
+@dataclass
+class SwitchingConf(Frozen):
+    """Time-varying graph: each link is up with probability `up` per iteration, jointly connected within `window`."""
+
+    enabled: bool = False
+    up: float = 0.8
+    window: int = 5
+
+
+@dataclass
+class TeamConf(Frozen):
+    """Robots and their communication graph (paper Section IV); robots=1 is a centralized run."""
+
+    robots: int = 1
+    graph: str = "line"  # line | ring | star | complete | grid | random_geometric | edges
+    directed: bool = False
+    edges: Optional[List[List[int]]] = None  # with graph=edges: [[i, j], ...], 0-based, j sends to i if directed
+    radius: float = 0.5  # random_geometric link radius in the unit square
+    resample: int = 100  # random_geometric redraws before giving up on strong connectivity
+    weights: str = "metropolis"  # metropolis | max_degree | lazy | matrix
+    matrix: Optional[List[Any]] = None  # with weights=matrix: the N x N row-stochastic A
+    diagonal: Optional[List[Any]] = None  # optional per-parameter weights a^{ij}_m, shape N x N x M
+    delay: DelayConf = field(default_factory=DelayConf)
+    drop: float = 0.0
+    max_gap: int = 10  # B of Assumption 5: a link delivers at least once every max_gap iterations
+    stale: str = "arrival"  # arrival (paper eq. 14) | latest (newest value received from each neighbour)
+    consensus_rounds: int = 1
+    order: str = "combine_then_adapt"  # eq. (14) | adapt_then_combine | gradient_tracking (Mixer.track)
+    starts: Optional[List[List[int]]] = None  # per-robot start cells; default world.start for all
+    switching: SwitchingConf = field(default_factory=SwitchingConf)
+
+
+@dataclass
+class RiskplanConf(Frozen):
+    """The whole experiment."""
+
+    seed: int = 0
+    experiment: str = "paper_single"
+    risk: RiskConf = field(default_factory=RiskConf)
+    train: TrainConf = field(default_factory=TrainConf)
+    world: WorldConf = field(default_factory=WorldConf)
+    team: TeamConf = field(default_factory=TeamConf)
+
+
+def structured() -> DictConfig:
+    """The schema as a typed OmegaConf node, for merging a config onto it."""
+    return OmegaConf.structured(RiskplanConf)
+
+
+def register() -> None:
+    """Register the schema so conf/config.yaml can extend it."""
+    ConfigStore.instance().store(name="riskplan_schema", node=RiskplanConf)

@@ -1,0 +1,179 @@
+"""One typed, frozen config: the composed config checked against the schema, resolved, and turned into the frozen
+dataclasses of `riskplan.config.schema` once (gymnax's EnvParams). Below this module nothing reads raw config dicts.
+
+Every problem is BadInput naming the key path (`key 'risk.beta': got 'abc'; expected a number`).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import json
+import re
+import typing
+
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from riskplan.config import schema
+from riskplan.util.errors import BadInput
+from riskplan.config.schema import CONF_DIR
+
+
+def typed(cfg: DictConfig | dict | schema.RiskplanConf) -> schema.RiskplanConf:
+    """The frozen RiskplanConf of a composed config (or of a run's saved config dict); BadInput on a bad key.
+
+    Remembered for the last few configs: `riskplan train` types one config three times (its checks, the run, and
+    the .hydra/config.yaml Hydra wrote), 30-40 ms each. The result is frozen, so sharing it is safe."""
+    if isinstance(cfg, schema.RiskplanConf):
+        return cfg
+    node = cfg if isinstance(cfg, DictConfig) else OmegaConf.create(cfg)
+    key = _memo_key(node)
+    if key in _TYPED:
+        _TYPED.move_to_end(key)
+        return _TYPED[key]
+    params = OmegaConf.to_object(check_schema(node))
+    if key is not None:
+        _TYPED[key] = params
+        while len(_TYPED) > TYPED_MEMO:
+            _TYPED.popitem(last=False)
+    return params
+
+
+TYPED_MEMO = 16
+_TYPED: collections.OrderedDict[str, schema.RiskplanConf] = collections.OrderedDict()
+
+
+def _memo_key(node: DictConfig) -> str | None:
+    """The config as resolved JSON (what typing it depends on), or None when it does not resolve: typing it then
+    says why."""
+    try:
+        return json.dumps(OmegaConf.to_container(node, resolve=True), sort_keys=True, default=repr)
+    except (OmegaConfBaseException, TypeError, ValueError, RecursionError):
+        return None
+
+
+def as_dict(params: schema.RiskplanConf) -> dict:
+    """The frozen config as plain data (lists and dicts), as it is recorded in .hydra/config.yaml and run.mcap."""
+    return dataclasses.asdict(params)
+
+
+def check_schema(cfg) -> DictConfig:
+    """The config merged onto the typed schema: keys added with `+key=...` or written by hand must exist there too.
+
+    Hydra lets `+foo=1` add a key the schema does not have; a run directory's .hydra/config.yaml is untyped. Both
+    pass through here, so an unknown key or a value of the wrong type is BadInput before anything runs.
+    """
+    plain = OmegaConf.to_container(cfg) if isinstance(cfg, DictConfig) else cfg  # a typed node would let extras in
+    _unknown_keys(plain, schema.RiskplanConf, "")
+    try:
+        merged = OmegaConf.merge(schema.structured(), plain)
+    except OmegaConfBaseException as err:
+        raise BadInput(*explain(err)) from None
+    resolved(merged)
+    return merged
+
+
+def resolved(cfg: DictConfig) -> dict:
+    """The config with every interpolation resolved; one that cannot be (an unset variable, a missing key, a
+    self-reference, a value of the wrong type) is BadInput naming its key and the interpolation."""
+    try:
+        return OmegaConf.to_container(cfg, resolve=True)
+    except OmegaConfBaseException as err:
+        key = _dotted(getattr(err, "full_key", "") or "")
+        text = OmegaConf.to_container(cfg, resolve=False)
+        for part in filter(None, key.split(".")):
+            text = text[int(part)] if isinstance(text, list) else text.get(part) if isinstance(text, dict) else text
+        from riskplan.config.hydra_safety import interpolation_reason
+
+        raise BadInput(f"key '{key}'" if key else "config",
+                       f"the interpolation {text} cannot be resolved ({interpolation_reason(err)}); give a plain "
+                       f"value or an interpolation of another key") from None
+
+
+def _unknown_keys(data: typing.Any, node: typing.Any, path: str) -> None:
+    """BadInput naming the first key of `data` that the schema type `node` does not have (lists descended)."""
+    while typing.get_origin(node) is typing.Union:  # Optional[X]
+        node = next(a for a in typing.get_args(node) if a is not type(None))
+    if dataclasses.is_dataclass(node) and isinstance(data, dict):
+        hints = typing.get_type_hints(node)
+        for key, value in data.items():
+            here = f"{path}.{key}" if path else str(key)
+            if key not in hints:
+                valid = ", ".join(f.name for f in dataclasses.fields(node))
+                raise BadInput(f"key '{here}'", f"unknown key '{key}'; valid keys under '{path or 'top level'}': {valid}")
+            _unknown_keys(value, hints[key], here)
+    elif typing.get_origin(node) in (list, typing.List) and isinstance(data, list) and typing.get_args(node):
+        for i, item in enumerate(data):
+            _unknown_keys(item, typing.get_args(node)[0], f"{path}.{i}")
+
+
+EXPECTED_TYPE = {"Integer": "a whole number", "Float": "a number", "Bool": "true or false", "Str": "a string"}
+
+
+def explain(err: Exception) -> tuple[str, str]:
+    """One line naming the key behind a composition error and what would be valid."""
+    cause = err.__cause__ if isinstance(err.__cause__, OmegaConfBaseException) else err
+    key = getattr(cause, "full_key", None) or ""
+    text = str(cause).strip()
+    message = text.splitlines()[0] if text else type(cause).__name__
+    where = f"key '{_dotted(key)}'"
+    sweep = re.match(r"(?:Ambiguous value for argument|Sweep parameters) '(.+?)'", message)
+    if sweep:
+        return (f"override '{sweep.group(1)}'", "gives several values (a sweep); train and check take one value "
+                                                 "per key: run a grid with riskplan sweep, or write a list as [a,b]")
+    converted = re.match(r"Value '(.*)' of type '\w+' could not be converted to (\w+)", message)
+    if converted and key:
+        value, kind = converted.groups()
+        return where, f"got '{value}'; expected {EXPECTED_TYPE.get(kind, kind)}"
+    if re.match(r"Value '.*' is not a valid bool", message) and key:
+        return where, f"got '{getattr(cause, 'value', '?')}'; expected true or false"
+    if message.startswith("Invalid value assigned:") and "is not a ListConfig, list or tuple" in message and key:
+        return where, f"got {getattr(cause, 'value', '?')!r}; expected a list, e.g. [1, 2]"
+    subclass = re.match(r"Invalid type assigned: \w+ is not a subclass of (\w+)", message)
+    if subclass and key:
+        index = re.fullmatch(r"(.*)\[(\d+)\]", key)
+        if index and getattr(cause, "value", None) == {}:
+            return where, (f"the list '{_dotted(index.group(1))}' has no entry {index.group(2)}; "
+                           f"replace the whole list to add entries")
+        valid = valid_keys(re.sub(r"\[\d+\]", ".0", key).replace("..", "."))
+        keys = f" with keys {', '.join(valid)}" if valid else ""
+        return where, f"got {getattr(cause, 'value', '?')!r}; expected a mapping{keys}"
+    if "not in struct" in message or (" not in '" in message and key):
+        parent, _, name = _dotted(key).rpartition(".")
+        valid = valid_keys(parent)
+        if valid is None:
+            return f"key '{_dotted(key)}'", "unknown key; this node takes no new keys"
+        return f"key '{_dotted(key)}'", f"unknown key '{name}'; valid keys under '{parent or 'top level'}': {', '.join(valid)}"
+    missing = re.search(r"Could not find '([\w/]+)/([^']+)'", message)
+    if missing:
+        group, option = missing.groups()
+        listed = re.search(r"Available options in '[^']*':\n((?:\t.*(?:\n|$))+)", text)
+        options = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))  # riskplan's own (not the schema's)
+        if not options and listed:  # a group of Hydra or its plugins, e.g. hydra/launcher
+            options = [o.strip() for o in listed.group(1).splitlines() if o.strip()]
+        return f"key '{group}'", f"no option '{option}'; available: {', '.join(options) or 'none'}"
+    if "Could not override" in message:
+        return f"key '{message.split(chr(39))[1]}'", "unknown key; run `riskplan check` to list the config's keys"
+    return (f"key '{_dotted(key)}'" if key else "config"), message
+
+
+def valid_keys(path: str) -> list[str] | None:
+    """Field names of the schema node at a dotted path (list indices allowed), or None if it is not a dataclass."""
+    node: typing.Any = schema.RiskplanConf
+    for part in filter(None, path.split(".")):
+        if part.isdigit():
+            node = typing.get_args(node)[0] if typing.get_args(node) else None
+        elif dataclasses.is_dataclass(node):
+            hints = typing.get_type_hints(node)
+            node = hints.get(part)
+            while typing.get_origin(node) is typing.Union:  # Optional[X]
+                node = next(a for a in typing.get_args(node) if a is not type(None))
+        else:
+            return None
+    return [f.name for f in dataclasses.fields(node)] if dataclasses.is_dataclass(node) else None
+
+
+def _dotted(key: str) -> str:
+    """world.regions[0].rect -> world.regions.0.rect, as users type it."""
+    return key.replace("[", ".").replace("]", "")

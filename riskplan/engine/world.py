@@ -1,0 +1,373 @@
+"""The grid world of paper Sections II and V: cells, moves, regions, obstacles, sources and their signals.
+
+Cells are numbered c = x * height + y, so an array of shape (width, height) ravels into cell order.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from riskplan.engine import distributions
+from riskplan.engine.distributions import Dist
+from riskplan.util.errors import BadInput
+
+MOVES = np.array([[1, 0], [-1, 0], [0, 0], [0, 1], [0, -1]], dtype=np.int64)  # E, W, Stay, N, S
+MOVE_NAMES = ("E", "W", "Stay", "N", "S")
+MAX_STACK = 64  # stack slots of the kernel's reward-program interpreter
+SIGNAL_LIMIT = 1e100  # largest peak |signal| w / (2 pi sqrt(det Sigma)): keeps logits and scores finite
+PRECISION_LIMIT = 1e150  # largest |entry| of Sigma^-1: the quadratic form stays finite on any allowed grid
+
+
+@dataclass(frozen=True)
+class World:
+    """Immutable world parameters, as plain arrays (cell-indexed)."""
+
+    width: int
+    height: int
+    horizon: int
+    stop_at_source: bool
+    next_cell: np.ndarray  # (C, 5) int64: the cell a move leads to; blocked moves stay
+    obstacle: np.ndarray  # (C,) bool
+    region_of: np.ndarray  # (C,) int64: first matching region, -1 for none (reward 0)
+    region_names: tuple[str, ...]
+    region_risky: np.ndarray  # (R,) bool
+    region_rewards: tuple[Dist, ...]
+    source_names: tuple[str, ...]
+    source_cells: np.ndarray  # (M,) int64: initial source cells
+    source_rewards: tuple[Dist, ...]
+    source_motion: np.ndarray  # (M,) float64: probability of a random-walk step per time step (0 = static)
+    source_amplitude: np.ndarray  # (M,) float64: w / (2 pi sqrt(det Sigma))
+    source_precision: np.ndarray  # (M, 3) float64: (P_xx, P_xy, P_yy) of Sigma^-1
+    starts: np.ndarray  # (N,) int64: start cell of each robot
+
+    @property
+    def cells(self) -> int:
+        """Number of grid cells."""
+        return self.width * self.height
+
+    @property
+    def sources(self) -> int:
+        """Number of sources M (= length of theta)."""
+        return len(self.source_cells)
+
+    @property
+    def mobile(self) -> bool:
+        """Whether any source moves."""
+        return bool(np.any(self.source_motion > 0))
+
+    def xy(self, cell: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
+        """Cell index to (x, y)."""
+        return np.divmod(cell, self.height)
+
+    def signals(self, source_cells: np.ndarray | None = None) -> np.ndarray:
+        """Signal strength s^j(c) of eq. (1) at every cell, shape (C, M), for sources at `source_cells`."""
+        src = self.source_cells if source_cells is None else source_cells
+        x, y = self.xy(np.arange(self.cells))
+        sx, sy = self.xy(src)
+        dx = x[:, None] - sx[None, :]
+        dy = y[:, None] - sy[None, :]
+        p = self.source_precision
+        quad = p[:, 0] * dx * dx + 2.0 * p[:, 1] * dx * dy + p[:, 2] * dy * dy
+        return self.source_amplitude * np.exp(-0.5 * quad)
+
+
+def build_world(world: Any, starts: list | None = None) -> World:
+    """Build and validate a World from the `world` config node (and optional per-robot starts)."""
+    width, height = grid_size(world.size)
+    cells = width * height
+    obstacle = np.zeros((width, height), dtype=bool)
+    for i, cell in enumerate(world.obstacles):
+        x, y = _cell(cell, width, height, f"world.obstacles.{i}")
+        obstacle[x, y] = True
+    obstacle = obstacle.ravel()
+
+    horizon = int(world.horizon)
+    if horizon < 1:
+        raise BadInput("world.horizon", f"got {horizon}; expected a whole number of moves >= 1")
+
+    start_list = [world.start] if starts is None else starts
+    where = "world.start" if starts is None else "team.starts"
+    start_cells = []
+    for i, start in enumerate(start_list):
+        here = where if starts is None else f"{where}.{i}"
+        x, y = _cell(start, width, height, here)
+        if obstacle[x * height + y]:
+            raise BadInput(here, f"({x}, {y}) is an obstacle; choose a free cell")
+        start_cells.append(x * height + y)
+
+    if len(world.sources) == 0:
+        raise BadInput("world.sources", "no sources; the policy needs at least one signal (M >= 1)")
+    names, src_cells, rewards, motion, amplitude, precision = [], [], [], [], [], []
+    for j, source in enumerate(world.sources):
+        here = f"world.sources.{j}"
+        x, y = _cell(source.position, width, height, f"{here}.position")
+        if obstacle[x * height + y]:
+            raise BadInput(f"{here}.position", f"({x}, {y}) is an obstacle; move the source or the obstacle")
+        if x * height + y in src_cells:
+            other = src_cells.index(x * height + y)
+            raise BadInput(f"{here}.position", f"({x}, {y}) is also the cell of world.sources.{other}; two sources "
+                                               f"on one cell cannot be told apart; give each source its own cell")
+        cov = _covariance(source.covariance, f"{here}.covariance")
+        with np.errstate(all="ignore"):
+            det = float(np.linalg.det(cov))
+            inv = np.linalg.inv(cov)
+        if not (math.isfinite(det) and np.all(np.isfinite(inv)) and np.max(np.abs(inv)) <= PRECISION_LIMIT):
+            raise BadInput(f"{here}.covariance", f"{cov.tolist()} is too extreme: its determinant or inverse "
+                                                 f"overflows (inverse entries must stay below {PRECISION_LIMIT:g}); "
+                                                 f"give entries between about 1e-100 and 1e100")
+        if source.scale is None:
+            peak = 1.0  # w = 2 pi sqrt(det Sigma): exactly 1, even where sqrt(det) would round
+        else:
+            scale = float(source.scale)
+            if not math.isfinite(scale):
+                raise BadInput(f"{here}.scale", f"got {source.scale!r}; expected a finite number or null (peak 1)")
+            peak = scale / (2.0 * math.pi * math.sqrt(det))
+            if not abs(peak) <= SIGNAL_LIMIT:
+                raise BadInput(f"{here}.scale", f"got {scale:g}; the signal would peak at about {abs(peak):.3g}, "
+                                                f"beyond the limit of {SIGNAL_LIMIT:g} that keeps logits and scores "
+                                                f"finite; give a smaller scale, or null for a peak of 1")
+        names.append(source.name or f"source_{j}")
+        src_cells.append(x * height + y)
+        rewards.append(_dist(source.reward, f"{here}.reward"))
+        motion.append(_motion(source.motion, f"{here}.motion"))
+        amplitude.append(peak)
+        precision.append((inv[0, 0], inv[0, 1], inv[1, 1]))
+
+    region_of = np.full(cells, -1, dtype=np.int64)
+    region_names, region_risky, region_rewards = [], [], []
+    for r, region in enumerate(world.regions):
+        here = f"world.regions.{r}"
+        member = _region_cells(region, width, height, here)
+        region_of[(region_of < 0) & member] = r
+        region_names.append(region.name or f"region_{r}")
+        region_risky.append(bool(region.risky))
+        region_rewards.append(_dist(region.reward, f"{here}.reward"))
+
+    next_cell = _next_cell(width, height, obstacle)
+    if obstacle.any():
+        _check_reachable(next_cell, obstacle, start_cells, where if starts is None else None, src_cells, motion,
+                         height)
+    _check_total_reward(rewards, region_rewards, horizon, bool(world.stop_at_source))
+
+    return World(
+        width=width,
+        height=height,
+        horizon=horizon,
+        stop_at_source=bool(world.stop_at_source),
+        next_cell=next_cell,
+        obstacle=obstacle,
+        region_of=region_of,
+        region_names=tuple(region_names),
+        region_risky=np.array(region_risky, dtype=bool),
+        region_rewards=tuple(region_rewards),
+        source_names=tuple(names),
+        source_cells=np.array(src_cells, dtype=np.int64),
+        source_rewards=tuple(rewards),
+        source_motion=np.array(motion, dtype=np.float64),
+        source_amplitude=np.array(amplitude, dtype=np.float64),
+        source_precision=np.array(precision, dtype=np.float64).reshape(-1, 3),
+        starts=np.array(start_cells, dtype=np.int64),
+    )
+
+
+def _check_reachable(next_cell: np.ndarray, obstacle: np.ndarray, starts: list[int], start_key: str | None,
+                     sources: list[int], motion: list[float], height: int) -> None:
+    """Every static source can be reached from every start cell through free cells (the 4 moves).
+
+    A pair that cannot is blamed on the side in the smaller walled-off pocket: the start when it is shut in, the
+    source when it is. Mobile sources walk over obstacles, so only static ones are checked.
+    """
+    label = _components(next_cell, obstacle)
+    size = np.bincount(label[label >= 0])
+    for i, start in enumerate(starts):
+        here = start_key or f"team.starts.{i}"
+        for j, (cell, prob) in enumerate(zip(sources, motion)):
+            if prob > 0 or label[cell] == label[start]:
+                continue
+            sx, sy = divmod(start, height)
+            cx, cy = divmod(cell, height)
+            if size[label[start]] < size[label[cell]]:
+                free = int(size[label[start]])
+                raise BadInput(here, f"({sx}, {sy}) is walled in by obstacles (a pocket of {free} free "
+                                     f"cell{'' if free == 1 else 's'}): world.sources.{j} at ({cx}, {cy}) cannot be "
+                                     f"reached from it; remove obstacles or move the start")
+            raise BadInput(f"world.sources.{j}.position", f"({cx}, {cy}) is walled off by obstacles: it cannot be "
+                                                          f"reached from the start ({sx}, {sy}); remove obstacles or "
+                                                          f"move the source")
+
+
+@njit(cache=True)
+def _components(next_cell, obstacle):
+    """Label of the connected free region of every cell (-1 for obstacles): one breadth-first pass over the grid."""
+    cells = next_cell.shape[0]
+    label = np.full(cells, -1, dtype=np.int64)
+    queue = np.empty(cells, dtype=np.int64)
+    count = 0
+    for seed in range(cells):
+        if obstacle[seed] or label[seed] >= 0:
+            continue
+        label[seed] = count
+        head, tail = 0, 1
+        queue[0] = seed
+        while head < tail:
+            cell = queue[head]
+            head += 1
+            for a in range(5):
+                nxt = next_cell[cell, a]
+                if label[nxt] < 0:
+                    label[nxt] = count
+                    queue[tail] = nxt
+                    tail += 1
+        count += 1
+    return label
+
+
+def _check_total_reward(sources: list[Dist], regions: list[Dist], horizon: int, stop_at_source: bool) -> None:
+    """No episode's total reward can exceed REWARD_LIMIT in size (each program was bounded when parsed)."""
+    limit = distributions.REWARD_LIMIT
+    first = lambda pair: pair[0]  # noqa: E731 - ties name the first program listed
+    region = max(((distributions.bound(d), f"world.regions.{r}.reward") for r, d in enumerate(regions)),
+                 default=(0.0, ""), key=first)
+    source = max(((distributions.bound(d), f"world.sources.{j}.reward") for j, d in enumerate(sources)), key=first)
+    source_steps = 1.0 if stop_at_source else float(horizon)
+    total = float(horizon) * region[0] + source_steps * source[0]
+    if total <= limit:
+        return
+    bound, key = region if float(horizon) * region[0] >= source_steps * source[0] else source
+    paid = "step" if key.startswith("world.regions") or not stop_at_source else "episode"
+    raise BadInput(key, f"draws up to about {bound:.3g} per {paid}; over world.horizon={horizon} moves an episode's "
+                        f"total reward could reach about {min(total, 1.8e308):.3g}, beyond the limit of {limit:g} "
+                        f"that keeps means, variances and gradients finite; give smaller rewards or a shorter horizon")
+
+
+def world_map(world: World, starts: np.ndarray) -> dict:
+    """The world as the record layer's map dict (arrays indexed [x, y]), with each robot's start cell."""
+    shape = (world.width, world.height)
+    risky = np.zeros(world.cells, dtype=bool)
+    inside = world.region_of >= 0
+    risky[inside] = world.region_risky[world.region_of[inside]]
+    sx, sy = world.xy(world.source_cells)
+    rx, ry = world.xy(starts)
+    return {
+        "width": world.width,
+        "height": world.height,
+        "cell_region": world.region_of.reshape(shape),
+        "region_names": list(world.region_names),
+        "risky": risky.reshape(shape),
+        "obstacles": world.obstacle.reshape(shape),
+        "sources": [{"name": n, "x": int(x), "y": int(y)} for n, x, y in zip(world.source_names, sx, sy)],
+        "start": [[int(x), int(y)] for x, y in zip(rx, ry)],
+    }
+
+
+def _next_cell(width: int, height: int, obstacle: np.ndarray) -> np.ndarray:
+    """Successor of every (cell, move); moves off the grid or into an obstacle stay put."""
+    x, y = np.divmod(np.arange(width * height), height)
+    nx = x[:, None] + MOVES[None, :, 0]
+    ny = y[:, None] + MOVES[None, :, 1]
+    inside = (nx >= 0) & (nx < width) & (ny >= 0) & (ny < height)
+    target = np.where(inside, nx * height + ny, 0)
+    blocked = ~inside | obstacle[target]
+    stay = np.broadcast_to(np.arange(width * height)[:, None], target.shape)
+    return np.where(blocked, stay, target).astype(np.int64)
+
+
+def _region_cells(region: Any, width: int, height: int, where: str) -> np.ndarray:
+    """Membership mask (C,) of a region given as exactly one of rect, halfplane, cells."""
+    given = [k for k in ("rect", "halfplane", "cells") if getattr(region, k) is not None]
+    if len(given) != 1:
+        raise BadInput(where, f"gives {given or 'no shape'}; give exactly one of rect, halfplane, cells")
+    x, y = np.divmod(np.arange(width * height), height)
+    if given[0] == "rect":
+        rect = list(region.rect)
+        if len(rect) != 4:
+            raise BadInput(f"{where}.rect", f"got {rect}; expected [x0, y0, x1, y1] (inclusive corners)")
+        x0, y0, x1, y1 = rect
+        if x0 > x1 or y0 > y1:
+            raise BadInput(f"{where}.rect", f"got {rect}; need x0 <= x1 and y0 <= y1")
+        return (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+    if given[0] == "halfplane":
+        hp = list(region.halfplane)
+        if len(hp) != 3 or not all(math.isfinite(v) for v in hp):
+            raise BadInput(f"{where}.halfplane", f"got {hp}; expected [a, b, c] of finite numbers for a*x + b*y > c")
+        if hp[0] == 0 == hp[1]:
+            raise BadInput(f"{where}.halfplane", f"got {hp}; expected [a, b, c] for a*x + b*y > c with (a, b) != 0")
+        top = max(abs(v) for v in hp)
+        a, b, c = (v / top for v in hp) if top > 1.0 else hp  # same half-plane, no overflow of a*x + b*y
+        return a * x + b * y > c
+    member = np.zeros((width, height), dtype=bool)
+    for i, cell in enumerate(region.cells):
+        cx, cy = _cell(cell, width, height, f"{where}.cells.{i}")
+        member[cx, cy] = True
+    return member.ravel()
+
+
+def grid_size(size: Any) -> tuple[int, int]:
+    """Validated (width, height), before any array is built (riskplan.run.budget bounds width * height)."""
+    values = list(size)
+    if len(values) != 2 or any(int(v) != v or v < 1 for v in values):
+        raise BadInput("world.size", f"got {values}; expected [width, height] of whole numbers >= 1")
+    return int(values[0]), int(values[1])
+
+
+def _cell(cell: Any, width: int, height: int, where: str) -> tuple[int, int]:
+    """A validated on-grid (x, y)."""
+    values = list(cell) if not isinstance(cell, (int, float, str)) else [cell]
+    if len(values) != 2 or any(not isinstance(v, int) for v in values):
+        raise BadInput(where, f"got {values}; expected [x, y] of whole numbers")
+    x, y = values
+    if not (0 <= x < width and 0 <= y < height):
+        raise BadInput(where, f"({x}, {y}) is off the {width}x{height} grid; need 0 <= x < {width}, 0 <= y < {height}")
+    return x, y
+
+
+def _covariance(cov: Any, where: str) -> np.ndarray:
+    """A symmetric positive-definite 2x2 matrix, or BadInput."""
+    try:
+        matrix = np.array([list(row) for row in cov], dtype=float)
+    except (TypeError, ValueError):
+        raise BadInput(where, f"got {cov!r}; expected [[a, b], [b, c]]") from None
+    if matrix.shape != (2, 2) or not np.all(np.isfinite(matrix)):
+        raise BadInput(where, f"got {matrix.tolist()}; expected a finite 2x2 matrix [[a, b], [b, c]]")
+    if matrix[0, 1] != matrix[1, 0]:
+        raise BadInput(where, f"{matrix.tolist()} is not symmetric; the off-diagonal entries must be equal")
+    with np.errstate(all="ignore"):  # a determinant that overflows is caught by the caller, with a reason
+        det = np.linalg.det(matrix)
+    if matrix[0, 0] <= 0 or det <= 0:
+        raise BadInput(where, f"{matrix.tolist()} is not positive definite; need a > 0 and a*c - b^2 > 0")
+    return matrix
+
+
+def _dist(data: Any, where: str) -> Dist:
+    """Parse a reward distribution whose program fits the kernel's stack."""
+    from omegaconf import OmegaConf
+
+    try:
+        plain = OmegaConf.to_container(data) if OmegaConf.is_config(data) else data
+        dist = distributions.parse(plain, where)
+    except RecursionError:
+        raise BadInput(where, f"the reward program nests more than {distributions.MAX_LEVELS} levels deep; flatten "
+                              f"it (a sum or a mixture takes a list of any length)") from None
+    if distributions.depth(dist) > MAX_STACK:
+        raise BadInput(where, f"nests too deeply; at most {MAX_STACK} stack slots")
+    distributions.check_bound(dist, where)
+    return dist
+
+
+def _motion(motion: Any, where: str) -> float:
+    """Random-walk probability of a source's motion config."""
+    if not 0.0 <= float(motion.prob) <= 1.0:  # checked for static sources too: a probability outside [0, 1] is a typo
+        raise BadInput(f"{where}.prob", f"got {motion.prob}; expected a probability in [0, 1]")
+    if motion.kind == "static":
+        return 0.0
+    if motion.kind != "random_walk":
+        raise BadInput(f"{where}.kind", f"got '{motion.kind}'; expected static or random_walk")
+    prob = float(motion.prob)
+    if not 0.0 < prob <= 1.0:
+        raise BadInput(f"{where}.prob", f"got {prob}; a random walk needs a step probability in (0, 1]")
+    return prob

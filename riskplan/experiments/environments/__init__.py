@@ -1,0 +1,1 @@
+"""The world as Gymnasium and PettingZoo environments; imported as `riskplan.envs`."""

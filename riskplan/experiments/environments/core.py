@@ -1,0 +1,235 @@
+"""The world of riskplan in numpy, for the Gymnasium and PettingZoo environments: many robots stepped at once.
+
+`Worlds` follows the numba kernel's episode (riskplan.engine.rollout._simulate) step for step:
+  * a move is one of E, W, Stay, N, S (riskplan.engine.world.MOVES, in that order); a blocked move stays;
+  * the cell entered at each step 1..K is paid its region's reward (first matching region; no region pays 0;
+    the start cell is not paid), drawn with riskplan.engine.distributions.sample; a risky region counts a risky step;
+  * entering a source's cell also pays the source's reward (the first source listed on that cell); with
+    world.stop_at_source the robot's episode then ends (terminated);
+  * mobile sources (random_walk) move after the robot's move has been paid, to a uniform E/W/N/S neighbour with
+    probability `prob`, staying put at the grid's edge;
+  * after K moves the episode ends (truncated).
+Draws come from a numpy Generator, not the kernel's counter-based streams: the numbers differ, the distributions
+are the same (tests/test_envs.py checks that against `riskplan.engine.rollout.simulate`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from riskplan.engine import distributions as D
+from riskplan.run.compose import compose
+from riskplan.engine.policy import move_features, probabilities
+from riskplan.run.build import Setup, build_setup
+from riskplan.engine.world import MOVE_NAMES, World
+
+WALK = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.int64)  # a source's random-walk steps: E, W, N, S
+
+
+def make_setup(config: Any = None) -> Setup:
+    """A riskplan Setup from a config: None (the defaults), Hydra overrides (a list like ["world.horizon=10",
+    "experiment=paper_team"], or one such string), a composed config or dict, or a Setup (used as it is)."""
+    if isinstance(config, Setup):
+        return config
+    if config is None:
+        config = []
+    if isinstance(config, str):
+        config = [config]
+    if isinstance(config, Sequence):
+        return build_setup(compose(list(config), validate=False))
+    return build_setup(config)
+
+
+def env_setup(config: Any, render_mode: str | None, modes: list[str]) -> tuple[Setup, np.ndarray]:
+    """What both environments build first: the render mode checked, the Setup, every robot's start cell."""
+    if render_mode is not None and render_mode not in modes:
+        raise ValueError(f"render_mode {render_mode!r} is not one of {modes}")
+    setup = make_setup(config)
+    return setup, robot_starts(setup)
+
+
+def robot_starts(setup: Setup) -> np.ndarray:
+    """Start cell of each of the team's robots (all at world.start unless team.starts is given)."""
+    cells = setup.world.starts
+    return np.repeat(cells, setup.robots) if len(cells) == 1 else cells.copy()
+
+
+def signal_bounds(world: World) -> tuple[np.ndarray, np.ndarray]:
+    """Lowest and highest value of each source's signal (M,): between 0 and its peak (negative for scale < 0)."""
+    return np.minimum(world.source_amplitude, 0.0), np.maximum(world.source_amplitude, 0.0)
+
+
+class Worlds:
+    """`len(starts)` robots in `groups` copies of one world, stepped together.
+
+    Robot b lives in copy group[b] (default: each robot its own copy). Robots of one copy share its sources, which
+    matters only for mobile sources: they walk once per time step, independently in each copy. Robots never block
+    or pay each other, and every reward draw is independent. A robot whose episode has ended stays where it is and
+    is paid nothing; each copy's sources walk while any of its robots is still moving.
+    """
+
+    def __init__(self, world: World, starts: np.ndarray, group: np.ndarray | None = None):
+        self.world = world
+        self.starts = np.asarray(starts, dtype=np.int64).reshape(-1)
+        self.group = np.arange(len(self.starts)) if group is None else np.asarray(group, dtype=np.int64)
+        if self.group.shape != self.starts.shape or (len(self.group) and self.group.min() < 0):
+            raise ValueError("group must give a copy index >= 0 for every robot")
+        self.groups = int(self.group.max()) + 1 if len(self.group) else 0
+        self._mobile = world.mobile
+        self._features = None if self._mobile else move_features(world)  # (C, 5, M) for static sources
+        self._region_risky = world.region_risky.astype(np.int64)
+        self.reset()
+
+    @property
+    def robots(self) -> int:
+        """Number of robots B."""
+        return len(self.starts)
+
+    def reset(self) -> None:
+        """Every robot back at its start, every source at its initial cell, nothing paid."""
+        b = self.robots
+        self.cell = self.starts.copy()
+        self.sources = np.tile(self.world.source_cells, (self.groups, 1))  # (G, M) current source cells
+        self.steps = np.zeros(b, dtype=np.int64)
+        self.done = np.zeros(b, dtype=bool)
+        self.risky_steps = np.zeros(b, dtype=np.int64)
+        self.source_reached = np.full(b, -1, dtype=np.int64)
+        self.total_reward = np.zeros(b)
+
+    def signals(self) -> np.ndarray:
+        """The policy's features s^j(x + u) for every robot and move, shape (B, 5, M): what each robot senses."""
+        if self._features is not None:
+            return self._features[self.cell]
+        world = self.world
+        nx, ny = np.divmod(world.next_cell[self.cell], world.height)  # (B, 5)
+        sx, sy = np.divmod(self.sources[self.group], world.height)  # (B, M)
+        dx = (nx[:, :, None] - sx[:, None, :]).astype(float)
+        dy = (ny[:, :, None] - sy[:, None, :]).astype(float)
+        p = world.source_precision
+        quad = p[:, 0] * dx * dx + 2.0 * p[:, 1] * dx * dy + p[:, 2] * dy * dy
+        return world.source_amplitude * np.exp(-0.5 * quad)
+
+    def step(self, actions: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Move every robot still in its episode by its action (0..4 = E, W, Stay, N, S; ignored for the others).
+
+        Returns (reward, terminated, truncated), each of shape (B,); the flags are set only on the step that
+        ends a robot's episode.
+        """
+        world = self.world
+        actions = np.asarray(actions).reshape(-1)
+        if actions.shape != self.starts.shape:
+            raise ValueError(f"expected {self.robots} actions, got {actions.shape[0]}")
+        active = ~self.done
+        moves = actions[active]
+        if moves.dtype.kind not in "iu" or ((moves < 0) | (moves >= len(MOVE_NAMES))).any():
+            raise ValueError(f"actions must be whole numbers 0..4 ({', '.join(MOVE_NAMES)}); got {moves.tolist()}")
+        self.cell[active] = world.next_cell[self.cell[active], moves]
+        self.steps[active] += 1
+        reward = np.zeros(len(self.starts))
+
+        region = np.where(active, world.region_of[self.cell], -1)
+        for r in _present(region):
+            paid = region == r
+            reward[paid] = D.sample(world.region_rewards[r], rng, int(paid.sum()))
+            self.risky_steps[paid] += self._region_risky[r]
+
+        match = self.sources[self.group] == self.cell[:, None]  # (B, M); the first source listed wins a shared cell
+        hit = np.where(active & match.any(axis=1), match.argmax(axis=1), -1)
+        for j in _present(hit):
+            paid = hit == j
+            reward[paid] += D.sample(world.source_rewards[j], rng, int(paid.sum()))
+        self.source_reached = np.where((self.source_reached < 0) & (hit >= 0), hit, self.source_reached)
+
+        if self._mobile:
+            moving = np.zeros(self.groups, dtype=bool)
+            moving[self.group[active]] = True
+            self._walk(moving, rng)
+
+        terminated = (hit >= 0) & world.stop_at_source
+        truncated = active & ~terminated & (self.steps >= world.horizon)
+        self.done |= terminated | truncated
+        self.total_reward += reward
+        return reward, terminated, truncated
+
+    def _walk(self, moving: np.ndarray, rng: np.random.Generator) -> None:
+        """One random-walk step of each mobile source in the copies `moving` (G,), staying on the grid."""
+        world = self.world
+        steps = moving[:, None] & (rng.random(self.sources.shape) < world.source_motion)
+        way = WALK[rng.integers(0, 4, size=self.sources.shape)]  # (G, M, 2)
+        x, y = np.divmod(self.sources, world.height)
+        nx, ny = x + way[..., 0], y + way[..., 1]
+        inside = (nx >= 0) & (nx < world.width) & (ny >= 0) & (ny < world.height)
+        self.sources = np.where(steps & inside, nx * world.height + ny, self.sources)
+
+    def positions(self) -> np.ndarray:
+        """Each robot's cell as (x, y), shape (B, 2)."""
+        out = np.empty((len(self.cell), 2), dtype=np.int64)
+        out[:, 0], out[:, 1] = np.divmod(self.cell, self.world.height)
+        return out
+
+
+def _present(index: np.ndarray) -> list[int]:
+    """The distinct values >= 0 of an index array (few: regions or sources)."""
+    if index.size == 1:
+        return [int(index[0])] if index[0] >= 0 else []
+    return [int(v) for v in np.unique(index[index >= 0])]
+
+
+class SoftmaxPolicy:
+    """The paper's policy (2)-(3) on the environments' observations: mu(u | x) ∝ exp(theta . signals[u]).
+
+    `signals` is the observation's (5, M) array (or a batch (B, 5, M)); `act` samples a move as the kernel does
+    (the first move whose cumulative probability exceeds a uniform draw).
+    """
+
+    def __init__(self, theta: Sequence[float] | np.ndarray):
+        self.theta = np.asarray(theta, dtype=float).reshape(-1)
+
+    def probabilities(self, signals: np.ndarray) -> np.ndarray:
+        """Move probabilities, shape (5,) for one observation's signals, (B, 5) for a batch."""
+        signals = np.asarray(signals, dtype=float)
+        one = signals.ndim == 2
+        probs = probabilities(signals[None] if one else signals, self.theta)
+        return probs[0] if one else probs
+
+    def act(self, signals: np.ndarray, rng: np.random.Generator) -> np.ndarray | int:
+        """A sampled move (int) for one observation's signals, or moves (B,) for a batch."""
+        probs = self.probabilities(signals)
+        cum = np.cumsum(np.atleast_2d(probs), axis=-1)
+        u = rng.random(cum.shape[0])
+        moves = (u[:, None] > cum[:, :4]).sum(axis=1)
+        return int(moves[0]) if probs.ndim == 1 else moves
+
+    def __call__(self, observation: dict, rng: np.random.Generator) -> int:
+        """A move for one environment observation (a dict with "signals")."""
+        return self.act(observation["signals"], rng)
+
+
+@dataclass(frozen=True)
+class Episodes:
+    """Outcomes of independent episodes, as riskplan.engine.rollout.Batch names them."""
+
+    total_reward: np.ndarray  # (E,) float64
+    risky_steps: np.ndarray  # (E,) int64
+    source_reached: np.ndarray  # (E,) int64, -1 for none
+    steps: np.ndarray  # (E,) int64
+
+
+def run_episodes(config: Any, theta: Sequence[float] | np.ndarray, episodes: int, rng: np.random.Generator,
+                 start: int | None = None) -> Episodes:
+    """`episodes` independent single-robot episodes of the softmax policy theta, all stepped at once in numpy.
+
+    The same dynamics as the environments (each episode its own copy of the world), without their per-step Python
+    overhead. `start`: the start cell (default: the first robot's).
+    """
+    setup = make_setup(config)
+    cell = robot_starts(setup)[0] if start is None else start
+    worlds = Worlds(setup.world, np.full(episodes, cell, dtype=np.int64))
+    policy = SoftmaxPolicy(theta)
+    while not worlds.done.all():
+        worlds.step(policy.act(worlds.signals(), rng), rng)
+    return Episodes(worlds.total_reward, worlds.risky_steps, worlds.source_reached, worlds.steps)

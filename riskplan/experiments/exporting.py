@@ -1,0 +1,494 @@
+"""`riskplan export`: replay finished runs into MLflow or TensorBoard, or give them a Foxglove layout.
+
+    export_runs([Path("outputs/sweeps/...")], "mlflow", uri=None) -> ExportResult
+
+What one run becomes (the same names in MLflow and TensorBoard):
+
+- per-iteration metrics, one point per iteration (MLflow step and TensorBoard step = `iteration`): every numeric
+  column of metrics.parquet but `iteration` and `robot`, as `train/<column>` for the run's headline policy
+  (robot 0 of a centralized run, the network average -1 of a team, as in the report), and `robot_<i>/<column>`
+  for each robot of a team. A NaN (`consensus_error` of one robot) is not logged;
+- the summary, at the step after the last iteration: `summary/<name>` for every number in summary.json, and
+  `summary/<name>_low`, `summary/<name>_high` for the `{value, low, high}` figures (`summary/cvar`,
+  `summary/cvar_low`, `summary/cvar_high`, ...); nested keys are dotted (`summary/source_reached.safe`);
+- the config as parameters: flattened dotted keys (`risk.beta`, `team.graph`, ...), lists as JSON text
+  (MLflow params; TensorBoard hparams);
+- tags: `riskplan.run_dir` (the absolute run directory), `riskplan.config_sha` (as in a sweep job's
+  status.json), `riskplan.group` (the seed group's label, as in the report), `riskplan.group_sha` (the config
+  without its seed: the same for every seed of a condition), `riskplan.seed`, `riskplan.headline_robot`,
+  `riskplan.fingerprint` and `riskplan.provenance.*` (MLflow tags; TensorBoard: a text summary `riskplan/run`).
+
+Idempotent: MLflow runs are found by their `riskplan.run_dir` tag; one with the same fingerprint (config,
+summary and metrics) is left as it is ("unchanged", its group tags refreshed), any other is deleted and
+written anew ("replaced"). TensorBoard gets one subdirectory per run, `<run name>-<hash of its path>`, with a
+`riskplan-export.json` marker; it is replaced as a whole (written beside it, then renamed into place).
+
+Broken, killed and failed runs are skipped with their reason, as in the report; never fatal.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import re
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from riskplan.util.errors import BadInput
+from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
+from riskplan.util.paths import check_output_dir, write_atomic
+from riskplan.experiments.reporting.collect import Broken, RunInfo, collect, flatten
+from riskplan.experiments.sweep_worker import config_sha
+
+TARGETS = ("mlflow", "tensorboard", "foxglove")
+DEFAULT_URI = {"mlflow": Path("outputs") / "mlruns", "tensorboard": Path("outputs") / "tensorboard"}
+EXPERIMENT = "riskplan"
+MARKER = "riskplan-export.json"
+EXPORT_VERSION = 1  # part of the fingerprint: a change of what an export writes replaces older exports
+EXTRA = {"mlflow": ("mlflow", "mlflow-skinny"), "tensorboard": ("tensorboard", "tensorboard")}
+URI_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:")  # file:, sqlite:, http:, databricks: (not C:\...)
+
+
+class ExportFailed(Exception):
+    """The destination could not be written at run time (one line, exit code 1)."""
+
+
+class Skip(Exception):
+    """This run cannot be exported (one line, the others go on)."""
+
+
+@dataclass
+class Record:
+    """One run, in the terms of the export targets."""
+
+    path: Path
+    name: str
+    config: dict
+    params: dict[str, str]
+    tags: dict[str, str]
+    points: list[tuple[str, int, float, float]]  # (key, step, value, wall time in s)
+    start: float  # s since the epoch
+    end: float
+    fingerprint: str
+    group: str
+
+
+@dataclass
+class Exported:
+    """What happened to one run: `action` is exported, replaced or unchanged; `where` names it there."""
+
+    path: Path
+    action: str
+    where: str
+
+
+@dataclass
+class ExportResult:
+    target: str
+    destination: str
+    done: list[Exported] = field(default_factory=list)
+    skipped: list[Broken] = field(default_factory=list)
+
+    def count(self, action: str) -> int:
+        return sum(1 for d in self.done if d.action == action)
+
+
+# ------------------------------------------------------------------------------------------- what a run is
+def param_value(value: Any) -> str:
+    """A flattened config value as text: strings as they are, everything else as JSON (0.1, true, null)."""
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def summary_figures(summary: dict | None) -> dict[str, float]:
+    """Every finite number in summary.json by dotted key; a {value, low, high} figure gives key, key_low, key_high.
+
+    `provenance` and `schema_version` are not figures (provenance becomes tags)."""
+    out: dict[str, float] = {}
+
+    def walk(key: str, value: Any) -> None:
+        if isinstance(value, dict):
+            if {"value", "low", "high"} <= set(value):
+                for suffix, part in (("", "value"), ("_low", "low"), ("_high", "high")):
+                    number = _number(value[part])
+                    if number is not None:
+                        out[f"{key}{suffix}"] = number
+                return
+            for k, v in value.items():
+                walk(f"{key}.{k}" if key else str(k), v)
+        elif isinstance(value, (list, tuple)):
+            for i, v in enumerate(value):
+                walk(f"{key}.{i}", v)
+        else:
+            number = _number(value)
+            if number is not None:
+                out[key] = number
+
+    for key, value in (summary or {}).items():
+        if key not in ("provenance", "schema_version"):
+            walk(str(key), value)
+    return out
+
+
+def metric_prefix(robot: int, headline: int) -> str:
+    """train for the headline policy, robot_<i> for a team's robots (team for an average that is not the headline)."""
+    if robot == headline:
+        return "train"
+    return "team" if robot < 0 else f"robot_{robot}"
+
+
+def iteration_points(info: RunInfo, start: float) -> list[tuple[str, int, float, float]]:
+    """(key, iteration, value, wall time) for every finite value of metrics.parquet but iteration and robot."""
+    import numpy as np
+    import pandas as pd
+
+    m = info.run.metrics.sort_values(["iteration", "robot"], kind="stable")
+    columns = [c for c in m.columns if c not in ("iteration", "robot") and pd.api.types.is_numeric_dtype(m[c])
+               and not pd.api.types.is_bool_dtype(m[c])]
+    headline = info.headline
+    clock: dict[int, float] = {}
+    if "seconds" in m.columns:
+        own = m.loc[m.robot == headline, ["iteration", "seconds"]].drop_duplicates("iteration")
+        elapsed = np.cumsum(np.nan_to_num(own.seconds.to_numpy(dtype=float), nan=0.0))
+        clock = {int(i): start + float(s) for i, s in zip(own.iteration, elapsed)}
+    points = []
+    for robot, rows in m.groupby("robot", sort=True):
+        prefix = metric_prefix(int(robot), headline)
+        iterations = rows.iteration.to_numpy()
+        for c in columns:
+            values = rows[c].to_numpy(dtype=float)
+            for it, v in zip(iterations, values):
+                if math.isfinite(v):
+                    points.append((f"{prefix}/{c}", int(it), float(v), clock.get(int(it), start)))
+    return points
+
+
+def _sha(data: Any) -> str:
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _start_time(path: Path) -> float:
+    """When the run started, as far as its files tell: its .hydra/config.yaml, else the directory."""
+    for candidate in (path / ".hydra" / "config.yaml", path):
+        with contextlib.suppress(OSError):
+            return candidate.stat().st_mtime
+    return 0.0
+
+
+def run_record(info: RunInfo) -> Record:
+    """A loaded, complete run as metrics, params and tags."""
+    run = info.run
+    path = Path(os.path.abspath(run.path))
+    start = _start_time(path)
+    points = iteration_points(info, start)
+    last = int(run.metrics.iteration.max()) + 1 if len(run.metrics) else 0
+    end = max([p[3] for p in points], default=start)
+    points += [(f"summary/{k}", last, v, end) for k, v in summary_figures(run.summary).items()]
+    flat = flatten(run.config)
+    params = {k: param_value(v) for k, v in flat.items()}
+    group = info.group.label if info.group is not None else ""
+    fingerprint = _sha({"version": EXPORT_VERSION, "config": run.config, "summary": run.summary,
+                        "rows": len(run.metrics), "columns": [str(c) for c in run.metrics.columns],
+                        "last": last})
+    tags = {
+        "riskplan.run_dir": str(path),
+        "riskplan.config_sha": config_sha(run.config),
+        "riskplan.group": group,
+        "riskplan.group_sha": _sha({k: v for k, v in run.config.items() if k != "seed"}),
+        "riskplan.seed": str(info.seed),
+        "riskplan.headline_robot": str(info.headline),
+        "riskplan.fingerprint": fingerprint,
+    }
+    provenance = (run.summary or {}).get("provenance")
+    if isinstance(provenance, dict):
+        tags.update({f"riskplan.provenance.{k}": param_value(v) for k, v in flatten(provenance).items()})
+    return Record(path, path.name, run.config, params, tags, points, start, end, fingerprint, group)
+
+
+# ------------------------------------------------------------------------------------------- destinations
+def check_target(to: str | None) -> str:
+    """--to: one of TARGETS."""
+    if to is None or not str(to).strip():
+        raise BadInput("--to", f"missing; expected one of {', '.join(TARGETS)}, e.g. --to mlflow")
+    name = str(to).strip().lower()
+    if name not in TARGETS:
+        raise BadInput("--to", f"got '{to}'; expected one of {', '.join(TARGETS)}")
+    return name
+
+
+def check_uri(to: str, uri: str | None) -> str:
+    """--uri for a target: an MLflow tracking URI or store directory, a TensorBoard log directory, nothing for
+    foxglove. Returns the destination: a tracking URI (mlflow) or a directory (tensorboard), '' for foxglove."""
+    if to == "foxglove":
+        if uri is not None:
+            raise BadInput("--uri", "--to foxglove writes foxglove_layout.json into each run directory and takes "
+                                    "no --uri")
+        return ""
+    if uri is None:
+        uri = str(DEFAULT_URI[to])
+    text = str(uri)
+    if to == "mlflow" and URI_SCHEME.match(text) and not text.startswith("file:"):
+        return text  # sqlite:///..., http://..., databricks: MLflow checks these itself
+    if to == "mlflow" and text.startswith("file:"):
+        from urllib.parse import unquote, urlparse
+
+        text = unquote(urlparse(text).path) if text.startswith("file://") else text[len("file:"):]
+    check_output_dir(text, "--uri")
+    directory = Path(os.path.abspath(os.path.expanduser(text)))
+    if to == "tensorboard":
+        return str(directory)
+    if directory.is_dir() and any(directory.iterdir()) and not _is_mlflow_store(directory):
+        raise BadInput("--uri", f"{uri} holds files that are not an MLflow file store; give a new or empty "
+                                f"directory, or an MLflow store (e.g. outputs/mlruns)")
+    return directory.as_uri()
+
+
+def _is_mlflow_store(directory: Path) -> bool:
+    """An MLflow file store: experiment folders with a meta.yaml, or its .trash."""
+    return (directory / ".trash").is_dir() or any(p.is_file() for p in directory.glob("*/meta.yaml"))
+
+
+def check_installed(to: str) -> None:
+    """The optional package a target needs; BadInput naming the pip install when it is missing."""
+    if to not in EXTRA:
+        return
+    module, package = EXTRA[to]
+    try:
+        __import__(module)
+    except ImportError:
+        raise BadInput("--to", f"{to} needs the {package} package, which is not installed; "
+                               f"pip install 'riskplan[{to}]'") from None
+
+
+@contextlib.contextmanager
+def file_store_allowed(uri: str):
+    """MLflow >= 3.7 refuses its file store unless MLFLOW_ALLOW_FILE_STORE is set: set it while we write one."""
+    if not uri.startswith("file:") or os.environ.get("MLFLOW_ALLOW_FILE_STORE"):
+        yield
+        return
+    os.environ["MLFLOW_ALLOW_FILE_STORE"] = "true"
+    try:
+        yield
+    finally:
+        os.environ.pop("MLFLOW_ALLOW_FILE_STORE", None)
+
+
+# ------------------------------------------------------------------------------------------- MLflow
+class MlflowTarget:
+    """An MLflow tracking store: one experiment, one MLflow run per riskplan run."""
+
+    def __init__(self, uri: str, experiment: str = EXPERIMENT) -> None:
+        from mlflow.tracking import MlflowClient
+
+        self.uri = uri
+        self.client = MlflowClient(tracking_uri=uri)
+        found = self.client.get_experiment_by_name(experiment)
+        if found is not None and found.lifecycle_stage != "active":
+            self.client.restore_experiment(found.experiment_id)
+        self.experiment_id = found.experiment_id if found is not None else self.client.create_experiment(experiment)
+        self.by_dir: dict[str, list] = {}
+        token = None
+        while True:
+            page = self.client.search_runs([self.experiment_id], max_results=1000, page_token=token)
+            for run in page:
+                run_dir = run.data.tags.get("riskplan.run_dir")
+                if run_dir:
+                    self.by_dir.setdefault(run_dir, []).append(run)
+            token = page.token
+            if not token:
+                break
+
+    def write(self, rec: Record) -> Exported:
+        from mlflow.entities import Metric, Param
+        from mlflow.utils.validation import (MAX_METRICS_PER_BATCH, MAX_PARAM_VAL_LENGTH,
+                                             MAX_PARAMS_TAGS_PER_BATCH, MAX_TAG_VAL_LENGTH)
+
+        old = self.by_dir.get(rec.tags["riskplan.run_dir"], [])
+        same = [r for r in old if r.data.tags.get("riskplan.fingerprint") == rec.fingerprint
+                and r.info.status == "FINISHED"]
+        if same:
+            keep = same[0]
+            for r in old:
+                if r is not keep:
+                    self.client.delete_run(r.info.run_id)
+            for key in ("riskplan.group",):  # depends on which runs were exported together
+                if keep.data.tags.get(key) != rec.tags[key]:
+                    self.client.set_tag(keep.info.run_id, key, rec.tags[key])
+            self.by_dir[rec.tags["riskplan.run_dir"]] = [keep]
+            return Exported(rec.path, "unchanged", f"mlflow run {keep.info.run_id}")
+        for r in old:
+            self.client.delete_run(r.info.run_id)
+        tags = {k: v[:MAX_TAG_VAL_LENGTH] for k, v in rec.tags.items() if k != "riskplan.fingerprint"}
+        run = self.client.create_run(self.experiment_id, start_time=int(rec.start * 1000), tags=tags,
+                                     run_name=rec.name)
+        run_id = run.info.run_id
+        params = [Param(k, v[:MAX_PARAM_VAL_LENGTH]) for k, v in rec.params.items()]
+        for i in range(0, len(params), MAX_PARAMS_TAGS_PER_BATCH):
+            self.client.log_batch(run_id, params=params[i:i + MAX_PARAMS_TAGS_PER_BATCH])
+        metrics = [Metric(key, value, int(round(t * 1000)), step) for key, step, value, t in rec.points]
+        for i in range(0, len(metrics), MAX_METRICS_PER_BATCH):
+            self.client.log_batch(run_id, metrics=metrics[i:i + MAX_METRICS_PER_BATCH])
+        # the fingerprint last: a run cut short by an error is never taken for a finished export
+        self.client.set_tag(run_id, "riskplan.fingerprint", rec.fingerprint)
+        self.client.set_terminated(run_id, "FINISHED", end_time=int(round(rec.end * 1000)))
+        self.by_dir[rec.tags["riskplan.run_dir"]] = []
+        return Exported(rec.path, "replaced" if old else "exported", f"mlflow run {run_id}")
+
+
+# ------------------------------------------------------------------------------------------- TensorBoard
+def tensorboard_name(path: Path) -> str:
+    """The run's subdirectory of the log directory: its name (file-name safe) and a hash of its full path."""
+    safe = re.sub(r"[^A-Za-z0-9._=,+-]", "_", path.name).strip(".") or "run"
+    digest = hashlib.sha256(str(path).encode()).hexdigest()[:8]
+    return f"{safe[:100]}-{digest}"
+
+
+def _text_table(tags: dict[str, str]) -> str:
+    rows = "\n".join(f"| {k} | {v.replace('|', '/')} |" for k, v in tags.items())
+    return f"| tag | value |\n| --- | --- |\n{rows}\n"
+
+
+class TensorboardTarget:
+    """A TensorBoard log directory: one subdirectory of event files per run."""
+
+    def __init__(self, logdir: str) -> None:
+        self.logdir = Path(logdir)
+
+    def write(self, rec: Record) -> Exported:
+        name = tensorboard_name(rec.path)
+        target = self.logdir / name
+        marker = {"run_dir": str(rec.path), "fingerprint": rec.fingerprint, "group": rec.group,
+                  "version": EXPORT_VERSION}
+        existed = target.exists()
+        if existed:
+            try:
+                old = json.loads((target / MARKER).read_text())
+            except (OSError, ValueError):
+                raise Skip(f"{target} exists and was not written by riskplan export; move it away") from None
+            if old == marker:
+                return Exported(rec.path, "unchanged", str(target))
+        self.logdir.mkdir(parents=True, exist_ok=True)
+        tmp = self.logdir / f".{name}.tmp-{os.getpid()}"
+        trash = self.logdir / f".{name}.old-{os.getpid()}"
+        try:
+            shutil.rmtree(tmp, ignore_errors=True)
+            tmp.mkdir()
+            self._events(tmp, name, rec)
+            write_atomic(tmp / MARKER, json.dumps(marker, indent=2) + "\n")
+            if existed:
+                os.replace(target, trash)
+            os.replace(tmp, target)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            if trash.exists() and not target.exists():
+                os.replace(trash, target)  # the previous export stays
+            raise
+        shutil.rmtree(trash, ignore_errors=True)
+        return Exported(rec.path, "replaced" if existed else "exported", str(target))
+
+    @staticmethod
+    def _events(directory: Path, name: str, rec: Record) -> None:
+        from tensorboard.compat.proto.event_pb2 import Event
+        from tensorboard.compat.proto.summary_pb2 import Summary
+        from tensorboard.plugins.hparams import summary_v2 as hparams
+        from tensorboard.plugins.text import summary_v2 as text
+        from tensorboard.summary.writer.event_file_writer import EventFileWriter
+
+        writer = EventFileWriter(str(directory), max_queue_size=1024, flush_secs=3600)
+        try:
+            values = {k: (v if isinstance(v, (bool, int, float, str)) else json.dumps(v))
+                      for k, v in flatten(rec.config).items()}
+            values["riskplan.group"] = rec.group
+            writer.add_event(Event(wall_time=rec.start, step=0,
+                                   summary=hparams.hparams_pb(values, trial_id=name, start_time_secs=int(rec.start))))
+            writer.add_event(Event(wall_time=rec.start, step=0, summary=text.text_pb("riskplan/run",
+                                                                                      _text_table(rec.tags))))
+            by_step: dict[int, list] = {}
+            for key, step, value, t in rec.points:
+                by_step.setdefault(step, []).append((key, value, t))
+            for step in sorted(by_step):
+                items = by_step[step]
+                writer.add_event(Event(wall_time=max(t for _, _, t in items), step=step, summary=Summary(
+                    value=[Summary.Value(tag=key, simple_value=value) for key, value, _ in items])))
+        finally:
+            writer.close()
+
+
+# ------------------------------------------------------------------------------------------- Foxglove
+class FoxgloveTarget:
+    """foxglove_layout.json in each run directory."""
+
+    def write(self, rec: Record) -> Exported:
+        path = rec.path / LAYOUT_FILE
+        text = json.dumps(layout_for(rec.config), indent=2) + "\n"
+        with contextlib.suppress(OSError):
+            if path.read_text(encoding="utf-8") == text:
+                return Exported(rec.path, "unchanged", str(path))
+        existed = path.exists()
+        write_atomic(path, text)
+        return Exported(rec.path, "replaced" if existed else "exported", str(path))
+
+
+# ------------------------------------------------------------------------------------------- the command's work
+def _store_errors(target: str) -> tuple[type[BaseException], ...]:
+    """What a failure to write the destination raises: OSError, and MLflow's own exception."""
+    if target == "mlflow":
+        from mlflow.exceptions import MlflowException
+
+        return OSError, MlflowException, ImportError  # ImportError: a store that needs the full mlflow
+    return (OSError,)
+
+
+def prepare(to: str | None, uri: str | None) -> tuple[str, str]:
+    """Check --to, --uri and the optional package, writing nothing: (target, destination)."""
+    target = check_target(to)
+    destination = check_uri(target, uri)
+    check_installed(target)
+    return target, destination
+
+
+def export_runs(paths: list[Path], to: str | None, uri: str | None = None, *, experiment: str = EXPERIMENT,
+                echo: Callable[[Exported], None] | None = None) -> ExportResult:
+    """Export every run under `paths`. BadInput (nothing written) for a bad --to or --uri, a missing package or a
+    path without runs; ExportFailed when the destination cannot be written."""
+    target, destination = prepare(to, uri)
+    if not paths:
+        raise BadInput("DIRS", "give one or more run, sweep or reproduce directories, e.g. riskplan export "
+                               f"outputs/runs --to {target}")
+    coll = collect([Path(p) for p in paths])
+    result = ExportResult(target, destination or "each run directory")
+    result.skipped = list(coll.broken) + [Broken(Path(land.path), "a landscape, not a training run")
+                                          for land in coll.landscapes]
+    if not coll.runs:
+        return result
+    try:
+        with file_store_allowed(destination):
+            writer = {"mlflow": lambda: MlflowTarget(destination, experiment),
+                      "tensorboard": lambda: TensorboardTarget(destination),
+                      "foxglove": FoxgloveTarget}[target]()
+            for info in coll.runs:
+                try:
+                    done = writer.write(run_record(info))
+                except Skip as err:
+                    result.skipped.append(Broken(info.path, str(err)))
+                    continue
+                result.done.append(done)
+                if echo is not None:
+                    echo(done)
+    except _store_errors(target) as err:  # the store failed (disk full, permissions, a server): one line
+        text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ExportFailed(f"{target} {destination or ''}: could not be written ({type(err).__name__}: "
+                           f"{text})".replace("  ", " ")) from None
+    return result

@@ -1,0 +1,209 @@
+"""The Hydra application: one task function serves `riskplan train` (a run) and `riskplan sweep` (a multirun).
+
+Going through Hydra's own main gives users what they expect of a Hydra app: `.hydra/` in every run directory,
+`--cfg job`, `hydra.run.dir`, sweepers and launchers (joblib, submitit, ray).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import logging
+import re
+import sys
+import traceback
+from pathlib import Path
+
+import hydra
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import DictConfig
+
+from riskplan.config import schema
+from riskplan.util.errors import BadInput
+from riskplan.util.paths import write_atomic
+
+CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")  # absolute: riskplan/conf is a symlinked data dir
+STATUS = "status.json"  # written in every job directory: {"status": "done" | "failed", "error": ...}
+_failure: list[str] = []  # the last single run's failure, for when status.json cannot be written (a full disk)
+_task_stderr: list = []  # the terminal's stderr, handed back to the task while Hydra's own output is captured
+
+
+@hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
+def task(cfg: DictConfig) -> float | None:
+    """Train one job in Hydra's output directory; record success or failure in status.json."""
+    from riskplan.run.training import NumericalTrouble, train
+
+    out = Path(HydraConfig.get().runtime.output_dir)
+    single = HydraConfig.get().mode == RunMode.RUN
+    if not single:  # a sweep job: skips itself when finished, resumes when killed, logs to its own folder
+        from riskplan.experiments.sweep_worker import sweep_job
+
+        return sweep_job(cfg, out)
+    _failure.clear()
+    stderr = _task_stderr[-1] if _task_stderr else sys.stderr
+    with contextlib.redirect_stderr(stderr):
+        try:
+            write_status(out, "running", None)
+            with _progress(single) as progress:
+                run = train(cfg, out, progress=progress)
+        except (BadInput, NumericalTrouble) as err:
+            return _failed(out, str(err))
+        except OSError as err:  # a full disk, a directory removed under the run
+            where = f" {err.filename}" if err.filename else ""
+            return _failed(out, f"cannot write{where}: {err.strerror or err}; free space, then riskplan train "
+                                f"--resume {out}")
+        except Exception as err:  # a job that raises fails alone; its status records why, the others go on
+            return _failed(out, f"{type(err).__name__}: {err}", traceback.format_exc())
+        write_status(out, "done", None)
+    return run.summary["cvar"]["value"]
+
+
+def _failed(out: Path, error: str, trace: str | None = None) -> None:
+    """Record a single run's failure: in status.json if the disk takes it, and for the CLI in any case."""
+    _failure.append(error)
+    with contextlib.suppress(OSError):
+        write_status(out, "failed", error, trace)
+    return None
+
+
+def last_failure() -> str | None:
+    """The error of the last single run in this process that failed, if any."""
+    return _failure[-1] if _failure else None
+
+
+def run_hydra(args: list[str], capture: bool = False) -> None:
+    """Call the Hydra app as if `riskplan <args>` were its command line.
+
+    With `capture`, what Hydra itself prints on stderr (it prints a traceback for an error outside the task, e.g.
+    a full disk while it writes .hydra/) is held back, and a failure becomes one line (RunFailed); the task gets
+    the real stderr back for its progress bar.
+    """
+    schema.register()
+    GlobalHydra.instance().clear()
+    argv = sys.argv
+    sys.argv = ["riskplan", *args]
+    held = io.StringIO()
+    _task_stderr.append(sys.stderr)
+    logs = _logging_state()
+    try:
+        with contextlib.redirect_stderr(held) if capture else contextlib.nullcontext(), \
+                _without_repeat_compositions(multirun="-m" in args or "--multirun" in args):
+            task()
+    except SystemExit as stop:
+        if not capture or stop.code in (0, None):
+            raise
+        raise RunFailed(_last_error(held.getvalue())) from None
+    finally:
+        _task_stderr.pop()
+        sys.argv = argv
+        GlobalHydra.instance().clear()
+        _restore_logging(logs)
+        if capture and held.getvalue() and not isinstance(sys.exc_info()[1], RunFailed):
+            sys.stderr.write(held.getvalue())
+
+
+def run_composed(config: DictConfig) -> None:
+    """Hydra's single run of a config riskplan composed and checked already, with its hydra node (config.compose
+    with_hydra=True): what `Hydra.run` does after composing, so the config is not composed a second time (0.1 s of
+    `riskplan train`'s start). The run's directory is hydra.run.dir; `.hydra/`, logging and callbacks are Hydra's.
+    A failure outside the task (Hydra cannot write `.hydra/`: a full disk) is RunFailed, one line."""
+    from hydra._internal.callbacks import Callbacks
+    from hydra.core.utils import configure_log, run_job
+    from hydra.types import HydraContext
+    from omegaconf import open_dict
+
+    with open_dict(config.hydra):
+        config.hydra.mode = RunMode.RUN
+    _task_stderr.append(sys.stderr)
+    logs = _logging_state()
+    try:
+        configure_log(config.hydra.hydra_logging, config.hydra.verbose)
+        callbacks = Callbacks(config)
+        callbacks.on_run_start(config=config, config_name="config")
+        done = run_job(hydra_context=HydraContext(config_loader=None, callbacks=callbacks),
+                       task_function=task.__wrapped__, config=config, job_dir_key="hydra.run.dir",
+                       job_subdir_key=None)
+        callbacks.on_run_end(config=config, config_name="config", job_return=done)
+        done.return_value  # noqa: B018 - raises what the task raised (it records its own failures)
+    except Exception as err:  # noqa: BLE001 - outside the task: Hydra's own writes
+        raise RunFailed(f"{type(err).__name__}: {err}") from None
+    finally:
+        _task_stderr.pop()
+        _restore_logging(logs)
+
+
+@contextlib.contextmanager
+def _without_repeat_compositions(multirun: bool):
+    """Skip two compositions Hydra repeats that riskplan has already done: `Hydra.get_mode` composes the config
+    only to read hydra.mode (riskplan's commands fix the mode: train runs, sweep multiruns), and the basic sweeper
+    composes every job once more to validate it (`plan_sweep` composed and validated each one, and Hydra's own
+    comment there calls it slow for large sweeps). Each takes 0.07-0.1 s: per job, in a sweep's driver.
+
+    Both are Hydra internals (hydra-core is pinned to 1.3.x): if they move, nothing is skipped. Optimising
+    sweepers (optuna) choose their own jobs, so they still validate them."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra._internal.hydra import Hydra
+
+    mode = RunMode.MULTIRUN if multirun else RunMode.RUN
+    replacements = {(Hydra, "get_mode"): lambda *args, **kwargs: mode,
+                    (BasicSweeper, "validate_batch_is_legal"): lambda *args, **kwargs: None}
+    originals = {key: key[0].__dict__.get(key[1]) for key in replacements if hasattr(*key)}
+    try:
+        for owner, name in originals:
+            setattr(owner, name, replacements[owner, name])
+        yield
+    finally:
+        for (owner, name), own in originals.items():
+            if own is None:  # inherited (Sweeper's): uncover it again
+                delattr(owner, name)
+            else:
+                setattr(owner, name, own)
+
+
+def _logging_state() -> dict:
+    """The level and handlers of the root logger and of every named logger, before Hydra configures logging."""
+    loggers = [logging.getLogger()] + [logging.getLogger(name) for name in logging.root.manager.loggerDict]
+    return {logger: (logger.level, list(logger.handlers), logger.propagate) for logger in loggers}
+
+
+def _restore_logging(state: dict) -> None:
+    """Undo Hydra's logging set-up: its handlers (the run's app.log, a console bound to this call's stdout) are
+    closed, so a later log record in this process (a notebook, a test) never writes to a closed stream or a run's
+    log file."""
+    for logger in [logging.getLogger()] + [logging.getLogger(name) for name in logging.root.manager.loggerDict]:
+        level, handlers, propagate = state.get(logger, (logging.NOTSET, [], True))
+        for handler in logger.handlers:
+            if handler not in handlers:
+                handler.close()
+        logger.handlers[:] = handlers
+        logger.setLevel(level)
+        logger.propagate = propagate
+
+
+class RunFailed(RuntimeError):
+    """Hydra stopped a single run outside the task (it could not write the run directory)."""
+
+
+def _last_error(text: str) -> str:
+    """The exception line of what Hydra printed (`OSError: [Errno 28] No space left on device: ...`)."""
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    errors = [line for line in lines if re.match(r"^[\w.]*(Error|Exception)\b.*:", line)]
+    return errors[-1] if errors else (lines[-1] if lines else "Hydra stopped without a message")
+
+
+def write_status(out: Path, status: str, error: str | None, trace: str | None = None) -> None:
+    """Write the run's status file atomically (never a zero-byte or half file)."""
+    record = {"status": status, "error": error}
+    if trace:
+        record["traceback"] = trace
+    write_atomic(Path(out) / STATUS, json.dumps(record, indent=2))
+
+
+def _progress(enabled: bool):
+    """A rich progress bar for a single run; silent inside sweeps (the sweep shows its own view)."""
+    from riskplan.util.progress import TrainingBar, silent
+
+    return TrainingBar() if enabled else silent()

@@ -1,0 +1,245 @@
+"""Output directories of `riskplan report` and `riskplan landscape`: owned through a manifest, written atomically.
+
+Ownership. Each of these commands writes `.riskplan-manifest.json` into its output directory, listing every file
+it writes there (relative paths) and which command wrote them. A directory is accepted as `--out` when it is
+missing or empty, or when it holds that command's manifest and nothing but the files listed in it (plus leftovers
+of an interrupted atomic write). Anything else is refused (BadInput, before anything is written), so a report never
+overwrites files riskplan did not write. The manifest is written first, before any other file, so a run that is
+interrupted half-way still owns its directory and can be re-run into it.
+
+Directories written before manifests existed are recognised by their contents (a report: riskplan's report.html
+and only the report's own file names; a landscape: its summary.json with "kind": "landscape" and only the
+landscape's own files).
+
+Atomicity. Every file is written through riskplan.util.paths.atomic_path: a reader (or a full disk) sees the old file or
+the new one, never half of one, and a failed write leaves no temp file. A failed write raises WriteFailed, one line
+naming the file (the CLI prints it and exits 1).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+from pathlib import Path
+from typing import Callable, Iterable
+
+from riskplan.util.errors import BadInput
+from riskplan.util.paths import atomic_path, check_output_dir
+
+MANIFEST = ".riskplan-manifest.json"
+TEMP = re.compile(r"\..+\.\d+\.tmp")  # what paths.atomic_path leaves behind when the process is killed
+REPORT_FIGURES = re.compile(r"(fig1_paths|fig2_cvar|fig3_team|fig4_consensus|reward_distribution|risk_frontier|"
+                            r"team_thetas|landscape(_\d+)?)\.(png|pdf|svg)")
+REPORT_TABLES = {"report.html", "report.csv", "runs.csv", "landscape.csv"}
+LANDSCAPE_FILES = {".hydra/config.yaml", ".hydra/overrides.yaml", "landscape.parquet", "summary.json",
+                   "status.json"}
+
+
+class WriteFailed(OSError):
+    """A file of the report or landscape could not be written (a full disk, a read-only mount, ...)."""
+
+
+def _entries(root: Path) -> tuple[list[str], list[str]]:
+    """(files, directories) below root, as relative POSIX paths; symlinks count as files."""
+    files, dirs = [], []
+    for base, subdirs, names in os.walk(root):
+        rel = Path(base).relative_to(root)
+        for d in list(subdirs):
+            if (Path(base) / d).is_symlink():
+                files.append((rel / d).as_posix())
+                subdirs.remove(d)
+            else:
+                dirs.append((rel / d).as_posix())
+        files.extend((rel / n).as_posix() for n in names)
+    return sorted(files), sorted(dirs)
+
+
+def read_manifest(out: Path) -> dict | None:
+    """The manifest in out, or None when there is none; BadInput-free: a damaged one reads as {}."""
+    file = Path(out) / MANIFEST
+    if not file.exists() and not file.is_symlink():
+        return None
+    try:
+        data = json.loads(file.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    if not (isinstance(data, dict) and isinstance(data.get("files"), list)
+            and all(isinstance(f, str) for f in data["files"])):
+        return {}
+    return data
+
+
+def _is_temp(name: str) -> bool:
+    return TEMP.fullmatch(Path(name).name) is not None
+
+
+def _legacy(kind: str, out: Path, files: list[str], dirs: list[str]) -> bool:
+    """A directory this command wrote before it wrote manifests."""
+    if kind == "report":
+        page = out / "report.html"
+        try:
+            with open(page, encoding="utf-8", errors="replace") as handle:
+                head = handle.read(2000)
+        except OSError:
+            return False
+        return (not dirs and not page.is_symlink() and head.startswith("<!DOCTYPE html>")
+                and "<title>riskplan report</title>" in head
+                and all(f in REPORT_TABLES or REPORT_FIGURES.fullmatch(f) or _is_temp(f) for f in files))
+    if kind == "landscape":
+        try:
+            summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return False
+        return (isinstance(summary, dict) and summary.get("kind") == "landscape" and set(dirs) <= {".hydra"}
+                and all(f in LANDSCAPE_FILES or _is_temp(f) for f in files))
+    return False
+
+
+def claim(out: Path | str, kind: str, key: str) -> list[str] | None:
+    """Check that `riskplan <kind>` may write into `out`; BadInput naming `key` (e.g. --out) otherwise.
+
+    Returns the files a previous run of the same command listed in its manifest (None for a new directory).
+    Nothing is written.
+    """
+    check_output_dir(out, key)
+    out = Path(out)
+    if not out.exists():
+        return None
+    files, dirs = _entries(out)
+    if not files and not dirs:
+        return None
+    manifest = read_manifest(out)
+    if manifest is None:
+        if _legacy(kind, out, files, dirs):
+            return [f for f in files if not _is_temp(f)]
+        foreign = [f for f in files if not _is_temp(f)] or dirs or files
+        raise BadInput(key, f"{out} holds files riskplan {kind} did not write ({_examples(foreign)}); give a new "
+                            f"or empty directory, or one a previous riskplan {kind} wrote")
+    if not manifest or not isinstance(manifest.get("kind"), str):
+        raise BadInput(key, f"{out} holds a damaged {MANIFEST} (not the list riskplan writes); give a new or empty "
+                            f"directory")
+    if manifest["kind"] != kind:
+        raise BadInput(key, f"{out} holds the output of riskplan {_examples([manifest['kind']])}; give riskplan "
+                            f"{kind} a directory of its own")
+    listed = {f for f in manifest["files"] if _safe(f)}
+    parents = {p.as_posix() for f in listed for p in Path(f).parents if p.as_posix() != "."}
+    foreign = [f for f in files if f != MANIFEST and f not in listed and not _is_temp(f)]
+    foreign += [d for d in dirs if d not in parents]
+    foreign += [f for f in files if f in listed and ((out / f).is_symlink() or not (out / f).is_file())]
+    if foreign:
+        raise BadInput(key, f"{out} holds files riskplan {kind} did not write ({_examples(sorted(set(foreign)))}); "
+                            f"give a new or empty directory, or remove them")
+    return sorted(listed)
+
+
+def _safe(name: str) -> bool:
+    """A manifest entry that stays inside the directory."""
+    p = Path(name)
+    return bool(name) and not p.is_absolute() and ".." not in p.parts and name != MANIFEST and "\x00" not in name
+
+
+def _examples(names: list[str]) -> str:
+    shown = ", ".join(repr(n)[1:-1] for n in names[:3])
+    return shown + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+
+class Output:
+    """Atomic writes into an output directory claimed by `claim`, under a manifest.
+
+        output = Output(out, "report", previous)   # previous: what claim() returned
+        output.begin(["report.html", ...])          # writes the manifest (old and new files) first
+        output.write("report.html", text)           # atomically, WriteFailed on failure
+        output.finish()                             # drops files of the previous run not written again
+    """
+
+    def __init__(self, out: Path | str, kind: str, previous: list[str] | None):
+        self.out = Path(out)
+        self.kind = kind
+        self.previous = list(previous or [])
+        self.planned: list[str] = []
+        self.created = False
+
+    def _fail(self, name: str, err: OSError) -> WriteFailed:
+        why = err.strerror or str(err) or type(err).__name__
+        return WriteFailed(f"{self.out / name}: could not be written ({why}); files written before are complete, "
+                           f"none is half-written; free space or fix the directory and run the command again")
+
+    def begin(self, planned: Iterable[str]) -> None:
+        """Create the directory and write the manifest listing the previous and the planned files."""
+        self.planned = list(dict.fromkeys(planned))
+        try:
+            if not self.out.exists():
+                self.out.mkdir(parents=True)
+                self.created = True
+        except OSError as err:
+            raise self._fail("", err) from None
+        self._manifest(sorted(set(self.previous) | set(self.planned)))
+
+    def _manifest(self, files: list[str]) -> None:
+        from riskplan.version import __version__
+
+        data = json.dumps({"kind": self.kind, "written_by": f"riskplan {self.kind} {__version__}",
+                           "files": files}, indent=1)
+        self.write(MANIFEST, data)
+
+    def path(self, name: str) -> contextlib.AbstractContextManager[Path]:
+        """Context manager yielding a temp path to write `name` to (renamed into place at the end)."""
+        return _guarded(self, name)
+
+    def write(self, name: str, data: str | bytes) -> None:
+        with self.path(name) as tmp:
+            if isinstance(data, str):
+                tmp.write_text(data, encoding="utf-8")
+            else:
+                tmp.write_bytes(data)
+
+    def write_with(self, name: str, writer: Callable[[Path], object]) -> None:
+        """Write `name` by calling writer(temp path), e.g. lambda p: table.to_parquet(p)."""
+        with self.path(name) as tmp:
+            writer(tmp)
+
+    @contextlib.contextmanager
+    def writing(self, names: list[str]):
+        """Plan `names`; the block writes them, then the previous run's leftovers go. A failure removes what this
+        run created and is one WriteFailed line (a full disk, ...)."""
+        try:
+            self.begin(names)
+            yield self
+            self.finish()
+        except OSError as err:
+            self.abandon()
+            if not isinstance(err, WriteFailed):
+                raise self._fail("", err) from None
+            raise
+
+    def finish(self) -> None:
+        """Remove files of the previous run that this one did not write again; the manifest lists this run's."""
+        for name in set(self.previous) - set(self.planned):
+            target = self.out / name
+            if _safe(name) and target.is_file() and not target.is_symlink():
+                with contextlib.suppress(OSError):
+                    target.unlink()
+        self._manifest(sorted(self.planned))
+
+    def abandon(self) -> None:
+        """After a failure: a directory this run created and left empty is removed."""
+        if self.created:
+            with contextlib.suppress(OSError):
+                for name in (MANIFEST,) if set(os.listdir(self.out)) == {MANIFEST} else ():
+                    (self.out / name).unlink()
+                self.out.rmdir()
+
+
+@contextlib.contextmanager
+def _guarded(output: Output, name: str):
+    target = output.out / name
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(target) as tmp:
+            yield tmp
+    except OSError as err:
+        if isinstance(err, WriteFailed):
+            raise
+        raise output._fail(name, err) from None

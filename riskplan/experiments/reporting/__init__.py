@@ -1,0 +1,130 @@
+"""`riskplan report`: the paper's figures, tables, the objective landscape and a self-contained report.html.
+
+    build_report([Path("outputs/sweeps/...")], Path("report"), ["png", "pdf"]) -> Path("report/report.html")
+
+The report reads the runs' tables (parquet, or rebuilt from run.mcap when missing) and never re-simulates.
+Broken or partial runs are listed with the reason and skipped; a path holding no run at all is BadInput.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+from pathlib import Path
+
+from riskplan.util.errors import BadInput
+
+FORMATS = ("png", "pdf", "svg")
+DEFAULT_FORMATS = ("png", "pdf")
+
+REPRODUCE_ROOT = Path("outputs") / "reproduce"  # where riskplan reproduce claims its folders
+REPORTS_ROOT = Path("outputs") / "reports"
+LANDSCAPES_ROOT = Path("outputs") / "landscapes"
+
+
+def latest_reproduction(root: Path = REPRODUCE_ROOT) -> Path:
+    """The newest folder in outputs/reproduce/ (names are timestamps; ties broken by modification time)."""
+    folders = [p for p in root.iterdir() if p.is_dir()] if root.is_dir() else []
+    if not folders:
+        raise BadInput(str(root), "holds no reproduction; run `riskplan reproduce` first or give run or sweep "
+                                  "directories: riskplan report DIR...")
+    return max(folders, key=lambda p: (p.name, p.stat().st_mtime))
+
+
+def default_out(paths: list[Path]) -> Path:
+    """<path>/report for one input path, else outputs/reports/<timestamp>/."""
+    if len(paths) == 1:
+        return paths[0] / "report"
+    return REPORTS_ROOT / dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+
+
+def check_formats(formats: list[str] | str) -> list[str]:
+    """Normalise and validate figure formats ('png,pdf' or a list)."""
+    if isinstance(formats, str):
+        formats = formats.split(",")
+    out = [f.strip().lower().lstrip(".") for f in formats if f.strip()]
+    bad = [f for f in out if f not in FORMATS]
+    if bad or not out:
+        raise BadInput("--format", f"got {','.join(formats) or 'nothing'}; expected a comma-separated subset of "
+                                   f"{','.join(FORMATS)}, e.g. png,pdf")
+    return list(dict.fromkeys(out))
+
+
+@dataclass
+class Report:
+    """What write_report made: the page, the collection it drew from, the figure names and those not drawn."""
+
+    page: Path
+    collection: object  # riskplan.experiments.reporting.collect.Collection
+    figures: list[str]
+    skipped: dict[str, str]
+
+
+def build_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS,
+                 key: str = "out_dir") -> Path:
+    """Find the runs under `paths`, write figures, report.csv, runs.csv and report.html to out_dir; return the page.
+
+    Raises BadInput (before writing anything) for a path that holds no run, for an unknown format, or for an
+    out_dir riskplan may not write into (see riskplan.experiments.output_manifest; `key` names it in the message). Raises
+    WriteFailed (an OSError, one line) when a file cannot be written: every file is written atomically.
+    """
+    return write_report(paths, out_dir, formats, key).page
+
+
+def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS,
+                 key: str = "out_dir") -> Report:
+    """build_report, returning what was made (for the CLI's listing)."""
+    from riskplan.experiments.reporting.collect import collect
+    from riskplan.experiments.reporting.figures import figure_files, make_figures
+    from riskplan.experiments.output_manifest import Output, claim
+    from riskplan.experiments.reporting.page import render
+    from riskplan.experiments.reporting.parallel import shared_map
+    from riskplan.experiments.reporting.tables import comparison_table, csv_text, landscape_table, runs_table, soft_risk_table
+
+    from riskplan.run.results import find_runs
+
+    formats = check_formats(list(formats))
+    find_runs([Path(p) for p in paths])  # the inputs first (a missing path, one without runs), then --out
+    previous = claim(out_dir, "report", key)  # before reading any run: a bad --out is refused at once
+    coll = collect([Path(p) for p in paths])
+    comparison = comparison_table(coll)
+    runs = runs_table(coll)
+    landscapes = landscape_table(coll)
+    soft = soft_risk_table(coll)
+    specs, skipped = make_figures(coll)
+    try:
+        # every figure drawn to bytes first, on all CPUs (a figure's size is a fair guess of its cost); the files
+        # are then written here, in order
+        drawn = shared_map(lambda spec: figure_files(spec, formats), specs,
+                           cost=lambda spec: spec.figure.get_size_inches().prod())
+    finally:
+        for spec in specs:
+            spec.figure.clear()
+    figures = []
+    for spec, files in zip(specs, drawn):
+        if isinstance(files, str):
+            skipped[spec.name] = files
+        else:
+            figures.append((spec, files))
+
+    output = Output(out_dir, "report", previous)
+    tables = ["report.csv", "runs.csv"] + ([] if landscapes.empty else ["landscape.csv"]) + (
+        [] if soft.empty else ["soft_risk.csv"])
+    with output.writing([f"{spec.name}.{fmt}" for spec, _ in figures for fmt in formats] + tables + ["report.html"]):
+        for spec, files in figures:
+            for fmt in formats:
+                output.write(f"{spec.name}.{fmt}", files[fmt])
+        output.write("report.csv", csv_text(comparison))
+        output.write("runs.csv", csv_text(runs))
+        if not landscapes.empty:
+            output.write("landscape.csv", csv_text(landscapes))
+        if not soft.empty:
+            output.write("soft_risk.csv", csv_text(soft))
+        output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes, soft))
+    return Report(output.out / "report.html", coll, [spec.name for spec, _ in figures], skipped)
+
+
+from riskplan.experiments.output_manifest import WriteFailed  # noqa: E402 - re-exported
+
+__all__ = ["build_report", "write_report", "Report", "WriteFailed", "check_formats", "FORMATS",
+           "DEFAULT_FORMATS"]

@@ -1,0 +1,467 @@
+"""Find the runs under some directories, load them, skip the broken ones, and group them by what differs.
+
+A *group* is a set of runs whose configs agree on every key but `seed`: the seeds of one experimental condition.
+Groups are labelled by the fewest differing keys that tell them apart (risk measure, beta, team size, graph, ...).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from riskplan.util.errors import BadInput
+from riskplan.run.results import TABLES, Run, find_runs, load_run
+from riskplan.config.schema import ScheduleConf
+
+# Keys that never define a condition: the seeds of one condition are pooled.
+IGNORED_KEYS = ("seed",)
+# Keys tried first when labelling groups (in this order); the rest follow alphabetically.
+LABEL_PRIORITY = ("risk.measure", "risk.beta", "risk.schedule.kind", "team.robots", "team.graph", "team.weights", "team.delay.max",
+                  "team.drop", "team.consensus_rounds", "train.samples", "train.theta0", "experiment")
+# Okabe-Ito palette (colour-blind safe); the paper's pair is blue (risk-neutral) and black (risk-averse).
+PALETTE = ("#0072B2", "#000000", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#E69F00", "#999999")
+AVERAGE = -1  # robot id of a team's network average
+SCHEDULE_DEFAULTS = {f"risk.schedule.{k}": v for k, v in dataclasses.asdict(ScheduleConf()).items()}
+
+
+@dataclass
+class RunInfo:
+    """A usable (complete) training run."""
+
+    run: Run
+    flat: dict[str, Any]
+    rebuilt: bool  # tables were rebuilt from run.mcap
+    group: "Group | None" = None
+
+    @property
+    def path(self) -> Path:
+        return self.run.path
+
+    @property
+    def config(self) -> dict:
+        return self.run.config
+
+    @property
+    def seed(self) -> int:
+        return int(self.config.get("seed", 0))
+
+    @property
+    def robots(self) -> int:
+        return int(self.config.get("team", {}).get("robots", 1))
+
+    @property
+    def headline(self) -> int:
+        """The robot id whose figures stand for the run: 0 (centralized) or the network average -1 (team)."""
+        if self.run.summary and "headline_robot" in self.run.summary:
+            return int(self.run.summary["headline_robot"])
+        return AVERAGE if self.robots > 1 else 0
+
+    def metrics_of(self, robot: int | None = None) -> pd.DataFrame:
+        """Metrics rows of one robot (default: the headline), sorted by iteration."""
+        robot = self.headline if robot is None else robot
+        m = self.run.metrics
+        return m.loc[m.robot == robot].sort_values("iteration")
+
+    def eval_of(self, robot: int | None = None) -> pd.DataFrame:
+        """Evaluation episodes of one robot (default: the headline)."""
+        robot = self.headline if robot is None else robot
+        e = self.run.eval
+        return e.loc[e.robot == robot]
+
+    def final_theta(self) -> list[float]:
+        """The headline policy's final theta (after the last update)."""
+        if self.run.summary and isinstance(self.run.summary.get("theta_final"), list):
+            try:
+                return [math.nan if t is None else float(t) for t in self.run.summary["theta_final"]]
+            except (TypeError, ValueError):
+                pass  # a summary.json not written by riskplan: the metrics table has the same theta
+        last = self.metrics_of().iloc[-1]
+        return [float(last[c]) for c in theta_columns(self.run.metrics)]
+
+
+@dataclass
+class Broken:
+    """A run directory that could not be used, and why."""
+
+    path: Path
+    reason: str
+
+
+@dataclass
+class Group:
+    """The runs (seeds) of one condition."""
+
+    key: tuple
+    runs: list[RunInfo]
+    label: str = ""
+    color: str = PALETTE[0]
+    settings: dict[str, Any] = field(default_factory=dict)  # differing keys -> value
+
+    @property
+    def first(self) -> RunInfo:
+        return self.runs[0]
+
+    @property
+    def config(self) -> dict:
+        return self.first.config
+
+    @property
+    def measure(self) -> str:
+        return str(self.config.get("risk", {}).get("measure", "cvar"))
+
+    @property
+    def beta(self) -> float:
+        return float(self.config.get("risk", {}).get("beta", 0.1))
+
+    @property
+    def schedule(self) -> str:
+        """risk.schedule.kind: none (the paper), linear or exponential."""
+        return str(self.first.flat.get("risk.schedule.kind", "none"))
+
+    @property
+    def robots(self) -> int:
+        return self.first.robots
+
+    @property
+    def team(self) -> bool:
+        return self.robots > 1
+
+    @property
+    def seeds(self) -> list[int]:
+        return [r.seed for r in self.runs]
+
+    @property
+    def slug(self) -> str:
+        """A file-name-safe name."""
+        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in self.label)
+        return "_".join(filter(None, safe.split("_")))[:60] or "group"
+
+
+@dataclass
+class Collection:
+    """Everything found under the report's input paths."""
+
+    inputs: list[Path]
+    runs: list[RunInfo]
+    broken: list[Broken]
+    landscapes: list  # riskplan.experiments.landscape.Landscape
+    groups: list[Group]
+    differing: list[str]  # config keys that differ between groups
+
+    def paper_pair(self) -> tuple[Group | None, Group | None]:
+        """The risk-neutral and risk-averse groups of Figs. 1-2: centralized if any, differing least."""
+        return paper_pair(self.groups)
+
+    def team_comparison(self) -> tuple[Group | None, list[Group]]:
+        """Fig. 3: the centralized group and the distributed groups it is compared with."""
+        teams = [g for g in self.groups if g.team]
+        if not teams:
+            return None, []
+        measures = {g.measure for g in teams}
+        measure = "cvar" if "cvar" in measures else sorted(measures)[0]
+        teams = [g for g in teams if g.measure == measure]
+        central = [g for g in self.groups if not g.team and g.measure == measure]
+        if not central:
+            return None, teams
+        best = min(central, key=lambda c: (sum(_distance(c.first.flat, t.first.flat) for t in teams),
+                                           abs(c.beta - teams[0].beta)))
+        return best, teams
+
+
+def schedule_pairs(groups: list[Group]) -> list[tuple[Group, Group | None]]:
+    """Each soft-risk group (risk.schedule.kind other than none) with the group that differs from it only in
+    risk.schedule.* (its paper-schedule comparator, e.g. reproduce's wander/ for soft_risk/), or None."""
+    def rest(g: Group) -> dict:
+        return {k: v for k, v in g.first.flat.items() if not k.startswith("risk.schedule.")}
+
+    pairs = []
+    for g in groups:
+        if g.schedule == "none" or g.measure != "cvar":
+            continue
+        same = [c for c in groups if c.schedule == "none" and c.measure == "cvar" and rest(c) == rest(g)]
+        pairs.append((g, same[0] if same else None))
+    return pairs
+
+
+def paper_pair(groups: list[Group]) -> tuple[Group | None, Group | None]:
+    """The risk-neutral and risk-averse groups of Figs. 1-2: centralized if any, differing least."""
+    pool = [g for g in groups if not g.team] or list(groups)
+    neutral = [g for g in pool if g.measure == "neutral"]
+    averse = [g for g in pool if g.measure != "neutral"]
+    if neutral and averse:
+        def distance(pair):
+            a, b = pair
+            return (_distance(a.first.flat, b.first.flat), abs(b.beta - a.beta), abs(b.beta - 0.1))
+        return min(((a, b) for a in neutral for b in averse), key=distance)
+    if averse:
+        return None, min(averse, key=lambda g: (abs(g.beta - 0.1), g.label))
+    return (neutral[0] if neutral else None), None
+
+
+def flatten(config: Any, prefix: str = "") -> dict[str, Any]:
+    """Nested dict -> {dotted.key: value}; lists become JSON strings so they compare and hash."""
+    out: dict[str, Any] = {}
+    if isinstance(config, dict):
+        for k, v in config.items():
+            out.update(flatten(v, f"{prefix}{k}."))
+        if not config and prefix:
+            out[prefix[:-1]] = "{}"
+    elif isinstance(config, (list, tuple)):
+        out[prefix[:-1]] = json.dumps(config, sort_keys=True)
+    else:
+        out[prefix[:-1]] = config
+    return out
+
+
+def theta_columns(metrics: pd.DataFrame) -> list[str]:
+    """theta_0, theta_1, ... in numeric order."""
+    cols = [c for c in metrics.columns if c.startswith("theta_") and c[6:].isdigit()]
+    return sorted(cols, key=lambda c: int(c[6:]))
+
+
+def collect(paths: list[Path]) -> Collection:
+    """Find, load and group every run under `paths`; BadInput only for a path that holds no run at all."""
+    from riskplan.experiments.landscape import is_landscape_dir, load_landscape
+
+    inputs = [Path(p) for p in paths]
+    found = find_runs(inputs)  # BadInput for a missing path or one without any run
+    runs: list[RunInfo] = []
+    broken: list[Broken] = []
+    landscapes = []
+    for path in found:
+        if is_landscape_dir(path):
+            try:
+                landscapes.append(load_landscape(path))
+            except Exception as err:  # noqa: BLE001 - a broken landscape is listed, never fatal
+                broken.append(Broken(path, f"landscape: {_reason(err, path)}"))
+            continue
+        info, problem = _load(path)
+        if info is None:
+            broken.append(Broken(path, problem))
+        else:
+            runs.append(info)
+    groups, differing = group_runs(runs)
+    return Collection(inputs, runs, broken, landscapes, groups, differing)
+
+
+def _load(path: Path) -> tuple[RunInfo | None, str]:
+    """Load one run; (None, reason) when it is broken, partial or failed."""
+    failed = _failed_status(path)
+    try:
+        run = load_run(path)
+    except Exception as err:  # noqa: BLE001 - any failure to read a run skips it, with the reason
+        return None, failed or _reason(err, path)
+    if not run.complete:
+        reason = run.problem or "incomplete run"
+        return None, f"{failed}; {reason}" if failed else reason
+    if failed:
+        return None, failed
+    missing = [name for name in ("metrics", "eval") if getattr(run, name) is None or getattr(run, name).empty]
+    if missing:
+        what = {"metrics": "metrics table (no iterations)", "eval": "eval table (no evaluation episodes)"}
+        return None, "empty " + " and ".join(what[m] for m in missing)
+    if not run.config:
+        return None, "no config (.hydra/config.yaml missing and none in run.mcap)"
+    if run.summary is not None and not isinstance(run.summary, dict):
+        return None, "summary.json is not a JSON object (it was not written by riskplan)"
+    problem = config_problem(run.config)
+    if problem:
+        return None, problem
+    rebuilt = not all((path / f"{name}.parquet").is_file() for name in TABLES) or bool(
+        run.problem and "rebuilt" in run.problem)
+    flat = {k: v for k, v in flatten(run.config).items() if k not in IGNORED_KEYS}
+    for key, value in SCHEDULE_DEFAULTS.items():  # runs from before risk.schedule existed ran without one
+        flat.setdefault(key, value)
+    info = RunInfo(run, flat, rebuilt)
+    try:
+        usable = not info.eval_of().empty and not info.metrics_of().empty
+    except (AttributeError, KeyError) as err:
+        return None, f"tables lack a column: {err}"
+    if not usable:
+        return None, f"no metrics or evaluation rows for the headline policy (robot {info.headline})"
+    return info, ""
+
+
+def _failed_status(path: Path) -> str:
+    """The error recorded in status.json by a failed job, or ''."""
+    file = path / "status.json"
+    if not file.is_file():
+        return ""
+    try:
+        status = json.loads(file.read_text())
+    except (OSError, ValueError):
+        return ""
+    if status.get("status") == "failed":
+        return f"job failed: {status.get('error') or 'no reason recorded'}"
+    return ""
+
+
+def _reason(err: BaseException, path: Path | None = None) -> str:
+    """One line for an exception (a path inside the run directory shown relative to it)."""
+    text = str(err).strip().splitlines()[0] if str(err).strip() else ""
+    if not isinstance(err, BadInput):
+        return f"{type(err).__name__}: {text}"
+    if path is not None and err.where.startswith(f"{path}/"):
+        return f"{err.where[len(str(path)) + 1:]}: {err.problem}".replace("\n", "\\n")
+    return text
+
+
+_CHECKED: dict[str, str] = {}  # config (without its seed) as JSON -> problem ('' when fine): seeds share one check
+
+
+def config_problem(config: dict) -> str:
+    """Why a run's config cannot be reported (it fails the schema, or a value the report relies on is out of
+    range), or ''."""
+    from riskplan.config.typed import check_schema
+    from riskplan.run.build import MEASURES
+
+    seed = config.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        return f"config fails the schema: seed is {seed!r}; expected a whole number"
+    try:
+        key = json.dumps({k: v for k, v in config.items() if k != "seed"}, sort_keys=True, default=str)
+    except (TypeError, ValueError):
+        key = None
+    if key is not None and key in _CHECKED:
+        return _CHECKED[key]
+    try:
+        cfg = check_schema(config)
+        risk, robots = cfg.risk, cfg.team.robots
+        if risk.measure not in MEASURES:
+            raise BadInput("risk.measure", f"got '{risk.measure}'; expected one of {', '.join(MEASURES)}")
+        if not 0.0 < risk.beta <= 1.0:
+            raise BadInput("risk.beta", f"got {risk.beta}; expected 0 < beta <= 1")
+        if robots < 1:
+            raise BadInput("team.robots", f"got {robots}; expected a whole number >= 1")
+        problem = ""
+    except BadInput as err:
+        problem = f"config fails the schema: {err}"
+    except Exception as err:  # noqa: BLE001 - whatever the check trips on, the run is skipped, not fatal
+        problem = f"config fails the schema: {_reason(err)}"
+    if key is not None:
+        _CHECKED[key] = problem
+    return problem
+
+
+def _distance(a: dict, b: dict) -> int:
+    """Number of keys on which two flat configs differ."""
+    return sum(1 for k in set(a) | set(b) if a.get(k, _MISSING) != b.get(k, _MISSING))
+
+
+class _Missing:
+    def __repr__(self) -> str:
+        return "(absent)"
+
+
+_MISSING = _Missing()
+
+
+def group_runs(runs: list[RunInfo]) -> tuple[list[Group], list[str]]:
+    """Group runs by every config key but the seed; label and colour the groups."""
+    keys = sorted({k for r in runs for k in r.flat})
+    differing = [k for k in keys if len({_hashable(r.flat.get(k, _MISSING)) for r in runs}) > 1]
+    by_key: dict[tuple, list[RunInfo]] = {}
+    for r in runs:
+        key = tuple(_hashable(r.flat.get(k, _MISSING)) for k in differing)
+        by_key.setdefault(key, []).append(r)
+    groups = []
+    for key, members in by_key.items():
+        members.sort(key=lambda r: (r.seed, str(r.path)))
+        group = Group(key, members, settings={k: members[0].flat.get(k, _MISSING) for k in differing})
+        for r in members:
+            r.group = group
+        groups.append(group)
+    groups.sort(key=lambda g: (g.robots, g.measure != "neutral", g.beta, str(g.key)))
+    _label(groups, differing)
+    _colour(groups)
+    return groups, differing
+
+
+def _hashable(v: Any) -> Any:
+    if isinstance(v, float) and math.isnan(v):
+        return "nan"
+    return v
+
+
+def _label(groups: list[Group], differing: list[str]) -> None:
+    """Label each group by the fewest differing keys (in priority order) that tell the groups apart."""
+    if len(groups) == 1:
+        groups[0].label = _describe(groups[0], ["risk.measure", "team.robots"], single=True)
+        return
+    order = [k for k in LABEL_PRIORITY if k in differing] + [k for k in differing if k not in LABEL_PRIORITY]
+    chosen: list[str] = []
+    distinct = 1
+    for k in order:
+        trial = chosen + [k]
+        count = len({tuple(_hashable(g.settings.get(c, _MISSING)) for c in trial) for g in groups})
+        if count > distinct:
+            chosen, distinct = trial, count
+        if distinct == len(groups):
+            break
+    for g in groups:
+        g.label = _describe(g, chosen)
+    # any residual duplicates (should not happen) get a suffix
+    seen: dict[str, int] = {}
+    for g in groups:
+        if g.label in seen:
+            seen[g.label] += 1
+            g.label = f"{g.label} #{seen[g.label]}"
+        else:
+            seen[g.label] = 1
+
+
+def _describe(group: Group, keys: list[str], single: bool = False) -> str:
+    """Human label from the chosen keys, e.g. 'risk-averse (CVaR β=0.1), distributed N=3'."""
+    parts = []
+    keys = list(keys)
+    if "risk.measure" in keys or "risk.beta" in keys or single:
+        if group.measure == "neutral":
+            parts.append("risk-neutral" + (f" (β={group.beta:g})" if "risk.beta" in keys and
+                                           "risk.measure" not in keys else ""))
+        else:
+            beta = f" β={group.beta:g}" if "risk.beta" in keys or single else ""
+            parts.append(f"risk-averse (CVaR{beta})")
+    if "team.robots" in keys or single:
+        parts.append(f"distributed N={group.robots}" if group.team else "centralized")
+    for k in keys:
+        if k in ("risk.measure", "risk.beta", "team.robots"):
+            continue
+        name = "schedule" if k == "risk.schedule.kind" else k.split(".", 1)[1] if k.startswith(
+            ("team.", "train.", "risk.schedule.")) else k
+        parts.append(f"{name}={_short(group.settings.get(k))}")
+    return ", ".join(parts) or "runs"
+
+
+def _short(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, _Missing):
+        return "(absent)"
+    text = str(v)
+    if text.startswith("["):
+        try:
+            values = json.loads(text)
+            if all(isinstance(x, (int, float)) for x in values):
+                text = "[" + ", ".join(f"{x:g}" for x in values) + "]"
+        except (ValueError, TypeError):
+            pass
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _colour(groups: list[Group]) -> None:
+    """The paper's pair first (risk-neutral blue, risk-averse black), then the palette in order."""
+    neutral, averse = paper_pair(groups)
+    if neutral is not None:
+        neutral.color = PALETTE[0]
+    if averse is not None:
+        averse.color = PALETTE[1]
+    taken = [g for g in (neutral, averse) if g is not None]
+    palette = [c for c in PALETTE if c not in {g.color for g in taken}]
+    for i, g in enumerate(g for g in groups if g not in taken):
+        g.color = palette[i % len(palette)]

@@ -1,0 +1,240 @@
+"""The report's tables, recomputed from the runs' evaluation episodes (never from summaries).
+
+- `comparison_table`: one row per group (condition), the headline policy's final mean, CVaR, VaR at the group's
+  risk.beta, P(risky) and P(source j reached), each with a 95% interval. With one seed the interval is a
+  percentile bootstrap over the evaluation episodes (the run's seed and train.bootstrap, as in summary.json) and
+  a Wilson interval for proportions; with several seeds the point is the across-seed mean and the interval a
+  Student-t interval over the seeds. This is report.csv.
+- `runs_table`: every run found, used or skipped (with the reason).
+- `landscape_table`: per landscape, its optima and how far each group's trained theta ended from them.
+- `soft_risk_table`: per seed, each soft-risk group (risk.schedule) against its twin with the paper's fixed beta.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from riskplan.experiments.reporting.collect import Collection, Group, RunInfo
+from riskplan.experiments.reporting.stats import seed_interval, wilson
+from riskplan.engine.risk_measures import cvar, value_at_risk
+from riskplan.run.intervals import bootstrap_intervals
+
+FIGURES = ("mean", "cvar", "value_at_risk")
+MAX_BOOTSTRAP = 1000
+
+
+def source_names(config: dict) -> list[str]:
+    """Names of the world's sources, as riskplan.engine.world names them."""
+    sources = config.get("world", {}).get("sources", []) or []
+    return [(s.get("name") or f"source_{j}") if isinstance(s, dict) else f"source_{j}" for j, s in enumerate(sources)]
+
+
+def run_values(run: RunInfo, beta: float | None = None) -> dict[str, float]:
+    """Point figures of a run's headline policy from its eval table (at the group's beta unless given)."""
+    beta = run.group.beta if beta is None and run.group is not None else (beta or 0.1)
+    e = run.eval_of()
+    z = e.total_reward.to_numpy(dtype=float)
+    values = {"mean": float(z.mean()), "cvar": cvar(z, beta), "value_at_risk": value_at_risk(z, beta),
+              "risky_fraction": float((e.risky_steps.to_numpy() > 0).mean())}
+    reached = e.source_reached.to_numpy()
+    for j, name in enumerate(source_names(run.config)):
+        values[f"reached_{name}"] = float((reached == j).mean())
+    values["reached_none"] = float((reached < 0).mean())
+    values["episodes"] = int(z.size)
+    return values
+
+
+def run_intervals(run: RunInfo, beta: float, values: dict[str, float]) -> dict[str, tuple[float, float]]:
+    """95% intervals of one run's figures: bootstrap over episodes (figures), Wilson (proportions)."""
+    e = run.eval_of()
+    z = e.total_reward.to_numpy(dtype=float)
+    resamples = int(run.config.get("train", {}).get("bootstrap", MAX_BOOTSTRAP))
+    boot = bootstrap_intervals(z, beta, max(1, min(resamples, MAX_BOOTSTRAP)), run.seed)
+    out = {name: (boot[name]["low"], boot[name]["high"]) for name in FIGURES}
+    for name, p in values.items():
+        if name == "risky_fraction" or name.startswith("reached_"):
+            out[name] = wilson(p * z.size, z.size)
+    return out
+
+
+def group_row(group: Group, beta: float | None = None) -> dict:
+    """One comparison row for a group (optionally at another beta than the group's own)."""
+    beta = group.beta if beta is None else beta
+    per_run = [run_values(r, beta) for r in group.runs]
+    names = [k for k in per_run[0] if k != "episodes"]
+    row: dict = {"group": group.label, "measure": group.measure, "beta": beta, "robots": group.robots,
+                 "policy": "network average" if group.team else "robot 0", "seeds": len(group.runs),
+                 "seed_list": " ".join(str(s) for s in group.seeds),
+                 "eval_episodes": per_run[0]["episodes"]}
+    if len(per_run) == 1:
+        intervals = run_intervals(group.runs[0], beta, per_run[0])
+        row["interval"] = "95% bootstrap over episodes (Wilson for proportions)"
+        for k in names:
+            row[k] = per_run[0][k]
+            row[f"{k}_low"], row[f"{k}_high"] = intervals.get(k, (math.nan, math.nan))
+    else:
+        row["interval"] = f"95% Student-t over {len(per_run)} seeds"
+        for k in names:
+            row[k], row[f"{k}_low"], row[f"{k}_high"] = seed_interval([v.get(k, math.nan) for v in per_run])
+    for key, value in group.settings.items():
+        row[f"config.{key}"] = value if isinstance(value, (int, float, str, bool)) else str(value)
+    return row
+
+
+def comparison_table(coll: Collection) -> pd.DataFrame:
+    """report.csv: one row per group."""
+    rows = [group_row(g) for g in coll.groups]
+    if not rows:
+        return pd.DataFrame(columns=["group", "measure", "beta", "robots", "policy", "seeds", "mean", "cvar",
+                                     "value_at_risk", "risky_fraction"])
+    table = pd.DataFrame(rows)
+    front = ["group", "measure", "beta", "robots", "policy", "seeds", "seed_list", "eval_episodes", "interval"]
+    figures = [c for c in table.columns if c not in front and not c.startswith("config.")]
+    config = [c for c in table.columns if c.startswith("config.")]
+    return table[front + figures + config]
+
+
+def runs_table(coll: Collection) -> pd.DataFrame:
+    """Every run directory found: used (with its group and figures) or skipped (with the reason)."""
+    rows = []
+    for r in coll.runs:
+        v = run_values(r)
+        rows.append({"path": str(r.path), "status": "used", "group": r.group.label if r.group else "",
+                     "seed": r.seed, "note": "tables rebuilt from run.mcap" if r.rebuilt else "",
+                     "iterations": int(r.run.metrics.iteration.max()) + 1,
+                     "mean": v["mean"], "cvar": v["cvar"], "value_at_risk": v["value_at_risk"],
+                     "theta_final": " ".join(f"{t:.3f}" if math.isfinite(t) else "n/a" for t in r.final_theta())})
+    for land in coll.landscapes:
+        rows.append({"path": str(land.path), "status": "landscape", "group": "", "seed": land.summary.get("seed"),
+                     "note": f"{land.summary.get('points', '?')}^2 grid x {land.summary.get('episodes', '?')} "
+                             f"episodes"})
+    for b in coll.broken:
+        rows.append({"path": str(b.path), "status": "skipped", "note": b.reason})
+    table = pd.DataFrame(rows, columns=["path", "status", "group", "seed", "note", "iterations", "mean", "cvar",
+                                        "value_at_risk", "theta_final"])
+    return table.astype({"seed": "Int64", "iterations": "Int64"})
+
+
+def soft_risk_table(coll: Collection) -> pd.DataFrame:
+    """soft_risk.csv: per seed, each soft-risk group (risk.schedule.kind other than none) and the group that differs
+    from it only in risk.schedule (kind=none, the paper): the final policy's evaluated figures at risk.beta."""
+    from riskplan.experiments.reporting.collect import schedule_pairs
+
+    rows = []
+    seen: set[int] = set()
+    for scheduled, plain in schedule_pairs(coll.groups):
+        for g in ([plain] if plain is not None else []) + [scheduled]:
+            if id(g) in seen:
+                continue
+            seen.add(id(g))
+            for r in g.runs:
+                values = run_values(r, g.beta)
+                rows.append({"group": g.label, "schedule": g.schedule,
+                             "schedule_start": r.flat.get("risk.schedule.start"),
+                             "schedule_iterations": r.flat.get("risk.schedule.iterations"),
+                             "beta": g.beta, "seed": r.seed, "mean": values["mean"], "cvar": values["cvar"],
+                             **{k: v for k, v in values.items() if k.startswith("reached_")},
+                             "theta_final": " ".join(f"{t:.1f}" for t in r.final_theta())})
+    return pd.DataFrame(rows)
+
+
+def runs_on(land, coll: Collection) -> list[RunInfo]:
+    """The runs trained on the landscape's world (same world config and theta length) for one of its objectives:
+    the mean, or CVaR at the landscape's beta (a beta sweep's other levels climb surfaces it does not show)."""
+    world = {k: v for k, v in _flat_world(land.config).items()}
+    out = []
+    for r in coll.runs:
+        risk = r.config.get("risk", {})
+        shown = risk.get("measure") == "neutral" or math.isclose(float(risk.get("beta", -1.0)), land.beta)
+        if (shown and _flat_world(r.config) == world
+                and len(r.final_theta()) == len(land.summary.get("theta_fixed", [0, 0]))):
+            out.append(r)
+    return out
+
+
+def _flat_world(config: dict) -> dict:
+    from riskplan.experiments.reporting.collect import flatten
+
+    return {k: v for k, v in flatten(config).items() if k.startswith("world.")}
+
+
+def csv_text(table: pd.DataFrame) -> str:
+    """A table as CSV text: a missing or non-finite value (NaN, +-inf) is an empty cell, never 'nan' or 'inf'."""
+    clean = table.copy()
+    for column in clean.columns:
+        if pd.api.types.is_float_dtype(clean[column]):
+            clean[column] = clean[column].where(np.isfinite(clean[column]))
+        elif clean[column].dtype == object:
+            clean[column] = clean[column].map(_finite_or_none)
+    return clean.to_csv(index=False)
+
+
+def _finite_or_none(value):
+    if isinstance(value, (float, np.floating)) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _ratio(numerator: float, denominator: float) -> float:
+    """numerator / denominator, NaN (shown as missing) when it is undefined."""
+    if not (math.isfinite(numerator) and math.isfinite(denominator)) or denominator == 0:
+        return math.nan
+    return numerator / denominator
+
+
+def landscape_table(coll: Collection) -> pd.DataFrame:
+    """Per landscape and group on its world: the grid optima and the group's final theta, distance and gap."""
+    rows = []
+    for land in coll.landscapes:
+        a, b = land.axes
+        best = {k: land.best(k) for k in ("mean", "cvar")}
+        thetas = land.table[[f"theta_{a}", f"theta_{b}"]].to_numpy(float)
+        base = {"landscape": str(land.path), "beta": land.beta, "episodes": land.summary.get("episodes"),
+                "points": land.summary.get("points"),
+                "best_mean_theta": _fmt_theta(best["mean"]["theta"], a, b), "best_mean": best["mean"]["value"],
+                "best_cvar_theta": _fmt_theta(best["cvar"]["theta"], a, b), "best_cvar": best["cvar"]["value"]}
+        groups: dict[str, list[RunInfo]] = {}
+        for r in runs_on(land, coll):
+            groups.setdefault(r.group.label, []).append(r)
+        if not groups:
+            rows.append(base)
+        for label, runs in groups.items():
+            finals = np.array([[r.final_theta()[a], r.final_theta()[b]] for r in runs])
+            final = finals.mean(axis=0)
+            target = "mean" if runs[0].group.measure == "neutral" else "cvar"
+            found = best[target]["theta"] is not None
+            opt = np.array([best[target]["theta"][a], best[target]["theta"][b]]) if found else np.full(2, np.nan)
+            nearest = int(np.argmin(((thetas - final) ** 2).sum(axis=1)))
+            value_there = float(land.table[target].iloc[nearest])
+            se_column = f"{target}_se"
+            best_index = land.best_index(target)
+            se = (float(land.table[se_column].iloc[best_index]) if se_column in land.table and best_index is not None
+                  else math.nan)
+            smooth = land.smoothed_best(target)
+            smooth_theta = np.array(smooth["theta"] if smooth["theta"] is not None else [np.nan, np.nan], float)
+            gap = best[target]["value"] - value_there
+            rows.append({**base, "group": label, "seeds": len(runs), "objective": target,
+                         "final_theta": f"({final[0]:.1f}, {final[1]:.1f})",
+                         "distance_to_optimum": float(np.linalg.norm(final - opt)),
+                         "smoothed_optimum_theta": _fmt_pair(smooth_theta),
+                         "distance_to_smoothed_optimum": float(np.linalg.norm(final - smooth_theta)),
+                         "landscape_at_final": value_there,
+                         "gap_to_optimum": gap,
+                         "gap_percent": 100 * _ratio(gap, abs(best[target]["value"])),
+                         "standard_error_at_optimum": se,
+                         "grid_step": float(np.diff(np.unique(thetas[:, 0]))[0]) if len(np.unique(thetas[:, 0])) > 1
+                         else math.nan})
+    return pd.DataFrame(rows)
+
+
+def _fmt_theta(theta: list[float] | None, a: int, b: int) -> str:
+    return "n/a" if theta is None else _fmt_pair((theta[a], theta[b]))
+
+
+def _fmt_pair(pair) -> str:
+    if not all(math.isfinite(v) for v in pair):
+        return "n/a"
+    return f"({pair[0]:.1f}, {pair[1]:.1f})"

@@ -1,0 +1,460 @@
+"""`riskplan reproduce`: every experiment of the paper's Section V, several seeds each, then the report.
+
+    outputs/reproduce/<timestamp>/
+        single/      sweep: experiment=paper_single risk=neutral,cvar seed=range(0,S)    (Figs. 1-2)
+        team/        sweep: experiment=paper_team seed=range(0,S)                         (Figs. 3-4; the
+                     centralized comparator is single/'s CVaR runs: W = 6000 against W_i = 2000 x 3 robots)
+        wander/      sweep: experiment=paper_single train.theta0=[0,0] seed=0,1           (the landscape's
+                     local optimum that theta0 = 0 falls into)
+        soft_risk/   sweep: wander/'s runs with risk.schedule.kind=linear                (soft risk, CeSoR)
+        frontier/    sweep: experiment=paper_single risk.beta=0.05,0.2,0.5,1.0 seed=0,1   (the risk frontier)
+        landscape/   mean and CVaR on a grid of theta for the paper world
+        report/      report.html, figures, report.csv
+        reproduce.json   what ran, with which options, and how long each part took
+
+The sweeps go through `riskplan sweep`'s machinery (a Hydra multirun, joblib on local cores), so re-running
+with `--out` on an existing reproduction runs only what is missing. One process at a time writes a reproduction
+directory (its lock is held for the whole command). `--seeds N` is bounded before anything runs: the sweeps
+together may hold at most RISKPLAN_MAX_JOBS jobs (default 10,000) and an estimated RISKPLAN_MAX_HOURS of
+simulation (default 24).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import sys
+import time
+from pathlib import Path
+
+import typer
+
+from riskplan.util.errors import BadInput
+from riskplan.experiments.reporting import REPRODUCE_ROOT
+
+SEEDS = 10
+QUICK_SEEDS = 2
+# (folder, what it reproduces, overrides without the seeds, at most this many seeds or None for all)
+EXPERIMENTS = (
+    ("single", "Figs. 1-2: one robot, risk-neutral vs CVaR (W = 6000)",
+     ["experiment=paper_single", "risk=neutral,cvar"], None),
+    ("team", "Figs. 3-4: three robots on a line graph (W_i = 2000), vs the centralized CVaR runs of single/",
+     ["experiment=paper_team"], None),
+    # theta0 = 0 falls into the landscape's other optimum: wander, reaching no source; two seeds show it
+    ("wander", "The landscape's local optimum: CVaR from theta0 = (0, 0), which wanders and reaches no source",
+     ["experiment=paper_single", "train.theta0=[0,0]"], 2),
+    # soft risk (CeSoR): the same start, the gradient's CVaR level falling linearly from 1 to beta; vs wander/
+    ("soft_risk", "Beyond the paper: soft risk from theta0 = (0, 0), CVaR level linear from 1 to beta (vs wander/)",
+     ["experiment=paper_single", "train.theta0=[0,0]", "risk.schedule.kind=linear"], 2),
+    # with single/'s beta = 0.1 runs, the report's risk frontier (beta = 1 is the mean, through the CVaR gradient)
+    ("frontier", "Beyond the paper: the risk frontier, CVaR policies at beta = 0.05, 0.2, 0.5, 1",
+     ["experiment=paper_single", "risk.beta=0.05,0.2,0.5,1.0"], 2),
+)
+# --quick: fewer iterations and evaluation episodes; the same experiments, for a first look
+QUICK = ["train.iterations=60", "train.eval_episodes=20000", "train.bootstrap=200", "train.paths=10"]
+# theta in [-30, 60]^2 in steps of 2 (3 with --quick): wide enough for where every reproduced run ends
+LANDSCAPE = {"points": 46, "episodes": 4000, "ranges": ((-30.0, 60.0), (-30.0, 60.0))}
+QUICK_LANDSCAPE = {"points": 31, "episodes": 1000, "ranges": ((-30.0, 60.0), (-30.0, 60.0))}
+
+
+def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = None, jobs: int | None = None,
+              formats: str = "png,pdf", overrides: list[str] | None = None, *, since: float | None = None) -> int:
+    """Run Section V and the report; return the exit code (1 when a job or the report failed).
+
+    `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000. `since`: when the
+    command started (epoch seconds; the CLI gives its process's start), so the time breakdown includes start-up.
+    """
+    from riskplan.util import lock
+    from riskplan.util.paths import check_output_dir, claim_dir
+    from riskplan.experiments.reporting import check_formats
+    from riskplan.experiments.reporting.parallel import workers as report_workers
+
+    entered = time.time()
+    seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
+    if seeds < 1:
+        raise BadInput("--seeds", f"got {seeds}; expected at least 1")
+    jobs_total = check_seeds(seeds)
+    warmed = _warm_workers(jobs, seeds)  # the workers start while the checks run
+    try:
+        extra, configs = _check_overrides(list(overrides or []), quick)
+        check_work(seeds, jobs_total, configs, list(overrides or []))
+        fmts = check_formats(formats)
+        report_workers()  # a bad RISKPLAN_REPORT_WORKERS is bad input now, not after the sweeps
+        if out is not None:
+            check_output_dir(out, "--out")
+    except BadInput:
+        stop_workers()
+        raise
+    target = Path(out) if out is not None else claim_dir(REPRODUCE_ROOT)
+    target.mkdir(parents=True, exist_ok=True)
+    checked = time.time()
+    with lock.hold(target, "reproduction directory"):
+        return _reproduce(target, quick, seeds, jobs, fmts, list(overrides or []), extra,
+                          {"since": since, "entered": entered, "checked": checked}, warmed)
+
+
+def _warm_workers(jobs: int | None, seeds: int):
+    """Start and warm up the sweeps' local workers in the background (riskplan.experiments.sweeping.warm_workers); returns
+    the function that waits for them, or None when the sweeps run their jobs in this process (one worker)."""
+    from riskplan.experiments.sweeping import warm_workers
+    from riskplan.experiments.sweeping.jobs import cpu_count
+
+    workers = min(jobs or cpu_count(), max(experiment_jobs(seeds)))
+    return warm_workers(workers) if workers > 1 else None
+
+
+def experiment_jobs(seeds: int) -> list[int]:
+    """Jobs of each sweep of EXPERIMENTS with this many seeds (counted from the overrides, nothing expanded)."""
+    from riskplan.run.compose import parse_overrides
+    from riskplan.experiments.sweeping import sweep_size
+
+    counts = []
+    for _, _, experiment, most in EXPERIMENTS:
+        counts.append(sweep_size(parse_overrides(experiment))[0] * min(seeds, most or seeds))
+    return counts
+
+
+def check_seeds(seeds: int) -> int:
+    """Bad input when the sweeps with `seeds` seeds hold more jobs than RISKPLAN_MAX_JOBS; the total otherwise."""
+    from riskplan.util.limits import JOBS_ENV, job_budget
+
+    total = sum(experiment_jobs(seeds))
+    budget = job_budget()
+    if total > budget:
+        raise BadInput("--seeds", f"got {seeds}: the {len(EXPERIMENTS)} sweeps would hold {total} jobs, more than "
+                                  f"the {budget} "
+                                  f"allowed; give fewer seeds, or raise the limit with {JOBS_ENV}=<jobs>")
+    return total
+
+
+def job_steps(cfg) -> float:
+    """Trajectory-step equivalents one job takes (riskplan.run.budget's estimate of a run: training, evaluation,
+    bootstrap, logging)."""
+    from riskplan.run import budget
+
+    width, height = (int(v) for v in cfg.world.size)
+    sizes = budget.sizes_of(cfg, width, height, len(cfg.world.sources), int(cfg.team.robots))
+    return sum(amount for amount, _, _ in budget.estimate(sizes)[1])
+
+
+def check_work(seeds: int, total_jobs: int, configs: dict, overrides: list[str]) -> None:
+    """Bad input when the sweeps are estimated to simulate for longer than RISKPLAN_MAX_HOURS."""
+    from riskplan.util.limits import STEPS_PER_SECOND, check_time
+
+    steps = 0.0
+    for (_, _, experiment, _), jobs in zip(EXPERIMENTS, experiment_jobs(seeds)):
+        steps += jobs * job_steps(configs[experiment[0]])
+    what = f"reproducing with {seeds} seeds ({total_jobs} jobs" + (f", {' '.join(overrides)})" if overrides else ")")
+    check_time("--seeds and overrides" if overrides else "--seeds", steps / STEPS_PER_SECOND, what)
+
+
+def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, overrides: list[str],
+               extra: list[str], clock: dict | None = None, warmed=None) -> int:
+    """The reproduction into `target`, whose lock this process holds (`clock`: when reproduce() was entered and
+    when its checks ended, for the time breakdown; `warmed`: waits for the warmed-up workers, see _warm_workers)."""
+    import threading
+
+    from riskplan.util.paths import write_atomic
+    from riskplan.experiments.reporting import build_report
+    from riskplan.experiments.sweeping import report_outcome, run_sweep
+
+    started = time.time()
+    # the report's modules (matplotlib, pandas) load while this process mostly waits for the sweeps' jobs
+    importing = threading.Thread(target=_import_report_modules, name="riskplan-report-imports", daemon=True)
+    importing.start()
+    warm_up: dict = {}
+
+    def wait_for_workers() -> None:
+        if warmed is not None and not warm_up:
+            tic = time.time()
+            workers = warmed()
+            warm_up.update({"workers": len(workers), "pids": [pid for pid, _ in workers],
+                            "seconds": [round(s, 2) for _, s in workers],
+                            "waited": round(time.time() - tic, 2)})
+
+    typer.echo(f"reproduction directory: {target} ({'quick' if quick else 'full'}, {seeds} seeds)")
+    record = {"quick": quick, "seeds": seeds, "overrides": list(overrides or []), "started": dt.datetime.now().isoformat(timespec="seconds"),
+              "parts": {}}
+    code = 0
+    outcomes = []
+    for folder, what, experiment, most in EXPERIMENTS:
+        args = [*experiment, f"seed=range(0,{min(seeds, most or seeds)})", *_not_set_by(experiment, extra)]
+        typer.echo(f"\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
+        tic = time.time()
+        outcome = run_sweep(args, jobs, sweep_dir=target / folder, title=folder, before_launch=wait_for_workers)
+        toc = time.time()
+        outcomes.append(outcome)
+        code = max(code, report_outcome(outcome, folder, hint=False))
+        record["parts"][folder] = {"overrides": args, "jobs": len(outcome.summary), "ran": outcome.ran,
+                                   "skipped": outcome.skipped, "failed": len(outcome.failed),
+                                   "seconds": round(outcome.seconds, 2), "wall": round(toc - tic, 2),
+                                   "timing": _sweep_timing(outcome, tic, toc)}
+    if warm_up:
+        record["warm_up"] = warm_up
+    stop_workers()  # before the report, which may fork: no idle workers, nor their threads, in this process
+    record["parts"]["landscape"] = _landscape(target / "landscape", quick, list(overrides or []))
+    tic = time.time()
+    _print_comparison(outcomes)
+    record["parts"]["comparison"] = {"seconds": round(time.time() - tic, 2)}
+    tic = time.time()
+    importing.join()
+    try:
+        page = build_report([target], target / "report", fmts)
+        typer.echo(f"report: {page}")
+        record["parts"]["report"] = {"seconds": round(time.time() - tic, 2), "page": str(page)}
+    except BadInput:
+        raise
+    except Exception as err:  # noqa: BLE001 - the runs are safe; say what failed
+        typer.echo(f"error: the report failed: {type(err).__name__}: {err} "
+                   f"(the runs are in {target}; try riskplan report {target})", err=True)
+        code = 1
+    record["seconds"] = round(time.time() - started, 2)
+    try:  # never fails the reproduction: it only says where the time went
+        record["breakdown"] = time_breakdown(record, clock or {}, started)
+        print_breakdown(record["breakdown"])
+    except Exception as err:  # noqa: BLE001
+        typer.echo(f"(no time breakdown: {type(err).__name__}: {err})", err=True)
+    write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
+    typer.echo(f"reproduced in {record['seconds']:.0f} s: {target}")
+    if code:
+        import shlex
+
+        again = ["--out", str(target), *(["--quick"] if quick else []), "--seeds", str(seeds), *(overrides or [])]
+        typer.echo(f"to retry what did not finish (finished jobs are skipped): riskplan reproduce "
+                   f"{shlex.join(again)}", err=True)
+    return code
+
+
+def _import_report_modules() -> None:
+    """Import what the report needs (a head start, on a background thread; a failure shows in the report)."""
+    import importlib
+
+    for name in ("riskplan.experiments.reporting.collect", "riskplan.experiments.reporting.figures", "riskplan.experiments.reporting.page",
+                 "riskplan.experiments.reporting.tables"):
+        try:
+            importlib.import_module(name)
+        except Exception:  # noqa: BLE001 - build_report imports them again and says what is wrong
+            return
+
+
+def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict]:
+    """The overrides every sweep gets (--quick's, then the user's), checked on both set-ups before anything runs;
+    and the composed config of each set-up (by its experiment=... override)."""
+    from riskplan.run.compose import compose, parse_overrides
+
+    for override in parse_overrides(overrides):
+        if override.is_sweep_override() or override.is_hydra_override():
+            raise BadInput(f"override '{override.input_line}'", "reproduce takes plain key=value overrides for "
+                                                                "every experiment; run a grid with riskplan sweep")
+        if override.key_or_group in ("seed", "experiment"):
+            raise BadInput(f"override '{override.input_line}'", "is set by reproduce; use --seeds N, or riskplan "
+                                                                "sweep for other experiments")
+    extra = [*(QUICK if quick else []), *overrides]
+    configs = {}
+    for setup in dict.fromkeys(base[0] for _, _, base, _ in EXPERIMENTS):  # each set-up once, not per experiment
+        configs[setup] = compose([setup, *extra])
+    return extra, configs
+
+
+def _not_set_by(experiment: list[str], extra: list[str]) -> list[str]:
+    """The extra overrides whose key the experiment does not set itself (frontier/ sweeps risk.beta, whatever the
+    user gave for the paper's set-ups)."""
+    from riskplan.run.compose import parse_overrides
+
+    own = {o.key_or_group for o in parse_overrides(experiment)}
+    return [o.input_line for o in parse_overrides(extra) if o.key_or_group not in own]
+
+
+def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
+    """The objective landscape of the paper world (skipped when it is already there)."""
+    from riskplan.run.compose import compose
+    from riskplan.experiments.landscape import compute_landscape
+
+    grid = QUICK_LANDSCAPE if quick else LANDSCAPE
+    done = out / "status.json"
+    try:
+        finished = json.loads(done.read_text()).get("status") == "done"
+    except (OSError, ValueError, AttributeError):
+        finished = False
+    if finished:
+        typer.echo(f"\nlandscape: {out} (already there)")
+        return {"skipped": True, **grid}
+    typer.echo(f"\nobjective landscape: {grid['points']}x{grid['points']} theta grid, {grid['episodes']} "
+               f"episodes per point -> {out}")
+    tic = time.time()
+    args = ["experiment=paper_single", *overrides]
+    compute_landscape(compose(args), out, overrides=args, **grid)
+    return {"seconds": round(time.time() - tic, 2), **grid}
+
+
+def _print_comparison(outcomes) -> None:
+    """Across seeds: the mean and CVaR of each condition (the paper's claims in four lines)."""
+    import pandas as pd
+    from rich.console import Console
+    from rich.table import Table
+
+    frames = []
+    for outcome in outcomes:
+        frame = outcome.summary.copy()
+        frame["sweep"] = outcome.sweep_dir.name
+        frames.append(frame)
+    if not frames:
+        return
+    data = pd.concat(frames, ignore_index=True)
+    data = data[data.status == "done"]
+    if data.empty:
+        return
+    if "risk" not in data:
+        data["risk"] = "cvar"
+    data["risk"] = data["risk"].fillna("cvar")
+    table = Table(title="Section V across seeds (mean ± sd of the per-seed figures on the evaluation episodes)",
+                  title_justify="left", show_edge=False, pad_edge=False)
+    for column in ("set-up", "objective", "seeds", "mean", "CVaR", "VaR"):
+        table.add_column(column, justify="left" if column in ("set-up", "objective") else "right")
+    for (sweep, risk, beta), group in data.groupby(["sweep", "risk", "beta"], sort=False):
+        setup = {"team": "3 robots, line graph", "wander": "1 robot, θ0 = (0, 0)",
+                 "soft_risk": "1 robot, θ0 = (0, 0), soft risk (linear)"}.get(sweep, "1 robot (centralized)")
+        table.add_row(setup, f"CVaR_{beta:g}" if risk == "cvar" else "mean (risk-neutral)", str(len(group)),
+                      *(f"{group[c].mean():.1f} ± {group[c].std(ddof=1) if len(group) > 1 else 0:.1f}"
+                        for c in ("mean", "cvar", "value_at_risk")))
+    (Console() if sys.stdout.isatty() else Console(width=250)).print(table)
+
+
+def stop_workers() -> None:
+    """End the sweeps' idle joblib (loky) worker processes now. Every job has finished and written its files;
+    left alone, they are shut down gracefully at interpreter exit, which took 2-4 s after the last line here."""
+    if "joblib.externals.loky.reusable_executor" not in sys.modules:  # no sweep ran in worker processes
+        return
+    executor = getattr(sys.modules["joblib.externals.loky.reusable_executor"], "_executor", None)
+    if executor is not None:
+        executor.shutdown(wait=False, kill_workers=True)
+
+
+def process_started() -> float | None:
+    """When this process started (epoch seconds, Linux /proc; None elsewhere): the CLI's `since`."""
+    return _started_of("self")
+
+
+def _started_of(pid) -> float | None:
+    """When process `pid` started (epoch seconds) from /proc/<pid>/stat and /proc/stat's btime; None if unknown."""
+    import os
+
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        boot = next(float(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines()
+                    if line.startswith("btime "))
+        return boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return None
+
+
+def _sweep_timing(outcome, tic: float, toc: float) -> dict:
+    """Where a sweep's wall time went, from its jobs' status.json (started, finished, seconds, pid), their
+    summary.json (wall_time: the training loop) and metrics.parquet (iteration 0's extra time in a worker's first
+    job: the numba cache load). Only the jobs that ran in this launch count."""
+    import os
+
+    import pandas as pd
+
+    launched = toc - outcome.seconds  # _run_plan's start: planning (composing and validating every job) is before
+    jobs = []
+    for path in outcome.summary.get("path", pd.Series(dtype=object)).dropna():
+        try:
+            status = json.loads((Path(path) / "status.json").read_text())
+            summary = json.loads((Path(path) / "summary.json").read_text())
+        except (OSError, ValueError):
+            continue
+        if status.get("status") != "done" or not isinstance(status.get("started"), (int, float)) \
+                or status["started"] < launched - 2:
+            continue
+        jobs.append({"path": str(path), "pid": status.get("pid"), "started": status["started"],
+                     "finished": status["finished"], "seconds": status["seconds"],
+                     "training": float(summary.get("wall_time") or 0.0)})
+    timing = {"planning": round(launched - tic, 3), "jobs": len(jobs)}
+    if not jobs:
+        return timing
+    first, last = min(j["started"] for j in jobs), max(j["finished"] for j in jobs)
+    timing.update({"to_first_job": round(first - launched, 3), "running": round(last - first, 3),
+                   "after_last_job": round(toc - last, 3), "job_seconds": round(sum(j["seconds"] for j in jobs), 3),
+                   "training": round(sum(j["training"] for j in jobs), 3), "workers": {}})
+    for pid in dict.fromkeys(j["pid"] for j in jobs):
+        own = sorted((j for j in jobs if j["pid"] == pid), key=lambda j: j["started"])
+        load = None
+        try:
+            seconds = pd.read_parquet(Path(own[0]["path"]) / "metrics.parquet", columns=["iteration", "seconds"])
+            per = seconds.groupby("iteration").seconds.first()
+            if len(per) > 1:
+                load = max(0.0, float(per.iloc[0] - per.iloc[1:].median()))
+        except (OSError, ValueError, KeyError, ImportError):
+            pass
+        spawned = _started_of(pid) if pid != os.getpid() else None  # a one-job sweep runs in this process
+        timing["workers"][str(pid)] = {"jobs": len(own), "first_job": own[0]["started"],
+                                       "spawned": spawned, "numba_load": load}
+    return timing
+
+
+def time_breakdown(record: dict, clock: dict, started: float) -> dict:
+    """Wall seconds of the command by part, and inside the sweeps' jobs (core-seconds, summed over the jobs)."""
+    sweeps = [record["parts"][folder] for folder, *_ in EXPERIMENTS if folder in record["parts"]]
+    timings = [part.get("timing", {}) for part in sweeps]
+    begun = clock.get("since")
+    ended = started + record["seconds"]
+    wall = {
+        "start-up (interpreter, imports)": (clock["entered"] - begun) if begun and "entered" in clock else None,
+        "checks (compose each set-up, budget)": (clock["checked"] - clock["entered"]) if "checked" in clock
+        else None,
+        "sweeps: planning (compose and validate every job)": sum(t.get("planning", 0.0) for t in timings),
+        "sweeps: waiting for the warmed-up workers": record.get("warm_up", {}).get("waited", 0.0),
+        "sweeps: launch to first job (Hydra, worker start and imports)": sum(t.get("to_first_job", 0.0)
+                                                                             for t in timings)
+        - record.get("warm_up", {}).get("waited", 0.0),
+        "sweeps: jobs running (first start to last finish)": sum(t.get("running", 0.0) for t in timings),
+        "sweeps: after the last job (summary, Hydra)": sum(t.get("after_last_job", 0.0) for t in timings),
+        "landscape": record["parts"].get("landscape", {}).get("seconds", 0.0),
+        "comparison table": record["parts"].get("comparison", {}).get("seconds", 0.0),
+        "report (figures, tables, page)": record["parts"].get("report", {}).get("seconds", 0.0),
+    }
+    known = sum(v for v in wall.values() if v is not None)
+    total = ended - (begun or clock.get("entered", started))
+    wall["other (lock, directories, record)"] = max(0.0, total - known)
+    workers: dict[str, dict] = {}
+    for t in timings:
+        for pid, w in t.get("workers", {}).items():
+            entry = workers.setdefault(pid, {"jobs": 0, "spawned": w["spawned"], "first_job": w["first_job"],
+                                             "numba_load": w["numba_load"]})
+            entry["jobs"] += w["jobs"]
+    warm = record.get("warm_up")
+    jobs = {
+        "jobs": sum(t.get("jobs", 0) for t in timings),
+        "workers": len(workers),
+        **({"worker warm-up (imports, numba cache; while the checks and planning ran)": sum(warm["seconds"])}
+           if warm else {"worker start to its first job (imports, unpickling)": sum(
+               w["first_job"] - w["spawned"] for w in workers.values() if w["spawned"])}),
+        "numba cache load (iteration 0's extra, first job of each worker)": sum(
+            w["numba_load"] or 0.0 for w in workers.values()),
+        "training loop (summary wall_time)": sum(t.get("training", 0.0) for t in timings),
+        "set-up, evaluation episodes, bootstrap, files (job seconds - wall_time)": sum(
+            t.get("job_seconds", 0.0) - t.get("training", 0.0) for t in timings),
+    }
+    jobs["training loop (summary wall_time)"] -= jobs["numba cache load (iteration 0's extra, first job of each "
+                                                      "worker)"]
+    return {"total": round(total, 2), "wall": {k: None if v is None else round(v, 2) for k, v in wall.items()},
+            "jobs": {k: round(v, 2) if isinstance(v, float) else v for k, v in jobs.items()}}
+
+
+def print_breakdown(breakdown: dict) -> None:
+    """Where the time went, as two short tables."""
+    typer.echo(f"\nwhere the time went ({breakdown['total']:.1f} s from the command's start to its end):")
+    for name, seconds in breakdown["wall"].items():
+        typer.echo(f"  {'?' if seconds is None else f'{seconds:6.1f}'} s  {name}")
+    jobs = breakdown["jobs"]
+    typer.echo(f"inside the {jobs['jobs']} jobs that ran, on {jobs['workers']} worker processes (seconds summed over "
+               f"jobs; they run in parallel):")
+    for name, seconds in jobs.items():
+        if name not in ("jobs", "workers"):
+            typer.echo(f"  {seconds:6.1f} s  {name}")
+
+
+def _shell(arg: str) -> str:
+    """Quote an argument for display as a shell command."""
+    return f"'{arg}'" if any(c in arg for c in "()[]{} *?$") else arg

@@ -1,0 +1,345 @@
+"""One job of a sweep, as it runs inside a launcher's worker (joblib, submitit, ray).
+
+Kept apart from `riskplan.experiments.sweeping` (the command side) so that workers import only what a job needs.
+
+A job's `status.json` says where it stands: "running" while it trains, then "done" or "failed" (with the error
+and the traceback). It also holds `config_sha`, a fingerprint of the job's resolved config: a re-run of the
+sweep recognises a finished job by that fingerprint and its output files, never by its job number, and skips it.
+A job that was killed while "running" resumes from its checkpoint when its config is unchanged.
+
+One writer per job folder: a job holds the folder's lock (`riskplan.util.lock`) before it reads, deletes or writes
+anything there; a job whose folder is held by another process fails alone and leaves the folder as it was.
+
+A local worker (a joblib/loky worker, the driver's child, or a submitit_local job, its grandchild) watches its
+parents and SIGKILLs itself when the `riskplan sweep` driver is gone, so a killed sweep leaves no training
+behind; the checkpoints make the next run of the sweep resume those jobs. SLURM jobs and jobs on a Ray cluster
+started apart from the driver are not its descendants and outlive it, as they should.
+
+Job folders are named by `folder_name` (registered as the OmegaConf resolver `riskplan.folder`, which
+`riskplan sweep` puts in `hydra.sweep.subdir`): Hydra's `override_dirname` with every character outside
+[A-Za-z0-9._=,+-] percent-encoded, so a swept value never nests or escapes the sweep directory. Under an
+optimising sweeper (optuna) `riskplan.trial` names them `trial_007,<override_dirname>` the same way.
+
+A job returns its CVaR to the sweeper, or None when it failed or another process holds its folder: the optuna
+sweeper records a None as a failed trial and goes on (a number such as -inf would be taken as measured).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import signal
+import socket
+import string
+import sys
+import threading
+import time
+import traceback
+from pathlib import Path
+
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig, OmegaConf
+
+STATUS = "status.json"
+JOB_LOG = "job.log"  # everything the job prints (Python and native), one file per job folder
+THREADS_ENV = "RISKPLAN_JOB_THREADS"  # numba threads per job, set by `riskplan sweep` for parallel local jobs
+DRIVER_ENV = "RISKPLAN_SWEEP_DRIVER_PID"  # the `riskplan sweep` process: its local workers die with it
+RESOLVER = "riskplan.folder"  # ${riskplan.folder:${hydra.job.override_dirname}}: a safe job folder name
+SUBDIR = "${" + RESOLVER + ":${hydra.job.override_dirname}}"
+TRIAL_RESOLVER = "riskplan.trial"  # the same for the trials of an optimising sweeper, numbered
+TRIAL_SUBDIR = "${" + TRIAL_RESOLVER + ":${hydra.job.num},${hydra.job.override_dirname}}"
+SAFE = frozenset(string.ascii_letters + string.digits + "._=,+-")  # kept as they are in folder names
+NAME_MAX = 255  # bytes in a file name (ext4, xfs, NFS)
+OUTPUTS = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet", "run.mcap")
+STALE = ("checkpoint", "checkpoint.tmp", "run.mcap", "run.mcap.resume", "summary.json", "metrics.parquet",
+         "eval.parquet", "trajectories.parquet")
+
+
+def config_sha(cfg: DictConfig | dict) -> str:
+    """Fingerprint of a job's resolved config (without the hydra node): what makes two jobs the same job."""
+    if isinstance(cfg, DictConfig):
+        cfg = OmegaConf.to_container(cfg, resolve=True)
+    cfg = {k: v for k, v in cfg.items() if k != "hydra"}
+    text = json.dumps(cfg, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def folder_name(dirname: str) -> str:
+    """A job folder name from Hydra's override_dirname: a single path component, injective, at most 255 bytes.
+
+    Every character outside [A-Za-z0-9._=,+-] (so '/', '%', NUL, spaces, quotes, brackets, non-ASCII) becomes
+    %XX of its UTF-8 bytes; a leading '.' becomes %2E (no hidden folders, never '.' or '..'). A name longer than
+    255 bytes keeps its first part and ends with %h and a hash of the whole name ('%h' is never produced by the
+    encoding, so a shortened name never equals another name).
+    """
+    dirname = str(dirname)
+    data = dirname.encode("utf-8", "surrogatepass")
+    encoded = "".join(c if c in SAFE else "".join(f"%{b:02X}" for b in c.encode("utf-8", "surrogatepass"))
+                      for c in dirname)
+    if encoded.startswith("."):
+        encoded = "%2E" + encoded[1:]
+    if not encoded:
+        return "%empty"
+    if len(encoded) > NAME_MAX:
+        digest = hashlib.sha256(data).hexdigest()[:16]
+        head = encoded[:NAME_MAX - 2 - len(digest)]
+        cut = head.find("%", len(head) - 2)  # do not cut an escape in half
+        encoded = f"{head[:cut] if cut >= 0 else head}%h{digest}"
+    return encoded
+
+
+def trial_folder(num, dirname) -> str:
+    """A trial's folder under an optimising sweeper (optuna): its number first, so two trials that drew the same
+    values get folders of their own, then what it drew (`trial_007,risk.beta=0.31`)."""
+    return folder_name(f"trial_{int(num):03d},{dirname}" if str(dirname) else f"trial_{int(num):03d}")
+
+
+OmegaConf.register_new_resolver(RESOLVER, folder_name, replace=True)
+OmegaConf.register_new_resolver(TRIAL_RESOLVER, trial_folder, replace=True)
+
+
+class FolderNames(Callback):
+    """A Hydra callback that does nothing but travel: the launcher pickles it with every job, so unpickling it
+    imports this module in the job's process (joblib, submitit, ray) and registers the `riskplan.folder` resolver
+    before Hydra resolves hydra.sweep.subdir there."""
+
+
+def read_status(out: Path) -> dict | None:
+    """The job's status.json, or None when missing or unreadable."""
+    try:
+        return json.loads((Path(out) / STATUS).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def is_finished(out: Path, sha: str, status: dict | None = None) -> bool:
+    """Whether the job in `out` finished with this config and still has its outputs."""
+    status = read_status(out) if status is None else status
+    return (status is not None and status.get("status") == "done" and status.get("config_sha") == sha
+            and all((Path(out) / name).is_file() for name in OUTPUTS))
+
+
+def _finite(value):
+    """The record with every non-finite float as None (status.json is strict JSON: no NaN, no Infinity)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if value is None or isinstance(value, (str, int, bool)):
+        return value
+    try:  # numpy scalars and the like
+        return _finite(value.item())
+    except (AttributeError, ValueError, TypeError):
+        return str(value)
+
+
+def write_status(out: Path, record: dict) -> None:
+    """Write status.json atomically (a reader never sees half a file, a full disk leaves no temp file)."""
+    from riskplan.util.paths import write_atomic
+
+    write_atomic(Path(out) / STATUS, json.dumps(_finite(record), indent=2, allow_nan=False))
+
+
+def sweep_job(cfg: DictConfig, out: Path) -> float | None:
+    """Run one sweep job in `out`: skip it if finished, resume it if killed, else train from scratch.
+
+    The whole job holds the folder's lock; when another process holds it, the job returns None at once and
+    touches nothing in the folder (the sweep's summary reports it as running in that process).
+    """
+    out = Path(out)
+    watched = watch_driver()
+    with contextlib.ExitStack() as stack:
+        if not _lock_folder(stack, out):
+            return None
+        return _locked_job(cfg, out, watched)
+
+
+def _lock_folder(stack: contextlib.ExitStack, out: Path) -> bool:
+    """Take the job folder's lock into `stack`; False when another process holds it."""
+    from riskplan.util import lock
+    from riskplan.util.errors import BadInput
+
+    try:
+        stack.enter_context(lock.hold(out, "sweep job folder"))
+    except BadInput:
+        return False
+    return True
+
+
+def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | None:
+    sha = config_sha(cfg)
+    prior = read_status(out)
+    if is_finished(out, sha, prior):
+        return prior.get("cvar")
+    threads = job_threads()
+    if threads:
+        import numba
+
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    resume = (prior is not None and prior.get("status") == "running" and prior.get("config_sha") == sha
+              and (out / "checkpoint").is_file())
+    if not resume:
+        for name in STALE:
+            (out / name).unlink(missing_ok=True)
+    started = time.time()
+    base = {"config_sha": sha, "started": started, "host": socket.gethostname(), "pid": os.getpid()}
+    write_status(out, {"status": "running", "error": None, **base})
+    with job_output(out / JOB_LOG):
+        print(f"=== riskplan sweep job {'resumed' if resume else 'started'} at {time.ctime(started)} "
+              f"on {base['host']} (pid {base['pid']}"
+              + (f", ends with the sweep process {_watching[0]})" if watched and _watching else ")"), flush=True)
+        record = _train(cfg, out, resume)
+        print(f"=== {record['status']}" + (f": {record['error']}" if record["error"] else ""), flush=True)
+    finished = time.time()
+    write_status(out, {**record, **base, "finished": finished, "seconds": finished - started, "resumed": resume})
+    return record.get("cvar")
+
+
+_watching: list[int] = []  # the driver pid this process watches, once started
+
+
+def _parent_of(pid: int) -> int | None:
+    """The parent pid of `pid` (from /proc), or None."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return int(stat.rsplit(")", 1)[1].split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _ancestry(depth: int) -> list[int]:
+    """This process's parent, grandparent, ... (at most `depth` of them)."""
+    chain = [os.getppid()]
+    while len(chain) < depth:
+        parent = _parent_of(chain[-1])
+        if parent is None or parent <= 1:
+            break
+        chain.append(parent)
+    return chain
+
+
+def watch_driver(every: float = 0.2) -> bool:
+    """In a local worker of `riskplan sweep` (a child of the driver named by RISKPLAN_SWEEP_DRIVER_PID, as joblib's
+    workers are, or a grandchild, as submitit_local's jobs are), start a daemon thread that SIGKILLs this process
+    once that line of parents has changed: the driver died, even by SIGKILL.
+
+    Not in the driver itself (the basic launcher, joblib with one job), nor in SLURM jobs or jobs on a Ray cluster
+    started apart from the driver, which are not its descendants: those must outlive it. Returns whether this
+    process is watched.
+    """
+    if _watching:
+        return True
+    driver = os.environ.get(DRIVER_ENV, "")
+    if not driver.isdigit() or int(driver) == os.getpid():
+        return False
+    chain = _ancestry(2)
+    if int(driver) not in chain:
+        return False
+    line = chain[:chain.index(int(driver)) + 1]
+    _watching.append(int(driver))
+
+    def watch() -> None:
+        while True:
+            if _ancestry(len(line)) != line:
+                os.kill(os.getpid(), signal.SIGKILL)
+            time.sleep(every)
+
+    threading.Thread(target=watch, name="riskplan-watch-driver", daemon=True).start()
+    return True
+
+
+WARM_UP = (["experiment=paper_single"],)  # loads the kernels every job runs (a team's own few load in its job)
+WARM_UP_SIZE = ["train.iterations=2", "train.samples=8", "train.eval_episodes=8", "train.bootstrap=2", "train.paths=1"]
+
+
+def warm_up() -> tuple[int, float]:
+    """Import what a job needs and load the compiled kernels from numba's cache, by training tiny runs in a scratch
+    directory: `riskplan reproduce` runs this on its sweep workers while it checks and plans, so that its first
+    jobs start at once. Returns (this worker's pid, seconds taken)."""
+    import tempfile
+
+    from riskplan.run.compose import compose
+    from riskplan.run.training import train
+
+    started = time.time()
+    watch_driver()
+    with tempfile.TemporaryDirectory(prefix="riskplan-warm-up-") as scratch:
+        for number, experiment in enumerate(WARM_UP):
+            train(compose([*experiment, *WARM_UP_SIZE]), Path(scratch) / str(number), progress=False)
+    return os.getpid(), time.time() - started
+
+
+def job_threads() -> int | None:
+    """numba threads for this job: RISKPLAN_JOB_THREADS if set, else no more than the cores this process may run
+    on (a SLURM allocation) nor OMP_NUM_THREADS (which joblib's workers and Ray's tasks get); results do not
+    depend on it."""
+    explicit = os.environ.get(THREADS_ENV, "")
+    if explicit.isdigit():
+        return int(explicit)
+    limits = []
+    if hasattr(os, "sched_getaffinity"):
+        limits.append(len(os.sched_getaffinity(0)))
+    omp = os.environ.get("OMP_NUM_THREADS", "")
+    if omp.isdigit() and int(omp) > 0:
+        limits.append(int(omp))
+    return min(limits) if limits else None
+
+
+def _train(cfg: DictConfig, out: Path, resume: bool) -> dict:
+    """Train (or resume); any error fails this job alone and is returned in its record."""
+    from riskplan.util.errors import BadInput
+    from riskplan.run.training import NumericalTrouble, train
+
+    try:
+        if resume:
+            try:
+                run = train(cfg, out, resume=True)
+            except (BadInput, NumericalTrouble):
+                raise
+            except Exception:  # an unreadable checkpoint or log: start this job again from scratch
+                traceback.print_exc()
+                print("=== resume failed; training from scratch", flush=True)
+                for name in STALE:
+                    (out / name).unlink(missing_ok=True)
+                run = train(cfg, out)
+        else:
+            run = train(cfg, out)
+    except (BadInput, NumericalTrouble) as err:
+        return {"status": "failed", "error": str(err)}
+    except Exception as err:  # a job that raises fails alone; the sweep goes on
+        trace = traceback.format_exc()
+        print(trace, file=sys.stderr, flush=True)
+        return {"status": "failed", "error": f"{type(err).__name__}: {err}", "traceback": trace}
+    return {"status": "done", "error": None, "cvar": run.summary["cvar"]["value"]}
+
+
+@contextlib.contextmanager
+def job_output(path: Path):
+    """Send this process's stdout and stderr (file descriptors 1 and 2, so native output too) to `path`."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    try:
+        saved = os.dup(1), os.dup(2)
+    except OSError:  # no usable descriptors (an unusual worker): leave output where it goes
+        yield
+        return
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    log = open(path, "a", buffering=1)  # Python-level writes too, whatever sys.stdout was replaced by
+    try:
+        with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+            yield
+    finally:
+        log.close()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        os.close(saved[0])
+        os.close(saved[1])

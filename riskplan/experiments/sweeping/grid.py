@@ -1,0 +1,337 @@
+"""What a sweep's overrides go through before anything runs: counted, expanded, every combination composed and
+checked, job folders named, Hydra's own settings checked."""
+
+from __future__ import annotations
+
+import copy
+import warnings
+from pathlib import Path
+
+from riskplan.util.errors import BadInput
+from riskplan.util.paths import claim_dir, hydra_quote
+from riskplan.experiments.sweeping.jobs import Job, SWEEPS_ROOT
+
+
+def target_dir(sweep_dir: Path | None, explicit_dir: Path | None, argv: list[str]) -> Path:
+    """The sweep directory, made or claimed now that the input is known to be good."""
+    if sweep_dir is not None:
+        target = Path(sweep_dir)
+        target.mkdir(parents=True, exist_ok=True)
+    elif explicit_dir is not None:
+        target = explicit_dir
+        target.mkdir(parents=True, exist_ok=True)
+    else:
+        target = claim_dir(SWEEPS_ROOT)
+    if explicit_dir is None:  # absolute: jobs on other machines (submitit, ray) may start in another directory
+        argv.append(f"hydra.sweep.dir={hydra_quote(target.resolve())}")
+    return target
+
+
+def sweep_size(task_ovs: list) -> tuple[int, object]:
+    """How many combinations the overrides make, from their parsed values (a range is never listed), and the
+    swept override with the most values."""
+    import math
+
+    from hydra.core.override_parser.types import ChoiceSweep, RangeSweep
+
+    parser = override_parser()
+    total, biggest, most = 1, None, 0
+    for override in task_ovs:
+        if not override.is_sweep_override():
+            continue
+        value = override.value()
+        if isinstance(value, RangeSweep):
+            if any(isinstance(v, float) and not math.isfinite(v) for v in (value.start, value.stop, value.step)):
+                raise BadInput(f"override '{override.input_line}'", "has a range bound or step that is not a finite "
+                                                                    "number; give finite numbers, e.g. range(0,5) or "
+                                                                    "range(0,1,0.25)")
+            if not value.step:
+                raise BadInput(f"override '{override.input_line}'", "has a range step of 0; give a step that is "
+                                                                    "not 0, e.g. range(0,5) or range(0,1,0.25)")
+            count = _range_length(value.start, value.stop, value.step)
+        elif isinstance(value, ChoiceSweep):
+            count = len(value.list)
+        else:  # glob(...) over a config group's options: few
+            try:
+                reparsed = parser.parse_overrides([override.input_line])[0]
+                count = sum(1 for _ in reparsed.sweep_string_iterator())
+            except Exception:  # noqa: BLE001 - expand() reports a bad glob
+                count = 1
+        total *= count
+        if count > most:
+            biggest, most = override, count
+    return total, biggest
+
+
+def _range_length(start, stop, step) -> int | float:
+    """len(range(start, stop, step)) for ints of any size and for floats, without listing it (inf when unbounded;
+    0 for a zero or undefined step, which expand() then reports)."""
+    import math
+    from fractions import Fraction
+
+    try:
+        if all(isinstance(v, int) for v in (start, stop, step)):
+            return max(0, math.ceil(Fraction(stop - start, step))) if step else 0
+        ratio = (float(stop) - float(start)) / float(step)
+    except (ZeroDivisionError, TypeError, ValueError, OverflowError):
+        return 0
+    if math.isnan(ratio):
+        return 0
+    return max(0, math.ceil(ratio)) if math.isfinite(ratio) else math.inf
+
+
+def check_size(task_ovs: list) -> None:
+    """A sweep larger than the job budget (RISKPLAN_MAX_JOBS) is bad input, before anything is expanded."""
+    from riskplan.util.limits import check_jobs
+
+    total, biggest = sweep_size(task_ovs)
+    swept = [o for o in task_ovs if o.is_sweep_override()]
+    key = f"override '{biggest.input_line}'" if len(swept) == 1 and biggest is not None else "sweep"
+    check_jobs(key, total)
+
+
+def check_subdir(value, several: bool) -> None:
+    """A hydra.sweep.subdir of the user's: without an interpolation it must be one relative folder, and it cannot
+    serve several jobs (they would share it)."""
+    import posixpath
+
+    text = "" if value is None else str(value)
+    if "${" in text:
+        return  # per job (${hydra.job.num}, ...): the user's naming
+    parts = [p for p in text.replace("\\", "/").split("/") if p not in ("", ".")]
+    if not parts or posixpath.isabs(text) or ".." in parts or "\x00" in text:
+        raise BadInput("hydra.sweep.subdir", f"got {text!r}; give a folder inside the sweep directory, e.g. "
+                                             f"job_${{hydra.job.num}}, or leave it out (riskplan names each job's "
+                                             f"folder from its overrides)")
+    if several:
+        raise BadInput("hydra.sweep.subdir", f"got {text!r}: every job of the sweep would write into that one "
+                                             f"folder; use an interpolation such as job_${{hydra.job.num}}, or leave "
+                                             f"it out (riskplan names each job's folder from its overrides)")
+
+
+def check_duplicates(job_list: list[Job], task_ovs: list) -> None:
+    """Two combinations that compose to one config (seed=0,0 or risk.beta=0.1,0.10) would be one job twice, in two
+    folders or one: bad input naming the override."""
+    seen: dict[str, Job] = {}
+    for job in job_list:
+        other = seen.setdefault(job.sha, job)
+        if other is job:
+            continue
+        mine, theirs = _by_key(job.overrides), _by_key(other.overrides)
+        differ = [k for k in theirs if theirs[k] != mine.get(k)]
+        by_key = {o.key_or_group: o for o in task_ovs}
+        if differ:
+            key = differ[0]
+            line = by_key[key].input_line if key in by_key else key
+            raise BadInput(f"override '{line}'", f"gives {theirs[key]} and {mine[key]}, which compose to the same "
+                                                 f"config (one job twice); give each value once")
+        for override in task_ovs:
+            value = _repeated(override) if override.is_sweep_override() else None
+            if value is not None:
+                raise BadInput(f"override '{override.input_line}'", f"gives the value {value} twice (one job "
+                                                                    f"twice); give each value once")
+        raise BadInput("sweep", f"gives the combination {job.label or ','.join(sorted(job.overrides))} twice (one "
+                                f"job twice); give each combination once")
+
+
+def _by_key(overrides: list[str]) -> dict[str, str]:
+    """{key: 'key=value'} of a job's overrides."""
+    return {line.split("=", 1)[0].lstrip("+~"): line for line in overrides}
+
+
+def _repeated(override) -> str | None:
+    """A value a sweep override lists twice (as Hydra passes it to the job: 0.10 is 0.1), or None."""
+    try:
+        values = list(override.sweep_string_iterator())
+    except Exception:  # noqa: BLE001
+        return None
+    seen: set[str] = set()
+    for value in values:
+        if value in seen:
+            return value
+        seen.add(value)
+    return None
+
+
+def name_folders(job_list: list[Job], naming: dict, task_ovs: list) -> None:
+    """The folder each job gets (Hydra's override_dirname through riskplan.experiments.sweep_worker.folder_name); two jobs that
+    would share one are bad input."""
+    from hydra._internal.config_loader_impl import get_overrides_dirname
+
+    from riskplan.experiments.sweep_worker import folder_name
+
+    parser = override_parser()
+    owners: dict[str, Job] = {}
+    for job in job_list:
+        dirname = get_overrides_dirname(parser.parse_overrides(job.overrides), list(naming["exclude_keys"]),
+                                        str(naming["item_sep"]), str(naming["kv_sep"]))
+        job.folder = folder_name(dirname)
+        other = owners.setdefault(job.folder, job)
+        if other is not job:
+            swept = [o for o in task_ovs if o.is_sweep_override()] or task_ovs
+            raise BadInput(f"override '{swept[0].input_line}'",
+                           f"makes two combinations share the job folder {job.folder} "
+                           f"({','.join(sorted(other.overrides))} and {','.join(sorted(job.overrides))}); give "
+                           f"values that differ in their text, or set hydra.sweep.subdir")
+
+
+def add_naming_and_logging(argv: list[str], hydra_keys: dict, constant: list[str]) -> None:
+    """riskplan's Hydra settings for a sweep, unless the user gave their own: job folders named by what varies
+    (risk.beta=0.1,seed=0), not by every fixed setting (the job's .hydra/overrides.yaml keeps them all, and resuming
+    matches jobs by their full config anyway), and logging into sweep.log and each job's job.log."""
+    if constant and not {"hydra.sweep.subdir", "hydra.job.config.override_dirname.exclude_keys"} & set(hydra_keys):
+        argv.append("hydra.job.config.override_dirname.exclude_keys=["
+                    + ",".join(hydra_quote(k) for k in constant) + "]")
+    if "hydra/hydra_logging" not in hydra_keys:
+        argv.append("hydra/hydra_logging=riskplan_sweep")
+    if "hydra/job_logging" not in hydra_keys:
+        argv.append("hydra/job_logging=riskplan_job")
+
+
+def expand(task_ovs: list, args: list[str]) -> list[list[str]]:
+    """Every combination, as Hydra's basic sweeper makes it (the same grammar, the same job overrides)."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.errors import HydraException
+
+    parser = override_parser()
+    try:
+        reparsed = parser.parse_overrides([o.input_line for o in task_ovs])
+        batches = BasicSweeper.split_arguments(reparsed, None)
+    except (HydraException, ValueError, TypeError, ArithmeticError) as err:
+        raise BadInput("sweep", f"{first_line(err)}; use comma lists, range(...), choice(...) or glob(...)") from None
+    combos = [list(job) for batch in batches for job in batch]
+    if not combos or (task_ovs and any(not job for job in combos)):
+        raise BadInput("sweep", f"'{' '.join(args)}' expands to no job; check empty range(...) values")
+    return combos
+
+
+def check_hydra(hydra_args: list[str], first_job: list[str], sweeper: bool = False):
+    """Compose Hydra's own config (launcher and its settings) once: a bad one is bad input, before anything runs.
+    Returns hydra.job.config.override_dirname (exclude_keys, item_sep, kv_sep), which names the job folders, and
+    with `sweeper` also hydra.sweeper (its settings, enums as text)."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from omegaconf import OmegaConf
+
+    from riskplan.config import schema
+    from riskplan.run.compose import CONF_DIR, explain, parse_overrides
+    from riskplan.config.hydra_safety import check_hydra_node
+
+    schema.register()
+    GlobalHydra.instance().clear()
+
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            cfg = compose(config_name="config", overrides=[*hydra_args, *first_job], return_hydra_config=True)
+            check_hydra_node(cfg, [o for o in parse_overrides(hydra_args) if o.is_hydra_override()])
+            naming = OmegaConf.to_container(cfg.hydra.job.config.override_dirname, resolve=True)
+            if sweeper:
+                return naming, OmegaConf.to_container(cfg.hydra.sweeper, resolve=True, enum_to_str=True)
+            return naming
+    except (HydraException, OmegaConfBaseException) as err:
+        where, message = explain(err)
+        if where == "key 'hydra/launcher'":
+            message += " (pip install 'riskplan[slurm]' for submitit_local|submitit_slurm, 'riskplan[ray]' for ray)"
+        if where == "key 'hydra/sweeper'":
+            message += " (pip install 'riskplan[optuna]' for optuna)"
+        raise BadInput(where, message) from None
+    finally:
+        GlobalHydra.instance().clear()
+
+
+def constant_keys(combos: list[list[str]], swept: set[str] = frozenset()) -> list[str]:
+    """The override keys left out of job folder names: those with one value in every job that were not typed as a
+    sweep (`seed=range(0,1)` keeps its key), as long as some key remains."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parser = OverridesParser.create()
+    values: dict[str, set[str]] = {}
+    for combo in combos:
+        for o in parser.parse_overrides(combo):
+            values.setdefault(o.key_or_group, set()).add(o.input_line)
+    constant = [k for k, v in values.items() if len(v) == 1 and k not in swept]
+    return constant if len(constant) < len(values) else []
+
+
+def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
+    """Compose every combination against the schema (BadInput on the first failure), then check each with the
+    model. Compositions are shared between combinations that choose the same config groups."""
+    from hydra import compose, initialize_config_dir
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from riskplan.config import schema
+    from riskplan.run.compose import CONF_DIR
+    from riskplan.run.compose import compose as riskplan_compose
+    from riskplan.run.build import build_setup
+    from riskplan.experiments.sweep_worker import config_sha
+
+    parser = override_parser()
+    schema.register()
+    GlobalHydra.instance().clear()
+    bases: dict[tuple[str, ...], object] = {}
+    jobs: list[Job] = []
+    notes: list[str] = []
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            for combo in combos:
+                parsed = parser.parse_overrides(combo)
+                groups = tuple(o.input_line for o in parsed if is_group(o, CONF_DIR))
+                keys = [o for o in parsed if not is_group(o, CONF_DIR)]
+                try:
+                    if groups not in bases:
+                        bases[groups] = compose(config_name="config", overrides=list(groups))
+                    cfg = copy.deepcopy(bases[groups])
+                    ConfigLoaderImpl._apply_overrides_to_config(keys, cfg)
+                except (HydraException, OmegaConfBaseException):
+                    riskplan_compose(combo, validate=False)  # raises BadInput naming the key
+                    cfg = compose(config_name="config", overrides=combo)  # composes after all: use Hydra's own
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    try:
+                        build_setup(cfg)
+                        invalid = None
+                    except BadInput as err:
+                        invalid = str(err)
+                for w in caught:
+                    if str(w.message) not in notes:
+                        notes.append(str(w.message))
+                jobs.append(Job(list(combo), config_sha(cfg), invalid))
+    finally:
+        GlobalHydra.instance().clear()
+    return jobs, notes
+
+
+def override_parser():
+    """Hydra's override parser, with a config loader so that glob(...) over config groups works."""
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra._internal.utils import create_config_search_path
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    from riskplan.run.compose import CONF_DIR
+
+    loader = ConfigLoaderImpl(config_search_path=create_config_search_path(str(CONF_DIR)))
+    return OverridesParser.create(config_loader=loader)
+
+
+def is_group(override, conf_dir: Path) -> bool:
+    """Whether an override selects a config group option (experiment=..., risk=...) rather than sets a key."""
+    return override.package is not None or (conf_dir / override.key_or_group).is_dir()
+
+
+def split_bad(message: str, count: int) -> tuple[str, str]:
+    """BadInput parts for 'every combination is invalid'."""
+    where, _, problem = message.partition(": ")
+    if count > 1:
+        problem = f"{problem} (in every one of the {count} combinations; nothing was run)"
+    return where, problem
+
+
+def first_line(err: Exception) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__

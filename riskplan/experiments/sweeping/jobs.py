@@ -1,0 +1,150 @@
+"""The jobs of a sweep: one job (Job), a planned sweep (Plan), what a launch left (Outcome), and where each
+job's folder and state are on disk."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+
+
+SWEEPS_ROOT = Path("outputs") / "sweeps"
+
+
+SUMMARY = "summary.parquet"
+
+
+DEFAULT_LAUNCHER = "joblib"
+
+
+@dataclass
+class Job:
+    """One combination of the sweep."""
+
+    overrides: list[str]  # as Hydra passes them to the job (and writes them to .hydra/overrides.yaml)
+    sha: str  # riskplan.experiments.sweep_worker.config_sha of its composed config
+    invalid: str | None = None  # why the model rejects it (the job will fail with this error)
+    path: Path | None = None  # its folder, once known
+    label: str = ""  # the overrides that vary between jobs: its name until its folder exists
+    folder: str | None = None  # the folder name Hydra will give it (None when the user set hydra.sweep.subdir)
+    trial: int = -1  # under an optimising sweeper: its trial number (hydra.job.num)
+
+    @property
+    def key(self) -> tuple[str, ...]:
+        return tuple(sorted(self.overrides))
+
+    @property
+    def name(self) -> str:
+        return self.path.name if self.path is not None else (self.label or ",".join(self.overrides))
+
+
+@dataclass
+class Plan:
+    """A validated sweep, ready to launch."""
+
+    sweep_dir: Path
+    argv: list[str]  # Hydra's command line (after the program name)
+    jobs: list[Job]
+    launcher: str
+    workers: int | None
+    warnings: list[str] = field(default_factory=list)
+    workers_arg: int | None = None  # index in argv of the hydra.launcher.n_jobs=... riskplan added
+    sweeper: str = "basic"  # another one (optuna) chooses the jobs as it goes: `jobs` is empty until they ran
+    trials: int | None = None  # how many jobs such a sweeper runs, when known
+    search: list[str] = field(default_factory=list)  # the keys it searches
+
+
+@dataclass
+class Outcome:
+    """What a sweep left: its directory, the summary table and the jobs that did not finish."""
+
+    sweep_dir: Path
+    summary: "object"  # pandas.DataFrame
+    failed: list[tuple[str, str]]  # (job folder name, error)
+    ran: int
+    skipped: int
+    seconds: float
+    launcher_error: str | None = None
+    command: list[str] = field(default_factory=list)  # the `riskplan sweep` arguments that resume this sweep
+    best: str | None = None  # an optimising sweeper's best trial, as it reports it
+    optimiser: bool = False
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed and self.launcher_error is None
+
+
+def locate(sweep_dir: Path, jobs: list[Job]) -> None:
+    """Find each job's folder by the overrides Hydra recorded in it (whatever hydra.sweep.subdir is)."""
+    import yaml
+
+    missing = {job.key: job for job in jobs if job.path is None}
+    if not missing or not Path(sweep_dir).is_dir():
+        return
+    elsewhere: dict[tuple[str, ...], Path] = {}  # found, but not in the folder the job is named for
+    for file in override_files(Path(sweep_dir)):
+        try:
+            overrides = yaml.safe_load(file.read_text()) or []
+        except (OSError, yaml.YAMLError):
+            continue
+        if not isinstance(overrides, list):
+            continue
+        key = tuple(sorted(str(o) for o in overrides))
+        job = missing.get(key)
+        if job is None:
+            continue
+        folder = file.parent.parent
+        if job.folder is None or folder.name == job.folder:
+            job.path = folder
+            del missing[key]
+        else:
+            elsewhere.setdefault(key, folder)
+        if not missing:
+            return
+    for key, folder in elsewhere.items():
+        if key in missing:
+            missing[key].path = folder
+
+
+def override_files(root: Path):
+    """Every .hydra/overrides.yaml below root, not looking inside other hidden folders (.submitit, ...)."""
+    for here, dirs, files in os.walk(root):
+        if Path(here).name == ".hydra":
+            dirs[:] = []
+            if "overrides.yaml" in files:
+                yield Path(here) / "overrides.yaml"
+            continue
+        dirs[:] = [d for d in dirs if d == ".hydra" or not d.startswith(".")]
+
+
+def job_state(job: Job, since: float) -> tuple[str, dict | None]:
+    """pending | running | done | failed, as far as this launch is concerned (older records are pending)."""
+    from riskplan.util import lock
+    from riskplan.experiments.sweep_worker import read_status
+
+    if job.path is None:
+        return "pending", None
+    status = read_status(job.path)
+    if status is not None and (job.sha is None or status.get("config_sha") == job.sha):
+        state = status.get("status")
+        if state == "running" and as_number(status.get("started")) >= since - 2:
+            return "running", status
+        if state in ("done", "failed") and as_number(status.get("finished")) >= since - 2:
+            return state, status
+    if lock.holder(job.path) is not None:  # a job of this launch about to start, or one of another process
+        return "running", status
+    return "pending", status
+
+
+def as_number(value) -> float:
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else 0.0
+
+
+def cpu_count() -> int:
+    """Cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1

@@ -1,0 +1,102 @@
+"""A sweep planned from its command line: parsed, counted, expanded and validated, its directory chosen last,
+so bad input leaves nothing behind."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from riskplan.util.errors import BadInput
+from riskplan.util.paths import check_output_dir, hydra_quote
+from riskplan.experiments.sweeping.grid import add_naming_and_logging, check_duplicates, check_hydra, check_size, check_subdir, constant_keys, expand, name_folders, split_bad, target_dir, validate
+from riskplan.experiments.sweeping.jobs import DEFAULT_LAUNCHER, Plan, cpu_count
+from riskplan.experiments.sweeping.search import plan_optimiser
+
+
+def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None) -> Plan:
+    """Parse, expand and validate a sweep; claim its directory last, so bad input leaves nothing behind."""
+    from riskplan.run.compose import expand_shorthands, parse_overrides
+
+    for arg in args:
+        if arg.startswith("-"):
+            raise BadInput(f"option '{arg}'", "is not known to riskplan sweep; give Hydra overrides (key=value) "
+                                              "and --jobs N")
+    args = expand_shorthands(args)  # risk.schedule=none,linear -> risk.schedule.kind=none,linear
+    parsed = parse_overrides(args)
+    hydra_ovs = [o for o in parsed if o.is_hydra_override()]
+    task_ovs = [o for o in parsed if not o.is_hydra_override()]
+    for o in hydra_ovs:
+        if o.key_or_group == "hydra.mode":
+            raise BadInput(f"override '{o.input_line}'", "riskplan sweep always runs a multirun; drop it (one run: "
+                                                         "riskplan train)")
+        if o.is_sweep_override():
+            raise BadInput(f"override '{o.input_line}'", "sweeps over Hydra's own settings are not supported; "
+                                                         "sweep over riskplan keys, e.g. risk.beta=0.1,0.2")
+    hydra_keys = {o.key_or_group: o for o in hydra_ovs}
+    launcher = str(hydra_keys["hydra/launcher"].value()) if "hydra/launcher" in hydra_keys else DEFAULT_LAUNCHER
+    explicit_dir = None
+    if "hydra.sweep.dir" in hydra_keys:
+        raw = hydra_keys["hydra.sweep.dir"].value()
+        value = "" if raw is None else str(raw)
+        if "${" in value:
+            raise BadInput("hydra.sweep.dir", f"got '{value}'; give a plain path (without it, riskplan sweep uses "
+                                              f"outputs/sweeps/<timestamp>)")
+        if sweep_dir is None:
+            check_output_dir(value, "hydra.sweep.dir")
+        explicit_dir = Path(value)
+    if sweep_dir is not None and explicit_dir is not None:
+        raise BadInput("hydra.sweep.dir", "is chosen by this command; do not give it")
+    sweeper = str(hydra_keys["hydra/sweeper"].value()) if "hydra/sweeper" in hydra_keys else "basic"
+    if sweeper != "basic":  # an optimiser: it chooses the jobs as it goes
+        return plan_optimiser(args, task_ovs, hydra_ovs, launcher, sweeper, jobs, sweep_dir, explicit_dir)
+    for o in task_ovs:
+        if o.is_interval_sweep():
+            raise BadInput(f"override '{o.input_line}'", "interval(...) is a search space for an optimising "
+                                                         "sweeper (hydra/sweeper=optuna); a grid takes comma "
+                                                         "lists, range(...), choice(...) or glob(...)")
+
+    check_size(task_ovs)
+    if "hydra.sweep.subdir" in hydra_keys:
+        check_subdir(hydra_keys["hydra.sweep.subdir"].value(), len(task_ovs) > 0)
+    combos = expand(task_ovs, args)
+    job_list, notes = validate(combos)
+    check_duplicates(job_list, task_ovs)
+    if all(job.invalid for job in job_list):
+        first = job_list[0].invalid
+        raise BadInput(*split_bad(first, len(job_list)))
+
+    argv = ["-m", *args]
+    workers = None
+    workers_arg = None
+    if launcher == "joblib":
+        workers = min(jobs or cpu_count(), len(job_list))  # more workers than jobs would idle
+        if "hydra.launcher.n_jobs" not in hydra_keys:
+            workers_arg = len(argv)
+            argv.append(f"hydra.launcher.n_jobs={workers}")
+    elif jobs is not None:
+        if launcher == "submitit_slurm":
+            workers = min(jobs, len(job_list))
+            argv.append(f"hydra.launcher.array_parallelism={workers}")
+        else:
+            raise BadInput("--jobs", f"applies to the joblib and submitit_slurm launchers, not to "
+                                     f"hydra/launcher={launcher}")
+    if "hydra/launcher" not in hydra_keys:
+        argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
+    if not task_ovs and "hydra.sweep.subdir" not in hydra_keys:
+        argv.append("hydra.sweep.subdir=defaults")  # one job without overrides: still a folder of its own
+    elif "hydra.sweep.subdir" not in hydra_keys:
+        # folder names that stay one path component, whatever the values hold ('/', '..', '%', NUL)
+        from riskplan.experiments.sweep_worker import SUBDIR
+
+        argv.append(f"hydra.sweep.subdir={hydra_quote(SUBDIR)}")
+        argv.append("+hydra.callbacks.riskplan_folders._target_=riskplan.experiments.sweep_worker.FolderNames")
+    constant = constant_keys(combos, {o.key_or_group for o in task_ovs if o.is_sweep_override()})
+    for job in job_list:
+        job.label = ",".join(sorted(o for o in job.overrides if o.split("=", 1)[0].lstrip("+~") not in constant))
+    add_naming_and_logging(argv, hydra_keys, constant)
+
+    naming = check_hydra(argv[1 + len(args):] + [o.input_line for o in hydra_ovs], combos[0])
+    if task_ovs and "hydra.sweep.subdir" not in hydra_keys:
+        name_folders(job_list, naming, task_ovs)
+
+    target = target_dir(sweep_dir, explicit_dir, argv)
+    return Plan(target, argv, job_list, launcher, workers, notes, workers_arg)

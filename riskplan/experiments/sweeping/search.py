@@ -1,0 +1,268 @@
+"""An optimising sweeper (hydra/sweeper=optuna): its search space checked with sample values, its trials found
+as they run, one summary row per trial."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+from riskplan.util.errors import BadInput
+from riskplan.util.paths import hydra_quote
+from riskplan.experiments.sweeping.grid import add_naming_and_logging, check_hydra, check_subdir, target_dir, validate
+from riskplan.experiments.sweeping.jobs import DEFAULT_LAUNCHER, Job, Outcome, Plan, SUMMARY, as_number, cpu_count, override_files
+from riskplan.experiments.sweeping.launch import launch
+from riskplan.experiments.sweeping.summary import summarize, write_summary
+from riskplan.experiments.sweeping.view import SweepView
+
+
+OPTIMISER_FORMS = "choice(...), comma lists, range(...) or interval(...)"
+
+
+def plan_optimiser(args: list[str], task_ovs: list, hydra_ovs: list, launcher: str, sweeper: str,
+                   jobs: int | None, sweep_dir: Path | None, explicit_dir: Path | None) -> Plan:
+    """A sweep whose sweeper chooses the jobs as it goes (hydra/sweeper=optuna): the combinations are not known
+    before it runs, so the search space is checked instead. Every swept key is composed with a sample value of the
+    type the sweeper will draw (every value of a choice), which makes an unknown key or a badly typed value bad
+    input; a sample the model rejects is a warning (its trials fail alone), unless every sample is rejected for a
+    key that is not searched (bad input). The trials run as jobs of the grid do (sweepjob), in folders numbered by
+    trial; each returns its CVaR to the sweeper, or None when it failed (optuna records that trial as failed)."""
+    from riskplan.experiments.sweep_worker import TRIAL_SUBDIR
+
+    hydra_keys = {o.key_or_group: o for o in hydra_ovs}
+    search = [o for o in task_ovs if o.is_sweep_override()]
+    fixed = [o for o in task_ovs if not o.is_sweep_override()]
+    samples = {o.key_or_group: search_samples(o, sweeper) for o in search}
+    base = [o.input_line for o in fixed] + [f"{o.get_key_element()}={samples[o.key_or_group][0]}" for o in search]
+    combos = [base]
+    for i, o in enumerate(search):
+        for value in samples[o.key_or_group][1:]:
+            combo = list(base)
+            combo[len(fixed) + i] = f"{o.get_key_element()}={value}"
+            combos.append(combo)
+    try:
+        sample_jobs, notes = validate(combos)
+    except BadInput as err:  # name the search-space override whose sample does not compose
+        for o in search:
+            if err.where in (f"key '{o.key_or_group}'", o.key_or_group) and not o.is_choice_sweep():
+                raise BadInput(err.where, f"{err.problem} (from override '{o.input_line}', composed with the "
+                                          f"sample value {samples[o.key_or_group][0]})") from None
+        raise
+    searched = {o.key_or_group for o in search}
+    rejected = [job.invalid for job in sample_jobs if job.invalid]
+    if rejected and len(rejected) == len(sample_jobs) and rejected[0].partition(": ")[0] not in searched:
+        where, _, problem = rejected[0].partition(": ")
+        raise BadInput(where, f"{problem} (in every trial; nothing was run)")
+    for job, error in zip(sample_jobs, (j.invalid for j in sample_jobs)):
+        if error:
+            tried = ",".join(job.overrides[len(fixed):])
+            notes.append(f"{error} (with the sample {tried}); trials there will fail alone")
+
+    argv = ["-m", *args]
+    if sweeper == "optuna":
+        if "hydra.sweeper.direction" not in hydra_keys:
+            argv.append("hydra.sweeper.direction=maximize")  # the trials return their CVaR: higher is better
+        if jobs is not None and "hydra.sweeper.n_jobs" not in hydra_keys:
+            argv.append(f"hydra.sweeper.n_jobs={jobs}")  # trials per batch: as many as run at once
+    if "hydra/launcher" not in hydra_keys:
+        argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
+    if "hydra.sweep.subdir" in hydra_keys:
+        check_subdir(hydra_keys["hydra.sweep.subdir"].value(), True)
+    else:  # trial_007,risk.beta=0.31: numbered, so two trials that drew the same values never share a folder
+        argv.append(f"hydra.sweep.subdir={hydra_quote(TRIAL_SUBDIR)}")
+        argv.append("+hydra.callbacks.riskplan_folders._target_=riskplan.experiments.sweep_worker.FolderNames")
+    constant = [o.key_or_group for o in fixed] if search else []
+    add_naming_and_logging(argv, hydra_keys, constant)
+    _, settings = check_hydra(argv[1 + len(args):] + [o.input_line for o in hydra_ovs], base, sweeper=True)
+    trials, batch = check_optimiser(sweeper, settings, search)
+
+    workers = None
+    workers_arg = None
+    if launcher == "joblib":
+        workers = min(jobs or cpu_count(), *(n for n in (batch, trials) if n))
+        if "hydra.launcher.n_jobs" not in hydra_keys:
+            workers_arg = len(argv)
+            argv.append(f"hydra.launcher.n_jobs={workers}")
+    elif jobs is not None:
+        if launcher == "submitit_slurm":
+            workers = min(jobs, *(n for n in (batch, trials) if n))
+            argv.append(f"hydra.launcher.array_parallelism={workers}")
+        else:
+            raise BadInput("--jobs", f"applies to the joblib and submitit_slurm launchers, not to "
+                                     f"hydra/launcher={launcher}")
+    target = target_dir(sweep_dir, explicit_dir, argv)
+    return Plan(target, argv, [], launcher, workers, notes, workers_arg, sweeper=sweeper, trials=trials,
+                search=sorted(searched))
+
+
+def search_samples(override, sweeper: str) -> list[str]:
+    """Values to compose a search-space override with, of the types the sweeper will draw: every value of a
+    choice, the start of a range (and its next value), the middle of an interval (an int for an int interval)."""
+    import math
+
+    from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, RangeSweep
+
+    value = override.value()
+    line = f"override '{override.input_line}'"
+    if isinstance(value, ChoiceSweep):
+        return list(override.sweep_string_iterator())
+    if isinstance(value, RangeSweep):
+        bounds = (value.start, value.stop, value.step)
+        if any(not isinstance(v, (int, float)) or not math.isfinite(v) for v in bounds) or not value.step:
+            raise BadInput(line, "has a range bound or step that is not a finite number, or a step of 0; give "
+                                 "finite numbers, e.g. range(0,5) or range(0,1,0.25)")
+        if (value.stop - value.start) / value.step < 0:
+            raise BadInput(line, "is an empty range; give a start below the stop, e.g. range(0,5)")
+        first = value.start if all(isinstance(v, int) for v in bounds) else float(value.start)
+        return [repr(first)]
+    if isinstance(value, IntervalSweep):
+        start, end = value.start, value.end
+        if any(not isinstance(v, (int, float)) or not math.isfinite(v) for v in (start, end)):
+            raise BadInput(line, "has a bound that is not a finite number; give finite numbers, e.g. "
+                                 "interval(0.05,1)")
+        if not start < end:
+            raise BadInput(line, f"has its lower bound {start} not below its upper bound {end}; give "
+                                 f"interval(low,high) with low < high")
+        log = "log" in value.tags
+        if log and start <= 0:
+            raise BadInput(line, f"is a log interval from {start}; a log interval needs a lower bound above 0")
+        if isinstance(start, int) and isinstance(end, int):
+            return [repr(int(round(math.sqrt(start * end))) if log else (start + end) // 2)]
+        return [repr(math.sqrt(start * end) if log else (start + end) / 2)]
+    raise BadInput(line, f"the {sweeper} sweeper takes {OPTIMISER_FORMS}, not glob(...)")
+
+
+def check_optimiser(sweeper: str, settings: dict, search: list) -> tuple[int | None, int | None]:
+    """The optuna sweeper's settings that would fail only once it runs; returns (trials, trials per batch)."""
+    from riskplan.util.limits import check_jobs
+
+    if sweeper != "optuna":
+        return None, None
+    trials, batch = settings.get("n_trials"), settings.get("n_jobs")
+    for key, value in (("hydra.sweeper.n_trials", trials), ("hydra.sweeper.n_jobs", batch)):
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            raise BadInput(key, f"got {value!r}; expected a whole number >= 1")
+    check_jobs("hydra.sweeper.n_trials", trials)
+    direction = settings.get("direction")
+    if isinstance(direction, (list, tuple)):
+        raise BadInput("hydra.sweeper.direction", f"got {list(direction)}: several objectives; riskplan's trials "
+                                                  f"return one (the CVaR), so give maximize or minimize")
+    if str(direction) not in ("maximize", "minimize"):
+        raise BadInput("hydra.sweeper.direction", f"got {direction!r}; expected maximize or minimize")
+    if settings.get("custom_search_space") is not None:
+        raise BadInput("hydra.sweeper.custom_search_space", f"got {settings['custom_search_space']!r}: it names a "
+                                                            f"function to run, and config strings are never code; "
+                                                            f"give the search space as overrides, e.g. "
+                                                            f"'risk.beta=interval(0.05,1)'")
+    rate = settings.get("max_failure_rate")
+    if not isinstance(rate, (int, float)) or isinstance(rate, bool) or not 0 <= rate <= 1:
+        raise BadInput("hydra.sweeper.max_failure_rate", f"got {rate!r}; expected a number from 0 to 1")
+    sampler = str((settings.get("sampler") or {}).get("_target_", ""))
+    for o in search:
+        if sampler.endswith("GridSampler") and o.is_interval_sweep():
+            raise BadInput(f"override '{o.input_line}'", "the grid sampler takes choice(...), comma lists or "
+                                                         "range(...), not interval(...)")
+    return trials, batch
+
+
+def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, echo) -> Outcome:
+    """Launch a sweep whose sweeper chooses the trials; then one summary row per trial it ran."""
+    from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV
+
+    started = time.time()
+    where = f"{plan.launcher}" + (f", {plan.workers} workers" if plan.workers else "")
+    echo(f"{title} directory: {plan.sweep_dir}")
+    count = f"{plan.trials} trials" if plan.trials else "trials"
+    echo(f"{count} chosen by hydra/sweeper={plan.sweeper} over {', '.join(plan.search) or 'no key'}, each "
+         f"returning its CVaR ({where})")
+    if plan.launcher == "joblib" and plan.workers:
+        os.environ[THREADS_ENV] = str(max(1, cpu_count() // plan.workers))
+    os.environ[DRIVER_ENV] = str(os.getpid())
+    if plan.sweeper == "optuna":  # optuna's messages go where Hydra's go (sweep.log), not to the terminal
+        try:
+            import optuna
+
+            optuna.logging.disable_default_handler()
+            optuna.logging.enable_propagation()
+        except ImportError:
+            pass
+    with SweepView(plan.sweep_dir, [], set(), title, total=plan.trials,
+                   discover=lambda since: discover_trials(plan.sweep_dir, since)):
+        launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log")
+    trials = trial_jobs(plan.sweep_dir, started)
+    summary = summarize(trials)
+    if len(summary):
+        summary.insert(1, "trial", [job.trial for job in trials])
+    write_summary(summary, plan.sweep_dir / SUMMARY)
+    failed = [(row.job, row.error or row.status) for row in summary.itertuples() if row.status != "done"]
+    if plan.trials and len(trials) < plan.trials and launcher_error is None:
+        launcher_error = (f"the sweeper ran {len(trials)} of {plan.trials} trials (see "
+                          f"{plan.sweep_dir / 'sweep.log'})")
+    resume = ([a for a in args if not a.startswith("hydra.sweep.dir=")] + [f"hydra.sweep.dir={plan.sweep_dir}"]
+              + (["--jobs", str(jobs)] if jobs else []))
+    from riskplan.experiments.sweep_worker import read_status
+
+    earlier = sum(1 for job in trials if as_number((read_status(job.path) or {}).get("finished")) < started - 2
+                  and (read_status(job.path) or {}).get("status") == "done")  # finished before: skipped now
+    outcome = Outcome(plan.sweep_dir, summary, failed, len(trials) - earlier, earlier, time.time() - started,
+                      launcher_error, resume)
+    outcome.best = best_trial(plan.sweep_dir, started)
+    outcome.optimiser = True
+    return outcome
+
+
+def discover_trials(sweep_dir: Path, since: float) -> list[Job]:
+    """The job folders Hydra wrote since `since` (each launch rewrites a job's .hydra/), as Jobs of any config."""
+    import yaml
+
+    found = []
+    for file in override_files(Path(sweep_dir)):
+        try:
+            if file.stat().st_mtime < since - 2:
+                continue
+            overrides = yaml.safe_load(file.read_text()) or []
+        except (OSError, yaml.YAMLError):
+            continue
+        if isinstance(overrides, list):
+            folder = file.parent.parent
+            found.append(Job([str(o) for o in overrides], None, path=folder, label=folder.name))
+    return found
+
+
+def trial_jobs(sweep_dir: Path, since: float) -> list[Job]:
+    """The trials launched since `since`, in the sweeper's order (hydra.job.num), each with the fingerprint of
+    its composed config."""
+    import yaml
+
+    from riskplan.util.errors import BadInput as _Bad
+
+    trials = discover_trials(sweep_dir, since)
+    for job in trials:
+        try:
+            hydra_yaml = yaml.safe_load((job.path / ".hydra" / "hydra.yaml").read_text())
+            job.trial = int(hydra_yaml["hydra"]["job"]["num"])
+        except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError):
+            job.trial = -1
+        try:
+            checked, _ = validate([job.overrides])
+            job.sha, job.invalid = checked[0].sha, checked[0].invalid
+        except _Bad as err:
+            job.sha, job.invalid = "", str(err)
+    return sorted(trials, key=lambda j: (j.trial, j.name))
+
+
+def best_trial(sweep_dir: Path, since: float) -> str | None:
+    """What the sweeper reports as its best (optuna's optimization_results.yaml), written by this launch."""
+    import yaml
+
+    file = Path(sweep_dir) / "optimization_results.yaml"
+    try:
+        if file.stat().st_mtime < since - 2:
+            return None
+        result = yaml.safe_load(file.read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return None
+    if not isinstance(result, dict) or "best_params" not in result:
+        return None
+    params = ",".join(f"{k}={v}" for k, v in (result.get("best_params") or {}).items())
+    return f"best trial: {params} with CVaR {result.get('best_value')} ({file.name})"

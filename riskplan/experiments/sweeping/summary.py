@@ -1,0 +1,176 @@
+"""summary.parquet (one row per job), and the table and failure lines printed at the end of a sweep."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import typer
+
+from riskplan.util.paths import atomic_path
+from riskplan.experiments.sweeping.jobs import Job, Outcome, SUMMARY
+
+
+FIGURES = ("mean", "cvar", "value_at_risk")
+
+
+EXTRA_CVARS = ("cvar_0.05", "cvar_0.1", "cvar_0.2")
+
+
+def summarize(jobs: list[Job]):
+    """One row per job: its overrides as columns, final figures with 95% intervals, wall time, status, error."""
+    import pandas as pd
+
+    from riskplan.util import lock
+    from riskplan.experiments.sweep_worker import is_finished, read_status
+
+    rows = []
+    for job in jobs:
+        row: dict = {"job": job.name}
+        row.update(_override_columns(job.overrides))
+        status = read_status(job.path) if job.path is not None else None
+        holder = lock.holder(job.path) if job.path is not None else None
+        summary = None
+        if holder is not None and holder != os.getpid():
+            status = None  # whatever its status says, that process owns it now
+            state, error = "running", (f"running in another process (pid {holder or 'unknown'}); re-run the sweep "
+                                       f"when that process has ended")
+        elif job.path is None or status is None:
+            state, error = "not run", job.invalid or "not started: the sweep stopped before it"
+        elif status.get("config_sha") != job.sha:
+            state, error = "not run", "its folder holds a run of another config"
+        elif status.get("status") == "done" and is_finished(job.path, job.sha, status):
+            state, error = "done", None
+            try:
+                summary = json.loads((job.path / "summary.json").read_text())
+            except (OSError, ValueError) as err:
+                state, error = "failed", f"unreadable summary.json: {err}"
+        elif status.get("status") == "done":
+            state, error = "failed", "finished, but some of its output files are missing"
+        elif status.get("status") == "running":
+            state, error = "interrupted", "killed while running; re-run the sweep to resume it"
+        else:
+            state, error = "failed", status.get("error") or "no error recorded"
+        for name in FIGURES:
+            figure = (summary or {}).get(name) or {}
+            row[name] = figure.get("value", float("nan"))
+            row[f"{name}_low"] = figure.get("low", float("nan"))
+            row[f"{name}_high"] = figure.get("high", float("nan"))
+        for name in EXTRA_CVARS:
+            row[name] = ((summary or {}).get(name) or {}).get("value", float("nan"))
+        row["beta"] = (summary or {}).get("beta", float("nan"))
+        row["risky_fraction"] = (summary or {}).get("risky_fraction", float("nan"))
+        reached = (summary or {}).get("source_reached") or {}
+        for name, value in (reached.items() if isinstance(reached, dict) else ()):
+            row[f"reached_{name}"] = value
+        row["wall_time"] = (float(status["seconds"]) if status and state == "done"
+                            and isinstance(status.get("seconds"), (int, float)) else float("nan"))
+        row["train_time"] = (summary or {}).get("wall_time", float("nan"))
+        row["status"] = state
+        row["error"] = error
+        row["path"] = str(job.path) if job.path is not None else None
+        rows.append(row)
+    frame = pd.DataFrame(rows)
+    reached = [c for c in frame.columns if str(c).startswith("reached_")]
+    if reached:  # right after risky_fraction, whichever job first had them
+        rest = [c for c in frame.columns if c not in reached]
+        at = rest.index("risky_fraction") + 1
+        frame = frame[rest[:at] + reached + rest[at:]]
+    for column in frame.columns:  # a column mixing numbers and text is stored as text
+        kinds = {type(v) for v in frame[column] if v is not None and v == v}
+        if len(kinds) > 1 and not kinds <= {int, float, bool}:
+            frame[column] = frame[column].map(lambda v: None if v is None else str(v))
+    return frame
+
+
+def _override_columns(overrides: list[str]) -> dict:
+    """{key: value} of a job's overrides; numbers stay numbers, lists and dicts become their JSON text."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    out = {}
+    for o in OverridesParser.create().parse_overrides(overrides):
+        value = o.value()
+        if isinstance(value, (list, dict)):
+            value = json.dumps(value)
+        elif value is not None and not isinstance(value, (int, float, bool, str)):
+            value = str(value)
+        out[o.key_or_group] = value
+    return out
+
+
+def write_summary(frame, path: Path) -> None:
+    """Write summary.parquet atomically (no half file, and no temp file left on a full disk)."""
+    with atomic_path(path) as tmp:
+        frame.to_parquet(tmp, index=False)
+
+
+def varying_columns(frame) -> list[str]:
+    """The override columns whose value differs between jobs (all of them if none differs)."""
+    fixed = {"job", "trial", "status", "error", "path", "beta", "wall_time", "train_time", "risky_fraction",
+             *EXTRA_CVARS, *[f"{n}{s}" for n in FIGURES for s in ("", "_low", "_high")]}
+    overrides = [c for c in frame.columns if c not in fixed and not str(c).startswith("reached_")]
+    varying = [c for c in overrides if frame[c].astype(str).nunique() > 1]
+    return varying or overrides[:3]
+
+
+def print_table(frame, title: str, limit: int = 40) -> None:
+    """The summary as a terminal table (the varying overrides, status, figures with intervals, wall time)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, title_justify="left", show_edge=False, pad_edge=False)
+    keys = (["trial"] if "trial" in frame.columns else []) + varying_columns(frame)
+    reached = [c for c in frame.columns if str(c).startswith("reached_")]
+    for key in keys:
+        table.add_column(key, no_wrap=True)
+    table.add_column("status", no_wrap=True)
+    for name, label in (("mean", "mean [95% CI]"), ("cvar", "CVaR [95% CI]"), ("value_at_risk", "VaR")):
+        table.add_column(label, justify="right", no_wrap=True)
+    for column in reached:
+        table.add_column(column, justify="right", no_wrap=True)
+    table.add_column("wall s", justify="right", no_wrap=True)
+    for values in frame.head(limit).to_dict("records"):
+        cells = [str(values[k]) for k in keys]
+        status = values["status"]
+        cells.append(status if status == "done" else f"[red]{status}[/red]")
+        for name in ("mean", "cvar"):
+            v, lo, hi = values[name], values[f"{name}_low"], values[f"{name}_high"]
+            cells.append("" if v != v else f"{v:.1f} [{lo:.1f}, {hi:.1f}]")
+        var = values["value_at_risk"]
+        cells.append("" if var != var else f"{var:.1f}")
+        for column in reached:
+            share = values[column]
+            cells.append("" if share is None or share != share else f"{share:.0%}")
+        wall = values["wall_time"]
+        cells.append("" if wall != wall else f"{wall:.1f}")
+        table.add_row(*cells)
+    console = Console() if sys.stdout.isatty() else Console(width=250)
+    console.print(table)
+    if len(frame) > limit:
+        console.print(f"... {len(frame) - limit} more rows in {SUMMARY}")
+
+
+def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) -> int:
+    """Print the summary table and the failures; return the exit code (0, or 1 when a job failed)."""
+    print_table(outcome.summary, f"{title}: {outcome.sweep_dir}")
+    typer.echo(f"summary: {outcome.sweep_dir / SUMMARY} ({outcome.ran} launched, {outcome.skipped} skipped, "
+               f"{outcome.seconds:.1f} s)")
+    if outcome.best:
+        typer.echo(outcome.best)
+    if outcome.launcher_error:
+        typer.echo(f"error: {outcome.launcher_error}", err=True)
+    if outcome.failed:
+        typer.echo(f"error: {len(outcome.failed)} of {len(outcome.summary)} "
+                   f"{'trials' if outcome.optimiser else 'jobs'} did not finish:", err=True)
+        for name, error in outcome.failed:
+            typer.echo(f"  {name}: {error}", err=True)
+    if hint and not outcome.ok and outcome.command:
+        import shlex
+
+        what = ("to run the study again in this directory (a trial that draws the values of a finished one, as "
+                "with a seeded sampler, is skipped)" if outcome.optimiser
+                else "to retry the jobs that did not finish (finished ones are skipped)")
+        typer.echo(f"{what}: riskplan sweep {shlex.join(outcome.command)}", err=True)
+    return 0 if outcome.ok else 1

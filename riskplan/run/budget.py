@@ -1,0 +1,200 @@
+"""Memory and time a run will need, estimated from its sizes before anything is allocated (riskplan.util.limits checks).
+
+`build_setup` calls `check` twice: once on the raw config sizes, before the world's arrays exist (a 10^10-cell
+grid must fail here, not while allocating), and once on the built world and network. Everything is computed in
+Python floats from Python ints, never numpy, so a key of 10^30 (or 10^400) is a number, not an overflow.
+
+The bytes per unit are measured peaks of `riskplan train` (tracemalloc and max RSS over growing sizes, M = 2
+sources, rounded up), and the costs are in trajectory-step equivalents of limits.STEPS_PER_SECOND:
+  grid        (200 + 40 M) B per cell (next_cell, signals, features, the logged world map)
+  tables      (40 + 40 M) B per cell and robot (move probabilities and scores of every robot's policy)
+  batch       (48 + 16 M) B per episode of the largest iteration, per robot (totals, scores, sort)
+  evaluation  160 B per episode and evaluated policy (eval.parquet's frame, concatenated)
+  paths       250 B and 400 steps per recorded step (trajectories.parquet, the /paths replay in run.mcap)
+  rows        (2000 + 200 M) B and 2000 steps per metrics row (kept for the checkpoint and the log)
+  messages    (64 + 80 M) B per (delay slot, round, ordered robot pair) of the consensus buffers (and their
+              checkpoint), twice that with gradient tracking, 100 steps each per checkpoint
+  network     (1000 + 400 M) B and 300 steps per ordered robot pair (weights, checks, logged graph)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from riskplan.util import limits
+
+EVAL_BATCH = 100_000  # episodes per kernel call during evaluation (training uses it; it bounds memory)
+ITERATION_STEPS = 10_000  # fixed cost of an iteration (gradient, logging, fsync-free bookkeeping)
+# The paper's defaults: the key named in a message is the one furthest above its default.
+DEFAULTS = {
+    "world.size": 144.0, "team.robots": 1.0, "train.samples": 6000.0, "train.samples_growth": 1.0,
+    "train.iterations": 200.0, "world.horizon": 20.0, "train.eval_episodes": 100_000.0, "train.bootstrap": 1000.0,
+    "train.paths": 20.0, "team.delay.max": 1.0, "team.consensus_rounds": 1.0, "team.resample": 101.0,
+}
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """The sizes a run's cost depends on (Python numbers of any size)."""
+
+    width: int
+    height: int
+    sources: int  # M
+    robots: int  # N
+    horizon: int  # K
+    iterations: int  # L
+    samples: int  # W
+    growth: float  # g: W_l = ceil(W (1 + l)^g)
+    eval_episodes: int
+    bootstrap: int
+    paths: int
+    delay: int  # B0
+    rounds: int  # R
+    resample: int
+    geometric: bool
+    checkpoint_every: int
+    tracking: bool = False  # team.order=gradient_tracking: trackers travel with theta (about twice the buffers)
+
+
+def sizes_of(cfg, width: int, height: int, sources: int, robots: int) -> Sizes:
+    """Sizes from a schema-checked config (cfg.train, cfg.world, cfg.team) and the validated grid and team."""
+    train, team = cfg.train, cfg.team
+    return Sizes(width, height, max(int(sources), 1), robots, int(cfg.world.horizon), int(train.iterations),
+                 int(train.samples), float(train.samples_growth), int(train.eval_episodes), int(train.bootstrap),
+                 int(train.paths), int(team.delay.max), int(team.consensus_rounds), int(team.resample),
+                 team.graph == "random_geometric", int(train.checkpoint_every), team.order == "gradient_tracking")
+
+
+def check(sizes: Sizes) -> None:
+    """BadInput (through riskplan.util.limits) when the run would need more memory or time than allowed."""
+    memory, time = estimate(sizes)
+    need = sum(amount for amount, _, _ in memory)
+    if not need <= limits.memory_budget()[0]:
+        key, what = _culprit(memory)
+        limits.check_memory(key, need, what)
+    steps = sum(amount for amount, _, _ in time)
+    if not steps / limits.STEPS_PER_SECOND <= limits.time_budget():
+        key, what = _culprit(time)
+        limits.check_time(key, steps / limits.STEPS_PER_SECOND, what)
+
+
+Part = tuple[float, str, list[tuple[str, object, float]]]  # (amount, description, [(key, shown value, ratio)])
+
+
+def estimate(s: Sizes) -> tuple[list[Part], list[Part]]:
+    """(memory parts in bytes, time parts in trajectory steps), each with what it is and the keys it scales with."""
+    cells = _prod(s.width, s.height)
+    m, n, k = float(s.sources), _f(s.robots), _f(s.horizon)
+    team = s.robots > 1
+    policies = n + 1.0 if team else 1.0  # evaluation adds the network average
+    rows = n + 1.0 if team else 1.0  # metrics rows per iteration
+    w_last = _last_samples(s.samples, s.growth, s.iterations)
+    w_total = _total_samples(s.samples, s.growth, s.iterations)
+    slots = _prod(_f(s.delay) + 1.0, s.rounds, n, n)
+    pairs = _prod(n, n)
+    checkpoints = _f(s.iterations) / max(_f(s.checkpoint_every), 1.0) + 1.0
+    record = _prod(2.0, policies, s.paths, k + 1.0)
+    tables = _f(s.iterations) * n + policies * (_f(s.eval_episodes) / EVAL_BATCH + 3.0)
+
+    size = ("world.size", f"[{show(s.width)}, {show(s.height)}]", cells / DEFAULTS["world.size"])
+    robots = ("team.robots", show(s.robots), n / DEFAULTS["team.robots"])
+    samples = ("train.samples", show(s.samples), _f(s.samples) / DEFAULTS["train.samples"])
+    growth = ("train.samples_growth", f"{s.growth:g}", w_last / max(_f(s.samples), 1.0))
+    iterations = ("train.iterations", show(s.iterations), _f(s.iterations) / DEFAULTS["train.iterations"])
+    horizon = ("world.horizon", show(s.horizon), k / DEFAULTS["world.horizon"])
+    evals = ("train.eval_episodes", show(s.eval_episodes), _f(s.eval_episodes) / DEFAULTS["train.eval_episodes"])
+    boot = ("train.bootstrap", show(s.bootstrap), _f(s.bootstrap) / DEFAULTS["train.bootstrap"])
+    paths = ("train.paths", show(s.paths), _f(s.paths) / DEFAULTS["train.paths"])
+    delay = ("team.delay.max", show(s.delay), _f(s.delay) + 1.0)
+    rounds = ("team.consensus_rounds", show(s.rounds), _f(s.rounds))
+    resample = ("team.resample", show(s.resample), (_f(s.resample) + 1.0) / DEFAULTS["team.resample"])
+
+    grid = f"the {show(s.width)} x {show(s.height)} grid"
+    memory = [
+        (_prod(cells, 200.0 + 40.0 * m), grid, [size]),
+        (_prod(cells, n, 40.0 + 40.0 * m), f"{grid}'s policy tables for {show(s.robots)} robot(s)", [size, robots]),
+        (_prod(n, w_last, 48.0 + 16.0 * m), f"its training batches ({_num(w_last)} episodes per robot in the "
+                                            f"largest iteration)", [samples, growth, robots]),
+        (_prod(policies, s.eval_episodes, 160.0), f"its evaluation ({show(s.eval_episodes)} episodes per policy)",
+         [evals, robots]),
+        (_prod(record, 250.0), f"its recorded paths ({_num(record)} steps)", [paths, horizon, robots]),
+        (_prod(s.iterations, rows, 2000.0 + 200.0 * m), f"its metrics ({_num(_prod(s.iterations, rows))} rows)",
+         [iterations, robots]),
+        (_prod(slots, (64.0 + 80.0 * m) * (2.0 if s.tracking else 1.0)),
+         f"its consensus message buffers ({_num(slots)} slots)",
+         [delay, rounds, robots]),
+        (_prod(pairs, 1000.0 + 400.0 * m), f"its network of {show(s.robots)} robots", [robots]),
+        (_prod(s.bootstrap, 100.0) + _prod(s.eval_episodes, 16.0),
+         f"its bootstrap ({show(s.bootstrap)} resamples)", [boot, evals]),
+    ]
+    time = [
+        (_prod(n, w_total, k), f"its training ({_num(_prod(n, w_total))} episodes of up to {show(s.horizon)} "
+                               f"moves)", [samples, iterations, growth, robots, horizon]),
+        (_prod(cells, 100.0) + _prod(tables, cells, 10.0), f"{grid}'s policy tables ({_num(tables)} of them)",
+         [size, iterations, robots]),
+        (_prod(s.iterations, ITERATION_STEPS + 2000.0 * rows), f"its {show(s.iterations)} iterations",
+         [iterations, robots]),
+        (_prod(policies, s.eval_episodes, k), f"its evaluation ({show(s.eval_episodes)} episodes per policy)",
+         [evals, horizon, robots]),
+        (_prod(s.bootstrap, s.eval_episodes), f"its bootstrap ({show(s.bootstrap)} resamples of "
+                                              f"{show(s.eval_episodes)} episodes)", [boot, evals]),
+        (_prod(record, 400.0), f"its recorded paths ({_num(record)} steps)", [paths, horizon, robots]),
+        (_prod(s.iterations, s.rounds, pairs, m + 1.0, 5.0) if team else 0.0,
+         f"its consensus rounds ({show(s.rounds)} per iteration)", [rounds, robots, iterations]),
+        (_prod(slots, checkpoints, 100.0), f"its checkpoints of the consensus buffers ({_num(slots)} slots)",
+         [delay, rounds, robots]),
+        (_prod(pairs, 300.0) + (_prod(_f(s.resample) + 1.0, pairs, 5.0) if s.geometric and team else 0.0),
+         f"its network of {show(s.robots)} robots" + (f" (up to {show(s.resample + 1)} random_geometric draws)"
+                                                        if s.geometric and team else ""),
+         [robots] + ([resample] if s.geometric else [])),
+    ]
+    return memory, time
+
+
+def _culprit(parts: list[Part]) -> tuple[str, str]:
+    """(key, what) for the largest part: the key furthest above its default, and the part's description."""
+    amount, description, keys = max(parts, key=lambda part: part[0])
+    key, value, _ = max(keys, key=lambda entry: entry[2])
+    return key, f"got {value}; the run, mostly {description},"
+
+
+def _f(value) -> float:
+    """A Python number as a float, capped at 1e300 (a 400-digit int is not an OverflowError)."""
+    try:
+        return min(float(value), 1e300)
+    except OverflowError:
+        return 1e300
+
+
+def _prod(*values) -> float:
+    """A product of non-negative sizes in floats: 0 when any factor is 0 (never 0 * inf), else possibly inf."""
+    floats = [_f(v) for v in values]
+    if any(v == 0 for v in floats):
+        return 0.0
+    return math.prod(floats)
+
+
+def _last_samples(samples: int, growth: float, iterations: int) -> float:
+    """W at the last iteration, ceil(W L^g), computed in logs so that it cannot overflow."""
+    log = math.log(_f(samples)) + growth * math.log(max(_f(iterations), 1.0))
+    return math.exp(min(log, 690.0))
+
+
+def _total_samples(samples: int, growth: float, iterations: int) -> float:
+    """sum_l W_l for l < L, bounded above by W (L^(g+1) / (g+1) + L^g) + L (the ceilings)."""
+    lsize = max(_f(iterations), 1.0)
+    log = math.log(_f(samples)) + (growth + 1.0) * math.log(lsize) - math.log(growth + 1.0)
+    return math.exp(min(log, 690.0)) + _last_samples(samples, growth, iterations) + lsize
+
+
+def show(value: int) -> str:
+    """A whole number as typed when short, else in float notation (a 10^30 key stays one short line)."""
+    if abs(value) < 10**12:
+        return str(value)
+    return _num(_f(value)) if abs(value) < 10**300 else f"about 2^{value.bit_length()}"
+
+
+def _num(value: float) -> str:
+    """A float count, short."""
+    return f"{value:.0f}" if value < 1e12 else f"{value:.3g}"

@@ -1,0 +1,150 @@
+"""Compose a config exactly as the CLI does, and turn every Hydra/OmegaConf failure into BadInput."""
+
+from __future__ import annotations
+
+import copy
+
+from hydra import compose as hydra_compose
+from hydra import initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
+from omegaconf import DictConfig, open_dict
+from omegaconf.errors import OmegaConfBaseException
+
+from riskplan.config import schema
+from riskplan.util.errors import BadInput
+from riskplan.config.typed import explain, typed
+from riskplan.config.schema import CONF_DIR
+
+__all__ = ["CONF_DIR", "GRAMMAR", "check_hydra_args", "compose", "explain", "expand_overrides", "expand_shorthands", "parse_overrides"]
+GRAMMAR = "expected key=value (e.g. risk.beta=0.2), key=a,b for sweeps, or group=option (e.g. risk=neutral)"
+
+
+def parse_overrides(overrides: list[str]) -> list:
+    """Parse Hydra overrides; a syntax error is BadInput naming the override."""
+    parser = OverridesParser.create()
+    parsed = []
+    for text in overrides:
+        try:
+            parsed.extend(parser.parse_overrides([text]))
+        except HydraException:
+            raise BadInput(f"override '{text}'", f"malformed; {GRAMMAR}") from None
+        except RecursionError:  # the override grammar recurses once per bracket
+            raise BadInput(f"override '{_short(text)}'", "is nested too deeply to parse; reward programs may nest "
+                                                         "at most 32 levels") from None
+        if not parsed[-1].key_or_group:  # `=5`: Hydra parses an empty key
+            raise BadInput(f"override '{text}'", f"malformed; {GRAMMAR}")
+    return parsed
+
+
+def _short(text: str, limit: int = 60) -> str:
+    """A long value shortened for a one-line message."""
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def check_groups(parsed: list) -> None:
+    """A config group set to null (`experiment=null`) is bad input naming the group's options, not a crash."""
+    for override in parsed:
+        group = override.key_or_group
+        if override.value() is None and not override.is_delete() and group_options(group) is not None:
+            raise BadInput(f"key '{group}'", f"cannot be null; available: {', '.join(group_options(group))}")
+
+
+def group_options(group: str) -> list[str] | None:
+    """The options of one of riskplan's own config groups (experiment, risk), None for anything else."""
+    folder = CONF_DIR / group
+    return sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else None
+
+
+def expand_overrides(overrides: list[str]) -> list[str]:
+    """Make `...reward={...}` replace a distribution instead of merging into it (Hydra merges dicts), and expand
+    the shorthands (`risk.schedule=linear` is `risk.schedule.kind=linear`)."""
+    overrides = expand_shorthands(overrides)
+    expanded = []
+    for text, parsed in zip(overrides, parse_overrides(overrides)):
+        key = parsed.key_or_group
+        if key.endswith("reward") and not parsed.is_sweep_override() and isinstance(parsed.value(), dict):
+            expanded.append(f"{key}=0")
+        expanded.append(text)
+    return expanded
+
+
+SHORTHANDS = {"risk.schedule": "risk.schedule.kind"}  # a key given a plain value (or a sweep of them) -> its key
+
+
+def expand_shorthands(overrides: list[str]) -> list[str]:
+    """`risk.schedule=linear` (or `=none,linear` in a sweep) -> `risk.schedule.kind=...`; a mapping value
+    (`risk.schedule={kind:linear,iterations:50}`) and every other override are left as they are."""
+    out = []
+    for text, parsed in zip(overrides, parse_overrides(overrides)):
+        key = parsed.key_or_group
+        if key in SHORTHANDS and not parsed.is_delete() and (
+                parsed.is_sweep_override() or not isinstance(parsed.value(), (dict, list))):
+            prefix, _, value = text.partition("=")
+            text = prefix.replace(key, SHORTHANDS[key], 1) + "=" + value
+        out.append(text)
+    return out
+
+
+def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = True,
+            with_hydra: bool = False) -> DictConfig:
+    """Compose conf/ with overrides, check the schema, then (optionally) the model's own constraints.
+
+    With `with_hydra`, the config checked is returned with its hydra node (what Hydra would run: `riskplan train`
+    hands it to riskplan.experiments.hydra_app.run_composed instead of letting Hydra compose it again)."""
+    overrides = list(overrides)
+    parsed = parse_overrides(overrides)
+    check_groups(parsed)
+    for override in parsed:
+        if override.key_or_group == "hydra.mode":
+            raise BadInput(f"override '{override.input_line}'", "riskplan train and check run one experiment; run "
+                                                                "several with riskplan sweep (e.g. seed=0,1,2)")
+    expanded = expand_overrides(overrides)
+    schema.register()
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            cfg = hydra_compose(config_name="config", overrides=expanded, return_hydra_config=True)
+    except (HydraException, OmegaConfBaseException) as err:
+        raise BadInput(*explain(err)) from None
+    except ValueError as err:  # Hydra's defaults list rejects some values outside its grammar
+        raise BadInput("config", f"{_first_line(err)}; {GRAMMAR}") from None
+    except RecursionError:
+        raise BadInput("config", "is nested too deeply; reward programs may nest at most 32 levels") from None
+    finally:
+        GlobalHydra.instance().clear()
+    from riskplan.config.hydra_safety import check_hydra_node
+
+    check_hydra_node(cfg, [o for o in parsed if o.is_hydra_override()])
+    full = copy.deepcopy(cfg) if with_hydra else None
+    with open_dict(cfg):
+        del cfg["hydra"]
+    typed(cfg)  # the schema check, remembered: build_setup below types the same config
+    if validate:
+        from riskplan.run.build import build_setup
+
+        build_setup(cfg)
+    return cfg if full is None else full
+
+
+def check_hydra_args(args: list[str]) -> None:
+    """The overrides among a command line with Hydra's flags (--cfg job ...), composed and checked: a bad one, or a
+    Hydra setting that names code, is BadInput before Hydra sees it."""
+    valued = {"--cfg", "-c", "--package", "-p", "--info", "-i"}
+    overrides, skip = [], False
+    for arg in args:
+        if skip and "=" not in arg:
+            skip = False
+            continue
+        skip = arg in valued
+        if not arg.startswith("-"):
+            overrides.append(arg)
+    compose(overrides, validate=False)
+
+
+def _first_line(err: Exception) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+

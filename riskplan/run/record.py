@@ -1,0 +1,681 @@
+"""`run.mcap`, the log of record of a run: an append-only MCAP writer and a reader that survives truncation.
+
+Channels (message encoding "json", schema encoding "jsonschema"; schema names in brackets):
+
+- `/metrics` [riskplan.Metrics]: one message per metrics.parquet row, the row itself as a JSON object
+  ({"iteration", "robot", "mean", ..., "theta_0", ..., "samples", "seconds"}, keys in the caller's order).
+- `/theta` [riskplan.Theta]: one message per row of an iteration: {"iteration", "robot", "theta": [...]}.
+- `/consensus_error` [riskplan.ConsensusError]: one per iteration, {"iteration", "consensus_error"}. It is written
+  last and marks the iteration as complete: the reader keeps only iterations that have it.
+- `/trajectories`, `/eval` [riskplan.TableBatch]: a table in batches of at most `BATCH_ROWS` rows, columnar:
+  {"table", "offset", "rows", "dtypes": {col: pandas dtype name}, "columns": {col: [values]}}.
+- `/summary` [riskplan.Summary]: the summary dict, once.
+- `/world/map` [foxglove.Grid], `/world/markers` [foxglove.SceneUpdate]: the world, frame "grid" (see
+  `riskplan.run.foxglove_scene`); `/paths` [foxglove.SceneUpdate]: sampled paths replayed step by step.
+
+JSON numbers: floats are written with Python's shortest round-trip repr (bit-exact on reading back). JSON has no
+NaN or infinity, so a non-finite float is written as null (NaN), "Infinity" or "-Infinity"; the reader turns them
+back into floats in float columns (NaN payload bits are not kept). In the free-form `/summary` and metadata dicts,
+they read back as None / those strings.
+
+Metadata records: name -> {"json": <JSON text of the dict>}. `world_map` also writes a "world" record holding the
+world dict (arrays as nested lists, indexed [x][y]).
+
+Durability: every public writing method ends by finishing the MCAP chunk in progress (chunk record + its message
+indexes) and flushing the file object to the OS, so the bytes survive a SIGKILL of the process as soon as the
+method returns (not a power cut: only `sync` and `close` fsync; training syncs before every checkpoint, and
+`resume_log` before it replaces the old log). The reader (the mcap package's StreamReader) reads
+records sequentially and stops at the first one that is cut short or fails its CRC, so everything before it is
+readable.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import time as _time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Iterable
+
+import numpy as np
+from mcap.opcode import Opcode
+from mcap.records import Channel, Footer, Message, Metadata
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from riskplan.run import foxglove_scene as fx
+from riskplan.util.errors import BadInput
+
+if TYPE_CHECKING:  # pandas loads only when a table is written or read: not before a run's first iteration
+    import pandas as pd
+
+MAGIC = b"\x89MCAP0\r\n"
+BATCH_ROWS = 20_000
+CHUNK_SIZE = 8 * 1024 * 1024  # larger than any iteration, so each iteration is one chunk (flushed explicitly)
+STEP_SECONDS = 0.25  # playback time between two steps on /paths
+
+METRICS = "/metrics"
+THETA = "/theta"
+CONSENSUS = "/consensus_error"
+TRAJECTORIES = "/trajectories"
+EVAL = "/eval"
+SUMMARY = "/summary"
+WORLD_MAP = "/world/map"
+WORLD_MARKERS = "/world/markers"
+PATHS = "/paths"
+NETWORK = "/team/network"
+NETWORK_SCENE = "/team/graph"
+
+ITERATION_TOPICS = (METRICS, THETA, CONSENSUS)
+WORLD_TOPICS = (WORLD_MAP, WORLD_MARKERS, NETWORK, NETWORK_SCENE)  # written once, copied on resume
+
+METRICS_BASE = {
+    "iteration": "int64", "robot": "int64", "mean": "float64", "cvar": "float64", "value_at_risk": "float64",
+    "std": "float64", "grad_norm": "float64", "step_size": "float64", "beta_l": "float64",
+    "consensus_error": "float64", "samples": "int64", "seconds": "float64",
+}
+EVAL_COLUMNS = {
+    "episode": "int64", "robot": "int64", "total_reward": "float64", "risky_steps": "int64",
+    "source_reached": "int64", "steps": "int64",
+}
+TRAJECTORY_COLUMNS = {
+    "policy": "str", "episode": "int64", "robot": "int64", "step": "int64", "x": "int64", "y": "int64",
+    "reward": "float64",
+}
+
+# --------------------------------------------------------------------------------------- riskplan's schemas
+_FLOAT = {
+    "description": "a float; NaN is null, infinities are the strings Infinity / -Infinity",
+    "oneOf": [{"type": "number"}, {"type": "null"}, {"enum": ["Infinity", "-Infinity"]}],
+}
+_INT = {"type": "integer"}
+
+OWN_SCHEMAS: dict[str, dict] = {
+    "riskplan.Metrics": {
+        "title": "riskplan.Metrics",
+        "description": "One metrics.parquet row: one (iteration, robot); robot -1 is the network average.",
+        "type": "object",
+        "properties": {
+            "iteration": _INT, "robot": _INT, "mean": _FLOAT, "cvar": _FLOAT, "value_at_risk": _FLOAT,
+            "std": _FLOAT, "grad_norm": _FLOAT, "step_size": _FLOAT,
+            "beta_l": {**_FLOAT, "description": "beta_l, the CVaR level of the iteration's gradient (risk.schedule; "
+                                                "1 for the mean gradient); cvar and value_at_risk are at risk.beta"},
+            "consensus_error": _FLOAT, "samples": _INT, "seconds": _FLOAT,
+        },
+        "patternProperties": {"^theta_[0-9]+$": _FLOAT},
+        "required": ["iteration", "robot"],
+    },
+    "riskplan.Theta": {
+        "title": "riskplan.Theta",
+        "description": "Policy parameters of one robot after an iteration (robot -1: network average).",
+        "type": "object",
+        "properties": {"iteration": _INT, "robot": _INT, "theta": {"type": "array", "items": _FLOAT}},
+        "required": ["iteration", "robot", "theta"],
+    },
+    "riskplan.ConsensusError": {
+        "title": "riskplan.ConsensusError",
+        "description": "max ||theta_i - theta_j|| of an iteration (null when there is one robot); marks it complete.",
+        "type": "object",
+        "properties": {"iteration": _INT, "consensus_error": _FLOAT},
+        "required": ["iteration", "consensus_error"],
+    },
+    "riskplan.TableBatch": {
+        "title": "riskplan.TableBatch",
+        "description": "Rows offset..offset+rows-1 of a table, column by column, with the pandas dtype of each.",
+        "type": "object",
+        "properties": {
+            "table": {"type": "string"},
+            "offset": {"type": "integer", "minimum": 0},
+            "rows": {"type": "integer", "minimum": 0},
+            "dtypes": {"type": "object", "additionalProperties": {"type": "string"}},
+            "columns": {
+                "type": "object",
+                "additionalProperties": {
+                    "type": "array",
+                    "items": {"type": ["number", "string", "boolean", "null"]},
+                },
+            },
+        },
+        "required": ["table", "offset", "rows", "dtypes", "columns"],
+    },
+    "riskplan.Network": {
+        "title": "riskplan.Network",
+        "description": "The team's communication graph and mixing weights (weights[i][j][m] = a^{ij}_m of eq. 14).",
+        "type": "object",
+        "properties": {"robots": _INT, "graph": {"type": "string"}, "edges": {"type": "array"},
+                       "weights": {"type": "array"}, "gamma": _FLOAT, "slem": _FLOAT},
+        "required": ["robots", "graph", "edges", "weights"],
+    },
+    "riskplan.Summary": {
+        "title": "riskplan.Summary",
+        "description": "summary.json of the run (free-form object).",
+        "type": "object",
+    },
+}
+
+TOPIC_SCHEMA = {
+    METRICS: "riskplan.Metrics",
+    THETA: "riskplan.Theta",
+    CONSENSUS: "riskplan.ConsensusError",
+    TRAJECTORIES: "riskplan.TableBatch",
+    EVAL: "riskplan.TableBatch",
+    SUMMARY: "riskplan.Summary",
+    NETWORK: "riskplan.Network",
+    NETWORK_SCENE: fx.SCENE_UPDATE,
+    WORLD_MAP: fx.GRID,
+    WORLD_MARKERS: fx.SCENE_UPDATE,
+    PATHS: fx.SCENE_UPDATE,
+}
+
+
+def schema_bytes(name: str) -> bytes:
+    if name in OWN_SCHEMAS:
+        return json.dumps(OWN_SCHEMAS[name], separators=(",", ":")).encode()
+    return fx.schema_bytes(name)
+
+
+# --------------------------------------------------------------------------------------- JSON values
+def _nonfinite(f: float) -> Any:
+    if f != f:
+        return None
+    return "Infinity" if f > 0 else "-Infinity"
+
+
+def _scalar(v: Any) -> Any:
+    if isinstance(v, float):  # includes np.float64
+        return v if math.isfinite(v) else _nonfinite(v)
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, np.floating):
+        f = float(v)
+        return f if math.isfinite(f) else _nonfinite(f)
+    return v
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, Path):
+        return str(obj)
+    return _scalar(obj)
+
+
+def _dumps(obj: Any) -> str:
+    return json.dumps(obj, allow_nan=False, separators=(",", ":"), default=str)
+
+
+def _float(v: Any) -> float:
+    if v is None:
+        return math.nan
+    if isinstance(v, str):
+        return {"Infinity": math.inf, "-Infinity": -math.inf}.get(v, math.nan)
+    return float(v)
+
+
+def _isna(v: Any) -> bool:
+    import pandas as pd
+
+    return v is None or v is pd.NA or v is pd.NaT or (isinstance(v, float) and v != v)
+
+
+def _encode_column(s: pd.Series) -> tuple[str, list]:
+    dt = s.dtype
+    if isinstance(dt, np.dtype) and dt.kind in "iub":
+        return str(dt), s.to_numpy().tolist()
+    if isinstance(dt, np.dtype) and dt.kind == "f":
+        arr = s.to_numpy()
+        vals = arr.tolist()
+        if not np.isfinite(arr).all():
+            vals = [_scalar(v) for v in vals]
+        return str(dt), vals
+    return str(dt), [None if _isna(v) else _scalar(v) for v in s.tolist()]
+
+
+def _decode_column(dtype: str, values: list) -> Any:
+    import pandas as pd
+
+    try:
+        dt = pd.api.types.pandas_dtype(dtype)
+    except (TypeError, ValueError):
+        dt = np.dtype(object)
+    if isinstance(dt, np.dtype):
+        if dt.kind in "iub":
+            return np.asarray(values, dtype=dt)
+        if dt.kind == "f":
+            try:  # None -> nan, "Infinity" -> inf
+                arr = np.asarray(values, dtype=np.float64)
+            except (TypeError, ValueError):
+                arr = np.asarray([_float(v) for v in values], dtype=np.float64)
+            return arr.astype(dt, copy=False)
+        if dt == np.dtype(object):
+            return pd.Series(values, dtype=object)
+    try:
+        return pd.array(values, dtype=dt)
+    except (TypeError, ValueError):
+        return pd.Series(values, dtype=object)
+
+
+def _empty(columns: dict[str, str]) -> pd.DataFrame:
+    import pandas as pd
+
+    return pd.DataFrame({c: pd.Series([], dtype=d) for c, d in columns.items()})
+
+
+# --------------------------------------------------------------------------------------- writer
+class RunLog:
+    """Append-only writer of run.mcap. Every method returns only once its data is durable (see module doc)."""
+
+    def __init__(self, path: Path | str) -> None:
+        self.path = Path(path)
+        self._setup(open(self.path, "wb"))
+
+    def _setup(self, fh) -> None:
+        self._fh = fh
+        self._w = Writer(fh, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        from riskplan.version import __version__
+
+        self._w.start(profile="", library=f"riskplan {__version__}")
+        self._schema_ids: dict[str, int] = {}
+        self._channel_ids: dict[str, int] = {}
+        self._seq: dict[str, int] = {}
+        self._t = 0
+        self._world: dict | None = None
+        self._closed = False
+        self.last_iteration: int | None = None
+        self._durable()
+
+    # -- internals
+    def _now(self) -> int:
+        t = max(_time.time_ns(), self._t)
+        self._t = t
+        return t
+
+    def _channel(self, topic: str) -> int:
+        cid = self._channel_ids.get(topic)
+        if cid is None:
+            name = TOPIC_SCHEMA[topic]
+            sid = self._schema_ids.get(name)
+            if sid is None:
+                sid = self._w.register_schema(name=name, encoding="jsonschema", data=schema_bytes(name))
+                self._schema_ids[name] = sid
+            cid = self._w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+            self._channel_ids[topic] = cid
+            self._seq[topic] = 0
+        return cid
+
+    def _add_raw(self, topic: str, data: bytes, t: int) -> None:
+        cid = self._channel(topic)
+        seq = self._seq[topic]
+        self._seq[topic] = (seq + 1) & 0xFFFFFFFF
+        self._w.add_message(channel_id=cid, log_time=t, data=data, publish_time=t, sequence=seq)
+
+    def _add(self, topic: str, obj: Any, t: int) -> None:
+        self._add_raw(topic, _dumps(obj).encode(), t)
+
+    def _durable(self) -> None:
+        flush = getattr(self._w, "flush", None)
+        if flush is not None:  # mcap >= 1.3: finishes the chunk in progress, writes it out, flushes the stream
+            flush()
+        else:  # older mcap: same thing through the private method
+            getattr(self._w, "_Writer__finalize_chunk")()
+        self._fh.flush()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ValueError(f"{self.path}: RunLog is closed")
+
+    def _table(self, topic: str, table: str, df: pd.DataFrame, t: int) -> None:
+        n = len(df)
+        starts = range(0, n, BATCH_ROWS) if n else [0]
+        for start in starts:
+            part = df.iloc[start : start + BATCH_ROWS]
+            dtypes, columns = {}, {}
+            for c in df.columns:
+                dtypes[str(c)], columns[str(c)] = _encode_column(part[c])
+            self._add(topic, {"table": table, "offset": start, "rows": len(part), "dtypes": dtypes, "columns": columns}, t)
+
+    # -- public
+    def metadata(self, name: str, data: dict) -> None:
+        """MCAP Metadata record `name` -> {"json": JSON text of `data`}."""
+        self._check_open()
+        self._w.add_metadata(name, {"json": _dumps(_jsonable(data))})
+        self._durable()
+
+    def world_map(self, world: dict) -> None:
+        """Metadata "world", a foxglove.Grid on /world/map and a foxglove.SceneUpdate on /world/markers."""
+        self._check_open()
+        self._world = world
+        self._w.add_metadata("world", {"json": _dumps(_jsonable(world))})
+        t = self._now()
+        self._add(WORLD_MAP, fx.grid(world, t), t)
+        self._add(WORLD_MARKERS, fx.world_markers(world, t), t)
+        self._durable()
+
+    def network(self, network: dict) -> None:
+        """Metadata "network", the graph as JSON on /team/network and as a foxglove.SceneUpdate on /team/graph."""
+        self._check_open()
+        data = _jsonable(network)
+        self._w.add_metadata("network", {"json": _dumps(data)})
+        t = self._now()
+        self._add(NETWORK, data, t)
+        self._add(NETWORK_SCENE, fx.network_scene(data, t), t)
+        self._durable()
+
+    def iteration(self, rows: list[dict]) -> None:
+        """Log one training iteration (its metrics.parquet rows) and make it durable before returning."""
+        self._check_open()
+        if not rows:
+            raise ValueError("iteration(): no rows")
+        t = self._now()
+        enc = [{k: _scalar(v) for k, v in row.items()} for row in rows]
+        it = enc[0]["iteration"]
+        if any(r["iteration"] != it for r in enc):
+            raise ValueError("iteration(): rows of more than one iteration")
+        theta_keys = sorted((k for k in enc[0] if k.startswith("theta_")), key=lambda k: int(k[6:]))
+        for r in enc:
+            self._add(METRICS, r, t)
+        for r in enc:
+            self._add(THETA, {"iteration": it, "robot": r["robot"], "theta": [r[k] for k in theta_keys]}, t)
+        self._add(CONSENSUS, {"iteration": it, "consensus_error": enc[0].get("consensus_error")}, t)
+        self._durable()
+        self.last_iteration = it
+
+    def trajectories(self, df: pd.DataFrame, step_seconds: float = STEP_SECONDS) -> None:
+        """Raw rows on /trajectories (exact rebuild) and a step-by-step replay on /paths."""
+        self._check_open()
+        t = self._now()
+        self._table(TRAJECTORIES, "trajectories", df, t)
+        w = h = None
+        if self._world is not None:
+            w, h = int(self._world["width"]), int(self._world["height"])
+        step_ns = max(1, int(round(step_seconds * 1e9)))
+        for ts, msg in fx.path_scenes(df, t + step_ns, step_ns, w, h):
+            self._add(PATHS, msg, ts)
+            self._t = max(self._t, ts + 1)
+        self._durable()
+
+    def evaluation(self, df: pd.DataFrame) -> None:
+        """eval.parquet rows on /eval, columnar batches of BATCH_ROWS rows (zstd-compressed chunks)."""
+        self._check_open()
+        self._table(EVAL, "eval", df, self._now())
+        self._durable()
+
+    def summary(self, summary: dict) -> None:
+        self._check_open()
+        self._add(SUMMARY, _jsonable(summary), self._now())
+        self._durable()
+
+    def sync(self) -> None:
+        """Make everything written so far survive a power cut (fsync). Training calls it before each checkpoint,
+        so a checkpoint on disk never gets ahead of the log that resume needs."""
+        self._check_open()
+        self._durable()
+        os.fsync(self._fh.fileno())
+
+    def close(self) -> None:
+        """Write the summary section and indexes, fsync and close. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._w.finish()
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+        finally:
+            self._fh.close()
+
+    def __enter__(self) -> "RunLog":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------------------- reading
+@dataclass
+class LogData:
+    metadata: dict[str, dict]
+    metrics: pd.DataFrame
+    eval: pd.DataFrame
+    trajectories: pd.DataFrame
+    summary: dict | None
+    complete: bool
+    problem: str | None
+
+
+@dataclass
+class _Raw:
+    topic: str
+    log_time: int
+    publish_time: int
+    data: bytes
+
+
+@dataclass
+class _Scan:
+    metadata: list[tuple[str, dict[str, str]]]
+    messages: list[_Raw]
+    closed: bool  # footer and trailing magic present
+    stop: str | None  # why reading stopped early
+
+
+def _read_bytes(path: Path | str) -> bytes:
+    try:
+        return Path(path).read_bytes()
+    except OSError as e:
+        raise BadInput(str(path), f"cannot read MCAP file: {e.strerror or e}") from None
+
+
+def _scan(data: bytes, where: str) -> _Scan:
+    """Read records in order with the mcap package's StreamReader, stopping (without raising) at the first record
+    that is cut short or fails its CRC: everything before it is kept."""
+    out = _Scan([], [], False, None)
+    if data[:8] != MAGIC:
+        if len(data) < 8 and MAGIC.startswith(data):
+            out.stop = f"file ends at byte {len(data)}, inside the MCAP magic"
+            return out
+        raise BadInput(where, "not an MCAP file (bad magic bytes)")
+    if len(data) >= 9 and data[8] != Opcode.HEADER:
+        raise BadInput(where, "not an MCAP file (no header record after the magic)")
+    stream = io.BytesIO(data)
+    topics: dict[int, str] = {}
+    pos, footer = 8, False  # pos: where the record being read starts (after the last record handed out)
+    try:
+        for record in StreamReader(stream, validate_crcs=True).records:
+            if isinstance(record, Channel):
+                topics[record.id] = record.topic
+            elif isinstance(record, Message):
+                topic = topics.get(record.channel_id)
+                if topic is not None:
+                    out.messages.append(_Raw(topic, record.log_time, record.publish_time, record.data))
+            elif isinstance(record, Metadata):
+                out.metadata.append((record.name, dict(record.metadata)))
+            footer = isinstance(record, Footer)
+            pos = stream.tell()
+    except Exception as err:  # noqa: BLE001 - any failure ends the readable part, whatever the reader raised
+        out.stop = _stop_reason(data, pos, footer, err)
+        return out
+    out.closed = True
+    return out
+
+
+def _stop_reason(data: bytes, pos: int, after_footer: bool, err: Exception) -> str:
+    """Why reading stopped at the record that starts at byte `pos` (or at the closing magic after the footer)."""
+    n = len(data)
+    if after_footer:
+        return f"file ends at byte {n}, inside the closing magic"
+    if pos + 9 > n:
+        return f"file ends at byte {n}, inside a record header"
+    if pos + 9 + int.from_bytes(data[pos + 1:pos + 9], "little") > n:
+        return f"file ends at byte {n}, inside a record that starts at byte {pos}"
+    return f"corrupt record at byte {pos} ({type(err).__name__})"
+
+
+def _decode_metadata(m: dict[str, str]) -> Any:
+    if set(m) == {"json"}:
+        try:
+            return json.loads(m["json"])
+        except ValueError:
+            pass
+    return dict(m)
+
+
+def _iteration_messages(msgs: Iterable[_Raw]) -> tuple[dict[str, list[tuple[_Raw, dict]]], set[int]]:
+    by_topic: dict[str, list[tuple[_Raw, dict]]] = {t: [] for t in ITERATION_TOPICS}
+    done: set[int] = set()
+    for m in msgs:
+        if m.topic in by_topic:
+            try:
+                obj = json.loads(m.data)
+                int(obj["iteration"])
+            except (ValueError, KeyError, TypeError):
+                continue
+            by_topic[m.topic].append((m, obj))
+            if m.topic == CONSENSUS:
+                done.add(int(obj["iteration"]))
+    return by_topic, done
+
+
+def _column(values: list) -> Any:
+    import pandas as pd
+
+    if values and all(type(v) is int for v in values):
+        return np.asarray(values, dtype=np.int64)
+    if values and all(type(v) is bool for v in values):
+        return np.asarray(values, dtype=bool)
+    if all(v is None or (type(v) in (int, float)) or v in ("Infinity", "-Infinity") for v in values):
+        return np.asarray([_float(v) for v in values], dtype=np.float64)
+    return pd.Series(values, dtype=object)
+
+
+def _metrics_frame(rows: list[dict]) -> pd.DataFrame:
+    import pandas as pd
+
+    if not rows:
+        return _empty(METRICS_BASE)
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    df = pd.DataFrame({c: _column([r.get(c) for r in rows]) for c in cols})
+    return df.sort_values(["iteration", "robot"], kind="stable").reset_index(drop=True)
+
+
+def _table_frame(batches: list[dict], empty: dict[str, str]) -> pd.DataFrame:
+    import pandas as pd
+
+    if not batches:
+        return _empty(empty)
+    dtypes = batches[0]["dtypes"]
+    cols: dict[str, list] = {c: [] for c in dtypes}
+    for b in batches:
+        for c in cols:
+            cols[c].extend(b["columns"].get(c, [None] * int(b["rows"])))
+    return pd.DataFrame({c: _decode_column(dtypes[c], v) for c, v in cols.items()})
+
+
+def read_log(path: Path | str) -> LogData:
+    """Everything decodable in run.mcap, closed or truncated. BadInput only if it is not an MCAP file."""
+    scan = _scan(_read_bytes(path), str(path))
+    metadata = {name: _decode_metadata(m) for name, m in scan.metadata}
+
+    by_topic, done = _iteration_messages(scan.messages)
+    seen: set[tuple[int, int]] = set()
+    rows = []
+    for _, r in by_topic[METRICS]:
+        key = (int(r["iteration"]), int(r.get("robot", 0)))
+        if key[0] in done and key not in seen:
+            seen.add(key)
+            rows.append(r)
+    metrics = _metrics_frame(rows)
+
+    tables: dict[str, list[dict]] = {EVAL: [], TRAJECTORIES: []}
+    summary = None
+    for m in scan.messages:
+        if m.topic in tables:
+            try:
+                tables[m.topic].append(json.loads(m.data))
+            except ValueError:
+                pass
+        elif m.topic == SUMMARY:
+            try:
+                summary = json.loads(m.data)
+            except ValueError:
+                pass
+
+    last = max(done) if done else None
+    after = f"after iteration {last}" if last is not None else "before any iteration was complete"
+    if not scan.closed:
+        problem = f"truncated {after} ({scan.stop})"
+    elif summary is None:
+        problem = f"no /summary: the run stopped {after}"
+    else:
+        problem = None
+    return LogData(
+        metadata=metadata,
+        metrics=metrics,
+        eval=_table_frame(tables[EVAL], EVAL_COLUMNS),
+        trajectories=_table_frame(tables[TRAJECTORIES], TRAJECTORY_COLUMNS),
+        summary=summary,
+        complete=problem is None,
+        problem=problem,
+    )
+
+
+def resume_log(src: Path | str, dst: Path | str, last_iteration: int) -> RunLog:
+    """A RunLog on `dst` holding `src`'s metadata, world map and iterations <= last_iteration, open for appending.
+
+    `src` may be truncated, and may be the same path as `dst` (the copy is written to a temporary file next to
+    `dst`, then renamed over it). Trajectories, evaluation and summary messages of `src` are not copied. Raises
+    BadInput if `src` lacks a complete iteration in 0..last_iteration.
+    """
+    scan = _scan(_read_bytes(src), str(src))
+    by_topic, done = _iteration_messages(scan.messages)
+    missing = [i for i in range(int(last_iteration) + 1) if i not in done]
+    if missing:
+        have = f"its last complete iteration is {max(done)}" if done else "it has no complete iteration"
+        raise BadInput(str(src), f"cannot resume after iteration {last_iteration}: {have}")
+    keep: dict[int, dict] = {}  # id(raw) -> parsed, for iteration messages to copy
+    seen: set[tuple] = set()
+    for topic, items in by_topic.items():
+        for raw, obj in items:
+            it = int(obj["iteration"])
+            key = (topic, it) if topic == CONSENSUS else (topic, it, obj.get("robot"))
+            if it <= last_iteration and it in done and key not in seen:
+                seen.add(key)
+                keep[id(raw)] = obj
+
+    dst = Path(dst)
+    tmp = dst.with_name(dst.name + ".resume-tmp")
+    log = RunLog.__new__(RunLog)
+    log.path = dst
+    log._setup(open(tmp, "wb"))
+    try:
+        for name, m in scan.metadata:
+            log._w.add_metadata(name, m)
+            if name == "world":
+                world = _decode_metadata(m)
+                log._world = world if isinstance(world, dict) and "width" in world else None
+        t_max = 0
+        for raw in scan.messages:
+            if raw.topic in WORLD_TOPICS or id(raw) in keep:
+                log._add_raw(raw.topic, raw.data, raw.log_time)
+                t_max = max(t_max, raw.log_time)
+        log._t = t_max
+        log.last_iteration = int(last_iteration) if last_iteration >= 0 else None
+        log.sync()  # on disk before it replaces the old log: a power cut leaves one or the other, whole
+        os.replace(tmp, dst)
+    except BaseException:
+        log._fh.close()
+        tmp.unlink(missing_ok=True)
+        raise
+    return log
+
+
+__all__ = ["RunLog", "LogData", "read_log", "resume_log", "BATCH_ROWS"]

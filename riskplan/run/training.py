@@ -1,0 +1,436 @@
+"""Centralized and distributed policy-gradient training (eqs. 4, 11, 14), checkpoints, final evaluation.
+
+One loop serves both: a centralized run is a team of one robot whose consensus step is the identity.
+Iteration l: every robot i simulates W_l episodes at its own theta^i_l (all robots in one kernel call),
+estimates its gradient (Algorithm 1 for CVaR, REINFORCE for the mean), then
+    theta^i_{l+1} = sum_j A^{ij} theta^j_{t^{ij}(l)} + eps_l Delta^i          (eq. 14; N = 1 gives eq. 11)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+from omegaconf import OmegaConf
+
+from riskplan.engine import rng
+from riskplan.engine.team.consensus import consensus_error, network_metadata
+from riskplan.run.budget import EVAL_BATCH
+from riskplan.util.errors import BadInput
+from riskplan.util.lock import hold
+from riskplan.config.typed import as_dict, typed
+from riskplan.util.paths import atomic_path, check_output_dir, write_atomic
+from riskplan.run.foxglove_layout import write_layout
+from riskplan.run.record import RunLog, read_log, resume_log
+from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, summary_stats
+from riskplan.engine.rollout import simulate
+from riskplan.run.results import Run
+from riskplan.run.build import Setup, build_setup, logit_bound, risk_level, samples_at, step_size
+from riskplan.run.intervals import SCHEMA_VERSION, bootstrap_intervals, provenance
+from riskplan.engine.world import world_map
+
+if TYPE_CHECKING:  # pandas (0.2-0.4 s to import, with pyarrow) loads after the training loop, see _train_locked
+    import pandas as pd
+
+CHECKPOINT = "checkpoint"
+FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # written when a run ends
+AVERAGE = -1  # the `robot` id of the network average in team tables
+CRASH_ENV = "RISKPLAN_TEST_KILL_IN_CHECKPOINT"  # fault injection for the crash-safety tests
+STOP_ENV = "RISKPLAN_TEST_STOP_AFTER_ITERATION"  # SIGSTOP after logging this iteration, so a test can SIGKILL there
+
+
+class NumericalTrouble(RuntimeError):
+    """theta or a gradient stopped being finite; the last good checkpoint is kept."""
+
+
+@dataclass
+class State:
+    """What a checkpoint holds: the next iteration, every robot's theta, the mixer's buffers, the rows so far."""
+
+    iteration: int
+    thetas: np.ndarray  # (N, M)
+    mixer: dict
+    rows: list[dict]
+
+
+def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
+    """One iteration of the team loop: rollouts, gradients, consensus, step. Returns the new state and rows."""
+    params = setup.params
+    started = time.perf_counter()
+    l, thetas = state.iteration, state.thetas
+    n, beta = setup.robots, params.risk.beta
+    episodes = samples_at(l, params.train)
+    batch = simulate(setup.world, setup.kernel, thetas, starts(setup),
+                     rng.robot_keys(params.seed, rng.TRAIN, l, n), episodes)
+    z = batch.total_reward.reshape(n, episodes)
+    scores = batch.score.reshape(n, episodes, -1)
+    check_finite(f"iteration {l}: an episode's total reward", z)
+    with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are caught just below, in one line
+        stats = summary_stats(z, beta)
+        check_finite(f"iteration {l}: the statistics of the total reward", *stats.values())
+        if params.risk.measure == "cvar":
+            level = risk_level(l, params.risk)  # soft risk: beta_l; the paper's beta when risk.schedule.kind=none
+            grads = cvar_gradient(z, scores, level, var=stats["value_at_risk"] if level == beta else None)
+        else:
+            level = 1.0  # the mean gradient is CVaR_1's
+            grads = mean_gradient(z, scores, params.train.baseline)
+        eps = step_size(l, params.train.step_size)
+        new_thetas = consensus_step(setup, thetas, grads, eps, l)
+    if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(new_thetas))):
+        raise NumericalTrouble(f"iteration {l}: theta or its gradient is not finite (theta={thetas.tolist()}, "
+                               f"gradient={grads.tolist()}); lower train.step_size.initial")
+    if not math.isfinite(logit_bound(setup.world, new_thetas)):
+        raise NumericalTrouble(f"iteration {l}: the new theta={new_thetas.tolist()} overflows the softmax "
+                               f"(theta . signal is not finite); lower train.step_size.initial")
+    error = consensus_error(thetas) if setup.team else math.nan
+    seconds = time.perf_counter() - started
+    rows = _robot_rows(l, stats, thetas, grads, eps, error, episodes, seconds, level)
+    if setup.team:
+        rows.append(_row(l, AVERAGE, summary_stats(z.ravel(), beta), thetas.mean(axis=0), grads.mean(axis=0), eps,
+                         error, episodes * n, seconds, level))
+    return State(l + 1, new_thetas, setup.mixer.snapshot(), state.rows + rows), rows  # copied when read
+
+
+def check_finite(what: str, *arrays) -> None:
+    """NumericalTrouble unless every value is finite: a NaN or infinity is never recorded as a result."""
+    for values in arrays:
+        if not np.all(np.isfinite(values)):
+            raise NumericalTrouble(f"{what} is not finite (overflow); use smaller rewards or fewer steps")
+
+
+def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int) -> np.ndarray:
+    """Eq. (14) combine-then-adapt, A theta + eps Delta (default), adapt-then-combine, A (theta + eps Delta), or
+    gradient tracking, A theta + eps y with y the robot's tracker of the average gradient (consensus.Mixer.track)."""
+    if setup.params.team.order == "gradient_tracking" and setup.team:
+        mixed, tracker = setup.mixer.track(thetas, grads, l)
+        return mixed + eps * tracker
+    adapt_first = setup.params.team.order == "adapt_then_combine"
+    mixed = thetas + eps * grads if adapt_first else thetas
+    for round_index in range(setup.params.team.consensus_rounds if setup.team else 0):
+        mixed = setup.mixer.mix(mixed, l, round_index)
+    return mixed if adapt_first else mixed + eps * grads
+
+
+def train(config, out_dir: str | Path, *, resume: bool = False,
+          progress: Callable[[int, int, dict], None] | None = None) -> Run:
+    """Train, evaluate and record one experiment into out_dir; with resume, continue from its checkpoint.
+
+    `config` is a composed config (or a Setup built from one). The directory is locked for the whole run: a second
+    process writing it gets BadInput naming this one's pid. A fresh run refuses a directory that holds another run.
+    """
+    setup = config if isinstance(config, Setup) else build_setup(config)
+    out = Path(out_dir)
+    check_output_dir(out, str(out))
+    out.mkdir(parents=True, exist_ok=True)
+    with hold(out):
+        return _train_locked(setup, out, resume, progress)
+
+
+def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
+    """train() under the directory's lock."""
+    if resume:
+        state = load_checkpoint(out, setup)
+        log = resume_log(out / "run.mcap", out / "run.mcap", state.iteration - 1)
+        state = replace(state, rows=logged_rows(out / "run.mcap", state.iteration, setup.robots))
+        setup.mixer.restore(state.mixer)
+        if _config_changed(out, setup.config):  # extended: the run's config now says the new train.iterations
+            _write_config(out, setup.config, replace=True)
+            log.metadata("config", setup.config)
+        for name in FINISHED:  # an extended run is not finished until it finishes again
+            (out / name).unlink(missing_ok=True)
+    else:
+        refuse_existing_run(out, setup)
+        _write_config(out, setup.config)
+        state = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
+        log = RunLog(out / "run.mcap")
+        _log_header(log, setup)
+    total = setup.params.train.iterations
+    every = setup.params.train.checkpoint_every
+    wall = time.perf_counter()
+    with log:
+        while state.iteration < total:
+            state, rows = iterate(setup, state)
+            log.iteration(rows)
+            if state.iteration % every == 0 or state.iteration == total:
+                log.sync()  # the log of every checkpointed iteration is on disk before the checkpoint is
+                save_checkpoint(out, state)
+            if progress:
+                progress(state.iteration, total, rows[-1])
+            if os.environ.get(STOP_ENV) == str(state.iteration - 1):
+                os.kill(os.getpid(), signal.SIGSTOP)
+        train_seconds = time.perf_counter() - wall
+        import pandas as pd  # only now: the first iteration does not wait for it (`riskplan bench`'s start-up row)
+
+        metrics = pd.DataFrame(state.rows).sort_values(["iteration", "robot"], ignore_index=True)
+        evaluation = evaluate(setup, state.thetas)
+        trajectories = sample_paths(setup, state.thetas)
+        summary = summarize(setup, state, evaluation, metrics, train_seconds)
+        log.trajectories(trajectories)
+        log.evaluation(evaluation)
+        log.summary(summary)
+    for name, table in (("metrics", metrics), ("eval", evaluation), ("trajectories", trajectories)):
+        with atomic_path(out / f"{name}.parquet") as tmp:
+            table.to_parquet(tmp, index=False)
+    write_layout(out, setup.robots, (setup.world.width, setup.world.height))  # before summary.json: done means all
+    write_atomic(out / "summary.json", json.dumps(summary, indent=2, allow_nan=False))
+    return Run(out, setup.config, metrics, evaluation, trajectories, summary, True)
+
+
+def refuse_existing_run(out: Path, setup: Setup) -> None:
+    """A fresh run never writes over another run's files: BadInput naming --resume instead."""
+    if any((out / name).exists() for name in (*FINISHED, CHECKPOINT, "run.mcap")) or (
+            (out / ".hydra" / "config.yaml").is_file() and _config_changed(out, setup.config)):
+        raise BadInput(str(out), f"already holds a run; resume it with riskplan train --resume {out}, or give a "
+                                 f"new directory")
+
+
+def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
+    """The metrics rows of iterations 0..iterations-1 from run.mcap: what a checkpoint no longer copies.
+
+    Every iteration must be there with one row per robot (and the network average in a team); anything else means
+    the log and the checkpoint are not of one run, which is bad input.
+    """
+    metrics = read_log(path).metrics
+    metrics = metrics[metrics.iteration < iterations]
+    per_iteration = robots + (1 if robots > 1 else 0)
+    counts = metrics.groupby("iteration").size()
+    if len(counts) != iterations or (iterations and not bool((counts == per_iteration).all())):
+        raise BadInput(str(path), f"holds rows that do not match the checkpoint (iteration {iterations}, "
+                                  f"{per_iteration} rows per iteration); start the run again")
+    return metrics.to_dict("records")
+
+
+def starts(setup: Setup) -> np.ndarray:
+    """Start cell of each robot (all at world.start unless team.starts is given)."""
+    cells = setup.world.starts
+    return np.repeat(cells, setup.robots) if len(cells) == 1 else cells
+
+
+def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The evaluated policies: (robot ids, thetas, start cells); teams add the network average (robot -1)."""
+    ids = np.arange(setup.robots)
+    cells = starts(setup)
+    if not setup.team:
+        return ids, thetas, cells
+    return np.append(ids, AVERAGE), np.vstack([thetas, thetas.mean(axis=0)]), np.append(cells, cells[0])
+
+
+def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
+    """The final policies on fresh episodes (own stream), one row per episode."""
+    import pandas as pd
+
+    count = setup.params.train.eval_episodes
+    ids, evaluated, cells = policies(setup, thetas)
+    frames = []
+    for p, robot in enumerate(ids):
+        parts = []
+        for first in range(0, count, EVAL_BATCH):
+            key = np.array([rng.stream_key(setup.params.seed, rng.EVAL, p, first)], dtype=np.uint64)
+            size = min(EVAL_BATCH, count - first)
+            parts.append(simulate(setup.world, setup.kernel, evaluated[p:p + 1], cells[p:p + 1], key, size))
+        frames.append(pd.DataFrame({
+            "episode": np.arange(count, dtype=np.int64),
+            "robot": np.full(count, robot, dtype=np.int64),
+            "total_reward": np.concatenate([b.total_reward for b in parts]),
+            "risky_steps": np.concatenate([b.risky_steps for b in parts]),
+            "source_reached": np.concatenate([b.source_reached for b in parts]),
+            "steps": np.concatenate([b.steps for b in parts]),
+        }))
+    return pd.concat(frames, ignore_index=True)
+
+
+def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
+    """A few sampled paths of the initial and the final policies (own stream), one row per step."""
+    import pandas as pd
+
+    count = setup.params.train.paths
+    frames = []
+    for name, policy_thetas in (("initial", np.tile(setup.theta0, (setup.robots, 1))), ("final", thetas)):
+        ids, evaluated, cells = policies(setup, policy_thetas)
+        keys = rng.robot_keys(setup.params.seed, rng.PATHS, 0 if name == "initial" else 1, len(ids))
+        batch = simulate(setup.world, setup.kernel, evaluated, cells, keys, count, record=True)
+        alive = batch.path_cells >= 0
+        episode, step = np.nonzero(alive)
+        x, y = setup.world.xy(batch.path_cells[alive])
+        frames.append(pd.DataFrame({
+            "policy": name,
+            "episode": (episode % max(count, 1)).astype(np.int64),
+            "robot": ids[episode // max(count, 1)].astype(np.int64),
+            "step": step.astype(np.int64),
+            "x": x.astype(np.int64),
+            "y": y.astype(np.int64),
+            "reward": batch.path_rewards[alive],
+        }))
+    return pd.concat(frames, ignore_index=True)
+
+
+def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.DataFrame,
+              train_seconds: float) -> dict:
+    """summary.json: headline policy's figures with intervals, per-policy basics, timing, provenance."""
+    params = setup.params
+    headline = AVERAGE if setup.team else 0
+    z = evaluation.loc[evaluation.robot == headline]
+    check_finite("the evaluation's total reward", evaluation.total_reward.to_numpy())
+    figures = bootstrap_intervals(z.total_reward.to_numpy(), params.risk.beta, params.train.bootstrap, params.seed)
+    check_finite("the summary's figures", *[v for f in figures.values() for v in f.values()])
+    steps = float(metrics.samples[metrics.robot >= 0].sum())
+    per_policy = {}
+    for robot, group in evaluation.groupby("robot"):
+        per_policy[str(robot)] = {
+            **{k: float(v) for k, v in summary_stats(group.total_reward.to_numpy(), params.risk.beta).items()},
+            "risky_fraction": float((group.risky_steps > 0).mean()),
+            "source_reached": {name: float((group.source_reached == j).mean())
+                               for j, name in enumerate(setup.world.source_names)} | {
+                "none": float((group.source_reached < 0).mean())},
+        }
+    _, final_thetas, _ = policies(setup, state.thetas)
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "experiment": params.experiment,
+        "risk": params.risk.measure,
+        "beta": params.risk.beta,
+        "robots": setup.robots,
+        "headline_robot": headline,
+        **figures,
+        "risky_fraction": per_policy[str(headline)]["risky_fraction"],
+        "source_reached": per_policy[str(headline)]["source_reached"],
+        "theta_final": final_thetas[-1].tolist() if setup.team else final_thetas[0].tolist(),
+        "policies": per_policy,
+        "iterations": state.iteration,
+        "eval_episodes": params.train.eval_episodes,
+        "wall_time": train_seconds,
+        "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else None,
+        "provenance": provenance(),
+    }
+
+
+def save_checkpoint(out: Path, state: State) -> None:
+    """Write the checkpoint atomically: temp file, fsync, rename, fsync the directory."""
+    tmp = out / f"{CHECKPOINT}.tmp"
+    payload = {"iteration": state.iteration, "thetas": state.thetas.tolist(),
+               "mixer": {k: np.asarray(v).tolist() for k, v in state.mixer.items()},
+               "mixer_dtypes": {k: str(np.asarray(v).dtype) for k, v in state.mixer.items()}}
+    with open(tmp, "w") as handle:
+        json.dump(payload, handle)
+        handle.flush()
+        os.fsync(handle.fileno())
+    if os.environ.get(CRASH_ENV) == str(state.iteration):
+        os.kill(os.getpid(), signal.SIGKILL)
+    os.replace(tmp, out / CHECKPOINT)
+    directory = os.open(out, os.O_RDONLY)
+    try:
+        os.fsync(directory)
+    finally:
+        os.close(directory)
+
+
+def load_checkpoint(out: Path, setup: Setup) -> State:
+    """The last good checkpoint of a run directory (a half-written temp file is ignored), checked against the
+    config: a checkpoint that cannot be this run's is bad input, never a run that continues."""
+    path = out / CHECKPOINT
+    if not path.exists():
+        raise BadInput(str(out), "has no checkpoint to resume from; start it again with riskplan train")
+    try:
+        payload = json.loads(path.read_text())
+        thetas = np.array(payload["thetas"], dtype=float)
+        mixer = {k: np.array(v, dtype=np.dtype(payload["mixer_dtypes"][k])) for k, v in payload["mixer"].items()}
+        iteration = payload["iteration"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+        raise BadInput(str(path), f"is damaged ({type(err).__name__}: {err}); it was not written by riskplan, "
+                                  f"which replaces checkpoints atomically: start the run again") from None
+    if type(iteration) is not int or iteration < 1:
+        raise BadInput(str(path), f"holds iteration {iteration!r}; a checkpoint is written after iteration 1 or "
+                                  f"later: start the run again")
+    if thetas.shape != (setup.robots, setup.world.sources):
+        raise BadInput(str(out), f"checkpoint holds {thetas.shape} thetas, the config needs "
+                                 f"{(setup.robots, setup.world.sources)}; only train.iterations may change on resume")
+    if not (np.all(np.isfinite(thetas)) and math.isfinite(logit_bound(setup.world, thetas))):
+        raise BadInput(str(path), "holds a theta that is not finite (or overflows the softmax); start the run again")
+    expected = setup.mixer.state()
+    for key, value in mixer.items():
+        if key not in expected or value.shape != expected[key].shape or (
+                value.dtype.kind == "f" and not np.all(np.isfinite(value))):
+            raise BadInput(str(path), f"holds a consensus state '{key}' that does not fit this team (or is not "
+                                      f"finite); start the run again")
+    if set(mixer) != set(expected):
+        raise BadInput(str(path), "lacks part of the consensus state of this team; start the run again")
+    if iteration > setup.params.train.iterations:
+        raise BadInput("train.iterations", f"got {setup.params.train.iterations}, but {out} is checkpointed "
+                                           f"at iteration {iteration}; a resumed run can only be extended: give "
+                                           f"train.iterations >= {iteration}")
+    return State(iteration, thetas, mixer, [])
+
+
+def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
+    """The Setup of a run to resume, after every check of its config, checkpoint and log (nothing is written), and
+    whether the run is finished already (its checkpoint is at train.iterations and its tables are there)."""
+    setup = build_setup(config)
+    state = load_checkpoint(out, setup)
+    logged_rows(out / "run.mcap", state.iteration, setup.robots)
+    done = state.iteration == setup.params.train.iterations and all((out / f).is_file() for f in FINISHED)
+    return setup, done
+
+
+def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, level) -> list[dict]:
+    """`_row` of every robot i (stats[k][i], thetas[i], grads[i]): the same dicts, copies of one template with the
+    values every robot shares, filled in column by column."""
+    n, m = thetas.shape
+    if n <= 4:  # a centralized run or a small team: one _row each is quicker
+        return [_row(l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, samples, seconds,
+                     level) for i in range(n)]
+    template = _row(l, 0, {k: 0.0 for k in stats}, np.zeros(m), np.zeros(1), eps, error, samples, seconds, level)
+    columns = {"robot": range(n), **{k: np.asarray(v, dtype=float).tolist() for k, v in stats.items()},
+               **{f"theta_{j}": column for j, column in enumerate(np.asarray(thetas, dtype=float).T.tolist())},
+               "grad_norm": _norms(grads)}
+    rows = [template.copy() for _ in range(n)]
+    for key, column in columns.items():  # existing keys: the template's order stays
+        for row, value in zip(rows, column):
+            row[key] = value
+    return rows
+
+
+def _norms(vectors: np.ndarray) -> list[float]:
+    """np.linalg.norm of each row, bit for bit: that is sqrt(x.dot(x)), and numpy's vecdot (numpy >= 2) takes each
+    row's dot product by the very function x.dot(x) calls (the dtype's dot, a BLAS ddot)."""
+    if hasattr(np, "vecdot"):
+        return np.sqrt(np.vecdot(vectors, vectors)).tolist()
+    return [math.sqrt(x.dot(x)) for x in vectors]
+
+
+def _row(l, robot, stats, theta, grad, eps, error, samples, seconds, level) -> dict:
+    """One metrics.parquet row (`level`: beta_l, the CVaR level of the iteration's gradient; stats are at beta)."""
+    return {"iteration": l, "robot": robot, **{k: float(v) for k, v in stats.items()},
+            **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
+            "grad_norm": float(np.linalg.norm(grad)), "step_size": eps, "beta_l": float(level),
+            "consensus_error": error,
+            "samples": int(samples), "seconds": seconds}
+
+
+def _write_config(out: Path, config: dict, replace: bool = False) -> None:
+    """.hydra/config.yaml for runs started from the Python API (Hydra writes it for the CLI), or `replace` it."""
+    path = out / ".hydra" / "config.yaml"
+    if replace or not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
+        os.replace(tmp, path)
+
+
+def _config_changed(out: Path, config: dict) -> bool:
+    """Whether the run's .hydra/config.yaml differs from `config` (after `--resume ... train.iterations=N`)."""
+    return as_dict(typed(OmegaConf.load(out / ".hydra" / "config.yaml"))) != config
+
+
+def _log_header(log: RunLog, setup: Setup) -> None:
+    """Config, provenance, network and world map at the top of run.mcap."""
+    log.metadata("config", setup.config)
+    log.metadata("provenance", provenance())
+    log.network(network_metadata(setup.network))
+    log.world_map(world_map(setup.world, starts(setup)))

@@ -1,0 +1,109 @@
+"""Limits that keep a run inside the machine: estimates of memory and time, checked before anything runs.
+
+Every limit names the environment variable that raises it. Defaults: memory, 80% of the memory available when the
+check runs; time, 24 hours of estimated simulation per run; sweeps, 10,000 jobs.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+from riskplan.util.errors import BadInput
+
+MEMORY_ENV = "RISKPLAN_MEMORY_GB"
+HOURS_ENV = "RISKPLAN_MAX_HOURS"
+JOBS_ENV = "RISKPLAN_MAX_JOBS"
+DEFAULT_HOURS = 24.0
+DEFAULT_JOBS = 10_000
+STEPS_PER_SECOND = 20e6  # conservative trajectory-steps/s of the kernel on 2 cores (bench measures 60-90M)
+
+
+def _env_number(name: str, default: float) -> float:
+    """A positive number from the environment, or the default; BadInput naming the variable otherwise."""
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise BadInput(name, f"got '{text}'; expected a positive number")
+    return value
+
+
+def available_memory() -> float:
+    """Bytes of memory available now (MemAvailable), or the physical memory where /proc/meminfo is missing."""
+    try:
+        with open("/proc/meminfo") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+
+
+def memory_budget() -> tuple[float, str]:
+    """(bytes a run may use, how that limit was set)."""
+    if os.environ.get(MEMORY_ENV, "").strip():
+        return _env_number(MEMORY_ENV, 0) * 1e9, f"{MEMORY_ENV}"
+    return 0.8 * available_memory(), "80% of this machine's available memory"
+
+
+def time_budget() -> float:
+    """Seconds of estimated work a run may take."""
+    return _env_number(HOURS_ENV, DEFAULT_HOURS) * 3600.0
+
+
+def job_budget() -> int:
+    """Jobs a sweep may hold."""
+    return int(_env_number(JOBS_ENV, DEFAULT_JOBS))
+
+
+def size(value: float) -> str:
+    """Bytes as a short human string."""
+    value = float(min(value, 1e300))
+    for unit in ("B", "KB", "MB", "GB", "TB", "PB"):
+        if value < 1000 or unit == "PB":
+            return f"{value:.3g} {unit}"
+        value /= 1000
+    return f"{value:.3g} PB"
+
+
+def duration(seconds: float) -> str:
+    """Seconds as a short human string."""
+    seconds = float(min(seconds, 1e300))
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 3 * 86400:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.3g} days"
+
+
+def check_memory(key: str, need: float, what: str) -> None:
+    """BadInput naming `key` when `what` needs more than the memory budget."""
+    budget, source = memory_budget()
+    if not need <= budget:
+        raise BadInput(key, f"{what} needs about {size(need)} of memory, more than the {size(budget)} allowed "
+                            f"({source}); lower it, or raise the limit with {MEMORY_ENV}=<GB>")
+
+
+def check_time(key: str, seconds: float, what: str) -> None:
+    """BadInput naming `key` when `what` is estimated to take longer than the time budget."""
+    budget = time_budget()
+    if not seconds <= budget:
+        raise BadInput(key, f"{what} would take about {duration(seconds)} (at {STEPS_PER_SECOND / 1e6:.0f}M "
+                            f"trajectory-steps/s), more than the {duration(budget)} allowed; lower it, or raise the "
+                            f"limit with {HOURS_ENV}=<hours>")
+
+
+def check_jobs(key: str, jobs: int) -> None:
+    """BadInput naming `key` when a sweep would hold more jobs than the job budget."""
+    budget = job_budget()
+    if jobs > budget:
+        raise BadInput(key, f"expands to {jobs} jobs, more than the {budget} allowed; sweep fewer values, or raise "
+                            f"the limit with {JOBS_ENV}=<jobs>")

@@ -1,0 +1,98 @@
+"""Output folders: checked before use, claimed fresh, written atomically; paths written as Hydra override values."""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import os
+from pathlib import Path
+
+from riskplan.util.errors import BadInput
+
+VIRTUAL = ("/proc", "/sys", "/dev")  # kernel filesystems: writing results there is never what a user meant
+
+
+def claim_dir(root: Path, suffix: str = "") -> Path:
+    """Create root/<YYYY-MM-DD_HH-MM-SS><suffix>, or with _1, _2, ... when taken: mkdir is the lock."""
+    check_output_dir(root, str(root))
+    base = Path(root) / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}{suffix}"
+    candidate, number = base, 1
+    while True:
+        try:
+            candidate.mkdir(parents=True)
+            return candidate
+        except FileExistsError:
+            candidate = base.with_name(f"{base.name}_{number}")
+            number += 1
+        except OSError as err:
+            raise BadInput(str(root), f"cannot be written ({err.strerror}); give a directory you can write") from None
+
+
+def check_output_dir(path: Path | str, key: str) -> Path:
+    """A directory riskplan may write into (existing or to be made): BadInput naming `key` otherwise.
+
+    Refused: an empty or blank path, the filesystem root, /proc, /sys and /dev, a file (or a path through one), and a
+    directory on a read-only filesystem or without write permission.
+    """
+    text = str(path)
+    if not text.strip() or "\x00" in text:
+        raise BadInput(key, f"got {text!r}; give a directory path")
+    resolved = Path(os.path.abspath(os.path.expanduser(text)))
+    resolved = Path(os.path.realpath(resolved))
+    if resolved == Path(resolved.anchor):
+        raise BadInput(key, f"{text} is the filesystem root; give a directory of its own, e.g. outputs/runs/mine")
+    for virtual in VIRTUAL:
+        if resolved == Path(virtual) or Path(virtual) in resolved.parents:
+            raise BadInput(key, f"{text} is under {virtual}, a kernel filesystem; give a directory on a disk")
+    if resolved.exists() and not resolved.is_dir():
+        raise BadInput(key, f"{text} is a file; expected a directory")
+    existing = resolved
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise BadInput(key, f"{text} cannot be made: {existing} is a file")
+    if _read_only(existing) or not os.access(existing, os.W_OK | os.X_OK):
+        why = "is on a read-only filesystem" if _read_only(existing) else "is not writable"
+        raise BadInput(key, f"{text} {why}; give a directory you can write")
+    return Path(text)
+
+
+def _read_only(path: Path) -> bool:
+    """Whether path lies on a filesystem mounted read-only (root ignores permission bits, not this)."""
+    try:
+        return bool(os.statvfs(path).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
+
+
+@contextlib.contextmanager
+def atomic_path(path: Path | str):
+    """Yield a temp path beside `path`; rename it over `path` when the block succeeds, else remove it.
+
+    Readers see the old file or the new one, never half of one; a failed write (a full disk) leaves no temp file.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        yield tmp
+        with open(tmp, "rb+") as handle:
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+def write_atomic(path: Path | str, data: str | bytes) -> None:
+    """Write text or bytes to `path` atomically (see atomic_path)."""
+    with atomic_path(path) as tmp:
+        if isinstance(data, str):
+            tmp.write_text(data, encoding="utf-8")
+        else:
+            tmp.write_bytes(data)
+
+
+def hydra_quote(value: Path | str) -> str:
+    """A path (or key) as a quoted Hydra override value."""
+    return "'" + str(value).replace("\\", "\\\\").replace("'", "\\'") + "'"
