@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from riskplan.version import __version__
 
-__all__ = ["compose", "train", "load_run", "sweep", "report", "__version__"]
+__all__ = ["__version__", "compose", "load_run", "report", "sweep", "train"]
 
 
 def compose(overrides=()):
@@ -26,8 +26,8 @@ def train(config, out_dir, progress: bool = True):
     """Train, evaluate and record one experiment into out_dir; returns its Run (riskplan.run.training.train).
 
     With `progress`, a live bar on a terminal or in a Jupyter notebook (nothing is printed elsewhere)."""
-    from riskplan.util.progress import TrainingBar, silent
     from riskplan.run.training import train as _train
+    from riskplan.util.progress import TrainingBar, silent
 
     with TrainingBar() if progress else silent() as bar:
         return _train(config, out_dir, progress=bar)

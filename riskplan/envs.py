@@ -11,15 +11,34 @@ public face of `riskplan.experiments.environments`.
 from __future__ import annotations
 
 import contextlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from riskplan.experiments.environments.core import Episodes, SoftmaxPolicy, Worlds, make_setup, robot_starts, run_episodes
+from riskplan.experiments.environments.core import (
+    Episodes,
+    SoftmaxPolicy,
+    Worlds,
+    make_setup,
+    robot_starts,
+    run_episodes,
+)
+
+if TYPE_CHECKING:  # provided lazily by __getattr__ below
+    from riskplan.experiments.environments.gym import SensorPlanningEnv
+    from riskplan.experiments.environments.petting import SensorTeamEnv
 
 with contextlib.suppress(ImportError):  # lets gymnasium.make("riskplan.envs:riskplan/SensorPlanning-v0") find it
     import riskplan.experiments.environments.gym  # noqa: F401 - registers the Gymnasium id
 
-__all__ = ["Episodes", "SensorPlanningEnv", "SensorTeamEnv", "SoftmaxPolicy", "Worlds", "make_setup",
-           "robot_starts", "run_episodes"]
+__all__ = [
+    "Episodes",
+    "SensorPlanningEnv",
+    "SensorTeamEnv",
+    "SoftmaxPolicy",
+    "Worlds",
+    "make_setup",
+    "robot_starts",
+    "run_episodes",
+]
 
 
 def __getattr__(name: str) -> Any:

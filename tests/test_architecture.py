@@ -33,8 +33,9 @@ def test_the_layer_contract_is_kept():
 def test_an_up_import_breaks_the_contract(tmp_path):
     """A copy of the package where the engine imports the training loop: lint-imports must refuse it."""
     copy = tmp_path / "repo"
-    shutil.copytree(ROOT / "riskplan", copy / "riskplan", symlinks=True,
-                    ignore=shutil.ignore_patterns("__pycache__", "conf"))
+    shutil.copytree(
+        ROOT / "riskplan", copy / "riskplan", symlinks=True, ignore=shutil.ignore_patterns("__pycache__", "conf")
+    )
     shutil.copy(ROOT / "pyproject.toml", copy / "pyproject.toml")
     consensus = copy / "riskplan" / "engine" / "team" / "consensus.py"
     consensus.write_text(consensus.read_text() + "\nfrom riskplan.run.training import AVERAGE  # noqa: E402\n")
@@ -47,16 +48,25 @@ def test_an_up_import_breaks_the_contract(tmp_path):
 
 def test_no_raw_config_reads_below_the_config_layer():
     pattern = re.compile(r"""\b(cfg|config|conf|params)\[["']""")
-    files = [f for name in BELOW_CONFIG for f in ([ROOT / "riskplan" / name] if name.endswith(".py")
-                                                  else (ROOT / "riskplan" / name).rglob("*.py"))]
-    offenders = [f"{f.name}:{n}: {line.strip()}" for f in files
-                 for n, line in enumerate(f.read_text().splitlines(), 1) if pattern.search(line) and f.name != "compose.py"]
+    files = [
+        f
+        for name in BELOW_CONFIG
+        for f in ([ROOT / "riskplan" / name] if name.endswith(".py") else (ROOT / "riskplan" / name).rglob("*.py"))
+    ]
+    offenders = [
+        f"{f.name}:{n}: {line.strip()}"
+        for f in files
+        for n, line in enumerate(f.read_text().splitlines(), 1)
+        if pattern.search(line) and f.name != "compose.py"
+    ]
     assert offenders == []
 
 
 def test_nothing_imports_the_cli_module():
-    importers = [str(p.relative_to(ROOT)) for p in (ROOT / "riskplan").rglob("*.py")
-                 if p.name not in ("cli.py", "__main__.py")
-                 and re.search(r"^\s*(from riskplan\.cli |from riskplan import cli|import riskplan\.cli)",
-                               p.read_text(), re.M)]
+    importers = [
+        str(p.relative_to(ROOT))
+        for p in (ROOT / "riskplan").rglob("*.py")
+        if p.name not in ("cli.py", "__main__.py")
+        and re.search(r"^\s*(from riskplan\.cli |from riskplan import cli|import riskplan\.cli)", p.read_text(), re.M)
+    ]
     assert importers == []

@@ -19,8 +19,14 @@ from riskplan.run.training import CHECKPOINT, train
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 BEGIN, END = "<!-- bad-input-table: begin -->", "<!-- bad-input-table: end -->"
-FAST = ["train.iterations=12", "train.samples=300", "train.eval_episodes=500", "train.bootstrap=20",
-        "train.paths=2", "train.checkpoint_every=5"]
+FAST = [
+    "train.iterations=12",
+    "train.samples=300",
+    "train.eval_episodes=500",
+    "train.bootstrap=20",
+    "train.paths=2",
+    "train.checkpoint_every=5",
+]
 
 runner = CliRunner()
 
@@ -28,7 +34,7 @@ runner = CliRunner()
 def table_rows() -> list[tuple[str, str, list[str], str]]:
     """(number, input, argv, expected stderr line) for each row of the README table."""
     text = README.read_text()
-    body = text[text.index(BEGIN) + len(BEGIN):text.index(END)]
+    body = text[text.index(BEGIN) + len(BEGIN) : text.index(END)]
     rows = []
     for line in body.strip().splitlines()[2:]:  # skip the header and the --- row
         number, what, command, expected = (cell.strip() for cell in line.strip().strip("|").split(" | "))
@@ -72,8 +78,10 @@ def template(tmp_path_factory) -> Path:
     (root / "empty").mkdir()
     (root / "notes.txt").write_text("not a run\n")
     # checkpoints and configs that cannot be this run's (resume validates them)
-    for name, edit in (("nan_theta", lambda c: {**c, "thetas": [[float("nan"), 1.0]]}),
-                       ("negative", lambda c: {**c, "iteration": -3})):
+    for name, edit in (
+        ("nan_theta", lambda c: {**c, "thetas": [[float("nan"), 1.0]]}),
+        ("negative", lambda c: {**c, "iteration": -3}),
+    ):
         bad = runs / name
         shutil.copytree(done, bad)
         checkpoint = json.loads((bad / CHECKPOINT).read_text())
@@ -82,12 +90,13 @@ def template(tmp_path_factory) -> Path:
         bad = runs / name
         shutil.copytree(done, bad)
         config = bad / ".hydra" / "config.yaml"
-        config.write_text(text + "\n".join(line for line in config.read_text().splitlines()
-                                           if not line.startswith("seed:")) + "\n")
+        config.write_text(
+            text + "\n".join(line for line in config.read_text().splitlines() if not line.startswith("seed:")) + "\n"
+        )
     # rows 160-179 (report and landscape --out): a landscape's directory and a report's directory, each with the
     # manifest its command writes
-    from riskplan.experiments.reporting import build_report
     from riskplan.experiments.landscape import compute_landscape
+    from riskplan.experiments.reporting import build_report
 
     compute_landscape(compose(FAST), root / "outputs" / "landscapes" / "land", points=3, episodes=20)
     build_report([done], root / "outputs" / "reports" / "old", ["png"])
@@ -96,9 +105,14 @@ def template(tmp_path_factory) -> Path:
 
 def snapshot(root: Path) -> dict[str, tuple[int, int, bytes]]:
     """Every file and directory below root, with size, modification time and (for files) content."""
-    return {str(p.relative_to(root)): (p.stat().st_size if p.is_file() else -1, p.stat().st_mtime_ns,
-                                       p.read_bytes() if p.is_file() else b"")
-            for p in sorted(root.rglob("*"))}
+    return {
+        str(p.relative_to(root)): (
+            p.stat().st_size if p.is_file() else -1,
+            p.stat().st_mtime_ns,
+            p.read_bytes() if p.is_file() else b"",
+        )
+        for p in sorted(root.rglob("*"))
+    }
 
 
 def pattern(expected: str) -> re.Pattern:

@@ -5,17 +5,23 @@ from __future__ import annotations
 import numpy as np
 
 from riskplan.engine import rng
-from riskplan.experiments.benchmarks import python_rollouts
-from riskplan.run.compose import compose
 from riskplan.engine.rollout import simulate
+from riskplan.experiments.benchmarks import python_rollouts
 from riskplan.run.build import build_setup
+from riskplan.run.compose import compose
 
 
 def test_python_baseline_matches_the_kernel_in_distribution():
     setup = build_setup(compose(["train.theta0=[40,5]"]))
     python_z, python_steps = python_rollouts(setup.world, setup.theta0, 3000, seed=1)
-    batch = simulate(setup.world, setup.kernel, setup.theta0[None, :], setup.world.starts,
-                     rng.robot_keys(1, rng.TRAIN, 0, 1), 100_000)
+    batch = simulate(
+        setup.world,
+        setup.kernel,
+        setup.theta0[None, :],
+        setup.world.starts,
+        rng.robot_keys(1, rng.TRAIN, 0, 1),
+        100_000,
+    )
     stderr = np.sqrt(python_z.var() / python_z.size + batch.total_reward.var() / batch.total_reward.size)
     assert abs(python_z.mean() - batch.total_reward.mean()) < 5 * stderr
     assert abs(python_steps / 3000 - batch.steps.mean()) < 5 * batch.steps.std() / np.sqrt(3000)
@@ -34,13 +40,19 @@ def test_scaling_measures_every_dimension_against_the_baseline_row(tmp_path, mon
     small = ["train.samples=200"]
     dimensions = {
         "grid": [(12.0, small), (16.0, [*small, "world.size=[16,16]", "world.regions.1.rect=[0,0,15,15]"])],
-        "horizon": [(10.0, [*small, "world.horizon=10", "world.stop_at_source=false"]),
-                    (30.0, [*small, "world.horizon=30", "world.stop_at_source=false"])],
+        "horizon": [
+            (10.0, [*small, "world.horizon=10", "world.stop_at_source=false"]),
+            (30.0, [*small, "world.horizon=30", "world.stop_at_source=false"]),
+        ],
         "sources": [(2.0, [*small, *bench.source_overrides(2)]), (5.0, [*small, *bench.source_overrides(5)])],
-        "mobile": [(0.0, small), (1.0, [*small, "world.sources.0.motion.kind=random_walk",
-                                        "world.sources.0.motion.prob=0.5"])],
-        "robots": [(1.0, ["train.samples=300"]),
-                   (3.0, ["team.robots=3", "team.graph=random_geometric", "team.radius=1.5", "train.samples=100"])],
+        "mobile": [
+            (0.0, small),
+            (1.0, [*small, "world.sources.0.motion.kind=random_walk", "world.sources.0.motion.prob=0.5"]),
+        ],
+        "robots": [
+            (1.0, ["train.samples=300"]),
+            (3.0, ["team.robots=3", "team.graph=random_geometric", "team.radius=1.5", "train.samples=100"]),
+        ],
     }
     rows = bench.bench_scaling(quick=True, dimensions=dimensions, baseline=small)
     assert rows[0]["dimension"] == "baseline" and len(rows) == 1 + sum(len(v) for v in dimensions.values())

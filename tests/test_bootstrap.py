@@ -8,8 +8,8 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
-from riskplan.run.intervals import REPORT_BETAS, _bootstrap, bootstrap_intervals
 from riskplan.risk import tail_count
+from riskplan.run.intervals import REPORT_BETAS, _bootstrap, bootstrap_intervals
 
 STD = NormalDist()
 
@@ -58,6 +58,7 @@ def test_intervals_match_the_asymptotic_standard_errors_of_a_normal_sample():
     se = math.sqrt((tail_square - tail_mean**2) / (beta**2 * n))
     assert half["cvar"] == pytest.approx(1.96 * se, rel=0.12)
     assert abs(figures["cvar"]["value"] - (-phi / beta)) < 4 * se  # the analytic CVaR of N(0, 1)
+
 
 def test_the_same_seed_gives_the_same_intervals_and_another_seed_others():
     z = np.random.default_rng(2).exponential(size=10_001)

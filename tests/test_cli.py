@@ -11,12 +11,26 @@ import yaml
 from typer.testing import CliRunner
 
 from riskplan.cli import app
-from riskplan.util.paths import claim_dir
 from riskplan.run.record import read_log
+from riskplan.util.paths import claim_dir
 
 runner = CliRunner()
-METRICS = ["iteration", "robot", "mean", "cvar", "value_at_risk", "std", "theta_0", "theta_1", "grad_norm",
-           "step_size", "beta_l", "consensus_error", "samples", "seconds"]
+METRICS = [
+    "iteration",
+    "robot",
+    "mean",
+    "cvar",
+    "value_at_risk",
+    "std",
+    "theta_0",
+    "theta_1",
+    "grad_norm",
+    "step_size",
+    "beta_l",
+    "consensus_error",
+    "samples",
+    "seconds",
+]
 EVAL = ["episode", "robot", "total_reward", "risky_steps", "source_reached", "steps"]
 TRAJECTORIES = ["policy", "episode", "robot", "step", "x", "y", "reward"]
 
@@ -39,8 +53,17 @@ def test_train_writes_every_contract_file(in_tmp, fast_overrides):
     assert run.name.endswith("_paper_single")
     assert f"run directory: {Path('outputs/runs') / run.name}" in result.output
     assert "risk=neutral" in result.output and "CVaR" in result.output  # the one-line summary
-    for name in (".hydra/config.yaml", ".hydra/overrides.yaml", "run.mcap", "metrics.parquet", "eval.parquet",
-                 "trajectories.parquet", "summary.json", "checkpoint", "foxglove_layout.json"):
+    for name in (
+        ".hydra/config.yaml",
+        ".hydra/overrides.yaml",
+        "run.mcap",
+        "metrics.parquet",
+        "eval.parquet",
+        "trajectories.parquet",
+        "summary.json",
+        "checkpoint",
+        "foxglove_layout.json",
+    ):
         assert (run / name).is_file(), name
     assert yaml.safe_load((run / ".hydra/overrides.yaml").read_text())[-2:] == ["risk=neutral", "seed=3"]
     metrics = pd.read_parquet(run / "metrics.parquet")
@@ -109,8 +132,9 @@ def test_check_warns_when_assumption_6_fails(in_tmp):
     assert "Assumption 6" in result.output and "FAILS" in result.output
 
 
-@pytest.mark.parametrize("command", [[], ["train"], ["check"], ["bench"], ["report"], ["sweep"], ["reproduce"],
-                                     ["export"]])
+@pytest.mark.parametrize(
+    "command", [[], ["train"], ["check"], ["bench"], ["report"], ["sweep"], ["reproduce"], ["export"]]
+)
 def test_help_explains_every_command(command):
     result = runner.invoke(app, [*command, "--help"])
     assert result.exit_code == 0, result.output

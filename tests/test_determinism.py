@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from test_resume import FAST, TEAM, assert_same_outputs, run_cli, train_cli
 
 from riskplan import compose
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
 from riskplan.run.build import build_setup
 from riskplan.run.training import starts, train
-from test_resume import FAST, TEAM, assert_same_outputs, run_cli, train_cli
 
 
 def job_dirs(sweep: Path) -> dict[int, Path]:
@@ -35,8 +35,11 @@ def test_same_numbers_across_threads_jobs_and_launchers(tmp_path):
     sweeps = {}
     for jobs in (1, 2):
         sweeps[jobs] = tmp_path / f"sweep_jobs_{jobs}"
-        result = run_cli(["sweep", *FAST, "seed=0,1", "--jobs", str(jobs), f"hydra.sweep.dir={sweeps[jobs]}"],
-                         tmp_path, NUMBA_NUM_THREADS="2")
+        result = run_cli(
+            ["sweep", *FAST, "seed=0,1", "--jobs", str(jobs), f"hydra.sweep.dir={sweeps[jobs]}"],
+            tmp_path,
+            NUMBA_NUM_THREADS="2",
+        )
         assert result.returncode == 0, result.stdout + result.stderr
     one, two = job_dirs(sweeps[1]), job_dirs(sweeps[2])
     assert set(one) == set(two) == {0, 1}
@@ -74,8 +77,10 @@ def test_seeds_give_different_runs(tmp_path):
 
 def test_stream_keys_are_distinct_for_every_seed_purpose_iteration_and_robot():
     purposes = (rng.TRAIN, rng.EVAL, rng.PATHS, rng.BOOTSTRAP, rng.LANDSCAPE)
-    keys = [rng.stream_key(seed, purpose, iteration, robot)
-            for seed, purpose, iteration, robot in itertools.product(range(20), purposes, range(40), range(4))]
+    keys = [
+        rng.stream_key(seed, purpose, iteration, robot)
+        for seed, purpose, iteration, robot in itertools.product(range(20), purposes, range(40), range(4))
+    ]
     assert len(set(keys)) == len(keys)
     assert len({rng.stream_key(seed) for seed in range(-1000, 1000)}) == 2000
 
@@ -86,8 +91,9 @@ def test_different_seeds_give_independent_episode_streams():
     episodes = 20_000
     rewards = {}
     for seed in (0, 1, 2):
-        batch = simulate(setup.world, setup.kernel, theta, starts(setup)[:1],
-                         rng.robot_keys(seed, rng.TRAIN, 0, 1), episodes)
+        batch = simulate(
+            setup.world, setup.kernel, theta, starts(setup)[:1], rng.robot_keys(seed, rng.TRAIN, 0, 1), episodes
+        )
         rewards[seed] = batch.total_reward
     for a, b in itertools.combinations(rewards, 2):
         # Same policy, so the same distribution; independent streams: no shared draws, no correlation.

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from riskplan.engine import distributions as D
-from riskplan.util.errors import BadInput
 from riskplan.engine.rollout import _draw
 from riskplan.engine.world import MAX_STACK
+from riskplan.util.errors import BadInput
 
 PAPER_RISKY = {"clip": [-1e4, 1e4], "of": {"sum": [{"scale": 200, "of": {"uniform": [0, 1]}}, {"normal": [0, 100]}]}}
 
@@ -24,23 +24,41 @@ def kernel_sample(data, n: int, seed: int = 0) -> np.ndarray:
     return out
 
 
-@pytest.mark.parametrize("data", [
-    3.5, {"constant": -2}, {"uniform": [0, 1]}, {"normal": [2000, 2000]}, {"bernoulli": 0.01},
-    {"mixture": [{"weight": 0.99, "of": 0}, {"weight": 0.01, "of": {"normal": [-1e4, 10]}}]},
-    {"sum": [1, {"uniform": [-1, 1]}]}, PAPER_RISKY,
-])
+@pytest.mark.parametrize(
+    "data",
+    [
+        3.5,
+        {"constant": -2},
+        {"uniform": [0, 1]},
+        {"normal": [2000, 2000]},
+        {"bernoulli": 0.01},
+        {"mixture": [{"weight": 0.99, "of": 0}, {"weight": 0.01, "of": {"normal": [-1e4, 10]}}]},
+        {"sum": [1, {"uniform": [-1, 1]}]},
+        PAPER_RISKY,
+    ],
+)
 def test_round_trip(data):
     dist = D.parse(data)
     assert D.parse(D.to_data(dist)) == dist
 
 
-@pytest.mark.parametrize("data, where", [
-    ("normal(0,1)", "reward"), ({"gauss": [0, 1]}, "reward"), ({"normal": [0, -1]}, "reward.normal"),
-    ({"uniform": [2, 1]}, "reward.uniform"), ({"bernoulli": 1.5}, "reward.bernoulli"),
-    ({"scale": 2}, "reward"), ({"clip": [0, 1], "of": {"normal": [0]}}, "reward.of.normal"),
-    ({"mixture": [{"weight": 1}]}, "reward.mixture.0"), ({"sum": []}, "reward.sum"), (True, "reward"),
-    ({"normal": [0, float("inf")]}, "reward.normal"), ({"normal": [0, 1], "uniform": [0, 1]}, "reward"),
-])
+@pytest.mark.parametrize(
+    "data, where",
+    [
+        ("normal(0,1)", "reward"),
+        ({"gauss": [0, 1]}, "reward"),
+        ({"normal": [0, -1]}, "reward.normal"),
+        ({"uniform": [2, 1]}, "reward.uniform"),
+        ({"bernoulli": 1.5}, "reward.bernoulli"),
+        ({"scale": 2}, "reward"),
+        ({"clip": [0, 1], "of": {"normal": [0]}}, "reward.of.normal"),
+        ({"mixture": [{"weight": 1}]}, "reward.mixture.0"),
+        ({"sum": []}, "reward.sum"),
+        (True, "reward"),
+        ({"normal": [0, float("inf")]}, "reward.normal"),
+        ({"normal": [0, 1], "uniform": [0, 1]}, "reward"),
+    ],
+)
 def test_garbage_is_rejected_with_the_key(data, where):
     with pytest.raises(BadInput) as err:
         D.parse(data)
@@ -50,7 +68,10 @@ def test_garbage_is_rejected_with_the_key(data, where):
 def test_paper_risky_reward_moments_in_kernel_and_numpy():
     """200 a + d, a ~ U[0,1], d ~ N(0, 100^2): mean 100, variance 200^2/12 + 100^2 (clipping is negligible)."""
     expected_std = np.sqrt(200**2 / 12 + 100**2)
-    for draws in (kernel_sample(PAPER_RISKY, 200_000), D.sample(D.parse(PAPER_RISKY), np.random.default_rng(0), 200_000)):
+    for draws in (
+        kernel_sample(PAPER_RISKY, 200_000),
+        D.sample(D.parse(PAPER_RISKY), np.random.default_rng(0), 200_000),
+    ):
         assert draws.mean() == pytest.approx(100.0, abs=1.5)
         assert draws.std() == pytest.approx(expected_std, rel=0.01)
 
@@ -79,8 +100,9 @@ def test_a_scaled_leaf_compiles_to_one_op_that_draws_k_times_the_leaf(leaf, k):
     """scale folds into its leaf (k*U[a,b], k*N(m,s), k*c): one op, the same draws up to rounding, any sign of k."""
     ops, _ = D.compile_program(D.parse({"scale": k, "of": leaf}))
     assert len(ops) == 1
-    np.testing.assert_allclose(kernel_sample({"scale": k, "of": leaf}, 1000), k * kernel_sample(leaf, 1000),
-                               rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(
+        kernel_sample({"scale": k, "of": leaf}, 1000), k * kernel_sample(leaf, 1000), rtol=1e-12, atol=1e-12
+    )
 
 
 # ---------------------------------------------------------------------------------------------- hardening (issue 10)
@@ -103,15 +125,18 @@ def test_normalised_weights_are_unchanged_when_the_sum_is_finite():
     assert D.normalised((1e308, 1e308)) == [0.5, 0.5]
 
 
-@pytest.mark.parametrize("data, where", [
-    (1e200, "reward"),
-    ({"uniform": [-1e308, 1e308]}, "reward"),  # hi - lo overflows to inf in the kernel's lo + (hi - lo) u
-    ({"normal": [0, 1e300]}, "reward"),
-    ({"scale": 1e300, "of": {"uniform": [0, 1]}}, "reward"),
-    ({"sum": [1, {"constant": 1e101}]}, "reward.sum.1"),
-    ({"clip": [-1, 1], "of": {"sum": [6e99, 6e99]}}, "reward.of"),  # an intermediate beyond the limit
-    ({"mixture": [{"weight": 1, "of": 0}, {"weight": 1, "of": {"normal": [1e100, 1e98]}}]}, "reward.mixture.1.of"),
-])
+@pytest.mark.parametrize(
+    "data, where",
+    [
+        (1e200, "reward"),
+        ({"uniform": [-1e308, 1e308]}, "reward"),  # hi - lo overflows to inf in the kernel's lo + (hi - lo) u
+        ({"normal": [0, 1e300]}, "reward"),
+        ({"scale": 1e300, "of": {"uniform": [0, 1]}}, "reward"),
+        ({"sum": [1, {"constant": 1e101}]}, "reward.sum.1"),
+        ({"clip": [-1, 1], "of": {"sum": [6e99, 6e99]}}, "reward.of"),  # an intermediate beyond the limit
+        ({"mixture": [{"weight": 1, "of": 0}, {"weight": 1, "of": {"normal": [1e100, 1e98]}}]}, "reward.mixture.1.of"),
+    ],
+)
 def test_programs_that_could_overflow_are_rejected_naming_the_node(data, where):
     with pytest.raises(BadInput) as err:
         D.check_bound(D.parse(data), "reward")

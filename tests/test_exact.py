@@ -10,16 +10,19 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
+from riskplan.config.schema import RiskplanConf
 from riskplan.engine import rng
 from riskplan.engine.policy import move_features, probabilities
-from riskplan.risk import cvar_gradient, mean_gradient, tail_count
 from riskplan.engine.rollout import simulate
-from riskplan.config.schema import RiskplanConf
+from riskplan.risk import cvar_gradient, mean_gradient, tail_count
 from riskplan.run.build import build_setup
 
 TINY = {
     "world": {
-        "size": [3, 3], "start": [0, 0], "horizon": 3, "stop_at_source": True,
+        "size": [3, 3],
+        "start": [0, 0],
+        "horizon": 3,
+        "stop_at_source": True,
         "sources": [
             {"position": [2, 0], "covariance": [[1.0, 0.0], [0.0, 1.0]], "reward": 10.0},
             {"position": [0, 2], "covariance": [[2.0, 0.5], [0.5, 1.0]], "reward": 4.0},
@@ -89,8 +92,14 @@ def finite_difference(f, theta, h=1e-5) -> np.ndarray:
 
 
 def rollouts(setup, theta, episodes, seed=0):
-    return simulate(setup.world, setup.kernel, np.array([theta]), setup.world.starts,
-                    rng.robot_keys(seed, rng.TRAIN, 0, 1), episodes)
+    return simulate(
+        setup.world,
+        setup.kernel,
+        np.array([theta]),
+        setup.world.starts,
+        rng.robot_keys(seed, rng.TRAIN, 0, 1),
+        episodes,
+    )
 
 
 def test_enumeration_is_a_distribution(setup):

@@ -18,9 +18,9 @@ from typer.testing import CliRunner
 from riskplan import compose, train
 from riskplan.cli import app
 from riskplan.experiments.exporting import metric_prefix, param_value, summary_figures, tensorboard_name
-from riskplan.run.foxglove_layout import LAYOUT_FILE, layout, panels, topics, write_layout
 from riskplan.experiments.reporting.collect import flatten
 from riskplan.experiments.sweep_worker import config_sha
+from riskplan.run.foxglove_layout import LAYOUT_FILE, layout, panels, topics, write_layout
 
 TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 runner = CliRunner()
@@ -135,8 +135,9 @@ def test_mlflow_holds_every_metric_summary_param_and_tag(runs, tmp_path, file_st
     assert not any(k.startswith("robot_") for k in found["single_0"].data.metrics)
     assert "train/consensus_error" not in found["single_0"].data.metrics  # NaN for one robot: not logged
     # seed groups: the two seeds share a group, the team is another
-    group = {name: (found[name].data.tags["riskplan.group"], found[name].data.tags["riskplan.group_sha"])
-             for name in GOOD}
+    group = {
+        name: (found[name].data.tags["riskplan.group"], found[name].data.tags["riskplan.group_sha"]) for name in GOOD
+    }
     assert group["single_0"] == group["single_1"] != group["team"]
 
 
@@ -226,8 +227,9 @@ def test_a_write_failure_is_one_line_exit_1_and_keeps_the_previous_export(runs, 
     monkeypatch.setattr(TensorboardTarget, "_events", staticmethod(full))
     result = invoke(str(mine), "--to", "tensorboard", "--uri", str(logdir))
     assert result.exit_code == 1
-    assert result.stderr.splitlines() == [f"error: tensorboard {logdir}: could not be written "
-                                          f"(OSError: [Errno 28] No space left on device)"]
+    assert result.stderr.splitlines() == [
+        f"error: tensorboard {logdir}: could not be written (OSError: [Errno 28] No space left on device)"
+    ]
     assert {p.name: p.read_bytes() for p in logdir.rglob("*") if p.is_file()} == before
     assert not [p for p in logdir.iterdir() if p.name.startswith(".")]
 
@@ -239,8 +241,9 @@ def test_a_missing_optional_package_is_bad_input_and_writes_nothing(runs, tmp_pa
     monkeypatch.chdir(tmp_path)
     result = invoke(str(runs), "--to", "mlflow")
     assert result.exit_code == 2
-    assert result.stderr.splitlines() == ["error: --to: mlflow needs the mlflow-skinny package, which is not "
-                                          "installed; pip install 'riskplan[mlflow]'"]
+    assert result.stderr.splitlines() == [
+        "error: --to: mlflow needs the mlflow-skinny package, which is not installed; pip install 'riskplan[mlflow]'"
+    ]
     assert list(tmp_path.iterdir()) == []
 
 
@@ -268,14 +271,23 @@ def test_foxglove_layout_references_only_topics_of_the_run(runs, tmp_path, name,
     assert used <= mcap_topics(run)
     assert {"/world/map", "/world/markers", "/paths", "/team/graph", "/metrics", "/summary"} <= used
     plotted = [p["value"] for panel in data["configById"].values() for p in panel.get("paths", [])]
-    wanted = ["/metrics{robot==0}.cvar"] if robots == 1 else [
-        "/metrics{robot==-1}.cvar", "/metrics{robot==0}.cvar", "/metrics{robot==1}.cvar", "/metrics{robot==2}.cvar"]
+    wanted = (
+        ["/metrics{robot==0}.cvar"]
+        if robots == 1
+        else [
+            "/metrics{robot==-1}.cvar",
+            "/metrics{robot==0}.cvar",
+            "/metrics{robot==1}.cvar",
+            "/metrics{robot==2}.cvar",
+        ]
+    )
     assert [p for p in plotted if p.endswith(".cvar")] == wanted
     assert [p.replace(".mean", ".cvar") for p in plotted if p.endswith(".mean")] == wanted
     grid = next(c for c in data["configById"].values() if c.get("followTf") == "grid")
     assert set(grid["topics"]) == {"/world/map", "/world/markers", "/paths"}
-    assert invoke(str(run), "--to", "foxglove").stdout.endswith("0 exported, 0 replaced, 1 unchanged, 0 skipped "
-                                                                "-> each run directory\n")
+    assert invoke(str(run), "--to", "foxglove").stdout.endswith(
+        "0 exported, 0 replaced, 1 unchanged, 0 skipped -> each run directory\n"
+    )
 
 
 def test_write_layout_is_what_export_writes(runs, tmp_path):

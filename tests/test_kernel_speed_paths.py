@@ -15,10 +15,10 @@ from numba import njit
 
 from riskplan.engine import distributions as D
 from riskplan.engine import rng
-from riskplan.run.compose import compose
-from riskplan.risk import cvar
 from riskplan.engine.rollout import _pick, _pick_bits, affine_form, move_bins, simulate
+from riskplan.risk import cvar
 from riskplan.run.build import build_setup
+from riskplan.run.compose import compose
 
 N = 2_000_000
 KS_999 = 1.95  # P(sqrt(n) * KS distance > 1.95) ~ 0.001 under the exact law (Kolmogorov's limit distribution)
@@ -88,28 +88,39 @@ def test_ziggurat_tables_have_equal_strips():
 PAPER_RISKY = {"clip": [-1e4, 1e4], "of": {"sum": [{"scale": 200, "of": {"uniform": [0, 1]}}, {"normal": [0, 100]}]}}
 
 
-@pytest.mark.parametrize("data, form", [
-    (PAPER_RISKY, (0.0, 200.0, 100.0, -1e4, 1e4)),
-    ({"scale": 100, "of": {"uniform": [0, 1]}}, (0.0, 100.0, 0.0, -math.inf, math.inf)),
-    (-3.0, (-3.0, 0.0, 0.0, -math.inf, math.inf)),
-    ({"sum": [{"normal": [1, 3]}, {"scale": -2, "of": {"normal": [0, 2]}}, {"uniform": [-1, 1]}]},
-     (0.0, 2.0, 5.0, -math.inf, math.inf)),
-    ({"scale": -2, "of": {"sum": [{"uniform": [1, 3]}, 4]}}, (-10.0, -4.0, 0.0, -math.inf, math.inf)),
-])
+@pytest.mark.parametrize(
+    "data, form",
+    [
+        (PAPER_RISKY, (0.0, 200.0, 100.0, -1e4, 1e4)),
+        ({"scale": 100, "of": {"uniform": [0, 1]}}, (0.0, 100.0, 0.0, -math.inf, math.inf)),
+        (-3.0, (-3.0, 0.0, 0.0, -math.inf, math.inf)),
+        (
+            {"sum": [{"normal": [1, 3]}, {"scale": -2, "of": {"normal": [0, 2]}}, {"uniform": [-1, 1]}]},
+            (0.0, 2.0, 5.0, -math.inf, math.inf),
+        ),
+        ({"scale": -2, "of": {"sum": [{"uniform": [1, 3]}, 4]}}, (-10.0, -4.0, 0.0, -math.inf, math.inf)),
+    ],
+)
 def test_affine_form_of_linear_programs(data, form):
     assert affine_form(D.parse(data)) == pytest.approx(form)
 
 
-@pytest.mark.parametrize("data", [
-    {"bernoulli": 0.5}, {"mixture": [{"weight": 1, "of": 0}, {"weight": 1, "of": 1}]},
-    {"sum": [{"uniform": [0, 1]}, {"uniform": [0, 1]}]}, {"sum": [1, {"clip": [0, 1], "of": {"normal": [0, 1]}}]},
-])
+@pytest.mark.parametrize(
+    "data",
+    [
+        {"bernoulli": 0.5},
+        {"mixture": [{"weight": 1, "of": 0}, {"weight": 1, "of": 1}]},
+        {"sum": [{"uniform": [0, 1]}, {"uniform": [0, 1]}]},
+        {"sum": [1, {"clip": [0, 1], "of": {"normal": [0, 1]}}]},
+    ],
+)
 def test_programs_without_an_affine_form_use_the_interpreter(data):
     assert affine_form(D.parse(data)) is None
     setup = build_setup(compose([f"world.regions.1.reward={_yaml(data)}"]))
     assert not setup.kernel.affine
-    batch = simulate(setup.world, setup.kernel, setup.theta0[None, :], setup.world.starts,
-                     rng.robot_keys(0, rng.TRAIN, 0, 1), 500)
+    batch = simulate(
+        setup.world, setup.kernel, setup.theta0[None, :], setup.world.starts, rng.robot_keys(0, rng.TRAIN, 0, 1), 500
+    )
     assert np.all(np.isfinite(batch.total_reward)) and np.all(batch.steps > 0)
 
 
@@ -122,11 +133,14 @@ def _yaml(data) -> str:
     return repr(data)
 
 
-@pytest.mark.parametrize("data", [
-    PAPER_RISKY,
-    {"sum": [{"normal": [1, 3]}, {"scale": -2, "of": {"normal": [0, 2]}}, {"uniform": [-1, 1]}]},
-    {"clip": [-1, 2], "of": {"scale": -2, "of": {"sum": [{"uniform": [0, 3]}, {"normal": [0, 0.5]}]}}},
-])
+@pytest.mark.parametrize(
+    "data",
+    [
+        PAPER_RISKY,
+        {"sum": [{"normal": [1, 3]}, {"scale": -2, "of": {"normal": [0, 2]}}, {"uniform": [-1, 1]}]},
+        {"clip": [-1, 2], "of": {"scale": -2, "of": {"sum": [{"uniform": [0, 3]}, {"normal": [0, 0.5]}]}}},
+    ],
+)
 def test_affine_form_has_the_law_of_the_program(data):
     """clip(c + w U + s N, lo, hi) in numpy against the program sampled by riskplan.engine.distributions."""
     n = 400_000
@@ -176,10 +190,15 @@ def test_new_kernel_gives_the_old_kernels_distribution_on_the_paper_world(paper,
         gap = stat(new.total_reward) - stat(old.total_reward)
         if abs(gap) > 4 * se:
             bad.append(f"{name}: new - old = {gap:.3g}, 4 se = {4 * se:.3g}")
-    others = {"steps": lambda b: b.steps, "risky": lambda b: b.risky_steps,
-              "safe": lambda b: b.source_reached == 0, "risky source": lambda b: b.source_reached == 1,
-              "score 0": lambda b: b.score[:, 0], "score 1": lambda b: b.score[:, 1],
-              "z * score 0": lambda b: b.total_reward * b.score[:, 0]}
+    others = {
+        "steps": lambda b: b.steps,
+        "risky": lambda b: b.risky_steps,
+        "safe": lambda b: b.source_reached == 0,
+        "risky source": lambda b: b.source_reached == 1,
+        "score 0": lambda b: b.score[:, 0],
+        "score 1": lambda b: b.score[:, 1],
+        "z * score 0": lambda b: b.total_reward * b.score[:, 0],
+    }
     for name, get in others.items():
         a, b = np.asarray(get(new), float), np.asarray(get(old), float)
         se = math.sqrt(a.var() / a.size + b.var() / b.size)
@@ -203,8 +222,9 @@ def test_reference_path_is_deterministic_and_thread_independent(paper):
     np.testing.assert_array_equal(one.score, many.score)
 
 
-@pytest.mark.parametrize("overrides", [[], ["world.stop_at_source=false"], ["world.regions.0.reward=-5",
-                                                                             "world.regions.1.reward=2"]])
+@pytest.mark.parametrize(
+    "overrides", [[], ["world.stop_at_source=false"], ["world.regions.0.reward=-5", "world.regions.1.reward=2"]]
+)
 def test_fast_loop_gives_the_general_loops_numbers(overrides):
     """`_simulate_affine` (no recording) against `_simulate` (recording): the same draws, bit for bit."""
     setup = build_setup(compose(overrides))
@@ -233,8 +253,12 @@ def test_integer_bins_pick_exactly_the_float_compares_move():
     gen = np.random.default_rng(0)
     raw = gen.random((1, 500, 5)) ** gen.integers(1, 40, (1, 500, 1))  # tiny and ordinary probabilities
     cum = np.cumsum(raw / raw.sum(axis=2, keepdims=True), axis=2)
-    cum[0, :4] = [[0.5, 0.5, 0.75, 1 - 2**-53, 1.0], [0.0, 2**-60, 0.5 - 2**-54, 1.0, 1.0],
-                  [0.1, 0.2, 0.30000000000000004, 1 + 2**-52, 1.0], [2**-53, 2**-52, 3 * 2**-53, 0.25, 1.0]]
+    cum[0, :4] = [
+        [0.5, 0.5, 0.75, 1 - 2**-53, 1.0],
+        [0.0, 2**-60, 0.5 - 2**-54, 1.0, 1.0],
+        [0.1, 0.2, 0.30000000000000004, 1 + 2**-52, 1.0],
+        [2**-53, 2**-52, 3 * 2**-53, 0.25, 1.0],
+    ]
     bins = move_bins(cum)
     assert _picks_agree(cum, bins, 2**53)
 

@@ -12,12 +12,12 @@ import yaml
 from typer.testing import CliRunner
 
 import riskplan
-from riskplan.engine import rng
 from riskplan.cli import app
+from riskplan.engine import rng
+from riskplan.engine.rollout import simulate
 from riskplan.experiments import landscape as L
 from riskplan.experiments.reporting.collect import collect
 from riskplan.risk import cvar, value_at_risk
-from riskplan.engine.rollout import simulate
 from riskplan.run.build import build_setup
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
@@ -67,16 +67,39 @@ def test_chunking_does_not_change_the_numbers(setup, monkeypatch):
 
 def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
     out = tmp_path / "land"
-    result = runner.invoke(app, ["landscape", *FAST, "seed=4", "--points", "5", "--episodes", "200",
-                                 "--range=-10,50,-20,40", "--out", str(out)])
+    result = runner.invoke(
+        app,
+        [
+            "landscape",
+            *FAST,
+            "seed=4",
+            "--points",
+            "5",
+            "--episodes",
+            "200",
+            "--range=-10,50,-20,40",
+            "--out",
+            str(out),
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert f"landscape directory: {out}" in result.output and "max CVaR_0.1" in result.output
     table = pd.read_parquet(out / "landscape.parquet")
     assert len(table) == 25
     assert sorted(table.theta_0.unique()) == [-10.0, 5.0, 20.0, 35.0, 50.0]
     assert sorted(table.theta_1.unique()) == [-20.0, -5.0, 10.0, 25.0, 40.0]
-    assert {"mean", "cvar", "value_at_risk", "std", "mean_se", "cvar_se", "risky_fraction", "reached_safe",
-            "reached_risky", "reached_none"} <= set(table.columns)
+    assert {
+        "mean",
+        "cvar",
+        "value_at_risk",
+        "std",
+        "mean_se",
+        "cvar_se",
+        "risky_fraction",
+        "reached_safe",
+        "reached_risky",
+        "reached_none",
+    } <= set(table.columns)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["kind"] == "landscape" and summary["seed"] == 4 and summary["episodes"] == 200
     best = table.loc[table.cvar.idxmax()]
@@ -85,8 +108,21 @@ def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
     assert json.loads((out / "status.json").read_text())["status"] == "done"
     # reproducible: the same command gives the same table
     again = tmp_path / "again"
-    runner.invoke(app, ["landscape", *FAST, "seed=4", "--points", "5", "--episodes", "200",
-                        "--range=-10,50,-20,40", "--out", str(again)])
+    runner.invoke(
+        app,
+        [
+            "landscape",
+            *FAST,
+            "seed=4",
+            "--points",
+            "5",
+            "--episodes",
+            "200",
+            "--range=-10,50,-20,40",
+            "--out",
+            str(again),
+        ],
+    )
     pd.testing.assert_frame_equal(pd.read_parquet(again / "landscape.parquet"), table)
 
     coll = collect([out])
@@ -99,16 +135,19 @@ def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
     assert list(runs.status) == ["landscape"]
 
 
-@pytest.mark.parametrize("args", [
-    ["--range=5,1"],
-    ["--range=1,2,3"],
-    ["--axes", "0,0"],
-    ["--axes", "0,2"],
-    ["--points", "1"],
-    ["--episodes", "0"],
-    ["risk.beta=2"],
-    ["no_such_key=1"],
-])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--range=5,1"],
+        ["--range=1,2,3"],
+        ["--axes", "0,0"],
+        ["--axes", "0,2"],
+        ["--points", "1"],
+        ["--episodes", "0"],
+        ["risk.beta=2"],
+        ["no_such_key=1"],
+    ],
+)
 def test_bad_input_exits_2_and_leaves_nothing(tmp_path, args):
     out = tmp_path / "land"
     result = runner.invoke(app, ["landscape", *FAST, *args, "--out", str(out)])

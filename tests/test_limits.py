@@ -5,11 +5,11 @@ from __future__ import annotations
 import pytest
 
 from riskplan.run import budget
-from riskplan.util import limits
 from riskplan.run import build as setup_code
-from riskplan.run.compose import compose
-from riskplan.util.errors import BadInput
 from riskplan.run.build import build_setup
+from riskplan.run.compose import compose
+from riskplan.util import limits
+from riskplan.util.errors import BadInput
 
 FAST = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 
@@ -31,34 +31,40 @@ def bad(*overrides: str) -> BadInput:
 BIG = 10**30
 
 
-@pytest.mark.parametrize("overrides, key, kind", [
-    (["world.size=[100000,100000]"], "world.size", "memory"),
-    ([f"train.samples={BIG}"], "train.samples", "memory"),
-    (["train.samples_growth=50"], "train.samples_growth", "memory"),
-    ([f"train.eval_episodes={BIG}"], "train.eval_episodes", "memory"),
-    ([f"train.bootstrap={BIG}"], "train.bootstrap", "memory"),
-    (["train.bootstrap=100000000", "train.eval_episodes=100000"], "train.bootstrap", "time"),
-    ([f"train.iterations={BIG}"], "train.iterations", "memory"),
-    ([f"world.horizon={BIG}"], "world.horizon", "memory"),
-    (["world.horizon=1000000000000", "train.paths=0"], "world.horizon", "time"),
-    (["train.paths=100000000"], "train.paths", "memory"),
-    ([f"team.robots={BIG}"], "team.robots", "memory"),
-    (["team.robots=100000"], "team.robots", "memory"),
-    ([f"team.delay.max={BIG}"], "team.delay.max", "memory"),
-    (["team.delay.max=1000000000"], "team.delay.max", "memory"),  # even one robot allocates the buffers
-    ([f"team.consensus_rounds={BIG}"], "team.consensus_rounds", "memory"),
-    (["team.robots=50", "team.graph=random_geometric", f"team.resample={BIG}"], "team.resample", "time"),
-    ([f"world.size=[{10**400},1]"], "world.size", "memory"),  # a 400-digit int is a number, not an OverflowError
-])
+@pytest.mark.parametrize(
+    "overrides, key, kind",
+    [
+        (["world.size=[100000,100000]"], "world.size", "memory"),
+        ([f"train.samples={BIG}"], "train.samples", "memory"),
+        (["train.samples_growth=50"], "train.samples_growth", "memory"),
+        ([f"train.eval_episodes={BIG}"], "train.eval_episodes", "memory"),
+        ([f"train.bootstrap={BIG}"], "train.bootstrap", "memory"),
+        (["train.bootstrap=100000000", "train.eval_episodes=100000"], "train.bootstrap", "time"),
+        ([f"train.iterations={BIG}"], "train.iterations", "memory"),
+        ([f"world.horizon={BIG}"], "world.horizon", "memory"),
+        (["world.horizon=1000000000000", "train.paths=0"], "world.horizon", "time"),
+        (["train.paths=100000000"], "train.paths", "memory"),
+        ([f"team.robots={BIG}"], "team.robots", "memory"),
+        (["team.robots=100000"], "team.robots", "memory"),
+        ([f"team.delay.max={BIG}"], "team.delay.max", "memory"),
+        (["team.delay.max=1000000000"], "team.delay.max", "memory"),  # even one robot allocates the buffers
+        ([f"team.consensus_rounds={BIG}"], "team.consensus_rounds", "memory"),
+        (["team.robots=50", "team.graph=random_geometric", f"team.resample={BIG}"], "team.resample", "time"),
+        ([f"world.size=[{10**400},1]"], "world.size", "memory"),  # a 400-digit int is a number, not an OverflowError
+    ],
+)
 def test_the_dominant_key_is_named(overrides, key, kind):
     err = bad(*overrides)
     assert err.where == key
     if kind == "memory":
-        assert "of memory, more than the 16 GB allowed (RISKPLAN_MEMORY_GB); lower it, or raise the limit with " \
-               "RISKPLAN_MEMORY_GB=<GB>" in err.problem
+        assert (
+            "of memory, more than the 16 GB allowed (RISKPLAN_MEMORY_GB); lower it, or raise the limit with "
+            "RISKPLAN_MEMORY_GB=<GB>" in err.problem
+        )
     else:
-        assert "more than the 24.0 h allowed; lower it, or raise the limit with RISKPLAN_MAX_HOURS=<hours>" \
-               in err.problem
+        assert (
+            "more than the 24.0 h allowed; lower it, or raise the limit with RISKPLAN_MAX_HOURS=<hours>" in err.problem
+        )
 
 
 def test_a_huge_grid_fails_before_the_world_is_built(monkeypatch):
@@ -85,10 +91,14 @@ def test_samples_growth_counts_the_last_iteration(monkeypatch):
     assert err.where == "train.samples_growth"
 
 
-@pytest.mark.parametrize("experiment, extra", [
-    ("paper_single", []), ("paper_team", []),
-    ("paper_single", ["train.iterations=60", "train.eval_episodes=20000", "train.bootstrap=200"]),
-])
+@pytest.mark.parametrize(
+    "experiment, extra",
+    [
+        ("paper_single", []),
+        ("paper_team", []),
+        ("paper_single", ["train.iterations=60", "train.eval_episodes=20000", "train.bootstrap=200"]),
+    ],
+)
 def test_the_paper_set_ups_are_well_inside_the_limits(experiment, extra):
     cfg = compose([f"experiment={experiment}", *extra], validate=False)
     sizes = budget.sizes_of(cfg, 12, 12, 2, int(cfg.team.robots))
@@ -98,8 +108,24 @@ def test_the_paper_set_ups_are_well_inside_the_limits(experiment, extra):
 
 
 def test_estimates_are_python_floats_for_any_size():
-    sizes = budget.Sizes(10**400, 10**400, 2, 10**400, 10**400, 10**400, 10**400, 1e300, 10**400, 10**400,
-                         0, 10**400, 10**400, 10**400, True, 1)
+    sizes = budget.Sizes(
+        10**400,
+        10**400,
+        2,
+        10**400,
+        10**400,
+        10**400,
+        10**400,
+        1e300,
+        10**400,
+        10**400,
+        0,
+        10**400,
+        10**400,
+        10**400,
+        True,
+        1,
+    )
     memory, time = budget.estimate(sizes)
     for amount, _, _ in memory + time:
         assert isinstance(amount, float) and not amount != amount  # never nan (no 0 * inf)

@@ -20,18 +20,25 @@ import yaml
 
 pytest.importorskip("hydra_plugins.hydra_optuna_sweeper", reason="the optuna extra is not installed")
 
-from riskplan.experiments.sweep_worker import trial_folder  # noqa: E402
+from riskplan.experiments.sweep_worker import trial_folder
 
 TINY = ["train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
 # 4 trials over beta, with train.iterations=0 (which the model rejects) in some of them: seed 1 draws 0, 0, 3, 3
-STUDY = ["hydra/sweeper=optuna", "risk.beta=interval(0.05,1)", "train.iterations=choice(0,3)",
-         "hydra.sweeper.n_trials=4", "hydra.sweeper.sampler.seed=1", *TINY]
+STUDY = [
+    "hydra/sweeper=optuna",
+    "risk.beta=interval(0.05,1)",
+    "train.iterations=choice(0,3)",
+    "hydra.sweeper.n_trials=4",
+    "hydra.sweeper.sampler.seed=1",
+    *TINY,
+]
 
 
 def riskplan(cwd: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *args], cwd=cwd, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "COLUMNS": "250"})
+    return subprocess.run(
+        [*CLI, *args], cwd=cwd, capture_output=True, text=True, timeout=300, env={**os.environ, "COLUMNS": "250"}
+    )
 
 
 def test_trial_folders_are_numbered_and_safe():

@@ -7,10 +7,10 @@ import io
 import os
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
 import pytest
+import tomllib
 import yaml
 from rich.console import Console
 from typer.testing import CliRunner
@@ -35,8 +35,11 @@ def test_citation_cff_cites_this_version_and_the_paper():
     assert citation["cff-version"] == "1.2.0" and citation["type"] == "software"
     assert citation["version"] == riskplan.__version__ and citation["license"] == "MIT"
     (paper,) = citation["references"]
-    title = next(line for line in (ROOT.parent / "shared" / "paper.md").read_text().splitlines()
-                 if line.startswith("# ")) if (ROOT.parent / "shared" / "paper.md").is_file() else None
+    title = (
+        next(line for line in (ROOT.parent / "shared" / "paper.md").read_text().splitlines() if line.startswith("# "))
+        if (ROOT.parent / "shared" / "paper.md").is_file()
+        else None
+    )
     assert paper["title"] == "Risk-Averse Sensor Planning using Distributed Policy Gradient"
     assert title is None or title == f"# {paper['title']}"
     assert [a["family-names"] for a in paper["authors"]] == ["Ma", "Dentcheva", "Zavlanos"]
@@ -61,8 +64,10 @@ def run(tmp_path_factory):
 
 def test_a_run_reads_in_one_line_and_as_a_table_in_a_notebook(run, tmp_path):
     cvar = run.summary["cvar"]
-    assert repr(run) == (f"Run('{run.path}': paper_single, cvar beta=0.1, 3 iterations, CVaR {cvar['value']:.1f} "
-                         f"[{cvar['low']:.1f}, {cvar['high']:.1f}])")
+    assert repr(run) == (
+        f"Run('{run.path}': paper_single, cvar beta=0.1, 3 iterations, CVaR {cvar['value']:.1f} "
+        f"[{cvar['low']:.1f}, {cvar['high']:.1f}])"
+    )
     html = run._repr_html_()
     assert html.startswith("<table>") and f"{cvar['value']:.1f}" in html and "metrics 3 rows" in html
     killed = riskplan.load_run(run.path)
@@ -71,7 +76,7 @@ def test_a_run_reads_in_one_line_and_as_a_table_in_a_notebook(run, tmp_path):
     assert repr(killed).endswith("3 iterations, incomplete: truncated after iteration 1 (<test>))")
 
 
-@pytest.mark.filterwarnings("ignore:install \"ipywidgets\"")  # the bar's live widget needs riskplan[notebook]
+@pytest.mark.filterwarnings('ignore:install "ipywidgets"')  # the bar's live widget needs riskplan[notebook]
 def test_the_training_bar_runs_in_a_notebook(monkeypatch):
     monkeypatch.setattr(progress, "console", Console(force_jupyter=True, file=io.StringIO()))
     bar = progress.TrainingBar()
@@ -89,8 +94,8 @@ def test_sweep_and_report_are_api_functions(tmp_path, monkeypatch):
     """riskplan.sweep and riskplan.report do what the commands do (the submodules sweeping/reporting do not shadow
     them), and return what a notebook wants: the summary table and the page."""
     monkeypatch.chdir(tmp_path)
-    import riskplan.experiments.reporting  # noqa: F401 - importing the submodules must leave the functions in place
-    import riskplan.experiments.sweeping  # noqa: F401
+    import riskplan.experiments.reporting
+    import riskplan.experiments.sweeping
 
     done = riskplan.sweep([*FAST, "seed=0,1"], jobs=1)
     assert done.ok and list(done.summary.status) == ["done", "done"] and list(done.summary.seed) == [0, 1]

@@ -3,9 +3,9 @@
 import pytest
 from omegaconf import OmegaConf
 
+from riskplan.config.typed import TYPED_MEMO, typed
 from riskplan.run.compose import compose
 from riskplan.util.errors import BadInput
-from riskplan.config.typed import TYPED_MEMO, typed
 
 
 def test_the_same_config_is_typed_once_and_another_gets_its_own():
@@ -22,7 +22,7 @@ def test_a_bad_config_raises_every_time_and_old_entries_are_dropped():
     bad = OmegaConf.to_container(compose([], validate=False))
     bad["risk"]["beta"] = "abc"
     for _ in range(2):
-        with pytest.raises(BadInput, match="risk.beta"):
+        with pytest.raises(BadInput, match=r"risk\.beta"):
             typed(bad)
     base = compose([], validate=False)
     first = typed(base)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from riskplan.run.compose import compose
 from riskplan.engine.policy import move_features, probabilities, scores, tables
 from riskplan.run.build import build_setup
+from riskplan.run.compose import compose
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +23,9 @@ def test_score_matches_finite_differences(world):
     for j in range(2):
         step = np.zeros(2)
         step[j] = h
-        numeric = (np.log(probabilities(features, theta + step)) - np.log(probabilities(features, theta - step))) / (2 * h)
+        numeric = (np.log(probabilities(features, theta + step)) - np.log(probabilities(features, theta - step))) / (
+            2 * h
+        )
         np.testing.assert_allclose(analytic[..., j], numeric, atol=1e-7)
 
 

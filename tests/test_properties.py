@@ -13,8 +13,8 @@ from hypothesis.extra import numpy as hnp
 from omegaconf import OmegaConf
 
 from riskplan.engine import distributions as D
-from riskplan.util.errors import BadInput
 from riskplan.risk import cvar, cvar_gradient, mean_gradient, summary_stats, tail_count, value_at_risk
+from riskplan.util.errors import BadInput
 
 settings.register_profile("riskplan", max_examples=100, deadline=None, derandomize=True)
 settings.load_profile("riskplan")
@@ -90,8 +90,12 @@ def test_batched_estimators_equal_row_by_row(z, beta):
 def test_gradients_with_a_constant_score(z, beta, s):
     """With the same score s for every trajectory, eq. (9) is s * (CVaR - VaR) and the baselined mean gradient is 0."""
     scores = np.full((z.size, 1), s)
-    assert math.isclose(cvar_gradient(z, scores, beta)[0], s * (cvar(z, beta) - value_at_risk(z, beta)),
-                        rel_tol=1e-9, abs_tol=10 * tol(z))
+    assert math.isclose(
+        cvar_gradient(z, scores, beta)[0],
+        s * (cvar(z, beta) - value_at_risk(z, beta)),
+        rel_tol=1e-9,
+        abs_tol=10 * tol(z),
+    )
     assert math.isclose(mean_gradient(z, scores)[0], 0.0, abs_tol=10 * tol(z))
     assert math.isclose(mean_gradient(z, scores, baseline=False)[0], s * z.mean(), rel_tol=1e-9, abs_tol=10 * tol(z))
 
@@ -101,7 +105,7 @@ finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
 pair = st.tuples(finite, finite).map(sorted)
 leaves = st.one_of(
     finite,
-    st.integers(-10**6, 10**6),
+    st.integers(-(10**6), 10**6),
     finite.map(lambda c: {"constant": c}),
     pair.map(lambda p: {"uniform": list(p)}),
     st.tuples(finite, st.floats(0, 1e4)).map(lambda p: {"normal": list(p)}),
@@ -115,7 +119,8 @@ def _wrap(children):
         st.tuples(pair, children).map(lambda t: {"clip": list(t[0]), "of": t[1]}),
         st.lists(children, min_size=1, max_size=3).map(lambda items: {"sum": items}),
         st.lists(st.tuples(st.floats(0.01, 10), children), min_size=1, max_size=3).map(
-            lambda items: {"mixture": [{"weight": w, "of": c} for w, c in items]}),
+            lambda items: {"mixture": [{"weight": w, "of": c} for w, c in items]}
+        ),
     )
 
 
@@ -175,20 +180,32 @@ garbage = st.one_of(
     st.booleans(),
     st.floats(allow_nan=True, allow_infinity=True).filter(lambda x: not math.isfinite(x)),
     st.lists(finite, max_size=3),
-    st.dictionaries(plain_text.filter(lambda k: k not in D.KINDS and k != "of"), finite, min_size=1,
-                    max_size=2),
-    st.just({"normal": [0, -1]}), st.just({"uniform": [2, 1]}), st.just({"bernoulli": 1.5}),
-    st.just({"normal": [0, 1], "uniform": [0, 1]}), st.just({"scale": 2}), st.just({"sum": []}),
-    st.just({"clip": [1, 0], "of": 1}), st.just({"mixture": [{"weight": 0, "of": 1}]}),
-    st.just({"mixture": [1, 2]}), st.just({"normal": "0, 1"}), st.just({"constant": "5"}),
+    st.dictionaries(plain_text.filter(lambda k: k not in D.KINDS and k != "of"), finite, min_size=1, max_size=2),
+    st.just({"normal": [0, -1]}),
+    st.just({"uniform": [2, 1]}),
+    st.just({"bernoulli": 1.5}),
+    st.just({"normal": [0, 1], "uniform": [0, 1]}),
+    st.just({"scale": 2}),
+    st.just({"sum": []}),
+    st.just({"clip": [1, 0], "of": 1}),
+    st.just({"mixture": [{"weight": 0, "of": 1}]}),
+    st.just({"mixture": [1, 2]}),
+    st.just({"normal": "0, 1"}),
+    st.just({"constant": "5"}),
     st.just({"uniform": [0, 1], "of": 2}),
 )
 
 
-@given(st.recursive(garbage, lambda inner: st.one_of(
-    st.tuples(finite, inner).map(lambda t: {"scale": t[0], "of": t[1]}),
-    st.lists(inner, min_size=1, max_size=2).map(lambda items: {"sum": items}),
-), max_leaves=4))
+@given(
+    st.recursive(
+        garbage,
+        lambda inner: st.one_of(
+            st.tuples(finite, inner).map(lambda t: {"scale": t[0], "of": t[1]}),
+            st.lists(inner, min_size=1, max_size=2).map(lambda items: {"sum": items}),
+        ),
+        max_leaves=4,
+    )
+)
 def test_parser_rejects_garbage_with_one_plain_line_naming_the_key(data):
     try:
         D.parse(data, "world.regions.0.reward")
@@ -201,9 +218,11 @@ def test_parser_rejects_garbage_with_one_plain_line_naming_the_key(data):
 
 
 json_like = st.recursive(
-    st.one_of(st.none(), st.booleans(), st.integers(-10**300, 10**300), st.floats(), plain_text),
-    lambda inner: st.one_of(st.lists(inner, max_size=3),
-                            st.dictionaries(st.sampled_from([*D.KINDS, "of", "weight", "x"]), inner, max_size=3)),
+    st.one_of(st.none(), st.booleans(), st.integers(-(10**300), 10**300), st.floats(), plain_text),
+    lambda inner: st.one_of(
+        st.lists(inner, max_size=3),
+        st.dictionaries(st.sampled_from([*D.KINDS, "of", "weight", "x"]), inner, max_size=3),
+    ),
     max_leaves=10,
 )
 
@@ -228,4 +247,6 @@ def test_an_integer_too_large_for_a_float_is_bad_input():
 def test_an_unknown_kind_with_a_line_break_gives_one_line():
     with pytest.raises(BadInput) as err:
         D.parse({"nor\nmal": [0, 1]})
-    assert str(err.value).startswith("reward: unknown distribution 'nor\\nmal'; expected") and "\n" not in str(err.value)
+    assert str(err.value).startswith("reward: unknown distribution 'nor\\nmal'; expected") and "\n" not in str(
+        err.value
+    )

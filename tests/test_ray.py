@@ -10,8 +10,10 @@ import sys
 import pandas as pd
 import pytest
 
-pytest.importorskip("hydra_plugins.hydra_ray_launcher", reason="the Ray launcher is not installed here; "
-                                                               "bash tests/ray_check.sh runs this test in its own venv")
+pytest.importorskip(
+    "hydra_plugins.hydra_ray_launcher",
+    reason="the Ray launcher is not installed here; bash tests/ray_check.sh runs this test in its own venv",
+)
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
 CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
@@ -21,9 +23,22 @@ ENV = {"RAY_USAGE_STATS_ENABLED": "0", "RAY_DISABLE_DOCKER_CPU_WARNING": "1"}
 
 def test_ray_launcher_runs_a_two_job_sweep_on_a_local_ray_instance(tmp_path):
     result = subprocess.run(
-        [*CLI, "sweep", "seed=0,1", *FAST, "hydra/launcher=ray", "hydra.sweep.dir=s",
-         "+hydra.launcher.ray.init.include_dashboard=false", "+hydra.launcher.ray.init.num_cpus=2"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=600, env={**os.environ, **ENV})
+        [
+            *CLI,
+            "sweep",
+            "seed=0,1",
+            *FAST,
+            "hydra/launcher=ray",
+            "hydra.sweep.dir=s",
+            "+hydra.launcher.ray.init.include_dashboard=false",
+            "+hydra.launcher.ray.init.num_cpus=2",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, **ENV},
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "(ray)" in result.stdout
     summary = pd.read_parquet(tmp_path / "s" / "summary.parquet")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import itertools
 import json
 import signal
 import subprocess
@@ -19,8 +20,8 @@ import pytest
 from mcap.reader import make_reader
 
 from riskplan.run import foxglove_scene as fx
-from riskplan.util.errors import BadInput
 from riskplan.run.record import BATCH_ROWS, RunLog, read_log, resume_log
+from riskplan.util.errors import BadInput
 
 SCHEMAS = Path(fx.__file__).parent / "schemas"
 W, H, N, M = 12, 8, 3, 2
@@ -104,8 +105,15 @@ def write_full(path: Path, iterations: int = 5, n_eval: int = 100, seed: int = 0
     meta = {
         "config": {"seed": seed, "risk": {"beta": 0.1}, "list": [1, 2.5, "x"], "none": None},
         "provenance": {"git": "abc", "versions": {"numpy": np.__version__}},
-        "network": {"robots": 3, "graph": "line", "edges": [[0, 1], [1, 0], [1, 2], [2, 1]],
-                    "weights": np.full((3, 3, 2), 1 / 3), "positions": None, "gamma": 1 / 3, "slem": 0.5},
+        "network": {
+            "robots": 3,
+            "graph": "line",
+            "edges": [[0, 1], [1, 0], [1, 2], [2, 1]],
+            "weights": np.full((3, 3, 2), 1 / 3),
+            "positions": None,
+            "gamma": 1 / 3,
+            "slem": 0.5,
+        },
     }
     rows: list[dict] = []
     traj = make_trajectories(rng)
@@ -381,8 +389,10 @@ def official(name: str) -> dict:
 
 def test_shipped_schemas_are_the_vendored_official_files():
     """Byte-for-byte the files extracted from @foxglove/schemas 2.1.0 (riskplan/schemas/README.md)."""
-    digests = {"Grid": "bca365b784614d9c60e3e03e3b4a0ef67975c80670f16d80e0e1e40df37f3b3d",
-               "SceneUpdate": "bc563208a8b4bb2eaecd17713405ef2d9ba87264ac73ae375ba5ab30368c8991"}
+    digests = {
+        "Grid": "bca365b784614d9c60e3e03e3b4a0ef67975c80670f16d80e0e1e40df37f3b3d",
+        "SceneUpdate": "bc563208a8b4bb2eaecd17713405ef2d9ba87264ac73ae375ba5ab30368c8991",
+    }
     for name, digest in digests.items():
         assert hashlib.sha256((SCHEMAS / f"foxglove.{name}.json").read_bytes()).hexdigest() == digest
         assert official(name)["title"] == f"foxglove.{name}"
@@ -407,8 +417,19 @@ def test_every_message_validates_against_its_schema(tmp_path):
             validators[schema.name].validate(obj)
         jsonschema.Draft202012Validator(embedded).validate(obj)
         seen[channel.topic] = seen.get(channel.topic, 0) + 1
-    assert {"/world/map", "/world/markers", "/paths", "/metrics", "/theta", "/consensus_error",
-            "/trajectories", "/eval", "/summary", "/team/network", "/team/graph"} <= set(seen)
+    assert {
+        "/world/map",
+        "/world/markers",
+        "/paths",
+        "/metrics",
+        "/theta",
+        "/consensus_error",
+        "/trajectories",
+        "/eval",
+        "/summary",
+        "/team/network",
+        "/team/graph",
+    } <= set(seen)
     schemas = {c.topic: s.name for s, c, _ in mcap_messages(path)}
     assert schemas["/world/map"] == "foxglove.Grid"
     assert schemas["/world/markers"] == schemas["/paths"] == "foxglove.SceneUpdate"
@@ -446,7 +467,7 @@ def test_paths_replay_moves_robots_over_time(tmp_path):
     paths = [(m.log_time, json.loads(m.data)) for _, c, m in mcap_messages(path) if c.topic == "/paths"]
     assert len(paths) == 4 * 5  # one per step of each (policy, episode)
     times = [t for t, _ in paths]
-    assert all(b > a for a, b in zip(times, times[1:]))
+    assert all(b > a for a, b in itertools.pairwise(times))
     assert times[1] - times[0] == 500_000_000
     first = traj[(traj.policy == "initial") & (traj.episode == 0)]
     for s in range(5):
@@ -524,4 +545,6 @@ def test_durability_without_writer_flush_method(tmp_path):
     log.close()
     d = read_log(killed)
     pd.testing.assert_frame_equal(d.metrics, expected_metrics(rows), check_exact=True)
-    assert d.problem == "truncated after iteration 3 (file ends at byte %d, inside a record header)" % killed.stat().st_size
+    assert (
+        d.problem == f"truncated after iteration 3 (file ends at byte {killed.stat().st_size}, inside a record header)"
+    )

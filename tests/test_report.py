@@ -12,8 +12,8 @@ import re
 import shutil
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -25,14 +25,14 @@ from typer.testing import CliRunner
 
 import riskplan
 from riskplan.cli import app
-from riskplan.util.errors import BadInput
+from riskplan.experiments.landscape import compute_landscape
 from riskplan.experiments.reporting import build_report, write_report
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.figures import make_figures
-from riskplan.experiments.landscape import compute_landscape
 from riskplan.experiments.reporting.parallel import WORKERS_ENV, shared_map
 from riskplan.experiments.reporting.stats import seed_interval, wilson
 from riskplan.risk import cvar, value_at_risk
+from riskplan.util.errors import BadInput
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
 CONDITIONS = {
@@ -54,8 +54,9 @@ def sweep(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("sweep")
     for name, extra in CONDITIONS.items():
         riskplan.train(riskplan.compose(FAST + extra), root / name)
-    compute_landscape(riskplan.compose(FAST), root / "landscape", points=7, episodes=300,
-                      ranges=((-20.0, 60.0), (-20.0, 60.0)))
+    compute_landscape(
+        riskplan.compose(FAST), root / "landscape", points=7, episodes=300, ranges=((-20.0, 60.0), (-20.0, 60.0))
+    )
     return root
 
 
@@ -142,7 +143,8 @@ def test_fig1_world_sources_start_and_final_paths(figures, sweep):
         for line, end, (_, episode) in zip(paths, ends, t.groupby("episode")):
             episode = episode.sort_values("step")
             assert np.array_equal(np.round(line.get_xdata()), episode.x) and np.array_equal(
-                np.round(line.get_ydata()), episode.y)  # the logged path, jittered by < 0.5 cell
+                np.round(line.get_ydata()), episode.y
+            )  # the logged path, jittered by < 0.5 cell
             assert (round(end.get_xdata()[0]), round(end.get_ydata()[0])) == (episode.x.iloc[-1], episode.y.iloc[-1])
 
 
@@ -164,10 +166,14 @@ def test_fig3_centralized_vs_distributed_mean_and_cvar(figures, sweep):
     lines = labelled(ax)
     expected = {f"{who}: {what} (2 seeds)" for who in ("centralized", "distributed (N=3)") for what in ("mean", "CVaR")}
     assert set(lines) == expected
-    np.testing.assert_allclose(lines["distributed (N=3): mean (2 seeds)"].get_ydata(),
-                               seed_mean(sweep, ["team_s0", "team_s1"], "mean", robot=-1), rtol=1e-12)
-    np.testing.assert_allclose(lines["centralized: CVaR (2 seeds)"].get_ydata(),
-                               seed_mean(sweep, ["cvar_s0", "cvar_s1"], "cvar"), rtol=1e-12)
+    np.testing.assert_allclose(
+        lines["distributed (N=3): mean (2 seeds)"].get_ydata(),
+        seed_mean(sweep, ["team_s0", "team_s1"], "mean", robot=-1),
+        rtol=1e-12,
+    )
+    np.testing.assert_allclose(
+        lines["centralized: CVaR (2 seeds)"].get_ydata(), seed_mean(sweep, ["cvar_s0", "cvar_s1"], "cvar"), rtol=1e-12
+    )
     assert lines["centralized: CVaR (2 seeds)"].get_linestyle() == "--"
 
 
@@ -186,7 +192,7 @@ def test_fig4_consensus_error_on_a_log_scale(figures, sweep):
 
 # ------------------------------------------------------------------------------------------------ beyond the paper
 def test_reward_distribution_marks_var_and_cvar(figures, sweep, coll):
-    full, tail = figures["reward_distribution"].figure.axes[:2]
+    full, _tail = figures["reward_distribution"].figure.axes[:2]
     assert full.get_xlabel() == "total reward" and "CDF" in full.get_ylabel()
     assert set(labelled(full)) == {f"{g.label} (2 seeds)" for g in coll.groups}
     for g in coll.groups:
@@ -220,8 +226,9 @@ def test_risk_frontier_has_one_point_per_group(figures, coll):
     assert len(ax.containers) == len(coll.groups)
     for container, g in zip(ax.containers, coll.groups):
         point = container.lines[0]
-        values = [(eval_of(r.path).total_reward.mean(), cvar(eval_of(r.path).total_reward.to_numpy(), 0.1))
-                  for r in g.runs]
+        values = [
+            (eval_of(r.path).total_reward.mean(), cvar(eval_of(r.path).total_reward.to_numpy(), 0.1)) for r in g.runs
+        ]
         assert point.get_xdata()[0] == pytest.approx(np.mean([v[0] for v in values]))
         assert point.get_ydata()[0] == pytest.approx(np.mean([v[1] for v in values]))
 
@@ -231,8 +238,9 @@ def test_team_theta_trajectories_per_robot(figures, sweep):
     assert len(axes) == 2 and [ax.get_ylabel() for ax in axes] == [r"$\theta_{0}$", r"$\theta_{1}$"]
     lines = labelled(axes[0])
     assert set(lines) == {"robot 0", "robot 1", "robot 2", "network average"}
-    np.testing.assert_allclose(lines["robot 2"].get_ydata(),
-                               seed_mean(sweep, ["team_s0", "team_s1"], "theta_0", robot=2), rtol=1e-12)
+    np.testing.assert_allclose(
+        lines["robot 2"].get_ydata(), seed_mean(sweep, ["team_s0", "team_s1"], "theta_0", robot=2), rtol=1e-12
+    )
 
 
 def test_landscape_heatmaps_with_training_paths(figures, sweep, coll):
@@ -249,7 +257,7 @@ def test_landscape_heatmaps_with_training_paths(figures, sweep, coll):
         assert (star.get_xdata()[0], star.get_ydata()[0]) == (best.theta_0, best.theta_1)
         paths = [ln for ln in ax.get_lines() if ln.get_linestyle() == "-"]
         assert len(paths) == 6  # every run was trained on this world
-        first = [ln for ln in paths if ln.get_label() == coll.groups[0].label][0]
+        first = next(ln for ln in paths if ln.get_label() == coll.groups[0].label)
         run = coll.groups[0].runs[0]
         np.testing.assert_allclose(first.get_xdata()[:-1], metrics_of(run.path).theta_0)
         assert first.get_xdata()[-1] == pytest.approx(run.run.summary["theta_final"][0])
@@ -261,22 +269,33 @@ def test_report_csv_equals_numbers_recomputed_from_the_run_tables(sweep, page):
     table = pd.read_csv(out / "report.csv")
     assert len(table) == 3
     for _, row in table.iterrows():
-        names = {("neutral", 1): ["neutral_s0", "neutral_s1"], ("cvar", 1): ["cvar_s0", "cvar_s1"],
-                 ("cvar", 3): ["team_s0", "team_s1"]}[(row["measure"], row["robots"])]
+        names = {
+            ("neutral", 1): ["neutral_s0", "neutral_s1"],
+            ("cvar", 1): ["cvar_s0", "cvar_s1"],
+            ("cvar", 3): ["team_s0", "team_s1"],
+        }[(row["measure"], row["robots"])]
         per_seed = []
         for name in names:
             e = eval_of(sweep / name)
             z = e.total_reward.to_numpy()
-            per_seed.append({"mean": z.mean(), "cvar": cvar(z, 0.1), "value_at_risk": value_at_risk(z, 0.1),
-                             "risky_fraction": (e.risky_steps > 0).mean(),
-                             "reached_safe": (e.source_reached == 0).mean(),
-                             "reached_risky": (e.source_reached == 1).mean(),
-                             "reached_none": (e.source_reached == -1).mean()})
+            per_seed.append(
+                {
+                    "mean": z.mean(),
+                    "cvar": cvar(z, 0.1),
+                    "value_at_risk": value_at_risk(z, 0.1),
+                    "risky_fraction": (e.risky_steps > 0).mean(),
+                    "reached_safe": (e.source_reached == 0).mean(),
+                    "reached_risky": (e.source_reached == 1).mean(),
+                    "reached_none": (e.source_reached == -1).mean(),
+                }
+            )
         for key in per_seed[0]:
             mean, low, high = seed_interval([v[key] for v in per_seed])
             assert row[key] == pytest.approx(mean, rel=1e-12, abs=1e-12), key
-            assert (row[f"{key}_low"], row[f"{key}_high"]) == (pytest.approx(low, rel=1e-9, abs=1e-12),
-                                                               pytest.approx(high, rel=1e-9, abs=1e-12))
+            assert (row[f"{key}_low"], row[f"{key}_high"]) == (
+                pytest.approx(low, rel=1e-9, abs=1e-12),
+                pytest.approx(high, rel=1e-9, abs=1e-12),
+            )
         assert row["seeds"] == 2 and "Student-t" in row["interval"]
     html = page.read_text()
     for _, row in table.iterrows():
@@ -358,8 +377,11 @@ def test_a_path_without_runs_is_bad_input(tmp_path, sweep):
     empty = tmp_path / "empty"
     empty.mkdir()
     out = tmp_path / "never"
-    for args in (["report", str(empty)], ["report", str(tmp_path / "missing")],
-                 ["report", str(sweep / "cvar_s0"), "--format", "png,gif"]):
+    for args in (
+        ["report", str(empty)],
+        ["report", str(tmp_path / "missing")],
+        ["report", str(sweep / "cvar_s0"), "--format", "png,gif"],
+    ):
         result = runner.invoke(app, [*args, "--out", str(out)])
         assert result.exit_code == 2, result.output
         lines = result.output.strip().splitlines()

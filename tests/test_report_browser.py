@@ -23,10 +23,18 @@ import riskplan
 from riskplan.experiments.reporting import build_report
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
-CANDIDATES = ("chromium-headless-shell", "chromium", "chromium-browser", "chrome-headless-shell", "google-chrome",
-              "headless_shell")
-IMAGES = ("JSON.stringify(Array.from(document.images).map(i => "
-          "({src: i.currentSrc.slice(0, 40), complete: i.complete, width: i.naturalWidth, height: i.naturalHeight})))")
+CANDIDATES = (
+    "chromium-headless-shell",
+    "chromium",
+    "chromium-browser",
+    "chrome-headless-shell",
+    "google-chrome",
+    "headless_shell",
+)
+IMAGES = (
+    "JSON.stringify(Array.from(document.images).map(i => "
+    "({src: i.currentSrc.slice(0, 40), complete: i.complete, width: i.naturalWidth, height: i.naturalHeight})))"
+)
 
 
 def find_chromium() -> str | None:
@@ -38,8 +46,11 @@ def find_chromium() -> str | None:
 
 
 CHROMIUM = find_chromium()
-pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="no Chromium binary found (looked for $RISKPLAN_CHROMIUM and "
-                                                         f"{', '.join(CANDIDATES)}); CI installs chromium-headless-shell")
+pytestmark = pytest.mark.skipif(
+    CHROMIUM is None,
+    reason="no Chromium binary found (looked for $RISKPLAN_CHROMIUM and "
+    f"{', '.join(CANDIDATES)}); CI installs chromium-headless-shell",
+)
 
 
 class DevTools:
@@ -58,13 +69,30 @@ class DevTools:
 
         self.profile = tempfile.mkdtemp(prefix="riskplan-chromium-")
         self.proc = subprocess.Popen(
-            [binary, "--headless", "--remote-debugging-pipe", "--no-sandbox", "--disable-gpu",
-             "--disable-dev-shm-usage", "--no-first-run", "--no-default-browser-check",
-             "--disable-background-networking", "--disable-component-update", "--disable-sync",
-             "--disable-default-apps", "--disable-extensions", "--host-resolver-rules=MAP * ~NOTFOUND",
-             f"--user-data-dir={self.profile}", "about:blank"],
-            pass_fds=(3, 4), preexec_fn=wire_fds, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE)
+            [
+                binary,
+                "--headless",
+                "--remote-debugging-pipe",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-dev-shm-usage",
+                "--no-first-run",
+                "--no-default-browser-check",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--disable-default-apps",
+                "--disable-extensions",
+                "--host-resolver-rules=MAP * ~NOTFOUND",
+                f"--user-data-dir={self.profile}",
+                "about:blank",
+            ],
+            pass_fds=(3, 4),
+            preexec_fn=wire_fds,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
         os.close(to_chrome_r)
         os.close(from_chrome_w)
         self._buffer = b""
@@ -109,8 +137,11 @@ class DevTools:
         self.call("Page.navigate", {"url": url}, session)
         self._receive(lambda m: m.get("method") == "Page.loadEventFired" and m.get("sessionId") == session)
         result = self.call("Runtime.evaluate", {"expression": IMAGES, "returnByValue": True}, session)
-        requests = [e["params"]["request"]["url"] for e in self.events
-                    if e.get("method") == "Network.requestWillBeSent" and e.get("sessionId") == session]
+        requests = [
+            e["params"]["request"]["url"]
+            for e in self.events
+            if e.get("method") == "Network.requestWillBeSent" and e.get("sessionId") == session
+        ]
         return json.loads(result["result"]["value"]), requests
 
     def close(self) -> None:

@@ -21,9 +21,9 @@ from typer.testing import CliRunner
 
 import riskplan
 from riskplan.cli import app
-from riskplan.util.errors import BadInput
 from riskplan.experiments.landscape import compute_landscape
 from riskplan.run.results import load_run
+from riskplan.util.errors import BadInput
 
 TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 LAND = ["--points", "3", "--episodes", "20"]
@@ -67,17 +67,27 @@ BROKEN = {  # run name -> (config text or a function of the good text, what the 
     "invalid_yaml": ("seed: [0\n", "is not valid YAML"),
     "a_list": ("- seed\n- 0\n", "holds a list, not a mapping of config keys"),
     "a_string": ("just words\n", "holds a string, not a mapping"),
-    "unknown_key": (lambda t: t.replace("  measure: cvar", "  measur: cvar"), "config fails the schema: key "
-                                                                             "'risk.measur': unknown key"),
-    "wrong_type": (lambda t: t.replace("  beta: 0.1", "  beta: abc"), "config fails the schema: key 'risk.beta': "
-                                                                     "got 'abc'; expected a number"),
+    "unknown_key": (
+        lambda t: t.replace("  measure: cvar", "  measur: cvar"),
+        "config fails the schema: key 'risk.measur': unknown key",
+    ),
+    "wrong_type": (
+        lambda t: t.replace("  beta: 0.1", "  beta: abc"),
+        "config fails the schema: key 'risk.beta': got 'abc'; expected a number",
+    ),
     "out_of_range": (lambda t: t.replace("  beta: 0.1", "  beta: 7"), "config fails the schema: risk.beta: got 7"),
-    "env_unset": (lambda t: t.replace("  beta: 0.1", "  beta: ${oc.env:RISKPLAN_TEST_SURELY_UNSET}"),
-                  "cannot be resolved at risk.beta (the environment variable RISKPLAN_TEST_SURELY_UNSET is not set)"),
-    "missing_key": (lambda t: t.replace("  beta: 0.1", "  beta: ${risk.nowhere}"),
-                    "cannot be resolved at risk.beta (Interpolation key 'risk.nowhere' not found)"),
-    "self_reference": (lambda t: t.replace("seed: 0", "seed: ${seed}", 1),
-                       "cannot be resolved at seed (Recursive interpolation detected)"),
+    "env_unset": (
+        lambda t: t.replace("  beta: 0.1", "  beta: ${oc.env:RISKPLAN_TEST_SURELY_UNSET}"),
+        "cannot be resolved at risk.beta (the environment variable RISKPLAN_TEST_SURELY_UNSET is not set)",
+    ),
+    "missing_key": (
+        lambda t: t.replace("  beta: 0.1", "  beta: ${risk.nowhere}"),
+        "cannot be resolved at risk.beta (Interpolation key 'risk.nowhere' not found)",
+    ),
+    "self_reference": (
+        lambda t: t.replace("seed: 0", "seed: ${seed}", 1),
+        "cannot be resolved at seed (Recursive interpolation detected)",
+    ),
 }
 
 
@@ -127,8 +137,9 @@ def test_report_refuses_an_out_directory_holding_other_files(done, tmp_path):
     invoke("landscape", *TINY, *LAND, "--out", land, code=0)
     before = snapshot(tmp_path)
     line = one_error_line(invoke("report", done, "--out", land, code=2))
-    assert line == (f"error: --out: {land} holds the output of riskplan landscape; give riskplan report a "
-                    f"directory of its own")
+    assert line == (
+        f"error: --out: {land} holds the output of riskplan landscape; give riskplan report a directory of its own"
+    )
     line = one_error_line(invoke("report", done, "--out", done, code=2))  # the run itself
     assert "holds files riskplan report did not write (.hydra/config.yaml, " in line
     assert snapshot(tmp_path) == before
@@ -149,8 +160,10 @@ def test_report_reruns_into_its_own_output_and_drops_its_stale_files(done, tmp_p
     (out / "notes.md").write_text("added by hand")  # a foreign file in it: refused, left alone
     before = snapshot(out)
     line = one_error_line(invoke("report", done, "--out", out, code=2))
-    assert line == (f"error: --out: {out} holds files riskplan report did not write (notes.md); give a new or "
-                    f"empty directory, or remove them")
+    assert line == (
+        f"error: --out: {out} holds files riskplan report did not write (notes.md); give a new or "
+        f"empty directory, or remove them"
+    )
     assert snapshot(out) == before
     (out / "notes.md").unlink()
 
@@ -174,9 +187,14 @@ def test_landscape_out_ownership(done, tmp_path):
     report = tmp_path / "report"
     invoke("report", done, "--out", report, "--format", "png", code=0)
     before = snapshot(tmp_path)
-    for target, expected in ((report, f"error: --out: {report} holds the output of riskplan report; give riskplan "
-                                      f"landscape a directory of its own"),
-                             (done, f"error: --out: {done} holds files riskplan landscape did not write (")):
+    for target, expected in (
+        (
+            report,
+            f"error: --out: {report} holds the output of riskplan report; give riskplan "
+            f"landscape a directory of its own",
+        ),
+        (done, f"error: --out: {done} holds files riskplan landscape did not write ("),
+    ):
         line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", target, code=2))
         assert line.startswith(expected), line
     assert snapshot(tmp_path) == before
@@ -188,13 +206,18 @@ def test_landscape_out_ownership(done, tmp_path):
     assert line.endswith("(extra.txt); give a new or empty directory, or remove them")
 
 
-@pytest.mark.parametrize("where, expected", [
-    ("/proc/riskplan_report", "error: --out: /proc/riskplan_report is under /proc, a kernel filesystem; give a "
-                              "directory on a disk"),
-    ("/", "error: --out: / is the filesystem root; give a directory of its own, e.g. outputs/runs/mine"),
-    ("", "error: --out: got ''; give a directory path"),
-    ("FILE", "error: --out: FILE is a file; expected a directory"),
-])
+@pytest.mark.parametrize(
+    "where, expected",
+    [
+        (
+            "/proc/riskplan_report",
+            "error: --out: /proc/riskplan_report is under /proc, a kernel filesystem; give a directory on a disk",
+        ),
+        ("/", "error: --out: / is the filesystem root; give a directory of its own, e.g. outputs/runs/mine"),
+        ("", "error: --out: got ''; give a directory path"),
+        ("FILE", "error: --out: FILE is a file; expected a directory"),
+    ],
+)
 @pytest.mark.parametrize("command", ["report", "landscape"])
 def test_out_that_cannot_be_an_output_directory(done, tmp_path, monkeypatch, where, expected, command):
     monkeypatch.chdir(tmp_path)
@@ -257,8 +280,10 @@ def test_full_disk_leaves_the_previous_report_and_landscape_whole(done, tmp_path
             line = one_error_line(invoke(*args, "--out", target, code=1))
             assert line.startswith(f"error: {target}/") and "could not be written (No space left on device)" in line
             assert snapshot(target) == before[target], "a previous file was changed"
-        for args, target in ((["report", done, "--format", "png"], disk / "new_report"),
-                             (["landscape", *TINY, *LAND], disk / "new_land")):
+        for args, target in (
+            (["report", done, "--format", "png"], disk / "new_report"),
+            (["landscape", *TINY, *LAND], disk / "new_land"),
+        ):
             line = one_error_line(invoke(*args, "--out", target, code=1))
             assert "No space left on device" in line
             assert not target.exists() or not any(target.iterdir())
@@ -273,12 +298,18 @@ def test_read_only_targets_are_one_line_and_nothing_is_written(done, tmp_path):
     with read_only(source, tmp_path / "ro") as ro:
         before = snapshot(ro)
         cases = [
-            (["report", ro / "run", "--format", "png"],
-             f"error: --out: {ro}/run/report is on a read-only filesystem; give a directory you can write"),
-            (["report", ro / "run", "--out", ro / "elsewhere"],
-             f"error: --out: {ro}/elsewhere is on a read-only filesystem; give a directory you can write"),
-            (["landscape", *TINY, *LAND, "--out", ro / "land"],
-             f"error: --out: {ro}/land is on a read-only filesystem; give a directory you can write"),
+            (
+                ["report", ro / "run", "--format", "png"],
+                f"error: --out: {ro}/run/report is on a read-only filesystem; give a directory you can write",
+            ),
+            (
+                ["report", ro / "run", "--out", ro / "elsewhere"],
+                f"error: --out: {ro}/elsewhere is on a read-only filesystem; give a directory you can write",
+            ),
+            (
+                ["landscape", *TINY, *LAND, "--out", ro / "land"],
+                f"error: --out: {ro}/land is on a read-only filesystem; give a directory you can write",
+            ),
         ]
         for args, expected in cases:
             assert one_error_line(invoke(*args, code=2)) == expected
@@ -305,9 +336,10 @@ def test_landscape_grid_is_bounded_by_memory_and_time_before_it_runs(tmp_path, m
     monkeypatch.setenv("RISKPLAN_MEMORY_GB", "0.000001")
     line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", out, code=2))
     assert "more than the 1 KB allowed (RISKPLAN_MEMORY_GB)" in line
-    for args, expected in ((["--points", "1"], "error: --points: got 1; expected at least 2 grid points per axis"),
-                           (["--episodes", "0"], "error: --episodes: got 0; expected at least 1 episode per grid "
-                                                 "point")):
+    for args, expected in (
+        (["--points", "1"], "error: --points: got 1; expected at least 2 grid points per axis"),
+        (["--episodes", "0"], "error: --episodes: got 0; expected at least 1 episode per grid point"),
+    ):
         assert one_error_line(invoke("landscape", *args, "--out", out, code=2)) == expected
     assert not out.exists()
 

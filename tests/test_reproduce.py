@@ -32,8 +32,12 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "robots: 3" in config and "iterations: 5" in config  # the user's overrides beat --quick's
     assert (root / "single" / "multirun.yaml").is_file()
     record = json.loads((root / "reproduce.json").read_text())
-    assert record["seeds"] == 1 and record["quick"] and set(record["parts"]) == {
-        "single", "team", "wander", "soft_risk", "frontier", "landscape", "comparison", "report"}
+    assert (
+        record["seeds"] == 1
+        and record["quick"]
+        and set(record["parts"])
+        == {"single", "team", "wander", "soft_risk", "frontier", "landscape", "comparison", "report"}
+    )
     # where the time went: measured from the jobs' own records (no timed assertion, only the structure)
     assert "where the time went" in result.stdout
     breakdown = record["breakdown"]
@@ -66,8 +70,9 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "CVaR_0.05" in result.stdout and "CVaR_1" in result.stdout
 
     # completing an existing reproduction runs nothing again
-    again = riskplan(tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", "--out", str(root), *FAST,
-                     "risk.beta=0.1")
+    again = riskplan(
+        tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", "--out", str(root), *FAST, "risk.beta=0.1"
+    )
     assert again.returncode == 0, again.stderr
     assert "2 jobs: 0 to run, 2 already finished" in again.stdout
     assert "1 job: 0 to run, 1 already finished" in again.stdout

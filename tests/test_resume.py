@@ -31,8 +31,14 @@ from riskplan.cli import app
 from riskplan.run.record import read_log
 from riskplan.run.training import CHECKPOINT, CRASH_ENV, STOP_ENV, NumericalTrouble
 
-FAST = ["train.iterations=30", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50",
-        "train.paths=3", "train.checkpoint_every=5"]
+FAST = [
+    "train.iterations=30",
+    "train.samples=500",
+    "train.eval_episodes=2000",
+    "train.bootstrap=50",
+    "train.paths=3",
+    "train.checkpoint_every=5",
+]
 TEAM = [*FAST, "experiment=paper_team", "team.delay.max=2", "team.drop=0.2"]  # delays and drops: mixer state
 TRACKING = [*TEAM, "team.order=gradient_tracking"]  # the trackers, their running sums and the last gradients too
 TABLES = ("metrics", "eval", "trajectories")
@@ -58,8 +64,9 @@ def child_env(**extra: str) -> dict[str, str]:
 
 def run_cli(args: list[str], cwd: Path, **env: str) -> subprocess.CompletedProcess:
     """`riskplan <args>` in a subprocess; returns when it exits (or is killed)."""
-    return subprocess.run([*riskplan_command(), *args], cwd=cwd, env=child_env(**env), capture_output=True,
-                          text=True, timeout=TIMEOUT)
+    return subprocess.run(
+        [*riskplan_command(), *args], cwd=cwd, env=child_env(**env), capture_output=True, text=True, timeout=TIMEOUT
+    )
 
 
 def train_cli(overrides: list[str], out: Path, **env: str) -> subprocess.CompletedProcess:
@@ -74,9 +81,13 @@ def resume_cli(out: Path, *overrides: str, **env: str) -> subprocess.CompletedPr
 
 def kill_after_iteration(overrides: list[str], out: Path, iteration: int) -> int:
     """Start `riskplan train`, let it log `iteration` (it then stops itself), SIGKILL it; its return code."""
-    proc = subprocess.Popen([*riskplan_command(), "train", *overrides, f"hydra.run.dir={out}"], cwd=out.parent,
-                            env=child_env(**{STOP_ENV: str(iteration)}), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [*riskplan_command(), "train", *overrides, f"hydra.run.dir={out}"],
+        cwd=out.parent,
+        env=child_env(**{STOP_ENV: str(iteration)}),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         _, status = os.waitpid(proc.pid, os.WUNTRACED)  # returns once the child is stopped (or has exited)
         assert os.WIFSTOPPED(status), f"the run ended before iteration {iteration} (status {status})"
@@ -111,11 +122,16 @@ def assert_same_outputs(run: Path, reference: Path) -> None:
     assert comparable_summary(got) == comparable_summary(want)
     got_log, want_log = read_log(run / "run.mcap"), read_log(reference / "run.mcap")
     assert got_log.complete and want_log.complete, got_log.problem
-    pd.testing.assert_frame_equal(got_log.metrics.drop(columns="seconds"), want_log.metrics.drop(columns="seconds"),
-                                  check_exact=True, obj="run.mcap metrics")
+    pd.testing.assert_frame_equal(
+        got_log.metrics.drop(columns="seconds"),
+        want_log.metrics.drop(columns="seconds"),
+        check_exact=True,
+        obj="run.mcap metrics",
+    )
     pd.testing.assert_frame_equal(got_log.eval, want_log.eval, check_exact=True, obj="run.mcap eval")
-    pd.testing.assert_frame_equal(got_log.trajectories, want_log.trajectories, check_exact=True,
-                                  obj="run.mcap trajectories")
+    pd.testing.assert_frame_equal(
+        got_log.trajectories, want_log.trajectories, check_exact=True, obj="run.mcap trajectories"
+    )
     assert comparable_summary(got_log.summary) == comparable_summary(want_log.summary)
 
 
@@ -159,9 +175,11 @@ def test_sigkill_part_way_then_resume_equals_the_uninterrupted_run(tmp_path, bas
     killed = load_run(out)
     assert not killed.complete and "truncated after iteration 12" in killed.problem
     assert list(killed.metrics.iteration) == list(range(13)) and killed.summary is None
-    pd.testing.assert_frame_equal(killed.metrics.drop(columns="seconds"),
-                                  pd.read_parquet(baseline / "metrics.parquet").iloc[:13].drop(columns="seconds"),
-                                  check_exact=True)
+    pd.testing.assert_frame_equal(
+        killed.metrics.drop(columns="seconds"),
+        pd.read_parquet(baseline / "metrics.parquet").iloc[:13].drop(columns="seconds"),
+        check_exact=True,
+    )
     from riskplan.experiments.reporting.collect import collect
 
     (skipped,) = collect([out]).broken  # what `riskplan report` lists as skipped, with the reason
@@ -305,12 +323,14 @@ def _fail_at(monkeypatch, name: str, iteration: int, bad):
     monkeypatch.setattr(training, name, patched)
 
 
-@pytest.mark.parametrize("name, bad, message", [
-    ("cvar_gradient", lambda g: np.full_like(g, np.nan), "theta or its gradient is not finite"),
-    ("consensus_step", lambda t: np.full_like(t, 1.5e308), "overflows the softmax"),  # finite, but theta.s = inf
-])
-def test_numerical_trouble_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch, name, bad,
-                                                                            message):
+@pytest.mark.parametrize(
+    "name, bad, message",
+    [
+        ("cvar_gradient", lambda g: np.full_like(g, np.nan), "theta or its gradient is not finite"),
+        ("consensus_step", lambda t: np.full_like(t, 1.5e308), "overflows the softmax"),  # finite, but theta.s = inf
+    ],
+)
+def test_numerical_trouble_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch, name, bad, message):
     out = tmp_path / "run"
     config = compose(FAST)
     _fail_at(monkeypatch, name, 7, bad)

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from riskplan.engine import rng
-from riskplan.run.compose import compose
 from riskplan.engine.rollout import simulate
 from riskplan.run.build import build_setup
+from riskplan.run.compose import compose
 
 
 @pytest.fixture(scope="module")
@@ -20,8 +20,15 @@ def paper():
 def run(setup, seed=0, episodes=5000, thetas=None, record=False):
     thetas = np.array([[20.0, 20.0]]) if thetas is None else thetas
     starts = np.repeat(setup.world.starts[:1], len(thetas))
-    return simulate(setup.world, setup.kernel, thetas, starts, rng.robot_keys(seed, rng.TRAIN, 0, len(thetas)),
-                    episodes, record=record)
+    return simulate(
+        setup.world,
+        setup.kernel,
+        thetas,
+        starts,
+        rng.robot_keys(seed, rng.TRAIN, 0, len(thetas)),
+        episodes,
+        record=record,
+    )
 
 
 def test_same_keys_same_numbers_whatever_the_thread_count(paper):
@@ -55,7 +62,7 @@ def test_recorded_paths_are_consistent(paper):
     batch = run(paper, episodes=50, record=True)
     cells = batch.path_cells
     moves = np.abs(np.diff(np.stack(paper.world.xy(np.where(cells >= 0, cells, 0))), axis=2)).sum(axis=0)
-    alive = (cells[:, 1:] >= 0)
+    alive = cells[:, 1:] >= 0
     assert np.all(moves[alive] <= 1)  # one E/W/N/S step or a stay per time step
     assert np.array_equal(alive.sum(axis=1), batch.steps)
     np.testing.assert_allclose(batch.path_rewards.sum(axis=1), batch.total_reward)
@@ -75,8 +82,15 @@ def test_policies_in_one_batch_match_separate_calls(paper):
 def test_mobile_sources_follow_the_same_policy_as_static_ones():
     """A source that almost never moves takes the online-feature path but must give the static statistics."""
     static = build_setup(compose(["world.sources.1.reward=2000"]))
-    mobile = build_setup(compose(["world.sources.1.reward=2000", "world.sources.0.motion.kind=random_walk",
-                                  "world.sources.0.motion.prob=1e-12"]))
+    mobile = build_setup(
+        compose(
+            [
+                "world.sources.1.reward=2000",
+                "world.sources.0.motion.kind=random_walk",
+                "world.sources.0.motion.prob=1e-12",
+            ]
+        )
+    )
     assert mobile.world.mobile and not static.world.mobile
     a, b = run(static, episodes=60_000), run(mobile, episodes=60_000)
     for field in ("steps", "risky_steps"):
@@ -91,8 +105,16 @@ def test_mobile_sources_follow_the_same_policy_as_static_ones():
 def test_moving_sources_move():
     """With a source that always steps, reaching it takes a different number of steps than if it stayed."""
     still = build_setup(compose(["world.sources.0.position=[2,0]", "world.sources.1.position=[11,11]"]))
-    walking = build_setup(compose(["world.sources.0.position=[2,0]", "world.sources.1.position=[11,11]",
-                                   "world.sources.0.motion.kind=random_walk", "world.sources.0.motion.prob=1.0"]))
+    walking = build_setup(
+        compose(
+            [
+                "world.sources.0.position=[2,0]",
+                "world.sources.1.position=[11,11]",
+                "world.sources.0.motion.kind=random_walk",
+                "world.sources.0.motion.prob=1.0",
+            ]
+        )
+    )
     theta = np.array([[60.0, 0.0]])
     a, b = run(still, thetas=theta, episodes=20_000), run(walking, thetas=theta, episodes=20_000)
     assert np.mean(a.source_reached == 0) > 0.95

@@ -24,13 +24,19 @@ from typer.testing import CliRunner
 import riskplan.run.training as training
 from riskplan import compose, load_run
 from riskplan.cli import app
-from riskplan.util.errors import BadInput
-from riskplan.util.lock import LOCK, hold, holder
 from riskplan.run.record import RunLog
 from riskplan.run.training import CHECKPOINT, STOP_ENV, NumericalTrouble, prepare_resume
+from riskplan.util.errors import BadInput
+from riskplan.util.lock import LOCK, hold, holder
 
-FAST = ["train.iterations=12", "train.samples=300", "train.eval_episodes=1000", "train.bootstrap=20",
-        "train.paths=2", "train.checkpoint_every=4"]
+FAST = [
+    "train.iterations=12",
+    "train.samples=300",
+    "train.eval_episodes=1000",
+    "train.bootstrap=20",
+    "train.paths=2",
+    "train.checkpoint_every=4",
+]
 
 runner = CliRunner()
 
@@ -42,6 +48,7 @@ def files(root: Path) -> dict[str, bytes]:
 
 def strict_json(text: str):
     """json.loads that refuses NaN and Infinity (which are not JSON)."""
+
     def refuse(token):
         raise ValueError(f"non-finite number {token} in JSON")
 
@@ -77,8 +84,10 @@ def test_a_second_run_into_a_finished_run_directory_is_refused_and_changes_nothi
     before = files(finished)
     result = train_cli([*FAST, "seed=7"], finished)  # another config into the same directory
     assert result.returncode == 2
-    assert result.stderr.strip() == (f"error: hydra.run.dir: {finished} already holds a run; resume it with riskplan "
-                                     f"train --resume {finished}, or give a new directory")
+    assert result.stderr.strip() == (
+        f"error: hydra.run.dir: {finished} already holds a run; resume it with riskplan "
+        f"train --resume {finished}, or give a new directory"
+    )
     assert files(finished) == before
     assert load_run(finished).complete and load_run(finished).config["seed"] == 0
 
@@ -94,8 +103,13 @@ def test_the_python_api_refuses_a_directory_that_holds_another_run(finished, tmp
 
 def test_two_processes_never_write_one_run_directory(tmp_path):
     out = tmp_path / "run"
-    first = subprocess.Popen([*riskplan_command(), "train", *FAST, f"hydra.run.dir={out}"], cwd=tmp_path,
-                             env=child_env(**{STOP_ENV: "2"}), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    first = subprocess.Popen(
+        [*riskplan_command(), "train", *FAST, f"hydra.run.dir={out}"],
+        cwd=tmp_path,
+        env=child_env(**{STOP_ENV: "2"}),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         _, status = os.waitpid(first.pid, os.WUNTRACED)  # it stops itself after iteration 2, holding the lock
         assert os.WIFSTOPPED(status)
@@ -104,9 +118,11 @@ def test_two_processes_never_write_one_run_directory(tmp_path):
         for args in (["train", *FAST, f"hydra.run.dir={out}"], ["train", "--resume", str(out)]):
             second = run_cli(args, tmp_path)
             assert second.returncode == 2, second.stderr
-            assert second.stderr.strip() == (f"error: {out}: is in use by another riskplan process (pid {first.pid}); "
-                                             f"one process writes a run directory at a time: wait for it to end or "
-                                             f"stop it")
+            assert second.stderr.strip() == (
+                f"error: {out}: is in use by another riskplan process (pid {first.pid}); "
+                f"one process writes a run directory at a time: wait for it to end or "
+                f"stop it"
+            )
         assert files(out) == before
         first.send_signal(signal.SIGCONT)
         assert first.wait(timeout=300) == 0
@@ -121,11 +137,19 @@ def test_the_lock_is_reentrant_within_a_process_and_exclusive_between_processes(
     with hold(tmp_path):
         with hold(tmp_path):  # the CLI holds it while Hydra runs the training loop, which takes it again
             assert holder(tmp_path) == os.getpid()
-        probe = subprocess.run(["python", "-c", "import sys; from riskplan.util.lock import hold\n"
-                                                "from riskplan.util.errors import BadInput\n"
-                                                f"try:\n    with hold({str(tmp_path)!r}): sys.exit(0)\n"
-                                                "except BadInput as err:\n    print(err); sys.exit(3)"],
-                               capture_output=True, text=True, timeout=60)
+        probe = subprocess.run(
+            [
+                "python",
+                "-c",
+                "import sys; from riskplan.util.lock import hold\n"
+                "from riskplan.util.errors import BadInput\n"
+                f"try:\n    with hold({str(tmp_path)!r}): sys.exit(0)\n"
+                "except BadInput as err:\n    print(err); sys.exit(3)",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert probe.returncode == 3 and f"(pid {os.getpid()})" in probe.stdout
     assert holder(tmp_path) is None
 
@@ -138,12 +162,14 @@ def test_a_read_only_output_directory_is_one_line_and_nothing_written(tmp_path):
         assert subprocess.run(["mount", "-o", "remount,bind,ro", str(target)]).returncode == 0
         result = run_cli(["train", *FAST, f"hydra.run.dir={target / 'run'}"], tmp_path)
         assert result.returncode == 2
-        assert result.stderr.strip() == (f"error: hydra.run.dir: {target / 'run'} is on a read-only filesystem; "
-                                         f"give a directory you can write")
+        assert result.stderr.strip() == (
+            f"error: hydra.run.dir: {target / 'run'} is on a read-only filesystem; give a directory you can write"
+        )
         default = run_cli(["train", *FAST], target)  # outputs/runs/<timestamp> below a read-only working directory
         assert default.returncode == 2
-        assert default.stderr.strip() == ("error: outputs/runs: outputs/runs is on a read-only filesystem; give a "
-                                          "directory you can write")
+        assert default.stderr.strip() == (
+            "error: outputs/runs: outputs/runs is on a read-only filesystem; give a directory you can write"
+        )
     assert list(source.iterdir()) == []
 
 
@@ -155,8 +181,11 @@ def test_a_full_disk_fails_in_one_line_keeps_every_checkpoint_and_resumes_to_the
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and "No space left on device" in lines[0] and "--resume" in lines[0], result.stderr
         assert "Traceback" not in result.stderr
-        leftovers = [p.name for p in out.rglob("*") if p.is_file() and (p.name.endswith(".tmp") or (
-            p.stat().st_size == 0 and p.name not in ("app.log", LOCK)))]  # Hydra's log and the lock are empty
+        leftovers = [
+            p.name
+            for p in out.rglob("*")
+            if p.is_file() and (p.name.endswith(".tmp") or (p.stat().st_size == 0 and p.name not in ("app.log", LOCK)))
+        ]  # Hydra's log and the lock are empty
         assert leftovers == []
         assert json.loads((out / CHECKPOINT).read_text())["iteration"] == 12  # every iteration was kept
         assert len(load_run(out).metrics) == 12
@@ -182,9 +211,21 @@ def test_a_checkpoint_costs_the_same_at_every_iteration(tmp_path):
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(training.os, "replace", record)
-        training.train(compose(["experiment=paper_team", "team.delay.max=2", "train.iterations=60",
-                                "train.samples=100", "train.eval_episodes=100", "train.bootstrap=5",
-                                "train.paths=1", "train.checkpoint_every=5"]), tmp_path / "run")
+        training.train(
+            compose(
+                [
+                    "experiment=paper_team",
+                    "team.delay.max=2",
+                    "train.iterations=60",
+                    "train.samples=100",
+                    "train.eval_episodes=100",
+                    "train.bootstrap=5",
+                    "train.paths=1",
+                    "train.checkpoint_every=5",
+                ]
+            ),
+            tmp_path / "run",
+        )
     assert sorted(sizes) == list(range(5, 61, 5))
     assert max(sizes.values()) - min(sizes.values()) < 0.1 * min(sizes.values())  # digits of theta only
 
@@ -214,8 +255,9 @@ def test_a_non_finite_reward_stops_the_run_with_one_line_and_writes_no_result(tm
     monkeypatch.chdir(tmp_path)
     result = runner.invoke(app, ["train", *FAST, f"hydra.run.dir={tmp_path / 'run'}"])
     assert result.exit_code == 1
-    assert result.stderr.strip().startswith("error: run failed: iteration 0: an episode's total reward is not "
-                                            "finite (overflow)")
+    assert result.stderr.strip().startswith(
+        "error: run failed: iteration 0: an episode's total reward is not finite (overflow)"
+    )
     assert not (tmp_path / "run" / "summary.json").exists() and not (tmp_path / "run" / CHECKPOINT).exists()
     assert json.loads((tmp_path / "run" / "status.json").read_text())["status"] == "failed"
 
@@ -231,8 +273,9 @@ def test_summary_json_holds_no_nan_or_infinity(finished):
 def test_a_callback_target_is_never_imported_or_called(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     marker = tmp_path / "pwned"
-    result = runner.invoke(app, ["train", *FAST, "+hydra.callbacks.x._target_=os.makedirs",
-                                 f"+hydra.callbacks.x.name={marker}"])
+    result = runner.invoke(
+        app, ["train", *FAST, "+hydra.callbacks.x._target_=os.makedirs", f"+hydra.callbacks.x.name={marker}"]
+    )
     assert result.exit_code == 2 and "config strings are never code" in result.stderr
     assert not marker.exists() and not (tmp_path / "outputs").exists()
 
@@ -241,7 +284,14 @@ def test_hydra_and_riskplan_classes_are_allowed(tmp_path, monkeypatch):
     """The allow-list lets Hydra's own callbacks through: the run finishes and the callback ran."""
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "run"
-    result = runner.invoke(app, ["train", *FAST, f"hydra.run.dir={out}",
-                                 "+hydra.callbacks.pickle._target_=hydra.experimental.callbacks.PickleJobInfoCallback"])
+    result = runner.invoke(
+        app,
+        [
+            "train",
+            *FAST,
+            f"hydra.run.dir={out}",
+            "+hydra.callbacks.pickle._target_=hydra.experimental.callbacks.PickleJobInfoCallback",
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert (out / ".hydra" / "job_return.pickle").is_file()

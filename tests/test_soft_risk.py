@@ -3,25 +3,33 @@ kind=none is the paper's update bit for bit."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 import pandas as pd
 import pytest
-
-from riskplan import compose
-from riskplan.engine import rng
-from riskplan.run.compose import expand_overrides, expand_shorthands
-from riskplan.run.record import read_log
-from riskplan.risk import cvar_gradient
-from riskplan.engine.rollout import simulate
-from riskplan.config.schema import RiskConf, ScheduleConf
-from riskplan.run.build import build_setup, risk_level, step_size
-from riskplan.run.training import starts, train
 from test_resume import assert_same_outputs, kill_after_iteration, resume_cli, train_cli
 
-FAST = ["train.iterations=8", "train.samples=400", "train.eval_episodes=1000", "train.bootstrap=20",
-        "train.paths=2", "train.checkpoint_every=3", "train.theta0=[0,0]"]
+from riskplan import compose
+from riskplan.config.schema import RiskConf, ScheduleConf
+from riskplan.engine import rng
+from riskplan.engine.rollout import simulate
+from riskplan.risk import cvar_gradient
+from riskplan.run.build import build_setup, risk_level, step_size
+from riskplan.run.compose import expand_overrides, expand_shorthands
+from riskplan.run.record import read_log
+from riskplan.run.training import starts, train
+
+FAST = [
+    "train.iterations=8",
+    "train.samples=400",
+    "train.eval_episodes=1000",
+    "train.bootstrap=20",
+    "train.paths=2",
+    "train.checkpoint_every=3",
+    "train.theta0=[0,0]",
+]
 LINEAR = ["risk.schedule=linear", "risk.schedule.iterations=5"]
 
 
@@ -43,7 +51,7 @@ def test_exponential_schedule_is_geometric_from_start_to_beta_then_beta():
     quarter = risk("exponential", 0.2, start=0.8, iterations=4)
     assert risk_level(2, quarter) == pytest.approx(math.sqrt(0.8 * 0.2), abs=1e-15)  # 0.4
     levels = [risk_level(l, quarter) for l in range(5)]
-    assert all(a > b for a, b in zip(levels, levels[1:]))  # falls monotonically
+    assert all(a > b for a, b in itertools.pairwise(levels))  # falls monotonically
     ratios = np.array(levels[1:]) / np.array(levels[:-1])
     np.testing.assert_allclose(ratios, ratios[0], rtol=1e-12)  # by a constant factor per iteration
 
@@ -66,8 +74,10 @@ def test_no_schedule_is_the_papers_update_bit_for_bit(tmp_path):
     """kind=none (whatever its other keys) trains exactly like a config without the schedule, and like a hand-written
     loop of eq. (11) with Algorithm 1's gradient at beta."""
     default = train(compose(FAST), tmp_path / "default").metrics.drop(columns="seconds")
-    named = train(compose([*FAST, "risk.schedule=none", "risk.schedule.start=0.5", "risk.schedule.iterations=2"]),
-                  tmp_path / "none").metrics.drop(columns="seconds")
+    named = train(
+        compose([*FAST, "risk.schedule=none", "risk.schedule.start=0.5", "risk.schedule.iterations=2"]),
+        tmp_path / "none",
+    ).metrics.drop(columns="seconds")
     pd.testing.assert_frame_equal(default, named, check_exact=True)
     assert (default.beta_l == 0.1).all()
 
@@ -79,8 +89,9 @@ def test_no_schedule_is_the_papers_update_bit_for_bit(tmp_path):
         batch = simulate(setup.world, setup.kernel, theta, starts(setup), rng.robot_keys(0, rng.TRAIN, l, 1), 400)
         z, scores = batch.total_reward.reshape(1, 400), batch.score.reshape(1, 400, -1)
         theta = theta + step_size(l, setup.params.train.step_size) * cvar_gradient(z, scores, 0.1)
-    assert [float(t) for t in theta[0]] == [float(t) for t in train(compose(FAST), tmp_path / "again").summary[
-        "theta_final"]]
+    assert [float(t) for t in theta[0]] == [
+        float(t) for t in train(compose(FAST), tmp_path / "again").summary["theta_final"]
+    ]
 
 
 def test_the_schedule_is_used_logged_in_parquet_and_mcap_and_metrics_stay_at_beta(tmp_path):
@@ -112,8 +123,9 @@ def test_risk_neutral_runs_log_the_mean_gradients_level_one(tmp_path):
     run = train(compose([*FAST, "risk=neutral", *LINEAR]), tmp_path / "neutral")
     plain = train(compose([*FAST, "risk=neutral"]), tmp_path / "plain")
     assert (run.metrics.beta_l == 1.0).all()
-    pd.testing.assert_frame_equal(run.metrics.drop(columns="seconds"), plain.metrics.drop(columns="seconds"),
-                                  check_exact=True)  # the schedule does not touch the mean gradient
+    pd.testing.assert_frame_equal(
+        run.metrics.drop(columns="seconds"), plain.metrics.drop(columns="seconds"), check_exact=True
+    )  # the schedule does not touch the mean gradient
 
 
 @pytest.mark.slow

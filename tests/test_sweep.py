@@ -12,9 +12,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from riskplan.util.paths import claim_dir
-from riskplan.experiments.sweeping import constant_keys, expand
 from riskplan.experiments.sweep_worker import config_sha
+from riskplan.experiments.sweeping import constant_keys, expand
+from riskplan.util.paths import claim_dir
 
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
 CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
@@ -22,8 +22,9 @@ CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
 
 def riskplan(cwd: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
     """Run `riskplan ARGS` in cwd (no terminal: the sweep view prints one line per finished job)."""
-    return subprocess.run([*CLI, *args], cwd=cwd, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, **(env or {})})
+    return subprocess.run(
+        [*CLI, *args], cwd=cwd, capture_output=True, text=True, timeout=300, env={**os.environ, **(env or {})}
+    )
 
 
 def sweep_dir_of(result: subprocess.CompletedProcess, cwd: Path) -> Path:
@@ -45,12 +46,23 @@ def test_grid_runs_once_then_skips_then_reruns_only_what_was_deleted(tmp_path):
 
     # one folder per job, named from the overrides that vary; each a normal run directory
     dirs = job_dirs(sweep)
-    assert [d.name for d in dirs] == ["risk.beta=0.1,seed=0", "risk.beta=0.1,seed=1", "risk.beta=0.2,seed=0",
-                                      "risk.beta=0.2,seed=1"]
+    assert [d.name for d in dirs] == [
+        "risk.beta=0.1,seed=0",
+        "risk.beta=0.1,seed=1",
+        "risk.beta=0.2,seed=0",
+        "risk.beta=0.2,seed=1",
+    ]
     for d in dirs:
         assert json.loads((d / "status.json").read_text())["status"] == "done"
-        for name in ("run.mcap", "summary.json", "metrics.parquet", "eval.parquet", ".hydra/config.yaml",
-                     ".hydra/overrides.yaml", "job.log"):
+        for name in (
+            "run.mcap",
+            "summary.json",
+            "metrics.parquet",
+            "eval.parquet",
+            ".hydra/config.yaml",
+            ".hydra/overrides.yaml",
+            "job.log",
+        ):
             assert (d / name).is_file(), name
     assert (sweep / "multirun.yaml").is_file() and (sweep / "sweep.log").is_file()
 
@@ -93,8 +105,9 @@ def test_grid_runs_once_then_skips_then_reruns_only_what_was_deleted(tmp_path):
 
 def test_an_invalid_combination_and_a_raising_job_fail_alone(tmp_path):
     # beta=1.5 is invalid for the model; step 1e308 makes theta overflow, so that job raises in training
-    result = riskplan(tmp_path, "sweep", "risk.beta=0.2,1.5", "train.step_size.initial=0.1,1e308", *FAST,
-                      "hydra.sweep.dir=s")
+    result = riskplan(
+        tmp_path, "sweep", "risk.beta=0.2,1.5", "train.step_size.initial=0.1,1e308", *FAST, "hydra.sweep.dir=s"
+    )
     assert result.returncode == 1
     summary = pd.read_parquet(tmp_path / "s" / "summary.parquet").set_index("job")
     assert len(summary) == 4
@@ -113,26 +126,30 @@ def test_an_invalid_combination_and_a_raising_job_fail_alone(tmp_path):
     assert "=== failed: iteration 0" in log
     assert "overflow" not in result.stderr + result.stdout and "===" not in result.stderr + result.stdout
     # re-running retries the failed jobs only
-    again = riskplan(tmp_path, "sweep", "risk.beta=0.2,1.5", "train.step_size.initial=0.1,1e308", *FAST,
-                     "hydra.sweep.dir=s")
+    again = riskplan(
+        tmp_path, "sweep", "risk.beta=0.2,1.5", "train.step_size.initial=0.1,1e308", *FAST, "hydra.sweep.dir=s"
+    )
     assert again.returncode == 1 and "4 jobs: 3 to run, 1 already finished" in again.stdout
 
 
-@pytest.mark.parametrize("args, names", [
-    (["risk.beta=0.1,"], "override 'risk.beta=0.1,'"),
-    (["risk.bta=0.1,0.2"], "risk.bta"),
-    (["risk=cvar,foo"], "foo"),
-    (["train.iterations=5,many"], "train.iterations"),
-    (["risk.beta=2,3"], "risk.beta"),  # invalid in every combination: nothing to run
-    (["seed=0,1", "hydra/launcher=nosuch"], "key 'hydra/launcher': no option 'nosuch'; available: basic, joblib"),
-    (["seed=0,1", "hydra/launcher=submitit_local", "--jobs", "2"], "--jobs"),
-    (["risk.beta=interval(0,1)"], "sweep"),
-    (["seed=0,0"], "override 'seed=0,0': gives the value 0 twice"),  # one job twice
-    (["seed=range(0,100000000)"], "RISKPLAN_MAX_JOBS"),  # refused before the combinations are listed
-    (["seed=0,1", "hydra.sweep.dir=/proc/riskplan"], "hydra.sweep.dir: /proc/riskplan is under /proc"),
-    (["seed=0,1", "hydra.sweep.subdir=same"], "hydra.sweep.subdir"),  # every job in one folder
-    (["seed=0", "hydra.sweep.subdir=../out"], "hydra.sweep.subdir"),  # outside the sweep directory
-])
+@pytest.mark.parametrize(
+    "args, names",
+    [
+        (["risk.beta=0.1,"], "override 'risk.beta=0.1,'"),
+        (["risk.bta=0.1,0.2"], "risk.bta"),
+        (["risk=cvar,foo"], "foo"),
+        (["train.iterations=5,many"], "train.iterations"),
+        (["risk.beta=2,3"], "risk.beta"),  # invalid in every combination: nothing to run
+        (["seed=0,1", "hydra/launcher=nosuch"], "key 'hydra/launcher': no option 'nosuch'; available: basic, joblib"),
+        (["seed=0,1", "hydra/launcher=submitit_local", "--jobs", "2"], "--jobs"),
+        (["risk.beta=interval(0,1)"], "sweep"),
+        (["seed=0,0"], "override 'seed=0,0': gives the value 0 twice"),  # one job twice
+        (["seed=range(0,100000000)"], "RISKPLAN_MAX_JOBS"),  # refused before the combinations are listed
+        (["seed=0,1", "hydra.sweep.dir=/proc/riskplan"], "hydra.sweep.dir: /proc/riskplan is under /proc"),
+        (["seed=0,1", "hydra.sweep.subdir=same"], "hydra.sweep.subdir"),  # every job in one folder
+        (["seed=0", "hydra.sweep.subdir=../out"], "hydra.sweep.subdir"),  # outside the sweep directory
+    ],
+)
 def test_bad_input_exits_2_before_anything_runs(tmp_path, args, names):
     result = riskplan(tmp_path, "sweep", *FAST, *args)
     assert result.returncode == 2, result.stdout + result.stderr

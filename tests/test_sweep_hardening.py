@@ -16,19 +16,20 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from riskplan.experiments.sweep_worker import NAME_MAX, folder_name, write_status
+from riskplan.experiments.sweeping import sweep_size
+from riskplan.run.compose import parse_overrides
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
-from riskplan.run.compose import parse_overrides
-from riskplan.experiments.sweeping import sweep_size
-from riskplan.experiments.sweep_worker import NAME_MAX, folder_name, write_status
 
 TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
 
 
 def riskplan(cwd: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *args], cwd=cwd, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, **(env or {})})
+    return subprocess.run(
+        [*CLI, *args], cwd=cwd, capture_output=True, text=True, timeout=300, env={**os.environ, **(env or {})}
+    )
 
 
 def files(root: Path) -> dict[str, bytes]:
@@ -49,11 +50,25 @@ def alive(pid: int) -> bool:
 
 def test_a_killed_driver_leaves_no_workers_behind_and_the_sweep_resumes(tmp_path):
     # joblib's loky workers, busy in a job, outlived a SIGKILLed driver (submitit_local's jobs never did)
-    args = ["sweep", "seed=0,1", *TINY, "train.iterations=800", "train.checkpoint_every=20", "--jobs", "2",
-            "hydra.sweep.dir=s"]
+    args = [
+        "sweep",
+        "seed=0,1",
+        *TINY,
+        "train.iterations=800",
+        "train.checkpoint_every=20",
+        "--jobs",
+        "2",
+        "hydra.sweep.dir=s",
+    ]
     sweep = tmp_path / "s"
-    driver = subprocess.Popen([*CLI, *args], cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              start_new_session=True, env=dict(os.environ))
+    driver = subprocess.Popen(
+        [*CLI, *args],
+        cwd=tmp_path,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+        env=dict(os.environ),
+    )
     workers: dict[str, int] = {}
     try:
         deadline = time.time() + 120
@@ -101,8 +116,11 @@ def test_a_killed_driver_leaves_no_workers_behind_and_the_sweep_resumes(tmp_path
 def test_a_job_folder_held_by_another_process_is_left_alone(tmp_path):
     held = tmp_path / "s" / "seed=0"
     held.mkdir(parents=True)
-    planted = {"status.json": json.dumps({"status": "running", "config_sha": "0" * 16, "pid": os.getpid()}),
-               "checkpoint": "someone else's", "run.mcap": "someone else's log"}
+    planted = {
+        "status.json": json.dumps({"status": "running", "config_sha": "0" * 16, "pid": os.getpid()}),
+        "checkpoint": "someone else's",
+        "run.mcap": "someone else's log",
+    }
     for name, text in planted.items():
         (held / name).write_text(text)
     with lock.hold(held, "test"):
@@ -135,8 +153,9 @@ def test_a_second_driver_on_the_same_sweep_directory_is_bad_input(tmp_path):
         assert files(tmp_path) == before
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: s: is in use by another riskplan process "
-                                                   f"(pid {os.getpid()})"), result.stderr
+    assert len(lines) == 1 and lines[0].startswith(
+        f"error: s: is in use by another riskplan process (pid {os.getpid()})"
+    ), result.stderr
     assert sorted(p.name for p in sweep.iterdir()) == [".riskplan.lock"]
 
 
@@ -145,8 +164,13 @@ def test_a_second_driver_on_the_same_sweep_directory_is_bad_input(tmp_path):
 
 def test_swept_values_with_path_syntax_stay_direct_children_of_the_sweep_directory(tmp_path):
     long = "n" * 300
-    args = ["sweep", "world.sources.0.name=a/b,../../x,%2F,..,'sp ace'," + long, "seed=0", *TINY,
-            "hydra.sweep.dir=deep/s"]
+    args = [
+        "sweep",
+        "world.sources.0.name=a/b,../../x,%2F,..,'sp ace'," + long,
+        "seed=0",
+        *TINY,
+        "hydra.sweep.dir=deep/s",
+    ]
     result = riskplan(tmp_path, *args)
     assert result.returncode == 0, result.stdout + result.stderr
     sweep = tmp_path / "deep" / "s"
@@ -169,8 +193,27 @@ def test_swept_values_with_path_syntax_stay_direct_children_of_the_sweep_directo
 def test_folder_names_are_plain_for_plain_values_and_never_collide():
     assert folder_name("risk.beta=0.1,seed=0") == "risk.beta=0.1,seed=0"
     assert folder_name("train.step_size.initial=1e+308") == "train.step_size.initial=1e+308"
-    tricky = ["a/b", "a%2Fb", "a%252Fb", "..", ".", "", "a\x00b", "a b", "é", "%h" + "0" * 16, "x" * 300,
-              "x" * 299 + "y", "x" * 253, "x" * 254 + "%", "%empty", ".hidden", "%2Ehidden", "a\\b", "a:b"]
+    tricky = [
+        "a/b",
+        "a%2Fb",
+        "a%252Fb",
+        "..",
+        ".",
+        "",
+        "a\x00b",
+        "a b",
+        "é",
+        "%h" + "0" * 16,
+        "x" * 300,
+        "x" * 299 + "y",
+        "x" * 253,
+        "x" * 254 + "%",
+        "%empty",
+        ".hidden",
+        "%2Ehidden",
+        "a\\b",
+        "a:b",
+    ]
     names = [folder_name(t) for t in tricky]
     assert len(set(names)) == len(tricky)
     for name in names:
@@ -182,17 +225,20 @@ def test_folder_names_are_plain_for_plain_values_and_never_collide():
 # ------------------------------------------------------------------------------------------------ sizes
 
 
-@pytest.mark.parametrize("args, count", [
-    (["seed=range(0,100000000)"], 100_000_000),
-    (["seed=range(0,10,3)", "risk=neutral,cvar"], 8),
-    (["seed=range(5,0,-1)", "train.iterations=5"], 5),
-    (["risk.beta=range(0.1,0.5,0.1)"], 4),
-    (["risk=glob(*)", "seed=0,1"], 4),
-    (["seed=shuffle(range(0,3))"], 3),
-    (["seed=range(0,0)"], 0),
-    (["seed=range(0,100000000000000000000000000000)"], 10**29),  # more than a C integer holds
-    (["risk.beta=range(0,1,0.3)"], 4),
-])
+@pytest.mark.parametrize(
+    "args, count",
+    [
+        (["seed=range(0,100000000)"], 100_000_000),
+        (["seed=range(0,10,3)", "risk=neutral,cvar"], 8),
+        (["seed=range(5,0,-1)", "train.iterations=5"], 5),
+        (["risk.beta=range(0.1,0.5,0.1)"], 4),
+        (["risk=glob(*)", "seed=0,1"], 4),
+        (["seed=shuffle(range(0,3))"], 3),
+        (["seed=range(0,0)"], 0),
+        (["seed=range(0,100000000000000000000000000000)"], 10**29),  # more than a C integer holds
+        (["risk.beta=range(0,1,0.3)"], 4),
+    ],
+)
 def test_a_sweep_is_counted_without_expanding_it(args, count):
     assert sweep_size(parse_overrides(args))[0] == count
 
@@ -206,8 +252,10 @@ def test_a_range_without_an_end_or_a_step_is_bad_input(arg):
 def test_the_job_limit_can_be_raised_and_lowered(tmp_path):
     small = riskplan(tmp_path, "sweep", "seed=range(0,3)", *TINY, env={"RISKPLAN_MAX_JOBS": "2"})
     assert small.returncode == 2
-    assert small.stderr.strip() == ("error: override 'seed=range(0,3)': expands to 3 jobs, more than the 2 allowed; "
-                                    "sweep fewer values, or raise the limit with RISKPLAN_MAX_JOBS=<jobs>")
+    assert small.stderr.strip() == (
+        "error: override 'seed=range(0,3)': expands to 3 jobs, more than the 2 allowed; "
+        "sweep fewer values, or raise the limit with RISKPLAN_MAX_JOBS=<jobs>"
+    )
     assert not (tmp_path / "outputs").exists()
 
 
@@ -223,8 +271,15 @@ def test_reproduce_seeds_are_bounded(tmp_path):
 
 
 def test_status_json_is_strict_json_and_leaves_no_temp_file(tmp_path):
-    write_status(tmp_path, {"status": "done", "cvar": float("nan"), "figures": [1.0, float("inf"), -float("inf")],
-                            "nested": {"x": float("nan")}})
+    write_status(
+        tmp_path,
+        {
+            "status": "done",
+            "cvar": float("nan"),
+            "figures": [1.0, float("inf"), -float("inf")],
+            "nested": {"x": float("nan")},
+        },
+    )
 
     def refuse(name):
         raise AssertionError(f"non-standard JSON constant {name}")

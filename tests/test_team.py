@@ -7,11 +7,17 @@ import pytest
 
 from riskplan import compose, train
 from riskplan.engine.team.consensus import second_largest_eigenvalue_modulus
-from riskplan.util.errors import BadInput
 from riskplan.run.build import build_setup
+from riskplan.util.errors import BadInput
 
-FAST = ["experiment=paper_team", "train.iterations=40", "train.samples=1000", "train.eval_episodes=1000",
-        "train.bootstrap=10", "train.paths=1"]
+FAST = [
+    "experiment=paper_team",
+    "train.iterations=40",
+    "train.samples=1000",
+    "train.eval_episodes=1000",
+    "train.bootstrap=10",
+    "train.paths=1",
+]
 
 
 def final_error(tmp_path, *overrides) -> float:
@@ -48,8 +54,10 @@ def test_a_team_of_one_equals_a_centralized_run(tmp_path):
 
 
 def test_per_robot_start_cells(tmp_path):
-    run = train(compose([*FAST[:-1], "train.paths=2", "train.iterations=2", "team.starts=[[0,0],[11,0],[0,11]]"]),
-                tmp_path / "starts")
+    run = train(
+        compose([*FAST[:-1], "train.paths=2", "train.iterations=2", "team.starts=[[0,0],[11,0],[0,11]]"]),
+        tmp_path / "starts",
+    )
     first = run.trajectories[(run.trajectories.step == 0) & (run.trajectories.robot >= 0)]
     starts = first.groupby("robot")[["x", "y"]].first()
     assert starts.loc[0].tolist() == [0, 0] and starts.loc[1].tolist() == [11, 0] and starts.loc[2].tolist() == [0, 11]
@@ -62,6 +70,17 @@ def test_starts_must_match_the_team_size():
 
 
 def test_growing_sample_schedule(tmp_path):
-    run = train(compose(["train.iterations=4", "train.samples=100", "train.samples_growth=1.0",
-                         "train.eval_episodes=100", "train.bootstrap=5", "train.paths=1"]), tmp_path / "grow")
+    run = train(
+        compose(
+            [
+                "train.iterations=4",
+                "train.samples=100",
+                "train.samples_growth=1.0",
+                "train.eval_episodes=100",
+                "train.bootstrap=5",
+                "train.paths=1",
+            ]
+        ),
+        tmp_path / "grow",
+    )
     assert run.metrics.samples.tolist() == [100, 200, 300, 400]  # W_l = W (1 + l)^g

@@ -12,11 +12,11 @@ import pytest
 from omegaconf import OmegaConf
 
 import riskplan
-from riskplan.engine import rng
-from riskplan.engine.team.consensus import Mixer, MixerState, build_network, consensus_error, mix_numpy
-from riskplan.engine.policy import move_features, probabilities, scores, tables
-from riskplan.risk import summary_stats
 from riskplan.config.schema import TeamConf
+from riskplan.engine import rng
+from riskplan.engine.policy import move_features, probabilities, scores, tables
+from riskplan.engine.team.consensus import Mixer, MixerState, build_network, consensus_error, mix_numpy
+from riskplan.risk import summary_stats
 from riskplan.run.build import build_setup
 from riskplan.run.training import _robot_rows, _row, train
 
@@ -94,10 +94,12 @@ def _cloud(kind: str, n: int, m: int, seed: int) -> np.ndarray:
     raise ValueError(kind)
 
 
-@pytest.mark.parametrize("kind", ["normal", "sphere", "ties", "near_consensus", "wide_magnitudes", "tiny", "huge",
-                                  "one_apart", "nan", "inf"])
-@pytest.mark.parametrize("n,m", [(1, 2), (2, 2), (2, 1), (5, 3), (32, 2), (33, 2), (64, 1), (65, 2), (300, 2),
-                                 (257, 3), (200, 7), (150, 9)])
+@pytest.mark.parametrize(
+    "kind", ["normal", "sphere", "ties", "near_consensus", "wide_magnitudes", "tiny", "huge", "one_apart", "nan", "inf"]
+)
+@pytest.mark.parametrize(
+    "n,m", [(1, 2), (2, 2), (2, 1), (5, 3), (32, 2), (33, 2), (64, 1), (65, 2), (300, 2), (257, 3), (200, 7), (150, 9)]
+)
 def test_consensus_error_is_the_brute_force_bit_for_bit(kind, n, m):
     thetas = _cloud(kind, n, m, seed=n * 31 + m)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -121,10 +123,18 @@ def test_consensus_error_of_team_thetas_is_the_brute_force():
 # ---------------------------------------------------------------------------------------------- robot keys
 
 
-@pytest.mark.parametrize("seed,purpose,iteration,robots", [
-    (0, rng.TRAIN, 0, 1), (0, rng.TRAIN, 7, 1000), (2**63 - 1, rng.PATHS, 2**40 + 3, 50), (12345, rng.EVAL, 1, 3),
-    (5, rng.TRAIN, 0, 0), (2**63 - 1, rng.TRAIN, 2**64 - 1, 5), (77, rng.BOOTSTRAP, 3, 4),
-])
+@pytest.mark.parametrize(
+    "seed,purpose,iteration,robots",
+    [
+        (0, rng.TRAIN, 0, 1),
+        (0, rng.TRAIN, 7, 1000),
+        (2**63 - 1, rng.PATHS, 2**40 + 3, 50),
+        (12345, rng.EVAL, 1, 3),
+        (5, rng.TRAIN, 0, 0),
+        (2**63 - 1, rng.TRAIN, 2**64 - 1, 5),
+        (77, rng.BOOTSTRAP, 3, 4),
+    ],
+)
 def test_robot_keys_are_the_scalar_stream_keys(seed, purpose, iteration, robots):
     keys = rng.robot_keys(seed, purpose, iteration, robots)
     expected = np.array([rng.stream_key(seed, purpose, iteration, r) for r in range(robots)], dtype=np.uint64)
@@ -134,8 +144,11 @@ def test_robot_keys_are_the_scalar_stream_keys(seed, purpose, iteration, robots)
 
 def test_robot_keys_known_values():
     """Keys as the scalar loop gave them before robot_keys was vectorised."""
-    assert rng.robot_keys(0, rng.TRAIN, 0, 3).tolist() == [15060180617161591093, 17701245739403276522,
-                                                           902475832917225024]
+    assert rng.robot_keys(0, rng.TRAIN, 0, 3).tolist() == [
+        15060180617161591093,
+        17701245739403276522,
+        902475832917225024,
+    ]
     assert int(rng.robot_keys(2**63 - 1, rng.EVAL, 99, 5)[4]) == 7221517220371294345
 
 
@@ -166,12 +179,15 @@ SLOTS = [(0, 0), (1, 0), (2, 0), (2, 0), (3, 0), (1, 0), (5, 0), (5, 0), (9, 0),
 
 @pytest.mark.parametrize("stale", ["arrival", "latest"])
 @pytest.mark.parametrize("m", [1, 2, 3])
-@pytest.mark.parametrize("graph", [
-    {"robots": 3, "graph": "line"},
-    {"robots": 6, "graph": "ring", "weights": "lazy"},
-    {"robots": 4, "graph": "edges", "edges": [[0, 1], [1, 2], [2, 3], [3, 0], [2, 0]], "directed": True},
-    {"robots": 12, "graph": "random_geometric", "radius": 0.6},
-])
+@pytest.mark.parametrize(
+    "graph",
+    [
+        {"robots": 3, "graph": "line"},
+        {"robots": 6, "graph": "ring", "weights": "lazy"},
+        {"robots": 4, "graph": "edges", "edges": [[0, 1], [1, 2], [2, 3], [3, 0], [2, 0]], "directed": True},
+        {"robots": 12, "graph": "random_geometric", "radius": 0.6},
+    ],
+)
 @pytest.mark.parametrize("rounds", [1, 2])
 @pytest.mark.parametrize("read_every_iteration", [True, False])
 def test_synchronous_rounds_equal_the_general_rules(stale, m, graph, rounds, read_every_iteration):
@@ -204,8 +220,15 @@ def test_synchronous_rounds_equal_the_general_rules(stale, m, graph, rounds, rea
 @pytest.mark.parametrize("n", [3, 40, 200])
 def test_mixing_kernels_add_in_numpy_einsum_order(n, m):
     """Terms of wildly different sizes, so that any other order of the sums would round differently."""
-    from riskplan.engine.team.consensus import Network, _Links, _mix_linked, _mix_links, _mix_links_parallel, _mix_used, \
-        _mix_used_parallel
+    from riskplan.engine.team.consensus import (
+        Network,
+        _Links,
+        _mix_linked,
+        _mix_links,
+        _mix_links_parallel,
+        _mix_used,
+        _mix_used_parallel,
+    )
 
     g = np.random.default_rng(n * m)
     adjacency = g.random((n, n)) < 0.5
@@ -236,8 +259,10 @@ def test_mixing_kernels_add_in_numpy_einsum_order(n, m):
 def test_known_average_on_the_complete_graph():
     """max_degree weights on 4 complete robots are all 1/4: one round gives every robot the exact average."""
     team = make_team(robots=4, graph="complete", weights="max_degree")
-    for thetas, mean in (([[4.0, 8.0], [0.0, -4.0], [8.0, 12.0], [-4.0, 0.0]], [2.0, 4.0]),
-                         ([[4.0], [0.0], [8.0], [-4.0]], [2.0])):
+    for thetas, mean in (
+        ([[4.0, 8.0], [0.0, -4.0], [8.0, 12.0], [-4.0, 0.0]], [2.0, 4.0]),
+        ([[4.0], [0.0], [8.0], [-4.0]], [2.0]),
+    ):
         mixer = Mixer(build_network(team, len(mean), 0), team, 0)
         assert np.array_equal(mixer.mix(np.array(thetas), 0), np.tile(mean, (4, 1)))
         assert mixer._synced is not None  # the synchronous path did it
@@ -313,17 +338,22 @@ def test_zero_range_integers_draw_nothing():
     assert np.array_equal(a.random((40, 40)), np.random.default_rng([1, 7919, 3, 0]).random((40, 40)))
 
 
-@pytest.mark.parametrize("values", [
-    {},
-    {"stale": "latest", "consensus_rounds": 3},
-    {"delay": {"max": 2}, "drop": 0.3, "max_gap": 3},
-    {"drop": 0.2, "stale": "latest", "consensus_rounds": 2},
-    {"switching": {"enabled": True, "up": 0.5, "window": 2}},
-])
+@pytest.mark.parametrize(
+    "values",
+    [
+        {},
+        {"stale": "latest", "consensus_rounds": 3},
+        {"delay": {"max": 2}, "drop": 0.3, "max_gap": 3},
+        {"drop": 0.2, "stale": "latest", "consensus_rounds": 2},
+        {"switching": {"enabled": True, "up": 0.5, "window": 2}},
+    ],
+)
 def test_mixing_does_not_depend_on_the_thread_count(values, monkeypatch):
     import riskplan.engine.team.consensus
 
-    monkeypatch.setattr(riskplan.engine.team.consensus, "PARALLEL_ENTRIES", 1)  # the parallel drivers, even for 30 robots
+    monkeypatch.setattr(
+        riskplan.engine.team.consensus, "PARALLEL_ENTRIES", 1
+    )  # the parallel drivers, even for 30 robots
     team = make_team(robots=30, graph="random_geometric", **values)
     net = build_network(team, 2, 0)
     thetas = np.random.default_rng(0).normal(size=(30, 2))
@@ -381,8 +411,9 @@ def test_robot_rows_are_the_per_robot_rows(n):
     stats = summary_stats(z, 0.1)
     thetas, grads = g.normal(size=(n, 2)), g.normal(size=(n, 2)) * 1e3
     rows = _robot_rows(4, stats, thetas, grads, 0.05, 1.25, 50, 0.5, 0.2)  # eps, error, samples, seconds, level
-    expected = [_row(4, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], 0.05, 1.25, 50, 0.5, 0.2)
-                for i in range(n)]
+    expected = [
+        _row(4, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], 0.05, 1.25, 50, 0.5, 0.2) for i in range(n)
+    ]
     assert rows == expected
     for got, want in zip(rows, expected):
         assert list(got) == list(want)
@@ -405,9 +436,17 @@ def test_row_norms_are_numpy_norms_bit_for_bit(m):
 
 def test_synchronous_team_resumed_equals_the_uninterrupted_run(tmp_path):
     """Checkpoints written from snapshots (synchronous rounds not yet in the arrays) resume bit for bit."""
-    base = ["experiment=paper_team", "team.robots=6", "team.graph=ring", "team.consensus_rounds=2",
-            "train.samples=200", "train.eval_episodes=200", "train.paths=2", "train.checkpoint_every=2",
-            "train.bootstrap=10"]
+    base = [
+        "experiment=paper_team",
+        "team.robots=6",
+        "team.graph=ring",
+        "team.consensus_rounds=2",
+        "train.samples=200",
+        "train.eval_episodes=200",
+        "train.paths=2",
+        "train.checkpoint_every=2",
+        "train.bootstrap=10",
+    ]
     full = train(riskplan.compose(base + ["train.iterations=6"]), tmp_path / "full", progress=None)
     train(riskplan.compose(base + ["train.iterations=3"]), tmp_path / "part", progress=None)
     resumed = train(riskplan.compose(base + ["train.iterations=6"]), tmp_path / "part", resume=True, progress=None)

@@ -13,14 +13,21 @@ from typer.testing import CliRunner
 
 from riskplan import compose, train
 from riskplan.cli import app
-from riskplan.engine.team.consensus import Mixer, build_network, consensus_error, second_largest_eigenvalue_modulus
-from riskplan.util.errors import BadInput
 from riskplan.config.schema import TeamConf
+from riskplan.engine.team.consensus import Mixer, build_network, consensus_error, second_largest_eigenvalue_modulus
 from riskplan.run.training import CHECKPOINT, load_checkpoint
+from riskplan.util.errors import BadInput
 
 runner = CliRunner()
-FAST = ["experiment=paper_team", "train.iterations=6", "train.samples=300", "train.eval_episodes=300",
-        "train.bootstrap=10", "train.paths=1", "team.order=gradient_tracking"]
+FAST = [
+    "experiment=paper_team",
+    "train.iterations=6",
+    "train.samples=300",
+    "train.eval_episodes=300",
+    "train.bootstrap=10",
+    "train.paths=1",
+    "team.order=gradient_tracking",
+]
 
 
 def make_team(**values):
@@ -39,11 +46,14 @@ def raw_tracker(mixer: Mixer, grads: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------- exact case
-@pytest.mark.parametrize("values", [
-    {"robots": 5, "graph": "line"},
-    {"robots": 12, "graph": "random_geometric", "radius": 0.5},
-    {"robots": 6, "graph": "grid", "consensus_rounds": 3},
-])
+@pytest.mark.parametrize(
+    "values",
+    [
+        {"robots": 5, "graph": "line"},
+        {"robots": 12, "graph": "random_geometric", "radius": 0.5},
+        {"robots": 6, "graph": "grid", "consensus_rounds": 3},
+    ],
+)
 def test_tracking_invariant_is_exact_on_a_doubly_stochastic_graph_without_delays(values):
     """sum_i y^i_l = sum_i Delta^i_l at every iteration, for any gradients (Metropolis weights, no delays)."""
     mixer = mixer_of(**values)
@@ -109,11 +119,14 @@ def test_constant_gradients_reach_exact_consensus_at_the_slem_rate():
 NOISY = {"robots": 6, "graph": "ring", "delay": {"max": 3}, "drop": 0.3, "max_gap": 4}
 
 
-@pytest.mark.parametrize("values", [
-    NOISY,
-    {**NOISY, "stale": "latest", "consensus_rounds": 2},
-    {**NOISY, "switching": {"enabled": True, "up": 0.5, "window": 3}},
-])
+@pytest.mark.parametrize(
+    "values",
+    [
+        NOISY,
+        {**NOISY, "stale": "latest", "consensus_rounds": 2},
+        {**NOISY, "switching": {"enabled": True, "up": 0.5, "window": 3}},
+    ],
+)
 def test_under_delays_and_drops_the_mass_in_flight_closes_the_invariant(values):
     """Running sums: sum_i y^i + the mass still in flight = sum_i Delta^i exactly; late mass is bounded (it arrives
     within B + B0 iterations), and with constant gradients the normalised trackers y / v still agree exactly."""
@@ -128,8 +141,9 @@ def test_under_delays_and_drops_the_mass_in_flight_closes_the_invariant(values):
         y = raw_tracker(mixer, grads)
         mixed, tracker = mixer.track(thetas, grads, l)
         np.testing.assert_allclose(y.sum(axis=0) + before, grads.sum(axis=0), rtol=0, atol=1e-9)
-        np.testing.assert_allclose(mixer.in_flight()[2:] + mixer.state()["tracker"][:, 2:].sum(axis=0), n,
-                                   rtol=0, atol=1e-9)  # the push-sum weights: sum v + in flight = N
+        np.testing.assert_allclose(
+            mixer.in_flight()[2:] + mixer.state()["tracker"][:, 2:].sum(axis=0), n, rtol=0, atol=1e-9
+        )  # the push-sum weights: sum v + in flight = N
         largest = max(largest, float(np.abs(before).max()))
         thetas = mixed + 0.01 * tracker
     assert 0 < largest < 20 * n  # not zero (messages were late), and bounded
@@ -203,11 +217,14 @@ def test_checkpoint_holds_the_tracker_and_a_checkpoint_without_it_is_bad_input(t
 
 
 # ---------------------------------------------------------------------------------------------- input, check
-@pytest.mark.parametrize("overrides,where", [
-    (["team.weights=lazy"], "team.weights"),
-    (["team.graph=edges", "team.directed=true", "team.edges=[[1,0],[2,1],[0,2],[0,1]]"], "team.weights"),
-    (["'team.matrix=[[0.5,0.5,0],[0.25,0.5,0.25],[0,0.5,0.5]]'".strip("'"), "team.weights=matrix"], "team.matrix"),
-])
+@pytest.mark.parametrize(
+    "overrides,where",
+    [
+        (["team.weights=lazy"], "team.weights"),
+        (["team.graph=edges", "team.directed=true", "team.edges=[[1,0],[2,1],[0,2],[0,1]]"], "team.weights"),
+        (["'team.matrix=[[0.5,0.5,0],[0.25,0.5,0.25],[0,0.5,0.5]]'".strip("'"), "team.weights=matrix"], "team.matrix"),
+    ],
+)
 def test_gradient_tracking_needs_doubly_stochastic_weights(overrides, where):
     with pytest.raises(BadInput, match="doubly stochastic") as err:
         compose(["experiment=paper_team", "team.order=gradient_tracking", *overrides])

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from riskplan.run.compose import compose
-from riskplan.util.errors import BadInput
 from riskplan.config.schema import StepSizeConf
 from riskplan.run.build import build_setup, step_size
+from riskplan.run.compose import compose
+from riskplan.util.errors import BadInput
 
 FAST = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 
@@ -77,11 +77,14 @@ def test_an_episode_total_that_could_overflow_is_rejected():
     setup_of("world.regions.1.reward=1e98", "world.regions.0.reward=1e98")
 
 
-@pytest.mark.parametrize("override, where", [
-    ("world.sources.0.reward=1e200", "world.sources.0.reward"),
-    ("world.sources.1.reward={uniform:[-1e308,1e308]}", "world.sources.1.reward"),
-    ("world.sources.1.reward={normal:[0,1e300]}", "world.sources.1.reward"),
-])
+@pytest.mark.parametrize(
+    "override, where",
+    [
+        ("world.sources.0.reward=1e200", "world.sources.0.reward"),
+        ("world.sources.1.reward={uniform:[-1e308,1e308]}", "world.sources.1.reward"),
+        ("world.sources.1.reward={normal:[0,1e300]}", "world.sources.1.reward"),
+    ],
+)
 def test_a_reward_program_that_could_overflow_is_rejected(override, where):
     assert bad(override).where == where
 
@@ -121,8 +124,9 @@ def test_a_step_size_whose_denominator_overflows_is_zero_not_an_error():
 def test_huge_gaps_and_windows_run():
     # integer keys far beyond int64 must not overflow numpy in the consensus layer
     big = 10**30
-    setup = setup_of("team.robots=3", f"team.max_gap={big}", "team.switching.enabled=true",
-                     f"team.switching.window={big}")
+    setup = setup_of(
+        "team.robots=3", f"team.max_gap={big}", "team.switching.enabled=true", f"team.switching.window={big}"
+    )
     thetas = np.arange(6, dtype=float).reshape(3, 2)
     for l in range(3):
         assert np.all(np.isfinite(setup.mixer.mix(thetas, l)))

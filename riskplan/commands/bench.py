@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -18,42 +17,60 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def bench(
         quick: bool = typer.Option(False, "--quick", help="Fewer repeats and a shorter training run (about 15 s)."),
-        json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
-        scaling: bool = typer.Option(False, "--scaling", help="Instead: trajectory-steps/s and bytes per sample "
-                                                              "against grid size, horizon, sources, source motion "
-                                                              "and robots, each against the paper world (about "
-                                                              "1 minute, 30 s with --quick)."),
+        json_out: Path | None = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
+        scaling: bool = typer.Option(
+            False,
+            "--scaling",
+            help="Instead: trajectory-steps/s and bytes per sample "
+            "against grid size, horizon, sources, source motion "
+            "and robots, each against the paper world (about "
+            "1 minute, 30 s with --quick).",
+        ),
         plot: Path = typer.Option(SCALING_PLOT, "--plot", metavar="PNG", help="With --scaling: the plot's file."),
-        csv_out: Optional[Path] = typer.Option(None, "--csv", help="With --scaling: also write the rows as CSV."),
+        csv_out: Path | None = typer.Option(None, "--csv", help="With --scaling: also write the rows as CSV."),
     ) -> None:
         """Speed, memory, JIT, start-up and team-scaling targets, each with a baseline measured in the same run."""
         import numba
         from rich.console import Console
 
         console = Console(soft_wrap=True)  # one line per figure, also in a log file
-        console.print(f"numba {numba.__version__}, {numba.get_num_threads()} threads "
-                      f"({numba.config.THREADING_LAYER} layer), {os.cpu_count()} cores")
+        console.print(
+            f"numba {numba.__version__}, {numba.get_num_threads()} threads "
+            f"({numba.config.THREADING_LAYER} layer), {os.cpu_count()} cores"
+        )
         if scaling:
             _scaling(console, quick, json_out, plot, csv_out)
             return
-        from riskplan.experiments.benchmarks import (bench_checkpoints, bench_jit, bench_rollout, bench_startup, bench_team,
-                                    bench_training)
+        from riskplan.experiments.benchmarks import (
+            bench_checkpoints,
+            bench_jit,
+            bench_rollout,
+            bench_startup,
+            bench_team,
+            bench_training,
+        )
 
         rows: list[dict] = []
-        for section in (lambda: bench_rollout(quick), lambda: bench_training(quick),
-                        lambda: bench_checkpoints(quick), bench_jit, lambda: bench_startup(quick),
-                        lambda: bench_team(quick)):
+        for section in (
+            lambda: bench_rollout(quick),
+            lambda: bench_training(quick),
+            lambda: bench_checkpoints(quick),
+            bench_jit,
+            lambda: bench_startup(quick),
+            lambda: bench_team(quick),
+        ):
             for row in section():  # printed as each section ends: the whole benchmark takes ~20 s
                 mark = "met" if row["ok"] else "NOT MET"
-                console.print(f"[bold]{row['measure']}[/bold]: {row['value']:.4g} {row['unit']}  "
-                              f"(target {row['target']}: {mark})")
+                console.print(
+                    f"[bold]{row['measure']}[/bold]: {row['value']:.4g} {row['unit']}  (target {row['target']}: {mark})"
+                )
                 console.print(f"    baseline {row['baseline']:.4g}, ratio {row['ratio']:.3g}; {row['note']}")
                 rows.append(row)
         if json_out:
             json_out.write_text(json.dumps(rows, indent=2, default=float))
 
 
-def _scaling(console, quick: bool, json_out: Optional[Path], plot: Path, csv_out: Optional[Path]) -> None:
+def _scaling(console, quick: bool, json_out: Path | None, plot: Path, csv_out: Path | None) -> None:
     """`riskplan bench --scaling`: the table, the slopes beyond the cache, the plot and the files."""
     from riskplan.experiments.benchmarks import bench_scaling, cache_bytes, plot_scaling, scaling_slopes, scaling_table
 
@@ -63,19 +80,24 @@ def _scaling(console, quick: bool, json_out: Optional[Path], plot: Path, csv_out
     console.print(scaling_table(rows), markup=False, highlight=False)
     console.print(f"ratios: against the paper world (first row) in this run; L2 cache {cache / 2**20:g} MB per core")
     for dimension, slope in scaling_slopes(rows, cache).items():
+
         def show(value):
             return "n/a" if value is None else f"{value:+.2f}"
 
-        beyond = ("" if slope["first_beyond"] is None else
-                  f"; beyond the L2 cache (from {slope['first_beyond']:g}"
-                  f"{' cells' if dimension == 'grid' else ''}): iteration {show(slope['beyond_cache'])}, "
-                  f"kernel {show(slope['kernel_beyond_cache'])}")
-        console.print(f"slope of log steps/s against log {'cells' if dimension == 'grid' else dimension}: "
-                      f"iteration {show(slope['all'])}, kernel {show(slope['kernel_all'])}{beyond}")
+        beyond = (
+            ""
+            if slope["first_beyond"] is None
+            else f"; beyond the L2 cache (from {slope['first_beyond']:g}"
+            f"{' cells' if dimension == 'grid' else ''}): iteration {show(slope['beyond_cache'])}, "
+            f"kernel {show(slope['kernel_beyond_cache'])}"
+        )
+        console.print(
+            f"slope of log steps/s against log {'cells' if dimension == 'grid' else dimension}: "
+            f"iteration {show(slope['all'])}, kernel {show(slope['kernel_all'])}{beyond}"
+        )
     console.print(f"plot: {plot_scaling(rows, plot, cache)}")
     if json_out:
-        json_out.write_text(json.dumps({"rows": rows, "slopes": scaling_slopes(rows, cache)}, indent=2,
-                                       default=float))
+        json_out.write_text(json.dumps({"rows": rows, "slopes": scaling_slopes(rows, cache)}, indent=2, default=float))
         console.print(f"json: {json_out}")
     if csv_out:
         import csv

@@ -40,10 +40,13 @@ class OneLineErrors(TyperGroup):
 PASS_THROUGH = {"allow_extra_args": True, "ignore_unknown_options": True}
 HYDRA_FLAGS = {"--cfg", "-c", "--package", "-p", "--resolve", "--info", "-i"}
 MULTIRUN_FLAGS = {"-m", "--multirun"}
-OVERRIDES_HELP = ("Hydra overrides, e.g. risk=neutral risk.beta=0.2 train.samples=2000 world.size=[16,16] "
-                  "experiment=paper_team team.graph=ring.")
-TRAIN_OVERRIDES_HELP = OVERRIDES_HELP + (" Hydra flags --cfg job|hydra|all, --package, --resolve, --info pass "
-                                         "through to Hydra.")
+OVERRIDES_HELP = (
+    "Hydra overrides, e.g. risk=neutral risk.beta=0.2 train.samples=2000 world.size=[16,16] "
+    "experiment=paper_team team.graph=ring."
+)
+TRAIN_OVERRIDES_HELP = OVERRIDES_HELP + (
+    " Hydra flags --cfg job|hydra|all, --package, --resolve, --info pass through to Hydra."
+)
 
 
 def bad_input_exits(command):

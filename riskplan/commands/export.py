@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -16,15 +15,24 @@ def register(app: typer.Typer) -> None:
     @app.command()
     @bad_input_exits
     def export(
-        paths: Optional[List[Path]] = typer.Argument(
-            None, help="Run, sweep or reproduce directories (searched recursively).", show_default=False),
-        to: Optional[str] = typer.Option(
-            None, "--to", help="mlflow (a tracking store), tensorboard (event files) or foxglove "
-                               "(foxglove_layout.json into each run directory).", show_default=False),
-        uri: Optional[str] = typer.Option(
-            None, "--uri", help="mlflow: a tracking URI (sqlite:///mlflow.db, http://host:5000) or a file store "
-                                "directory, default outputs/mlruns; tensorboard: the log directory, default "
-                                "outputs/tensorboard; foxglove: none.", show_default=False),
+        paths: list[Path] | None = typer.Argument(
+            None, help="Run, sweep or reproduce directories (searched recursively).", show_default=False
+        ),
+        to: str | None = typer.Option(
+            None,
+            "--to",
+            help="mlflow (a tracking store), tensorboard (event files) or foxglove "
+            "(foxglove_layout.json into each run directory).",
+            show_default=False,
+        ),
+        uri: str | None = typer.Option(
+            None,
+            "--uri",
+            help="mlflow: a tracking URI (sqlite:///mlflow.db, http://host:5000) or a file store "
+            "directory, default outputs/mlruns; tensorboard: the log directory, default "
+            "outputs/tensorboard; foxglove: none.",
+            show_default=False,
+        ),
         experiment: str = typer.Option("riskplan", "--experiment", help="The MLflow experiment to log into."),
     ) -> None:
         """Replay finished runs into MLflow or TensorBoard: metrics per iteration and robot, the summary with its
@@ -47,6 +55,8 @@ def register(app: typer.Typer) -> None:
         for broken in result.skipped:
             typer.echo(f"skipped {broken.path}: {broken.reason}", err=True)
         where = result.destination + (f" (experiment {experiment})" if result.target == "mlflow" else "")
-        typer.echo(f"{len(result.done)} run(s) to {result.target}: {result.count('exported')} exported, "
-                   f"{result.count('replaced')} replaced, {result.count('unchanged')} unchanged, "
-                   f"{len(result.skipped)} skipped -> {where}")
+        typer.echo(
+            f"{len(result.done)} run(s) to {result.target}: {result.count('exported')} exported, "
+            f"{result.count('replaced')} replaced, {result.count('unchanged')} unchanged, "
+            f"{len(result.skipped)} skipped -> {where}"
+        )

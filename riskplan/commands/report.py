@@ -5,12 +5,12 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
 from riskplan.commands.common import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
 from riskplan.util.errors import BadInput
+
 
 def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
     """'a,b,...' -> floats, with one of the allowed counts."""
@@ -41,14 +41,20 @@ def register(app: typer.Typer) -> None:
     @app.command()
     @bad_input_exits
     def report(
-        paths: Optional[List[Path]] = typer.Argument(
-            None, help="Run, sweep, reproduce or landscape directories (searched recursively). "
-                       "Default: the newest folder in outputs/reproduce/.", show_default=False),
-        out: Optional[str] = typer.Option(
-            None, "--out", help="Where to write report.html, report.csv, runs.csv and the figures: a new or empty "
-                                "directory, or one a previous report wrote (it holds .riskplan-manifest.json). "
-                                "Default: DIR/report for one input DIR, else outputs/reports/<timestamp>/.",
-            metavar="DIR"),
+        paths: list[Path] | None = typer.Argument(
+            None,
+            help="Run, sweep, reproduce or landscape directories (searched recursively). "
+            "Default: the newest folder in outputs/reproduce/.",
+            show_default=False,
+        ),
+        out: str | None = typer.Option(
+            None,
+            "--out",
+            help="Where to write report.html, report.csv, runs.csv and the figures: a new or empty "
+            "directory, or one a previous report wrote (it holds .riskplan-manifest.json). "
+            "Default: DIR/report for one input DIR, else outputs/reports/<timestamp>/.",
+            metavar="DIR",
+        ),
         formats: str = typer.Option("png,pdf", "--format", help="Figure files to write: any of png,pdf,svg."),
     ) -> None:
         """Figures (the paper's Figs. 1-4 and more), tables and a self-contained report.html from finished runs."""
@@ -65,31 +71,40 @@ def register(app: typer.Typer) -> None:
         rebuilt = [r for r in coll.runs if r.rebuilt]
         for r in rebuilt:
             typer.echo(f"rebuilt tables of {r.path} from run.mcap")
-        typer.echo(f"{len(coll.runs)} run(s) in {len(coll.groups)} group(s), {len(coll.landscapes)} landscape(s), "
-                   f"{len(coll.broken)} skipped; {len(result.figures)} figures")
+        typer.echo(
+            f"{len(coll.runs)} run(s) in {len(coll.groups)} group(s), {len(coll.landscapes)} landscape(s), "
+            f"{len(coll.broken)} skipped; {len(result.figures)} figures"
+        )
         typer.echo(f"report: {result.page}")
 
     @app.command(context_settings=PASS_THROUGH)
     @bad_input_exits
     def landscape(
-        overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_HELP, show_default=False),
-        out: Optional[str] = typer.Option(
-            None, "--out", help="Output directory: a new or empty one, or one a previous landscape wrote. Default: "
-                                "outputs/landscapes/<timestamp>_<experiment>/.", metavar="DIR"),
+        overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP, show_default=False),
+        out: str | None = typer.Option(
+            None,
+            "--out",
+            help="Output directory: a new or empty one, or one a previous landscape wrote. Default: "
+            "outputs/landscapes/<timestamp>_<experiment>/.",
+            metavar="DIR",
+        ),
         points: int = typer.Option(41, "--points", help="Grid points per axis."),
-        episodes: int = typer.Option(4000, "--episodes", help="Episodes per grid point (the same streams at "
-                                                               "every point: common random numbers)."),
-        theta_range: str = typer.Option("-20,60", "--range", help="LO,HI for both axes, or LO,HI,LO,HI. Write "
-                                                                  "--range=-20,60 when LO is negative."),
-        axes: str = typer.Option("0,1", "--axes", help="The two theta components to vary; the others stay at "
-                                                        "train.theta0."),
+        episodes: int = typer.Option(
+            4000, "--episodes", help="Episodes per grid point (the same streams at every point: common random numbers)."
+        ),
+        theta_range: str = typer.Option(
+            "-20,60", "--range", help="LO,HI for both axes, or LO,HI,LO,HI. Write --range=-20,60 when LO is negative."
+        ),
+        axes: str = typer.Option(
+            "0,1", "--axes", help="The two theta components to vary; the others stay at train.theta0."
+        ),
     ) -> None:
         """Evaluate mean and CVaR of the total reward on a grid of theta (common random numbers, seeded)."""
-        from riskplan.run.compose import compose
-        from riskplan.experiments.reporting import LANDSCAPES_ROOT
         from riskplan.experiments.landscape import check_grid, compute_landscape
         from riskplan.experiments.output_manifest import claim
+        from riskplan.experiments.reporting import LANDSCAPES_ROOT
         from riskplan.run.build import build_setup
+        from riskplan.run.compose import compose
 
         args = list(overrides or [])
         reject_hydra_flags(args, "riskplan check prints the composed config")
@@ -108,13 +123,24 @@ def register(app: typer.Typer) -> None:
         if any(v != int(v) for v in pair):
             raise BadInput("--axes", f"got '{axes}'; expected two whole source indices, e.g. 0,1")
         check_grid(build_setup(cfg), points, episodes, ranges, (int(pair[0]), int(pair[1])))  # memory, time
-        target = Path(out) if out is not None else (
-            LANDSCAPES_ROOT / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}_{cfg.experiment}")
+        target = (
+            Path(out)
+            if out is not None
+            else (LANDSCAPES_ROOT / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}_{cfg.experiment}")
+        )
         claim(target, "landscape", "--out")
         typer.echo(f"landscape directory: {target}")
         with write_errors_exit():
-            path = compute_landscape(cfg, target, points=points, episodes=episodes, ranges=ranges,
-                                     axes=(int(pair[0]), int(pair[1])), overrides=args, key="--out")
+            path = compute_landscape(
+                cfg,
+                target,
+                points=points,
+                episodes=episodes,
+                ranges=ranges,
+                axes=(int(pair[0]), int(pair[1])),
+                overrides=args,
+                key="--out",
+            )
         import json
 
         s = json.loads((path / "summary.json").read_text())
@@ -127,6 +153,8 @@ def register(app: typer.Typer) -> None:
             return f"{best[name]['value']:.1f} at theta=({theta})"
 
         rate = f"{s['episodes_per_s'] / 1e6:.2f} M" if s.get("episodes_per_s") is not None else "n/a"
-        typer.echo(f"{points}x{points} grid x {episodes} episodes in {s['seconds']:.2f} s "
-                   f"({rate} episodes/s): max mean {at('mean')}; "
-                   f"max CVaR_{s['beta']:g} {at('cvar')} -> {path}")
+        typer.echo(
+            f"{points}x{points} grid x {episodes} episodes in {s['seconds']:.2f} s "
+            f"({rate} episodes/s): max mean {at('mean')}; "
+            f"max CVaR_{s['beta']:g} {at('cvar')} -> {path}"
+        )

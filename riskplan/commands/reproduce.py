@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -13,24 +12,38 @@ from riskplan.experiments.reproduction import QUICK_SEEDS, SEEDS, process_starte
 
 def register(app: typer.Typer) -> None:
     """Add `reproduce` to the riskplan app."""
+
     @app.command(name="reproduce", context_settings=PASS_THROUGH)
     @bad_input_exits
     def reproduce_command(
-        overrides: Optional[List[str]] = typer.Argument(
-            None, show_default=False, help="Plain overrides for every experiment (no sweeps), e.g. train.samples=3000 "
-                                           "world.horizon=24."),
-        out: Optional[Path] = typer.Option(None, "--out", metavar="DIR",
-                                           help="Where to put it (default: outputs/reproduce/<timestamp>/). An "
-                                                "existing reproduction is completed: finished jobs are skipped."),
-        quick: bool = typer.Option(False, "--quick", help="Fewer iterations, episodes and seeds: a first look in "
-                                                          "well under a minute."),
-        seeds: Optional[int] = typer.Option(None, "--seeds", min=1, show_default=False,
-                                            help=f"Seeds per condition (default {SEEDS}, {QUICK_SEEDS} with "
-                                                 f"--quick)."),
-        jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, show_default=False,
-                                           help="Parallel jobs (default: the number of cores)."),
+        overrides: list[str] | None = typer.Argument(
+            None,
+            show_default=False,
+            help="Plain overrides for every experiment (no sweeps), e.g. train.samples=3000 world.horizon=24.",
+        ),
+        out: Path | None = typer.Option(
+            None,
+            "--out",
+            metavar="DIR",
+            help="Where to put it (default: outputs/reproduce/<timestamp>/). An "
+            "existing reproduction is completed: finished jobs are skipped.",
+        ),
+        quick: bool = typer.Option(
+            False, "--quick", help="Fewer iterations, episodes and seeds: a first look in well under a minute."
+        ),
+        seeds: int | None = typer.Option(
+            None,
+            "--seeds",
+            min=1,
+            show_default=False,
+            help=f"Seeds per condition (default {SEEDS}, {QUICK_SEEDS} with --quick).",
+        ),
+        jobs: int | None = typer.Option(
+            None, "--jobs", "-j", min=1, show_default=False, help="Parallel jobs (default: the number of cores)."
+        ),
         formats: str = typer.Option("png,pdf", "--format", help="Figure files of the report: any of png,pdf,svg."),
     ) -> None:
         """Run every experiment of the paper's Section V (several seeds each), then the report."""
-        raise typer.Exit(reproduce(check_out_dir(out), quick, seeds, jobs, formats, list(overrides or []),
-                                   since=process_started()))
+        raise typer.Exit(
+            reproduce(check_out_dir(out), quick, seeds, jobs, formats, list(overrides or []), since=process_started())
+        )

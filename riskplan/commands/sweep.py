@@ -2,28 +2,34 @@
 
 from __future__ import annotations
 
-from typing import List, Optional
-
 import typer
 
 from riskplan.commands.common import PASS_THROUGH, bad_input_exits
 
-SWEEP_HELP = ("Hydra overrides; comma lists and range(...) sweep, e.g. risk.beta=0.05,0.1,0.2 'seed=range(0,5)' "
-              "team.graph=line,ring. hydra/launcher=submitit_slurm|submitit_local|ray selects a cluster launcher "
-              "(default: joblib on local cores); hydra.sweep.dir=DIR re-runs a sweep into DIR, skipping the jobs "
-              "that finished. hydra/sweeper=optuna 'risk.beta=interval(0.05,1)' hydra.sweeper.n_trials=12 runs "
-              "an Optuna study instead of a grid (pip install 'riskplan[optuna]'); its trials return their CVaR.")
+SWEEP_HELP = (
+    "Hydra overrides; comma lists and range(...) sweep, e.g. risk.beta=0.05,0.1,0.2 'seed=range(0,5)' "
+    "team.graph=line,ring. hydra/launcher=submitit_slurm|submitit_local|ray selects a cluster launcher "
+    "(default: joblib on local cores); hydra.sweep.dir=DIR re-runs a sweep into DIR, skipping the jobs "
+    "that finished. hydra/sweeper=optuna 'risk.beta=interval(0.05,1)' hydra.sweeper.n_trials=12 runs "
+    "an Optuna study instead of a grid (pip install 'riskplan[optuna]'); its trials return their CVaR."
+)
 
 
 def register(app: typer.Typer) -> None:
     """Add `sweep` to the riskplan app."""
+
     @app.command(context_settings=PASS_THROUGH)
     @bad_input_exits
     def sweep(
-        overrides: Optional[List[str]] = typer.Argument(None, help=SWEEP_HELP, show_default=False),
-        jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, show_default=False,
-                                           help="Jobs at once: joblib workers (default: the number of cores), or "
-                                                "submitit's array_parallelism."),
+        overrides: list[str] | None = typer.Argument(None, help=SWEEP_HELP, show_default=False),
+        jobs: int | None = typer.Option(
+            None,
+            "--jobs",
+            "-j",
+            min=1,
+            show_default=False,
+            help="Jobs at once: joblib workers (default: the number of cores), or submitit's array_parallelism.",
+        ),
     ) -> None:
         """Run a grid of experiments (a Hydra multirun) into outputs/sweeps/<timestamp>/, one folder per job."""
         from riskplan.experiments.sweeping import report_outcome, run_sweep  # here: `riskplan train` starts without it

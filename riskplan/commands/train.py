@@ -5,12 +5,18 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
-from riskplan.commands.common import (HYDRA_FLAGS, MULTIRUN_FLAGS, OVERRIDES_HELP, PASS_THROUGH, TRAIN_OVERRIDES_HELP,
-                                      bad_input_exits, reject_hydra_flags)
+from riskplan.commands.common import (
+    HYDRA_FLAGS,
+    MULTIRUN_FLAGS,
+    OVERRIDES_HELP,
+    PASS_THROUGH,
+    TRAIN_OVERRIDES_HELP,
+    bad_input_exits,
+    reject_hydra_flags,
+)
 from riskplan.util.errors import BadInput
 from riskplan.util.lock import LOCK, hold, holder
 from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote
@@ -23,11 +29,14 @@ def register(app: typer.Typer) -> None:
 
 
 def train(
-    overrides: Optional[List[str]] = typer.Argument(None, help=TRAIN_OVERRIDES_HELP, show_default=False),
-    resume: Optional[Path] = typer.Option(
-        None, "--resume", help="Continue the run in RUN_DIR from its last checkpoint (also: extend a finished run "
-                               "with a larger train.iterations=...). Only train.iterations may be overridden.",
-        metavar="RUN_DIR"),
+    overrides: list[str] | None = typer.Argument(None, help=TRAIN_OVERRIDES_HELP, show_default=False),
+    resume: Path | None = typer.Option(
+        None,
+        "--resume",
+        help="Continue the run in RUN_DIR from its last checkpoint (also: extend a finished run "
+        "with a larger train.iterations=...). Only train.iterations may be overridden.",
+        metavar="RUN_DIR",
+    ),
 ) -> None:
     """Train one experiment (default: experiment=paper_single) into outputs/runs/<timestamp>_<experiment>/."""
     from omegaconf import open_dict
@@ -38,8 +47,11 @@ def train(
     args = list(overrides or [])
     multirun = sorted(MULTIRUN_FLAGS & set(args))
     if multirun:
-        raise BadInput(f"option '{multirun[0]}'", "riskplan train runs one experiment; run a multirun with riskplan "
-                                                  "sweep and the same overrides (e.g. riskplan sweep seed=0,1,2)")
+        raise BadInput(
+            f"option '{multirun[0]}'",
+            "riskplan train runs one experiment; run a multirun with riskplan "
+            "sweep and the same overrides (e.g. riskplan sweep seed=0,1,2)",
+        )
     if resume is not None:
         _resume(resume, args)
         return
@@ -80,8 +92,11 @@ def run_dir_override(parsed: list) -> Path | None:
         if override.key_or_group == "hydra.run.dir":
             value = str(override.value())
             if "${" in value:
-                raise BadInput("hydra.run.dir", f"got '{value}'; give a plain path (without it, riskplan train "
-                                                f"uses outputs/runs/<timestamp>_<experiment>)")
+                raise BadInput(
+                    "hydra.run.dir",
+                    f"got '{value}'; give a plain path (without it, riskplan train "
+                    f"uses outputs/runs/<timestamp>_<experiment>)",
+                )
             check_output_dir(value, "hydra.run.dir")
             return Path(value)
     return None
@@ -96,23 +111,27 @@ def check_new_run_dir(out: Path, key: str) -> None:
         return
     pid = holder(out)
     if pid is not None:
-        raise BadInput(str(out), f"is in use by another riskplan process (pid {pid or 'unknown'}); one process "
-                                 f"writes a run directory at a time: wait for it to end or stop it")
+        raise BadInput(
+            str(out),
+            f"is in use by another riskplan process (pid {pid or 'unknown'}); one process "
+            f"writes a run directory at a time: wait for it to end or stop it",
+        )
     from riskplan.run.results import is_run_dir
 
     if is_run_dir(out):
-        raise BadInput(key, f"{out} already holds a run; resume it with riskplan train --resume {out}, or give a "
-                            f"new directory")
+        raise BadInput(
+            key, f"{out} already holds a run; resume it with riskplan train --resume {out}, or give a new directory"
+        )
     raise BadInput(key, f"{out} is not empty and holds no run; give a new or empty directory")
 
 
-def check(overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_HELP, show_default=False)) -> None:
+def check(overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP, show_default=False)) -> None:
     """Compose and validate a config without running it; print it, the world, the team and Assumptions 5-6."""
     from omegaconf import OmegaConf
 
-    from riskplan.run.compose import compose
     from riskplan.engine.team.consensus import describe
     from riskplan.run.build import build_setup
+    from riskplan.run.compose import compose
 
     args = list(overrides or [])
     reject_hydra_flags(args, "check prints the composed config itself")
@@ -123,8 +142,10 @@ def check(overrides: Optional[List[str]] = typer.Argument(None, help=OVERRIDES_H
     typer.echo(_describe_world(setup))
     power = cfg.train.step_size.power
     holds = 0.5 < power <= 1.0
-    typer.echo(f"Assumption 6 (sum eps = inf, sum eps^2 < inf): {'holds' if holds else 'FAILS'} "
-               f"(eps_l = {cfg.train.step_size.initial} / (1 + l/{cfg.train.step_size.decay})^{power})")
+    typer.echo(
+        f"Assumption 6 (sum eps = inf, sum eps^2 < inf): {'holds' if holds else 'FAILS'} "
+        f"(eps_l = {cfg.train.step_size.initial} / (1 + l/{cfg.train.step_size.decay})^{power})"
+    )
     typer.echo(describe(setup.network, cfg.team))
     typer.echo("config OK")
 
@@ -139,15 +160,17 @@ def _resume(run_dir: Path, args: list[str]) -> None:
         raise BadInput(str(run_dir), "holds no run; give the directory of a riskplan train run to --resume")
     for override in parse_overrides(args):
         if override.key_or_group != "train.iterations" or override.is_sweep_override():
-            raise BadInput(f"override '{override.input_line}'", "cannot change a resumed run; "
-                                                                 "only train.iterations=N may be given")
+            raise BadInput(
+                f"override '{override.input_line}'", "cannot change a resumed run; only train.iterations=N may be given"
+            )
     check_output_dir(run_dir, str(run_dir))
     with hold(run_dir):  # before anything is read: another process may be writing it
         if not (run_dir / CHECKPOINT).is_file():
             raise BadInput(str(run_dir), "has no checkpoint yet (killed before the first one); start it again")
         if not (run_dir / ".hydra" / "config.yaml").is_file():
-            raise BadInput(str(run_dir / ".hydra" / "config.yaml"), "is missing; a run cannot be resumed without "
-                                                                    "its config")
+            raise BadInput(
+                str(run_dir / ".hydra" / "config.yaml"), "is missing; a run cannot be resumed without its config"
+            )
         _resume_locked(run_dir, args)
 
 
@@ -158,17 +181,18 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
     from omegaconf.errors import OmegaConfBaseException
 
     from riskplan.experiments.hydra_app import write_status
-    from riskplan.util.progress import TrainingBar
     from riskplan.run.training import NumericalTrouble, prepare_resume
     from riskplan.run.training import train as train_run
+    from riskplan.util.progress import TrainingBar
 
     try:
         cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
         cfg.merge_with(OmegaConf.from_dotlist(args))
     except (OmegaConfBaseException, ValueError, OSError, RecursionError, yaml.YAMLError) as err:
-        raise BadInput(str(run_dir / ".hydra" / "config.yaml"), f"cannot be read as a config "
-                                                                f"({type(err).__name__}); it was not written by "
-                                                                f"riskplan: start the run again") from None
+        raise BadInput(
+            str(run_dir / ".hydra" / "config.yaml"),
+            f"cannot be read as a config ({type(err).__name__}); it was not written by riskplan: start the run again",
+        ) from None
     setup, finished = prepare_resume(cfg, run_dir)  # every check of config and checkpoint, before any write
     if finished:  # nothing to do: a finished run is left exactly as it is
         typer.echo(f"already finished: {run_dir}")
@@ -207,8 +231,10 @@ def _finish(out: Path) -> None:
 def _os_error(err: OSError, out: Path) -> str:
     """One line for a failure to write at run time (a full disk, a vanished directory)."""
     where = f" {err.filename}" if err.filename else ""
-    return (f"cannot write{where}: {err.strerror or err}; the last checkpoint is kept: free space, then riskplan "
-            f"train --resume {out}")
+    return (
+        f"cannot write{where}: {err.strerror or err}; the last checkpoint is kept: free space, then riskplan "
+        f"train --resume {out}"
+    )
 
 
 def _try_status(out: Path, message: str) -> None:
@@ -229,17 +255,21 @@ def summary_line(summary: dict, out: Path) -> str:
         return f"{f['value']:.1f} [{f['low']:.1f}, {f['high']:.1f}]"
 
     reached = ", ".join(f"{k} {v:.1%}" for k, v in summary["source_reached"].items())
-    return (f"{summary['experiment']} risk={summary['risk']} beta={summary['beta']:g} robots={summary['robots']}: "
-            f"{summary['iterations']} iterations in {summary['wall_time']:.2f} s | eval {summary['eval_episodes']} "
-            f"episodes: mean {fig('mean')}, CVaR {fig('cvar')}, VaR {fig('value_at_risk')} | "
-            f"P(risky) {summary['risky_fraction']:.1%} | reached {reached} -> {out}")
+    return (
+        f"{summary['experiment']} risk={summary['risk']} beta={summary['beta']:g} robots={summary['robots']}: "
+        f"{summary['iterations']} iterations in {summary['wall_time']:.2f} s | eval {summary['eval_episodes']} "
+        f"episodes: mean {fig('mean')}, CVaR {fig('cvar')}, VaR {fig('value_at_risk')} | "
+        f"P(risky) {summary['risky_fraction']:.1%} | reached {reached} -> {out}"
+    )
 
 
 def _describe_world(setup) -> str:
     """A few lines on the world: grid, start, sources, regions."""
     world = setup.world
-    lines = [f"world: {world.width}x{world.height} grid, horizon K={world.horizon}, "
-             f"{int(world.obstacle.sum())} obstacle cells, stop at source: {world.stop_at_source}"]
+    lines = [
+        f"world: {world.width}x{world.height} grid, horizon K={world.horizon}, "
+        f"{int(world.obstacle.sum())} obstacle cells, stop at source: {world.stop_at_source}"
+    ]
     for j, name in enumerate(world.source_names):
         x, y = world.xy(world.source_cells[j])
         kind = "static" if world.source_motion[j] == 0 else f"random walk p={world.source_motion[j]:g}"

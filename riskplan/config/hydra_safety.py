@@ -20,8 +20,14 @@ from omegaconf.errors import InterpolationToMissingValueError, MissingMandatoryV
 from riskplan.util.errors import BadInput
 
 # Modules whose classes may be named by _target_ (checked as exact classes of these modules, see _allowed_class).
-TARGET_MODULES = ("hydra._internal.core_plugins.", "hydra.experimental.callbacks", "hydra_plugins.", "riskplan.",
-                  "optuna.samplers", "optuna.pruners")
+TARGET_MODULES = (
+    "hydra._internal.core_plugins.",
+    "hydra.experimental.callbacks",
+    "hydra_plugins.",
+    "riskplan.",
+    "optuna.samplers",
+    "optuna.pruners",
+)
 # Modules whose classes logging's dictConfig may import (`class:`) or call (`():`).
 LOGGING_MODULES = ("logging", "logging.handlers", "colorlog", "riskplan.")
 STREAMS = ("ext://sys.stdout", "ext://sys.stderr")
@@ -41,8 +47,10 @@ def check_hydra_node(cfg: DictConfig, hydra_overrides: list) -> None:
             pass  # refers to a value Hydra sets when the job starts (hydra.runtime.output_dir, hydra.job.num, ...)
         except OmegaConfBaseException as err:
             reason = interpolation_reason(err)
-            raise BadInput(f"key '{key}'", f"the interpolation {override.value()} cannot be resolved ({reason}); "
-                                           f"give a plain value") from None
+            raise BadInput(
+                f"key '{key}'",
+                f"the interpolation {override.value()} cannot be resolved ({reason}); give a plain value",
+            ) from None
     check_callables(OmegaConf.to_container(cfg.hydra, resolve=False), "hydra")
 
 
@@ -62,9 +70,12 @@ def check_callables(node: Any, path: str) -> None:
                 logging_section = "logging" in path.split(".")[1] if "." in path else False
                 modules = LOGGING_MODULES if (logging_section or key != "_target_") else TARGET_MODULES
                 if not _allowed_class(value, modules):
-                    raise BadInput(f"key '{here}'", f"got {value!r}; config strings are never code: only Hydra's "
-                                                    f"own, Hydra plugin, logging and riskplan classes are allowed "
-                                                    f"here (see the README's security note)")
+                    raise BadInput(
+                        f"key '{here}'",
+                        f"got {value!r}; config strings are never code: only Hydra's "
+                        f"own, Hydra plugin, logging and riskplan classes are allowed "
+                        f"here (see the README's security note)",
+                    )
             elif key == "stream" and isinstance(value, str) and value.startswith("ext://") and value not in STREAMS:
                 raise BadInput(f"key '{here}'", f"got {value!r}; a logging stream must be one of {', '.join(STREAMS)}")
             else:
@@ -88,5 +99,6 @@ def _allowed_class(name: Any, modules: tuple[str, ...]) -> bool:
     # an attribute of an allowed module that is itself imported from elsewhere (os.system...) is refused; a class
     # a package re-exports from its own submodules (optuna.samplers.TPESampler, from optuna.samplers._tpe) is not
     home = getattr(found, "__module__", None) or ""
-    return (inspect.isclass(found) and (home == module or home.startswith(module + "."))
-            and found.__qualname__ == attribute)
+    return (
+        inspect.isclass(found) and (home == module or home.startswith(module + ".")) and found.__qualname__ == attribute
+    )

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import FrozenInstanceError, dataclass, field
 from pathlib import Path
-from typing import Any, List, Optional
+from typing import Any
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
@@ -67,7 +67,7 @@ class TrainConf(Frozen):
     samples: int = 6000
     samples_growth: float = 0.0  # W_l = ceil(samples * (1 + l)^samples_growth); > 0 makes W_l -> inf (Theorem 1)
     step_size: StepSizeConf = field(default_factory=StepSizeConf)
-    theta0: List[float] = field(default_factory=lambda: [20.0, 20.0])
+    theta0: list[float] = field(default_factory=lambda: [20.0, 20.0])
     baseline: bool = True  # mean baseline in the risk-neutral gradient
     eval_episodes: int = 100_000
     paths: int = 20  # sampled paths per policy and robot in trajectories.parquet
@@ -87,9 +87,9 @@ class MotionConf(Frozen):
 class SourceConf(Frozen):
     """One source: Gaussian signal eq. (1) and a random reward paid on reaching it."""
 
-    position: List[int] = field(default_factory=lambda: [0, 0])
-    covariance: List[Any] = field(default_factory=lambda: [[16.0, 0.0], [0.0, 16.0]])  # [[a, b], [b, c]], SPD
-    scale: Optional[float] = None  # w; None means 2*pi*sqrt(det covariance), so the signal peaks at 1
+    position: list[int] = field(default_factory=lambda: [0, 0])
+    covariance: list[Any] = field(default_factory=lambda: [[16.0, 0.0], [0.0, 16.0]])  # [[a, b], [b, c]], SPD
+    scale: float | None = None  # w; None means 2*pi*sqrt(det covariance), so the signal peaks at 1
     reward: Any = 0.0
     motion: MotionConf = field(default_factory=MotionConf)
     name: str = ""
@@ -102,22 +102,22 @@ class RegionConf(Frozen):
     name: str = ""
     reward: Any = 0.0
     risky: bool = False
-    rect: Optional[List[int]] = None  # [x0, y0, x1, y1], inclusive corners
-    halfplane: Optional[List[float]] = None  # [a, b, c]: the cells with a*x + b*y > c ("y > x" is [-1, 1, 0])
-    cells: Optional[List[List[int]]] = None  # [[x, y], ...]
+    rect: list[int] | None = None  # [x0, y0, x1, y1], inclusive corners
+    halfplane: list[float] | None = None  # [a, b, c]: the cells with a*x + b*y > c ("y > x" is [-1, 1, 0])
+    cells: list[list[int]] | None = None  # [[x, y], ...]
 
 
 @dataclass
 class WorldConf(Frozen):
     """Grid world of paper Section II/V."""
 
-    size: List[int] = field(default_factory=lambda: [12, 12])
-    start: List[int] = field(default_factory=lambda: [0, 0])
+    size: list[int] = field(default_factory=lambda: [12, 12])
+    start: list[int] = field(default_factory=lambda: [0, 0])
     horizon: int = 20
     stop_at_source: bool = True
-    obstacles: List[List[int]] = field(default_factory=list)
-    sources: List[SourceConf] = field(default_factory=list)
-    regions: List[RegionConf] = field(default_factory=list)
+    obstacles: list[list[int]] = field(default_factory=list)
+    sources: list[SourceConf] = field(default_factory=list)
+    regions: list[RegionConf] = field(default_factory=list)
 
 
 @dataclass
@@ -143,19 +143,19 @@ class TeamConf(Frozen):
     robots: int = 1
     graph: str = "line"  # line | ring | star | complete | grid | random_geometric | edges
     directed: bool = False
-    edges: Optional[List[List[int]]] = None  # with graph=edges: [[i, j], ...], 0-based, j sends to i if directed
+    edges: list[list[int]] | None = None  # with graph=edges: [[i, j], ...], 0-based, j sends to i if directed
     radius: float = 0.5  # random_geometric link radius in the unit square
     resample: int = 100  # random_geometric redraws before giving up on strong connectivity
     weights: str = "metropolis"  # metropolis | max_degree | lazy | matrix
-    matrix: Optional[List[Any]] = None  # with weights=matrix: the N x N row-stochastic A
-    diagonal: Optional[List[Any]] = None  # optional per-parameter weights a^{ij}_m, shape N x N x M
+    matrix: list[Any] | None = None  # with weights=matrix: the N x N row-stochastic A
+    diagonal: list[Any] | None = None  # optional per-parameter weights a^{ij}_m, shape N x N x M
     delay: DelayConf = field(default_factory=DelayConf)
     drop: float = 0.0
     max_gap: int = 10  # B of Assumption 5: a link delivers at least once every max_gap iterations
     stale: str = "arrival"  # arrival (paper eq. 14) | latest (newest value received from each neighbour)
     consensus_rounds: int = 1
     order: str = "combine_then_adapt"  # eq. (14) | adapt_then_combine | gradient_tracking (Mixer.track)
-    starts: Optional[List[List[int]]] = None  # per-robot start cells; default world.start for all
+    starts: list[list[int]] | None = None  # per-robot start cells; default world.start for all
     switching: SwitchingConf = field(default_factory=SwitchingConf)
 
 

@@ -16,8 +16,8 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from riskplan.config import schema
-from riskplan.util.errors import BadInput
 from riskplan.config.schema import CONF_DIR
+from riskplan.util.errors import BadInput
 
 
 def typed(cfg: DictConfig | dict | schema.RiskplanConf) -> schema.RiskplanConf:
@@ -86,9 +86,11 @@ def resolved(cfg: DictConfig) -> dict:
             text = text[int(part)] if isinstance(text, list) else text.get(part) if isinstance(text, dict) else text
         from riskplan.config.hydra_safety import interpolation_reason
 
-        raise BadInput(f"key '{key}'" if key else "config",
-                       f"the interpolation {text} cannot be resolved ({interpolation_reason(err)}); give a plain "
-                       f"value or an interpolation of another key") from None
+        raise BadInput(
+            f"key '{key}'" if key else "config",
+            f"the interpolation {text} cannot be resolved ({interpolation_reason(err)}); give a plain "
+            f"value or an interpolation of another key",
+        ) from None
 
 
 def _unknown_keys(data: typing.Any, node: typing.Any, path: str) -> None:
@@ -101,9 +103,11 @@ def _unknown_keys(data: typing.Any, node: typing.Any, path: str) -> None:
             here = f"{path}.{key}" if path else str(key)
             if key not in hints:
                 valid = ", ".join(f.name for f in dataclasses.fields(node))
-                raise BadInput(f"key '{here}'", f"unknown key '{key}'; valid keys under '{path or 'top level'}': {valid}")
+                raise BadInput(
+                    f"key '{here}'", f"unknown key '{key}'; valid keys under '{path or 'top level'}': {valid}"
+                )
             _unknown_keys(value, hints[key], here)
-    elif typing.get_origin(node) in (list, typing.List) and isinstance(data, list) and typing.get_args(node):
+    elif typing.get_origin(node) in (list, list) and isinstance(data, list) and typing.get_args(node):
         for i, item in enumerate(data):
             _unknown_keys(item, typing.get_args(node)[0], f"{path}.{i}")
 
@@ -120,8 +124,11 @@ def explain(err: Exception) -> tuple[str, str]:
     where = f"key '{_dotted(key)}'"
     sweep = re.match(r"(?:Ambiguous value for argument|Sweep parameters) '(.+?)'", message)
     if sweep:
-        return (f"override '{sweep.group(1)}'", "gives several values (a sweep); train and check take one value "
-                                                 "per key: run a grid with riskplan sweep, or write a list as [a,b]")
+        return (
+            f"override '{sweep.group(1)}'",
+            "gives several values (a sweep); train and check take one value "
+            "per key: run a grid with riskplan sweep, or write a list as [a,b]",
+        )
     converted = re.match(r"Value '(.*)' of type '\w+' could not be converted to (\w+)", message)
     if converted and key:
         value, kind = converted.groups()
@@ -134,8 +141,10 @@ def explain(err: Exception) -> tuple[str, str]:
     if subclass and key:
         index = re.fullmatch(r"(.*)\[(\d+)\]", key)
         if index and getattr(cause, "value", None) == {}:
-            return where, (f"the list '{_dotted(index.group(1))}' has no entry {index.group(2)}; "
-                           f"replace the whole list to add entries")
+            return where, (
+                f"the list '{_dotted(index.group(1))}' has no entry {index.group(2)}; "
+                f"replace the whole list to add entries"
+            )
         valid = valid_keys(re.sub(r"\[\d+\]", ".0", key).replace("..", "."))
         keys = f" with keys {', '.join(valid)}" if valid else ""
         return where, f"got {getattr(cause, 'value', '?')!r}; expected a mapping{keys}"
@@ -144,7 +153,10 @@ def explain(err: Exception) -> tuple[str, str]:
         valid = valid_keys(parent)
         if valid is None:
             return f"key '{_dotted(key)}'", "unknown key; this node takes no new keys"
-        return f"key '{_dotted(key)}'", f"unknown key '{name}'; valid keys under '{parent or 'top level'}': {', '.join(valid)}"
+        return (
+            f"key '{_dotted(key)}'",
+            f"unknown key '{name}'; valid keys under '{parent or 'top level'}': {', '.join(valid)}",
+        )
     missing = re.search(r"Could not find '([\w/]+)/([^']+)'", message)
     if missing:
         group, option = missing.groups()

@@ -21,8 +21,9 @@ intermediate of the kernel's formulas overflows; riskplan.engine.world bounds an
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -47,14 +48,17 @@ class Dist:
 
     kind: str
     params: tuple[float, ...] = ()
-    children: tuple["Dist", ...] = ()
+    children: tuple[Dist, ...] = ()
 
 
 def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
     """Parse YAML-like data into a Dist tree; BadInput names `where` on any error."""
     if level > MAX_LEVELS:
-        raise BadInput(where, f"the reward program nests more than {MAX_LEVELS} levels deep; flatten it "
-                              f"(a sum or a mixture takes a list of any length)")
+        raise BadInput(
+            where,
+            f"the reward program nests more than {MAX_LEVELS} levels deep; flatten it "
+            f"(a sum or a mixture takes a list of any length)",
+        )
     if isinstance(data, bool):
         raise BadInput(where, f"got {data!r}; expected {VALID}")
     if isinstance(data, (int, float)):
@@ -63,7 +67,10 @@ def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
         raise BadInput(where, f"got {data!r}; expected {VALID}")
     keys = set(data) - {"of"}
     if len(keys) != 1:
-        raise BadInput(where, f"got keys {sorted(map(str, data))}; expected exactly one of {list(KINDS)} (plus 'of' for scale/clip)")
+        raise BadInput(
+            where,
+            f"got keys {sorted(map(str, data))}; expected exactly one of {list(KINDS)} (plus 'of' for scale/clip)",
+        )
     (kind,) = keys
     value = data[kind]
     if kind not in KINDS:
@@ -163,6 +170,10 @@ def compile_program(dist: Dist) -> tuple[np.ndarray, np.ndarray]:
     ops: list[tuple[int, int]] = []
     params: list[tuple[float, float]] = []
 
+    def add(op: int, arity: int, values: tuple[float, float]) -> None:
+        ops.append((op, arity))
+        params.append(values)
+
     def emit(node: Dist) -> None:
         if node.kind == "scale" and node.children[0].kind in LINEAR_LEAVES:
             # k*c, k*U[a,b] = ka + (kb-ka)u and k*N(m,s) = km + ks*z: fold the scale into the leaf, one op fewer per
@@ -173,23 +184,23 @@ def compile_program(dist: Dist) -> tuple[np.ndarray, np.ndarray]:
         for child in node.children:
             emit(child)
         if node.kind == "constant":
-            ops.append((OP_CONST, 0)); params.append((node.params[0], 0.0))
+            add(OP_CONST, 0, (node.params[0], 0.0))
         elif node.kind == "uniform":
-            ops.append((OP_UNIFORM, 0)); params.append(node.params)
+            add(OP_UNIFORM, 0, node.params)
         elif node.kind == "normal":
-            ops.append((OP_NORMAL, 0)); params.append(node.params)
+            add(OP_NORMAL, 0, node.params)
         elif node.kind == "bernoulli":
-            ops.append((OP_BERNOULLI, 0)); params.append((node.params[0], 0.0))
+            add(OP_BERNOULLI, 0, (node.params[0], 0.0))
         elif node.kind == "scale":
-            ops.append((OP_SCALE, 1)); params.append((node.params[0], 0.0))
+            add(OP_SCALE, 1, (node.params[0], 0.0))
         elif node.kind == "clip":
-            ops.append((OP_CLIP, 1)); params.append(node.params)
+            add(OP_CLIP, 1, node.params)
         elif node.kind == "sum":
-            ops.append((OP_SUM, len(node.children))); params.append((0.0, 0.0))
+            add(OP_SUM, len(node.children), (0.0, 0.0))
         else:
             for w in normalised(node.params):
-                ops.append((OP_CONST, 0)); params.append((w, 0.0))
-            ops.append((OP_MIXTURE, len(node.children))); params.append((0.0, 0.0))
+                add(OP_CONST, 0, (w, 0.0))
+            add(OP_MIXTURE, len(node.children), (0.0, 0.0))
 
     emit(dist)
     return np.asarray(ops, dtype=np.int64).reshape(-1, 2), np.asarray(params, dtype=np.float64).reshape(-1, 2)
@@ -242,9 +253,12 @@ def check_bound(dist: Dist, where: str = "reward") -> float:
         check_bound(child, here)
     value = bound(dist)
     if not value <= REWARD_LIMIT:
-        raise BadInput(where, f"can draw values of about {min(value, 1.8e308):.3g} in size, beyond the limit of "
-                              f"{REWARD_LIMIT:g} on any reward (it keeps sums, means, variances and gradients finite); "
-                              f"give smaller values")
+        raise BadInput(
+            where,
+            f"can draw values of about {min(value, 1.8e308):.3g} in size, beyond the limit of "
+            f"{REWARD_LIMIT:g} on any reward (it keeps sums, means, variances and gradients finite); "
+            f"give smaller values",
+        )
     return value
 
 

@@ -60,8 +60,12 @@ def summary_stats(z: np.ndarray, beta: float) -> dict[str, np.ndarray | float]:
     """mean, cvar, value_at_risk at beta and std along the last axis, with one partition."""
     z = np.asarray(z, dtype=float)
     v = value_at_risk(z, beta)
-    return {"mean": z.mean(axis=-1), "cvar": v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1]),
-            "value_at_risk": v, "std": z.std(axis=-1)}
+    return {
+        "mean": z.mean(axis=-1),
+        "cvar": v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1]),
+        "value_at_risk": v,
+        "std": z.std(axis=-1),
+    }
 
 
 def _tail_weights(z: np.ndarray, v: np.ndarray | float) -> np.ndarray:

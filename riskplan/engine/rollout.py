@@ -168,27 +168,76 @@ def simulate(
     out_steps = np.empty(total, dtype=np.int64)
     if kernel.affine and not (kernel.mobile or record or reference):
         _simulate_affine(
-            bins, score, np.asarray(starts, np.int64), np.asarray(keys, np.uint64), episodes, kernel.next_cell,
-            kernel.cell_affine, kernel.cell_risky, kernel.draw_uniform, kernel.draw_normal, *kernel.source_programs,
-            kernel.source_at, kernel.horizon, kernel.stop_at_source,
-            out_z, out_score, out_risky, out_reached, out_steps,
+            bins,
+            score,
+            np.asarray(starts, np.int64),
+            np.asarray(keys, np.uint64),
+            episodes,
+            kernel.next_cell,
+            kernel.cell_affine,
+            kernel.cell_risky,
+            kernel.draw_uniform,
+            kernel.draw_normal,
+            *kernel.source_programs,
+            kernel.source_at,
+            kernel.horizon,
+            kernel.stop_at_source,
+            out_z,
+            out_score,
+            out_risky,
+            out_reached,
+            out_steps,
         )
         return Batch(out_z, out_score, out_risky, out_reached, out_steps)
     width = kernel.horizon + 1 if record else 0
     path_cells = np.full((total if record else 0, width), -1, dtype=np.int64)
     path_rewards = np.zeros((total if record else 0, width))
     _simulate(
-        bins, score, thetas, np.asarray(starts, np.int64), np.asarray(keys, np.uint64), episodes,
-        kernel.next_cell, kernel.region_of, kernel.region_risky, *kernel.region_programs,
-        *kernel.source_programs, kernel.source_at, kernel.source_cells, kernel.source_motion,
-        kernel.source_amplitude, kernel.source_precision, kernel.height, kernel.width,
-        kernel.horizon, kernel.stop_at_source, kernel.mobile, record, reference,
-        kernel.affine and not reference, kernel.cell_affine, kernel.cell_risky, kernel.draw_uniform,
+        bins,
+        score,
+        thetas,
+        np.asarray(starts, np.int64),
+        np.asarray(keys, np.uint64),
+        episodes,
+        kernel.next_cell,
+        kernel.region_of,
+        kernel.region_risky,
+        *kernel.region_programs,
+        *kernel.source_programs,
+        kernel.source_at,
+        kernel.source_cells,
+        kernel.source_motion,
+        kernel.source_amplitude,
+        kernel.source_precision,
+        kernel.height,
+        kernel.width,
+        kernel.horizon,
+        kernel.stop_at_source,
+        kernel.mobile,
+        record,
+        reference,
+        kernel.affine and not reference,
+        kernel.cell_affine,
+        kernel.cell_risky,
+        kernel.draw_uniform,
         kernel.draw_normal,
-        out_z, out_score, out_risky, out_reached, out_steps, path_cells, path_rewards,
+        out_z,
+        out_score,
+        out_risky,
+        out_reached,
+        out_steps,
+        path_cells,
+        path_rewards,
     )
-    return Batch(out_z, out_score, out_risky, out_reached, out_steps,
-                 path_cells if record else None, path_rewards if record else None)
+    return Batch(
+        out_z,
+        out_score,
+        out_risky,
+        out_reached,
+        out_steps,
+        path_cells if record else None,
+        path_rewards if record else None,
+    )
 
 
 @njit(cache=True, inline="always")
@@ -200,8 +249,10 @@ def _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state):
         state, u = next_uniform(state)
     if draw_normal:
         state, g = next_normal(state)
-    reward = min(max(cell_affine[cell, 0] + cell_affine[cell, 1] * u + cell_affine[cell, 2] * g, cell_affine[cell, 3]),
-                 cell_affine[cell, 4])
+    reward = min(
+        max(cell_affine[cell, 0] + cell_affine[cell, 1] * u + cell_affine[cell, 2] * g, cell_affine[cell, 3]),
+        cell_affine[cell, 4],
+    )
     return reward, state
 
 
@@ -351,9 +402,29 @@ def _walk(src, motion, height, width, state):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def _simulate_affine(bins, score, starts, keys, episodes, next_cell, cell_affine, cell_risky, draw_uniform,
-                     draw_normal, src_off, src_ops, src_par, source_at, horizon, stop_at_source,
-                     out_z, out_score, out_risky, out_reached, out_steps):
+def _simulate_affine(
+    bins,
+    score,
+    starts,
+    keys,
+    episodes,
+    next_cell,
+    cell_affine,
+    cell_risky,
+    draw_uniform,
+    draw_normal,
+    src_off,
+    src_ops,
+    src_par,
+    source_at,
+    horizon,
+    stop_at_source,
+    out_z,
+    out_score,
+    out_risky,
+    out_reached,
+    out_steps,
+):
     """`_simulate` for static sources, affine region rewards and no recording (training's and evaluation's case):
     the same draws in the same order, hence the same numbers, from a loop without the other cases' branches
     (about 20% faster: tests/test_kernel_speed_paths.py checks the two agree)."""
@@ -399,12 +470,47 @@ def _simulate_affine(bins, score, starts, keys, episodes, next_cell, cell_affine
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def _simulate(bins, score, thetas, starts, keys, episodes,
-              next_cell, region_of, region_risky, reg_off, reg_ops, reg_par,
-              src_off, src_ops, src_par, source_at, source_cells, motion, amplitude, precision,
-              height, width, horizon, stop_at_source, mobile, record, reference,
-              affine, cell_affine, cell_risky, draw_uniform, draw_normal,
-              out_z, out_score, out_risky, out_reached, out_steps, path_cells, path_rewards):
+def _simulate(
+    bins,
+    score,
+    thetas,
+    starts,
+    keys,
+    episodes,
+    next_cell,
+    region_of,
+    region_risky,
+    reg_off,
+    reg_ops,
+    reg_par,
+    src_off,
+    src_ops,
+    src_par,
+    source_at,
+    source_cells,
+    motion,
+    amplitude,
+    precision,
+    height,
+    width,
+    horizon,
+    stop_at_source,
+    mobile,
+    record,
+    reference,
+    affine,
+    cell_affine,
+    cell_risky,
+    draw_uniform,
+    draw_normal,
+    out_z,
+    out_score,
+    out_risky,
+    out_reached,
+    out_steps,
+    path_cells,
+    path_rewards,
+):
     """Episode loop; see `simulate`."""
     policies = bins.shape[0]
     sources = score.shape[3]
@@ -457,8 +563,9 @@ def _simulate(bins, score, thetas, starts, keys, episodes,
                 else:
                     region = region_of[cell]
                     if region >= 0:
-                        reward, state = _draw(reg_ops, reg_par, reg_off[region], reg_off[region + 1], stack, state,
-                                              reference)
+                        reward, state = _draw(
+                            reg_ops, reg_par, reg_off[region], reg_off[region + 1], stack, state, reference
+                        )
                         risky += region_risky[region]
                 hit = -1
                 if mobile:
@@ -485,4 +592,3 @@ def _simulate(bins, score, thetas, starts, keys, episodes,
             out_risky[e] = risky
             out_reached[e] = reached
             out_steps[e] = steps
-

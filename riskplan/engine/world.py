@@ -110,16 +110,22 @@ def build_world(world: Any, starts: list | None = None) -> World:
             raise BadInput(f"{here}.position", f"({x}, {y}) is an obstacle; move the source or the obstacle")
         if x * height + y in src_cells:
             other = src_cells.index(x * height + y)
-            raise BadInput(f"{here}.position", f"({x}, {y}) is also the cell of world.sources.{other}; two sources "
-                                               f"on one cell cannot be told apart; give each source its own cell")
+            raise BadInput(
+                f"{here}.position",
+                f"({x}, {y}) is also the cell of world.sources.{other}; two sources "
+                f"on one cell cannot be told apart; give each source its own cell",
+            )
         cov = _covariance(source.covariance, f"{here}.covariance")
         with np.errstate(all="ignore"):
             det = float(np.linalg.det(cov))
             inv = np.linalg.inv(cov)
         if not (math.isfinite(det) and np.all(np.isfinite(inv)) and np.max(np.abs(inv)) <= PRECISION_LIMIT):
-            raise BadInput(f"{here}.covariance", f"{cov.tolist()} is too extreme: its determinant or inverse "
-                                                 f"overflows (inverse entries must stay below {PRECISION_LIMIT:g}); "
-                                                 f"give entries between about 1e-100 and 1e100")
+            raise BadInput(
+                f"{here}.covariance",
+                f"{cov.tolist()} is too extreme: its determinant or inverse "
+                f"overflows (inverse entries must stay below {PRECISION_LIMIT:g}); "
+                f"give entries between about 1e-100 and 1e100",
+            )
         if source.scale is None:
             peak = 1.0  # w = 2 pi sqrt(det Sigma): exactly 1, even where sqrt(det) would round
         else:
@@ -128,9 +134,12 @@ def build_world(world: Any, starts: list | None = None) -> World:
                 raise BadInput(f"{here}.scale", f"got {source.scale!r}; expected a finite number or null (peak 1)")
             peak = scale / (2.0 * math.pi * math.sqrt(det))
             if not abs(peak) <= SIGNAL_LIMIT:
-                raise BadInput(f"{here}.scale", f"got {scale:g}; the signal would peak at about {abs(peak):.3g}, "
-                                                f"beyond the limit of {SIGNAL_LIMIT:g} that keeps logits and scores "
-                                                f"finite; give a smaller scale, or null for a peak of 1")
+                raise BadInput(
+                    f"{here}.scale",
+                    f"got {scale:g}; the signal would peak at about {abs(peak):.3g}, "
+                    f"beyond the limit of {SIGNAL_LIMIT:g} that keeps logits and scores "
+                    f"finite; give a smaller scale, or null for a peak of 1",
+                )
         names.append(source.name or f"source_{j}")
         src_cells.append(x * height + y)
         rewards.append(_dist(source.reward, f"{here}.reward"))
@@ -150,8 +159,7 @@ def build_world(world: Any, starts: list | None = None) -> World:
 
     next_cell = _next_cell(width, height, obstacle)
     if obstacle.any():
-        _check_reachable(next_cell, obstacle, start_cells, where if starts is None else None, src_cells, motion,
-                         height)
+        _check_reachable(next_cell, obstacle, start_cells, where if starts is None else None, src_cells, motion, height)
     _check_total_reward(rewards, region_rewards, horizon, bool(world.stop_at_source))
 
     return World(
@@ -175,8 +183,15 @@ def build_world(world: Any, starts: list | None = None) -> World:
     )
 
 
-def _check_reachable(next_cell: np.ndarray, obstacle: np.ndarray, starts: list[int], start_key: str | None,
-                     sources: list[int], motion: list[float], height: int) -> None:
+def _check_reachable(
+    next_cell: np.ndarray,
+    obstacle: np.ndarray,
+    starts: list[int],
+    start_key: str | None,
+    sources: list[int],
+    motion: list[float],
+    height: int,
+) -> None:
     """Every static source can be reached from every start cell through free cells (the 4 moves).
 
     A pair that cannot is blamed on the side in the smaller walled-off pocket: the start when it is shut in, the
@@ -193,12 +208,18 @@ def _check_reachable(next_cell: np.ndarray, obstacle: np.ndarray, starts: list[i
             cx, cy = divmod(cell, height)
             if size[label[start]] < size[label[cell]]:
                 free = int(size[label[start]])
-                raise BadInput(here, f"({sx}, {sy}) is walled in by obstacles (a pocket of {free} free "
-                                     f"cell{'' if free == 1 else 's'}): world.sources.{j} at ({cx}, {cy}) cannot be "
-                                     f"reached from it; remove obstacles or move the start")
-            raise BadInput(f"world.sources.{j}.position", f"({cx}, {cy}) is walled off by obstacles: it cannot be "
-                                                          f"reached from the start ({sx}, {sy}); remove obstacles or "
-                                                          f"move the source")
+                raise BadInput(
+                    here,
+                    f"({sx}, {sy}) is walled in by obstacles (a pocket of {free} free "
+                    f"cell{'' if free == 1 else 's'}): world.sources.{j} at ({cx}, {cy}) cannot be "
+                    f"reached from it; remove obstacles or move the start",
+                )
+            raise BadInput(
+                f"world.sources.{j}.position",
+                f"({cx}, {cy}) is walled off by obstacles: it cannot be "
+                f"reached from the start ({sx}, {sy}); remove obstacles or "
+                f"move the source",
+            )
 
 
 @njit(cache=True)
@@ -230,9 +251,12 @@ def _components(next_cell, obstacle):
 def _check_total_reward(sources: list[Dist], regions: list[Dist], horizon: int, stop_at_source: bool) -> None:
     """No episode's total reward can exceed REWARD_LIMIT in size (each program was bounded when parsed)."""
     limit = distributions.REWARD_LIMIT
-    first = lambda pair: pair[0]  # noqa: E731 - ties name the first program listed
-    region = max(((distributions.bound(d), f"world.regions.{r}.reward") for r, d in enumerate(regions)),
-                 default=(0.0, ""), key=first)
+    first = lambda pair: pair[0]
+    region = max(
+        ((distributions.bound(d), f"world.regions.{r}.reward") for r, d in enumerate(regions)),
+        default=(0.0, ""),
+        key=first,
+    )
     source = max(((distributions.bound(d), f"world.sources.{j}.reward") for j, d in enumerate(sources)), key=first)
     source_steps = 1.0 if stop_at_source else float(horizon)
     total = float(horizon) * region[0] + source_steps * source[0]
@@ -240,9 +264,12 @@ def _check_total_reward(sources: list[Dist], regions: list[Dist], horizon: int, 
         return
     bound, key = region if float(horizon) * region[0] >= source_steps * source[0] else source
     paid = "step" if key.startswith("world.regions") or not stop_at_source else "episode"
-    raise BadInput(key, f"draws up to about {bound:.3g} per {paid}; over world.horizon={horizon} moves an episode's "
-                        f"total reward could reach about {min(total, 1.8e308):.3g}, beyond the limit of {limit:g} "
-                        f"that keeps means, variances and gradients finite; give smaller rewards or a shorter horizon")
+    raise BadInput(
+        key,
+        f"draws up to about {bound:.3g} per {paid}; over world.horizon={horizon} moves an episode's "
+        f"total reward could reach about {min(total, 1.8e308):.3g}, beyond the limit of {limit:g} "
+        f"that keeps means, variances and gradients finite; give smaller rewards or a shorter horizon",
+    )
 
 
 def world_map(world: World, starts: np.ndarray) -> dict:
@@ -351,8 +378,11 @@ def _dist(data: Any, where: str) -> Dist:
         plain = OmegaConf.to_container(data) if OmegaConf.is_config(data) else data
         dist = distributions.parse(plain, where)
     except RecursionError:
-        raise BadInput(where, f"the reward program nests more than {distributions.MAX_LEVELS} levels deep; flatten "
-                              f"it (a sum or a mixture takes a list of any length)") from None
+        raise BadInput(
+            where,
+            f"the reward program nests more than {distributions.MAX_LEVELS} levels deep; flatten "
+            f"it (a sum or a mixture takes a list of any length)",
+        ) from None
     if distributions.depth(dist) > MAX_STACK:
         raise BadInput(where, f"nests too deeply; at most {MAX_STACK} stack slots")
     distributions.check_bound(dist, where)

@@ -96,9 +96,9 @@ def python_rollouts(world, theta: np.ndarray, episodes: int, seed: int) -> tuple
 def bench_rollout(quick: bool) -> list[dict]:
     """Batched kernel vs the plain Python loop on the paper world at theta0, W = 6000."""
     from riskplan.engine import rng
-    from riskplan.run.compose import compose
     from riskplan.engine.rollout import simulate
     from riskplan.run.build import build_setup
+    from riskplan.run.compose import compose
 
     setup = build_setup(compose([]))
     theta = setup.theta0[None, :]
@@ -112,10 +112,17 @@ def bench_rollout(quick: bool) -> list[dict]:
     _, steps = python_rollouts(setup.world, setup.theta0, episodes, 0)
     python_rate = steps / (time.perf_counter() - start)
     return [
-        {"measure": "rollout, W=6000, theta0 (trajectory-steps/s)", "value": kernel_rate, "unit": "steps/s",
-         "target": ">= 1.5e8", "ok": kernel_rate >= 1.5e8, "baseline": python_rate,
-         "ratio": kernel_rate / python_rate, "note": f"{seconds * 1e3:.2f} ms per batch; baseline: plain Python "
-                                                     f"loop, {episodes} trajectories (ratio target > 1000x)"},
+        {
+            "measure": "rollout, W=6000, theta0 (trajectory-steps/s)",
+            "value": kernel_rate,
+            "unit": "steps/s",
+            "target": ">= 1.5e8",
+            "ok": kernel_rate >= 1.5e8,
+            "baseline": python_rate,
+            "ratio": kernel_rate / python_rate,
+            "note": f"{seconds * 1e3:.2f} ms per batch; baseline: plain Python "
+            f"loop, {episodes} trajectories (ratio target > 1000x)",
+        },
     ]
 
 
@@ -125,8 +132,9 @@ def bench_training(quick: bool) -> list[dict]:
     from riskplan.run.training import train
 
     import_rss = rss_mb()
-    cfg = compose(["train.eval_episodes=1000", "train.bootstrap=10", "train.paths=2"]
-                  + (["train.iterations=50"] if quick else []))
+    cfg = compose(
+        ["train.eval_episodes=1000", "train.bootstrap=10", "train.paths=2"] + (["train.iterations=50"] if quick else [])
+    )
     reset_peak()
     with tempfile.TemporaryDirectory() as tmp:
         run = train(cfg, Path(tmp) / "run")
@@ -135,14 +143,26 @@ def bench_training(quick: bool) -> list[dict]:
     wall = run.summary["wall_time"]
     per_iteration = run.metrics.seconds.sum() / iterations
     return [
-        {"measure": f"training, {iterations} iterations at W=6000 (s)", "value": wall, "unit": "s",
-         "target": "<= 0.2 (200 iterations)", "ok": wall <= 0.2 * iterations / 200,
-         "baseline": per_iteration * iterations,
-         "ratio": wall / (per_iteration * iterations),
-         "note": "baseline: the iterations' own compute; ratio = overhead of logging, checkpoints, JIT load"},
-        {"measure": "memory growth over the post-import baseline (MB)", "value": peak - import_rss, "unit": "MB",
-         "target": "< 100", "ok": peak - import_rss < 100, "baseline": import_rss, "ratio": peak / import_rss,
-         "note": f"peak RSS {peak:.0f} MB during training vs {import_rss:.0f} MB after import"},
+        {
+            "measure": f"training, {iterations} iterations at W=6000 (s)",
+            "value": wall,
+            "unit": "s",
+            "target": "<= 0.2 (200 iterations)",
+            "ok": wall <= 0.2 * iterations / 200,
+            "baseline": per_iteration * iterations,
+            "ratio": wall / (per_iteration * iterations),
+            "note": "baseline: the iterations' own compute; ratio = overhead of logging, checkpoints, JIT load",
+        },
+        {
+            "measure": "memory growth over the post-import baseline (MB)",
+            "value": peak - import_rss,
+            "unit": "MB",
+            "target": "< 100",
+            "ok": peak - import_rss < 100,
+            "baseline": import_rss,
+            "ratio": peak / import_rss,
+            "note": f"peak RSS {peak:.0f} MB during training vs {import_rss:.0f} MB after import",
+        },
     ]
 
 
@@ -152,8 +172,13 @@ def bench_checkpoints(quick: bool) -> list[dict]:
     from riskplan.run.training import train
 
     iterations = 1000 if quick else 4000
-    base = ["train.samples=20", f"train.iterations={iterations}", "train.eval_episodes=100", "train.bootstrap=5",
-            "train.paths=1"]
+    base = [
+        "train.samples=20",
+        f"train.iterations={iterations}",
+        "train.eval_episodes=100",
+        "train.bootstrap=5",
+        "train.paths=1",
+    ]
     walls = {}
     with tempfile.TemporaryDirectory() as tmp:
         train(compose([*base, "train.iterations=5"]), Path(tmp) / "warm-up")  # kernels loaded before timing
@@ -162,31 +187,57 @@ def bench_checkpoints(quick: bool) -> list[dict]:
             walls[every] = run.summary["wall_time"]
         size = (Path(tmp) / "every_10" / "checkpoint").stat().st_size
     ratio = walls[10] / walls[iterations]
-    return [{"measure": f"training, {iterations} iterations at W=20, a checkpoint every 10 (s)", "value": walls[10],
-             "unit": "s", "target": "< 2x one checkpoint at the end", "ok": ratio < 2.0, "baseline": walls[iterations],
-             "ratio": ratio, "note": f"baseline: one checkpoint at the end; each checkpoint is {size} bytes "
-                                     f"(the state, not the rows so far), fsynced with the log"}]
+    return [
+        {
+            "measure": f"training, {iterations} iterations at W=20, a checkpoint every 10 (s)",
+            "value": walls[10],
+            "unit": "s",
+            "target": "< 2x one checkpoint at the end",
+            "ok": ratio < 2.0,
+            "baseline": walls[iterations],
+            "ratio": ratio,
+            "note": f"baseline: one checkpoint at the end; each checkpoint is {size} bytes "
+            f"(the state, not the rows so far), fsynced with the log",
+        }
+    ]
 
 
 def bench_jit() -> list[dict]:
     """First-call time with an empty numba cache (compile) vs a warm on-disk cache, in fresh processes."""
-    code = ("import time; t = time.perf_counter(); import riskplan.experiments.benchmarks as b; "
-            "b.bench_rollout_once(); print(time.perf_counter() - t)")
+    code = (
+        "import time; t = time.perf_counter(); import riskplan.experiments.benchmarks as b; "
+        "b.bench_rollout_once(); print(time.perf_counter() - t)"
+    )
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
-        cold, warm = (float(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                                           check=True).stdout.split()[-1]) for _ in range(2))
-    return [{"measure": "first rollout in a new process, warm JIT cache (s)", "value": warm, "unit": "s",
-             "target": "small next to a run", "ok": warm < 2.0, "baseline": cold, "ratio": warm / cold,
-             "note": f"baseline: empty cache, compiles the kernels ({cold:.1f} s, once per install)"}]
+        cold, warm = (
+            float(
+                subprocess.run(
+                    [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+                ).stdout.split()[-1]
+            )
+            for _ in range(2)
+        )
+    return [
+        {
+            "measure": "first rollout in a new process, warm JIT cache (s)",
+            "value": warm,
+            "unit": "s",
+            "target": "small next to a run",
+            "ok": warm < 2.0,
+            "baseline": cold,
+            "ratio": warm / cold,
+            "note": f"baseline: empty cache, compiles the kernels ({cold:.1f} s, once per install)",
+        }
+    ]
 
 
 def bench_rollout_once() -> None:
     """One small rollout (used by bench_jit in a child process)."""
     from riskplan.engine import rng
-    from riskplan.run.compose import compose
     from riskplan.engine.rollout import simulate
     from riskplan.run.build import build_setup
+    from riskplan.run.compose import compose
 
     setup = build_setup(compose([]))
     simulate(setup.world, setup.kernel, setup.theta0[None, :], setup.world.starts, rng.robot_keys(0, 1, 0, 1), 100)
@@ -236,13 +287,27 @@ def bench_startup(quick: bool) -> list[dict]:
         helps = min(wall([*cli, "--help"], Path(tmp)) for _ in range(runs + 2))
         typer_only = min(wall([sys.executable, "-c", "import typer"], Path(tmp)) for _ in range(runs + 2))
     return [
-        {"measure": "start-up: riskplan train to its first iteration, warm JIT cache (s)", "value": train,
-         "unit": "s", "target": "<= 1", "ok": train <= 1.0, "baseline": numba_only, "ratio": train / numba_only,
-         "note": f"best of {runs} new processes, 3 iterations at W=6000; baseline: a process that only imports "
-                 f"numba"},
-        {"measure": "start-up: riskplan --help (s)", "value": helps, "unit": "s", "target": "<= 0.3",
-         "ok": helps <= 0.3, "baseline": typer_only, "ratio": helps / typer_only,
-         "note": f"best of {runs + 2}; baseline: a process that only imports typer"},
+        {
+            "measure": "start-up: riskplan train to its first iteration, warm JIT cache (s)",
+            "value": train,
+            "unit": "s",
+            "target": "<= 1",
+            "ok": train <= 1.0,
+            "baseline": numba_only,
+            "ratio": train / numba_only,
+            "note": f"best of {runs} new processes, 3 iterations at W=6000; baseline: a process that only imports "
+            f"numba",
+        },
+        {
+            "measure": "start-up: riskplan --help (s)",
+            "value": helps,
+            "unit": "s",
+            "target": "<= 0.3",
+            "ok": helps <= 0.3,
+            "baseline": typer_only,
+            "ratio": helps / typer_only,
+            "note": f"best of {runs + 2}; baseline: a process that only imports typer",
+        },
     ]
 
 
@@ -252,8 +317,8 @@ TEAM_SAMPLES = 100_000  # total samples per iteration of the team benchmarks and
 def bench_team(quick: bool) -> list[dict]:
     """100 robots (W_i = 1000) and 1000 robots (W_i = 100) on a random geometric graph, vs one robot with the same
     total samples (W = 100000)."""
-    from riskplan.run.compose import compose
     from riskplan.run.build import build_setup
+    from riskplan.run.compose import compose
     from riskplan.run.training import State, iterate
 
     def iteration_time(overrides: list[str]) -> float:
@@ -271,17 +336,27 @@ def bench_team(quick: bool) -> list[dict]:
     central = iteration_time([f"train.samples={TEAM_SAMPLES}"])
     rows = []
     for robots in (100, 1000):
-        team = iteration_time([f"team.robots={robots}", "team.graph=random_geometric",
-                               f"train.samples={TEAM_SAMPLES // robots}"])
-        rows.append({"measure": f"team iteration, {robots} robots RGG, W_i={TEAM_SAMPLES // robots} (s)",
-                     "value": team, "unit": "s", "target": "<= 1.5x centralized", "ok": team <= 1.5 * central,
-                     "baseline": central, "ratio": team / central,
-                     "note": f"baseline: one robot, W={TEAM_SAMPLES} (same total samples)"})
+        team = iteration_time(
+            [f"team.robots={robots}", "team.graph=random_geometric", f"train.samples={TEAM_SAMPLES // robots}"]
+        )
+        rows.append(
+            {
+                "measure": f"team iteration, {robots} robots RGG, W_i={TEAM_SAMPLES // robots} (s)",
+                "value": team,
+                "unit": "s",
+                "target": "<= 1.5x centralized",
+                "ok": team <= 1.5 * central,
+                "baseline": central,
+                "ratio": team / central,
+                "note": f"baseline: one robot, W={TEAM_SAMPLES} (same total samples)",
+            }
+        )
     sizes = [(25, 1000), (50, 1000), (100, 1000), (100, 2000), (200, 2000)]
     growth = []
     for robots, samples in sizes[:3] if quick else sizes:
-        setup = build_setup(compose([f"team.robots={robots}", "team.graph=random_geometric",
-                                     f"train.samples={samples}"]))
+        setup = build_setup(
+            compose([f"team.robots={robots}", "team.graph=random_geometric", f"train.samples={samples}"])
+        )
         state = State(0, np.tile(setup.theta0, (robots, 1)), setup.mixer.state(), [])
         tracemalloc.start()  # numpy reports its buffers to tracemalloc: exact peak bytes of one iteration
         iterate(setup, state)
@@ -290,18 +365,29 @@ def bench_team(quick: bool) -> list[dict]:
     n, mb = np.array(growth, dtype=float).T
     slope, intercept = np.polyfit(n, mb, 1)
     fit = 1 - np.sum((mb - (slope * n + intercept)) ** 2) / max(np.sum((mb - mb.mean()) ** 2), 1e-12)
-    rows.append({"measure": "team iteration memory", "value": slope * 2**20, "unit": "bytes per sample",
-                 "target": "linear in N*W_i", "ok": fit > 0.99, "baseline": float(mb.max()), "ratio": fit,
-                 "note": "peak allocation at N*W_i = " + ", ".join(f"{int(a)}: {b:.1f} MB" for a, b in growth)
-                         + "; baseline = largest MB, ratio = R^2 of a linear fit"})
+    rows.append(
+        {
+            "measure": "team iteration memory",
+            "value": slope * 2**20,
+            "unit": "bytes per sample",
+            "target": "linear in N*W_i",
+            "ok": fit > 0.99,
+            "baseline": float(mb.max()),
+            "ratio": fit,
+            "note": "peak allocation at N*W_i = "
+            + ", ".join(f"{int(a)}: {b:.1f} MB" for a, b in growth)
+            + "; baseline = largest MB, ratio = R^2 of a linear fit",
+        }
+    )
     return rows
 
 
 # ---------------------------------------------------------------------------------------------------- scaling
 
-PAPER_SOURCES = ("{name:safe,position:[9,3],covariance:[[16.0,0.0],[0.0,16.0]],scale:null,reward:1000.0}",
-                 "{name:risky,position:[3,9],covariance:[[16.0,0.0],[0.0,16.0]],scale:null,"
-                 "reward:{normal:[2000.0,2000.0]}}")
+PAPER_SOURCES = (
+    "{name:safe,position:[9,3],covariance:[[16.0,0.0],[0.0,16.0]],scale:null,reward:1000.0}",
+    "{name:risky,position:[3,9],covariance:[[16.0,0.0],[0.0,16.0]],scale:null,reward:{normal:[2000.0,2000.0]}}",
+)
 
 
 def source_overrides(count: int) -> list[str]:
@@ -327,14 +413,24 @@ def scaling_dimensions(quick: bool = False) -> dict[str, list[tuple[float, list[
     """
     del quick  # the same sizes; --quick only measures each fewer times
     return {
-        "grid": [(float(s), [f"world.size=[{s},{s}]", f"world.regions.1.rect=[0,0,{s - 1},{s - 1}]"])
-                 for s in (12, 24, 48, 96, 128, 192, 256)],
+        "grid": [
+            (float(s), [f"world.size=[{s},{s}]", f"world.regions.1.rect=[0,0,{s - 1},{s - 1}]"])
+            for s in (12, 24, 48, 96, 128, 192, 256)
+        ],
         "horizon": [(float(k), [f"world.horizon={k}", "world.stop_at_source=false"]) for k in (20, 50, 100, 200, 400)],
         "sources": [(float(m), source_overrides(m)) for m in (2, 4, 8, 16, 32, 64)],
-        "mobile": [(0.0, []), (1.0, [f"world.sources.{j}.motion.{key}" for j in (0, 1)
-                                     for key in ("kind=random_walk", "prob=0.5")])],
-        "robots": [(float(n), ([] if n == 1 else [f"team.robots={n}", "team.graph=random_geometric"])
-                    + [f"train.samples={TEAM_SAMPLES // n}"]) for n in (1, 10, 100, 1000)],
+        "mobile": [
+            (0.0, []),
+            (1.0, [f"world.sources.{j}.motion.{key}" for j in (0, 1) for key in ("kind=random_walk", "prob=0.5")]),
+        ],
+        "robots": [
+            (
+                float(n),
+                ([] if n == 1 else [f"team.robots={n}", "team.graph=random_geometric"])
+                + [f"train.samples={TEAM_SAMPLES // n}"],
+            )
+            for n in (1, 10, 100, 1000)
+        ],
     }
 
 
@@ -357,9 +453,9 @@ class Point:
 
     def __init__(self, dimension: str, value: float, overrides: list[str]):
         from riskplan.engine import rng
-        from riskplan.run.compose import compose
         from riskplan.engine.rollout import simulate
         from riskplan.run.build import build_setup, samples_at
+        from riskplan.run.compose import compose
         from riskplan.run.training import State, iterate, starts
 
         self.dimension, self.value, self.overrides = dimension, value, list(overrides)
@@ -394,25 +490,35 @@ class Point:
             self.best[name] = min(self.best[name], best_time(getattr(self, name), 1, self.inner[name]))
 
     def row(self) -> dict:
-        return {"dimension": self.dimension, "value": self.value, "overrides": self.overrides,
-                "steps_per_s": self.steps / self.best["iteration"],
-                "kernel_steps_per_s": self.steps / self.best["kernel"],
-                "bytes_per_sample": self.peak / self.samples, "iteration_seconds": self.best["iteration"],
-                "steps": self.steps, "samples": self.samples, "cells": self.cells, "table_bytes": self.table_bytes}
+        return {
+            "dimension": self.dimension,
+            "value": self.value,
+            "overrides": self.overrides,
+            "steps_per_s": self.steps / self.best["iteration"],
+            "kernel_steps_per_s": self.steps / self.best["kernel"],
+            "bytes_per_sample": self.peak / self.samples,
+            "iteration_seconds": self.best["iteration"],
+            "steps": self.steps,
+            "samples": self.samples,
+            "cells": self.cells,
+            "table_bytes": self.table_bytes,
+        }
 
 
 ROUND_SECONDS = 0.05  # each round times each world for about this long (several calls when it is fast)
 
 
-def bench_scaling(quick: bool = False, dimensions: dict | None = None, baseline: list[str] | None = None,
-                  echo=None) -> list[dict]:
+def bench_scaling(
+    quick: bool = False, dimensions: dict | None = None, baseline: list[str] | None = None, echo=None
+) -> list[dict]:
     """Trajectory-steps/s and bytes per sample along each dimension, each row with its ratio to the paper world
     (row `baseline`, the first). Every world is built first; then each round times every world once, and each
     keeps its best round: on a shared machine all rows see the same minutes, not one quiet and one busy."""
     dimensions = scaling_dimensions(quick) if dimensions is None else dimensions
     points = [Point("baseline", 0.0, list(baseline or []))]
-    points += [Point(dimension, value, overrides) for dimension, values in dimensions.items()
-               for value, overrides in values]
+    points += [
+        Point(dimension, value, overrides) for dimension, values in dimensions.items() for value, overrides in values
+    ]
     for _ in range(4 if quick else 9):
         for point in points:
             point.time_round()
@@ -438,29 +544,44 @@ def scaling_slopes(rows: list[dict], cache: int | None = None) -> dict[str, dict
         x = (lambda r: r["cells"]) if dimension == "grid" else (lambda r: r["value"])
         beyond = [r for r in points if r["table_bytes"] > cache]
 
-        def fit(subset, key):
+        def fit(subset, key, x=x):
             if len({x(r) for r in subset}) < 2:
                 return None
             return float(np.polyfit(np.log([x(r) for r in subset]), np.log([r[key] for r in subset]), 1)[0])
 
-        slopes[dimension] = {"all": fit(points, "steps_per_s"), "beyond_cache": fit(beyond, "steps_per_s"),
-                             "kernel_all": fit(points, "kernel_steps_per_s"),
-                             "kernel_beyond_cache": fit(beyond, "kernel_steps_per_s"),
-                             "cache_bytes": cache, "first_beyond": x(beyond[0]) if beyond else None}
+        slopes[dimension] = {
+            "all": fit(points, "steps_per_s"),
+            "beyond_cache": fit(beyond, "steps_per_s"),
+            "kernel_all": fit(points, "kernel_steps_per_s"),
+            "kernel_beyond_cache": fit(beyond, "kernel_steps_per_s"),
+            "cache_bytes": cache,
+            "first_beyond": x(beyond[0]) if beyond else None,
+        }
     return slopes
 
 
 def scaling_table(rows: list[dict]) -> str:
     """The rows as a Markdown table (what the README shows)."""
-    lines = ["| dimension | value | iteration steps/s | ratio | kernel steps/s | ratio | bytes per sample | ratio "
-             "| policy tables |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "| dimension | value | iteration steps/s | ratio | kernel steps/s | ratio | bytes per sample | ratio "
+        "| policy tables |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for r in rows:
-        value = ("paper world" if r["dimension"] == "baseline" else
-                 ("mobile" if r["value"] else "static") if r["dimension"] == "mobile" else
-                 f"{int(r['value'])}²" if r["dimension"] == "grid" else f"{int(r['value'])}")
-        lines.append(f"| {r['dimension']} | {value} | {r['steps_per_s']:.3g} | {r['rate_ratio']:.2f} | "
-                     f"{r['kernel_steps_per_s']:.3g} | {r['kernel_ratio']:.2f} | "
-                     f"{r['bytes_per_sample']:.0f} | {r['bytes_ratio']:.2f} | {r['table_bytes'] / 2**20:.2f} MB |")
+        value = (
+            "paper world"
+            if r["dimension"] == "baseline"
+            else ("mobile" if r["value"] else "static")
+            if r["dimension"] == "mobile"
+            else f"{int(r['value'])}²"
+            if r["dimension"] == "grid"
+            else f"{int(r['value'])}"
+        )
+        lines.append(
+            f"| {r['dimension']} | {value} | {r['steps_per_s']:.3g} | {r['rate_ratio']:.2f} | "
+            f"{r['kernel_steps_per_s']:.3g} | {r['kernel_ratio']:.2f} | "
+            f"{r['bytes_per_sample']:.0f} | {r['bytes_ratio']:.2f} | {r['table_bytes'] / 2**20:.2f} MB |"
+        )
     return "\n".join(lines)
 
 
@@ -480,18 +601,33 @@ def plot_scaling(rows: list[dict], path: Path, cache: int | None = None) -> Path
         points = [r for r in rows if r["dimension"] == dimension]
         categorical = dimension == "mobile"
         xs = [r["value"] if not categorical else i for i, r in enumerate(points)]
-        for row_index, (key, label) in enumerate((("steps_per_s", "trajectory-steps/s"),
-                                                  ("bytes_per_sample", "bytes per sample"))):
+        for row_index, (key, label) in enumerate(
+            (("steps_per_s", "trajectory-steps/s"), ("bytes_per_sample", "bytes per sample"))
+        ):
             ax = axes[row_index][col]
-            ax.plot(xs, [r[key] for r in points], "o-", color="#0072B2",
-                    label="training iteration" if row_index == 0 else None)
+            ax.plot(
+                xs,
+                [r[key] for r in points],
+                "o-",
+                color="#0072B2",
+                label="training iteration" if row_index == 0 else None,
+            )
             if row_index == 0:
-                ax.plot(xs, [r["kernel_steps_per_s"] for r in points], "s--", color="#009E73", markersize=4,
-                        label="kernel (with its tables)")
+                ax.plot(
+                    xs,
+                    [r["kernel_steps_per_s"] for r in points],
+                    "s--",
+                    color="#009E73",
+                    markersize=4,
+                    label="kernel (with its tables)",
+                )
             ax.axhline(base[key], color="#999999", linestyle=":", linewidth=1, label="paper world (iteration)")
             ax.set_yscale("log")
-            values = [r[key] for r in points] + [base[key]] + (
-                [r["kernel_steps_per_s"] for r in points] if row_index == 0 else [])
+            values = (
+                [r[key] for r in points]
+                + [base[key]]
+                + ([r["kernel_steps_per_s"] for r in points] if row_index == 0 else [])
+            )
             low, high = min(values), max(values)
             if high < 10 * low:  # at least a decade shown, so log ticks stay readable
                 middle = math.sqrt(low * high)
@@ -506,13 +642,21 @@ def plot_scaling(rows: list[dict], path: Path, cache: int | None = None) -> Path
                 ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
                 beyond = [x for x, r in zip(xs, points) if r["table_bytes"] > cache]
                 if beyond:
-                    ax.axvspan(min(beyond), max(xs) * 1.05, color="#E69F00", alpha=0.12, linewidth=0,
-                               label="tables > L2")
+                    ax.axvspan(
+                        min(beyond), max(xs) * 1.05, color="#E69F00", alpha=0.12, linewidth=0, label="tables > L2"
+                    )
             ax.grid(True, which="both", alpha=0.3, linewidth=0.5)
             if row_index == 0:
-                ax.set_title({"grid": "grid side", "horizon": "horizon K (no stop)", "sources": "sources M",
-                              "mobile": "source motion", "robots": f"robots (N·W_i = {TEAM_SAMPLES:,})"}
-                             .get(dimension, dimension), fontsize=9)
+                ax.set_title(
+                    {
+                        "grid": "grid side",
+                        "horizon": "horizon K (no stop)",
+                        "sources": "sources M",
+                        "mobile": "source motion",
+                        "robots": f"robots (N·W_i = {TEAM_SAMPLES:,})",
+                    }.get(dimension, dimension),
+                    fontsize=9,
+                )
             if col == 0:
                 ax.set_ylabel(label)
                 ax.legend(fontsize=7, frameon=False)

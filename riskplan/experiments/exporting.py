@@ -35,15 +35,16 @@ import math
 import os
 import re
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
-from riskplan.util.errors import BadInput
-from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
-from riskplan.util.paths import check_output_dir, write_atomic
 from riskplan.experiments.reporting.collect import Broken, RunInfo, collect, flatten
 from riskplan.experiments.sweep_worker import config_sha
+from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
+from riskplan.util.errors import BadInput
+from riskplan.util.paths import check_output_dir, write_atomic
 
 TARGETS = ("mlflow", "tensorboard", "foxglove")
 DEFAULT_URI = {"mlflow": Path("outputs") / "mlruns", "tensorboard": Path("outputs") / "tensorboard"}
@@ -154,8 +155,13 @@ def iteration_points(info: RunInfo, start: float) -> list[tuple[str, int, float,
     import pandas as pd
 
     m = info.run.metrics.sort_values(["iteration", "robot"], kind="stable")
-    columns = [c for c in m.columns if c not in ("iteration", "robot") and pd.api.types.is_numeric_dtype(m[c])
-               and not pd.api.types.is_bool_dtype(m[c])]
+    columns = [
+        c
+        for c in m.columns
+        if c not in ("iteration", "robot")
+        and pd.api.types.is_numeric_dtype(m[c])
+        and not pd.api.types.is_bool_dtype(m[c])
+    ]
     headline = info.headline
     clock: dict[int, float] = {}
     if "seconds" in m.columns:
@@ -199,9 +205,16 @@ def run_record(info: RunInfo) -> Record:
     flat = flatten(run.config)
     params = {k: param_value(v) for k, v in flat.items()}
     group = info.group.label if info.group is not None else ""
-    fingerprint = _sha({"version": EXPORT_VERSION, "config": run.config, "summary": run.summary,
-                        "rows": len(run.metrics), "columns": [str(c) for c in run.metrics.columns],
-                        "last": last})
+    fingerprint = _sha(
+        {
+            "version": EXPORT_VERSION,
+            "config": run.config,
+            "summary": run.summary,
+            "rows": len(run.metrics),
+            "columns": [str(c) for c in run.metrics.columns],
+            "last": last,
+        }
+    )
     tags = {
         "riskplan.run_dir": str(path),
         "riskplan.config_sha": config_sha(run.config),
@@ -233,8 +246,9 @@ def check_uri(to: str, uri: str | None) -> str:
     foxglove. Returns the destination: a tracking URI (mlflow) or a directory (tensorboard), '' for foxglove."""
     if to == "foxglove":
         if uri is not None:
-            raise BadInput("--uri", "--to foxglove writes foxglove_layout.json into each run directory and takes "
-                                    "no --uri")
+            raise BadInput(
+                "--uri", "--to foxglove writes foxglove_layout.json into each run directory and takes no --uri"
+            )
         return ""
     if uri is None:
         uri = str(DEFAULT_URI[to])
@@ -244,14 +258,17 @@ def check_uri(to: str, uri: str | None) -> str:
     if to == "mlflow" and text.startswith("file:"):
         from urllib.parse import unquote, urlparse
 
-        text = unquote(urlparse(text).path) if text.startswith("file://") else text[len("file:"):]
+        text = unquote(urlparse(text).path) if text.startswith("file://") else text[len("file:") :]
     check_output_dir(text, "--uri")
     directory = Path(os.path.abspath(os.path.expanduser(text)))
     if to == "tensorboard":
         return str(directory)
     if directory.is_dir() and any(directory.iterdir()) and not _is_mlflow_store(directory):
-        raise BadInput("--uri", f"{uri} holds files that are not an MLflow file store; give a new or empty "
-                                f"directory, or an MLflow store (e.g. outputs/mlruns)")
+        raise BadInput(
+            "--uri",
+            f"{uri} holds files that are not an MLflow file store; give a new or empty "
+            f"directory, or an MLflow store (e.g. outputs/mlruns)",
+        )
     return directory.as_uri()
 
 
@@ -268,8 +285,9 @@ def check_installed(to: str) -> None:
     try:
         __import__(module)
     except ImportError:
-        raise BadInput("--to", f"{to} needs the {package} package, which is not installed; "
-                               f"pip install 'riskplan[{to}]'") from None
+        raise BadInput(
+            "--to", f"{to} needs the {package} package, which is not installed; pip install 'riskplan[{to}]'"
+        ) from None
 
 
 @contextlib.contextmanager
@@ -312,12 +330,17 @@ class MlflowTarget:
 
     def write(self, rec: Record) -> Exported:
         from mlflow.entities import Metric, Param
-        from mlflow.utils.validation import (MAX_METRICS_PER_BATCH, MAX_PARAM_VAL_LENGTH,
-                                             MAX_PARAMS_TAGS_PER_BATCH, MAX_TAG_VAL_LENGTH)
+        from mlflow.utils.validation import (
+            MAX_METRICS_PER_BATCH,
+            MAX_PARAM_VAL_LENGTH,
+            MAX_PARAMS_TAGS_PER_BATCH,
+            MAX_TAG_VAL_LENGTH,
+        )
 
         old = self.by_dir.get(rec.tags["riskplan.run_dir"], [])
-        same = [r for r in old if r.data.tags.get("riskplan.fingerprint") == rec.fingerprint
-                and r.info.status == "FINISHED"]
+        same = [
+            r for r in old if r.data.tags.get("riskplan.fingerprint") == rec.fingerprint and r.info.status == "FINISHED"
+        ]
         if same:
             keep = same[0]
             for r in old:
@@ -331,18 +354,17 @@ class MlflowTarget:
         for r in old:
             self.client.delete_run(r.info.run_id)
         tags = {k: v[:MAX_TAG_VAL_LENGTH] for k, v in rec.tags.items() if k != "riskplan.fingerprint"}
-        run = self.client.create_run(self.experiment_id, start_time=int(rec.start * 1000), tags=tags,
-                                     run_name=rec.name)
+        run = self.client.create_run(self.experiment_id, start_time=int(rec.start * 1000), tags=tags, run_name=rec.name)
         run_id = run.info.run_id
         params = [Param(k, v[:MAX_PARAM_VAL_LENGTH]) for k, v in rec.params.items()]
         for i in range(0, len(params), MAX_PARAMS_TAGS_PER_BATCH):
-            self.client.log_batch(run_id, params=params[i:i + MAX_PARAMS_TAGS_PER_BATCH])
-        metrics = [Metric(key, value, int(round(t * 1000)), step) for key, step, value, t in rec.points]
+            self.client.log_batch(run_id, params=params[i : i + MAX_PARAMS_TAGS_PER_BATCH])
+        metrics = [Metric(key, value, round(t * 1000), step) for key, step, value, t in rec.points]
         for i in range(0, len(metrics), MAX_METRICS_PER_BATCH):
-            self.client.log_batch(run_id, metrics=metrics[i:i + MAX_METRICS_PER_BATCH])
+            self.client.log_batch(run_id, metrics=metrics[i : i + MAX_METRICS_PER_BATCH])
         # the fingerprint last: a run cut short by an error is never taken for a finished export
         self.client.set_tag(run_id, "riskplan.fingerprint", rec.fingerprint)
-        self.client.set_terminated(run_id, "FINISHED", end_time=int(round(rec.end * 1000)))
+        self.client.set_terminated(run_id, "FINISHED", end_time=round(rec.end * 1000))
         self.by_dir[rec.tags["riskplan.run_dir"]] = []
         return Exported(rec.path, "replaced" if old else "exported", f"mlflow run {run_id}")
 
@@ -369,8 +391,12 @@ class TensorboardTarget:
     def write(self, rec: Record) -> Exported:
         name = tensorboard_name(rec.path)
         target = self.logdir / name
-        marker = {"run_dir": str(rec.path), "fingerprint": rec.fingerprint, "group": rec.group,
-                  "version": EXPORT_VERSION}
+        marker = {
+            "run_dir": str(rec.path),
+            "fingerprint": rec.fingerprint,
+            "group": rec.group,
+            "version": EXPORT_VERSION,
+        }
         existed = target.exists()
         if existed:
             try:
@@ -408,20 +434,33 @@ class TensorboardTarget:
 
         writer = EventFileWriter(str(directory), max_queue_size=1024, flush_secs=3600)
         try:
-            values = {k: (v if isinstance(v, (bool, int, float, str)) else json.dumps(v))
-                      for k, v in flatten(rec.config).items()}
+            values = {
+                k: (v if isinstance(v, (bool, int, float, str)) else json.dumps(v))
+                for k, v in flatten(rec.config).items()
+            }
             values["riskplan.group"] = rec.group
-            writer.add_event(Event(wall_time=rec.start, step=0,
-                                   summary=hparams.hparams_pb(values, trial_id=name, start_time_secs=int(rec.start))))
-            writer.add_event(Event(wall_time=rec.start, step=0, summary=text.text_pb("riskplan/run",
-                                                                                      _text_table(rec.tags))))
+            writer.add_event(
+                Event(
+                    wall_time=rec.start,
+                    step=0,
+                    summary=hparams.hparams_pb(values, trial_id=name, start_time_secs=int(rec.start)),
+                )
+            )
+            writer.add_event(
+                Event(wall_time=rec.start, step=0, summary=text.text_pb("riskplan/run", _text_table(rec.tags)))
+            )
             by_step: dict[int, list] = {}
             for key, step, value, t in rec.points:
                 by_step.setdefault(step, []).append((key, value, t))
             for step in sorted(by_step):
                 items = by_step[step]
-                writer.add_event(Event(wall_time=max(t for _, _, t in items), step=step, summary=Summary(
-                    value=[Summary.Value(tag=key, simple_value=value) for key, value, _ in items])))
+                writer.add_event(
+                    Event(
+                        wall_time=max(t for _, _, t in items),
+                        step=step,
+                        summary=Summary(value=[Summary.Value(tag=key, simple_value=value) for key, value, _ in items]),
+                    )
+                )
         finally:
             writer.close()
 
@@ -459,25 +498,36 @@ def prepare(to: str | None, uri: str | None) -> tuple[str, str]:
     return target, destination
 
 
-def export_runs(paths: list[Path], to: str | None, uri: str | None = None, *, experiment: str = EXPERIMENT,
-                echo: Callable[[Exported], None] | None = None) -> ExportResult:
+def export_runs(
+    paths: list[Path],
+    to: str | None,
+    uri: str | None = None,
+    *,
+    experiment: str = EXPERIMENT,
+    echo: Callable[[Exported], None] | None = None,
+) -> ExportResult:
     """Export every run under `paths`. BadInput (nothing written) for a bad --to or --uri, a missing package or a
     path without runs; ExportFailed when the destination cannot be written."""
     target, destination = prepare(to, uri)
     if not paths:
-        raise BadInput("DIRS", "give one or more run, sweep or reproduce directories, e.g. riskplan export "
-                               f"outputs/runs --to {target}")
+        raise BadInput(
+            "DIRS",
+            f"give one or more run, sweep or reproduce directories, e.g. riskplan export outputs/runs --to {target}",
+        )
     coll = collect([Path(p) for p in paths])
     result = ExportResult(target, destination or "each run directory")
-    result.skipped = list(coll.broken) + [Broken(Path(land.path), "a landscape, not a training run")
-                                          for land in coll.landscapes]
+    result.skipped = list(coll.broken) + [
+        Broken(Path(land.path), "a landscape, not a training run") for land in coll.landscapes
+    ]
     if not coll.runs:
         return result
     try:
         with file_store_allowed(destination):
-            writer = {"mlflow": lambda: MlflowTarget(destination, experiment),
-                      "tensorboard": lambda: TensorboardTarget(destination),
-                      "foxglove": FoxgloveTarget}[target]()
+            writer = {
+                "mlflow": lambda: MlflowTarget(destination, experiment),
+                "tensorboard": lambda: TensorboardTarget(destination),
+                "foxglove": FoxgloveTarget,
+            }[target]()
             for info in coll.runs:
                 try:
                     done = writer.write(run_record(info))
@@ -489,6 +539,7 @@ def export_runs(paths: list[Path], to: str | None, uri: str | None = None, *, ex
                     echo(done)
     except _store_errors(target) as err:  # the store failed (disk full, permissions, a server): one line
         text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise ExportFailed(f"{target} {destination or ''}: could not be written ({type(err).__name__}: "
-                           f"{text})".replace("  ", " ")) from None
+        raise ExportFailed(
+            f"{target} {destination or ''}: could not be written ({type(err).__name__}: {text})".replace("  ", " ")
+        ) from None
     return result

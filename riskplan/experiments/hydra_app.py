@@ -53,8 +53,9 @@ def task(cfg: DictConfig) -> float | None:
             return _failed(out, str(err))
         except OSError as err:  # a full disk, a directory removed under the run
             where = f" {err.filename}" if err.filename else ""
-            return _failed(out, f"cannot write{where}: {err.strerror or err}; free space, then riskplan train "
-                                f"--resume {out}")
+            return _failed(
+                out, f"cannot write{where}: {err.strerror or err}; free space, then riskplan train --resume {out}"
+            )
         except Exception as err:  # a job that raises fails alone; its status records why, the others go on
             return _failed(out, f"{type(err).__name__}: {err}", traceback.format_exc())
         write_status(out, "done", None)
@@ -89,8 +90,10 @@ def run_hydra(args: list[str], capture: bool = False) -> None:
     _task_stderr.append(sys.stderr)
     logs = _logging_state()
     try:
-        with contextlib.redirect_stderr(held) if capture else contextlib.nullcontext(), \
-                _without_repeat_compositions(multirun="-m" in args or "--multirun" in args):
+        with (
+            contextlib.redirect_stderr(held) if capture else contextlib.nullcontext(),
+            _without_repeat_compositions(multirun="-m" in args or "--multirun" in args),
+        ):
             task()
     except SystemExit as stop:
         if not capture or stop.code in (0, None):
@@ -123,12 +126,16 @@ def run_composed(config: DictConfig) -> None:
         configure_log(config.hydra.hydra_logging, config.hydra.verbose)
         callbacks = Callbacks(config)
         callbacks.on_run_start(config=config, config_name="config")
-        done = run_job(hydra_context=HydraContext(config_loader=None, callbacks=callbacks),
-                       task_function=task.__wrapped__, config=config, job_dir_key="hydra.run.dir",
-                       job_subdir_key=None)
+        done = run_job(
+            hydra_context=HydraContext(config_loader=None, callbacks=callbacks),
+            task_function=task.__wrapped__,
+            config=config,
+            job_dir_key="hydra.run.dir",
+            job_subdir_key=None,
+        )
         callbacks.on_run_end(config=config, config_name="config", job_return=done)
         done.return_value  # noqa: B018 - raises what the task raised (it records its own failures)
-    except Exception as err:  # noqa: BLE001 - outside the task: Hydra's own writes
+    except Exception as err:
         raise RunFailed(f"{type(err).__name__}: {err}") from None
     finally:
         _task_stderr.pop()
@@ -148,8 +155,10 @@ def _without_repeat_compositions(multirun: bool):
     from hydra._internal.hydra import Hydra
 
     mode = RunMode.MULTIRUN if multirun else RunMode.RUN
-    replacements = {(Hydra, "get_mode"): lambda *args, **kwargs: mode,
-                    (BasicSweeper, "validate_batch_is_legal"): lambda *args, **kwargs: None}
+    replacements = {
+        (Hydra, "get_mode"): lambda *args, **kwargs: mode,
+        (BasicSweeper, "validate_batch_is_legal"): lambda *args, **kwargs: None,
+    }
     originals = {key: key[0].__dict__.get(key[1]) for key in replacements if hasattr(*key)}
     try:
         for owner, name in originals:

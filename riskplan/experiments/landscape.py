@@ -21,8 +21,8 @@ import pandas as pd
 import yaml
 
 from riskplan.engine import rng
-from riskplan.util.errors import BadInput
 from riskplan.engine.risk_measures import tail_count
+from riskplan.util.errors import BadInput
 
 KIND = "landscape"
 TABLE = "landscape.parquet"
@@ -122,8 +122,9 @@ def _theta_columns(table: pd.DataFrame) -> list[str]:
     return sorted(cols, key=lambda c: int(c[6:]))
 
 
-def grid_thetas(theta0: np.ndarray, axes: tuple[int, int], ranges: tuple[tuple[float, float], ...],
-                points: int) -> np.ndarray:
+def grid_thetas(
+    theta0: np.ndarray, axes: tuple[int, int], ranges: tuple[tuple[float, float], ...], points: int
+) -> np.ndarray:
     """(points^2, M) thetas: axis a varies slowest; the other components stay at theta0."""
     a, b = axes
     va = np.linspace(ranges[0][0], ranges[0][1], points)
@@ -150,10 +151,11 @@ def evaluate_grid(setup, thetas: np.ndarray, episodes: int, beta: float, seed: i
     per_call = max(1, CHUNK_EPISODES // episodes)
     parts = []
     for first in range(0, len(thetas), per_call):
-        block = thetas[first:first + per_call]
+        block = thetas[first : first + per_call]
         p = len(block)
-        batch = simulate(world, kernel, block, np.full(p, start, dtype=np.int64), np.full(p, key, dtype=np.uint64),
-                         episodes)
+        batch = simulate(
+            world, kernel, block, np.full(p, start, dtype=np.int64), np.full(p, key, dtype=np.uint64), episodes
+        )
         z = batch.total_reward.reshape(p, episodes)
         zs = np.sort(z, axis=1)
         var = zs[:, m - 1]
@@ -161,16 +163,20 @@ def evaluate_grid(setup, thetas: np.ndarray, episodes: int, beta: float, seed: i
         reached = batch.source_reached.reshape(p, episodes)
         part = {f"theta_{j}": block[:, j] for j in range(block.shape[1])}
         tail = np.minimum(z - var[:, None], 0.0)  # (Z - v) 1{Z <= v}: CVaR = v + E[tail] / beta
-        part.update({
-            "mean": z.mean(axis=1),
-            "cvar": cvar,
-            "value_at_risk": var,
-            "std": z.std(axis=1),
-            "mean_se": z.std(axis=1, ddof=1) / np.sqrt(episodes) if episodes > 1 else np.full(p, np.nan),
-            "cvar_se": tail.std(axis=1, ddof=1) / (beta * np.sqrt(episodes)) if episodes > 1 else np.full(p, np.nan),
-            "risky_fraction": (batch.risky_steps.reshape(p, episodes) > 0).mean(axis=1),
-            "mean_steps": batch.steps.reshape(p, episodes).mean(axis=1),
-        })
+        part.update(
+            {
+                "mean": z.mean(axis=1),
+                "cvar": cvar,
+                "value_at_risk": var,
+                "std": z.std(axis=1),
+                "mean_se": z.std(axis=1, ddof=1) / np.sqrt(episodes) if episodes > 1 else np.full(p, np.nan),
+                "cvar_se": tail.std(axis=1, ddof=1) / (beta * np.sqrt(episodes))
+                if episodes > 1
+                else np.full(p, np.nan),
+                "risky_fraction": (batch.risky_steps.reshape(p, episodes) > 0).mean(axis=1),
+                "mean_steps": batch.steps.reshape(p, episodes).mean(axis=1),
+            }
+        )
         for j, name in enumerate(world.source_names):
             part[f"reached_{name}"] = (reached == j).mean(axis=1)
         part["reached_none"] = (reached < 0).mean(axis=1)
@@ -178,15 +184,22 @@ def evaluate_grid(setup, thetas: np.ndarray, episodes: int, beta: float, seed: i
     return pd.concat(parts, ignore_index=True)
 
 
-def run_landscape(overrides: list[str], out_dir: Path, *, points: int = DEFAULT_POINTS,
-                  episodes: int = DEFAULT_EPISODES, ranges: tuple[tuple[float, float], ...] | None = None,
-                  axes: tuple[int, int] = (0, 1)) -> Path:
+def run_landscape(
+    overrides: list[str],
+    out_dir: Path,
+    *,
+    points: int = DEFAULT_POINTS,
+    episodes: int = DEFAULT_EPISODES,
+    ranges: tuple[tuple[float, float], ...] | None = None,
+    axes: tuple[int, int] = (0, 1),
+) -> Path:
     """Compose the config from overrides, evaluate the landscape and write it to out_dir (returned)."""
     from riskplan.run.compose import compose
 
     cfg = compose(list(overrides))
-    return compute_landscape(cfg, out_dir, points=points, episodes=episodes, ranges=ranges, axes=axes,
-                             overrides=list(overrides))
+    return compute_landscape(
+        cfg, out_dir, points=points, episodes=episodes, ranges=ranges, axes=axes, overrides=list(overrides)
+    )
 
 
 def check_grid(setup, points: int, episodes: int, ranges, axes) -> tuple[tuple, tuple[int, int]]:
@@ -201,8 +214,7 @@ def check_grid(setup, points: int, episodes: int, ranges, axes) -> tuple[tuple, 
         raise BadInput("--points", f"got {points}; expected at least 2 grid points per axis")
     if episodes < 1:
         raise BadInput("--episodes", f"got {episodes}; expected at least 1 episode per grid point")
-    ranges = tuple(tuple(float(v) for v in r) for r in ranges) if ranges is not None else (DEFAULT_RANGE,
-                                                                                          DEFAULT_RANGE)
+    ranges = tuple(tuple(float(v) for v in r) for r in ranges) if ranges is not None else (DEFAULT_RANGE, DEFAULT_RANGE)
     if len(ranges) != 2 or any(not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) for lo, hi in ranges):
         text = ",".join(f"{v:g}" for r in ranges for v in r)
         raise BadInput("--range", f"got {text}; expected LO,HI (both axes) or LO,HI,LO,HI, finite, with LO < HI")
@@ -238,9 +250,17 @@ def check_size(points: int, episodes: int, sources: int, horizon: int) -> None:
     check_time("--points/--episodes", seconds, what)
 
 
-def compute_landscape(cfg, out_dir: Path, *, points: int = DEFAULT_POINTS, episodes: int = DEFAULT_EPISODES,
-                      ranges: tuple[tuple[float, float], ...] | None = None, axes: tuple[int, int] = (0, 1),
-                      overrides: list[str] | None = None, key: str = "out_dir") -> Path:
+def compute_landscape(
+    cfg,
+    out_dir: Path,
+    *,
+    points: int = DEFAULT_POINTS,
+    episodes: int = DEFAULT_EPISODES,
+    ranges: tuple[tuple[float, float], ...] | None = None,
+    axes: tuple[int, int] = (0, 1),
+    overrides: list[str] | None = None,
+    key: str = "out_dir",
+) -> Path:
     """Evaluate mean and CVaR on a points x points grid of (theta_a, theta_b) into a run-like directory.
 
     Everything is checked before anything runs (BadInput: the options, the grid's memory and time, out_dir, which

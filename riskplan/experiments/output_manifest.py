@@ -22,19 +22,20 @@ import contextlib
 import json
 import os
 import re
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Callable, Iterable
 
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import atomic_path, check_output_dir
 
 MANIFEST = ".riskplan-manifest.json"
 TEMP = re.compile(r"\..+\.\d+\.tmp")  # what paths.atomic_path leaves behind when the process is killed
-REPORT_FIGURES = re.compile(r"(fig1_paths|fig2_cvar|fig3_team|fig4_consensus|reward_distribution|risk_frontier|"
-                            r"team_thetas|landscape(_\d+)?)\.(png|pdf|svg)")
+REPORT_FIGURES = re.compile(
+    r"(fig1_paths|fig2_cvar|fig3_team|fig4_consensus|reward_distribution|risk_frontier|"
+    r"team_thetas|landscape(_\d+)?)\.(png|pdf|svg)"
+)
 REPORT_TABLES = {"report.html", "report.csv", "runs.csv", "landscape.csv"}
-LANDSCAPE_FILES = {".hydra/config.yaml", ".hydra/overrides.yaml", "landscape.parquet", "summary.json",
-                   "status.json"}
+LANDSCAPE_FILES = {".hydra/config.yaml", ".hydra/overrides.yaml", "landscape.parquet", "summary.json", "status.json"}
 
 
 class WriteFailed(OSError):
@@ -65,8 +66,11 @@ def read_manifest(out: Path) -> dict | None:
         data = json.loads(file.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return {}
-    if not (isinstance(data, dict) and isinstance(data.get("files"), list)
-            and all(isinstance(f, str) for f in data["files"])):
+    if not (
+        isinstance(data, dict)
+        and isinstance(data.get("files"), list)
+        and all(isinstance(f, str) for f in data["files"])
+    ):
         return {}
     return data
 
@@ -84,16 +88,24 @@ def _legacy(kind: str, out: Path, files: list[str], dirs: list[str]) -> bool:
                 head = handle.read(2000)
         except OSError:
             return False
-        return (not dirs and not page.is_symlink() and head.startswith("<!DOCTYPE html>")
-                and "<title>riskplan report</title>" in head
-                and all(f in REPORT_TABLES or REPORT_FIGURES.fullmatch(f) or _is_temp(f) for f in files))
+        return (
+            not dirs
+            and not page.is_symlink()
+            and head.startswith("<!DOCTYPE html>")
+            and "<title>riskplan report</title>" in head
+            and all(f in REPORT_TABLES or REPORT_FIGURES.fullmatch(f) or _is_temp(f) for f in files)
+        )
     if kind == "landscape":
         try:
             summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
         except (OSError, ValueError):
             return False
-        return (isinstance(summary, dict) and summary.get("kind") == "landscape" and set(dirs) <= {".hydra"}
-                and all(f in LANDSCAPE_FILES or _is_temp(f) for f in files))
+        return (
+            isinstance(summary, dict)
+            and summary.get("kind") == "landscape"
+            and set(dirs) <= {".hydra"}
+            and all(f in LANDSCAPE_FILES or _is_temp(f) for f in files)
+        )
     return False
 
 
@@ -115,22 +127,32 @@ def claim(out: Path | str, kind: str, key: str) -> list[str] | None:
         if _legacy(kind, out, files, dirs):
             return [f for f in files if not _is_temp(f)]
         foreign = [f for f in files if not _is_temp(f)] or dirs or files
-        raise BadInput(key, f"{out} holds files riskplan {kind} did not write ({_examples(foreign)}); give a new "
-                            f"or empty directory, or one a previous riskplan {kind} wrote")
+        raise BadInput(
+            key,
+            f"{out} holds files riskplan {kind} did not write ({_examples(foreign)}); give a new "
+            f"or empty directory, or one a previous riskplan {kind} wrote",
+        )
     if not manifest or not isinstance(manifest.get("kind"), str):
-        raise BadInput(key, f"{out} holds a damaged {MANIFEST} (not the list riskplan writes); give a new or empty "
-                            f"directory")
+        raise BadInput(
+            key, f"{out} holds a damaged {MANIFEST} (not the list riskplan writes); give a new or empty directory"
+        )
     if manifest["kind"] != kind:
-        raise BadInput(key, f"{out} holds the output of riskplan {_examples([manifest['kind']])}; give riskplan "
-                            f"{kind} a directory of its own")
+        raise BadInput(
+            key,
+            f"{out} holds the output of riskplan {_examples([manifest['kind']])}; give riskplan "
+            f"{kind} a directory of its own",
+        )
     listed = {f for f in manifest["files"] if _safe(f)}
     parents = {p.as_posix() for f in listed for p in Path(f).parents if p.as_posix() != "."}
     foreign = [f for f in files if f != MANIFEST and f not in listed and not _is_temp(f)]
     foreign += [d for d in dirs if d not in parents]
     foreign += [f for f in files if f in listed and ((out / f).is_symlink() or not (out / f).is_file())]
     if foreign:
-        raise BadInput(key, f"{out} holds files riskplan {kind} did not write ({_examples(sorted(set(foreign)))}); "
-                            f"give a new or empty directory, or remove them")
+        raise BadInput(
+            key,
+            f"{out} holds files riskplan {kind} did not write ({_examples(sorted(set(foreign)))}); "
+            f"give a new or empty directory, or remove them",
+        )
     return sorted(listed)
 
 
@@ -148,10 +170,10 @@ def _examples(names: list[str]) -> str:
 class Output:
     """Atomic writes into an output directory claimed by `claim`, under a manifest.
 
-        output = Output(out, "report", previous)   # previous: what claim() returned
-        output.begin(["report.html", ...])          # writes the manifest (old and new files) first
-        output.write("report.html", text)           # atomically, WriteFailed on failure
-        output.finish()                             # drops files of the previous run not written again
+    output = Output(out, "report", previous)   # previous: what claim() returned
+    output.begin(["report.html", ...])          # writes the manifest (old and new files) first
+    output.write("report.html", text)           # atomically, WriteFailed on failure
+    output.finish()                             # drops files of the previous run not written again
     """
 
     def __init__(self, out: Path | str, kind: str, previous: list[str] | None):
@@ -163,8 +185,10 @@ class Output:
 
     def _fail(self, name: str, err: OSError) -> WriteFailed:
         why = err.strerror or str(err) or type(err).__name__
-        return WriteFailed(f"{self.out / name}: could not be written ({why}); files written before are complete, "
-                           f"none is half-written; free space or fix the directory and run the command again")
+        return WriteFailed(
+            f"{self.out / name}: could not be written ({why}); files written before are complete, "
+            f"none is half-written; free space or fix the directory and run the command again"
+        )
 
     def begin(self, planned: Iterable[str]) -> None:
         """Create the directory and write the manifest listing the previous and the planned files."""
@@ -180,8 +204,9 @@ class Output:
     def _manifest(self, files: list[str]) -> None:
         from riskplan.version import __version__
 
-        data = json.dumps({"kind": self.kind, "written_by": f"riskplan {self.kind} {__version__}",
-                           "files": files}, indent=1)
+        data = json.dumps(
+            {"kind": self.kind, "written_by": f"riskplan {self.kind} {__version__}", "files": files}, indent=1
+        )
         self.write(MANIFEST, data)
 
     def path(self, name: str) -> contextlib.AbstractContextManager[Path]:

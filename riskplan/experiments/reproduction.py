@@ -29,26 +29,46 @@ from pathlib import Path
 
 import typer
 
-from riskplan.util.errors import BadInput
 from riskplan.experiments.reporting import REPRODUCE_ROOT
+from riskplan.util.errors import BadInput
 
 SEEDS = 10
 QUICK_SEEDS = 2
 # (folder, what it reproduces, overrides without the seeds, at most this many seeds or None for all)
 EXPERIMENTS = (
-    ("single", "Figs. 1-2: one robot, risk-neutral vs CVaR (W = 6000)",
-     ["experiment=paper_single", "risk=neutral,cvar"], None),
-    ("team", "Figs. 3-4: three robots on a line graph (W_i = 2000), vs the centralized CVaR runs of single/",
-     ["experiment=paper_team"], None),
+    (
+        "single",
+        "Figs. 1-2: one robot, risk-neutral vs CVaR (W = 6000)",
+        ["experiment=paper_single", "risk=neutral,cvar"],
+        None,
+    ),
+    (
+        "team",
+        "Figs. 3-4: three robots on a line graph (W_i = 2000), vs the centralized CVaR runs of single/",
+        ["experiment=paper_team"],
+        None,
+    ),
     # theta0 = 0 falls into the landscape's other optimum: wander, reaching no source; two seeds show it
-    ("wander", "The landscape's local optimum: CVaR from theta0 = (0, 0), which wanders and reaches no source",
-     ["experiment=paper_single", "train.theta0=[0,0]"], 2),
+    (
+        "wander",
+        "The landscape's local optimum: CVaR from theta0 = (0, 0), which wanders and reaches no source",
+        ["experiment=paper_single", "train.theta0=[0,0]"],
+        2,
+    ),
     # soft risk (CeSoR): the same start, the gradient's CVaR level falling linearly from 1 to beta; vs wander/
-    ("soft_risk", "Beyond the paper: soft risk from theta0 = (0, 0), CVaR level linear from 1 to beta (vs wander/)",
-     ["experiment=paper_single", "train.theta0=[0,0]", "risk.schedule.kind=linear"], 2),
+    (
+        "soft_risk",
+        "Beyond the paper: soft risk from theta0 = (0, 0), CVaR level linear from 1 to beta (vs wander/)",
+        ["experiment=paper_single", "train.theta0=[0,0]", "risk.schedule.kind=linear"],
+        2,
+    ),
     # with single/'s beta = 0.1 runs, the report's risk frontier (beta = 1 is the mean, through the CVaR gradient)
-    ("frontier", "Beyond the paper: the risk frontier, CVaR policies at beta = 0.05, 0.2, 0.5, 1",
-     ["experiment=paper_single", "risk.beta=0.05,0.2,0.5,1.0"], 2),
+    (
+        "frontier",
+        "Beyond the paper: the risk frontier, CVaR policies at beta = 0.05, 0.2, 0.5, 1",
+        ["experiment=paper_single", "risk.beta=0.05,0.2,0.5,1.0"],
+        2,
+    ),
 )
 # --quick: fewer iterations and evaluation episodes; the same experiments, for a first look
 QUICK = ["train.iterations=60", "train.eval_episodes=20000", "train.bootstrap=200", "train.paths=10"]
@@ -57,17 +77,25 @@ LANDSCAPE = {"points": 46, "episodes": 4000, "ranges": ((-30.0, 60.0), (-30.0, 6
 QUICK_LANDSCAPE = {"points": 31, "episodes": 1000, "ranges": ((-30.0, 60.0), (-30.0, 60.0))}
 
 
-def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = None, jobs: int | None = None,
-              formats: str = "png,pdf", overrides: list[str] | None = None, *, since: float | None = None) -> int:
+def reproduce(
+    out: Path | None = None,
+    quick: bool = False,
+    seeds: int | None = None,
+    jobs: int | None = None,
+    formats: str = "png,pdf",
+    overrides: list[str] | None = None,
+    *,
+    since: float | None = None,
+) -> int:
     """Run Section V and the report; return the exit code (1 when a job or the report failed).
 
     `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000. `since`: when the
     command started (epoch seconds; the CLI gives its process's start), so the time breakdown includes start-up.
     """
-    from riskplan.util import lock
-    from riskplan.util.paths import check_output_dir, claim_dir
     from riskplan.experiments.reporting import check_formats
     from riskplan.experiments.reporting.parallel import workers as report_workers
+    from riskplan.util import lock
+    from riskplan.util.paths import check_output_dir, claim_dir
 
     entered = time.time()
     seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
@@ -89,8 +117,17 @@ def reproduce(out: Path | None = None, quick: bool = False, seeds: int | None = 
     target.mkdir(parents=True, exist_ok=True)
     checked = time.time()
     with lock.hold(target, "reproduction directory"):
-        return _reproduce(target, quick, seeds, jobs, fmts, list(overrides or []), extra,
-                          {"since": since, "entered": entered, "checked": checked}, warmed)
+        return _reproduce(
+            target,
+            quick,
+            seeds,
+            jobs,
+            fmts,
+            list(overrides or []),
+            extra,
+            {"since": since, "entered": entered, "checked": checked},
+            warmed,
+        )
 
 
 def _warm_workers(jobs: int | None, seeds: int):
@@ -105,8 +142,8 @@ def _warm_workers(jobs: int | None, seeds: int):
 
 def experiment_jobs(seeds: int) -> list[int]:
     """Jobs of each sweep of EXPERIMENTS with this many seeds (counted from the overrides, nothing expanded)."""
-    from riskplan.run.compose import parse_overrides
     from riskplan.experiments.sweeping import sweep_size
+    from riskplan.run.compose import parse_overrides
 
     counts = []
     for _, _, experiment, most in EXPERIMENTS:
@@ -121,9 +158,12 @@ def check_seeds(seeds: int) -> int:
     total = sum(experiment_jobs(seeds))
     budget = job_budget()
     if total > budget:
-        raise BadInput("--seeds", f"got {seeds}: the {len(EXPERIMENTS)} sweeps would hold {total} jobs, more than "
-                                  f"the {budget} "
-                                  f"allowed; give fewer seeds, or raise the limit with {JOBS_ENV}=<jobs>")
+        raise BadInput(
+            "--seeds",
+            f"got {seeds}: the {len(EXPERIMENTS)} sweeps would hold {total} jobs, more than "
+            f"the {budget} "
+            f"allowed; give fewer seeds, or raise the limit with {JOBS_ENV}=<jobs>",
+        )
     return total
 
 
@@ -148,15 +188,24 @@ def check_work(seeds: int, total_jobs: int, configs: dict, overrides: list[str])
     check_time("--seeds and overrides" if overrides else "--seeds", steps / STEPS_PER_SECOND, what)
 
 
-def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, overrides: list[str],
-               extra: list[str], clock: dict | None = None, warmed=None) -> int:
+def _reproduce(
+    target: Path,
+    quick: bool,
+    seeds: int,
+    jobs: int | None,
+    fmts,
+    overrides: list[str],
+    extra: list[str],
+    clock: dict | None = None,
+    warmed=None,
+) -> int:
     """The reproduction into `target`, whose lock this process holds (`clock`: when reproduce() was entered and
     when its checks ended, for the time breakdown; `warmed`: waits for the warmed-up workers, see _warm_workers)."""
     import threading
 
-    from riskplan.util.paths import write_atomic
     from riskplan.experiments.reporting import build_report
     from riskplan.experiments.sweeping import report_outcome, run_sweep
+    from riskplan.util.paths import write_atomic
 
     started = time.time()
     # the report's modules (matplotlib, pandas) load while this process mostly waits for the sweeps' jobs
@@ -168,13 +217,23 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
         if warmed is not None and not warm_up:
             tic = time.time()
             workers = warmed()
-            warm_up.update({"workers": len(workers), "pids": [pid for pid, _ in workers],
-                            "seconds": [round(s, 2) for _, s in workers],
-                            "waited": round(time.time() - tic, 2)})
+            warm_up.update(
+                {
+                    "workers": len(workers),
+                    "pids": [pid for pid, _ in workers],
+                    "seconds": [round(s, 2) for _, s in workers],
+                    "waited": round(time.time() - tic, 2),
+                }
+            )
 
     typer.echo(f"reproduction directory: {target} ({'quick' if quick else 'full'}, {seeds} seeds)")
-    record = {"quick": quick, "seeds": seeds, "overrides": list(overrides or []), "started": dt.datetime.now().isoformat(timespec="seconds"),
-              "parts": {}}
+    record = {
+        "quick": quick,
+        "seeds": seeds,
+        "overrides": list(overrides or []),
+        "started": dt.datetime.now().isoformat(timespec="seconds"),
+        "parts": {},
+    }
     code = 0
     outcomes = []
     for folder, what, experiment, most in EXPERIMENTS:
@@ -185,10 +244,16 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
         toc = time.time()
         outcomes.append(outcome)
         code = max(code, report_outcome(outcome, folder, hint=False))
-        record["parts"][folder] = {"overrides": args, "jobs": len(outcome.summary), "ran": outcome.ran,
-                                   "skipped": outcome.skipped, "failed": len(outcome.failed),
-                                   "seconds": round(outcome.seconds, 2), "wall": round(toc - tic, 2),
-                                   "timing": _sweep_timing(outcome, tic, toc)}
+        record["parts"][folder] = {
+            "overrides": args,
+            "jobs": len(outcome.summary),
+            "ran": outcome.ran,
+            "skipped": outcome.skipped,
+            "failed": len(outcome.failed),
+            "seconds": round(outcome.seconds, 2),
+            "wall": round(toc - tic, 2),
+            "timing": _sweep_timing(outcome, tic, toc),
+        }
     if warm_up:
         record["warm_up"] = warm_up
     stop_workers()  # before the report, which may fork: no idle workers, nor their threads, in this process
@@ -204,15 +269,18 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
         record["parts"]["report"] = {"seconds": round(time.time() - tic, 2), "page": str(page)}
     except BadInput:
         raise
-    except Exception as err:  # noqa: BLE001 - the runs are safe; say what failed
-        typer.echo(f"error: the report failed: {type(err).__name__}: {err} "
-                   f"(the runs are in {target}; try riskplan report {target})", err=True)
+    except Exception as err:
+        typer.echo(
+            f"error: the report failed: {type(err).__name__}: {err} "
+            f"(the runs are in {target}; try riskplan report {target})",
+            err=True,
+        )
         code = 1
     record["seconds"] = round(time.time() - started, 2)
     try:  # never fails the reproduction: it only says where the time went
         record["breakdown"] = time_breakdown(record, clock or {}, started)
         print_breakdown(record["breakdown"])
-    except Exception as err:  # noqa: BLE001
+    except Exception as err:
         typer.echo(f"(no time breakdown: {type(err).__name__}: {err})", err=True)
     write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
     typer.echo(f"reproduced in {record['seconds']:.0f} s: {target}")
@@ -220,8 +288,10 @@ def _reproduce(target: Path, quick: bool, seeds: int, jobs: int | None, fmts, ov
         import shlex
 
         again = ["--out", str(target), *(["--quick"] if quick else []), "--seeds", str(seeds), *(overrides or [])]
-        typer.echo(f"to retry what did not finish (finished jobs are skipped): riskplan reproduce "
-                   f"{shlex.join(again)}", err=True)
+        typer.echo(
+            f"to retry what did not finish (finished jobs are skipped): riskplan reproduce {shlex.join(again)}",
+            err=True,
+        )
     return code
 
 
@@ -229,11 +299,15 @@ def _import_report_modules() -> None:
     """Import what the report needs (a head start, on a background thread; a failure shows in the report)."""
     import importlib
 
-    for name in ("riskplan.experiments.reporting.collect", "riskplan.experiments.reporting.figures", "riskplan.experiments.reporting.page",
-                 "riskplan.experiments.reporting.tables"):
+    for name in (
+        "riskplan.experiments.reporting.collect",
+        "riskplan.experiments.reporting.figures",
+        "riskplan.experiments.reporting.page",
+        "riskplan.experiments.reporting.tables",
+    ):
         try:
             importlib.import_module(name)
-        except Exception:  # noqa: BLE001 - build_report imports them again and says what is wrong
+        except Exception:
             return
 
 
@@ -244,11 +318,15 @@ def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict
 
     for override in parse_overrides(overrides):
         if override.is_sweep_override() or override.is_hydra_override():
-            raise BadInput(f"override '{override.input_line}'", "reproduce takes plain key=value overrides for "
-                                                                "every experiment; run a grid with riskplan sweep")
+            raise BadInput(
+                f"override '{override.input_line}'",
+                "reproduce takes plain key=value overrides for every experiment; run a grid with riskplan sweep",
+            )
         if override.key_or_group in ("seed", "experiment"):
-            raise BadInput(f"override '{override.input_line}'", "is set by reproduce; use --seeds N, or riskplan "
-                                                                "sweep for other experiments")
+            raise BadInput(
+                f"override '{override.input_line}'",
+                "is set by reproduce; use --seeds N, or riskplan sweep for other experiments",
+            )
     extra = [*(QUICK if quick else []), *overrides]
     configs = {}
     for setup in dict.fromkeys(base[0] for _, _, base, _ in EXPERIMENTS):  # each set-up once, not per experiment
@@ -267,8 +345,8 @@ def _not_set_by(experiment: list[str], extra: list[str]) -> list[str]:
 
 def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
     """The objective landscape of the paper world (skipped when it is already there)."""
-    from riskplan.run.compose import compose
     from riskplan.experiments.landscape import compute_landscape
+    from riskplan.run.compose import compose
 
     grid = QUICK_LANDSCAPE if quick else LANDSCAPE
     done = out / "status.json"
@@ -279,8 +357,10 @@ def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
     if finished:
         typer.echo(f"\nlandscape: {out} (already there)")
         return {"skipped": True, **grid}
-    typer.echo(f"\nobjective landscape: {grid['points']}x{grid['points']} theta grid, {grid['episodes']} "
-               f"episodes per point -> {out}")
+    typer.echo(
+        f"\nobjective landscape: {grid['points']}x{grid['points']} theta grid, {grid['episodes']} "
+        f"episodes per point -> {out}"
+    )
     tic = time.time()
     args = ["experiment=paper_single", *overrides]
     compute_landscape(compose(args), out, overrides=args, **grid)
@@ -307,16 +387,29 @@ def _print_comparison(outcomes) -> None:
     if "risk" not in data:
         data["risk"] = "cvar"
     data["risk"] = data["risk"].fillna("cvar")
-    table = Table(title="Section V across seeds (mean ± sd of the per-seed figures on the evaluation episodes)",
-                  title_justify="left", show_edge=False, pad_edge=False)
+    table = Table(
+        title="Section V across seeds (mean ± sd of the per-seed figures on the evaluation episodes)",
+        title_justify="left",
+        show_edge=False,
+        pad_edge=False,
+    )
     for column in ("set-up", "objective", "seeds", "mean", "CVaR", "VaR"):
         table.add_column(column, justify="left" if column in ("set-up", "objective") else "right")
     for (sweep, risk, beta), group in data.groupby(["sweep", "risk", "beta"], sort=False):
-        setup = {"team": "3 robots, line graph", "wander": "1 robot, θ0 = (0, 0)",
-                 "soft_risk": "1 robot, θ0 = (0, 0), soft risk (linear)"}.get(sweep, "1 robot (centralized)")
-        table.add_row(setup, f"CVaR_{beta:g}" if risk == "cvar" else "mean (risk-neutral)", str(len(group)),
-                      *(f"{group[c].mean():.1f} ± {group[c].std(ddof=1) if len(group) > 1 else 0:.1f}"
-                        for c in ("mean", "cvar", "value_at_risk")))
+        setup = {
+            "team": "3 robots, line graph",
+            "wander": "1 robot, θ0 = (0, 0)",
+            "soft_risk": "1 robot, θ0 = (0, 0), soft risk (linear)",
+        }.get(sweep, "1 robot (centralized)")
+        table.add_row(
+            setup,
+            f"CVaR_{beta:g}" if risk == "cvar" else "mean (risk-neutral)",
+            str(len(group)),
+            *(
+                f"{group[c].mean():.1f} ± {group[c].std(ddof=1) if len(group) > 1 else 0:.1f}"
+                for c in ("mean", "cvar", "value_at_risk")
+            ),
+        )
     (Console() if sys.stdout.isatty() else Console(width=250)).print(table)
 
 
@@ -341,8 +434,9 @@ def _started_of(pid) -> float | None:
 
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        boot = next(float(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines()
-                    if line.startswith("btime "))
+        boot = next(
+            float(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines() if line.startswith("btime ")
+        )
         return boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
     except (OSError, ValueError, IndexError, StopIteration):
         return None
@@ -364,19 +458,36 @@ def _sweep_timing(outcome, tic: float, toc: float) -> dict:
             summary = json.loads((Path(path) / "summary.json").read_text())
         except (OSError, ValueError):
             continue
-        if status.get("status") != "done" or not isinstance(status.get("started"), (int, float)) \
-                or status["started"] < launched - 2:
+        if (
+            status.get("status") != "done"
+            or not isinstance(status.get("started"), (int, float))
+            or status["started"] < launched - 2
+        ):
             continue
-        jobs.append({"path": str(path), "pid": status.get("pid"), "started": status["started"],
-                     "finished": status["finished"], "seconds": status["seconds"],
-                     "training": float(summary.get("wall_time") or 0.0)})
+        jobs.append(
+            {
+                "path": str(path),
+                "pid": status.get("pid"),
+                "started": status["started"],
+                "finished": status["finished"],
+                "seconds": status["seconds"],
+                "training": float(summary.get("wall_time") or 0.0),
+            }
+        )
     timing = {"planning": round(launched - tic, 3), "jobs": len(jobs)}
     if not jobs:
         return timing
     first, last = min(j["started"] for j in jobs), max(j["finished"] for j in jobs)
-    timing.update({"to_first_job": round(first - launched, 3), "running": round(last - first, 3),
-                   "after_last_job": round(toc - last, 3), "job_seconds": round(sum(j["seconds"] for j in jobs), 3),
-                   "training": round(sum(j["training"] for j in jobs), 3), "workers": {}})
+    timing.update(
+        {
+            "to_first_job": round(first - launched, 3),
+            "running": round(last - first, 3),
+            "after_last_job": round(toc - last, 3),
+            "job_seconds": round(sum(j["seconds"] for j in jobs), 3),
+            "training": round(sum(j["training"] for j in jobs), 3),
+            "workers": {},
+        }
+    )
     for pid in dict.fromkeys(j["pid"] for j in jobs):
         own = sorted((j for j in jobs if j["pid"] == pid), key=lambda j: j["started"])
         load = None
@@ -388,8 +499,12 @@ def _sweep_timing(outcome, tic: float, toc: float) -> dict:
         except (OSError, ValueError, KeyError, ImportError):
             pass
         spawned = _started_of(pid) if pid != os.getpid() else None  # a one-job sweep runs in this process
-        timing["workers"][str(pid)] = {"jobs": len(own), "first_job": own[0]["started"],
-                                       "spawned": spawned, "numba_load": load}
+        timing["workers"][str(pid)] = {
+            "jobs": len(own),
+            "first_job": own[0]["started"],
+            "spawned": spawned,
+            "numba_load": load,
+        }
     return timing
 
 
@@ -401,12 +516,12 @@ def time_breakdown(record: dict, clock: dict, started: float) -> dict:
     ended = started + record["seconds"]
     wall = {
         "start-up (interpreter, imports)": (clock["entered"] - begun) if begun and "entered" in clock else None,
-        "checks (compose each set-up, budget)": (clock["checked"] - clock["entered"]) if "checked" in clock
-        else None,
+        "checks (compose each set-up, budget)": (clock["checked"] - clock["entered"]) if "checked" in clock else None,
         "sweeps: planning (compose and validate every job)": sum(t.get("planning", 0.0) for t in timings),
         "sweeps: waiting for the warmed-up workers": record.get("warm_up", {}).get("waited", 0.0),
-        "sweeps: launch to first job (Hydra, worker start and imports)": sum(t.get("to_first_job", 0.0)
-                                                                             for t in timings)
+        "sweeps: launch to first job (Hydra, worker start and imports)": sum(
+            t.get("to_first_job", 0.0) for t in timings
+        )
         - record.get("warm_up", {}).get("waited", 0.0),
         "sweeps: jobs running (first start to last finish)": sum(t.get("running", 0.0) for t in timings),
         "sweeps: after the last job (summary, Hydra)": sum(t.get("after_last_job", 0.0) for t in timings),
@@ -420,26 +535,39 @@ def time_breakdown(record: dict, clock: dict, started: float) -> dict:
     workers: dict[str, dict] = {}
     for t in timings:
         for pid, w in t.get("workers", {}).items():
-            entry = workers.setdefault(pid, {"jobs": 0, "spawned": w["spawned"], "first_job": w["first_job"],
-                                             "numba_load": w["numba_load"]})
+            entry = workers.setdefault(
+                pid, {"jobs": 0, "spawned": w["spawned"], "first_job": w["first_job"], "numba_load": w["numba_load"]}
+            )
             entry["jobs"] += w["jobs"]
     warm = record.get("warm_up")
     jobs = {
         "jobs": sum(t.get("jobs", 0) for t in timings),
         "workers": len(workers),
-        **({"worker warm-up (imports, numba cache; while the checks and planning ran)": sum(warm["seconds"])}
-           if warm else {"worker start to its first job (imports, unpickling)": sum(
-               w["first_job"] - w["spawned"] for w in workers.values() if w["spawned"])}),
+        **(
+            {"worker warm-up (imports, numba cache; while the checks and planning ran)": sum(warm["seconds"])}
+            if warm
+            else {
+                "worker start to its first job (imports, unpickling)": sum(
+                    w["first_job"] - w["spawned"] for w in workers.values() if w["spawned"]
+                )
+            }
+        ),
         "numba cache load (iteration 0's extra, first job of each worker)": sum(
-            w["numba_load"] or 0.0 for w in workers.values()),
+            w["numba_load"] or 0.0 for w in workers.values()
+        ),
         "training loop (summary wall_time)": sum(t.get("training", 0.0) for t in timings),
         "set-up, evaluation episodes, bootstrap, files (job seconds - wall_time)": sum(
-            t.get("job_seconds", 0.0) - t.get("training", 0.0) for t in timings),
+            t.get("job_seconds", 0.0) - t.get("training", 0.0) for t in timings
+        ),
     }
-    jobs["training loop (summary wall_time)"] -= jobs["numba cache load (iteration 0's extra, first job of each "
-                                                      "worker)"]
-    return {"total": round(total, 2), "wall": {k: None if v is None else round(v, 2) for k, v in wall.items()},
-            "jobs": {k: round(v, 2) if isinstance(v, float) else v for k, v in jobs.items()}}
+    jobs["training loop (summary wall_time)"] -= jobs[
+        "numba cache load (iteration 0's extra, first job of each worker)"
+    ]
+    return {
+        "total": round(total, 2),
+        "wall": {k: None if v is None else round(v, 2) for k, v in wall.items()},
+        "jobs": {k: round(v, 2) if isinstance(v, float) else v for k, v in jobs.items()},
+    }
 
 
 def print_breakdown(breakdown: dict) -> None:
@@ -448,8 +576,10 @@ def print_breakdown(breakdown: dict) -> None:
     for name, seconds in breakdown["wall"].items():
         typer.echo(f"  {'?' if seconds is None else f'{seconds:6.1f}'} s  {name}")
     jobs = breakdown["jobs"]
-    typer.echo(f"inside the {jobs['jobs']} jobs that ran, on {jobs['workers']} worker processes (seconds summed over "
-               f"jobs; they run in parallel):")
+    typer.echo(
+        f"inside the {jobs['jobs']} jobs that ran, on {jobs['workers']} worker processes (seconds summed over "
+        f"jobs; they run in parallel):"
+    )
     for name, seconds in jobs.items():
         if name not in ("jobs", "workers"):
             typer.echo(f"  {seconds:6.1f} s  {name}")

@@ -54,8 +54,16 @@ TRIAL_SUBDIR = "${" + TRIAL_RESOLVER + ":${hydra.job.num},${hydra.job.override_d
 SAFE = frozenset(string.ascii_letters + string.digits + "._=,+-")  # kept as they are in folder names
 NAME_MAX = 255  # bytes in a file name (ext4, xfs, NFS)
 OUTPUTS = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet", "run.mcap")
-STALE = ("checkpoint", "checkpoint.tmp", "run.mcap", "run.mcap.resume", "summary.json", "metrics.parquet",
-         "eval.parquet", "trajectories.parquet")
+STALE = (
+    "checkpoint",
+    "checkpoint.tmp",
+    "run.mcap",
+    "run.mcap.resume",
+    "summary.json",
+    "metrics.parquet",
+    "eval.parquet",
+    "trajectories.parquet",
+)
 
 
 def config_sha(cfg: DictConfig | dict) -> str:
@@ -77,15 +85,16 @@ def folder_name(dirname: str) -> str:
     """
     dirname = str(dirname)
     data = dirname.encode("utf-8", "surrogatepass")
-    encoded = "".join(c if c in SAFE else "".join(f"%{b:02X}" for b in c.encode("utf-8", "surrogatepass"))
-                      for c in dirname)
+    encoded = "".join(
+        c if c in SAFE else "".join(f"%{b:02X}" for b in c.encode("utf-8", "surrogatepass")) for c in dirname
+    )
     if encoded.startswith("."):
         encoded = "%2E" + encoded[1:]
     if not encoded:
         return "%empty"
     if len(encoded) > NAME_MAX:
         digest = hashlib.sha256(data).hexdigest()[:16]
-        head = encoded[:NAME_MAX - 2 - len(digest)]
+        head = encoded[: NAME_MAX - 2 - len(digest)]
         cut = head.find("%", len(head) - 2)  # do not cut an escape in half
         encoded = f"{head[:cut] if cut >= 0 else head}%h{digest}"
     return encoded
@@ -118,8 +127,12 @@ def read_status(out: Path) -> dict | None:
 def is_finished(out: Path, sha: str, status: dict | None = None) -> bool:
     """Whether the job in `out` finished with this config and still has its outputs."""
     status = read_status(out) if status is None else status
-    return (status is not None and status.get("status") == "done" and status.get("config_sha") == sha
-            and all((Path(out) / name).is_file() for name in OUTPUTS))
+    return (
+        status is not None
+        and status.get("status") == "done"
+        and status.get("config_sha") == sha
+        and all((Path(out) / name).is_file() for name in OUTPUTS)
+    )
 
 
 def _finite(value):
@@ -181,8 +194,12 @@ def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | No
         import numba
 
         numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-    resume = (prior is not None and prior.get("status") == "running" and prior.get("config_sha") == sha
-              and (out / "checkpoint").is_file())
+    resume = (
+        prior is not None
+        and prior.get("status") == "running"
+        and prior.get("config_sha") == sha
+        and (out / "checkpoint").is_file()
+    )
     if not resume:
         for name in STALE:
             (out / name).unlink(missing_ok=True)
@@ -190,9 +207,12 @@ def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | No
     base = {"config_sha": sha, "started": started, "host": socket.gethostname(), "pid": os.getpid()}
     write_status(out, {"status": "running", "error": None, **base})
     with job_output(out / JOB_LOG):
-        print(f"=== riskplan sweep job {'resumed' if resume else 'started'} at {time.ctime(started)} "
-              f"on {base['host']} (pid {base['pid']}"
-              + (f", ends with the sweep process {_watching[0]})" if watched and _watching else ")"), flush=True)
+        print(
+            f"=== riskplan sweep job {'resumed' if resume else 'started'} at {time.ctime(started)} "
+            f"on {base['host']} (pid {base['pid']}"
+            + (f", ends with the sweep process {_watching[0]})" if watched and _watching else ")"),
+            flush=True,
+        )
         record = _train(cfg, out, resume)
         print(f"=== {record['status']}" + (f": {record['error']}" if record["error"] else ""), flush=True)
     finished = time.time()
@@ -240,7 +260,7 @@ def watch_driver(every: float = 0.2) -> bool:
     chain = _ancestry(2)
     if int(driver) not in chain:
         return False
-    line = chain[:chain.index(int(driver)) + 1]
+    line = chain[: chain.index(int(driver)) + 1]
     _watching.append(int(driver))
 
     def watch() -> None:
@@ -292,8 +312,8 @@ def job_threads() -> int | None:
 
 def _train(cfg: DictConfig, out: Path, resume: bool) -> dict:
     """Train (or resume); any error fails this job alone and is returned in its record."""
-    from riskplan.util.errors import BadInput
     from riskplan.run.training import NumericalTrouble, train
+    from riskplan.util.errors import BadInput
 
     try:
         if resume:

@@ -28,9 +28,18 @@ EVAL_BATCH = 100_000  # episodes per kernel call during evaluation (training use
 ITERATION_STEPS = 10_000  # fixed cost of an iteration (gradient, logging, fsync-free bookkeeping)
 # The paper's defaults: the key named in a message is the one furthest above its default.
 DEFAULTS = {
-    "world.size": 144.0, "team.robots": 1.0, "train.samples": 6000.0, "train.samples_growth": 1.0,
-    "train.iterations": 200.0, "world.horizon": 20.0, "train.eval_episodes": 100_000.0, "train.bootstrap": 1000.0,
-    "train.paths": 20.0, "team.delay.max": 1.0, "team.consensus_rounds": 1.0, "team.resample": 101.0,
+    "world.size": 144.0,
+    "team.robots": 1.0,
+    "train.samples": 6000.0,
+    "train.samples_growth": 1.0,
+    "train.iterations": 200.0,
+    "world.horizon": 20.0,
+    "train.eval_episodes": 100_000.0,
+    "train.bootstrap": 1000.0,
+    "train.paths": 20.0,
+    "team.delay.max": 1.0,
+    "team.consensus_rounds": 1.0,
+    "team.resample": 101.0,
 }
 
 
@@ -60,10 +69,25 @@ class Sizes:
 def sizes_of(cfg, width: int, height: int, sources: int, robots: int) -> Sizes:
     """Sizes from a schema-checked config (cfg.train, cfg.world, cfg.team) and the validated grid and team."""
     train, team = cfg.train, cfg.team
-    return Sizes(width, height, max(int(sources), 1), robots, int(cfg.world.horizon), int(train.iterations),
-                 int(train.samples), float(train.samples_growth), int(train.eval_episodes), int(train.bootstrap),
-                 int(train.paths), int(team.delay.max), int(team.consensus_rounds), int(team.resample),
-                 team.graph == "random_geometric", int(train.checkpoint_every), team.order == "gradient_tracking")
+    return Sizes(
+        width,
+        height,
+        max(int(sources), 1),
+        robots,
+        int(cfg.world.horizon),
+        int(train.iterations),
+        int(train.samples),
+        float(train.samples_growth),
+        int(train.eval_episodes),
+        int(train.bootstrap),
+        int(train.paths),
+        int(team.delay.max),
+        int(team.consensus_rounds),
+        int(team.resample),
+        team.graph == "random_geometric",
+        int(train.checkpoint_every),
+        team.order == "gradient_tracking",
+    )
 
 
 def check(sizes: Sizes) -> None:
@@ -114,47 +138,84 @@ def estimate(s: Sizes) -> tuple[list[Part], list[Part]]:
     memory = [
         (_prod(cells, 200.0 + 40.0 * m), grid, [size]),
         (_prod(cells, n, 40.0 + 40.0 * m), f"{grid}'s policy tables for {show(s.robots)} robot(s)", [size, robots]),
-        (_prod(n, w_last, 48.0 + 16.0 * m), f"its training batches ({_num(w_last)} episodes per robot in the "
-                                            f"largest iteration)", [samples, growth, robots]),
-        (_prod(policies, s.eval_episodes, 160.0), f"its evaluation ({show(s.eval_episodes)} episodes per policy)",
-         [evals, robots]),
+        (
+            _prod(n, w_last, 48.0 + 16.0 * m),
+            f"its training batches ({_num(w_last)} episodes per robot in the largest iteration)",
+            [samples, growth, robots],
+        ),
+        (
+            _prod(policies, s.eval_episodes, 160.0),
+            f"its evaluation ({show(s.eval_episodes)} episodes per policy)",
+            [evals, robots],
+        ),
         (_prod(record, 250.0), f"its recorded paths ({_num(record)} steps)", [paths, horizon, robots]),
-        (_prod(s.iterations, rows, 2000.0 + 200.0 * m), f"its metrics ({_num(_prod(s.iterations, rows))} rows)",
-         [iterations, robots]),
-        (_prod(slots, (64.0 + 80.0 * m) * (2.0 if s.tracking else 1.0)),
-         f"its consensus message buffers ({_num(slots)} slots)",
-         [delay, rounds, robots]),
+        (
+            _prod(s.iterations, rows, 2000.0 + 200.0 * m),
+            f"its metrics ({_num(_prod(s.iterations, rows))} rows)",
+            [iterations, robots],
+        ),
+        (
+            _prod(slots, (64.0 + 80.0 * m) * (2.0 if s.tracking else 1.0)),
+            f"its consensus message buffers ({_num(slots)} slots)",
+            [delay, rounds, robots],
+        ),
         (_prod(pairs, 1000.0 + 400.0 * m), f"its network of {show(s.robots)} robots", [robots]),
-        (_prod(s.bootstrap, 100.0) + _prod(s.eval_episodes, 16.0),
-         f"its bootstrap ({show(s.bootstrap)} resamples)", [boot, evals]),
+        (
+            _prod(s.bootstrap, 100.0) + _prod(s.eval_episodes, 16.0),
+            f"its bootstrap ({show(s.bootstrap)} resamples)",
+            [boot, evals],
+        ),
     ]
     time = [
-        (_prod(n, w_total, k), f"its training ({_num(_prod(n, w_total))} episodes of up to {show(s.horizon)} "
-                               f"moves)", [samples, iterations, growth, robots, horizon]),
-        (_prod(cells, 100.0) + _prod(tables, cells, 10.0), f"{grid}'s policy tables ({_num(tables)} of them)",
-         [size, iterations, robots]),
-        (_prod(s.iterations, ITERATION_STEPS + 2000.0 * rows), f"its {show(s.iterations)} iterations",
-         [iterations, robots]),
-        (_prod(policies, s.eval_episodes, k), f"its evaluation ({show(s.eval_episodes)} episodes per policy)",
-         [evals, horizon, robots]),
-        (_prod(s.bootstrap, s.eval_episodes), f"its bootstrap ({show(s.bootstrap)} resamples of "
-                                              f"{show(s.eval_episodes)} episodes)", [boot, evals]),
+        (
+            _prod(n, w_total, k),
+            f"its training ({_num(_prod(n, w_total))} episodes of up to {show(s.horizon)} moves)",
+            [samples, iterations, growth, robots, horizon],
+        ),
+        (
+            _prod(cells, 100.0) + _prod(tables, cells, 10.0),
+            f"{grid}'s policy tables ({_num(tables)} of them)",
+            [size, iterations, robots],
+        ),
+        (
+            _prod(s.iterations, ITERATION_STEPS + 2000.0 * rows),
+            f"its {show(s.iterations)} iterations",
+            [iterations, robots],
+        ),
+        (
+            _prod(policies, s.eval_episodes, k),
+            f"its evaluation ({show(s.eval_episodes)} episodes per policy)",
+            [evals, horizon, robots],
+        ),
+        (
+            _prod(s.bootstrap, s.eval_episodes),
+            f"its bootstrap ({show(s.bootstrap)} resamples of {show(s.eval_episodes)} episodes)",
+            [boot, evals],
+        ),
         (_prod(record, 400.0), f"its recorded paths ({_num(record)} steps)", [paths, horizon, robots]),
-        (_prod(s.iterations, s.rounds, pairs, m + 1.0, 5.0) if team else 0.0,
-         f"its consensus rounds ({show(s.rounds)} per iteration)", [rounds, robots, iterations]),
-        (_prod(slots, checkpoints, 100.0), f"its checkpoints of the consensus buffers ({_num(slots)} slots)",
-         [delay, rounds, robots]),
-        (_prod(pairs, 300.0) + (_prod(_f(s.resample) + 1.0, pairs, 5.0) if s.geometric and team else 0.0),
-         f"its network of {show(s.robots)} robots" + (f" (up to {show(s.resample + 1)} random_geometric draws)"
-                                                        if s.geometric and team else ""),
-         [robots] + ([resample] if s.geometric else [])),
+        (
+            _prod(s.iterations, s.rounds, pairs, m + 1.0, 5.0) if team else 0.0,
+            f"its consensus rounds ({show(s.rounds)} per iteration)",
+            [rounds, robots, iterations],
+        ),
+        (
+            _prod(slots, checkpoints, 100.0),
+            f"its checkpoints of the consensus buffers ({_num(slots)} slots)",
+            [delay, rounds, robots],
+        ),
+        (
+            _prod(pairs, 300.0) + (_prod(_f(s.resample) + 1.0, pairs, 5.0) if s.geometric and team else 0.0),
+            f"its network of {show(s.robots)} robots"
+            + (f" (up to {show(s.resample + 1)} random_geometric draws)" if s.geometric and team else ""),
+            [robots] + ([resample] if s.geometric else []),
+        ),
     ]
     return memory, time
 
 
 def _culprit(parts: list[Part]) -> tuple[str, str]:
     """(key, what) for the largest part: the key furthest above its default, and the part's description."""
-    amount, description, keys = max(parts, key=lambda part: part[0])
+    _amount, description, keys = max(parts, key=lambda part: part[0])
     key, value, _ = max(keys, key=lambda entry: entry[2])
     return key, f"got {value}; the run, mostly {description},"
 

@@ -13,11 +13,20 @@ from omegaconf import DictConfig, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from riskplan.config import schema
-from riskplan.util.errors import BadInput
-from riskplan.config.typed import explain, typed
 from riskplan.config.schema import CONF_DIR
+from riskplan.config.typed import explain, typed
+from riskplan.util.errors import BadInput
 
-__all__ = ["CONF_DIR", "GRAMMAR", "check_hydra_args", "compose", "explain", "expand_overrides", "expand_shorthands", "parse_overrides"]
+__all__ = [
+    "CONF_DIR",
+    "GRAMMAR",
+    "check_hydra_args",
+    "compose",
+    "expand_overrides",
+    "expand_shorthands",
+    "explain",
+    "parse_overrides",
+]
 GRAMMAR = "expected key=value (e.g. risk.beta=0.2), key=a,b for sweeps, or group=option (e.g. risk=neutral)"
 
 
@@ -31,8 +40,10 @@ def parse_overrides(overrides: list[str]) -> list:
         except HydraException:
             raise BadInput(f"override '{text}'", f"malformed; {GRAMMAR}") from None
         except RecursionError:  # the override grammar recurses once per bracket
-            raise BadInput(f"override '{_short(text)}'", "is nested too deeply to parse; reward programs may nest "
-                                                         "at most 32 levels") from None
+            raise BadInput(
+                f"override '{_short(text)}'",
+                "is nested too deeply to parse; reward programs may nest at most 32 levels",
+            ) from None
         if not parsed[-1].key_or_group:  # `=5`: Hydra parses an empty key
             raise BadInput(f"override '{text}'", f"malformed; {GRAMMAR}")
     return parsed
@@ -79,16 +90,20 @@ def expand_shorthands(overrides: list[str]) -> list[str]:
     out = []
     for text, parsed in zip(overrides, parse_overrides(overrides)):
         key = parsed.key_or_group
-        if key in SHORTHANDS and not parsed.is_delete() and (
-                parsed.is_sweep_override() or not isinstance(parsed.value(), (dict, list))):
+        if (
+            key in SHORTHANDS
+            and not parsed.is_delete()
+            and (parsed.is_sweep_override() or not isinstance(parsed.value(), (dict, list)))
+        ):
             prefix, _, value = text.partition("=")
             text = prefix.replace(key, SHORTHANDS[key], 1) + "=" + value
         out.append(text)
     return out
 
 
-def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = True,
-            with_hydra: bool = False) -> DictConfig:
+def compose(
+    overrides: list[str] | tuple[str, ...] = (), *, validate: bool = True, with_hydra: bool = False
+) -> DictConfig:
     """Compose conf/ with overrides, check the schema, then (optionally) the model's own constraints.
 
     With `with_hydra`, the config checked is returned with its hydra node (what Hydra would run: `riskplan train`
@@ -98,8 +113,10 @@ def compose(overrides: list[str] | tuple[str, ...] = (), *, validate: bool = Tru
     check_groups(parsed)
     for override in parsed:
         if override.key_or_group == "hydra.mode":
-            raise BadInput(f"override '{override.input_line}'", "riskplan train and check run one experiment; run "
-                                                                "several with riskplan sweep (e.g. seed=0,1,2)")
+            raise BadInput(
+                f"override '{override.input_line}'",
+                "riskplan train and check run one experiment; run several with riskplan sweep (e.g. seed=0,1,2)",
+            )
     expanded = expand_overrides(overrides)
     schema.register()
     GlobalHydra.instance().clear()
@@ -146,5 +163,3 @@ def check_hydra_args(args: list[str]) -> None:
 def _first_line(err: Exception) -> str:
     text = str(err).strip()
     return text.splitlines()[0] if text else type(err).__name__
-
-

@@ -48,19 +48,44 @@ def _plot(title: str, field: str, robots: int) -> dict:
     paths = []
     for i, r in enumerate(series_robots(robots)):
         label = "team average" if r == -1 else f"robot {r}"
-        paths.append({"value": f"{record.METRICS}{{robot=={r}}}.{field}", "enabled": True,
-                      "timestampMethod": "receiveTime", "label": label, "color": COLORS[i % len(COLORS)]})
-    return {"title": title, "paths": paths, "showXAxisLabels": True, "showYAxisLabels": True, "showLegend": True,
-            "legendDisplay": "floating", "showPlotValuesInLegend": False, "isSynced": True,
-            "xAxisVal": "timestamp", "sidebarDimension": 240}
+        paths.append(
+            {
+                "value": f"{record.METRICS}{{robot=={r}}}.{field}",
+                "enabled": True,
+                "timestampMethod": "receiveTime",
+                "label": label,
+                "color": COLORS[i % len(COLORS)],
+            }
+        )
+    return {
+        "title": title,
+        "paths": paths,
+        "showXAxisLabels": True,
+        "showYAxisLabels": True,
+        "showLegend": True,
+        "legendDisplay": "floating",
+        "showPlotValuesInLegend": False,
+        "isSynced": True,
+        "xAxisVal": "timestamp",
+        "sidebarDimension": 240,
+    }
 
 
 def _scene(title: str, frame: str, topics: dict[str, dict], target: tuple[float, float], distance: float) -> dict:
     return {
         "title": title,
-        "cameraState": {"distance": distance, "perspective": False, "phi": 0.0, "thetaOffset": 0.0,
-                        "target": [target[0], target[1], 0.0], "targetOffset": [0.0, 0.0, 0.0],
-                        "targetOrientation": [0.0, 0.0, 0.0, 1.0], "fovy": 45.0, "near": 0.5, "far": 5000.0},
+        "cameraState": {
+            "distance": distance,
+            "perspective": False,
+            "phi": 0.0,
+            "thetaOffset": 0.0,
+            "target": [target[0], target[1], 0.0],
+            "targetOffset": [0.0, 0.0, 0.0],
+            "targetOrientation": [0.0, 0.0, 0.0, 1.0],
+            "fovy": 45.0,
+            "near": 0.5,
+            "far": 5000.0,
+        },
         "followMode": "follow-pose",
         "followTf": frame,
         "scene": {"enableStats": False},
@@ -78,34 +103,64 @@ def _split(direction: str, panels: list, sizes: list[float] | None = None):
         return panels[0]
     sizes = sizes or [1.0] * len(panels)
     first = sizes[0] / sum(sizes)
-    return {"first": panels[0], "second": _split(direction, panels[1:], sizes[1:]), "direction": direction,
-            "splitPercentage": round(100 * first, 2)}
+    return {
+        "first": panels[0],
+        "second": _split(direction, panels[1:], sizes[1:]),
+        "direction": direction,
+        "splitPercentage": round(100 * first, 2),
+    }
 
 
 def layout(robots: int = 1, size: tuple[int, int] = (12, 12)) -> dict:
     """The layout of a run of `robots` robots on a `size` (width, height) grid."""
     width, height = (int(size[0]), int(size[1])) if size else (12, 12)
-    grid = _scene("world, sources and sampled paths", FRAME,
-                  {record.WORLD_MAP: {"colorField": "cell", "colorMode": "colormap", "colorMap": "turbo",
-                                      "minValue": 0, "maxValue": 2, "frameLocked": True},
-                   record.WORLD_MARKERS: {}, record.PATHS: {}},
-                  (width / 2, height / 2), 1.6 * max(width, height, 1))
+    grid = _scene(
+        "world, sources and sampled paths",
+        FRAME,
+        {
+            record.WORLD_MAP: {
+                "colorField": "cell",
+                "colorMode": "colormap",
+                "colorMap": "turbo",
+                "minValue": 0,
+                "maxValue": 2,
+                "frameLocked": True,
+            },
+            record.WORLD_MARKERS: {},
+            record.PATHS: {},
+        },
+        (width / 2, height / 2),
+        1.6 * max(width, height, 1),
+    )
     team = _scene("communication graph", TEAM_FRAME, {record.NETWORK_SCENE: {}}, (5.0, 5.0), 16.0)
     config = {
         GRID_PANEL: grid,
         TEAM_PANEL: team,
         CVAR_PANEL: _plot("CVaR of the training batch per iteration", "cvar", robots),
         MEAN_PANEL: _plot("mean of the training batch per iteration", "mean", robots),
-        SUMMARY_PANEL: {"title": "summary.json", "topicPath": record.SUMMARY, "diffEnabled": False,
-                        "diffMethod": "custom", "diffTopicPath": "", "showFullMessageForDiff": False,
-                        "expansion": "all"},
+        SUMMARY_PANEL: {
+            "title": "summary.json",
+            "topicPath": record.SUMMARY,
+            "diffEnabled": False,
+            "diffMethod": "custom",
+            "diffTopicPath": "",
+            "showFullMessageForDiff": False,
+            "expansion": "all",
+        },
     }
     plots = [CVAR_PANEL, MEAN_PANEL]
     if robots > 1:
         config[CONSENSUS_PANEL] = {
             **_plot("consensus error max ||θ_i − θ_j||", "consensus_error", 1),
-            "paths": [{"value": f"{record.CONSENSUS}.consensus_error", "enabled": True,
-                       "timestampMethod": "receiveTime", "label": "consensus error", "color": COLORS[0]}],
+            "paths": [
+                {
+                    "value": f"{record.CONSENSUS}.consensus_error",
+                    "enabled": True,
+                    "timestampMethod": "receiveTime",
+                    "label": "consensus error",
+                    "color": COLORS[0],
+                }
+            ],
         }
         plots.append(CONSENSUS_PANEL)
     left = _split("column", [GRID_PANEL, TEAM_PANEL], [3, 1])

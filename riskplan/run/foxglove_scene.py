@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import base64
 import json
+from collections.abc import Iterator
+from functools import cache
 from importlib import resources
-from functools import lru_cache
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -39,9 +40,16 @@ LINE_STRIP = 0
 DELETE_ALL = 1
 
 ROBOT_COLORS = [
-    (0.12, 0.47, 0.71), (1.00, 0.50, 0.05), (0.17, 0.63, 0.17), (0.84, 0.15, 0.16),
-    (0.58, 0.40, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.50, 0.50, 0.50),
-    (0.74, 0.74, 0.13), (0.09, 0.75, 0.81),
+    (0.12, 0.47, 0.71),
+    (1.00, 0.50, 0.05),
+    (0.17, 0.63, 0.17),
+    (0.84, 0.15, 0.16),
+    (0.58, 0.40, 0.74),
+    (0.55, 0.34, 0.29),
+    (0.89, 0.47, 0.76),
+    (0.50, 0.50, 0.50),
+    (0.74, 0.74, 0.13),
+    (0.09, 0.75, 0.81),
 ]
 NETWORK_COLOR = (0.10, 0.10, 0.10)
 
@@ -222,8 +230,10 @@ def network_scene(network: dict, t_ns: int) -> dict:
     xy = 10.0 * xy
     nodes = [sphere(x, y, 0.0, 0.6, robot_color(r)) for r, (x, y) in enumerate(xy)]
     labels = [text(x, y, 0.8, f"robot {r}", 0.4, robot_color(r)) for r, (x, y) in enumerate(xy)]
-    links = [line_strip([(xy[j][0], xy[j][1], 0.0), (xy[i][0], xy[i][1], 0.0)], (0.4, 0.4, 0.4), 0.05)
-             for i, j in network.get("edges", [])]
+    links = [
+        line_strip([(xy[j][0], xy[j][1], 0.0), (xy[i][0], xy[i][1], 0.0)], (0.4, 0.4, 0.4), 0.05)
+        for i, j in network.get("edges", [])
+    ]
     team = entity("team", t_ns, spheres=nodes, texts=labels, lines=links)
     team["frame_id"] = "team"
     return scene_update([team])
@@ -288,12 +298,12 @@ def path_scenes(
 
 
 # ----------------------------------------------------------------------------------------------- schemas
-@lru_cache(maxsize=None)
+@cache
 def schema(name: str) -> dict[str, Any]:
     """An official Foxglove JSON schema, shipped verbatim as package data (riskplan/schemas/)."""
     return json.loads(resources.files("riskplan.run").joinpath("schemas", f"{name}.json").read_text())
 
 
-@lru_cache(maxsize=None)
+@cache
 def schema_bytes(name: str) -> bytes:
     return json.dumps(schema(name), separators=(",", ":")).encode()

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 from numba import njit, prange
 
-from riskplan.version import __version__
 from riskplan.engine.risk_measures import cvar, tail_count, value_at_risk
 from riskplan.engine.rng import BOOTSTRAP, GOLDEN, episode_state, mix, stream_key
+from riskplan.version import __version__
 
 SCHEMA_VERSION = 1
 REPORT_BETAS = (0.05, 0.1, 0.2)
@@ -97,8 +97,9 @@ def provenance() -> dict:
 def _git_sha() -> str | None:
     """HEAD of the repository riskplan runs from, if any."""
     try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
-                             capture_output=True, text=True, timeout=5)
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent, capture_output=True, text=True, timeout=5
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     return out.stdout.strip() or None if out.returncode == 0 else None

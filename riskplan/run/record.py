@@ -36,9 +36,10 @@ import json
 import math
 import os
 import time as _time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from mcap.opcode import Opcode
@@ -73,16 +74,34 @@ ITERATION_TOPICS = (METRICS, THETA, CONSENSUS)
 WORLD_TOPICS = (WORLD_MAP, WORLD_MARKERS, NETWORK, NETWORK_SCENE)  # written once, copied on resume
 
 METRICS_BASE = {
-    "iteration": "int64", "robot": "int64", "mean": "float64", "cvar": "float64", "value_at_risk": "float64",
-    "std": "float64", "grad_norm": "float64", "step_size": "float64", "beta_l": "float64",
-    "consensus_error": "float64", "samples": "int64", "seconds": "float64",
+    "iteration": "int64",
+    "robot": "int64",
+    "mean": "float64",
+    "cvar": "float64",
+    "value_at_risk": "float64",
+    "std": "float64",
+    "grad_norm": "float64",
+    "step_size": "float64",
+    "beta_l": "float64",
+    "consensus_error": "float64",
+    "samples": "int64",
+    "seconds": "float64",
 }
 EVAL_COLUMNS = {
-    "episode": "int64", "robot": "int64", "total_reward": "float64", "risky_steps": "int64",
-    "source_reached": "int64", "steps": "int64",
+    "episode": "int64",
+    "robot": "int64",
+    "total_reward": "float64",
+    "risky_steps": "int64",
+    "source_reached": "int64",
+    "steps": "int64",
 }
 TRAJECTORY_COLUMNS = {
-    "policy": "str", "episode": "int64", "robot": "int64", "step": "int64", "x": "int64", "y": "int64",
+    "policy": "str",
+    "episode": "int64",
+    "robot": "int64",
+    "step": "int64",
+    "x": "int64",
+    "y": "int64",
     "reward": "float64",
 }
 
@@ -99,11 +118,22 @@ OWN_SCHEMAS: dict[str, dict] = {
         "description": "One metrics.parquet row: one (iteration, robot); robot -1 is the network average.",
         "type": "object",
         "properties": {
-            "iteration": _INT, "robot": _INT, "mean": _FLOAT, "cvar": _FLOAT, "value_at_risk": _FLOAT,
-            "std": _FLOAT, "grad_norm": _FLOAT, "step_size": _FLOAT,
-            "beta_l": {**_FLOAT, "description": "beta_l, the CVaR level of the iteration's gradient (risk.schedule; "
-                                                "1 for the mean gradient); cvar and value_at_risk are at risk.beta"},
-            "consensus_error": _FLOAT, "samples": _INT, "seconds": _FLOAT,
+            "iteration": _INT,
+            "robot": _INT,
+            "mean": _FLOAT,
+            "cvar": _FLOAT,
+            "value_at_risk": _FLOAT,
+            "std": _FLOAT,
+            "grad_norm": _FLOAT,
+            "step_size": _FLOAT,
+            "beta_l": {
+                **_FLOAT,
+                "description": "beta_l, the CVaR level of the iteration's gradient (risk.schedule; "
+                "1 for the mean gradient); cvar and value_at_risk are at risk.beta",
+            },
+            "consensus_error": _FLOAT,
+            "samples": _INT,
+            "seconds": _FLOAT,
         },
         "patternProperties": {"^theta_[0-9]+$": _FLOAT},
         "required": ["iteration", "robot"],
@@ -145,8 +175,14 @@ OWN_SCHEMAS: dict[str, dict] = {
         "title": "riskplan.Network",
         "description": "The team's communication graph and mixing weights (weights[i][j][m] = a^{ij}_m of eq. 14).",
         "type": "object",
-        "properties": {"robots": _INT, "graph": {"type": "string"}, "edges": {"type": "array"},
-                       "weights": {"type": "array"}, "gamma": _FLOAT, "slem": _FLOAT},
+        "properties": {
+            "robots": _INT,
+            "graph": {"type": "string"},
+            "edges": {"type": "array"},
+            "weights": {"type": "array"},
+            "gamma": _FLOAT,
+            "slem": _FLOAT,
+        },
         "required": ["robots", "graph", "edges", "weights"],
     },
     "riskplan.Summary": {
@@ -326,7 +362,7 @@ class RunLog:
         if flush is not None:  # mcap >= 1.3: finishes the chunk in progress, writes it out, flushes the stream
             flush()
         else:  # older mcap: same thing through the private method
-            getattr(self._w, "_Writer__finalize_chunk")()
+            self._w._Writer__finalize_chunk()
         self._fh.flush()
 
     def _check_open(self) -> None:
@@ -341,7 +377,9 @@ class RunLog:
             dtypes, columns = {}, {}
             for c in df.columns:
                 dtypes[str(c)], columns[str(c)] = _encode_column(part[c])
-            self._add(topic, {"table": table, "offset": start, "rows": len(part), "dtypes": dtypes, "columns": columns}, t)
+            self._add(
+                topic, {"table": table, "offset": start, "rows": len(part), "dtypes": dtypes, "columns": columns}, t
+            )
 
     # -- public
     def metadata(self, name: str, data: dict) -> None:
@@ -397,7 +435,7 @@ class RunLog:
         w = h = None
         if self._world is not None:
             w, h = int(self._world["width"]), int(self._world["height"])
-        step_ns = max(1, int(round(step_seconds * 1e9)))
+        step_ns = max(1, round(step_seconds * 1e9))
         for ts, msg in fx.path_scenes(df, t + step_ns, step_ns, w, h):
             self._add(PATHS, msg, ts)
             self._t = max(self._t, ts + 1)
@@ -433,7 +471,7 @@ class RunLog:
         finally:
             self._fh.close()
 
-    def __enter__(self) -> "RunLog":
+    def __enter__(self) -> RunLog:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -501,7 +539,7 @@ def _scan(data: bytes, where: str) -> _Scan:
                 out.metadata.append((record.name, dict(record.metadata)))
             footer = isinstance(record, Footer)
             pos = stream.tell()
-    except Exception as err:  # noqa: BLE001 - any failure ends the readable part, whatever the reader raised
+    except Exception as err:
         out.stop = _stop_reason(data, pos, footer, err)
         return out
     out.closed = True
@@ -515,7 +553,7 @@ def _stop_reason(data: bytes, pos: int, after_footer: bool, err: Exception) -> s
         return f"file ends at byte {n}, inside the closing magic"
     if pos + 9 > n:
         return f"file ends at byte {n}, inside a record header"
-    if pos + 9 + int.from_bytes(data[pos + 1:pos + 9], "little") > n:
+    if pos + 9 + int.from_bytes(data[pos + 1 : pos + 9], "little") > n:
         return f"file ends at byte {n}, inside a record that starts at byte {pos}"
     return f"corrupt record at byte {pos} ({type(err).__name__})"
 
@@ -678,4 +716,4 @@ def resume_log(src: Path | str, dst: Path | str, last_iteration: int) -> RunLog:
     return log
 
 
-__all__ = ["RunLog", "LogData", "read_log", "resume_log", "BATCH_ROWS"]
+__all__ = ["BATCH_ROWS", "LogData", "RunLog", "read_log", "resume_log"]

@@ -42,8 +42,10 @@ class Run:
         if not self.complete or not self.summary:
             return f"{what}, {iterations} iterations, incomplete: {self.problem}"
         cvar = self.summary.get("cvar", {})
-        return (f"{what}, {iterations} iterations, CVaR {cvar.get('value', float('nan')):.1f} "
-                f"[{cvar.get('low', float('nan')):.1f}, {cvar.get('high', float('nan')):.1f}]")
+        return (
+            f"{what}, {iterations} iterations, CVaR {cvar.get('value', float('nan')):.1f} "
+            f"[{cvar.get('low', float('nan')):.1f}, {cvar.get('high', float('nan')):.1f}]"
+        )
 
     def __repr__(self) -> str:
         return f"Run('{self.path}': {self.headline()})"
@@ -56,14 +58,21 @@ class Run:
         if self.complete and self.summary:
             for name in ("mean", "cvar", "value_at_risk"):
                 f = self.summary.get(name, {})
-                rows.append((name, f"{f.get('value', float('nan')):.1f} [{f.get('low', float('nan')):.1f}, "
-                                   f"{f.get('high', float('nan')):.1f}]"))
+                rows.append(
+                    (
+                        name,
+                        f"{f.get('value', float('nan')):.1f} [{f.get('low', float('nan')):.1f}, "
+                        f"{f.get('high', float('nan')):.1f}]",
+                    )
+                )
             rows.append(("P(risky)", f"{self.summary.get('risky_fraction', float('nan')):.1%}"))
         else:
             rows.append(("status", f"incomplete: {self.problem}"))
         rows.append(("tables", ", ".join(f"{name} {len(getattr(self, name))} rows" for name in TABLES)))
-        body = "".join(f"<tr><th style='text-align:left'>{escape(k)}</th><td style='text-align:left'>{escape(v)}</td>"
-                       f"</tr>" for k, v in rows)
+        body = "".join(
+            f"<tr><th style='text-align:left'>{escape(k)}</th><td style='text-align:left'>{escape(v)}</td></tr>"
+            for k, v in rows
+        )
         return f"<table><caption style='text-align:left'><b>riskplan Run</b></caption>{body}</table>"
 
 
@@ -79,11 +88,15 @@ def find_runs(paths: list[Path]) -> list[Path]:
         root = Path(root)
         if not root.exists():
             raise BadInput(str(root), "does not exist; give a run, sweep or reproduce directory")
-        here = sorted({p.parent for p in root.rglob("run.mcap")}
-                      | {p.parent.parent for p in root.rglob(".hydra/config.yaml")})
+        here = sorted(
+            {p.parent for p in root.rglob("run.mcap")} | {p.parent.parent for p in root.rglob(".hydra/config.yaml")}
+        )
         if not here:
-            raise BadInput(str(root), "holds no run (no run.mcap or .hydra/config.yaml below it); "
-                                      "give a directory written by riskplan train, sweep or reproduce")
+            raise BadInput(
+                str(root),
+                "holds no run (no run.mcap or .hydra/config.yaml below it); "
+                "give a directory written by riskplan train, sweep or reproduce",
+            )
         found.extend(here)
     return sorted(dict.fromkeys(found))
 
@@ -107,14 +120,30 @@ def load_run(path: str | Path) -> Run:
     else:
         damaged = None
     if not (path / "run.mcap").is_file():
-        return Run(path, config, pd.DataFrame(), pd.DataFrame(), pd.DataFrame(), None, False,
-                   "no run.mcap and no tables: the run never started or its files were removed")
+        return Run(
+            path,
+            config,
+            pd.DataFrame(),
+            pd.DataFrame(),
+            pd.DataFrame(),
+            None,
+            False,
+            "no run.mcap and no tables: the run never started or its files were removed",
+        )
     from riskplan.run.record import read_log
 
     log = read_log(path / "run.mcap")
     problem = log.problem or damaged
-    return Run(path, config or log.metadata.get("config", {}), log.metrics, log.eval, log.trajectories,
-               log.summary, log.complete, problem)
+    return Run(
+        path,
+        config or log.metadata.get("config", {}),
+        log.metrics,
+        log.eval,
+        log.trajectories,
+        log.summary,
+        log.complete,
+        problem,
+    )
 
 
 def _config(path: Path) -> dict:
@@ -130,8 +159,11 @@ def _config(path: Path) -> dict:
         return {}
     try:
         if file.stat().st_size > CONFIG_BYTES:
-            raise BadInput(str(file), f"is {file.stat().st_size} bytes, too large for a run's config "
-                                      f"(at most {CONFIG_BYTES}); it was not written by riskplan")
+            raise BadInput(
+                str(file),
+                f"is {file.stat().st_size} bytes, too large for a run's config "
+                f"(at most {CONFIG_BYTES}); it was not written by riskplan",
+            )
         data = yaml.load(file.read_text(encoding="utf-8"), Loader=SAFE_LOADER)
     except OSError as err:
         raise BadInput(str(file), f"cannot be read ({err.strerror or err})") from None
@@ -147,8 +179,9 @@ def _config(path: Path) -> dict:
     if not isinstance(data, dict):
         raise BadInput(str(file), f"holds a {_yaml_kind(data)}, not a mapping of config keys")
     if _nodes(data) > CONFIG_NODES:
-        raise BadInput(str(file), f"expands to more than {CONFIG_NODES} values (YAML aliases?); "
-                                  "it was not written by riskplan")
+        raise BadInput(
+            str(file), f"expands to more than {CONFIG_NODES} values (YAML aliases?); it was not written by riskplan"
+        )
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
@@ -160,8 +193,9 @@ def _config(path: Path) -> dict:
         if unset:
             text = f"the environment variable {unset.group(1)} is not set"
         key = getattr(err, "full_key", None)
-        raise BadInput(str(file), f"has a value that cannot be resolved"
-                                  f"{f' at {key}' if key else ''} ({text})") from None
+        raise BadInput(
+            str(file), f"has a value that cannot be resolved{f' at {key}' if key else ''} ({text})"
+        ) from None
     return resolved if isinstance(resolved, dict) else {}
 
 

@@ -13,28 +13,29 @@ import math
 import os
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from omegaconf import OmegaConf
 
-from riskplan.engine import rng
-from riskplan.engine.team.consensus import consensus_error, network_metadata
-from riskplan.run.budget import EVAL_BATCH
-from riskplan.util.errors import BadInput
-from riskplan.util.lock import hold
 from riskplan.config.typed import as_dict, typed
-from riskplan.util.paths import atomic_path, check_output_dir, write_atomic
-from riskplan.run.foxglove_layout import write_layout
-from riskplan.run.record import RunLog, read_log, resume_log
+from riskplan.engine import rng
 from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, summary_stats
 from riskplan.engine.rollout import simulate
-from riskplan.run.results import Run
-from riskplan.run.build import Setup, build_setup, logit_bound, risk_level, samples_at, step_size
-from riskplan.run.intervals import SCHEMA_VERSION, bootstrap_intervals, provenance
+from riskplan.engine.team.consensus import consensus_error, network_metadata
 from riskplan.engine.world import world_map
+from riskplan.run.budget import EVAL_BATCH
+from riskplan.run.build import Setup, build_setup, logit_bound, risk_level, samples_at, step_size
+from riskplan.run.foxglove_layout import write_layout
+from riskplan.run.intervals import SCHEMA_VERSION, bootstrap_intervals, provenance
+from riskplan.run.record import RunLog, read_log, resume_log
+from riskplan.run.results import Run
+from riskplan.util.errors import BadInput
+from riskplan.util.lock import hold
+from riskplan.util.paths import atomic_path, check_output_dir, write_atomic
 
 if TYPE_CHECKING:  # pandas (0.2-0.4 s to import, with pyarrow) loads after the training loop, see _train_locked
     import pandas as pd
@@ -67,8 +68,9 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
     l, thetas = state.iteration, state.thetas
     n, beta = setup.robots, params.risk.beta
     episodes = samples_at(l, params.train)
-    batch = simulate(setup.world, setup.kernel, thetas, starts(setup),
-                     rng.robot_keys(params.seed, rng.TRAIN, l, n), episodes)
+    batch = simulate(
+        setup.world, setup.kernel, thetas, starts(setup), rng.robot_keys(params.seed, rng.TRAIN, l, n), episodes
+    )
     z = batch.total_reward.reshape(n, episodes)
     scores = batch.score.reshape(n, episodes, -1)
     check_finite(f"iteration {l}: an episode's total reward", z)
@@ -84,17 +86,33 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
         eps = step_size(l, params.train.step_size)
         new_thetas = consensus_step(setup, thetas, grads, eps, l)
     if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(new_thetas))):
-        raise NumericalTrouble(f"iteration {l}: theta or its gradient is not finite (theta={thetas.tolist()}, "
-                               f"gradient={grads.tolist()}); lower train.step_size.initial")
+        raise NumericalTrouble(
+            f"iteration {l}: theta or its gradient is not finite (theta={thetas.tolist()}, "
+            f"gradient={grads.tolist()}); lower train.step_size.initial"
+        )
     if not math.isfinite(logit_bound(setup.world, new_thetas)):
-        raise NumericalTrouble(f"iteration {l}: the new theta={new_thetas.tolist()} overflows the softmax "
-                               f"(theta . signal is not finite); lower train.step_size.initial")
+        raise NumericalTrouble(
+            f"iteration {l}: the new theta={new_thetas.tolist()} overflows the softmax "
+            f"(theta . signal is not finite); lower train.step_size.initial"
+        )
     error = consensus_error(thetas) if setup.team else math.nan
     seconds = time.perf_counter() - started
     rows = _robot_rows(l, stats, thetas, grads, eps, error, episodes, seconds, level)
     if setup.team:
-        rows.append(_row(l, AVERAGE, summary_stats(z.ravel(), beta), thetas.mean(axis=0), grads.mean(axis=0), eps,
-                         error, episodes * n, seconds, level))
+        rows.append(
+            _row(
+                l,
+                AVERAGE,
+                summary_stats(z.ravel(), beta),
+                thetas.mean(axis=0),
+                grads.mean(axis=0),
+                eps,
+                error,
+                episodes * n,
+                seconds,
+                level,
+            )
+        )
     return State(l + 1, new_thetas, setup.mixer.snapshot(), state.rows + rows), rows  # copied when read
 
 
@@ -118,8 +136,9 @@ def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: flo
     return mixed if adapt_first else mixed + eps * grads
 
 
-def train(config, out_dir: str | Path, *, resume: bool = False,
-          progress: Callable[[int, int, dict], None] | None = None) -> Run:
+def train(
+    config, out_dir: str | Path, *, resume: bool = False, progress: Callable[[int, int, dict], None] | None = None
+) -> Run:
     """Train, evaluate and record one experiment into out_dir; with resume, continue from its checkpoint.
 
     `config` is a composed config (or a Setup built from one). The directory is locked for the whole run: a second
@@ -186,9 +205,11 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
 def refuse_existing_run(out: Path, setup: Setup) -> None:
     """A fresh run never writes over another run's files: BadInput naming --resume instead."""
     if any((out / name).exists() for name in (*FINISHED, CHECKPOINT, "run.mcap")) or (
-            (out / ".hydra" / "config.yaml").is_file() and _config_changed(out, setup.config)):
-        raise BadInput(str(out), f"already holds a run; resume it with riskplan train --resume {out}, or give a "
-                                 f"new directory")
+        (out / ".hydra" / "config.yaml").is_file() and _config_changed(out, setup.config)
+    ):
+        raise BadInput(
+            str(out), f"already holds a run; resume it with riskplan train --resume {out}, or give a new directory"
+        )
 
 
 def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
@@ -202,8 +223,11 @@ def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
     per_iteration = robots + (1 if robots > 1 else 0)
     counts = metrics.groupby("iteration").size()
     if len(counts) != iterations or (iterations and not bool((counts == per_iteration).all())):
-        raise BadInput(str(path), f"holds rows that do not match the checkpoint (iteration {iterations}, "
-                                  f"{per_iteration} rows per iteration); start the run again")
+        raise BadInput(
+            str(path),
+            f"holds rows that do not match the checkpoint (iteration {iterations}, "
+            f"{per_iteration} rows per iteration); start the run again",
+        )
     return metrics.to_dict("records")
 
 
@@ -234,15 +258,19 @@ def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
         for first in range(0, count, EVAL_BATCH):
             key = np.array([rng.stream_key(setup.params.seed, rng.EVAL, p, first)], dtype=np.uint64)
             size = min(EVAL_BATCH, count - first)
-            parts.append(simulate(setup.world, setup.kernel, evaluated[p:p + 1], cells[p:p + 1], key, size))
-        frames.append(pd.DataFrame({
-            "episode": np.arange(count, dtype=np.int64),
-            "robot": np.full(count, robot, dtype=np.int64),
-            "total_reward": np.concatenate([b.total_reward for b in parts]),
-            "risky_steps": np.concatenate([b.risky_steps for b in parts]),
-            "source_reached": np.concatenate([b.source_reached for b in parts]),
-            "steps": np.concatenate([b.steps for b in parts]),
-        }))
+            parts.append(simulate(setup.world, setup.kernel, evaluated[p : p + 1], cells[p : p + 1], key, size))
+        frames.append(
+            pd.DataFrame(
+                {
+                    "episode": np.arange(count, dtype=np.int64),
+                    "robot": np.full(count, robot, dtype=np.int64),
+                    "total_reward": np.concatenate([b.total_reward for b in parts]),
+                    "risky_steps": np.concatenate([b.risky_steps for b in parts]),
+                    "source_reached": np.concatenate([b.source_reached for b in parts]),
+                    "steps": np.concatenate([b.steps for b in parts]),
+                }
+            )
+        )
     return pd.concat(frames, ignore_index=True)
 
 
@@ -259,20 +287,25 @@ def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
         alive = batch.path_cells >= 0
         episode, step = np.nonzero(alive)
         x, y = setup.world.xy(batch.path_cells[alive])
-        frames.append(pd.DataFrame({
-            "policy": name,
-            "episode": (episode % max(count, 1)).astype(np.int64),
-            "robot": ids[episode // max(count, 1)].astype(np.int64),
-            "step": step.astype(np.int64),
-            "x": x.astype(np.int64),
-            "y": y.astype(np.int64),
-            "reward": batch.path_rewards[alive],
-        }))
+        frames.append(
+            pd.DataFrame(
+                {
+                    "policy": name,
+                    "episode": (episode % max(count, 1)).astype(np.int64),
+                    "robot": ids[episode // max(count, 1)].astype(np.int64),
+                    "step": step.astype(np.int64),
+                    "x": x.astype(np.int64),
+                    "y": y.astype(np.int64),
+                    "reward": batch.path_rewards[alive],
+                }
+            )
+        )
     return pd.concat(frames, ignore_index=True)
 
 
-def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.DataFrame,
-              train_seconds: float) -> dict:
+def summarize(
+    setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.DataFrame, train_seconds: float
+) -> dict:
     """summary.json: headline policy's figures with intervals, per-policy basics, timing, provenance."""
     params = setup.params
     headline = AVERAGE if setup.team else 0
@@ -286,9 +319,10 @@ def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.
         per_policy[str(robot)] = {
             **{k: float(v) for k, v in summary_stats(group.total_reward.to_numpy(), params.risk.beta).items()},
             "risky_fraction": float((group.risky_steps > 0).mean()),
-            "source_reached": {name: float((group.source_reached == j).mean())
-                               for j, name in enumerate(setup.world.source_names)} | {
-                "none": float((group.source_reached < 0).mean())},
+            "source_reached": {
+                name: float((group.source_reached == j).mean()) for j, name in enumerate(setup.world.source_names)
+            }
+            | {"none": float((group.source_reached < 0).mean())},
         }
     _, final_thetas, _ = policies(setup, state.thetas)
     return {
@@ -314,9 +348,12 @@ def summarize(setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.
 def save_checkpoint(out: Path, state: State) -> None:
     """Write the checkpoint atomically: temp file, fsync, rename, fsync the directory."""
     tmp = out / f"{CHECKPOINT}.tmp"
-    payload = {"iteration": state.iteration, "thetas": state.thetas.tolist(),
-               "mixer": {k: np.asarray(v).tolist() for k, v in state.mixer.items()},
-               "mixer_dtypes": {k: str(np.asarray(v).dtype) for k, v in state.mixer.items()}}
+    payload = {
+        "iteration": state.iteration,
+        "thetas": state.thetas.tolist(),
+        "mixer": {k: np.asarray(v).tolist() for k, v in state.mixer.items()},
+        "mixer_dtypes": {k: str(np.asarray(v).dtype) for k, v in state.mixer.items()},
+    }
     with open(tmp, "w") as handle:
         json.dump(payload, handle)
         handle.flush()
@@ -343,28 +380,44 @@ def load_checkpoint(out: Path, setup: Setup) -> State:
         mixer = {k: np.array(v, dtype=np.dtype(payload["mixer_dtypes"][k])) for k, v in payload["mixer"].items()}
         iteration = payload["iteration"]
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
-        raise BadInput(str(path), f"is damaged ({type(err).__name__}: {err}); it was not written by riskplan, "
-                                  f"which replaces checkpoints atomically: start the run again") from None
+        raise BadInput(
+            str(path),
+            f"is damaged ({type(err).__name__}: {err}); it was not written by riskplan, "
+            f"which replaces checkpoints atomically: start the run again",
+        ) from None
     if type(iteration) is not int or iteration < 1:
-        raise BadInput(str(path), f"holds iteration {iteration!r}; a checkpoint is written after iteration 1 or "
-                                  f"later: start the run again")
+        raise BadInput(
+            str(path),
+            f"holds iteration {iteration!r}; a checkpoint is written after iteration 1 or later: start the run again",
+        )
     if thetas.shape != (setup.robots, setup.world.sources):
-        raise BadInput(str(out), f"checkpoint holds {thetas.shape} thetas, the config needs "
-                                 f"{(setup.robots, setup.world.sources)}; only train.iterations may change on resume")
+        raise BadInput(
+            str(out),
+            f"checkpoint holds {thetas.shape} thetas, the config needs "
+            f"{(setup.robots, setup.world.sources)}; only train.iterations may change on resume",
+        )
     if not (np.all(np.isfinite(thetas)) and math.isfinite(logit_bound(setup.world, thetas))):
         raise BadInput(str(path), "holds a theta that is not finite (or overflows the softmax); start the run again")
     expected = setup.mixer.state()
     for key, value in mixer.items():
-        if key not in expected or value.shape != expected[key].shape or (
-                value.dtype.kind == "f" and not np.all(np.isfinite(value))):
-            raise BadInput(str(path), f"holds a consensus state '{key}' that does not fit this team (or is not "
-                                      f"finite); start the run again")
+        if (
+            key not in expected
+            or value.shape != expected[key].shape
+            or (value.dtype.kind == "f" and not np.all(np.isfinite(value)))
+        ):
+            raise BadInput(
+                str(path),
+                f"holds a consensus state '{key}' that does not fit this team (or is not finite); start the run again",
+            )
     if set(mixer) != set(expected):
         raise BadInput(str(path), "lacks part of the consensus state of this team; start the run again")
     if iteration > setup.params.train.iterations:
-        raise BadInput("train.iterations", f"got {setup.params.train.iterations}, but {out} is checkpointed "
-                                           f"at iteration {iteration}; a resumed run can only be extended: give "
-                                           f"train.iterations >= {iteration}")
+        raise BadInput(
+            "train.iterations",
+            f"got {setup.params.train.iterations}, but {out} is checkpointed "
+            f"at iteration {iteration}; a resumed run can only be extended: give "
+            f"train.iterations >= {iteration}",
+        )
     return State(iteration, thetas, mixer, [])
 
 
@@ -383,12 +436,17 @@ def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, level) ->
     values every robot shares, filled in column by column."""
     n, m = thetas.shape
     if n <= 4:  # a centralized run or a small team: one _row each is quicker
-        return [_row(l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, samples, seconds,
-                     level) for i in range(n)]
+        return [
+            _row(l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, samples, seconds, level)
+            for i in range(n)
+        ]
     template = _row(l, 0, {k: 0.0 for k in stats}, np.zeros(m), np.zeros(1), eps, error, samples, seconds, level)
-    columns = {"robot": range(n), **{k: np.asarray(v, dtype=float).tolist() for k, v in stats.items()},
-               **{f"theta_{j}": column for j, column in enumerate(np.asarray(thetas, dtype=float).T.tolist())},
-               "grad_norm": _norms(grads)}
+    columns = {
+        "robot": range(n),
+        **{k: np.asarray(v, dtype=float).tolist() for k, v in stats.items()},
+        **{f"theta_{j}": column for j, column in enumerate(np.asarray(thetas, dtype=float).T.tolist())},
+        "grad_norm": _norms(grads),
+    }
     rows = [template.copy() for _ in range(n)]
     for key, column in columns.items():  # existing keys: the template's order stays
         for row, value in zip(rows, column):
@@ -406,11 +464,18 @@ def _norms(vectors: np.ndarray) -> list[float]:
 
 def _row(l, robot, stats, theta, grad, eps, error, samples, seconds, level) -> dict:
     """One metrics.parquet row (`level`: beta_l, the CVaR level of the iteration's gradient; stats are at beta)."""
-    return {"iteration": l, "robot": robot, **{k: float(v) for k, v in stats.items()},
-            **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
-            "grad_norm": float(np.linalg.norm(grad)), "step_size": eps, "beta_l": float(level),
-            "consensus_error": error,
-            "samples": int(samples), "seconds": seconds}
+    return {
+        "iteration": l,
+        "robot": robot,
+        **{k: float(v) for k, v in stats.items()},
+        **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
+        "grad_norm": float(np.linalg.norm(grad)),
+        "step_size": eps,
+        "beta_l": float(level),
+        "consensus_error": error,
+        "samples": int(samples),
+        "seconds": seconds,
+    }
 
 
 def _write_config(out: Path, config: dict, replace: bool = False) -> None:

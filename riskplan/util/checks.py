@@ -36,8 +36,10 @@ def finite(value: Any, key: str) -> float:
     try:
         number = float(value)
     except OverflowError:  # a YAML integer with hundreds of digits
-        raise BadInput(key, f"got an integer of about 2^{int(value).bit_length()}; expected a number a float can hold "
-                            f"(|x| < 1.8e308)") from None
+        raise BadInput(
+            key,
+            f"got an integer of about 2^{int(value).bit_length()}; expected a number a float can hold (|x| < 1.8e308)",
+        ) from None
     require(math.isfinite(number), key, f"got {value!r}; expected a finite number")
     return number
 

@@ -88,22 +88,31 @@ def check_memory(key: str, need: float, what: str) -> None:
     """BadInput naming `key` when `what` needs more than the memory budget."""
     budget, source = memory_budget()
     if not need <= budget:
-        raise BadInput(key, f"{what} needs about {size(need)} of memory, more than the {size(budget)} allowed "
-                            f"({source}); lower it, or raise the limit with {MEMORY_ENV}=<GB>")
+        raise BadInput(
+            key,
+            f"{what} needs about {size(need)} of memory, more than the {size(budget)} allowed "
+            f"({source}); lower it, or raise the limit with {MEMORY_ENV}=<GB>",
+        )
 
 
 def check_time(key: str, seconds: float, what: str) -> None:
     """BadInput naming `key` when `what` is estimated to take longer than the time budget."""
     budget = time_budget()
     if not seconds <= budget:
-        raise BadInput(key, f"{what} would take about {duration(seconds)} (at {STEPS_PER_SECOND / 1e6:.0f}M "
-                            f"trajectory-steps/s), more than the {duration(budget)} allowed; lower it, or raise the "
-                            f"limit with {HOURS_ENV}=<hours>")
+        raise BadInput(
+            key,
+            f"{what} would take about {duration(seconds)} (at {STEPS_PER_SECOND / 1e6:.0f}M "
+            f"trajectory-steps/s), more than the {duration(budget)} allowed; lower it, or raise the "
+            f"limit with {HOURS_ENV}=<hours>",
+        )
 
 
 def check_jobs(key: str, jobs: int) -> None:
     """BadInput naming `key` when a sweep would hold more jobs than the job budget."""
     budget = job_budget()
     if jobs > budget:
-        raise BadInput(key, f"expands to {jobs} jobs, more than the {budget} allowed; sweep fewer values, or raise "
-                            f"the limit with {JOBS_ENV}=<jobs>")
+        raise BadInput(
+            key,
+            f"expands to {jobs} jobs, more than the {budget} allowed; sweep fewer values, or raise "
+            f"the limit with {JOBS_ENV}=<jobs>",
+        )

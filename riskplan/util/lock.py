@@ -74,8 +74,11 @@ def hold(directory: Path | str, what: str = "run directory"):
     except OSError:
         pid = _read_pid(fd)
         os.close(fd)
-        raise BadInput(str(directory), f"is in use by another riskplan process (pid {pid}); one process writes a "
-                                       f"{what} at a time: wait for it to end or stop it") from None
+        raise BadInput(
+            str(directory),
+            f"is in use by another riskplan process (pid {pid}); one process writes a "
+            f"{what} at a time: wait for it to end or stop it",
+        ) from None
     try:
         if not PROC_LOCKS.exists():
             os.ftruncate(fd, 0)

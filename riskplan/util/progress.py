@@ -16,8 +16,14 @@ class TrainingBar:
 
     def __enter__(self):
         self._bar = Progress(
-            TextColumn("[bold]train"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[stats]}"),
-            TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True,
+            TextColumn("[bold]train"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[stats]}"),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=console,
+            transient=True,
             disable=not (sys.stderr.isatty() or console.is_jupyter),  # a live bar on a terminal or in a notebook
         )
         self._bar.__enter__()

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from numba import njit, prange
@@ -106,8 +106,9 @@ def check_settings(team: Any) -> Settings:
     if not 0.0 <= drop < 1.0:
         raise BadInput("team.drop", f"is {drop:g}; the drop probability must be in [0, 1)")
     max_gap = whole(_get(team, "max_gap"), "team.max_gap", 1, "the longest gap between deliveries on a link (B)")
-    rounds = whole(_get(team, "consensus_rounds"), "team.consensus_rounds", 1,
-                   "the number of consensus rounds per iteration")
+    rounds = whole(
+        _get(team, "consensus_rounds"), "team.consensus_rounds", 1, "the number of consensus rounds per iteration"
+    )
     whole(_get(team, "resample"), "team.resample", 0, "the number of random_geometric redraws")
     window = whole(_get(team, "switching.window"), "team.switching.window", 1, "the switching window (iterations)")
     up = finite(_get(team, "switching.up"), "team.switching.up")
@@ -224,10 +225,14 @@ def check_weights(weights: np.ndarray, adjacency: np.ndarray, where: str) -> Non
     checks = (
         (weights < 0, entry + " is negative; weights must be >= 0"),
         (np.eye(n, dtype=bool)[:, :, None] & (weights <= 0), entry + " must be > 0 (Assumption 5 (2))"),
-        (adjacency[:, :, None] & (weights <= 0),
-         entry + " is zero on the link {j}->{i}; every link needs a positive weight (Assumption 5 (2))"),
-        (off_graph[:, :, None] & (weights != 0),
-         entry + " but robot {i} does not receive from {j} in the graph; weights off the graph must be 0"),
+        (
+            adjacency[:, :, None] & (weights <= 0),
+            entry + " is zero on the link {j}->{i}; every link needs a positive weight (Assumption 5 (2))",
+        ),
+        (
+            off_graph[:, :, None] & (weights != 0),
+            entry + " but robot {i} does not receive from {j} in the graph; weights off the graph must be 0",
+        ),
     )
     for bad, text in checks:
         if bad.any():
@@ -249,12 +254,20 @@ def check_tracking(network: Network, team: Any) -> None:
     bad = np.abs(columns - 1.0) > TOL
     if bad.any():
         j, m = (int(k) for k in np.argwhere(bad)[0])
-        where = ("team.diagonal" if _get(team, "diagonal") is not None
-                 else "team.matrix" if _get(team, "weights") == "matrix" else "team.weights")
-        raise BadInput(where, f"column {j} (parameter {m}) of A sums to {columns[j, m]:.6g}, but "
-                              f"team.order={TRACKING} needs doubly stochastic weights (every column summing to 1 "
-                              f"too) so that the trackers keep the sum of the gradients; use weights=metropolis on "
-                              f"an undirected graph, or another order")
+        where = (
+            "team.diagonal"
+            if _get(team, "diagonal") is not None
+            else "team.matrix"
+            if _get(team, "weights") == "matrix"
+            else "team.weights"
+        )
+        raise BadInput(
+            where,
+            f"column {j} (parameter {m}) of A sums to {columns[j, m]:.6g}, but "
+            f"team.order={TRACKING} needs doubly stochastic weights (every column summing to 1 "
+            f"too) so that the trackers keep the sum of the gradients; use weights=metropolis on "
+            f"an undirected graph, or another order",
+        )
 
 
 # ---------------------------------------------------------------------------------------------- measures
@@ -314,7 +327,7 @@ def _largest_squared_gap(t: np.ndarray, rows: np.ndarray) -> float:
     per_block = max(1, _GAP_BLOCK // max(1, t.size))
     best = -np.inf
     for first in range(0, len(rows), per_block):
-        gaps = t[rows[first:first + per_block], None, :] - t[None, :, :]
+        gaps = t[rows[first : first + per_block], None, :] - t[None, :, :]
         best = np.maximum(best, (gaps**2).sum(axis=-1).max())  # NaN stays NaN, as in the brute force
     return best
 
@@ -376,20 +389,26 @@ class Mixer:
         if self.tracking:
             # Gradient tracking (track): the trackers y and their push-sum weights v ride in the same messages as
             # theta, as running sums; the last axis holds [y (M), v (M)].
-            self._state.update({
-                "pending_sums": np.zeros((slots, rounds, n, n, 2 * m)),  # the sender's running sums per message
-                "sums": np.zeros((rounds, n, 2 * m)),  # S^j: sum of all [y, v] robot j has sent in round r
-                "seen_sums": np.zeros((rounds, n, n, 2 * m)),  # rho^{ij}: the newest S^j robot i has taken in
-                "seen_sent": np.full((rounds, n, n), -1, dtype=np.int64),  # its send iteration, -1 = none yet
-                # [z^i_{l-1}, v^i_l]: robot i's mixed tracker (before Delta_l - Delta_{l-1}) and push-sum weight
-                "tracker": np.concatenate([np.zeros((n, m)), np.ones((n, m))], axis=1),
-                "gradient": np.zeros((n, m)),  # Delta^i_{l-1}, the gradient last added to the tracker
-            })
+            self._state.update(
+                {
+                    "pending_sums": np.zeros((slots, rounds, n, n, 2 * m)),  # the sender's running sums per message
+                    "sums": np.zeros((rounds, n, 2 * m)),  # S^j: sum of all [y, v] robot j has sent in round r
+                    "seen_sums": np.zeros((rounds, n, n, 2 * m)),  # rho^{ij}: the newest S^j robot i has taken in
+                    "seen_sent": np.full((rounds, n, n), -1, dtype=np.int64),  # its send iteration, -1 = none yet
+                    # [z^i_{l-1}, v^i_l]: robot i's mixed tracker (before Delta_l - Delta_{l-1}) and push-sum weight
+                    "tracker": np.concatenate([np.zeros((n, m)), np.ones((n, m))], axis=1),
+                    "gradient": np.zeros((n, m)),  # Delta^i_{l-1}, the gradient last added to the tracker
+                }
+            )
         # Synchronous teams (no delays, drops or switching; not gradient tracking): every message arrives in its own
         # slot, so `_sync_round` mixes sum_j a^{ij} theta^j directly and notes in `_synced` what the rounds did to
         # the arrays above, which are brought up to date only when something reads them (`_catch_up`).
-        self._sync = not self.tracking and self.settings.max_delay == 0 and self.settings.drop == 0.0 \
+        self._sync = (
+            not self.tracking
+            and self.settings.max_delay == 0
+            and self.settings.drop == 0.0
             and not self.settings.switching
+        )
         self._synced: _Synced | None = None
         self._links: _Links | None = None  # built by the first synchronous round
         self._shared = False  # a snapshot() holds the arrays of _state: copy them before changing them in place
@@ -420,14 +439,14 @@ class Mixer:
             self._apply_synced(arrays, self._synced)
         return arrays
 
-    def snapshot(self) -> "MixerState":
+    def snapshot(self) -> MixerState:
         """The state() of this moment as a read-only mapping that copies nothing until it is read (a checkpoint
         reads it; most iterations' snapshots are never read). Its arrays are the state()'s, bit for bit."""
         self._shared = True
         synced = None if self._synced is None else self._synced.copy()
         return MixerState(dict(self._state), synced, self._apply_synced)
 
-    def restore(self, state: Mapping[str, np.ndarray]) -> "Mixer":
+    def restore(self, state: Mapping[str, np.ndarray]) -> Mixer:
         """Load a state() (or snapshot()) taken from a Mixer of the same team; returns self."""
         for key, current in self._state.items():
             if key not in state or np.shape(state[key]) != current.shape:
@@ -450,7 +469,7 @@ class Mixer:
             self._apply_synced(self._state, self._synced)
             self._synced = None
 
-    def _apply_synced(self, s: dict[str, np.ndarray], synced: "_Synced") -> None:
+    def _apply_synced(self, s: dict[str, np.ndarray], synced: _Synced) -> None:
         """Write into `s` (arrays of this Mixer's state, changed in place) what the synchronous rounds in `synced`
         did: exactly what `_send` and `_received` would have written, every link sending and hearing every slot."""
         adjacency, cfg = self.network.adjacency, self.settings
@@ -542,8 +561,9 @@ class Mixer:
         links = self.network.adjacency[None, :, :, None]
         return (np.where(links, owed, 0.0) * np.concatenate([w, w], axis=2)[None]).sum(axis=(0, 1, 2))
 
-    def _round(self, thetas: np.ndarray, carried: np.ndarray | None, iteration: int,
-               round_index: int) -> tuple[np.ndarray, np.ndarray | None]:
+    def _round(
+        self, thetas: np.ndarray, carried: np.ndarray | None, iteration: int, round_index: int
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """One round at slot (iteration, round_index): mixed thetas, and the mixed trackers when `carried`."""
         n, m = self.network.robots, self.network.n_params
         if thetas.shape != (n, m):
@@ -627,9 +647,24 @@ class Mixer:
             s["sums"][round_index] += carried
             sums, pending_sums = s["sums"][round_index], s["pending_sums"]
         max_gap = min(cfg.max_gap, INT64_MAX)  # a gap of an int64 iteration never exceeds it: same as any larger B
-        args = (self.network.adjacency, self._links_up(iteration), kept, delay, iteration, max_gap, round_index,
-                np.ascontiguousarray(thetas), sums, s["last_delivered"], s["delivered"], s["forced"], s["pending"],
-                s["pending_sent"], s["pending_due"], pending_sums)
+        args = (
+            self.network.adjacency,
+            self._links_up(iteration),
+            kept,
+            delay,
+            iteration,
+            max_gap,
+            round_index,
+            np.ascontiguousarray(thetas),
+            sums,
+            s["last_delivered"],
+            s["delivered"],
+            s["forced"],
+            s["pending"],
+            s["pending_sent"],
+            s["pending_due"],
+            pending_sums,
+        )
         if shape[0] * shape[1] >= PARALLEL_ENTRIES:
             _send_parallel(*args)
         else:
@@ -646,9 +681,21 @@ class Mixer:
         n = self.network.robots
         arrived, use = np.empty((n, n), dtype=bool), np.empty((n, n), dtype=bool)
         parallel = n * n >= PARALLEL_ENTRIES
-        args = (adjacency, iteration, round_index, cfg.rounds, cfg.stale == "latest", s["pending"][slot, round_index],
-                s["pending_sent"][slot, round_index], s["pending_due"][slot, round_index], s["latest"],
-                s["latest_stamp"], s["used_sent"], arrived, use)
+        args = (
+            adjacency,
+            iteration,
+            round_index,
+            cfg.rounds,
+            cfg.stale == "latest",
+            s["pending"][slot, round_index],
+            s["pending_sent"][slot, round_index],
+            s["pending_due"][slot, round_index],
+            s["latest"],
+            s["latest_stamp"],
+            s["used_sent"],
+            arrived,
+            use,
+        )
         if parallel:
             _receive_parallel(*args)
         else:
@@ -667,8 +714,9 @@ class Mixer:
         return mix_numpy(w, adjacency, use, neighbour, thetas), arrived
 
 
-def mix_numpy(weights: np.ndarray, adjacency: np.ndarray, use: np.ndarray, neighbour: np.ndarray,
-              own: np.ndarray) -> np.ndarray:
+def mix_numpy(
+    weights: np.ndarray, adjacency: np.ndarray, use: np.ndarray, neighbour: np.ndarray, own: np.ndarray
+) -> np.ndarray:
     """sum_j a^{ij} theta^j over the links in `use` (neighbour values), each idle link's weight handed to robot i
     itself (`own`), by numpy: the rule the per-link kernels below follow, summed in numpy's order."""
     n = len(own)
@@ -693,19 +741,70 @@ _NO_PENDING = np.zeros((0, 0, 0, 0, 0))
 
 
 @njit(parallel=True, cache=True)
-def _send_parallel(adjacency, up, kept, delay, iteration, max_gap, round_index, thetas, sums, last_delivered,
-                   delivered, forced, pending, pending_sent, pending_due, pending_sums):
+def _send_parallel(
+    adjacency,
+    up,
+    kept,
+    delay,
+    iteration,
+    max_gap,
+    round_index,
+    thetas,
+    sums,
+    last_delivered,
+    delivered,
+    forced,
+    pending,
+    pending_sent,
+    pending_due,
+    pending_sums,
+):
     """`_send_links` of every row, ROWS at a time in parallel."""
     chunks = (adjacency.shape[0] + ROWS - 1) // ROWS
     for chunk in prange(chunks):
-        _send_links(adjacency, up, kept, delay, iteration, max_gap, round_index, thetas, sums, last_delivered,
-                    delivered, forced, pending, pending_sent, pending_due, pending_sums, chunk * ROWS,
-                    min(adjacency.shape[0], (chunk + 1) * ROWS))
+        _send_links(
+            adjacency,
+            up,
+            kept,
+            delay,
+            iteration,
+            max_gap,
+            round_index,
+            thetas,
+            sums,
+            last_delivered,
+            delivered,
+            forced,
+            pending,
+            pending_sent,
+            pending_due,
+            pending_sums,
+            chunk * ROWS,
+            min(adjacency.shape[0], (chunk + 1) * ROWS),
+        )
 
 
 @njit(cache=True)
-def _send_links(adjacency, up, kept, delay, iteration, max_gap, round_index, thetas, sums, last_delivered,
-                delivered, forced, pending, pending_sent, pending_due, pending_sums, first, last):
+def _send_links(
+    adjacency,
+    up,
+    kept,
+    delay,
+    iteration,
+    max_gap,
+    round_index,
+    thetas,
+    sums,
+    last_delivered,
+    delivered,
+    forced,
+    pending,
+    pending_sent,
+    pending_due,
+    pending_sums,
+    first,
+    last,
+):
     """Mixer._send per link of rows first..last-1: a link that is up sends unless dropped (`kept`, empty: none is);
     one without a delivery for max_gap iterations is forced through; a sent message is due `delay` later (empty:
     at once) in slot due mod B0+1, carrying theta^j (and the running sums `sums`, unless empty)."""
@@ -730,19 +829,61 @@ def _send_links(adjacency, up, kept, delay, iteration, max_gap, round_index, the
 
 
 @njit(parallel=True, cache=True)
-def _receive_parallel(adjacency, iteration, round_index, rounds, latest_rule, pending, pending_sent, pending_due,
-                      latest, latest_stamp, used_sent, arrived, use):
+def _receive_parallel(
+    adjacency,
+    iteration,
+    round_index,
+    rounds,
+    latest_rule,
+    pending,
+    pending_sent,
+    pending_due,
+    latest,
+    latest_stamp,
+    used_sent,
+    arrived,
+    use,
+):
     """`_receive_links` of every row, ROWS at a time in parallel."""
     chunks = (adjacency.shape[0] + ROWS - 1) // ROWS
     for chunk in prange(chunks):
-        _receive_links(adjacency, iteration, round_index, rounds, latest_rule, pending, pending_sent, pending_due,
-                       latest, latest_stamp, used_sent, arrived, use, chunk * ROWS,
-                       min(adjacency.shape[0], (chunk + 1) * ROWS))
+        _receive_links(
+            adjacency,
+            iteration,
+            round_index,
+            rounds,
+            latest_rule,
+            pending,
+            pending_sent,
+            pending_due,
+            latest,
+            latest_stamp,
+            used_sent,
+            arrived,
+            use,
+            chunk * ROWS,
+            min(adjacency.shape[0], (chunk + 1) * ROWS),
+        )
 
 
 @njit(cache=True)
-def _receive_links(adjacency, iteration, round_index, rounds, latest_rule, pending, pending_sent, pending_due,
-                   latest, latest_stamp, used_sent, arrived, use, first, last):
+def _receive_links(
+    adjacency,
+    iteration,
+    round_index,
+    rounds,
+    latest_rule,
+    pending,
+    pending_sent,
+    pending_due,
+    latest,
+    latest_stamp,
+    used_sent,
+    arrived,
+    use,
+    first,
+    last,
+):
     """Mixer._received's bookkeeping per link of rows first..last-1, on one slot's (N, N[, M]) buffers: arrivals are
     consumed, a newer arrival (stamp l R + r) becomes the link's latest value, and `use` says which links mix a
     neighbour value: the arrived ones (stale=arrival) or those holding any (stale=latest)."""
@@ -808,7 +949,7 @@ class _Synced:
     sent: dict[int, tuple[int, np.ndarray]] = field(default_factory=dict)  # round -> (iteration, thetas) last sent
     latest: tuple[int, np.ndarray] | None = None  # (slot stamp l R + r, thetas): the newest value on every link
 
-    def copy(self) -> "_Synced":
+    def copy(self) -> _Synced:
         """A copy that later rounds leave alone (the thetas themselves are never changed)."""
         return _Synced(self.first, self.last, dict(self.sent), self.latest)
 
@@ -816,8 +957,12 @@ class _Synced:
 class MixerState(Mapping):
     """A Mixer's state at one moment (Mixer.snapshot): a read-only mapping of its arrays, built on first access."""
 
-    def __init__(self, arrays: dict[str, np.ndarray], synced: _Synced | None,
-                 apply: Callable[[dict[str, np.ndarray], _Synced], None]):
+    def __init__(
+        self,
+        arrays: dict[str, np.ndarray],
+        synced: _Synced | None,
+        apply: Callable[[dict[str, np.ndarray], _Synced], None],
+    ):
         self._base, self._synced, self._apply = arrays, synced, apply
         self._arrays: dict[str, np.ndarray] | None = None
 
@@ -856,7 +1001,7 @@ class _Links:
         self.weights = np.ascontiguousarray(network.weights[receiver, sender])  # (links + N, M)
 
 
-def _mix_linked(network: Network, links: "_Links | None", own: np.ndarray, neighbour: np.ndarray) -> np.ndarray:
+def _mix_linked(network: Network, links: _Links | None, own: np.ndarray, neighbour: np.ndarray) -> np.ndarray:
     """sum_j a^{ij}_m v^{ij}_m with v^{ii} = own^i, v^{ij} = neighbour^j on links and 0 elsewhere: the einsum of
     `_received`, bit for bit. With M > 1 numpy's inner loop runs over m, so each sum over j is taken one term after
     the other, from 0.0; the terms off the links are a^{ij} * 0.0 = +0.0, which leave such a sum as it is (it is
@@ -868,8 +1013,15 @@ def _mix_linked(network: Network, links: "_Links | None", own: np.ndarray, neigh
         values[np.arange(n), np.arange(n), :] = own
         return np.einsum("ijm,ijm->im", network.weights, values)
     out = np.empty((n, m))
-    args = (links.starts, links.senders, links.own, links.weights, np.ascontiguousarray(own),
-            np.ascontiguousarray(neighbour), out)
+    args = (
+        links.starts,
+        links.senders,
+        links.own,
+        links.weights,
+        np.ascontiguousarray(own),
+        np.ascontiguousarray(neighbour),
+        out,
+    )
     if len(links.senders) >= PARALLEL_ENTRIES:
         _mix_links_parallel(*args)
     else:
@@ -882,8 +1034,9 @@ def _mix_links_parallel(starts, senders, diagonal, weights, own, neighbour, out)
     """`_mix_links` of every row, ROWS at a time in parallel (each row by one thread)."""
     chunks = (own.shape[0] + ROWS - 1) // ROWS
     for chunk in prange(chunks):
-        _mix_links(starts, senders, diagonal, weights, own, neighbour, out, chunk * ROWS,
-                   min(own.shape[0], (chunk + 1) * ROWS))
+        _mix_links(
+            starts, senders, diagonal, weights, own, neighbour, out, chunk * ROWS, min(own.shape[0], (chunk + 1) * ROWS)
+        )
 
 
 @njit(cache=True)
@@ -966,8 +1119,10 @@ def describe(network: Network, team: Any) -> str:
     switching = f"; under switching every link is up within any {cfg.window} iterations" if cfg.switching else ""
     lines.append("  (1) strongly connected: yes" + switching)
     lines.append(f"  (2) gamma = {network.gamma:.6g} > 0 (smallest weight on the diagonal and on the links)")
-    lines.append(f"  (3) B = {cfg.max_gap}: a link delivers at least once every {cfg.max_gap} iterations "
-                 f"(drop probability {cfg.drop:g}; arrivals at most B + B0 = {cfg.max_gap + cfg.max_delay} apart)")
+    lines.append(
+        f"  (3) B = {cfg.max_gap}: a link delivers at least once every {cfg.max_gap} iterations "
+        f"(drop probability {cfg.drop:g}; arrivals at most B + B0 = {cfg.max_gap + cfg.max_delay} apart)"
+    )
     lines.append(f"  (4) B0 = {cfg.max_delay}: delays uniform on 0..{cfg.max_delay} iterations; stale={cfg.stale}")
     weighted = "" if doubly else ": the consensus value is a weighted, not plain, average"
     lines.append(f"  A is {'doubly' if doubly else 'row'} stochastic{weighted}")
@@ -994,12 +1149,18 @@ def describe_order(order: str, cfg: Settings) -> str:
     if order == "adapt_then_combine":
         return f"order: adapt_then_combine: theta <- {rounds} (theta + eps Delta) (the gradient steps are mixed too)"
     if order != TRACKING:
-        return (f"order: combine_then_adapt (eq. 14): theta <- {rounds} theta + eps Delta; the consensus error keeps "
-                f"a floor of about eps |Delta^i - Delta^j|")
-    text = (f"order: gradient_tracking: theta <- {rounds} theta + eps y / v, y <- {rounds} y + Delta_new - Delta_old "
-            f"(y_0 = Delta_0); y and the push-sum weight v (v_0 = 1) travel with theta in one message, as running "
-            f"sums")
+        return (
+            f"order: combine_then_adapt (eq. 14): theta <- {rounds} theta + eps Delta; the consensus error keeps "
+            f"a floor of about eps |Delta^i - Delta^j|"
+        )
+    text = (
+        f"order: gradient_tracking: theta <- {rounds} theta + eps y / v, y <- {rounds} y + Delta_new - Delta_old "
+        f"(y_0 = Delta_0); y and the push-sum weight v (v_0 = 1) travel with theta in one message, as running "
+        f"sums"
+    )
     if cfg.max_delay or cfg.drop or cfg.switching:
-        return text + ("; sum_i y^i + the mass in flight = sum_i Delta^i exactly; late mass arrives within "
-                       f"B + B0 = {cfg.max_gap + cfg.max_delay} iterations, so the trackers lag, never drift")
+        return text + (
+            "; sum_i y^i + the mass in flight = sum_i Delta^i exactly; late mass arrives within "
+            f"B + B0 = {cfg.max_gap + cfg.max_delay} iterations, so the trackers lag, never drift"
+        )
     return text + "; no delays or drops: v = 1 and sum_i y^i = sum_i Delta^i exactly (DIGing)"

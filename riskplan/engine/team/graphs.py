@@ -39,7 +39,7 @@ def _pairs(graph: str, robots: int) -> list[tuple[int, int]]:
     if graph == "complete":
         return [(j, i) for j in range(n) for i in range(n) if i != j]
     if graph == "grid":
-        rows, cols = grid_shape(n)
+        _rows, cols = grid_shape(n)
         right = [(k, k + 1) for k in range(n) if (k % cols) + 1 < cols]
         down = [(k, k + cols) for k in range(n) if k + cols < n]
         return right + down
@@ -152,5 +152,5 @@ def _show(value) -> str:
         from omegaconf import OmegaConf
 
         return str(OmegaConf.to_container(value)) if hasattr(value, "_get_node") else repr(value)
-    except Exception:  # noqa: BLE001 - only for an error message
+    except Exception:
         return repr(value)

@@ -22,10 +22,10 @@ from typing import Any
 import numpy as np
 
 from riskplan.engine import distributions as D
-from riskplan.run.compose import compose
 from riskplan.engine.policy import move_features, probabilities
-from riskplan.run.build import Setup, build_setup
 from riskplan.engine.world import MOVE_NAMES, World
+from riskplan.run.build import Setup, build_setup
+from riskplan.run.compose import compose
 
 WALK = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.int64)  # a source's random-walk steps: E, W, N, S
 
@@ -219,8 +219,9 @@ class Episodes:
     steps: np.ndarray  # (E,) int64
 
 
-def run_episodes(config: Any, theta: Sequence[float] | np.ndarray, episodes: int, rng: np.random.Generator,
-                 start: int | None = None) -> Episodes:
+def run_episodes(
+    config: Any, theta: Sequence[float] | np.ndarray, episodes: int, rng: np.random.Generator, start: int | None = None
+) -> Episodes:
     """`episodes` independent single-robot episodes of the softmax policy theta, all stepped at once in numpy.
 
     The same dynamics as the environments (each episode its own copy of the world), without their per-step Python

@@ -17,7 +17,7 @@ info: "risky_steps" (so far), "source_reached" (index of the first source reache
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -25,10 +25,12 @@ try:
     import gymnasium
     from gymnasium import spaces
 except ImportError as err:  # pragma: no cover - the optional extra is missing
-    raise ImportError("riskplan.experiments.environments.SensorPlanningEnv needs Gymnasium: pip install 'riskplan[envs]'") from err
+    raise ImportError(
+        "riskplan.experiments.environments.SensorPlanningEnv needs Gymnasium: pip install 'riskplan[envs]'"
+    ) from err
 
-from riskplan.experiments.environments.core import Worlds, env_setup, signal_bounds
 from riskplan.engine.world import MOVE_NAMES, World
+from riskplan.experiments.environments.core import Worlds, env_setup, signal_bounds
 
 ENV_ID = "riskplan/SensorPlanning-v0"
 
@@ -37,24 +39,34 @@ def observation_space(world: World) -> spaces.Dict:
     """The observation space of one robot (see the module docstring)."""
     low, high = signal_bounds(world)
     shape = (len(MOVE_NAMES), world.sources)
-    return spaces.Dict({
-        "position": spaces.MultiDiscrete([world.width, world.height]),
-        "signals": spaces.Box(np.broadcast_to(low, shape), np.broadcast_to(high, shape), shape, dtype=np.float64),
-        "step": spaces.Discrete(world.horizon + 1),
-    })
+    return spaces.Dict(
+        {
+            "position": spaces.MultiDiscrete([world.width, world.height]),
+            "signals": spaces.Box(np.broadcast_to(low, shape), np.broadcast_to(high, shape), shape, dtype=np.float64),
+            "step": spaces.Discrete(world.horizon + 1),
+        }
+    )
 
 
 def observations(worlds: Worlds) -> list[dict[str, Any]]:
     """Each robot's observation."""
     positions, signals = worlds.positions(), worlds.signals()
-    return [{"position": positions[b], "signals": signals[b], "step": np.int64(worlds.steps[b])}
-            for b in range(worlds.robots)]
+    return [
+        {"position": positions[b], "signals": signals[b], "step": np.int64(worlds.steps[b])}
+        for b in range(worlds.robots)
+    ]
 
 
 def infos(worlds: Worlds) -> list[dict[str, int]]:
     """Each robot's info: risky steps so far, the first source reached (-1 for none), moves made."""
-    return [{"risky_steps": int(worlds.risky_steps[b]), "source_reached": int(worlds.source_reached[b]),
-             "steps": int(worlds.steps[b])} for b in range(worlds.robots)]
+    return [
+        {
+            "risky_steps": int(worlds.risky_steps[b]),
+            "source_reached": int(worlds.source_reached[b]),
+            "steps": int(worlds.steps[b]),
+        }
+        for b in range(worlds.robots)
+    ]
 
 
 def render_ansi(worlds: Worlds) -> str:
@@ -73,7 +85,7 @@ def render_ansi(worlds: Worlds) -> str:
 class SensorPlanningEnv(gymnasium.Env):
     """One robot in riskplan's world: the numba kernel's episode as a Gymnasium environment (module docstring)."""
 
-    metadata = {"render_modes": ["ansi"], "render_fps": 4}
+    metadata: ClassVar[dict] = {"render_modes": ["ansi"], "render_fps": 4}
 
     def __init__(self, config: Any = None, *, robot: int = 0, render_mode: str | None = None):
         """`config`: riskplan overrides, a composed config or a Setup (riskplan.experiments.environments.make_setup); `robot`: whose
@@ -83,7 +95,7 @@ class SensorPlanningEnv(gymnasium.Env):
         self.render_mode = render_mode
         if not 0 <= robot < len(starts):
             raise ValueError(f"robot {robot} is not one of the team's robots 0..{len(starts) - 1}")
-        self._worlds = Worlds(self.world, starts[robot:robot + 1])
+        self._worlds = Worlds(self.world, starts[robot : robot + 1])
         self.observation_space = observation_space(self.world)
         self.action_space = spaces.Discrete(len(MOVE_NAMES))
 

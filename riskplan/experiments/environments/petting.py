@@ -12,8 +12,7 @@ A robot leaves `agents` when its episode ends; the environment is over when ever
 
 from __future__ import annotations
 
-import functools
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -21,17 +20,19 @@ try:
     from gymnasium import spaces
     from pettingzoo import ParallelEnv
 except ImportError as err:  # pragma: no cover - the optional extra is missing
-    raise ImportError("riskplan.experiments.environments.SensorTeamEnv needs PettingZoo: pip install 'riskplan[envs]'") from err
+    raise ImportError(
+        "riskplan.experiments.environments.SensorTeamEnv needs PettingZoo: pip install 'riskplan[envs]'"
+    ) from err
 
+from riskplan.engine.world import MOVE_NAMES
 from riskplan.experiments.environments.core import Worlds, env_setup
 from riskplan.experiments.environments.gym import infos, observation_space, observations, render_ansi
-from riskplan.engine.world import MOVE_NAMES
 
 
 class SensorTeamEnv(ParallelEnv):
     """N robots acting simultaneously in one shared riskplan world (module docstring)."""
 
-    metadata = {"name": "riskplan_sensor_team_v0", "render_modes": ["ansi"], "is_parallelizable": True}
+    metadata: ClassVar[dict] = {"name": "riskplan_sensor_team_v0", "render_modes": ["ansi"], "is_parallelizable": True}
 
     def __init__(self, config: Any = None, *, render_mode: str | None = None):
         """`config`: riskplan overrides, a composed config or a Setup; the team is team.robots robots."""
@@ -46,11 +47,9 @@ class SensorTeamEnv(ParallelEnv):
         self._action_space = spaces.Discrete(len(MOVE_NAMES))
         self._rng: np.random.Generator | None = None
 
-    @functools.lru_cache(maxsize=None)
     def observation_space(self, agent: str) -> spaces.Dict:
         return self._observation_space
 
-    @functools.lru_cache(maxsize=None)
     def action_space(self, agent: str) -> spaces.Discrete:
         return self._action_space
 
@@ -77,9 +76,13 @@ class SensorTeamEnv(ParallelEnv):
         obs, info = observations(self._worlds), infos(self._worlds)
         live = [(a, self._index[a]) for a in self.agents]
         self.agents = [a for a, i in live if not (terminated[i] or truncated[i])]
-        return ({a: obs[i] for a, i in live}, {a: float(reward[i]) for a, i in live},
-                {a: bool(terminated[i]) for a, i in live}, {a: bool(truncated[i]) for a, i in live},
-                {a: info[i] for a, i in live})
+        return (
+            {a: obs[i] for a, i in live},
+            {a: float(reward[i]) for a, i in live},
+            {a: bool(terminated[i]) for a, i in live},
+            {a: bool(truncated[i]) for a, i in live},
+            {a: info[i] for a, i in live},
+        )
 
     def render(self):
         if self.render_mode == "ansi":

@@ -26,8 +26,11 @@ def latest_reproduction(root: Path = REPRODUCE_ROOT) -> Path:
     """The newest folder in outputs/reproduce/ (names are timestamps; ties broken by modification time)."""
     folders = [p for p in root.iterdir() if p.is_dir()] if root.is_dir() else []
     if not folders:
-        raise BadInput(str(root), "holds no reproduction; run `riskplan reproduce` first or give run or sweep "
-                                  "directories: riskplan report DIR...")
+        raise BadInput(
+            str(root),
+            "holds no reproduction; run `riskplan reproduce` first or give run or sweep "
+            "directories: riskplan report DIR...",
+        )
     return max(folders, key=lambda p: (p.name, p.stat().st_mtime))
 
 
@@ -45,8 +48,11 @@ def check_formats(formats: list[str] | str) -> list[str]:
     out = [f.strip().lower().lstrip(".") for f in formats if f.strip()]
     bad = [f for f in out if f not in FORMATS]
     if bad or not out:
-        raise BadInput("--format", f"got {','.join(formats) or 'nothing'}; expected a comma-separated subset of "
-                                   f"{','.join(FORMATS)}, e.g. png,pdf")
+        raise BadInput(
+            "--format",
+            f"got {','.join(formats) or 'nothing'}; expected a comma-separated subset of "
+            f"{','.join(FORMATS)}, e.g. png,pdf",
+        )
     return list(dict.fromkeys(out))
 
 
@@ -60,8 +66,7 @@ class Report:
     skipped: dict[str, str]
 
 
-def build_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS,
-                 key: str = "out_dir") -> Path:
+def build_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS, key: str = "out_dir") -> Path:
     """Find the runs under `paths`, write figures, report.csv, runs.csv and report.html to out_dir; return the page.
 
     Raises BadInput (before writing anything) for a path that holds no run, for an unknown format, or for an
@@ -71,16 +76,22 @@ def build_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
     return write_report(paths, out_dir, formats, key).page
 
 
-def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS,
-                 key: str = "out_dir") -> Report:
+def write_report(
+    paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS, key: str = "out_dir"
+) -> Report:
     """build_report, returning what was made (for the CLI's listing)."""
+    from riskplan.experiments.output_manifest import Output, claim
     from riskplan.experiments.reporting.collect import collect
     from riskplan.experiments.reporting.figures import figure_files, make_figures
-    from riskplan.experiments.output_manifest import Output, claim
     from riskplan.experiments.reporting.page import render
     from riskplan.experiments.reporting.parallel import shared_map
-    from riskplan.experiments.reporting.tables import comparison_table, csv_text, landscape_table, runs_table, soft_risk_table
-
+    from riskplan.experiments.reporting.tables import (
+        comparison_table,
+        csv_text,
+        landscape_table,
+        runs_table,
+        soft_risk_table,
+    )
     from riskplan.run.results import find_runs
 
     formats = check_formats(list(formats))
@@ -95,8 +106,9 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
     try:
         # every figure drawn to bytes first, on all CPUs (a figure's size is a fair guess of its cost); the files
         # are then written here, in order
-        drawn = shared_map(lambda spec: figure_files(spec, formats), specs,
-                           cost=lambda spec: spec.figure.get_size_inches().prod())
+        drawn = shared_map(
+            lambda spec: figure_files(spec, formats), specs, cost=lambda spec: spec.figure.get_size_inches().prod()
+        )
     finally:
         for spec in specs:
             spec.figure.clear()
@@ -108,8 +120,11 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
             figures.append((spec, files))
 
     output = Output(out_dir, "report", previous)
-    tables = ["report.csv", "runs.csv"] + ([] if landscapes.empty else ["landscape.csv"]) + (
-        [] if soft.empty else ["soft_risk.csv"])
+    tables = (
+        ["report.csv", "runs.csv"]
+        + ([] if landscapes.empty else ["landscape.csv"])
+        + ([] if soft.empty else ["soft_risk.csv"])
+    )
     with output.writing([f"{spec.name}.{fmt}" for spec, _ in figures for fmt in formats] + tables + ["report.html"]):
         for spec, files in figures:
             for fmt in formats:
@@ -126,5 +141,12 @@ def write_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_
 
 from riskplan.experiments.output_manifest import WriteFailed  # noqa: E402 - re-exported
 
-__all__ = ["build_report", "write_report", "Report", "WriteFailed", "check_formats", "FORMATS",
-           "DEFAULT_FORMATS"]
+__all__ = [
+    "DEFAULT_FORMATS",
+    "FORMATS",
+    "Report",
+    "WriteFailed",
+    "build_report",
+    "check_formats",
+    "write_report",
+]

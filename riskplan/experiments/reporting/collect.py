@@ -15,15 +15,27 @@ from typing import Any
 
 import pandas as pd
 
-from riskplan.util.errors import BadInput
-from riskplan.run.results import TABLES, Run, find_runs, load_run
 from riskplan.config.schema import ScheduleConf
+from riskplan.run.results import TABLES, Run, find_runs, load_run
+from riskplan.util.errors import BadInput
 
 # Keys that never define a condition: the seeds of one condition are pooled.
 IGNORED_KEYS = ("seed",)
 # Keys tried first when labelling groups (in this order); the rest follow alphabetically.
-LABEL_PRIORITY = ("risk.measure", "risk.beta", "risk.schedule.kind", "team.robots", "team.graph", "team.weights", "team.delay.max",
-                  "team.drop", "team.consensus_rounds", "train.samples", "train.theta0", "experiment")
+LABEL_PRIORITY = (
+    "risk.measure",
+    "risk.beta",
+    "risk.schedule.kind",
+    "team.robots",
+    "team.graph",
+    "team.weights",
+    "team.delay.max",
+    "team.drop",
+    "team.consensus_rounds",
+    "train.samples",
+    "train.theta0",
+    "experiment",
+)
 # Okabe-Ito palette (colour-blind safe); the paper's pair is blue (risk-neutral) and black (risk-averse).
 PALETTE = ("#0072B2", "#000000", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#E69F00", "#999999")
 AVERAGE = -1  # robot id of a team's network average
@@ -37,7 +49,7 @@ class RunInfo:
     run: Run
     flat: dict[str, Any]
     rebuilt: bool  # tables were rebuilt from run.mcap
-    group: "Group | None" = None
+    group: Group | None = None
 
     @property
     def path(self) -> Path:
@@ -169,14 +181,17 @@ class Collection:
         central = [g for g in self.groups if not g.team and g.measure == measure]
         if not central:
             return None, teams
-        best = min(central, key=lambda c: (sum(_distance(c.first.flat, t.first.flat) for t in teams),
-                                           abs(c.beta - teams[0].beta)))
+        best = min(
+            central,
+            key=lambda c: (sum(_distance(c.first.flat, t.first.flat) for t in teams), abs(c.beta - teams[0].beta)),
+        )
         return best, teams
 
 
 def schedule_pairs(groups: list[Group]) -> list[tuple[Group, Group | None]]:
     """Each soft-risk group (risk.schedule.kind other than none) with the group that differs from it only in
     risk.schedule.* (its paper-schedule comparator, e.g. reproduce's wander/ for soft_risk/), or None."""
+
     def rest(g: Group) -> dict:
         return {k: v for k, v in g.first.flat.items() if not k.startswith("risk.schedule.")}
 
@@ -195,9 +210,11 @@ def paper_pair(groups: list[Group]) -> tuple[Group | None, Group | None]:
     neutral = [g for g in pool if g.measure == "neutral"]
     averse = [g for g in pool if g.measure != "neutral"]
     if neutral and averse:
+
         def distance(pair):
             a, b = pair
             return (_distance(a.first.flat, b.first.flat), abs(b.beta - a.beta), abs(b.beta - 0.1))
+
         return min(((a, b) for a in neutral for b in averse), key=distance)
     if averse:
         return None, min(averse, key=lambda g: (abs(g.beta - 0.1), g.label))
@@ -238,7 +255,7 @@ def collect(paths: list[Path]) -> Collection:
         if is_landscape_dir(path):
             try:
                 landscapes.append(load_landscape(path))
-            except Exception as err:  # noqa: BLE001 - a broken landscape is listed, never fatal
+            except Exception as err:
                 broken.append(Broken(path, f"landscape: {_reason(err, path)}"))
             continue
         info, problem = _load(path)
@@ -255,7 +272,7 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
     failed = _failed_status(path)
     try:
         run = load_run(path)
-    except Exception as err:  # noqa: BLE001 - any failure to read a run skips it, with the reason
+    except Exception as err:
         return None, failed or _reason(err, path)
     if not run.complete:
         reason = run.problem or "incomplete run"
@@ -274,7 +291,8 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
     if problem:
         return None, problem
     rebuilt = not all((path / f"{name}.parquet").is_file() for name in TABLES) or bool(
-        run.problem and "rebuilt" in run.problem)
+        run.problem and "rebuilt" in run.problem
+    )
     flat = {k: v for k, v in flatten(run.config).items() if k not in IGNORED_KEYS}
     for key, value in SCHEDULE_DEFAULTS.items():  # runs from before risk.schedule existed ran without one
         flat.setdefault(key, value)
@@ -308,7 +326,7 @@ def _reason(err: BaseException, path: Path | None = None) -> str:
     if not isinstance(err, BadInput):
         return f"{type(err).__name__}: {text}"
     if path is not None and err.where.startswith(f"{path}/"):
-        return f"{err.where[len(str(path)) + 1:]}: {err.problem}".replace("\n", "\\n")
+        return f"{err.where[len(str(path)) + 1 :]}: {err.problem}".replace("\n", "\\n")
     return text
 
 
@@ -342,7 +360,7 @@ def config_problem(config: dict) -> str:
         problem = ""
     except BadInput as err:
         problem = f"config fails the schema: {err}"
-    except Exception as err:  # noqa: BLE001 - whatever the check trips on, the run is skipped, not fatal
+    except Exception as err:
         problem = f"config fails the schema: {_reason(err)}"
     if key is not None:
         _CHECKED[key] = problem
@@ -422,8 +440,9 @@ def _describe(group: Group, keys: list[str], single: bool = False) -> str:
     keys = list(keys)
     if "risk.measure" in keys or "risk.beta" in keys or single:
         if group.measure == "neutral":
-            parts.append("risk-neutral" + (f" (β={group.beta:g})" if "risk.beta" in keys and
-                                           "risk.measure" not in keys else ""))
+            parts.append(
+                "risk-neutral" + (f" (β={group.beta:g})" if "risk.beta" in keys and "risk.measure" not in keys else "")
+            )
         else:
             beta = f" β={group.beta:g}" if "risk.beta" in keys or single else ""
             parts.append(f"risk-averse (CVaR{beta})")
@@ -432,8 +451,13 @@ def _describe(group: Group, keys: list[str], single: bool = False) -> str:
     for k in keys:
         if k in ("risk.measure", "risk.beta", "team.robots"):
             continue
-        name = "schedule" if k == "risk.schedule.kind" else k.split(".", 1)[1] if k.startswith(
-            ("team.", "train.", "risk.schedule.")) else k
+        name = (
+            "schedule"
+            if k == "risk.schedule.kind"
+            else k.split(".", 1)[1]
+            if k.startswith(("team.", "train.", "risk.schedule."))
+            else k
+        )
         parts.append(f"{name}={_short(group.settings.get(k))}")
     return ", ".join(parts) or "runs"
 

@@ -22,9 +22,9 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 from PIL import Image
 
+from riskplan.engine.risk_measures import cvar, value_at_risk
 from riskplan.experiments.reporting.collect import Collection, Group, RunInfo, theta_columns
 from riskplan.experiments.reporting.stats import band
-from riskplan.engine.risk_measures import cvar, value_at_risk
 
 STYLE = {
     "font.family": "DejaVu Sans",
@@ -94,19 +94,26 @@ def plot_band(ax, table: pd.DataFrame, colour: str, label: str, style: str = "-"
     stats = band(table, log=log)
     (line,) = ax.plot(stats.index.to_numpy(), stats["mean"].to_numpy(), style, color=colour, label=label)
     if table.shape[1] > 1:
-        ax.fill_between(stats.index.to_numpy(), stats["low"].to_numpy(), stats["high"].to_numpy(),
-                        color=colour, alpha=0.18, lw=0, label="_band " + label)
+        ax.fill_between(
+            stats.index.to_numpy(),
+            stats["low"].to_numpy(),
+            stats["high"].to_numpy(),
+            color=colour,
+            alpha=0.18,
+            lw=0,
+            label="_band " + label,
+        )
     return line
 
 
 def _world_map(config: dict) -> dict | None:
+    from riskplan.engine.world import world_map
     from riskplan.run.build import build_setup
     from riskplan.run.training import starts
-    from riskplan.engine.world import world_map
 
     try:
         setup = build_setup(config)
-    except Exception:  # noqa: BLE001 - a config this version cannot build: no map
+    except Exception:
         return None
     return world_map(setup.world, starts(setup))
 
@@ -117,8 +124,16 @@ def draw_world(ax, world: dict) -> None:
     img = np.zeros((h, w))
     img[np.asarray(world["risky"], bool).T] = 1
     img[np.asarray(world["obstacles"], bool).T] = 2
-    ax.imshow(img, origin="lower", extent=(-0.5, w - 0.5, -0.5, h - 0.5), interpolation="nearest",
-              cmap=ListedColormap(["#FFFFFF", "#C9C9C9", "#3A3A3A"]), vmin=0, vmax=2, zorder=0)
+    ax.imshow(
+        img,
+        origin="lower",
+        extent=(-0.5, w - 0.5, -0.5, h - 0.5),
+        interpolation="nearest",
+        cmap=ListedColormap(["#FFFFFF", "#C9C9C9", "#3A3A3A"]),
+        vmin=0,
+        vmax=2,
+        zorder=0,
+    )
     ax.set_xticks(np.arange(-0.5, w, 1), minor=True)
     ax.set_yticks(np.arange(-0.5, h, 1), minor=True)
     step = 1 if max(w, h) <= 12 else 2 if max(w, h) <= 24 else 5
@@ -136,14 +151,30 @@ def draw_world(ax, world: dict) -> None:
         ax.spines[side].set_visible(True)
     sx = [s["x"] for s in world["sources"]]
     sy = [s["y"] for s in world["sources"]]
-    ax.plot(sx, sy, ls="none", marker="*", ms=17, color=SOURCE_COLOUR, mec="black", mew=0.7, zorder=5,
-            label="source")
+    ax.plot(sx, sy, ls="none", marker="*", ms=17, color=SOURCE_COLOUR, mec="black", mew=0.7, zorder=5, label="source")
     for j, s in enumerate(world["sources"]):
-        ax.annotate(f"{j + 1}", (s["x"], s["y"]), xytext=(7, 6), textcoords="offset points", fontsize=8,
-                    fontweight="bold", zorder=6)
+        ax.annotate(
+            f"{j + 1}",
+            (s["x"], s["y"]),
+            xytext=(7, 6),
+            textcoords="offset points",
+            fontsize=8,
+            fontweight="bold",
+            zorder=6,
+        )
     starts = np.array(world["start"], dtype=float).reshape(-1, 2)
-    ax.plot(starts[:, 0], starts[:, 1], ls="none", marker="o", ms=9, mfc="white", mec="black", mew=1.2, zorder=5,
-            label="start")
+    ax.plot(
+        starts[:, 0],
+        starts[:, 1],
+        ls="none",
+        marker="o",
+        ms=9,
+        mfc="white",
+        mec="black",
+        mew=1.2,
+        zorder=5,
+        label="start",
+    )
 
 
 def fig_paths(coll: Collection) -> FigureSpec | str:
@@ -171,21 +202,45 @@ def fig_paths(coll: Collection) -> FigureSpec | str:
             p = t.loc[t.episode == ep].sort_values("step")
             jitter = shift + (k - (len(episodes) - 1) / 2) * 0.05
             x, y = p.x.to_numpy(float) + jitter, p.y.to_numpy(float) + jitter
-            ax.plot(x, y, "-", color=g.color, lw=1.3, alpha=0.85, zorder=3,
-                    label=risk_name(g) if k == 0 else f"_{g.label} {ep}")
-            ax.plot(x[-1:], y[-1:], ls="none", marker="s", ms=6, color=g.color, mec="white", mew=0.8, zorder=7,
-                    label=f"_end {g.label} {ep}")
+            ax.plot(
+                x,
+                y,
+                "-",
+                color=g.color,
+                lw=1.3,
+                alpha=0.85,
+                zorder=3,
+                label=risk_name(g) if k == 0 else f"_{g.label} {ep}",
+            )
+            ax.plot(
+                x[-1:],
+                y[-1:],
+                ls="none",
+                marker="s",
+                ms=6,
+                color=g.color,
+                mec="white",
+                mew=0.8,
+                zorder=7,
+                label=f"_end {g.label} {ep}",
+            )
         handles.append(Line2D([], [], color=g.color, lw=1.6, label=f"{risk_name(g)}, seed {run.seed}"))
-    handles += [Line2D([], [], ls="none", marker="s", ms=6, color="#555555", label="end point"),
-                Line2D([], [], ls="none", marker="*", ms=12, color=SOURCE_COLOUR, mec="black", label="source"),
-                Line2D([], [], ls="none", marker="o", ms=7, mfc="white", mec="black", label="start"),
-                Patch(facecolor="#C9C9C9", edgecolor="#9A9A9A", label="risky region")]
+    handles += [
+        Line2D([], [], ls="none", marker="s", ms=6, color="#555555", label="end point"),
+        Line2D([], [], ls="none", marker="*", ms=12, color=SOURCE_COLOUR, mec="black", label="source"),
+        Line2D([], [], ls="none", marker="o", ms=7, mfc="white", mec="black", label="start"),
+        Patch(facecolor="#C9C9C9", edgecolor="#9A9A9A", label="risky region"),
+    ]
     fig.legend(handles=handles, loc="outside lower center", ncols=2)
     names = ", ".join(f"{s['name']} ({s['x']}, {s['y']})" for s in world["sources"])
-    return FigureSpec("fig1_paths", "Fig. 1 — grid world and sampled paths",
-                      f"The grid world (risky region grey, sources {names} as stars, start circled) and "
-                      f"{MAX_PATHS} sampled paths of each final policy, end points as squares. Paths are jittered "
-                      f"slightly so overlapping ones stay visible.", fig)
+    return FigureSpec(
+        "fig1_paths",
+        "Fig. 1 — grid world and sampled paths",
+        f"The grid world (risky region grey, sources {names} as stars, start circled) and "
+        f"{MAX_PATHS} sampled paths of each final policy, end points as squares. Paths are jittered "
+        f"slightly so overlapping ones stay visible.",
+        fig,
+    )
 
 
 def fig_cvar(coll: Collection) -> FigureSpec | str:
@@ -205,10 +260,14 @@ def fig_cvar(coll: Collection) -> FigureSpec | str:
     ax.set_ylabel(f"CVaR$_{{{level}}}$ of total reward")
     ax.legend(loc="best")
     missing = "" if len(groups) == 2 else " (only one of the two policies is among these runs)"
-    return FigureSpec("fig2_cvar", "Fig. 2 — CVaR of the total reward, risk-neutral vs risk-averse",
-                      f"CVaR at level {level.replace(chr(92) + 'beta', 'β')} of the total reward of each iteration's "
-                      f"training episodes{missing}. Curves are the across-seed mean with a 95% band where there are "
-                      f"several seeds.", fig)
+    return FigureSpec(
+        "fig2_cvar",
+        "Fig. 2 — CVaR of the total reward, risk-neutral vs risk-averse",
+        f"CVaR at level {level.replace(chr(92) + 'beta', 'β')} of the total reward of each iteration's "
+        f"training episodes{missing}. Curves are the across-seed mean with a 95% band where there are "
+        f"several seeds.",
+        fig,
+    )
 
 
 def fig_team(coll: Collection) -> FigureSpec | str:
@@ -227,10 +286,14 @@ def fig_team(coll: Collection) -> FigureSpec | str:
     ax.set_ylabel("total reward")
     ax.legend(loc="best", ncols=1)
     beta = teams[0].beta
-    return FigureSpec("fig3_team", "Fig. 3 — mean and CVaR, centralized vs distributed",
-                      f"Mean (solid) and CVaR at level {beta:g} (dashed) of the total reward per iteration. "
-                      f"Distributed: the network average over all robots' episodes (N·W_i of them); "
-                      f"centralized: one robot with W episodes.", fig)
+    return FigureSpec(
+        "fig3_team",
+        "Fig. 3 — mean and CVaR, centralized vs distributed",
+        f"Mean (solid) and CVaR at level {beta:g} (dashed) of the total reward per iteration. "
+        f"Distributed: the network average over all robots' episodes (N·W_i of them); "
+        f"centralized: one robot with W episodes.",
+        fig,
+    )
 
 
 def fig_consensus(coll: Collection) -> FigureSpec | str:
@@ -245,8 +308,13 @@ def fig_consensus(coll: Collection) -> FigureSpec | str:
         table = curve_table(g.runs, "consensus_error")
         if not np.any(table.to_numpy(float) > 0):
             continue
-        plot_band(ax, table, g.color, (g.label if len(teams) > 1 else f"distributed (N={g.robots})")
-                  + _seeds(g.runs), log=True)
+        plot_band(
+            ax,
+            table,
+            g.color,
+            (g.label if len(teams) > 1 else f"distributed (N={g.robots})") + _seeds(g.runs),
+            log=True,
+        )
         drawn += 1
     if not drawn:
         return "the team runs log no positive consensus error"
@@ -255,10 +323,14 @@ def fig_consensus(coll: Collection) -> FigureSpec | str:
     _iterations(ax)
     ax.set_ylabel(r"consensus error $\max_{i,j}\,\|\theta^i-\theta^j\|$")
     ax.legend(loc="best")
-    return FigureSpec("fig4_consensus", "Fig. 4 — consensus error",
-                      "The largest distance between two robots' parameters at each iteration (log scale; the "
-                      "geometric mean across seeds with a 95% band where there are several). Iterations where all "
-                      "robots agree exactly (error 0) are not drawn on the log axis.", fig)
+    return FigureSpec(
+        "fig4_consensus",
+        "Fig. 4 — consensus error",
+        "The largest distance between two robots' parameters at each iteration (log scale; the "
+        "geometric mean across seeds with a 95% band where there are several). Iterations where all "
+        "robots agree exactly (error 0) are not drawn on the log axis.",
+        fig,
+    )
 
 
 def fig_orders(coll: Collection) -> FigureSpec | str:
@@ -286,16 +358,25 @@ def fig_orders(coll: Collection) -> FigureSpec | str:
         ax.set_yscale("log")
         ax.set_xlabel("iteration")
         _iterations(ax)
-        ax.set_title(f"N={gs[0].robots}, {gs[0].config['team'].get('graph')}"
-                     + "".join(f", {k.split('.', 1)[-1]}={v}" for k, v in rest
-                               if k in ("team.delay.max", "team.drop", "team.consensus_rounds")))
+        ax.set_title(
+            f"N={gs[0].robots}, {gs[0].config['team'].get('graph')}"
+            + "".join(
+                f", {k.split('.', 1)[-1]}={v}"
+                for k, v in rest
+                if k in ("team.delay.max", "team.drop", "team.consensus_rounds")
+            )
+        )
         ax.legend(loc="best")
     axes[0, 0].set_ylabel(r"consensus error $\max_{i,j}\,\|\theta^i-\theta^j\|$")
-    return FigureSpec("consensus_orders", "Consensus error by team.order",
-                      "The largest distance between two robots' parameters per iteration for each order of "
-                      "consensus and gradient steps (combine-then-adapt is the paper's eq. 14; gradient tracking "
-                      "steps along a tracker of the network-average gradient). Geometric mean across seeds with a "
-                      "95% band; one panel per set-up.", fig)
+    return FigureSpec(
+        "consensus_orders",
+        "Consensus error by team.order",
+        "The largest distance between two robots' parameters per iteration for each order of "
+        "consensus and gradient steps (combine-then-adapt is the paper's eq. 14; gradient tracking "
+        "steps along a tracker of the network-average gradient). Geometric mean across seeds with a "
+        "95% band; one panel per set-up.",
+        fig,
+    )
 
 
 def pooled_rewards(g: Group) -> np.ndarray:
@@ -335,14 +416,20 @@ def fig_distribution(coll: Collection) -> FigureSpec | str:
     full.set_title("all episodes")
     tail.set_title(f"lower tail (P ≤ {top:g})")
     handles = [ln for ln in full.get_lines() if not ln.get_label().startswith("_")]
-    handles += [Line2D([], [], color="#555555", ls="--", lw=1.0, label="VaR$_\\beta$"),
-                Line2D([], [], color="#555555", ls=":", lw=1.3, label="CVaR$_\\beta$")]
+    handles += [
+        Line2D([], [], color="#555555", ls="--", lw=1.0, label="VaR$_\\beta$"),
+        Line2D([], [], color="#555555", ls=":", lw=1.3, label="CVaR$_\\beta$"),
+    ]
     columns = 2 if len(handles) > 6 else min(3, len(handles))  # labels are long: many groups stack in two columns
     fig.legend(handles=handles, loc="outside lower center", ncols=columns)
-    return FigureSpec("reward_distribution", "Distribution of the total reward",
-                      "Empirical CDF of the total reward of each final policy on its evaluation episodes (all seeds "
-                      "pooled), with VaR (dashed) and CVaR (dotted) at each group's β; the right panel zooms into "
-                      "the lower tail that CVaR averages (dots mark (VaR, β)).", fig)
+    return FigureSpec(
+        "reward_distribution",
+        "Distribution of the total reward",
+        "Empirical CDF of the total reward of each final policy on its evaluation episodes (all seeds "
+        "pooled), with VaR (dashed) and CVaR (dotted) at each group's β; the right panel zooms into "
+        "the lower tail that CVaR averages (dots mark (VaR, β)).",
+        fig,
+    )
 
 
 def frontier_beta(coll: Collection) -> float:
@@ -366,9 +453,21 @@ def fig_frontier(coll: Collection) -> FigureSpec | str:
         points.append((g, row))
         xerr = np.array([[row["mean"] - row["mean_low"]], [row["mean_high"] - row["mean"]]])
         yerr = np.array([[row["cvar"] - row["cvar_low"]], [row["cvar_high"] - row["cvar"]]])
-        ax.errorbar([row["mean"]], [row["cvar"]], xerr=np.nan_to_num(xerr), yerr=np.nan_to_num(yerr), ls="none",
-                    marker="D" if g.measure == "neutral" else "o", ms=6, color=g.color, mec="white", mew=0.6,
-                    elinewidth=0.9, capsize=2, label=g.label + _seeds(g.runs))
+        ax.errorbar(
+            [row["mean"]],
+            [row["cvar"]],
+            xerr=np.nan_to_num(xerr),
+            yerr=np.nan_to_num(yerr),
+            ls="none",
+            marker="D" if g.measure == "neutral" else "o",
+            ms=6,
+            color=g.color,
+            mec="white",
+            mew=0.6,
+            elinewidth=0.9,
+            capsize=2,
+            label=g.label + _seeds(g.runs),
+        )
     families: dict[tuple, list] = {}
     for g, row in points:
         if g.measure == "neutral":
@@ -378,21 +477,33 @@ def fig_frontier(coll: Collection) -> FigureSpec | str:
     for members in families.values():
         if len(members) > 1:
             members.sort()
-            ax.plot([m[1] for m in members], [m[2] for m in members], "-", color="#777777", lw=0.8, zorder=0,
-                    label="_frontier")
+            ax.plot(
+                [m[1] for m in members],
+                [m[2] for m in members],
+                "-",
+                color="#777777",
+                lw=0.8,
+                zorder=0,
+                label="_frontier",
+            )
             xs, ys = np.array([m[1] for m in members]), np.array([m[2] for m in members])
             near_x, near_y = 0.03 * np.ptp(xs) + 1e-9, 0.03 * np.ptp(ys) + 1e-9
             for k, (beta, x, y) in enumerate(members):
                 # policies often cluster (the optimum jumps between beta levels): stack the labels of a cluster
                 stacked = int(np.sum((abs(xs[:k] - x) < near_x) & (abs(ys[:k] - y) < near_y)))
-                ax.annotate(f"β={beta:g}", (x, y), xytext=(6, -10 - 8 * stacked), textcoords="offset points",
-                            fontsize=7)
+                ax.annotate(
+                    f"β={beta:g}", (x, y), xytext=(6, -10 - 8 * stacked), textcoords="offset points", fontsize=7
+                )
     ax.set_xlabel("mean total reward")
     ax.set_ylabel(f"CVaR$_{{{alpha:g}}}$ of total reward")
     fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=1)  # never over the points
-    return FigureSpec("risk_frontier", "Risk frontier",
-                      f"Evaluated mean vs CVaR at the common level {alpha:g} of each final policy (95% intervals); "
-                      f"risk-averse runs that differ only in β are joined. Up and to the right is better on both.", fig)
+    return FigureSpec(
+        "risk_frontier",
+        "Risk frontier",
+        f"Evaluated mean vs CVaR at the common level {alpha:g} of each final policy (95% intervals); "
+        f"risk-averse runs that differ only in β are joined. Up and to the right is better on both.",
+        fig,
+    )
 
 
 def fig_thetas(coll: Collection) -> FigureSpec | str:
@@ -401,15 +512,15 @@ def fig_thetas(coll: Collection) -> FigureSpec | str:
     if not teams:
         return "no team (distributed) runs"
     cols = theta_columns(teams[0].first.run.metrics)
-    fig, axes = _figure(3.0 * len(cols) + 0.6, 2.6 * len(teams) + 0.5, ncols=len(cols), nrows=len(teams),
-                        sharex=True)
+    fig, axes = _figure(3.0 * len(cols) + 0.6, 2.6 * len(teams) + 0.5, ncols=len(cols), nrows=len(teams), sharex=True)
     for row, g in enumerate(teams):
         robots = sorted(r for r in g.first.run.metrics.robot.unique() if r >= 0)
         for c, col in enumerate(cols):
             ax = axes[row, c]
             for i, robot in enumerate(robots):
-                plot_band(ax, curve_table(g.runs, col, robot), ROBOT_COLOURS[i % len(ROBOT_COLOURS)],
-                          f"robot {robot}", "-")
+                plot_band(
+                    ax, curve_table(g.runs, col, robot), ROBOT_COLOURS[i % len(ROBOT_COLOURS)], f"robot {robot}", "-"
+                )
             plot_band(ax, curve_table(g.runs, col, -1), "#000000", "network average", "--")
             ax.set_ylabel(rf"$\theta_{{{col[6:]}}}$")
             ax.set_title(f"{g.label}{_seeds(g.runs)}" if len(teams) > 1 else f"weight of source {int(col[6:]) + 1}")
@@ -417,9 +528,13 @@ def fig_thetas(coll: Collection) -> FigureSpec | str:
                 ax.set_xlabel("iteration")
                 _iterations(ax)
     axes[0, 0].legend(loc="best")
-    return FigureSpec("team_thetas", "Per-robot parameters of the team runs",
-                      "Each robot's θ^i (solid) and the network average (dashed, black) per iteration; consensus "
-                      "pulls the robots together while each follows its own gradient estimate.", fig)
+    return FigureSpec(
+        "team_thetas",
+        "Per-robot parameters of the team runs",
+        "Each robot's θ^i (solid) and the network average (dashed, black) per iteration; consensus "
+        "pulls the robots together while each follows its own gradient estimate.",
+        fig,
+    )
 
 
 def fig_soft_risk(coll: Collection) -> FigureSpec | str:
@@ -447,8 +562,15 @@ def fig_soft_risk(coll: Collection) -> FigureSpec | str:
                 m = r.metrics_of()
                 xs = np.append(m.theta_0.to_numpy(float), r.final_theta()[0])
                 ys = np.append(m.theta_1.to_numpy(float), r.final_theta()[1])
-                paths.plot(xs, ys, "-" if g is scheduled else "--", color=g.color, lw=1.1, alpha=0.85,
-                           label=name if k == 0 else f"_{name} {r.seed}")
+                paths.plot(
+                    xs,
+                    ys,
+                    "-" if g is scheduled else "--",
+                    color=g.color,
+                    lw=1.1,
+                    alpha=0.85,
+                    label=name if k == 0 else f"_{name} {r.seed}",
+                )
                 paths.plot(xs[-1:], ys[-1:], ls="none", marker="s", ms=5, color=g.color, mec="white", label="_end")
         if "beta_l" in scheduled.first.run.metrics:
             levels.plot(*_level_curve(scheduled), ":", color=scheduled.color, lw=1.2, label="_level")
@@ -466,10 +588,14 @@ def fig_soft_risk(coll: Collection) -> FigureSpec | str:
     paths.set_ylabel(r"$\theta_1$ (weight of source 2)")
     paths.set_title("(b) θ per iteration (circle θ0, square final)")
     fig.legend(*curves.get_legend_handles_labels(), loc="outside lower center", ncols=2)
-    return FigureSpec("soft_risk", "Soft risk (CeSoR schedule) against the paper's fixed β",
-                      "Left: CVaR at risk.beta of each iteration's training episodes (solid: a soft-risk schedule, "
-                      "dashed: the same runs with risk.schedule.kind=none), and the schedule's level β_l (dotted, "
-                      "right axis), the CVaR level its gradient ascends. Right: the paths of θ.", fig)
+    return FigureSpec(
+        "soft_risk",
+        "Soft risk (CeSoR schedule) against the paper's fixed β",
+        "Left: CVaR at risk.beta of each iteration's training episodes (solid: a soft-risk schedule, "
+        "dashed: the same runs with risk.schedule.kind=none), and the schedule's level β_l (dotted, "
+        "right axis), the CVaR level its gradient ascends. Right: the paths of θ.",
+        fig,
+    )
 
 
 def _level_curve(g: Group) -> tuple[np.ndarray, np.ndarray]:
@@ -485,15 +611,24 @@ def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
     a, b = land.axes
     fig, axes = _figure(8.2, 3.9, ncols=2)
     runs = runs_on(land, coll)
-    for ax, column, name in ((axes[0, 0], "mean", "mean total reward"),
-                             (axes[0, 1], "cvar", f"CVaR$_{{{land.beta:g}}}$ of total reward")):
+    for ax, column, name in (
+        (axes[0, 0], "mean", "mean total reward"),
+        (axes[0, 1], "cvar", f"CVaR$_{{{land.beta:g}}}$ of total reward"),
+    ):
         va, vb, values = land.grid(column)
         da = (va[1] - va[0]) / 2 if va.size > 1 else 0.5
         db = (vb[1] - vb[0]) / 2 if vb.size > 1 else 0.5
         vmin = float(np.nanpercentile(values, 5))
-        image = ax.imshow(values, origin="lower", aspect="auto", cmap="viridis", interpolation="nearest",
-                          extent=(va[0] - da, va[-1] + da, vb[0] - db, vb[-1] + db), vmin=vmin,
-                          vmax=float(np.nanmax(values)))
+        image = ax.imshow(
+            values,
+            origin="lower",
+            aspect="auto",
+            cmap="viridis",
+            interpolation="nearest",
+            extent=(va[0] - da, va[-1] + da, vb[0] - db, vb[-1] + db),
+            vmin=vmin,
+            vmax=float(np.nanmax(values)),
+        )
         fig.colorbar(image, ax=ax, label=name, extend="min", shrink=0.9)
         best = land.best(column)["theta"]
         outline = [patheffects.withStroke(linewidth=3, foreground="white")]
@@ -506,29 +641,45 @@ def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
             drawn.add(r.group.label)
             ax.plot(xs, ys, "-", color=r.group.color, lw=1.4, path_effects=outline, label=label)
             ax.plot(xs[:1], ys[:1], ls="none", marker="o", ms=5, mfc="white", mec="black", label="_start")
-            ax.plot(xs[-1:], ys[-1:], ls="none", marker="s", ms=6, color=r.group.color, mec="white",
-                    label="_end")
-        ax.plot([best[a]], [best[b]], ls="none", marker="*", ms=15, color="white", mec="black", mew=0.9,
-                label="grid maximum", zorder=6)
+            ax.plot(xs[-1:], ys[-1:], ls="none", marker="s", ms=6, color=r.group.color, mec="white", label="_end")
+        ax.plot(
+            [best[a]],
+            [best[b]],
+            ls="none",
+            marker="*",
+            ms=15,
+            color="white",
+            mec="black",
+            mew=0.9,
+            label="grid maximum",
+            zorder=6,
+        )
         ax.set_xlim(va[0] - da, va[-1] + da)
         ax.set_ylim(vb[0] - db, vb[-1] + db)
         ax.set_xlabel(rf"$\theta_{{{a}}}$ (weight of source {a + 1})")
         ax.set_ylabel(rf"$\theta_{{{b}}}$ (weight of source {b + 1})")
         ax.grid(False)
         ax.set_title("(a) mean" if column == "mean" else "(b) CVaR")
-    handles = [Line2D([], [], ls="none", marker="*", ms=11, color="white", mec="black", label="grid maximum"),
-               Line2D([], [], ls="none", marker="o", ms=5, mfc="white", mec="black", label="θ0 (start)"),
-               Line2D([], [], ls="none", marker="s", ms=5, color="#555555", label="final θ")]
-    handles += [Line2D([], [], color=g.color, lw=1.6, label=g.label) for g in coll.groups
-                if any(r.group is g for r in runs)]
+    handles = [
+        Line2D([], [], ls="none", marker="*", ms=11, color="white", mec="black", label="grid maximum"),
+        Line2D([], [], ls="none", marker="o", ms=5, mfc="white", mec="black", label="θ0 (start)"),
+        Line2D([], [], ls="none", marker="s", ms=5, color="#555555", label="final θ"),
+    ]
+    handles += [
+        Line2D([], [], color=g.color, lw=1.6, label=g.label) for g in coll.groups if any(r.group is g for r in runs)
+    ]
     fig.legend(handles=handles, loc="outside lower center", ncols=3)
     s = land.summary
-    return FigureSpec(f"landscape{'' if index == 0 else f'_{index + 1}'}", "Objective landscape",
-                      f"Mean and CVaR of the total reward over a {s.get('points', '?')}×{s.get('points', '?')} grid of "
-                      f"(θ_{a}, θ_{b}), {s.get('episodes', '?')} episodes per point on common random numbers (seed "
-                      f"{s.get('seed', '?')}); colours below the 5th percentile are clipped. Lines: the training "
-                      f"paths of the runs on this world that optimise the mean or CVaR at this β (circle: θ0, "
-                      f"square: final θ); star: the grid maximum.", fig)
+    return FigureSpec(
+        f"landscape{'' if index == 0 else f'_{index + 1}'}",
+        "Objective landscape",
+        f"Mean and CVaR of the total reward over a {s.get('points', '?')}×{s.get('points', '?')} grid of "
+        f"(θ_{a}, θ_{b}), {s.get('episodes', '?')} episodes per point on common random numbers (seed "
+        f"{s.get('seed', '?')}); colours below the 5th percentile are clipped. Lines: the training "
+        f"paths of the runs on this world that optimise the mean or CVaR at this β (circle: θ0, "
+        f"square: final θ); star: the grid maximum.",
+        fig,
+    )
 
 
 BUILDERS = (
@@ -549,16 +700,17 @@ def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
     specs: list[FigureSpec] = []
     skipped: dict[str, str] = {}
     with matplotlib.rc_context(STYLE):
-        jobs = list(BUILDERS) + [(f"landscape{'' if i == 0 else f'_{i + 1}'}",
-                                  (lambda c, land=land, i=i: fig_landscape(c, land, i)))
-                                 for i, land in enumerate(coll.landscapes)]
+        jobs = list(BUILDERS) + [
+            (f"landscape{'' if i == 0 else f'_{i + 1}'}", (lambda c, land=land, i=i: fig_landscape(c, land, i)))
+            for i, land in enumerate(coll.landscapes)
+        ]
         for name, build in jobs:
             if not coll.runs and not name.startswith("landscape"):
                 skipped[name] = "no usable runs"
                 continue
             try:
                 result = build(coll)
-            except Exception as err:  # noqa: BLE001 - one figure failing never aborts the report
+            except Exception as err:
                 skipped[name] = f"failed: {type(err).__name__}: {err}"
                 continue
             if isinstance(result, FigureSpec):
@@ -581,7 +733,7 @@ def figure_files(spec: FigureSpec, formats: list[str]) -> dict[str, bytes] | str
             files = {fmt: _savefig(spec.figure, fmt) for fmt in formats}
             png = files["png"] if "png" in files else _savefig(spec.figure, "png")
         files["page"] = _downscale(png, PAGE_DPI / STYLE["savefig.dpi"])
-    except Exception as err:  # noqa: BLE001 - listed with the figures not drawn
+    except Exception as err:
         return f"failed: {type(err).__name__}: {err}"
     return files
 

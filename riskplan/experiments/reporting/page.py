@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from riskplan.version import __version__
 from riskplan.experiments.reporting.collect import Collection
 from riskplan.experiments.reporting.figures import FigureSpec
+from riskplan.version import __version__
 
 CSS = """
 body { font-family: "DejaVu Sans", Helvetica, Arial, sans-serif; margin: 2em auto; max-width: 1100px;
@@ -92,16 +92,21 @@ def configs_section(coll: Collection) -> str:
     rows = []
     for g in coll.groups:
         swatch = f'<span class="swatch" style="background:{g.color}"></span>'
-        rows.append([swatch + _esc(g.label), _esc(", ".join(str(s) for s in g.seeds))]
-                    + [_esc(g.settings.get(k)) for k in keys])
-    text = ("<p>Runs are grouped by every config key except <code>seed</code>; the seeds of a group are pooled "
-            "(curves: across-seed mean with a 95% band).</p>")
+        rows.append(
+            [swatch + _esc(g.label), _esc(", ".join(str(s) for s in g.seeds))] + [_esc(g.settings.get(k)) for k in keys]
+        )
+    text = (
+        "<p>Runs are grouped by every config key except <code>seed</code>; the seeds of a group are pooled "
+        "(curves: across-seed mean with a 95% band).</p>"
+    )
     if not keys:
         c = coll.groups[0].config
-        text += (f"<p>All runs share one configuration: experiment <code>{_esc(c.get('experiment'))}</code>, "
-                 f"risk <code>{_esc(c.get('risk'))}</code>, team.robots={_esc(c.get('team', {}).get('robots'))}, "
-                 f"train.iterations={_esc(c.get('train', {}).get('iterations'))}, "
-                 f"train.samples={_esc(c.get('train', {}).get('samples'))}.</p>")
+        text += (
+            f"<p>All runs share one configuration: experiment <code>{_esc(c.get('experiment'))}</code>, "
+            f"risk <code>{_esc(c.get('risk'))}</code>, team.robots={_esc(c.get('team', {}).get('robots'))}, "
+            f"train.iterations={_esc(c.get('train', {}).get('iterations'))}, "
+            f"train.samples={_esc(c.get('train', {}).get('samples'))}.</p>"
+        )
     return text + _table(head, rows)
 
 
@@ -111,47 +116,84 @@ def comparison_section(table: pd.DataFrame) -> str:
         return "<p>No usable runs.</p>"
     reached = [c for c in table.columns if c.startswith("reached_") and not c.endswith(("_low", "_high"))]
     head = ["group", "policy", "β", "seeds", "mean", "CVaR<sub>β</sub>", "VaR<sub>β</sub>", "P(risky)"] + [
-        f"P(reach {_esc(c[len('reached_'):])})" for c in reached]
+        f"P(reach {_esc(c[len('reached_') :])})" for c in reached
+    ]
     rows = []
     for _, row in table.iterrows():
-        rows.append([_esc(row["group"]), _esc(row["policy"]), f"{row['beta']:g}", _esc(row["seeds"]),
-                     _interval(row, "mean"), _interval(row, "cvar"), _interval(row, "value_at_risk"),
-                     _interval(row, "risky_fraction", True)] + [_interval(row, c, True) for c in reached])
+        rows.append(
+            [
+                _esc(row["group"]),
+                _esc(row["policy"]),
+                f"{row['beta']:g}",
+                _esc(row["seeds"]),
+                _interval(row, "mean"),
+                _interval(row, "cvar"),
+                _interval(row, "value_at_risk"),
+                _interval(row, "risky_fraction", True),
+            ]
+            + [_interval(row, c, True) for c in reached]
+        )
     methods = sorted(set(table["interval"]))
-    note = (f'<p class="note">Final policies on their evaluation episodes (team runs: the network average θ̄). '
-            f'Brackets: {"; ".join(_esc(m) for m in methods)}. P(risky): share of episodes with at least one step '
-            f'in a risky region. The same numbers, unrounded, are in <code>report.csv</code>.</p>')
+    note = (
+        f'<p class="note">Final policies on their evaluation episodes (team runs: the network average θ̄). '
+        f"Brackets: {'; '.join(_esc(m) for m in methods)}. P(risky): share of episodes with at least one step "
+        f"in a risky region. The same numbers, unrounded, are in <code>report.csv</code>.</p>"
+    )
     return _table(head, rows, numeric=set(range(2, len(head)))) + note
 
 
 def landscape_section(table: pd.DataFrame) -> str:
     if table.empty:
         return ""
-    head = ["landscape", "β", "grid", "max mean at θ", "max CVaR at θ", "group", "objective", "final θ",
-            "distance to optimum", "smoothed optimum (distance)", "objective at final θ", "gap to grid max",
-            "SE at max"]
+    head = [
+        "landscape",
+        "β",
+        "grid",
+        "max mean at θ",
+        "max CVaR at θ",
+        "group",
+        "objective",
+        "final θ",
+        "distance to optimum",
+        "smoothed optimum (distance)",
+        "objective at final θ",
+        "gap to grid max",
+        "SE at max",
+    ]
     rows = []
     for _, r in table.iterrows():
         gap_percent = r.get("gap_percent")
-        rows.append([_esc(Path(r["landscape"]).name), _num(r.get("beta"), 3),
-                     f"{_whole(r.get('points'))}² × {_whole(r.get('episodes'))}",
-                     f"{_text(r.get('best_mean_theta'))}: {_num(r.get('best_mean'))}",
-                     f"{_text(r.get('best_cvar_theta'))}: {_num(r.get('best_cvar'))}",
-                     _text(r.get("group")), _text(r.get("objective")), _text(r.get("final_theta")),
-                     _num(r.get("distance_to_optimum")),
-                     f"{_text(r.get('smoothed_optimum_theta'))} ({_num(r.get('distance_to_smoothed_optimum'))})"
-                     if not _missing(r.get("distance_to_smoothed_optimum")) else MISSING,
-                     _num(r.get("landscape_at_final")),
-                     _num(r.get("gap_to_optimum")) + ("" if _missing(gap_percent) else f" ({_num(gap_percent, 2)}%)")
-                     if not _missing(r.get("gap_to_optimum")) else MISSING,
-                     _num(r.get("standard_error_at_optimum"))])
-    return ("<h2>Landscape optima</h2>" + _table(head, rows, numeric={8, 9, 10, 11, 12})
-            + '<p class="note">Objective: CVaR for risk-averse groups, mean for risk-neutral ones, as evaluated on '
-              'the landscape grid; distance is Euclidean in θ between the across-seed mean final θ and the grid '
-              'maximum (smoothed: the maximum of the 3×3 moving average, robust to single noisy points); the gap is the '
-              'grid maximum minus the grid value nearest the final θ; SE is the estimator\'s '
-              'standard error at the maximum (one grid point, its episodes), the scale of the noise in the '
-              'surface.</p>')
+        rows.append(
+            [
+                _esc(Path(r["landscape"]).name),
+                _num(r.get("beta"), 3),
+                f"{_whole(r.get('points'))}² × {_whole(r.get('episodes'))}",
+                f"{_text(r.get('best_mean_theta'))}: {_num(r.get('best_mean'))}",
+                f"{_text(r.get('best_cvar_theta'))}: {_num(r.get('best_cvar'))}",
+                _text(r.get("group")),
+                _text(r.get("objective")),
+                _text(r.get("final_theta")),
+                _num(r.get("distance_to_optimum")),
+                f"{_text(r.get('smoothed_optimum_theta'))} ({_num(r.get('distance_to_smoothed_optimum'))})"
+                if not _missing(r.get("distance_to_smoothed_optimum"))
+                else MISSING,
+                _num(r.get("landscape_at_final")),
+                _num(r.get("gap_to_optimum")) + ("" if _missing(gap_percent) else f" ({_num(gap_percent, 2)}%)")
+                if not _missing(r.get("gap_to_optimum"))
+                else MISSING,
+                _num(r.get("standard_error_at_optimum")),
+            ]
+        )
+    return (
+        "<h2>Landscape optima</h2>"
+        + _table(head, rows, numeric={8, 9, 10, 11, 12})
+        + '<p class="note">Objective: CVaR for risk-averse groups, mean for risk-neutral ones, as evaluated on '
+        "the landscape grid; distance is Euclidean in θ between the across-seed mean final θ and the grid "
+        "maximum (smoothed: the maximum of the 3×3 moving average, robust to single noisy points); the gap is the "
+        "grid maximum minus the grid value nearest the final θ; SE is the estimator's "
+        "standard error at the maximum (one grid point, its episodes), the scale of the noise in the "
+        "surface.</p>"
+    )
 
 
 def soft_risk_section(table: pd.DataFrame | None) -> str:
@@ -159,21 +201,32 @@ def soft_risk_section(table: pd.DataFrame | None) -> str:
     if table is None or table.empty:
         return ""
     reached = [c for c in table.columns if c.startswith("reached_")]
-    head = ["group", "schedule", "seed", "mean", "CVaR<sub>β</sub>"] + [
-        f"P(reach {_esc(c[len('reached_'):])})" for c in reached] + ["final θ"]
+    head = (
+        ["group", "schedule", "seed", "mean", "CVaR<sub>β</sub>"]
+        + [f"P(reach {_esc(c[len('reached_') :])})" for c in reached]
+        + ["final θ"]
+    )
     rows = []
     for _, r in table.iterrows():
-        schedule = _esc(r["schedule"]) + ("" if r["schedule"] == "none" else
-                                          f" ({_num(r.get('schedule_start'), 2)} → β = {r['beta']:g} over "
-                                          f"{_whole(r.get('schedule_iterations'))} iterations)")
-        rows.append([_esc(r["group"]), schedule, _esc(r["seed"]), _num(r.get("mean")), _num(r.get("cvar"))]
-                    + [_num(100 * r[c], 1) + "%" if not _missing(r[c]) else MISSING for c in reached]
-                    + [_text(r.get("theta_final"))])
-    return ("<h2>Soft risk</h2>" + _table(head, rows, numeric=set(range(3, 5 + len(reached))))
-            + '<p class="note">Each seed\'s final policy on its evaluation episodes, CVaR at risk.beta. A soft-risk '
-              'schedule (CeSoR) ascends CVaR at a level β_l that falls from risk.schedule.start to β over '
-              'risk.schedule.iterations; kind none is the paper\'s fixed β. The same numbers are in '
-              '<code>soft_risk.csv</code>.</p>')
+        schedule = _esc(r["schedule"]) + (
+            ""
+            if r["schedule"] == "none"
+            else f" ({_num(r.get('schedule_start'), 2)} → β = {r['beta']:g} over "
+            f"{_whole(r.get('schedule_iterations'))} iterations)"
+        )
+        rows.append(
+            [_esc(r["group"]), schedule, _esc(r["seed"]), _num(r.get("mean")), _num(r.get("cvar"))]
+            + [_num(100 * r[c], 1) + "%" if not _missing(r[c]) else MISSING for c in reached]
+            + [_text(r.get("theta_final"))]
+        )
+    return (
+        "<h2>Soft risk</h2>"
+        + _table(head, rows, numeric=set(range(3, 5 + len(reached))))
+        + '<p class="note">Each seed\'s final policy on its evaluation episodes, CVaR at risk.beta. A soft-risk '
+        "schedule (CeSoR) ascends CVaR at a level β_l that falls from risk.schedule.start to β over "
+        "risk.schedule.iterations; kind none is the paper's fixed β. The same numbers are in "
+        "<code>soft_risk.csv</code>.</p>"
+    )
 
 
 def _whole(value) -> str:
@@ -193,49 +246,73 @@ def runs_section(runs: pd.DataFrame) -> str:
         status = _esc(r["status"])
         if r["status"] == "skipped":
             status = f'<span class="skipped">{status}</span>'
-        rows.append([f"<code>{_esc(r['path'])}</code>", status,
-                     "" if _missing(r.get("group")) else _esc(r.get("group")),
-                     "" if _missing(r.get("seed")) else _esc(int(r["seed"])),
-                     "" if _missing(r.get("note")) else _esc(r.get("note")),
-                     "" if r["status"] != "used" else _num(r.get("mean")),
-                     "" if r["status"] != "used" else _num(r.get("cvar")),
-                     "" if _missing(r.get("theta_final")) else _esc(r.get("theta_final"))])
+        rows.append(
+            [
+                f"<code>{_esc(r['path'])}</code>",
+                status,
+                "" if _missing(r.get("group")) else _esc(r.get("group")),
+                "" if _missing(r.get("seed")) else _esc(int(r["seed"])),
+                "" if _missing(r.get("note")) else _esc(r.get("note")),
+                "" if r["status"] != "used" else _num(r.get("mean")),
+                "" if r["status"] != "used" else _num(r.get("cvar")),
+                "" if _missing(r.get("theta_final")) else _esc(r.get("theta_final")),
+            ]
+        )
     return _table(head, rows, numeric={5, 6})
 
 
 def figure_html(spec: FigureSpec, files: dict[str, bytes]) -> str:
     """The figure's page image inline, linking its files (figures.figure_files: {format: bytes, "page": PNG})."""
     data = base64.b64encode(files["page"]).decode("ascii")
-    links = " · ".join(f'<a href="{_esc(f"{spec.name}.{fmt}")}">{_esc(fmt.upper())}</a>' for fmt in files
-                       if fmt != "page")
-    return (f'<figure id="{_esc(spec.name)}"><img src="data:image/png;base64,{data}" alt="{_esc(spec.title)}">'
-            f"<figcaption><b>{_esc(spec.title)}.</b> {_esc(spec.caption)}"
-            + (f" <span class=\"note\">Files: {links}.</span>" if links else "") + "</figcaption></figure>")
+    links = " · ".join(
+        f'<a href="{_esc(f"{spec.name}.{fmt}")}">{_esc(fmt.upper())}</a>' for fmt in files if fmt != "page"
+    )
+    return (
+        f'<figure id="{_esc(spec.name)}"><img src="data:image/png;base64,{data}" alt="{_esc(spec.title)}">'
+        f"<figcaption><b>{_esc(spec.title)}.</b> {_esc(spec.caption)}"
+        + (f' <span class="note">Files: {links}.</span>' if links else "")
+        + "</figcaption></figure>"
+    )
 
 
-def render(coll: Collection, figures: list[tuple[FigureSpec, dict]], skipped: dict[str, str],
-           comparison: pd.DataFrame, runs: pd.DataFrame, landscapes: pd.DataFrame,
-           soft_risk: pd.DataFrame | None = None) -> str:
+def render(
+    coll: Collection,
+    figures: list[tuple[FigureSpec, dict]],
+    skipped: dict[str, str],
+    comparison: pd.DataFrame,
+    runs: pd.DataFrame,
+    landscapes: pd.DataFrame,
+    soft_risk: pd.DataFrame | None = None,
+) -> str:
     """The whole page."""
     now = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     inputs = ", ".join(f"<code>{_esc(p)}</code>" for p in coll.inputs)
-    counts = (f"{len(coll.runs)} run(s) in {len(coll.groups)} group(s), {len(coll.landscapes)} landscape(s), "
-              f"{len(coll.broken)} skipped")
+    counts = (
+        f"{len(coll.runs)} run(s) in {len(coll.groups)} group(s), {len(coll.landscapes)} landscape(s), "
+        f"{len(coll.broken)} skipped"
+    )
     paper = [f for f in figures if f[0].name.startswith("fig")]
     extra = [f for f in figures if not f[0].name.startswith("fig")]
     parts = [
-        "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        "<title>riskplan report</title>", f"<style>{CSS}</style></head><body>",
+        "<title>riskplan report</title>",
+        f"<style>{CSS}</style></head><body>",
         "<h1>riskplan report</h1>",
         f'<p class="meta">riskplan {_esc(__version__)} · generated {now} · from {inputs} · {counts}</p>',
     ]
     if coll.broken:
         items = "".join(f"<li><code>{_esc(b.path)}</code>: {_esc(b.reason)}</li>" for b in coll.broken)
-        parts.append(f'<p class="skipped"><b>Skipped {len(coll.broken)} broken or partial run(s):</b></p>'
-                     f"<ul>{items}</ul>")
-    parts += ["<h2>Configurations that differ</h2>", configs_section(coll),
-              "<h2>Final policies</h2>", comparison_section(comparison)]
+        parts.append(
+            f'<p class="skipped"><b>Skipped {len(coll.broken)} broken or partial run(s):</b></p><ul>{items}</ul>'
+        )
+    parts += [
+        "<h2>Configurations that differ</h2>",
+        configs_section(coll),
+        "<h2>Final policies</h2>",
+        comparison_section(comparison),
+    ]
     if paper:
         parts.append("<h2>The paper's figures (Section V)</h2>")
         parts += [figure_html(spec, files) for spec, files in paper]

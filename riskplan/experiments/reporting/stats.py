@@ -9,9 +9,38 @@ import numpy as np
 import pandas as pd
 
 # Two-sided 95% Student-t quantiles t_{0.975, df} for df = 1..30 (beyond: normal 1.96 as the limit).
-_T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145,
-         2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048,
-         2.045, 2.042)
+_T975 = (
+    12.706,
+    4.303,
+    3.182,
+    2.776,
+    2.571,
+    2.447,
+    2.365,
+    2.306,
+    2.262,
+    2.228,
+    2.201,
+    2.179,
+    2.160,
+    2.145,
+    2.131,
+    2.120,
+    2.110,
+    2.101,
+    2.093,
+    2.086,
+    2.080,
+    2.074,
+    2.069,
+    2.064,
+    2.060,
+    2.056,
+    2.052,
+    2.048,
+    2.045,
+    2.042,
+)
 
 
 def t975(df: int) -> float:
@@ -54,7 +83,7 @@ def band(table: pd.DataFrame, log: bool = False) -> pd.DataFrame:
     half = np.array([t975(int(k) - 1) if k > 1 else math.nan for k in n]) * sd / np.sqrt(np.maximum(n, 1))
     low, high = mean - half, mean + half
     if log:
-        mean, low, high = 10.0 ** mean, 10.0 ** low, 10.0 ** high
+        mean, low, high = 10.0**mean, 10.0**low, 10.0**high
     return pd.DataFrame({"mean": mean, "low": low, "high": high, "n": n}, index=table.index)
 
 
@@ -70,4 +99,3 @@ def wilson(successes: float, n: int) -> tuple[float, float]:
     low = 0.0 if successes <= 0 else max(0.0, centre - half)
     high = 1.0 if successes >= n else min(1.0, centre + half)
     return low, high
-

@@ -17,9 +17,9 @@ import math
 import numpy as np
 import pandas as pd
 
+from riskplan.engine.risk_measures import cvar, value_at_risk
 from riskplan.experiments.reporting.collect import Collection, Group, RunInfo
 from riskplan.experiments.reporting.stats import seed_interval, wilson
-from riskplan.engine.risk_measures import cvar, value_at_risk
 from riskplan.run.intervals import bootstrap_intervals
 
 FIGURES = ("mean", "cvar", "value_at_risk")
@@ -37,8 +37,12 @@ def run_values(run: RunInfo, beta: float | None = None) -> dict[str, float]:
     beta = run.group.beta if beta is None and run.group is not None else (beta or 0.1)
     e = run.eval_of()
     z = e.total_reward.to_numpy(dtype=float)
-    values = {"mean": float(z.mean()), "cvar": cvar(z, beta), "value_at_risk": value_at_risk(z, beta),
-              "risky_fraction": float((e.risky_steps.to_numpy() > 0).mean())}
+    values = {
+        "mean": float(z.mean()),
+        "cvar": cvar(z, beta),
+        "value_at_risk": value_at_risk(z, beta),
+        "risky_fraction": float((e.risky_steps.to_numpy() > 0).mean()),
+    }
     reached = e.source_reached.to_numpy()
     for j, name in enumerate(source_names(run.config)):
         values[f"reached_{name}"] = float((reached == j).mean())
@@ -65,10 +69,16 @@ def group_row(group: Group, beta: float | None = None) -> dict:
     beta = group.beta if beta is None else beta
     per_run = [run_values(r, beta) for r in group.runs]
     names = [k for k in per_run[0] if k != "episodes"]
-    row: dict = {"group": group.label, "measure": group.measure, "beta": beta, "robots": group.robots,
-                 "policy": "network average" if group.team else "robot 0", "seeds": len(group.runs),
-                 "seed_list": " ".join(str(s) for s in group.seeds),
-                 "eval_episodes": per_run[0]["episodes"]}
+    row: dict = {
+        "group": group.label,
+        "measure": group.measure,
+        "beta": beta,
+        "robots": group.robots,
+        "policy": "network average" if group.team else "robot 0",
+        "seeds": len(group.runs),
+        "seed_list": " ".join(str(s) for s in group.seeds),
+        "eval_episodes": per_run[0]["episodes"],
+    }
     if len(per_run) == 1:
         intervals = run_intervals(group.runs[0], beta, per_run[0])
         row["interval"] = "95% bootstrap over episodes (Wilson for proportions)"
@@ -88,8 +98,20 @@ def comparison_table(coll: Collection) -> pd.DataFrame:
     """report.csv: one row per group."""
     rows = [group_row(g) for g in coll.groups]
     if not rows:
-        return pd.DataFrame(columns=["group", "measure", "beta", "robots", "policy", "seeds", "mean", "cvar",
-                                     "value_at_risk", "risky_fraction"])
+        return pd.DataFrame(
+            columns=[
+                "group",
+                "measure",
+                "beta",
+                "robots",
+                "policy",
+                "seeds",
+                "mean",
+                "cvar",
+                "value_at_risk",
+                "risky_fraction",
+            ]
+        )
     table = pd.DataFrame(rows)
     front = ["group", "measure", "beta", "robots", "policy", "seeds", "seed_list", "eval_episodes", "interval"]
     figures = [c for c in table.columns if c not in front and not c.startswith("config.")]
@@ -102,19 +124,47 @@ def runs_table(coll: Collection) -> pd.DataFrame:
     rows = []
     for r in coll.runs:
         v = run_values(r)
-        rows.append({"path": str(r.path), "status": "used", "group": r.group.label if r.group else "",
-                     "seed": r.seed, "note": "tables rebuilt from run.mcap" if r.rebuilt else "",
-                     "iterations": int(r.run.metrics.iteration.max()) + 1,
-                     "mean": v["mean"], "cvar": v["cvar"], "value_at_risk": v["value_at_risk"],
-                     "theta_final": " ".join(f"{t:.3f}" if math.isfinite(t) else "n/a" for t in r.final_theta())})
+        rows.append(
+            {
+                "path": str(r.path),
+                "status": "used",
+                "group": r.group.label if r.group else "",
+                "seed": r.seed,
+                "note": "tables rebuilt from run.mcap" if r.rebuilt else "",
+                "iterations": int(r.run.metrics.iteration.max()) + 1,
+                "mean": v["mean"],
+                "cvar": v["cvar"],
+                "value_at_risk": v["value_at_risk"],
+                "theta_final": " ".join(f"{t:.3f}" if math.isfinite(t) else "n/a" for t in r.final_theta()),
+            }
+        )
     for land in coll.landscapes:
-        rows.append({"path": str(land.path), "status": "landscape", "group": "", "seed": land.summary.get("seed"),
-                     "note": f"{land.summary.get('points', '?')}^2 grid x {land.summary.get('episodes', '?')} "
-                             f"episodes"})
+        rows.append(
+            {
+                "path": str(land.path),
+                "status": "landscape",
+                "group": "",
+                "seed": land.summary.get("seed"),
+                "note": f"{land.summary.get('points', '?')}^2 grid x {land.summary.get('episodes', '?')} episodes",
+            }
+        )
     for b in coll.broken:
         rows.append({"path": str(b.path), "status": "skipped", "note": b.reason})
-    table = pd.DataFrame(rows, columns=["path", "status", "group", "seed", "note", "iterations", "mean", "cvar",
-                                        "value_at_risk", "theta_final"])
+    table = pd.DataFrame(
+        rows,
+        columns=[
+            "path",
+            "status",
+            "group",
+            "seed",
+            "note",
+            "iterations",
+            "mean",
+            "cvar",
+            "value_at_risk",
+            "theta_final",
+        ],
+    )
     return table.astype({"seed": "Int64", "iterations": "Int64"})
 
 
@@ -132,12 +182,20 @@ def soft_risk_table(coll: Collection) -> pd.DataFrame:
             seen.add(id(g))
             for r in g.runs:
                 values = run_values(r, g.beta)
-                rows.append({"group": g.label, "schedule": g.schedule,
-                             "schedule_start": r.flat.get("risk.schedule.start"),
-                             "schedule_iterations": r.flat.get("risk.schedule.iterations"),
-                             "beta": g.beta, "seed": r.seed, "mean": values["mean"], "cvar": values["cvar"],
-                             **{k: v for k, v in values.items() if k.startswith("reached_")},
-                             "theta_final": " ".join(f"{t:.1f}" for t in r.final_theta())})
+                rows.append(
+                    {
+                        "group": g.label,
+                        "schedule": g.schedule,
+                        "schedule_start": r.flat.get("risk.schedule.start"),
+                        "schedule_iterations": r.flat.get("risk.schedule.iterations"),
+                        "beta": g.beta,
+                        "seed": r.seed,
+                        "mean": values["mean"],
+                        "cvar": values["cvar"],
+                        **{k: v for k, v in values.items() if k.startswith("reached_")},
+                        "theta_final": " ".join(f"{t:.1f}" for t in r.final_theta()),
+                    }
+                )
     return pd.DataFrame(rows)
 
 
@@ -149,8 +207,11 @@ def runs_on(land, coll: Collection) -> list[RunInfo]:
     for r in coll.runs:
         risk = r.config.get("risk", {})
         shown = risk.get("measure") == "neutral" or math.isclose(float(risk.get("beta", -1.0)), land.beta)
-        if (shown and _flat_world(r.config) == world
-                and len(r.final_theta()) == len(land.summary.get("theta_fixed", [0, 0]))):
+        if (
+            shown
+            and _flat_world(r.config) == world
+            and len(r.final_theta()) == len(land.summary.get("theta_fixed", [0, 0]))
+        ):
             out.append(r)
     return out
 
@@ -192,10 +253,16 @@ def landscape_table(coll: Collection) -> pd.DataFrame:
         a, b = land.axes
         best = {k: land.best(k) for k in ("mean", "cvar")}
         thetas = land.table[[f"theta_{a}", f"theta_{b}"]].to_numpy(float)
-        base = {"landscape": str(land.path), "beta": land.beta, "episodes": land.summary.get("episodes"),
-                "points": land.summary.get("points"),
-                "best_mean_theta": _fmt_theta(best["mean"]["theta"], a, b), "best_mean": best["mean"]["value"],
-                "best_cvar_theta": _fmt_theta(best["cvar"]["theta"], a, b), "best_cvar": best["cvar"]["value"]}
+        base = {
+            "landscape": str(land.path),
+            "beta": land.beta,
+            "episodes": land.summary.get("episodes"),
+            "points": land.summary.get("points"),
+            "best_mean_theta": _fmt_theta(best["mean"]["theta"], a, b),
+            "best_mean": best["mean"]["value"],
+            "best_cvar_theta": _fmt_theta(best["cvar"]["theta"], a, b),
+            "best_cvar": best["cvar"]["value"],
+        }
         groups: dict[str, list[RunInfo]] = {}
         for r in runs_on(land, coll):
             groups.setdefault(r.group.label, []).append(r)
@@ -211,22 +278,33 @@ def landscape_table(coll: Collection) -> pd.DataFrame:
             value_there = float(land.table[target].iloc[nearest])
             se_column = f"{target}_se"
             best_index = land.best_index(target)
-            se = (float(land.table[se_column].iloc[best_index]) if se_column in land.table and best_index is not None
-                  else math.nan)
+            se = (
+                float(land.table[se_column].iloc[best_index])
+                if se_column in land.table and best_index is not None
+                else math.nan
+            )
             smooth = land.smoothed_best(target)
             smooth_theta = np.array(smooth["theta"] if smooth["theta"] is not None else [np.nan, np.nan], float)
             gap = best[target]["value"] - value_there
-            rows.append({**base, "group": label, "seeds": len(runs), "objective": target,
-                         "final_theta": f"({final[0]:.1f}, {final[1]:.1f})",
-                         "distance_to_optimum": float(np.linalg.norm(final - opt)),
-                         "smoothed_optimum_theta": _fmt_pair(smooth_theta),
-                         "distance_to_smoothed_optimum": float(np.linalg.norm(final - smooth_theta)),
-                         "landscape_at_final": value_there,
-                         "gap_to_optimum": gap,
-                         "gap_percent": 100 * _ratio(gap, abs(best[target]["value"])),
-                         "standard_error_at_optimum": se,
-                         "grid_step": float(np.diff(np.unique(thetas[:, 0]))[0]) if len(np.unique(thetas[:, 0])) > 1
-                         else math.nan})
+            rows.append(
+                {
+                    **base,
+                    "group": label,
+                    "seeds": len(runs),
+                    "objective": target,
+                    "final_theta": f"({final[0]:.1f}, {final[1]:.1f})",
+                    "distance_to_optimum": float(np.linalg.norm(final - opt)),
+                    "smoothed_optimum_theta": _fmt_pair(smooth_theta),
+                    "distance_to_smoothed_optimum": float(np.linalg.norm(final - smooth_theta)),
+                    "landscape_at_final": value_there,
+                    "gap_to_optimum": gap,
+                    "gap_percent": 100 * _ratio(gap, abs(best[target]["value"])),
+                    "standard_error_at_optimum": se,
+                    "grid_step": float(np.diff(np.unique(thetas[:, 0]))[0])
+                    if len(np.unique(thetas[:, 0])) > 1
+                    else math.nan,
+                }
+            )
     return pd.DataFrame(rows)
 
 

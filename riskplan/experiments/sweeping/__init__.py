@@ -29,12 +29,25 @@ search (optimising sweepers) -> plan -> run.
 
 from __future__ import annotations
 
+from riskplan.experiments.sweeping.execute import run_sweep
 from riskplan.experiments.sweeping.grid import constant_keys, expand, sweep_size
 from riskplan.experiments.sweeping.jobs import SUMMARY, SWEEPS_ROOT, Job, Outcome, Plan
 from riskplan.experiments.sweeping.launch import warm_workers
 from riskplan.experiments.sweeping.plan import plan_sweep
-from riskplan.experiments.sweeping.execute import run_sweep
 from riskplan.experiments.sweeping.summary import report_outcome, summarize
 
-__all__ = ["SUMMARY", "SWEEPS_ROOT", "Job", "Outcome", "Plan", "constant_keys", "expand", "plan_sweep",
-           "report_outcome", "run_sweep", "summarize", "sweep_size", "warm_workers"]
+__all__ = [
+    "SUMMARY",
+    "SWEEPS_ROOT",
+    "Job",
+    "Outcome",
+    "Plan",
+    "constant_keys",
+    "expand",
+    "plan_sweep",
+    "report_outcome",
+    "run_sweep",
+    "summarize",
+    "sweep_size",
+    "warm_workers",
+]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from riskplan.experiments.sweeping.jobs import Outcome, Plan, SUMMARY, cpu_count, locate
+from riskplan.experiments.sweeping.jobs import SUMMARY, Outcome, Plan, cpu_count, locate
 from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.experiments.sweeping.search import run_optimiser
@@ -16,8 +16,14 @@ from riskplan.experiments.sweeping.summary import summarize, write_summary
 from riskplan.experiments.sweeping.view import SweepView
 
 
-def run_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None, title: str = "sweep",
-              out=None, before_launch=None) -> Outcome:
+def run_sweep(
+    args: list[str],
+    jobs: int | None = None,
+    sweep_dir: Path | None = None,
+    title: str = "sweep",
+    out=None,
+    before_launch=None,
+) -> Outcome:
     """Plan, launch through Hydra, show progress, write summary.parquet. BadInput before anything runs.
 
     `before_launch`: called between planning and launching (reproduce waits there for its warmed-up workers)."""
@@ -45,8 +51,10 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         plan.argv[plan.workers_arg] = f"hydra.launcher.n_jobs={todo}"
     where = f"{plan.launcher}" + (f", {plan.workers} workers" if plan.workers else "")
     echo(f"{title} directory: {plan.sweep_dir}")
-    echo(f"{len(plan.jobs)} job{'s' if len(plan.jobs) != 1 else ''}: {todo} to run, {len(finished)} already "
-         f"finished ({where})")
+    echo(
+        f"{len(plan.jobs)} job{'s' if len(plan.jobs) != 1 else ''}: {todo} to run, {len(finished)} already "
+        f"finished ({where})"
+    )
     launcher_error = None
     if todo:
         if plan.launcher == "joblib" and plan.workers:
@@ -57,14 +65,20 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         with SweepView(plan.sweep_dir, plan.jobs, finished, title):
             launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log")
     for job in plan.jobs:  # a job found under another name (an older naming) ran in its own folder now
-        if job.folder is not None and job.path is not None and job.path.name != job.folder \
-                and (plan.sweep_dir / job.folder).is_dir():
+        if (
+            job.folder is not None
+            and job.path is not None
+            and job.path.name != job.folder
+            and (plan.sweep_dir / job.folder).is_dir()
+        ):
             job.path = None
     locate(plan.sweep_dir, plan.jobs)
     summary = summarize(plan.jobs)
     write_summary(summary, plan.sweep_dir / SUMMARY)
     failed = [(row.job, row.error or row.status) for row in summary.itertuples() if row.status != "done"]
-    resume = ([a for a in args if not a.startswith("hydra.sweep.dir=")] + [f"hydra.sweep.dir={plan.sweep_dir}"]
-              + (["--jobs", str(jobs)] if jobs else []))
-    return Outcome(plan.sweep_dir, summary, failed, todo, len(finished), time.time() - started, launcher_error,
-                   resume)
+    resume = (
+        [a for a in args if not a.startswith("hydra.sweep.dir=")]
+        + [f"hydra.sweep.dir={plan.sweep_dir}"]
+        + (["--jobs", str(jobs)] if jobs else [])
+    )
+    return Outcome(plan.sweep_dir, summary, failed, todo, len(finished), time.time() - started, launcher_error, resume)

@@ -7,9 +7,9 @@ import copy
 import warnings
 from pathlib import Path
 
+from riskplan.experiments.sweeping.jobs import SWEEPS_ROOT, Job
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import claim_dir, hydra_quote
-from riskplan.experiments.sweeping.jobs import Job, SWEEPS_ROOT
 
 
 def target_dir(sweep_dir: Path | None, explicit_dir: Path | None, argv: list[str]) -> Path:
@@ -42,12 +42,17 @@ def sweep_size(task_ovs: list) -> tuple[int, object]:
         value = override.value()
         if isinstance(value, RangeSweep):
             if any(isinstance(v, float) and not math.isfinite(v) for v in (value.start, value.stop, value.step)):
-                raise BadInput(f"override '{override.input_line}'", "has a range bound or step that is not a finite "
-                                                                    "number; give finite numbers, e.g. range(0,5) or "
-                                                                    "range(0,1,0.25)")
+                raise BadInput(
+                    f"override '{override.input_line}'",
+                    "has a range bound or step that is not a finite "
+                    "number; give finite numbers, e.g. range(0,5) or "
+                    "range(0,1,0.25)",
+                )
             if not value.step:
-                raise BadInput(f"override '{override.input_line}'", "has a range step of 0; give a step that is "
-                                                                    "not 0, e.g. range(0,5) or range(0,1,0.25)")
+                raise BadInput(
+                    f"override '{override.input_line}'",
+                    "has a range step of 0; give a step that is not 0, e.g. range(0,5) or range(0,1,0.25)",
+                )
             count = _range_length(value.start, value.stop, value.step)
         elif isinstance(value, ChoiceSweep):
             count = len(value.list)
@@ -55,7 +60,7 @@ def sweep_size(task_ovs: list) -> tuple[int, object]:
             try:
                 reparsed = parser.parse_overrides([override.input_line])[0]
                 count = sum(1 for _ in reparsed.sweep_string_iterator())
-            except Exception:  # noqa: BLE001 - expand() reports a bad glob
+            except Exception:
                 count = 1
         total *= count
         if count > most:
@@ -100,13 +105,19 @@ def check_subdir(value, several: bool) -> None:
         return  # per job (${hydra.job.num}, ...): the user's naming
     parts = [p for p in text.replace("\\", "/").split("/") if p not in ("", ".")]
     if not parts or posixpath.isabs(text) or ".." in parts or "\x00" in text:
-        raise BadInput("hydra.sweep.subdir", f"got {text!r}; give a folder inside the sweep directory, e.g. "
-                                             f"job_${{hydra.job.num}}, or leave it out (riskplan names each job's "
-                                             f"folder from its overrides)")
+        raise BadInput(
+            "hydra.sweep.subdir",
+            f"got {text!r}; give a folder inside the sweep directory, e.g. "
+            f"job_${{hydra.job.num}}, or leave it out (riskplan names each job's "
+            f"folder from its overrides)",
+        )
     if several:
-        raise BadInput("hydra.sweep.subdir", f"got {text!r}: every job of the sweep would write into that one "
-                                             f"folder; use an interpolation such as job_${{hydra.job.num}}, or leave "
-                                             f"it out (riskplan names each job's folder from its overrides)")
+        raise BadInput(
+            "hydra.sweep.subdir",
+            f"got {text!r}: every job of the sweep would write into that one "
+            f"folder; use an interpolation such as job_${{hydra.job.num}}, or leave "
+            f"it out (riskplan names each job's folder from its overrides)",
+        )
 
 
 def check_duplicates(job_list: list[Job], task_ovs: list) -> None:
@@ -123,15 +134,23 @@ def check_duplicates(job_list: list[Job], task_ovs: list) -> None:
         if differ:
             key = differ[0]
             line = by_key[key].input_line if key in by_key else key
-            raise BadInput(f"override '{line}'", f"gives {theirs[key]} and {mine[key]}, which compose to the same "
-                                                 f"config (one job twice); give each value once")
+            raise BadInput(
+                f"override '{line}'",
+                f"gives {theirs[key]} and {mine[key]}, which compose to the same "
+                f"config (one job twice); give each value once",
+            )
         for override in task_ovs:
             value = _repeated(override) if override.is_sweep_override() else None
             if value is not None:
-                raise BadInput(f"override '{override.input_line}'", f"gives the value {value} twice (one job "
-                                                                    f"twice); give each value once")
-        raise BadInput("sweep", f"gives the combination {job.label or ','.join(sorted(job.overrides))} twice (one "
-                                f"job twice); give each combination once")
+                raise BadInput(
+                    f"override '{override.input_line}'",
+                    f"gives the value {value} twice (one job twice); give each value once",
+                )
+        raise BadInput(
+            "sweep",
+            f"gives the combination {job.label or ','.join(sorted(job.overrides))} twice (one "
+            f"job twice); give each combination once",
+        )
 
 
 def _by_key(overrides: list[str]) -> dict[str, str]:
@@ -143,7 +162,7 @@ def _repeated(override) -> str | None:
     """A value a sweep override lists twice (as Hydra passes it to the job: 0.10 is 0.1), or None."""
     try:
         values = list(override.sweep_string_iterator())
-    except Exception:  # noqa: BLE001
+    except Exception:
         return None
     seen: set[str] = set()
     for value in values:
@@ -163,16 +182,22 @@ def name_folders(job_list: list[Job], naming: dict, task_ovs: list) -> None:
     parser = override_parser()
     owners: dict[str, Job] = {}
     for job in job_list:
-        dirname = get_overrides_dirname(parser.parse_overrides(job.overrides), list(naming["exclude_keys"]),
-                                        str(naming["item_sep"]), str(naming["kv_sep"]))
+        dirname = get_overrides_dirname(
+            parser.parse_overrides(job.overrides),
+            list(naming["exclude_keys"]),
+            str(naming["item_sep"]),
+            str(naming["kv_sep"]),
+        )
         job.folder = folder_name(dirname)
         other = owners.setdefault(job.folder, job)
         if other is not job:
             swept = [o for o in task_ovs if o.is_sweep_override()] or task_ovs
-            raise BadInput(f"override '{swept[0].input_line}'",
-                           f"makes two combinations share the job folder {job.folder} "
-                           f"({','.join(sorted(other.overrides))} and {','.join(sorted(job.overrides))}); give "
-                           f"values that differ in their text, or set hydra.sweep.subdir")
+            raise BadInput(
+                f"override '{swept[0].input_line}'",
+                f"makes two combinations share the job folder {job.folder} "
+                f"({','.join(sorted(other.overrides))} and {','.join(sorted(job.overrides))}); give "
+                f"values that differ in their text, or set hydra.sweep.subdir",
+            )
 
 
 def add_naming_and_logging(argv: list[str], hydra_keys: dict, constant: list[str]) -> None:
@@ -180,8 +205,9 @@ def add_naming_and_logging(argv: list[str], hydra_keys: dict, constant: list[str
     (risk.beta=0.1,seed=0), not by every fixed setting (the job's .hydra/overrides.yaml keeps them all, and resuming
     matches jobs by their full config anyway), and logging into sweep.log and each job's job.log."""
     if constant and not {"hydra.sweep.subdir", "hydra.job.config.override_dirname.exclude_keys"} & set(hydra_keys):
-        argv.append("hydra.job.config.override_dirname.exclude_keys=["
-                    + ",".join(hydra_quote(k) for k in constant) + "]")
+        argv.append(
+            "hydra.job.config.override_dirname.exclude_keys=[" + ",".join(hydra_quote(k) for k in constant) + "]"
+        )
     if "hydra/hydra_logging" not in hydra_keys:
         argv.append("hydra/hydra_logging=riskplan_sweep")
     if "hydra/job_logging" not in hydra_keys:
@@ -212,13 +238,12 @@ def check_hydra(hydra_args: list[str], first_job: list[str], sweeper: bool = Fal
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
     from hydra.errors import HydraException
+    from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
-    from omegaconf import OmegaConf
-
     from riskplan.config import schema
-    from riskplan.run.compose import CONF_DIR, explain, parse_overrides
     from riskplan.config.hydra_safety import check_hydra_node
+    from riskplan.run.compose import CONF_DIR, explain, parse_overrides
 
     schema.register()
     GlobalHydra.instance().clear()
@@ -266,10 +291,10 @@ def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
     from omegaconf.errors import OmegaConfBaseException
 
     from riskplan.config import schema
+    from riskplan.experiments.sweep_worker import config_sha
+    from riskplan.run.build import build_setup
     from riskplan.run.compose import CONF_DIR
     from riskplan.run.compose import compose as riskplan_compose
-    from riskplan.run.build import build_setup
-    from riskplan.experiments.sweep_worker import config_sha
 
     parser = override_parser()
     schema.register()

@@ -7,9 +7,6 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-
-
-
 SWEEPS_ROOT = Path("outputs") / "sweeps"
 
 
@@ -61,7 +58,7 @@ class Outcome:
     """What a sweep left: its directory, the summary table and the jobs that did not finish."""
 
     sweep_dir: Path
-    summary: "object"  # pandas.DataFrame
+    summary: object  # pandas.DataFrame
     failed: list[tuple[str, str]]  # (job folder name, error)
     ran: int
     skipped: int
@@ -121,8 +118,8 @@ def override_files(root: Path):
 
 def job_state(job: Job, since: float) -> tuple[str, dict | None]:
     """pending | running | done | failed, as far as this launch is concerned (older records are pending)."""
-    from riskplan.util import lock
     from riskplan.experiments.sweep_worker import read_status
+    from riskplan.util import lock
 
     if job.path is None:
         return "pending", None

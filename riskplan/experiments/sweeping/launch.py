@@ -23,7 +23,7 @@ def launch(argv: list[str], log_file: Path) -> str | None:
                 return _launcher_error(log_file)
         except KeyboardInterrupt:
             return "interrupted (Ctrl-C)"
-        except Exception as err:  # noqa: BLE001 - the jobs' own records say what finished
+        except Exception as err:
             import traceback
 
             traceback.print_exc()
@@ -72,7 +72,7 @@ def warm_workers(workers: int):
     def run() -> None:
         try:
             warmed.extend(Parallel(**settings)(delayed(warm_up)() for _ in range(WARMED)))
-        except Exception:  # noqa: BLE001 - a head start only: nothing depends on it
+        except Exception:
             warmed.clear()
 
     thread = threading.Thread(target=run, name="riskplan-warm-up", daemon=True)

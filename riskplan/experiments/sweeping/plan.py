@@ -5,11 +5,23 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from riskplan.util.errors import BadInput
-from riskplan.util.paths import check_output_dir, hydra_quote
-from riskplan.experiments.sweeping.grid import add_naming_and_logging, check_duplicates, check_hydra, check_size, check_subdir, constant_keys, expand, name_folders, split_bad, target_dir, validate
+from riskplan.experiments.sweeping.grid import (
+    add_naming_and_logging,
+    check_duplicates,
+    check_hydra,
+    check_size,
+    check_subdir,
+    constant_keys,
+    expand,
+    name_folders,
+    split_bad,
+    target_dir,
+    validate,
+)
 from riskplan.experiments.sweeping.jobs import DEFAULT_LAUNCHER, Plan, cpu_count
 from riskplan.experiments.sweeping.search import plan_optimiser
+from riskplan.util.errors import BadInput
+from riskplan.util.paths import check_output_dir, hydra_quote
 
 
 def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None) -> Plan:
@@ -18,19 +30,23 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
 
     for arg in args:
         if arg.startswith("-"):
-            raise BadInput(f"option '{arg}'", "is not known to riskplan sweep; give Hydra overrides (key=value) "
-                                              "and --jobs N")
+            raise BadInput(
+                f"option '{arg}'", "is not known to riskplan sweep; give Hydra overrides (key=value) and --jobs N"
+            )
     args = expand_shorthands(args)  # risk.schedule=none,linear -> risk.schedule.kind=none,linear
     parsed = parse_overrides(args)
     hydra_ovs = [o for o in parsed if o.is_hydra_override()]
     task_ovs = [o for o in parsed if not o.is_hydra_override()]
     for o in hydra_ovs:
         if o.key_or_group == "hydra.mode":
-            raise BadInput(f"override '{o.input_line}'", "riskplan sweep always runs a multirun; drop it (one run: "
-                                                         "riskplan train)")
+            raise BadInput(
+                f"override '{o.input_line}'", "riskplan sweep always runs a multirun; drop it (one run: riskplan train)"
+            )
         if o.is_sweep_override():
-            raise BadInput(f"override '{o.input_line}'", "sweeps over Hydra's own settings are not supported; "
-                                                         "sweep over riskplan keys, e.g. risk.beta=0.1,0.2")
+            raise BadInput(
+                f"override '{o.input_line}'",
+                "sweeps over Hydra's own settings are not supported; sweep over riskplan keys, e.g. risk.beta=0.1,0.2",
+            )
     hydra_keys = {o.key_or_group: o for o in hydra_ovs}
     launcher = str(hydra_keys["hydra/launcher"].value()) if "hydra/launcher" in hydra_keys else DEFAULT_LAUNCHER
     explicit_dir = None
@@ -38,8 +54,10 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         raw = hydra_keys["hydra.sweep.dir"].value()
         value = "" if raw is None else str(raw)
         if "${" in value:
-            raise BadInput("hydra.sweep.dir", f"got '{value}'; give a plain path (without it, riskplan sweep uses "
-                                              f"outputs/sweeps/<timestamp>)")
+            raise BadInput(
+                "hydra.sweep.dir",
+                f"got '{value}'; give a plain path (without it, riskplan sweep uses outputs/sweeps/<timestamp>)",
+            )
         if sweep_dir is None:
             check_output_dir(value, "hydra.sweep.dir")
         explicit_dir = Path(value)
@@ -50,9 +68,12 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         return plan_optimiser(args, task_ovs, hydra_ovs, launcher, sweeper, jobs, sweep_dir, explicit_dir)
     for o in task_ovs:
         if o.is_interval_sweep():
-            raise BadInput(f"override '{o.input_line}'", "interval(...) is a search space for an optimising "
-                                                         "sweeper (hydra/sweeper=optuna); a grid takes comma "
-                                                         "lists, range(...), choice(...) or glob(...)")
+            raise BadInput(
+                f"override '{o.input_line}'",
+                "interval(...) is a search space for an optimising "
+                "sweeper (hydra/sweeper=optuna); a grid takes comma "
+                "lists, range(...), choice(...) or glob(...)",
+            )
 
     check_size(task_ovs)
     if "hydra.sweep.subdir" in hydra_keys:
@@ -77,8 +98,9 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
             workers = min(jobs, len(job_list))
             argv.append(f"hydra.launcher.array_parallelism={workers}")
         else:
-            raise BadInput("--jobs", f"applies to the joblib and submitit_slurm launchers, not to "
-                                     f"hydra/launcher={launcher}")
+            raise BadInput(
+                "--jobs", f"applies to the joblib and submitit_slurm launchers, not to hydra/launcher={launcher}"
+            )
     if "hydra/launcher" not in hydra_keys:
         argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
     if not task_ovs and "hydra.sweep.subdir" not in hydra_keys:
@@ -94,7 +116,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         job.label = ",".join(sorted(o for o in job.overrides if o.split("=", 1)[0].lstrip("+~") not in constant))
     add_naming_and_logging(argv, hydra_keys, constant)
 
-    naming = check_hydra(argv[1 + len(args):] + [o.input_line for o in hydra_ovs], combos[0])
+    naming = check_hydra(argv[1 + len(args) :] + [o.input_line for o in hydra_ovs], combos[0])
     if task_ovs and "hydra.sweep.subdir" not in hydra_keys:
         name_folders(job_list, naming, task_ovs)
 

@@ -7,20 +7,36 @@ import os
 import time
 from pathlib import Path
 
-from riskplan.util.errors import BadInput
-from riskplan.util.paths import hydra_quote
 from riskplan.experiments.sweeping.grid import add_naming_and_logging, check_hydra, check_subdir, target_dir, validate
-from riskplan.experiments.sweeping.jobs import DEFAULT_LAUNCHER, Job, Outcome, Plan, SUMMARY, as_number, cpu_count, override_files
+from riskplan.experiments.sweeping.jobs import (
+    DEFAULT_LAUNCHER,
+    SUMMARY,
+    Job,
+    Outcome,
+    Plan,
+    as_number,
+    cpu_count,
+    override_files,
+)
 from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.summary import summarize, write_summary
 from riskplan.experiments.sweeping.view import SweepView
-
+from riskplan.util.errors import BadInput
+from riskplan.util.paths import hydra_quote
 
 OPTIMISER_FORMS = "choice(...), comma lists, range(...) or interval(...)"
 
 
-def plan_optimiser(args: list[str], task_ovs: list, hydra_ovs: list, launcher: str, sweeper: str,
-                   jobs: int | None, sweep_dir: Path | None, explicit_dir: Path | None) -> Plan:
+def plan_optimiser(
+    args: list[str],
+    task_ovs: list,
+    hydra_ovs: list,
+    launcher: str,
+    sweeper: str,
+    jobs: int | None,
+    sweep_dir: Path | None,
+    explicit_dir: Path | None,
+) -> Plan:
     """A sweep whose sweeper chooses the jobs as it goes (hydra/sweeper=optuna): the combinations are not known
     before it runs, so the search space is checked instead. Every swept key is composed with a sample value of the
     type the sweeper will draw (every value of a choice), which makes an unknown key or a badly typed value bad
@@ -45,8 +61,11 @@ def plan_optimiser(args: list[str], task_ovs: list, hydra_ovs: list, launcher: s
     except BadInput as err:  # name the search-space override whose sample does not compose
         for o in search:
             if err.where in (f"key '{o.key_or_group}'", o.key_or_group) and not o.is_choice_sweep():
-                raise BadInput(err.where, f"{err.problem} (from override '{o.input_line}', composed with the "
-                                          f"sample value {samples[o.key_or_group][0]})") from None
+                raise BadInput(
+                    err.where,
+                    f"{err.problem} (from override '{o.input_line}', composed with the "
+                    f"sample value {samples[o.key_or_group][0]})",
+                ) from None
         raise
     searched = {o.key_or_group for o in search}
     rejected = [job.invalid for job in sample_jobs if job.invalid]
@@ -55,7 +74,7 @@ def plan_optimiser(args: list[str], task_ovs: list, hydra_ovs: list, launcher: s
         raise BadInput(where, f"{problem} (in every trial; nothing was run)")
     for job, error in zip(sample_jobs, (j.invalid for j in sample_jobs)):
         if error:
-            tried = ",".join(job.overrides[len(fixed):])
+            tried = ",".join(job.overrides[len(fixed) :])
             notes.append(f"{error} (with the sample {tried}); trials there will fail alone")
 
     argv = ["-m", *args]
@@ -73,7 +92,7 @@ def plan_optimiser(args: list[str], task_ovs: list, hydra_ovs: list, launcher: s
         argv.append("+hydra.callbacks.riskplan_folders._target_=riskplan.experiments.sweep_worker.FolderNames")
     constant = [o.key_or_group for o in fixed] if search else []
     add_naming_and_logging(argv, hydra_keys, constant)
-    _, settings = check_hydra(argv[1 + len(args):] + [o.input_line for o in hydra_ovs], base, sweeper=True)
+    _, settings = check_hydra(argv[1 + len(args) :] + [o.input_line for o in hydra_ovs], base, sweeper=True)
     trials, batch = check_optimiser(sweeper, settings, search)
 
     workers = None
@@ -88,11 +107,13 @@ def plan_optimiser(args: list[str], task_ovs: list, hydra_ovs: list, launcher: s
             workers = min(jobs, *(n for n in (batch, trials) if n))
             argv.append(f"hydra.launcher.array_parallelism={workers}")
         else:
-            raise BadInput("--jobs", f"applies to the joblib and submitit_slurm launchers, not to "
-                                     f"hydra/launcher={launcher}")
+            raise BadInput(
+                "--jobs", f"applies to the joblib and submitit_slurm launchers, not to hydra/launcher={launcher}"
+            )
     target = target_dir(sweep_dir, explicit_dir, argv)
-    return Plan(target, argv, [], launcher, workers, notes, workers_arg, sweeper=sweeper, trials=trials,
-                search=sorted(searched))
+    return Plan(
+        target, argv, [], launcher, workers, notes, workers_arg, sweeper=sweeper, trials=trials, search=sorted(searched)
+    )
 
 
 def search_samples(override, sweeper: str) -> list[str]:
@@ -109,8 +130,11 @@ def search_samples(override, sweeper: str) -> list[str]:
     if isinstance(value, RangeSweep):
         bounds = (value.start, value.stop, value.step)
         if any(not isinstance(v, (int, float)) or not math.isfinite(v) for v in bounds) or not value.step:
-            raise BadInput(line, "has a range bound or step that is not a finite number, or a step of 0; give "
-                                 "finite numbers, e.g. range(0,5) or range(0,1,0.25)")
+            raise BadInput(
+                line,
+                "has a range bound or step that is not a finite number, or a step of 0; give "
+                "finite numbers, e.g. range(0,5) or range(0,1,0.25)",
+            )
         if (value.stop - value.start) / value.step < 0:
             raise BadInput(line, "is an empty range; give a start below the stop, e.g. range(0,5)")
         first = value.start if all(isinstance(v, int) for v in bounds) else float(value.start)
@@ -118,16 +142,17 @@ def search_samples(override, sweeper: str) -> list[str]:
     if isinstance(value, IntervalSweep):
         start, end = value.start, value.end
         if any(not isinstance(v, (int, float)) or not math.isfinite(v) for v in (start, end)):
-            raise BadInput(line, "has a bound that is not a finite number; give finite numbers, e.g. "
-                                 "interval(0.05,1)")
+            raise BadInput(line, "has a bound that is not a finite number; give finite numbers, e.g. interval(0.05,1)")
         if not start < end:
-            raise BadInput(line, f"has its lower bound {start} not below its upper bound {end}; give "
-                                 f"interval(low,high) with low < high")
+            raise BadInput(
+                line,
+                f"has its lower bound {start} not below its upper bound {end}; give interval(low,high) with low < high",
+            )
         log = "log" in value.tags
         if log and start <= 0:
             raise BadInput(line, f"is a log interval from {start}; a log interval needs a lower bound above 0")
         if isinstance(start, int) and isinstance(end, int):
-            return [repr(int(round(math.sqrt(start * end))) if log else (start + end) // 2)]
+            return [repr(round(math.sqrt(start * end)) if log else (start + end) // 2)]
         return [repr(math.sqrt(start * end) if log else (start + end) / 2)]
     raise BadInput(line, f"the {sweeper} sweeper takes {OPTIMISER_FORMS}, not glob(...)")
 
@@ -145,23 +170,31 @@ def check_optimiser(sweeper: str, settings: dict, search: list) -> tuple[int | N
     check_jobs("hydra.sweeper.n_trials", trials)
     direction = settings.get("direction")
     if isinstance(direction, (list, tuple)):
-        raise BadInput("hydra.sweeper.direction", f"got {list(direction)}: several objectives; riskplan's trials "
-                                                  f"return one (the CVaR), so give maximize or minimize")
+        raise BadInput(
+            "hydra.sweeper.direction",
+            f"got {list(direction)}: several objectives; riskplan's trials "
+            f"return one (the CVaR), so give maximize or minimize",
+        )
     if str(direction) not in ("maximize", "minimize"):
         raise BadInput("hydra.sweeper.direction", f"got {direction!r}; expected maximize or minimize")
     if settings.get("custom_search_space") is not None:
-        raise BadInput("hydra.sweeper.custom_search_space", f"got {settings['custom_search_space']!r}: it names a "
-                                                            f"function to run, and config strings are never code; "
-                                                            f"give the search space as overrides, e.g. "
-                                                            f"'risk.beta=interval(0.05,1)'")
+        raise BadInput(
+            "hydra.sweeper.custom_search_space",
+            f"got {settings['custom_search_space']!r}: it names a "
+            f"function to run, and config strings are never code; "
+            f"give the search space as overrides, e.g. "
+            f"'risk.beta=interval(0.05,1)'",
+        )
     rate = settings.get("max_failure_rate")
     if not isinstance(rate, (int, float)) or isinstance(rate, bool) or not 0 <= rate <= 1:
         raise BadInput("hydra.sweeper.max_failure_rate", f"got {rate!r}; expected a number from 0 to 1")
     sampler = str((settings.get("sampler") or {}).get("_target_", ""))
     for o in search:
         if sampler.endswith("GridSampler") and o.is_interval_sweep():
-            raise BadInput(f"override '{o.input_line}'", "the grid sampler takes choice(...), comma lists or "
-                                                         "range(...), not interval(...)")
+            raise BadInput(
+                f"override '{o.input_line}'",
+                "the grid sampler takes choice(...), comma lists or range(...), not interval(...)",
+            )
     return trials, batch
 
 
@@ -173,8 +206,10 @@ def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, ech
     where = f"{plan.launcher}" + (f", {plan.workers} workers" if plan.workers else "")
     echo(f"{title} directory: {plan.sweep_dir}")
     count = f"{plan.trials} trials" if plan.trials else "trials"
-    echo(f"{count} chosen by hydra/sweeper={plan.sweeper} over {', '.join(plan.search) or 'no key'}, each "
-         f"returning its CVaR ({where})")
+    echo(
+        f"{count} chosen by hydra/sweeper={plan.sweeper} over {', '.join(plan.search) or 'no key'}, each "
+        f"returning its CVaR ({where})"
+    )
     if plan.launcher == "joblib" and plan.workers:
         os.environ[THREADS_ENV] = str(max(1, cpu_count() // plan.workers))
     os.environ[DRIVER_ENV] = str(os.getpid())
@@ -186,8 +221,14 @@ def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, ech
             optuna.logging.enable_propagation()
         except ImportError:
             pass
-    with SweepView(plan.sweep_dir, [], set(), title, total=plan.trials,
-                   discover=lambda since: discover_trials(plan.sweep_dir, since)):
+    with SweepView(
+        plan.sweep_dir,
+        [],
+        set(),
+        title,
+        total=plan.trials,
+        discover=lambda since: discover_trials(plan.sweep_dir, since),
+    ):
         launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log")
     trials = trial_jobs(plan.sweep_dir, started)
     summary = summarize(trials)
@@ -196,16 +237,23 @@ def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, ech
     write_summary(summary, plan.sweep_dir / SUMMARY)
     failed = [(row.job, row.error or row.status) for row in summary.itertuples() if row.status != "done"]
     if plan.trials and len(trials) < plan.trials and launcher_error is None:
-        launcher_error = (f"the sweeper ran {len(trials)} of {plan.trials} trials (see "
-                          f"{plan.sweep_dir / 'sweep.log'})")
-    resume = ([a for a in args if not a.startswith("hydra.sweep.dir=")] + [f"hydra.sweep.dir={plan.sweep_dir}"]
-              + (["--jobs", str(jobs)] if jobs else []))
+        launcher_error = f"the sweeper ran {len(trials)} of {plan.trials} trials (see {plan.sweep_dir / 'sweep.log'})"
+    resume = (
+        [a for a in args if not a.startswith("hydra.sweep.dir=")]
+        + [f"hydra.sweep.dir={plan.sweep_dir}"]
+        + (["--jobs", str(jobs)] if jobs else [])
+    )
     from riskplan.experiments.sweep_worker import read_status
 
-    earlier = sum(1 for job in trials if as_number((read_status(job.path) or {}).get("finished")) < started - 2
-                  and (read_status(job.path) or {}).get("status") == "done")  # finished before: skipped now
-    outcome = Outcome(plan.sweep_dir, summary, failed, len(trials) - earlier, earlier, time.time() - started,
-                      launcher_error, resume)
+    earlier = sum(
+        1
+        for job in trials
+        if as_number((read_status(job.path) or {}).get("finished")) < started - 2
+        and (read_status(job.path) or {}).get("status") == "done"
+    )  # finished before: skipped now
+    outcome = Outcome(
+        plan.sweep_dir, summary, failed, len(trials) - earlier, earlier, time.time() - started, launcher_error, resume
+    )
     outcome.best = best_trial(plan.sweep_dir, started)
     outcome.optimiser = True
     return outcome

@@ -9,9 +9,8 @@ from pathlib import Path
 
 import typer
 
+from riskplan.experiments.sweeping.jobs import SUMMARY, Job, Outcome
 from riskplan.util.paths import atomic_path
-from riskplan.experiments.sweeping.jobs import Job, Outcome, SUMMARY
-
 
 FIGURES = ("mean", "cvar", "value_at_risk")
 
@@ -23,8 +22,8 @@ def summarize(jobs: list[Job]):
     """One row per job: its overrides as columns, final figures with 95% intervals, wall time, status, error."""
     import pandas as pd
 
-    from riskplan.util import lock
     from riskplan.experiments.sweep_worker import is_finished, read_status
+    from riskplan.util import lock
 
     rows = []
     for job in jobs:
@@ -35,8 +34,13 @@ def summarize(jobs: list[Job]):
         summary = None
         if holder is not None and holder != os.getpid():
             status = None  # whatever its status says, that process owns it now
-            state, error = "running", (f"running in another process (pid {holder or 'unknown'}); re-run the sweep "
-                                       f"when that process has ended")
+            state, error = (
+                "running",
+                (
+                    f"running in another process (pid {holder or 'unknown'}); re-run the sweep "
+                    f"when that process has ended"
+                ),
+            )
         elif job.path is None or status is None:
             state, error = "not run", job.invalid or "not started: the sweep stopped before it"
         elif status.get("config_sha") != job.sha:
@@ -63,10 +67,13 @@ def summarize(jobs: list[Job]):
         row["beta"] = (summary or {}).get("beta", float("nan"))
         row["risky_fraction"] = (summary or {}).get("risky_fraction", float("nan"))
         reached = (summary or {}).get("source_reached") or {}
-        for name, value in (reached.items() if isinstance(reached, dict) else ()):
+        for name, value in reached.items() if isinstance(reached, dict) else ():
             row[f"reached_{name}"] = value
-        row["wall_time"] = (float(status["seconds"]) if status and state == "done"
-                            and isinstance(status.get("seconds"), (int, float)) else float("nan"))
+        row["wall_time"] = (
+            float(status["seconds"])
+            if status and state == "done" and isinstance(status.get("seconds"), (int, float))
+            else float("nan")
+        )
         row["train_time"] = (summary or {}).get("wall_time", float("nan"))
         row["status"] = state
         row["error"] = error
@@ -108,8 +115,19 @@ def write_summary(frame, path: Path) -> None:
 
 def varying_columns(frame) -> list[str]:
     """The override columns whose value differs between jobs (all of them if none differs)."""
-    fixed = {"job", "trial", "status", "error", "path", "beta", "wall_time", "train_time", "risky_fraction",
-             *EXTRA_CVARS, *[f"{n}{s}" for n in FIGURES for s in ("", "_low", "_high")]}
+    fixed = {
+        "job",
+        "trial",
+        "status",
+        "error",
+        "path",
+        "beta",
+        "wall_time",
+        "train_time",
+        "risky_fraction",
+        *EXTRA_CVARS,
+        *[f"{n}{s}" for n in FIGURES for s in ("", "_low", "_high")],
+    }
     overrides = [c for c in frame.columns if c not in fixed and not str(c).startswith("reached_")]
     varying = [c for c in overrides if frame[c].astype(str).nunique() > 1]
     return varying or overrides[:3]
@@ -126,7 +144,7 @@ def print_table(frame, title: str, limit: int = 40) -> None:
     for key in keys:
         table.add_column(key, no_wrap=True)
     table.add_column("status", no_wrap=True)
-    for name, label in (("mean", "mean [95% CI]"), ("cvar", "CVaR [95% CI]"), ("value_at_risk", "VaR")):
+    for label in ("mean [95% CI]", "CVaR [95% CI]", "VaR"):
         table.add_column(label, justify="right", no_wrap=True)
     for column in reached:
         table.add_column(column, justify="right", no_wrap=True)
@@ -155,22 +173,30 @@ def print_table(frame, title: str, limit: int = 40) -> None:
 def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) -> int:
     """Print the summary table and the failures; return the exit code (0, or 1 when a job failed)."""
     print_table(outcome.summary, f"{title}: {outcome.sweep_dir}")
-    typer.echo(f"summary: {outcome.sweep_dir / SUMMARY} ({outcome.ran} launched, {outcome.skipped} skipped, "
-               f"{outcome.seconds:.1f} s)")
+    typer.echo(
+        f"summary: {outcome.sweep_dir / SUMMARY} ({outcome.ran} launched, {outcome.skipped} skipped, "
+        f"{outcome.seconds:.1f} s)"
+    )
     if outcome.best:
         typer.echo(outcome.best)
     if outcome.launcher_error:
         typer.echo(f"error: {outcome.launcher_error}", err=True)
     if outcome.failed:
-        typer.echo(f"error: {len(outcome.failed)} of {len(outcome.summary)} "
-                   f"{'trials' if outcome.optimiser else 'jobs'} did not finish:", err=True)
+        typer.echo(
+            f"error: {len(outcome.failed)} of {len(outcome.summary)} "
+            f"{'trials' if outcome.optimiser else 'jobs'} did not finish:",
+            err=True,
+        )
         for name, error in outcome.failed:
             typer.echo(f"  {name}: {error}", err=True)
     if hint and not outcome.ok and outcome.command:
         import shlex
 
-        what = ("to run the study again in this directory (a trial that draws the values of a finished one, as "
-                "with a seeded sampler, is skipped)" if outcome.optimiser
-                else "to retry the jobs that did not finish (finished ones are skipped)")
+        what = (
+            "to run the study again in this directory (a trial that draws the values of a finished one, as "
+            "with a seeded sampler, is skipped)"
+            if outcome.optimiser
+            else "to retry the jobs that did not finish (finished ones are skipped)"
+        )
         typer.echo(f"{what}: riskplan sweep {shlex.join(outcome.command)}", err=True)
     return 0 if outcome.ok else 1

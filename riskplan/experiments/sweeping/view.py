@@ -20,8 +20,16 @@ class SweepView:
     and sends its own output to its folder.
     """
 
-    def __init__(self, sweep_dir: Path, jobs: list[Job], finished: set[int], title: str, every: float = 0.5,
-                 total: int | None = None, discover=None):
+    def __init__(
+        self,
+        sweep_dir: Path,
+        jobs: list[Job],
+        finished: set[int],
+        title: str,
+        every: float = 0.5,
+        total: int | None = None,
+        discover=None,
+    ):
         self.sweep_dir, self.jobs, self.finished, self.title, self.every = sweep_dir, jobs, finished, title, every
         self.todo = [i for i in range(len(jobs)) if i not in finished]
         self.discover = discover  # an optimiser's trials: found as the sweeper launches them (discover(since))
@@ -41,9 +49,16 @@ class SweepView:
         if self.tty:
             from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-            self.bar = Progress(TextColumn(f"[bold]{self.title}"), BarColumn(), MofNCompleteColumn(),
-                                TextColumn("{task.fields[state]}"), TimeElapsedColumn(),
-                                TextColumn("{task.fields[eta]}"), console=self.console, transient=False)
+            self.bar = Progress(
+                TextColumn(f"[bold]{self.title}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("{task.fields[state]}"),
+                TimeElapsedColumn(),
+                TextColumn("{task.fields[eta]}"),
+                console=self.console,
+                transient=False,
+            )
             self.bar.__enter__()
             self.task = self.bar.add_task(self.title, total=self._total(), state="", eta="")
         self.thread = threading.Thread(target=self._loop, name="riskplan-sweep-view", daemon=True)
@@ -77,13 +92,17 @@ class SweepView:
                     self._finished_line(i, state, status)
             ended = counts["done"] + counts["failed"]
             elapsed = time.time() - self.since
-            eta = (f"ETA {dt.timedelta(seconds=round(elapsed / ended * (self._total() - ended)))}"
-                   if 0 < ended < self._total() else "")
-            state = (f"running {counts['running']} · failed {counts['failed']}"
-                     + (f" · skipped {len(self.finished)} finished before" if self.finished else ""))
+            eta = (
+                f"ETA {dt.timedelta(seconds=round(elapsed / ended * (self._total() - ended)))}"
+                if 0 < ended < self._total()
+                else ""
+            )
+            state = f"running {counts['running']} · failed {counts['failed']}" + (
+                f" · skipped {len(self.finished)} finished before" if self.finished else ""
+            )
             if self.bar is not None:
                 self.bar.update(self.task, completed=ended, total=self._total(), state=state, eta=eta)
-        except Exception:  # noqa: BLE001 - the view must never break the sweep
+        except Exception:
             pass
 
     def _finished_line(self, i: int, state: str, status: dict | None) -> None:
@@ -98,8 +117,9 @@ class SweepView:
             if state == "failed":
                 self.bar.console.print(line, markup=True, highlight=False)
         else:
-            self.console.print(f"[{len(self.reported)}/{self._total()}] {line}", markup=True, highlight=False,
-                               soft_wrap=True)
+            self.console.print(
+                f"[{len(self.reported)}/{self._total()}] {line}", markup=True, highlight=False, soft_wrap=True
+            )
 
     def __exit__(self, *exc):
         self.stop.set()
