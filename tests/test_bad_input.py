@@ -1,4 +1,4 @@
-"""Bad input everywhere: every row of the README's bad-input table is run through the real CLI (typer's CliRunner)
+"""Bad input everywhere: every row of the bad-input table in docs/robustness.md is run through the real CLI (typer's CliRunner)
 in a scratch directory. Each must exit with code 2 and print exactly the table's line on stderr (one plain line,
 no traceback), and leave the directory exactly as it was: no run directory, no file touched."""
 
@@ -17,7 +17,7 @@ from riskplan import compose
 from riskplan.cli import app
 from riskplan.run.training import CHECKPOINT, train
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+README = Path(__file__).resolve().parents[1] / "docs" / "robustness.md"
 BEGIN, END = "<!-- bad-input-table: begin -->", "<!-- bad-input-table: end -->"
 FAST = [
     "train.iterations=12",
