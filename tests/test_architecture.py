@@ -37,13 +37,13 @@ def test_an_up_import_breaks_the_contract(tmp_path):
         ROOT / "riskplan", copy / "riskplan", symlinks=True, ignore=shutil.ignore_patterns("__pycache__", "conf")
     )
     shutil.copy(ROOT / "pyproject.toml", copy / "pyproject.toml")
-    consensus = copy / "riskplan" / "engine" / "team" / "consensus.py"
-    consensus.write_text(consensus.read_text() + "\nfrom riskplan.run.training import AVERAGE  # noqa: E402\n")
+    mixer = copy / "riskplan" / "engine" / "team" / "mixer.py"
+    mixer.write_text(mixer.read_text() + "\nfrom riskplan.run.training import AVERAGE  # noqa: E402\n")
     env = {"PYTHONPATH": str(copy), "PATH": str(Path(sys.executable).parent)}
     done = subprocess.run(lint_imports(), cwd=copy, capture_output=True, text=True, timeout=300, env=env)
     assert done.returncode != 0
     assert "riskplan.engine is not allowed to import riskplan.run" in done.stdout
-    assert "riskplan.engine.team.consensus -> riskplan.run.training" in done.stdout
+    assert "riskplan.engine.team.mixer -> riskplan.run.training" in done.stdout
 
 
 def test_no_raw_config_reads_below_the_config_layer():

@@ -46,8 +46,9 @@ def test_citation_cff_cites_this_version_and_the_paper():
 
 
 def test_shell_completion_is_on_and_completes_commands_and_options():
-    shown = CliRunner().invoke(app, ["--show-completion", "bash"])
-    assert shown.exit_code == 0 and "_RISKPLAN_COMPLETE=complete_bash" in shown.output
+    shown = CliRunner().invoke(app, ["--show-completion", "bash"], prog_name="riskplan")
+    assert shown.exit_code == 0, (shown.output, shown.exception)
+    assert "_RISKPLAN_COMPLETE=complete_bash" in shown.output
     script = Path(sys.executable).with_name("riskplan")
     if not script.is_file():
         pytest.skip("the riskplan console script is not installed next to this interpreter")

@@ -16,9 +16,10 @@ from riskplan.config.schema import RiskConf, ScheduleConf
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
 from riskplan.risk import cvar_gradient
-from riskplan.run.build import build_setup, risk_level, step_size
+from riskplan.run.build import build_setup
 from riskplan.run.compose import expand_overrides, expand_shorthands
 from riskplan.run.record import read_log
+from riskplan.run.schedules import risk_level, step_size
 from riskplan.run.training import starts, train
 
 FAST = [

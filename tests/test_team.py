@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from riskplan import compose, train
-from riskplan.engine.team.consensus import second_largest_eigenvalue_modulus
+from riskplan.engine.team.convergence import second_largest_eigenvalue_modulus
 from riskplan.run.build import build_setup
 from riskplan.util.errors import BadInput
 

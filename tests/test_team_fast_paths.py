@@ -9,21 +9,18 @@ from collections.abc import Mapping
 import numba
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
+from conftest import team_conf
 
 import riskplan
-from riskplan.config.schema import TeamConf
 from riskplan.engine import rng
 from riskplan.engine.policy import move_features, probabilities, scores, tables
-from riskplan.engine.team.consensus import Mixer, MixerState, build_network, consensus_error, mix_numpy
+from riskplan.engine.team.convergence import consensus_error
+from riskplan.engine.team.kernels import mix_numpy
+from riskplan.engine.team.mixer import Mixer, MixerState
+from riskplan.engine.team.network import build_network
 from riskplan.risk import summary_stats
 from riskplan.run.build import build_setup
 from riskplan.run.training import _robot_rows, _row, train
-
-
-def make_team(**values):
-    return OmegaConf.merge(OmegaConf.structured(TeamConf), values)
-
 
 # ---------------------------------------------------------------------------------------------- consensus error
 
@@ -111,7 +108,7 @@ def test_consensus_error_is_the_brute_force_bit_for_bit(kind, n, m):
 
 def test_consensus_error_of_team_thetas_is_the_brute_force():
     """Clouds as a team run makes them: a 1000-robot team's thetas after a few consensus steps."""
-    team = make_team(robots=400, graph="random_geometric")
+    team = team_conf(robots=400, graph="random_geometric")
     net = build_network(team, 2, 0)
     mixer, g = Mixer(net, team, 0), np.random.default_rng(5)
     thetas = 20.0 + g.normal(size=(400, 2))
@@ -194,7 +191,7 @@ def test_synchronous_rounds_equal_the_general_rules(stale, m, graph, rounds, rea
     """Every call (forward, repeated and backward slots) mixes the same numbers, leaves the same state and
     diagnostics, and a snapshot taken at any call reads as that call's state, however late it is read; whether
     the diagnostics are read every iteration (bringing the arrays up to date) or only at the end."""
-    team = make_team(stale=stale, consensus_rounds=rounds, **graph)
+    team = team_conf(stale=stale, consensus_rounds=rounds, **graph)
     net = build_network(team, m, 3)
     fast, plain = Mixer(net, team, 4), general(net, team, 4)
     g = np.random.default_rng(m * 7 + rounds)
@@ -203,7 +200,7 @@ def test_synchronous_rounds_equal_the_general_rules(stale, m, graph, rounds, rea
         for r in range(rounds):
             thetas = g.normal(size=thetas.shape) * 5 if r == 0 else thetas
             a, b = fast.mix(thetas, l, r), plain.mix(thetas, l, r)
-            took_fast_path |= fast._synced is not None
+            took_fast_path |= fast._store.deferred is not None
             assert np.array_equal(a, b)
             snapshots.append((fast.snapshot(), plain.state()))
             thetas = a
@@ -220,15 +217,15 @@ def test_synchronous_rounds_equal_the_general_rules(stale, m, graph, rounds, rea
 @pytest.mark.parametrize("n", [3, 40, 200])
 def test_mixing_kernels_add_in_numpy_einsum_order(n, m):
     """Terms of wildly different sizes, so that any other order of the sums would round differently."""
-    from riskplan.engine.team.consensus import (
-        Network,
-        _Links,
-        _mix_linked,
+    from riskplan.engine.team.kernels import (
+        Links,
         _mix_links,
         _mix_links_parallel,
         _mix_used,
         _mix_used_parallel,
+        mix_linked,
     )
+    from riskplan.engine.team.network import Network
 
     g = np.random.default_rng(n * m)
     adjacency = g.random((n, n)) < 0.5
@@ -245,11 +242,11 @@ def test_mixing_kernels_add_in_numpy_einsum_order(n, m):
         _mix_used(weights, adjacency, use, neighbour_in_use, own, serial, 0, n)
         _mix_used_parallel(weights, adjacency, use, neighbour_in_use, own, parallel)
         assert np.array_equal(serial, expected) and np.array_equal(parallel, expected)
-    network = Network(n, adjacency, weights, None, "edges", False, 0.1)
+    network = Network(n, adjacency, weights, None, "edges", False, 0.1, "team.diagonal")
     sent = g.normal(size=(n, m)) * 10.0 ** g.integers(-8, 8, size=(n, m))
     expected = mix_numpy(weights, adjacency, adjacency, np.broadcast_to(sent, (n, n, m)), own)
-    links = _Links(network)
-    assert np.array_equal(_mix_linked(network, links, own, sent), expected)
+    links = Links(network)
+    assert np.array_equal(mix_linked(network, links, own, sent), expected)
     serial, parallel = np.empty((n, m)), np.empty((n, m))
     _mix_links(links.starts, links.senders, links.own, links.weights, own, sent, serial, 0, n)
     _mix_links_parallel(links.starts, links.senders, links.own, links.weights, own, sent, parallel)
@@ -258,28 +255,28 @@ def test_mixing_kernels_add_in_numpy_einsum_order(n, m):
 
 def test_known_average_on_the_complete_graph():
     """max_degree weights on 4 complete robots are all 1/4: one round gives every robot the exact average."""
-    team = make_team(robots=4, graph="complete", weights="max_degree")
+    team = team_conf(robots=4, graph="complete", weights="max_degree")
     for thetas, mean in (
         ([[4.0, 8.0], [0.0, -4.0], [8.0, 12.0], [-4.0, 0.0]], [2.0, 4.0]),
         ([[4.0], [0.0], [8.0], [-4.0]], [2.0]),
     ):
         mixer = Mixer(build_network(team, len(mean), 0), team, 0)
         assert np.array_equal(mixer.mix(np.array(thetas), 0), np.tile(mean, (4, 1)))
-        assert mixer._synced is not None  # the synchronous path did it
+        assert mixer._store.deferred is not None  # the synchronous path did it
         assert np.array_equal(mixer.used_sent, np.where(~np.eye(4, dtype=bool), 0, -1))
         assert mixer.delivered.sum() == 12 and not mixer.forced.any()
 
 
 def test_line_mixing_known_answer():
     """Metropolis on the 3-robot line: every link weighs 1/3, the ends keep 2/3."""
-    team = make_team(robots=3, graph="line")
+    team = team_conf(robots=3, graph="line")
     mixer = Mixer(build_network(team, 2, 0), team, 0)
     out = mixer.mix(np.array([[3.0, 0.0], [0.0, 3.0], [6.0, -3.0]]), 0)
     np.testing.assert_allclose(out, [[2.0, 1.0], [3.0, 0.0], [4.0, -1.0]], rtol=0, atol=1e-14)
 
 
 def test_snapshot_is_a_lazy_read_only_copy():
-    team = make_team(robots=5, graph="ring")
+    team = team_conf(robots=5, graph="ring")
     mixer = Mixer(build_network(team, 2, 0), team, 0)
     thetas = np.arange(10.0).reshape(5, 2)
     mixer.mix(thetas, 0)
@@ -293,7 +290,7 @@ def test_snapshot_is_a_lazy_read_only_copy():
 
 
 def test_resume_from_a_snapshot_equals_the_uninterrupted_run():
-    team = make_team(robots=8, graph="ring", consensus_rounds=2)
+    team = team_conf(robots=8, graph="ring", consensus_rounds=2)
     net = build_network(team, 2, 0)
     g = np.random.default_rng(2)
     thetas = [g.normal(size=(8, 2)) for _ in range(12)]
@@ -318,7 +315,7 @@ def test_resume_from_a_snapshot_equals_the_uninterrupted_run():
 
 def test_general_rules_restored_into_a_synchronous_mixer():
     """A state written by the general rules (e.g. an older checkpoint) continues on the synchronous path alike."""
-    team = make_team(robots=7, graph="grid", stale="latest")
+    team = team_conf(robots=7, graph="grid", stale="latest")
     net = build_network(team, 3, 0)
     g = np.random.default_rng(9)
     plain = general(net, team, 0)
@@ -349,12 +346,10 @@ def test_zero_range_integers_draw_nothing():
     ],
 )
 def test_mixing_does_not_depend_on_the_thread_count(values, monkeypatch):
-    import riskplan.engine.team.consensus
+    import riskplan.engine.team.kernels
 
-    monkeypatch.setattr(
-        riskplan.engine.team.consensus, "PARALLEL_ENTRIES", 1
-    )  # the parallel drivers, even for 30 robots
-    team = make_team(robots=30, graph="random_geometric", **values)
+    monkeypatch.setattr(riskplan.engine.team.kernels, "PARALLEL_ENTRIES", 1)  # the parallel drivers, even for 30 robots
+    team = team_conf(robots=30, graph="random_geometric", **values)
     net = build_network(team, 2, 0)
     thetas = np.random.default_rng(0).normal(size=(30, 2))
     results = []
@@ -372,7 +367,7 @@ def test_mixing_does_not_depend_on_the_thread_count(values, monkeypatch):
             numba.set_num_threads(previous)
     assert all(np.array_equal(a, b) for a, b in zip(results[0][0], results[1][0]))
     assert_same_state(results[0][1], results[1][1])
-    monkeypatch.setattr(riskplan.engine.team.consensus, "PARALLEL_ENTRIES", 1 << 62)  # and the serial kernels alike
+    monkeypatch.setattr(riskplan.engine.team.kernels, "PARALLEL_ENTRIES", 1 << 62)  # and the serial kernels alike
     mixer, mixed = Mixer(net, team, 3), thetas
     for l in range(6):
         for r in range(team.consensus_rounds):
@@ -453,3 +448,31 @@ def test_synchronous_team_resumed_equals_the_uninterrupted_run(tmp_path):
     columns = [c for c in full.metrics.columns if c != "seconds"]
     assert full.metrics[columns].equals(resumed.metrics[columns])
     assert full.eval.equals(resumed.eval)
+
+
+def test_the_buffers_are_reached_only_through_the_store():
+    """The catch-up rule lives in one place: only `_Store` holds the Buffers, and every Mixer method reaches them
+    through `_store.current()` (which writes deferred synchronous rounds in first), so none can read stale ones."""
+    import ast
+    import inspect
+
+    from riskplan.engine.team import mixer as module
+
+    tree = ast.parse(inspect.getsource(module))
+    holders = {
+        node.name
+        for node in ast.walk(tree)
+        if isinstance(node, ast.ClassDef)
+        for inner in ast.walk(node)
+        if isinstance(inner, ast.Attribute) and inner.attr == "_buffers"
+    }
+    assert holders == {"_Store"}
+    mixer_class = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Mixer")
+    touched = {n.attr for n in ast.walk(mixer_class) if isinstance(n, ast.Attribute) and n.attr.startswith("_store")}
+    assert touched == {"_store"}
+    store_uses = {
+        n.attr
+        for n in ast.walk(mixer_class)
+        if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Attribute) and n.value.attr == "_store"
+    }
+    assert store_uses <= {"current", "snapshot", "replace", "deferred"}

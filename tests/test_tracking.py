@@ -8,13 +8,14 @@ import math
 
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
+from conftest import team_conf
 from typer.testing import CliRunner
 
 from riskplan import compose, train
 from riskplan.cli import app
-from riskplan.config.schema import TeamConf
-from riskplan.engine.team.consensus import Mixer, build_network, consensus_error, second_largest_eigenvalue_modulus
+from riskplan.engine.team.convergence import consensus_error, second_largest_eigenvalue_modulus
+from riskplan.engine.team.mixer import Mixer
+from riskplan.engine.team.network import build_network
 from riskplan.run.training import CHECKPOINT, load_checkpoint
 from riskplan.util.errors import BadInput
 
@@ -31,7 +32,7 @@ FAST = [
 
 
 def make_team(**values):
-    return OmegaConf.merge(OmegaConf.structured(TeamConf), {"order": "gradient_tracking", **values})
+    return team_conf(**{"order": "gradient_tracking", **values})
 
 
 def mixer_of(seed: int = 0, m: int = 2, **values) -> Mixer:
@@ -175,7 +176,7 @@ def test_same_seed_same_trackers_and_restore_is_bit_identical():
 
 
 def test_other_orders_carry_no_tracker_state():
-    team = OmegaConf.merge(OmegaConf.structured(TeamConf), {"robots": 3})
+    team = team_conf(robots=3)
     mixer = Mixer(build_network(team, 2, 0), team, 0)
     assert "tracker" not in mixer.state() and not mixer.tracking
     with pytest.raises(ValueError):

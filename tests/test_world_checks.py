@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from riskplan.config.schema import StepSizeConf
-from riskplan.run.build import build_setup, step_size
+from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
+from riskplan.run.schedules import step_size
 from riskplan.util.errors import BadInput
 
 FAST = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]

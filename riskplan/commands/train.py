@@ -129,7 +129,7 @@ def check(overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP
     """Compose and validate a config without running it; print it, the world, the team and Assumptions 5-6."""
     from omegaconf import OmegaConf
 
-    from riskplan.engine.team.consensus import describe
+    from riskplan.engine.team.describe import describe
     from riskplan.run.build import build_setup
     from riskplan.run.compose import compose
 

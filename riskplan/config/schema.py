@@ -1,12 +1,16 @@
-"""Typed schema of every config key (Hydra structured configs): a typo or a wrong type fails at composition.
+"""Typed schema of every config key (Hydra structured configs): a typo, a wrong type or a value outside a key's
+choices fails at composition.
 
-The same dataclasses are the engine's frozen parameters: `riskplan.config.typed.typed` turns a composed, validated config
-into a RiskplanConf once, and the engine and training loop read its attributes (never raw dicts).
+Every key with a fixed set of values is an Enum here, so its choices are written in one place: OmegaConf checks
+them when it merges the YAML and the overrides onto the schema, and the error names them. The same dataclasses are
+the engine's frozen parameters: `riskplan.config.typed.typed` turns a composed config into a RiskplanConf once,
+`riskplan.config.validate.validate` checks its ranges once, and the engine reads its attributes (never raw dicts).
 """
 
 from __future__ import annotations
 
 from dataclasses import FrozenInstanceError, dataclass, field
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +18,80 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # riskplan/conf: a symlinked data dir inside the package
+
+
+class Choice(str, Enum):
+    """A key's allowed values: each member's name is its value, as users type it (`risk.measure=cvar`). A str, so
+    it compares, formats and serialises as its value."""
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
+
+    @classmethod
+    def names(cls) -> list[str]:
+        """The allowed values, in the order they are listed."""
+        return [member.value for member in cls]
+
+
+class Measure(Choice):
+    """risk.measure: the objective whose gradient training follows."""
+
+    cvar = "cvar"  # CVaR_beta (Algorithm 1, eq. 9)
+    neutral = "neutral"  # the mean (REINFORCE, eq. 4)
+
+
+class ScheduleKind(Choice):
+    """risk.schedule.kind: how the gradient's CVaR level beta_l moves to risk.beta (soft risk)."""
+
+    none = "none"
+    linear = "linear"
+    exponential = "exponential"
+
+
+class MotionKind(Choice):
+    """world.sources.N.motion.kind."""
+
+    static = "static"
+    random_walk = "random_walk"
+
+
+class Graph(Choice):
+    """team.graph: the communication topology."""
+
+    line = "line"
+    ring = "ring"
+    star = "star"
+    complete = "complete"
+    grid = "grid"
+    random_geometric = "random_geometric"
+    edges = "edges"
+
+
+class WeightRule(Choice):
+    """team.weights: the rule that turns the graph into the mixing matrix A."""
+
+    metropolis = "metropolis"
+    max_degree = "max_degree"
+    lazy = "lazy"
+    matrix = "matrix"
+
+
+class Stale(Choice):
+    """team.stale: what a link mixes in a slot where nothing new arrived."""
+
+    arrival = "arrival"
+    latest = "latest"
+
+
+class Order(Choice):
+    """team.order: how consensus and the gradient step combine."""
+
+    combine_then_adapt = "combine_then_adapt"
+    adapt_then_combine = "adapt_then_combine"
+    gradient_tracking = "gradient_tracking"
 
 
 class Frozen:
@@ -36,7 +114,7 @@ class ScheduleConf(Frozen):
     kind: none (the paper: beta_l = beta throughout) | linear | exponential (geometric interpolation).
     """
 
-    kind: str = "none"
+    kind: ScheduleKind = ScheduleKind.none
     start: float = 1.0
     iterations: int = 100
 
@@ -45,7 +123,7 @@ class ScheduleConf(Frozen):
 class RiskConf(Frozen):
     """The objective: `cvar` optimises CVaR_beta, `neutral` the mean; beta is also the reporting level."""
 
-    measure: str = "cvar"
+    measure: Measure = Measure.cvar
     beta: float = 0.1
     schedule: ScheduleConf = field(default_factory=ScheduleConf)
 
@@ -79,7 +157,7 @@ class TrainConf(Frozen):
 class MotionConf(Frozen):
     """Source motion: `static`, or `random_walk` moving to a random 4-neighbour with probability `prob` per step."""
 
-    kind: str = "static"
+    kind: MotionKind = MotionKind.static
     prob: float = 0.0
 
 
@@ -141,20 +219,20 @@ class TeamConf(Frozen):
     """Robots and their communication graph (paper Section IV); robots=1 is a centralized run."""
 
     robots: int = 1
-    graph: str = "line"  # line | ring | star | complete | grid | random_geometric | edges
+    graph: Graph = Graph.line
     directed: bool = False
     edges: list[list[int]] | None = None  # with graph=edges: [[i, j], ...], 0-based, j sends to i if directed
     radius: float = 0.5  # random_geometric link radius in the unit square
     resample: int = 100  # random_geometric redraws before giving up on strong connectivity
-    weights: str = "metropolis"  # metropolis | max_degree | lazy | matrix
+    weights: WeightRule = WeightRule.metropolis
     matrix: list[Any] | None = None  # with weights=matrix: the N x N row-stochastic A
     diagonal: list[Any] | None = None  # optional per-parameter weights a^{ij}_m, shape N x N x M
     delay: DelayConf = field(default_factory=DelayConf)
     drop: float = 0.0
     max_gap: int = 10  # B of Assumption 5: a link delivers at least once every max_gap iterations
-    stale: str = "arrival"  # arrival (paper eq. 14) | latest (newest value received from each neighbour)
+    stale: Stale = Stale.arrival  # arrival (paper eq. 14) | latest (the newest value received from each neighbour)
     consensus_rounds: int = 1
-    order: str = "combine_then_adapt"  # eq. (14) | adapt_then_combine | gradient_tracking (Mixer.track)
+    order: Order = Order.combine_then_adapt
     starts: list[list[int]] | None = None  # per-robot start cells; default world.start for all
     switching: SwitchingConf = field(default_factory=SwitchingConf)
 

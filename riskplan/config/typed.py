@@ -55,7 +55,16 @@ def _memo_key(node: DictConfig) -> str | None:
 
 def as_dict(params: schema.RiskplanConf) -> dict:
     """The frozen config as plain data (lists and dicts), as it is recorded in .hydra/config.yaml and run.mcap."""
-    return dataclasses.asdict(params)
+    return dataclasses.asdict(params, dict_factory=lambda items: {k: _plain(v) for k, v in items})
+
+
+def _plain(value: typing.Any) -> typing.Any:
+    """A Choice as its value (the string users type); lists of them likewise; anything else as it is."""
+    if isinstance(value, schema.Choice):
+        return value.value
+    if isinstance(value, list):
+        return [_plain(v) for v in value]
+    return value
 
 
 def check_schema(cfg) -> DictConfig:
@@ -115,6 +124,18 @@ def _unknown_keys(data: typing.Any, node: typing.Any, path: str) -> None:
 EXPECTED_TYPE = {"Integer": "a whole number", "Float": "a number", "Bool": "true or false", "Str": "a string"}
 
 
+def choice_problem(err: Exception) -> tuple[str, str] | None:
+    """(key, problem) when a composition error is a value outside a key's Choices (a schema Enum), else None: the
+    same line as any other value outside a key's range, and like those it fails only its own job in a sweep."""
+    cause = err.__cause__ if isinstance(err.__cause__, OmegaConfBaseException) else err
+    key = getattr(cause, "full_key", None) or ""
+    lines = str(cause).strip().splitlines()
+    choice = re.match(r"Invalid value '(.*)', expected one of \[(.*)\]$", lines[0]) if lines else None
+    if choice and key:
+        return _dotted(key), f"got '{choice.group(1)}'; expected one of {choice.group(2)}"
+    return None
+
+
 def explain(err: Exception) -> tuple[str, str]:
     """One line naming the key behind a composition error and what would be valid."""
     cause = err.__cause__ if isinstance(err.__cause__, OmegaConfBaseException) else err
@@ -122,6 +143,9 @@ def explain(err: Exception) -> tuple[str, str]:
     text = str(cause).strip()
     message = text.splitlines()[0] if text else type(cause).__name__
     where = f"key '{_dotted(key)}'"
+    choice = choice_problem(err)
+    if choice:
+        return choice
     sweep = re.match(r"(?:Ambiguous value for argument|Sweep parameters) '(.+?)'", message)
     if sweep:
         return (

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from riskplan.config.schema import MotionKind, WorldConf
 from riskplan.engine import distributions
 from riskplan.engine.distributions import Dist
 from riskplan.util.errors import BadInput
@@ -76,8 +77,9 @@ class World:
         return self.source_amplitude * np.exp(-0.5 * quad)
 
 
-def build_world(world: Any, starts: list | None = None) -> World:
-    """Build and validate a World from the `world` config node (and optional per-robot starts)."""
+def build_world(world: WorldConf, starts: list | None = None) -> World:
+    """Build a World from a validated `world` config (and optional per-robot starts), checking what needs the grid:
+    cells on it, obstacles, reachability, covariances, reward programs and their bounds."""
     width, height = grid_size(world.size)
     cells = width * height
     obstacle = np.zeros((width, height), dtype=bool)
@@ -86,9 +88,7 @@ def build_world(world: Any, starts: list | None = None) -> World:
         obstacle[x, y] = True
     obstacle = obstacle.ravel()
 
-    horizon = int(world.horizon)
-    if horizon < 1:
-        raise BadInput("world.horizon", f"got {horizon}; expected a whole number of moves >= 1")
+    horizon = world.horizon
 
     start_list = [world.start] if starts is None else starts
     where = "world.start" if starts is None else "team.starts"
@@ -143,7 +143,7 @@ def build_world(world: Any, starts: list | None = None) -> World:
         names.append(source.name or f"source_{j}")
         src_cells.append(x * height + y)
         rewards.append(_dist(source.reward, f"{here}.reward"))
-        motion.append(_motion(source.motion, f"{here}.motion"))
+        motion.append(source.motion.prob if source.motion.kind == MotionKind.random_walk else 0.0)
         amplitude.append(peak)
         precision.append((inv[0, 0], inv[0, 1], inv[1, 1]))
 
@@ -372,11 +372,8 @@ def _covariance(cov: Any, where: str) -> np.ndarray:
 
 def _dist(data: Any, where: str) -> Dist:
     """Parse a reward distribution whose program fits the kernel's stack."""
-    from omegaconf import OmegaConf
-
     try:
-        plain = OmegaConf.to_container(data) if OmegaConf.is_config(data) else data
-        dist = distributions.parse(plain, where)
+        dist = distributions.parse(data, where)
     except RecursionError:
         raise BadInput(
             where,
@@ -387,17 +384,3 @@ def _dist(data: Any, where: str) -> Dist:
         raise BadInput(where, f"nests too deeply; at most {MAX_STACK} stack slots")
     distributions.check_bound(dist, where)
     return dist
-
-
-def _motion(motion: Any, where: str) -> float:
-    """Random-walk probability of a source's motion config."""
-    if not 0.0 <= float(motion.prob) <= 1.0:  # checked for static sources too: a probability outside [0, 1] is a typo
-        raise BadInput(f"{where}.prob", f"got {motion.prob}; expected a probability in [0, 1]")
-    if motion.kind == "static":
-        return 0.0
-    if motion.kind != "random_walk":
-        raise BadInput(f"{where}.kind", f"got '{motion.kind}'; expected static or random_walk")
-    prob = float(motion.prob)
-    if not 0.0 < prob <= 1.0:
-        raise BadInput(f"{where}.prob", f"got {prob}; a random walk needs a step probability in (0, 1]")
-    return prob

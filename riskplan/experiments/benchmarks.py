@@ -454,8 +454,9 @@ class Point:
     def __init__(self, dimension: str, value: float, overrides: list[str]):
         from riskplan.engine import rng
         from riskplan.engine.rollout import simulate
-        from riskplan.run.build import build_setup, samples_at
+        from riskplan.run.build import build_setup
         from riskplan.run.compose import compose
+        from riskplan.run.schedules import samples_at
         from riskplan.run.training import State, iterate, starts
 
         self.dimension, self.value, self.overrides = dimension, value, list(overrides)

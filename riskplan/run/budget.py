@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from riskplan.config.schema import Graph, Order
 from riskplan.util import limits
 
 EVAL_BATCH = 100_000  # episodes per kernel call during evaluation (training uses it; it bounds memory)
@@ -84,9 +85,9 @@ def sizes_of(cfg, width: int, height: int, sources: int, robots: int) -> Sizes:
         int(team.delay.max),
         int(team.consensus_rounds),
         int(team.resample),
-        team.graph == "random_geometric",
+        team.graph == Graph.random_geometric,
         int(train.checkpoint_every),
-        team.order == "gradient_tracking",
+        team.order == Order.gradient_tracking,
     )
 
 

@@ -21,18 +21,21 @@ from typing import TYPE_CHECKING
 import numpy as np
 from omegaconf import OmegaConf
 
+from riskplan.config.schema import Measure, Order
 from riskplan.config.typed import as_dict, typed
 from riskplan.engine import rng
 from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, summary_stats
 from riskplan.engine.rollout import simulate
-from riskplan.engine.team.consensus import consensus_error, network_metadata
+from riskplan.engine.team.convergence import consensus_error
+from riskplan.engine.team.network import network_metadata
 from riskplan.engine.world import world_map
 from riskplan.run.budget import EVAL_BATCH
-from riskplan.run.build import Setup, build_setup, logit_bound, risk_level, samples_at, step_size
+from riskplan.run.build import Setup, build_setup, logit_bound
 from riskplan.run.foxglove_layout import write_layout
 from riskplan.run.intervals import SCHEMA_VERSION, bootstrap_intervals, provenance
 from riskplan.run.record import RunLog, read_log, resume_log
 from riskplan.run.results import Run
+from riskplan.run.schedules import risk_level, samples_at, step_size
 from riskplan.util.errors import BadInput
 from riskplan.util.lock import hold
 from riskplan.util.paths import atomic_path, check_output_dir, write_atomic
@@ -77,7 +80,7 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
     with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are caught just below, in one line
         stats = summary_stats(z, beta)
         check_finite(f"iteration {l}: the statistics of the total reward", *stats.values())
-        if params.risk.measure == "cvar":
+        if params.risk.measure == Measure.cvar:
             level = risk_level(l, params.risk)  # soft risk: beta_l; the paper's beta when risk.schedule.kind=none
             grads = cvar_gradient(z, scores, level, var=stats["value_at_risk"] if level == beta else None)
         else:
@@ -126,10 +129,10 @@ def check_finite(what: str, *arrays) -> None:
 def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int) -> np.ndarray:
     """Eq. (14) combine-then-adapt, A theta + eps Delta (default), adapt-then-combine, A (theta + eps Delta), or
     gradient tracking, A theta + eps y with y the robot's tracker of the average gradient (consensus.Mixer.track)."""
-    if setup.params.team.order == "gradient_tracking" and setup.team:
+    if setup.params.team.order == Order.gradient_tracking and setup.team:
         mixed, tracker = setup.mixer.track(thetas, grads, l)
         return mixed + eps * tracker
-    adapt_first = setup.params.team.order == "adapt_then_combine"
+    adapt_first = setup.params.team.order == Order.adapt_then_combine
     mixed = thetas + eps * grads if adapt_first else thetas
     for round_index in range(setup.params.team.consensus_rounds if setup.team else 0):
         mixed = setup.mixer.mix(mixed, l, round_index)

@@ -14,7 +14,6 @@ import numpy as np
 from riskplan.util.checks import is_whole
 from riskplan.util.errors import BadInput
 
-GRAPHS = ("line", "ring", "star", "complete", "grid", "random_geometric", "edges")
 MASK = (1 << 64) - 1
 GEOMETRIC_STREAM = 7907  # keeps random_geometric draws apart from the Mixer's streams
 
@@ -77,7 +76,7 @@ def _edge(edge, k: int, robots: int) -> tuple[int, int]:
     except TypeError:
         pair = None
     if pair is None or len(pair) != 2 or not all(is_whole(x) for x in pair):
-        raise BadInput("team.edges", f"entry {k} is {_show(edge)}; each edge must be a pair [i, j] of robot indices")
+        raise BadInput("team.edges", f"entry {k} is {edge!r}; each edge must be a pair [i, j] of robot indices")
     i, j = int(pair[0]), int(pair[1])
     if not (0 <= i < robots and 0 <= j < robots):
         problem = f"entry {k} [{i}, {j}] names a robot that does not exist; valid indices are 0..{robots - 1}"
@@ -144,13 +143,3 @@ def format_edges(adjacency: np.ndarray, directed: bool, limit: int = 40) -> str:
         return "none"
     more = f", ... ({len(text) - limit} more)" if len(text) > limit else ""
     return ", ".join(text[:limit]) + more
-
-
-def _show(value) -> str:
-    """A value as the user typed it, roughly."""
-    try:
-        from omegaconf import OmegaConf
-
-        return str(OmegaConf.to_container(value)) if hasattr(value, "_get_node") else repr(value)
-    except Exception:
-        return repr(value)

@@ -337,7 +337,6 @@ def config_problem(config: dict) -> str:
     """Why a run's config cannot be reported (it fails the schema, or a value the report relies on is out of
     range), or ''."""
     from riskplan.config.typed import check_schema
-    from riskplan.run.build import MEASURES
 
     seed = config.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
@@ -351,8 +350,6 @@ def config_problem(config: dict) -> str:
     try:
         cfg = check_schema(config)
         risk, robots = cfg.risk, cfg.team.robots
-        if risk.measure not in MEASURES:
-            raise BadInput("risk.measure", f"got '{risk.measure}'; expected one of {', '.join(MEASURES)}")
         if not 0.0 < risk.beta <= 1.0:
             raise BadInput("risk.beta", f"got {risk.beta}; expected 0 < beta <= 1")
         if robots < 1:

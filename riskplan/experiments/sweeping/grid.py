@@ -4,6 +4,8 @@ checked, job folders named, Hydra's own settings checked."""
 from __future__ import annotations
 
 import copy
+import hashlib
+import json
 import warnings
 from pathlib import Path
 
@@ -291,6 +293,7 @@ def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
     from omegaconf.errors import OmegaConfBaseException
 
     from riskplan.config import schema
+    from riskplan.config.typed import choice_problem
     from riskplan.experiments.sweep_worker import config_sha
     from riskplan.run.build import build_setup
     from riskplan.run.compose import CONF_DIR
@@ -313,7 +316,11 @@ def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
                         bases[groups] = compose(config_name="config", overrides=list(groups))
                     cfg = copy.deepcopy(bases[groups])
                     ConfigLoaderImpl._apply_overrides_to_config(keys, cfg)
-                except (HydraException, OmegaConfBaseException):
+                except (HydraException, OmegaConfBaseException) as err:
+                    choice = choice_problem(err)
+                    if choice is not None:  # a value outside a key's Choices fails only this job
+                        jobs.append(Job(list(combo), combo_sha(combo), str(BadInput(*choice))))
+                        continue
                     riskplan_compose(combo, validate=False)  # raises BadInput naming the key
                     cfg = compose(config_name="config", overrides=combo)  # composes after all: use Hydra's own
                 with warnings.catch_warnings(record=True) as caught:
@@ -330,6 +337,11 @@ def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
     finally:
         GlobalHydra.instance().clear()
     return jobs, notes
+
+
+def combo_sha(combo: list[str]) -> str:
+    """A fingerprint of a combination that does not compose (no config to fingerprint): its overrides."""
+    return "overrides:" + hashlib.sha256(json.dumps(combo).encode()).hexdigest()[:16]
 
 
 def override_parser():

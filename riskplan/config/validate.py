@@ -1,0 +1,117 @@
+"""The ranges of a typed config, checked once per build: every value the schema's types and Choices cannot rule out.
+
+Types, unknown keys and the Choices (Enums) are the schema's (`riskplan.config.typed`); what needs the world's
+geometry (a cell on the grid, a reachable source, a positive-definite covariance) or the graph (connectivity, the
+weights of Assumption 5) is checked by the engine when it builds those, once. Everything else is here.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+from riskplan.config.schema import MotionKind, RiskConf, RiskplanConf, TeamConf, TrainConf, WorldConf
+from riskplan.util.checks import finite, require, whole
+
+SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias under the 64-bit stream keys
+
+
+def validate(params: RiskplanConf) -> None:
+    """BadInput naming the first key outside its range; a warning where only a theorem's assumption breaks."""
+    check_risk(params.risk)
+    check_train(params.train)
+    check_world(params.world)
+    check_team(params.team)
+    seed = params.seed if abs(params.seed) < 10**30 else f"about 2^{params.seed.bit_length()}"
+    require(
+        0 <= params.seed < SEED_LIMIT,
+        "seed",
+        f"got {seed}; expected a whole number 0 <= seed < 2^63 (9223372036854775808); seeds are not reduced "
+        f"modulo 2^64",
+    )
+
+
+def check_risk(risk: RiskConf) -> None:
+    """beta, and the soft-risk schedule (checked whatever its kind, so a bad value never waits for kind to change)."""
+    require(0.0 < risk.beta <= 1.0, "risk.beta", f"got {risk.beta}; expected 0 < beta <= 1")
+    plan = risk.schedule
+    require(
+        math.isfinite(plan.start) and 0.0 < plan.start <= 1.0,
+        "risk.schedule.start",
+        f"got {plan.start}; expected 0 < start <= 1",
+    )
+    require(
+        plan.start >= risk.beta,
+        "risk.schedule.start",
+        f"got {plan.start}, below risk.beta={risk.beta}; the schedule goes from start down to beta, so "
+        f"expected beta <= start <= 1",
+    )
+    require(
+        plan.iterations >= 1,
+        "risk.schedule.iterations",
+        f"got {plan.iterations}; expected a whole number of iterations >= 1",
+    )
+
+
+def check_train(train: TrainConf) -> None:
+    """Iterations, samples, the step-size schedule (Assumption 6 only warns), evaluation and records."""
+    require(train.iterations >= 1, "train.iterations", f"got {train.iterations}; expected a whole number >= 1")
+    require(train.samples >= 1, "train.samples", f"got {train.samples}; expected W >= 1")
+    require(
+        math.isfinite(train.samples_growth) and train.samples_growth >= 0,
+        "train.samples_growth",
+        f"got {train.samples_growth}; expected a finite exponent >= 0",
+    )
+    step = train.step_size
+    require(
+        math.isfinite(step.initial) and step.initial >= 0,
+        "train.step_size.initial",
+        f"got {step.initial}; expected a finite step >= 0",
+    )
+    require(math.isfinite(step.decay) and step.decay > 0, "train.step_size.decay", f"got {step.decay}; expected > 0")
+    require(math.isfinite(step.power) and step.power >= 0, "train.step_size.power", f"got {step.power}; expected >= 0")
+    if not 0.5 < step.power <= 1.0:
+        warnings.warn(f"train.step_size.power={step.power} breaks Assumption 6 (needs 0.5 < power <= 1)", stacklevel=3)
+    require(train.eval_episodes >= 1, "train.eval_episodes", f"got {train.eval_episodes}; expected >= 1")
+    require(train.paths >= 0, "train.paths", f"got {train.paths}; expected >= 0")
+    require(train.checkpoint_every >= 1, "train.checkpoint_every", f"got {train.checkpoint_every}; expected >= 1")
+    require(train.bootstrap >= 1, "train.bootstrap", f"got {train.bootstrap}; expected >= 1 resamples")
+
+
+def check_world(world: WorldConf) -> None:
+    """The horizon and each source's motion probability (cells, shapes and rewards need the grid: engine.world)."""
+    require(world.horizon >= 1, "world.horizon", f"got {world.horizon}; expected a whole number of moves >= 1")
+    for j, source in enumerate(world.sources):
+        where = f"world.sources.{j}.motion.prob"
+        prob = source.motion.prob  # checked for static sources too: a probability outside [0, 1] is a typo
+        require(0.0 <= prob <= 1.0, where, f"got {prob}; expected a probability in [0, 1]")
+        require(
+            source.motion.kind == MotionKind.static or prob > 0.0,
+            where,
+            f"got {prob}; a random walk needs a step probability in (0, 1]",
+        )
+
+
+def check_team(team: TeamConf) -> None:
+    """The team's scalar settings: size, delays and drops (Assumption 5 (3)-(4)), rounds, switching, the link
+    radius. The graph and its weights are checked when the network is built."""
+    whole(team.robots, "team.robots", 1, "the number of robots")
+    whole(team.delay.max, "team.delay.max", 0, "the largest message delay in iterations (B0)")
+    drop = finite(team.drop, "team.drop")
+    require(0.0 <= drop < 1.0, "team.drop", f"is {drop:g}; the drop probability must be in [0, 1)")
+    whole(team.max_gap, "team.max_gap", 1, "the longest gap between deliveries on a link (B)")
+    whole(team.consensus_rounds, "team.consensus_rounds", 1, "the number of consensus rounds per iteration")
+    whole(team.resample, "team.resample", 0, "the number of random_geometric redraws")
+    whole(team.switching.window, "team.switching.window", 1, "the switching window (iterations)")
+    up = finite(team.switching.up, "team.switching.up")
+    require(0.0 < up <= 1.0, "team.switching.up", f"is {up:g}; the per-iteration link-up probability must be in (0, 1]")
+    radius = finite(team.radius, "team.radius")
+    require(radius > 0, "team.radius", f"is {radius:g}; the link radius must be > 0 (the unit square is 1 x 1)")
+    if team.starts is not None:
+        count = len(team.starts)
+        require(
+            count == team.robots,
+            "team.starts",
+            f"gives {count} start cell{'' if count == 1 else 's'} for {team.robots} robots; give one [x, y] per "
+            f"robot or null",
+        )

@@ -1,0 +1,492 @@
+"""The consensus rounds of paper eq. (14) under delays, drops and switching links (Assumption 5 (3)-(4)), and
+gradient tracking: the Mixer and its typed state.
+
+Every random draw comes from a generator keyed by (seed, stream, iteration[, round]), so a resumed run redraws
+exactly what an uninterrupted one would have drawn.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from riskplan.config.schema import Order, Stale, TeamConf
+from riskplan.engine.team import kernels
+from riskplan.engine.team.network import Network
+from riskplan.util.errors import BadInput
+
+MIX_STREAM = 7919  # delays and drops: default_rng([seed, 7919, iteration, round])
+SWITCH_STREAM = 7927  # switching links: default_rng([seed, 7927, iteration])
+MASK = (1 << 64) - 1
+INT64_MAX = (1 << 63) - 1
+
+
+@dataclass
+class Tracking:
+    """Gradient tracking's part of the state: trackers y and push-sum weights v ride in the same messages as theta,
+    as running sums; the last axis of each holds [y (M), v (M)]."""
+
+    pending_sums: np.ndarray  # (B0+1, R, N, N, 2M): the sender's running sums in each message in flight
+    sums: np.ndarray  # (R, N, 2M): S^j, the sum of all [y, v] robot j has sent in round r
+    seen_sums: np.ndarray  # (R, N, N, 2M): rho^{ij}, the newest S^j robot i has taken in
+    seen_sent: np.ndarray  # (R, N, N): its send iteration, -1 = none yet
+    tracker: np.ndarray  # (N, 2M): [z^i_{l-1}, v^i_l], robot i's mixed tracker and push-sum weight
+    gradient: np.ndarray  # (N, M): Delta^i_{l-1}, the gradient last added to the tracker
+
+
+@dataclass
+class Buffers:
+    """A Mixer's state: the messages in flight and what each link last did. `as_arrays` gives the checkpoint's
+    arrays (these field names, the tracking ones merged in), `from_arrays` reads them back."""
+
+    pending: np.ndarray  # (B0+1, R, N, N, M): per arrival slot (iteration mod B0+1), round and link, theta^j sent
+    pending_sent: np.ndarray  # (B0+1, R, N, N) int: its send iteration, -1 = none
+    pending_due: np.ndarray  # (B0+1, R, N, N) int: its arrival iteration, -1 = consumed or none
+    latest: np.ndarray  # (N, N, M): the newest value received per link (stale=latest)
+    latest_stamp: np.ndarray  # (N, N) int: its send slot l R + r, -1 = nothing yet
+    last_delivered: np.ndarray  # (N, N) int: iteration of the last undropped send
+    last_up: np.ndarray  # (N, N) int: iteration the link was last up (switching)
+    up: np.ndarray  # (N, N) bool: links up at iteration up_iteration
+    up_iteration: int
+    started: bool  # whether any round was mixed (gaps are counted from just before the first)
+    delivered: np.ndarray  # (N, N) bool, last round: links whose send got through
+    forced: np.ndarray  # (N, N) bool, last round: sends forced through by max_gap
+    used_sent: np.ndarray  # (N, N) int, last round: send iteration of the value mixed, -1 = none
+    tracking: Tracking | None = None
+
+    @classmethod
+    def empty(cls, robots: int, params: int, slots: int, rounds: int, tracking: bool) -> Buffers:
+        """The state of a Mixer that has mixed nothing yet."""
+        n, m = robots, params
+        return cls(
+            pending=np.zeros((slots, rounds, n, n, m)),
+            pending_sent=np.full((slots, rounds, n, n), -1, dtype=np.int64),
+            pending_due=np.full((slots, rounds, n, n), -1, dtype=np.int64),
+            latest=np.zeros((n, n, m)),
+            latest_stamp=np.full((n, n), -1, dtype=np.int64),
+            last_delivered=np.zeros((n, n), dtype=np.int64),
+            last_up=np.zeros((n, n), dtype=np.int64),
+            up=np.ones((n, n), dtype=bool),
+            up_iteration=-1,
+            started=False,
+            delivered=np.zeros((n, n), dtype=bool),
+            forced=np.zeros((n, n), dtype=bool),
+            used_sent=np.full((n, n), -1, dtype=np.int64),
+            tracking=Tracking(
+                pending_sums=np.zeros((slots, rounds, n, n, 2 * m)),
+                sums=np.zeros((rounds, n, 2 * m)),
+                seen_sums=np.zeros((rounds, n, n, 2 * m)),
+                seen_sent=np.full((rounds, n, n), -1, dtype=np.int64),
+                tracker=np.concatenate([np.zeros((n, m)), np.ones((n, m))], axis=1),
+                gradient=np.zeros((n, m)),
+            )
+            if tracking
+            else None,
+        )
+
+    def as_arrays(self) -> dict[str, np.ndarray]:
+        """The state as named numpy arrays (the fields themselves, not copies; scalars as 0-d arrays)."""
+        arrays = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "tracking"}
+        arrays["up_iteration"] = np.array(self.up_iteration, dtype=np.int64)
+        arrays["started"] = np.array(self.started)
+        if self.tracking is not None:
+            arrays.update({f.name: getattr(self.tracking, f.name) for f in dataclasses.fields(self.tracking)})
+        return arrays
+
+    def from_arrays(self, arrays: Mapping[str, np.ndarray]) -> Buffers:
+        """Buffers of this one's shapes and dtypes holding copies of `arrays` (a state() or a checkpoint's);
+        ValueError naming the first array that is missing or of another shape."""
+        mine = self.as_arrays()
+        for key, value in mine.items():
+            if key not in arrays or np.shape(arrays[key]) != value.shape:
+                raise ValueError(f"checkpoint's consensus state '{key}' does not match this team's network/settings")
+        copies = {key: np.array(arrays[key], dtype=value.dtype, copy=True) for key, value in mine.items()}
+        tracking = None
+        if self.tracking is not None:
+            tracking = Tracking(**{f.name: copies.pop(f.name) for f in dataclasses.fields(Tracking)})
+        copies["up_iteration"], copies["started"] = int(copies["up_iteration"]), bool(copies["started"])
+        return Buffers(**copies, tracking=tracking)
+
+    def copy(self) -> Buffers:
+        """A deep copy: its arrays are its own."""
+        return self.from_arrays(self.as_arrays())
+
+    def shallow(self) -> Buffers:
+        """A copy holding the same arrays: rebinding a field of either leaves the other alone."""
+        tracking = None if self.tracking is None else dataclasses.replace(self.tracking)
+        return dataclasses.replace(self, tracking=tracking)
+
+
+@dataclass
+class Deferred:
+    """What the synchronous rounds did since the Buffers were last written (Mixer._sync_round): written into them
+    only when something reads them."""
+
+    first: int | None  # the first iteration mixed, when these rounds started the Mixer
+    last: int  # the iteration of the last round
+    sent: dict[int, tuple[int, np.ndarray]] = field(default_factory=dict)  # round -> (iteration, thetas) last sent
+    latest: tuple[int, np.ndarray] | None = None  # (slot stamp l R + r, thetas): the newest value on every link
+
+    def copy(self) -> Deferred:
+        """A copy that later rounds leave alone (the thetas themselves are never changed)."""
+        return Deferred(self.first, self.last, dict(self.sent), self.latest)
+
+
+Apply = Callable[[Buffers, Deferred], None]
+
+
+class MixerState(Mapping):
+    """A Mixer's state at one moment (Mixer.snapshot): a read-only mapping of its arrays, built on first access."""
+
+    def __init__(self, base: Buffers, deferred: Deferred | None, apply: Apply):
+        self._base, self._deferred, self._apply = base, deferred, apply
+        self._keys = list(base.as_arrays())
+        self._arrays: dict[str, np.ndarray] | None = None
+
+    def _built(self) -> dict[str, np.ndarray]:
+        if self._arrays is None:
+            buffers = self._base.copy()
+            if self._deferred is not None:
+                self._apply(buffers, self._deferred)
+            self._arrays, self._base, self._deferred = buffers.as_arrays(), buffers, None
+        return self._arrays
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return self._built()[key]
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._keys
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys)
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+
+class _Store:
+    """A Mixer's Buffers with the synchronous rounds not yet written into them: the only way to the Buffers.
+
+    `current()` writes any deferred rounds in before it hands the Buffers out, so no reader, old or new, can see
+    stale buffers. A snapshot shares the arrays until this side would change them (copy on write)."""
+
+    def __init__(self, buffers: Buffers, apply: Apply):
+        self._buffers, self._apply = buffers, apply
+        self.deferred: Deferred | None = None
+        self._shared = False  # a snapshot holds the arrays: copy them before changing them in place
+
+    def current(self, writing: bool = True) -> Buffers:
+        """The Buffers, up to date; with `writing=False` the caller promises only to read them (no copy is made
+        for a snapshot's sake unless deferred rounds must be written in)."""
+        if self._shared and (writing or self.deferred is not None):
+            self._buffers, self._shared = self._buffers.copy(), False
+        if self.deferred is not None:
+            self._apply(self._buffers, self.deferred)
+            self.deferred = None
+        return self._buffers
+
+    def snapshot(self) -> MixerState:
+        """The state of this moment, copied only when read (see Mixer.snapshot)."""
+        self._shared = True
+        deferred = None if self.deferred is None else self.deferred.copy()
+        return MixerState(self._buffers.shallow(), deferred, self._apply)
+
+    def replace(self, buffers: Buffers) -> None:
+        """Hold `buffers` from now on (restore)."""
+        self._buffers, self.deferred, self._shared = buffers, None, False
+
+
+class Mixer:
+    """Consensus rounds of eq. (14) (without the gradient term) under delays, drops and switching links.
+
+    Timing: a call ``mix(thetas, l, r)`` is slot (l, r). Every robot j sends thetas[j] on each outgoing link
+    that is up; the message is dropped with probability ``team.drop`` and otherwise arrives in slot (l + D, r),
+    D uniform on 0..B0 (``team.delay.max``). Assumption 5 (3) is enforced on the sending side: if a link has
+    had no delivered (undropped) send for B = ``team.max_gap`` iterations, the current send is forced through
+    (even over a switched-off link), so deliveries are at most B iterations apart and arrivals at most B + B0.
+    Switching (``team.switching``): each link is up with probability ``up`` per iteration (both directions of
+    an undirected link together), and is forced up when it has been down for ``window`` iterations, so every
+    link, hence a strongly connected graph, is up within any ``window`` consecutive iterations.
+
+    Synchronous teams (no delays, drops or switching; not gradient tracking): every message arrives in its own
+    slot, so `_sync_round` mixes sum_j a^{ij} theta^j directly and defers what the rounds did to the Buffers;
+    the store writes it in when something reads them.
+    """
+
+    def __init__(self, network: Network, team: TeamConf, seed: int):
+        """A Mixer of `network` with the validated settings of `team` (riskplan.config.validate)."""
+        if team.robots != network.robots:
+            raise BadInput("team.robots", f"is {team.robots} but the network has {network.robots} robots")
+        self.network = network
+        self.seed = int(seed) & MASK
+        self.tracking = team.order == Order.gradient_tracking
+        self.rounds = team.consensus_rounds
+        self.max_delay, self.drop, self.max_gap = team.delay.max, team.drop, team.max_gap
+        self.latest_rule = team.stale == Stale.latest
+        self.switching = team.switching
+        slots = self.max_delay + 1
+        buffers = Buffers.empty(network.robots, network.n_params, slots, self.rounds, self.tracking)
+        self._store = _Store(buffers, self._apply_deferred)
+        self._sync = not self.tracking and self.max_delay == 0 and self.drop == 0.0 and not self.switching.enabled
+        self._links: kernels.Links | None = None  # built by the first synchronous round
+
+    # Diagnostics of the last call, for tests and logs.
+    @property
+    def delivered(self) -> np.ndarray:
+        """(N, N) bool: links whose message sent in the last call was not dropped."""
+        return self._store.current(writing=False).delivered.copy()
+
+    @property
+    def forced(self) -> np.ndarray:
+        """(N, N) bool: links whose send in the last call was forced through by max_gap."""
+        return self._store.current(writing=False).forced.copy()
+
+    @property
+    def used_sent(self) -> np.ndarray:
+        """(N, N) int: iteration at which the neighbour value mixed in the last call was sent (-1: none)."""
+        return self._store.current(writing=False).used_sent.copy()
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Everything a resumed Mixer needs, as numpy arrays (copies)."""
+        return dict(self.snapshot())
+
+    def snapshot(self) -> MixerState:
+        """The state() of this moment as a read-only mapping that copies nothing until it is read (a checkpoint
+        reads it; most iterations' snapshots are never read). Its arrays are the state()'s, bit for bit."""
+        return self._store.snapshot()
+
+    def restore(self, state: Mapping[str, np.ndarray]) -> Mixer:
+        """Load a state() (or snapshot()) taken from a Mixer of the same team; returns self."""
+        self._store.replace(self._store.current(writing=False).from_arrays(state))
+        return self
+
+    def _apply_deferred(self, b: Buffers, deferred: Deferred) -> None:
+        """Write into `b` (changed in place) what the synchronous rounds in `deferred` did: exactly what `_send`
+        and `_received` would have written, every link sending and hearing every slot."""
+        adjacency = self.network.adjacency
+        receiver, sender = np.nonzero(adjacency)
+        if deferred.first is not None:  # the rounds started the Mixer (see _round)
+            b.last_delivered[:] = deferred.first - 1
+            b.last_up[:] = deferred.first - 1
+            b.started = True
+        b.last_delivered[receiver, sender] = deferred.last
+        b.delivered = adjacency.copy()
+        b.forced = np.zeros_like(adjacency)
+        for round_index, (iteration, sent) in deferred.sent.items():  # slot 0: with B0 = 0 a message is due at once
+            b.pending[0, round_index, receiver, sender, :] = sent[sender]
+            b.pending_sent[0, round_index, receiver, sender] = iteration
+            b.pending_due[0, round_index, receiver, sender] = -1  # consumed on arrival
+        stamp, latest = deferred.latest
+        b.latest[receiver, sender, :] = latest[sender]
+        b.latest_stamp[receiver, sender] = stamp
+        if self.latest_rule:
+            b.used_sent = np.where(b.latest_stamp >= 0, b.latest_stamp // self.rounds, -1)
+        else:
+            b.used_sent = np.where(adjacency, deferred.last, -1)
+
+    def links_up(self, iteration: int) -> np.ndarray:
+        """(N, N) bool links up at `iteration` (all links unless switching is enabled)."""
+        return np.array(self._links_up(self._store.current(), iteration), copy=True)
+
+    def _links_up(self, b: Buffers, iteration: int) -> np.ndarray:
+        """Links up at `iteration`, drawn once per iteration and kept so every round sees the same graph."""
+        adjacency = self.network.adjacency
+        if not self.switching.enabled:
+            return adjacency
+        if b.up_iteration != iteration:
+            rng = np.random.default_rng([self.seed, SWITCH_STREAM, iteration & MASK])
+            draw = rng.random(adjacency.shape) < self.switching.up
+            if not self.network.directed:
+                draw = np.triu(draw, 1) | np.triu(draw, 1).T  # an undirected link is up both ways or not at all
+            overdue = iteration - b.last_up >= self.switching.window
+            b.up = adjacency & (draw | overdue)
+            b.last_up = np.where(b.up, iteration, b.last_up)
+            b.up_iteration = iteration
+        return b.up
+
+    def mix(self, thetas: np.ndarray, iteration: int, round_index: int = 0) -> np.ndarray:
+        """One consensus round of eq. (14) at slot (iteration, round_index): (N, M) in, (N, M) out.
+
+        A gradient-tracking Mixer sends a zero tracker with it (use `track` for the tracking update)."""
+        thetas = np.asarray(thetas, dtype=float)
+        return self._round(thetas, np.zeros_like(thetas) if self.tracking else None, iteration, round_index)[0]
+
+    def track(self, thetas: np.ndarray, grads: np.ndarray, iteration: int) -> tuple[np.ndarray, np.ndarray]:
+        """Gradient tracking (team.order=gradient_tracking: DIGing, MD-PGT without momentum) at iteration l.
+
+        y^i_l = z^i_{l-1} + Delta^i_l - Delta^i_{l-1}, with z_{-1} = Delta_{-1} = 0 so that y_0 = Delta_0. Every robot
+        sends (theta^i_l, y^i_l, v^i_l) in one message per round (one delay and drop draw for all). Returns
+        (A theta_l, y_l / v_l) and keeps z_l = A y_l and A v_l for the next call; the caller steps
+        theta_{l+1} = A theta_l + eps_l y_l / v_l. The trackers y and the push-sum weights v (v_0 = 1) are mixed as
+        running sums (`_mix_sums`), so sum_i y^i_l plus the tracker mass still in flight (`in_flight`) equals
+        sum_i Delta^i_l under any delays, drops and switching, as long as A is doubly stochastic (checked when the
+        network is built). Without delays and drops v stays 1 and this is DIGing's y_{l+1} = A y_l + Delta_{l+1} -
+        Delta_l exactly; with them, dividing by v undoes the bursts of late mass (a link that delivers three
+        iterations of tracker at once delivers three iterations of weight too), the push-sum correction.
+        """
+        if not self.tracking:
+            raise ValueError("track needs a Mixer of a team with team.order=gradient_tracking")
+        thetas, grads = np.asarray(thetas, dtype=float), np.asarray(grads, dtype=float)
+        if grads.shape != thetas.shape:
+            raise ValueError(f"expected gradients of shape {thetas.shape}, got {grads.shape}")
+        if self.network.robots == 1:
+            return thetas.copy(), grads.copy()  # no one to track with: eq. (11), bit for bit
+        m = self.network.n_params
+        state = self._store.current().tracking
+        tracker = state.tracker[:, :m] + (grads - state.gradient)
+        mass = state.tracker[:, m:]
+        mixed, carried = thetas, np.concatenate([tracker, mass], axis=1)
+        for round_index in range(self.rounds):
+            mixed, carried = self._round(mixed, carried, iteration, round_index)
+        state = self._store.current().tracking
+        state.tracker, state.gradient = carried, grads.copy()
+        return mixed, tracker / mass
+
+    def in_flight(self) -> np.ndarray:
+        """(2M,) tracker and push-sum weight mass sent but not yet taken in, [y part, v part]: the sum over
+        rounds and links of a^{ij} (S^j - rho^{ij})."""
+        if not self.tracking:
+            return np.zeros(2 * self.network.n_params)
+        state, w = self._store.current(writing=False).tracking, self.network.weights
+        owed = state.sums[:, None, :, :] - state.seen_sums  # (R, N, N, 2M): [r, i, j] what j sent that i lacks
+        links = self.network.adjacency[None, :, :, None]
+        return (np.where(links, owed, 0.0) * np.concatenate([w, w], axis=2)[None]).sum(axis=(0, 1, 2))
+
+    def _round(
+        self, thetas: np.ndarray, carried: np.ndarray | None, iteration: int, round_index: int
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """One round at slot (iteration, round_index): mixed thetas, and the mixed trackers when `carried`."""
+        n, m = self.network.robots, self.network.n_params
+        if thetas.shape != (n, m):
+            raise ValueError(f"expected thetas of shape ({n}, {m}), got {thetas.shape}")
+        if not 0 <= round_index < self.rounds:
+            raise ValueError(f"round_index {round_index} outside 0..{self.rounds - 1} (team.consensus_rounds)")
+        if n == 1:
+            return thetas.copy(), None if carried is None else carried.copy()
+        iteration = int(iteration)
+        if carried is None and self._sync:
+            mixed = self._sync_round(thetas, iteration, round_index)
+            if mixed is not None:
+                return mixed, None
+        b = self._store.current()
+        if not b.started:
+            # Gaps are counted from just before the first iteration mixed.
+            b.last_delivered[:] = iteration - 1
+            b.last_up[:] = iteration - 1
+            b.started = True
+        self._send(b, thetas, carried, iteration, round_index)
+        mixed, arrived = self._received(b, thetas, iteration, round_index)
+        return mixed, None if carried is None else self._mix_sums(b, carried, arrived, iteration, round_index)
+
+    def _sync_round(self, thetas: np.ndarray, iteration: int, round_index: int) -> np.ndarray | None:
+        """A round of a synchronous team (no delays, drops or switching): every link delivers in the slot it sends,
+        so robot i mixes sum_j a^{ij} theta^j (with stale=latest, the newest value each link holds) exactly as
+        `_received` would, in the same order of sums, without the (N, N, M) buffers. The Buffers are left as they
+        were and the store defers what to write into them. None when the general rules must decide: a slot no
+        later than the newest value the Buffers already hold (a Mixer set back in time)."""
+        deferred = self._store.deferred
+        stamp = iteration * self.rounds + round_index
+        sent = np.array(thetas, copy=True)
+        if deferred is None:
+            b = self._store.current(writing=False)  # nothing deferred: these are the Buffers as they stand
+            if stamp <= int(b.latest_stamp.max()):
+                return None
+            deferred = Deferred(None if b.started else iteration, iteration, {}, (stamp, sent))
+            self._store.deferred = deferred
+        elif stamp > deferred.latest[0]:
+            deferred.latest = (stamp, sent)  # a repeated or older slot is not newer: the links keep what they hold
+        deferred.last = iteration
+        deferred.sent[round_index] = (iteration, sent)
+        neighbour = deferred.latest[1] if self.latest_rule else sent
+        if self._links is None and self.network.n_params > 1:
+            self._links = kernels.Links(self.network)
+        return kernels.mix_linked(self.network, self._links, thetas, neighbour)
+
+    def _mix_sums(
+        self, b: Buffers, carried: np.ndarray, arrived: np.ndarray, iteration: int, round_index: int
+    ) -> np.ndarray:
+        """Trackers after one round, mixed as running sums: robot i takes a^{ij} (S^j - rho^{ij}) from each link.
+
+        S^j is the sum of every tracker robot j has sent in this round slot, and rho^{ij} the newest S^j that robot
+        i has taken in. A message newer than rho^{ij} hands over all the mass sent on the link since then, so a
+        dropped or delayed tracker is late, never lost or counted twice, and an older message arriving after a
+        newer one is ignored. With no delays or drops the increment is a^{ij} y^j: the plain A y of DIGing.
+        """
+        state, slot = b.tracking, iteration % (self.max_delay + 1)
+        sent = b.pending_sent[slot, round_index]
+        fresh = arrived & (sent > state.seen_sent[round_index])
+        sums = state.pending_sums[slot, round_index]
+        seen = state.seen_sums[round_index]
+        increment = np.where(fresh[:, :, None], sums - seen, 0.0)
+        seen[fresh] = sums[fresh]
+        state.seen_sent[round_index] = np.where(fresh, sent, state.seen_sent[round_index])
+        w = np.concatenate([self.network.weights] * (carried.shape[1] // self.network.n_params), axis=2)
+        diagonal = np.arange(len(w))
+        off = w.copy()
+        off[diagonal, diagonal, :] = 0.0
+        return w[diagonal, diagonal, :] * carried + np.einsum("ijm,ijm->im", off, increment)
+
+    def _send(self, b: Buffers, thetas: np.ndarray, carried: np.ndarray | None, iteration: int, round_index: int):
+        """Put this slot's messages in flight: delay, drop, forced delivery (Assumption 5 (3)-(4))."""
+        # A fresh generator per slot: no random state crosses iterations, so resume is bit-identical. With B0 = 0
+        # the delays are all 0 and integers(0, 1) draws nothing; with drop 0 every message is kept: both skipped.
+        rng = np.random.default_rng([self.seed, MIX_STREAM, iteration & MASK, round_index])
+        shape = (self.network.robots,) * 2
+        delay = rng.integers(0, self.max_delay + 1, size=shape) if self.max_delay else kernels.NO_INTS
+        kept = rng.random(shape) >= self.drop if self.drop else kernels.NO_FLAGS
+        sums, pending_sums = kernels.NO_FLOATS, kernels.NO_PENDING
+        if carried is not None:  # the tracker rides in the same message: its sender's running sum
+            b.tracking.sums[round_index] += carried
+            sums, pending_sums = b.tracking.sums[round_index], b.tracking.pending_sums
+        max_gap = min(self.max_gap, INT64_MAX)  # a gap of an int64 iteration never exceeds it: same as any larger B
+        kernels.send(
+            self.network.adjacency,
+            self._links_up(b, iteration),
+            kept,
+            delay,
+            iteration,
+            max_gap,
+            round_index,
+            np.ascontiguousarray(thetas),
+            sums,
+            b.last_delivered,
+            b.delivered,
+            b.forced,
+            b.pending,
+            b.pending_sent,
+            b.pending_due,
+            pending_sums,
+        )
+
+    def _received(
+        self, b: Buffers, thetas: np.ndarray, iteration: int, round_index: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The mixed thetas after this slot's arrivals, and the (N, N) links whose message arrived now.
+
+        A link mixes the value that arrived (stale=arrival) or the newest it holds (stale=latest); a neighbour with
+        nothing to offer hands its weight to robot i itself, keeping each row stochastic; a late message never
+        replaces a newer one, and stale slots never meet a weight, even as 0 * inf."""
+        adjacency = self.network.adjacency
+        slot = iteration % (self.max_delay + 1)
+        n = self.network.robots
+        arrived, use = np.empty((n, n), dtype=bool), np.empty((n, n), dtype=bool)
+        kernels.receive(
+            adjacency,
+            iteration,
+            round_index,
+            self.rounds,
+            self.latest_rule,
+            b.pending[slot, round_index],
+            b.pending_sent[slot, round_index],
+            b.pending_due[slot, round_index],
+            b.latest,
+            b.latest_stamp,
+            b.used_sent,
+            arrived,
+            use,
+        )
+        neighbour = b.latest if self.latest_rule else b.pending[slot, round_index]
+        return kernels.mix_used(self.network.weights, adjacency, use, neighbour, thetas), arrived
