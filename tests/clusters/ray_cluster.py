@@ -74,8 +74,14 @@ HEAD_IP = "127.0.0.2"  # the head; node i gets 127.0.0.(2 + i)
 OBJECT_STORE_BYTES = 100 * 1000 * 1000  # Ray's minimum is 75 MiB (78643200 bytes)
 _PR_SET_PDEATHSIG = 1
 # the ports a non-head node needs, then the head's extra ones
-_NODE_PORTS = ("node-manager-port", "object-manager-port", "dashboard-agent-listen-port",
-               "dashboard-agent-grpc-port", "runtime-env-agent-port", "metrics-export-port")
+_NODE_PORTS = (
+    "node-manager-port",
+    "object-manager-port",
+    "dashboard-agent-listen-port",
+    "dashboard-agent-grpc-port",
+    "runtime-env-agent-port",
+    "metrics-export-port",
+)
 _HEAD_PORTS = ("port", "dashboard-port", "ray-client-server-port")
 
 # Run in the Ray venv's python: connect as a driver, wait until `want` nodes are alive, print them as JSON.
@@ -105,10 +111,10 @@ class ClusterError(RuntimeError):
 
 
 def _unavailable(reason: str):
-    try:
-        import pytest
-    except ImportError:  # used outside pytest (the command line below)
-        raise ClusterUnavailable(reason) from None
+    if "pytest" not in sys.modules:  # used outside pytest (the command line below)
+        raise ClusterUnavailable(reason)
+    import pytest
+
     pytest.skip(reason)
 
 
@@ -211,10 +217,19 @@ class _Node:
 class RayCluster:
     """`num_nodes` Ray nodes (one head) on this machine, each with `cpus_per_node` CPUs."""
 
-    def __init__(self, ray_executable: str | os.PathLike | None = None, *, num_nodes: int = 2,
-                 cpus_per_node: int = 1, object_store_memory: int = OBJECT_STORE_BYTES, timeout: float = 120.0,
-                 grace: float = 20.0, base_dir: str | os.PathLike | None = None, keep_dir: bool = False,
-                 extra_env: dict[str, str] | None = None):
+    def __init__(
+        self,
+        ray_executable: str | os.PathLike | None = None,
+        *,
+        num_nodes: int = 2,
+        cpus_per_node: int = 1,
+        object_store_memory: int = OBJECT_STORE_BYTES,
+        timeout: float = 120.0,
+        grace: float = 20.0,
+        base_dir: str | os.PathLike | None = None,
+        keep_dir: bool = False,
+        extra_env: dict[str, str] | None = None,
+    ):
         if num_nodes < 1 or num_nodes > 250:
             raise ValueError("num_nodes must be 1..250")
         self.ray_executable = None if ray_executable is None else Path(ray_executable)
@@ -251,6 +266,7 @@ class RayCluster:
         if "ray" in sys.modules:
             with contextlib.suppress(ImportError, AttributeError):
                 from ray._raylet import Config
+
                 Config.initialize("")
         return saved
 
@@ -264,6 +280,7 @@ class RayCluster:
         if "ray" in sys.modules:
             with contextlib.suppress(ImportError, AttributeError):
                 from ray._raylet import Config
+
                 Config.initialize("")
 
     @property
@@ -292,10 +309,15 @@ class RayCluster:
         return self.ray_executable
 
     def _env(self) -> dict[str, str]:
-        env = {key: value for key, value in os.environ.items()
-               if key not in ("RAY_ADDRESS", "RAY_AUTH_TOKEN_PATH")}  # never join some other cluster
-        env.update(self.driver_env, RAY_GRACEFUL_SHUTDOWN_DRAIN_TIMEOUT_S="0",
-                   RAY_DISABLE_DOCKER_CPU_WARNING="1", **self.extra_env)
+        env = {
+            key: value for key, value in os.environ.items() if key not in ("RAY_ADDRESS", "RAY_AUTH_TOKEN_PATH")
+        }  # never join some other cluster
+        env.update(
+            self.driver_env,
+            RAY_GRACEFUL_SHUTDOWN_DRAIN_TIMEOUT_S="0",
+            RAY_DISABLE_DOCKER_CPU_WARNING="1",
+            **self.extra_env,
+        )
         return env
 
     @staticmethod
@@ -304,9 +326,18 @@ class RayCluster:
             ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
 
     def _launch(self, ray: Path, node: _Node, env: dict[str, str]) -> None:
-        args = [str(ray), "start", "--block", f"--node-ip-address={node.ip}", f"--num-cpus={self.cpus_per_node}",
-                f"--object-store-memory={self.object_store_memory}", f"--temp-dir={node.temp_dir}",
-                "--min-worker-port=0", "--max-worker-port=0", "--disable-usage-stats"]
+        args = [
+            str(ray),
+            "start",
+            "--block",
+            f"--node-ip-address={node.ip}",
+            f"--num-cpus={self.cpus_per_node}",
+            f"--object-store-memory={self.object_store_memory}",
+            f"--temp-dir={node.temp_dir}",
+            "--min-worker-port=0",
+            "--max-worker-port=0",
+            "--disable-usage-stats",
+        ]
         if node.index == 0:
             args += ["--head", "--include-dashboard=false"]
         else:
@@ -314,9 +345,16 @@ class RayCluster:
         args += [f"--{key}={value}" for key, value in node.ports.items()]
         node.temp_dir.mkdir(parents=True, exist_ok=True)
         with open(node.log, "wb") as out:
-            node.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                                         env=env, cwd=self.base_dir, start_new_session=True,
-                                         preexec_fn=self._child_setup)
+            node.proc = subprocess.Popen(
+                args,
+                stdin=subprocess.DEVNULL,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                env=env,
+                cwd=self.base_dir,
+                start_new_session=True,
+                preexec_fn=self._child_setup,
+            )
 
     def _check_alive(self) -> None:
         for node in self.nodes:
@@ -345,10 +383,17 @@ class RayCluster:
         ports = _free_ports(len(_HEAD_PORTS) + len(_NODE_PORTS) * self.num_nodes)
         for i in range(self.num_nodes):
             names = (_HEAD_PORTS + _NODE_PORTS) if i == 0 else _NODE_PORTS
-            mine, ports = ports[:len(names)], ports[len(names):]
+            mine, ports = ports[: len(names)], ports[len(names) :]
             ip = f"127.0.0.{2 + i}"
-            self.nodes.append(_Node(i, ip, dict(zip(names, mine)), self.base_dir / f"n{i}",
-                                    self.base_dir / f"{'head' if i == 0 else f'node{i}'}.out"))
+            self.nodes.append(
+                _Node(
+                    i,
+                    ip,
+                    dict(zip(names, mine)),
+                    self.base_dir / f"n{i}",
+                    self.base_dir / f"{'head' if i == 0 else f'node{i}'}.out",
+                )
+            )
         env = self._env()
         deadline = started + self.timeout
         try:
@@ -366,9 +411,15 @@ class RayCluster:
     def _wait_for_nodes(self, ray: Path, env: dict[str, str], deadline: float) -> None:
         """A driver in the Ray venv's python connects and waits until all nodes are alive."""
         left = max(deadline - time.monotonic(), 5.0)
-        probe = subprocess.Popen([_python_of(ray), "-c", _PROBE, self.address, str(self.num_nodes), str(left)],
-                                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                 text=True, env=env, cwd=self.base_dir)
+        probe = subprocess.Popen(
+            [_python_of(ray), "-c", _PROBE, self.address, str(self.num_nodes), str(left)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            cwd=self.base_dir,
+        )
         while probe.poll() is None:
             if time.monotonic() > deadline + 30:
                 probe.kill()
@@ -385,12 +436,15 @@ class RayCluster:
         try:
             found = json.loads(out.strip().splitlines()[-1])
         except (ValueError, IndexError):
-            raise ClusterError(f"the probe driver failed (exit {probe.returncode}):\n{err[-3000:]}\n"
-                               f"{self.logs()}") from None
+            raise ClusterError(
+                f"the probe driver failed (exit {probe.returncode}):\n{err[-3000:]}\n{self.logs()}"
+            ) from None
         self.ray_version, self.node_info = found["ray"], found["nodes"]
         if len(self.node_info) < self.num_nodes:
-            raise ClusterError(f"{len(self.node_info)} of {self.num_nodes} nodes alive after {self.timeout:.0f} s: "
-                               f"{self.node_info}\n{self.logs()}")
+            raise ClusterError(
+                f"{len(self.node_info)} of {self.num_nodes} nodes alive after {self.timeout:.0f} s: "
+                f"{self.node_info}\n{self.logs()}"
+            )
 
     # -- logs ----------------------------------------------------------------------------------------------------
     def logs(self, lines: int = 25) -> str:
@@ -428,8 +482,9 @@ class RayCluster:
                 with contextlib.suppress(ProcessLookupError):
                     os.kill(pid, signal.SIGKILL)
         deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and any(_start_time(p) == s and not _is_zombie(p)
-                                                  for p, s in recorded.items()):
+        while time.monotonic() < deadline and any(
+            _start_time(p) == s and not _is_zombie(p) for p, s in recorded.items()
+        ):
             time.sleep(0.1)
         self.leftovers = sorted(set(self.leftovers))
         if self._created_dir and self.base_dir is not None and not (failed or self.keep_dir):
@@ -459,14 +514,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=120.0)
     args = parser.parse_args(argv)
     cluster = RayCluster(args.ray, num_nodes=args.nodes, cpus_per_node=args.cpus, timeout=args.timeout)
+
     def interrupt(*_):
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, interrupt)
     with cluster:
-        print(json.dumps({"address": cluster.address, "env": cluster.driver_env, "ray": cluster.ray_version,
-                          "startup_seconds": round(cluster.startup_seconds, 2), "pids": cluster.pids,
-                          "nodes": cluster.node_info, "base_dir": str(cluster.base_dir)}), flush=True)
+        print(
+            json.dumps(
+                {
+                    "address": cluster.address,
+                    "env": cluster.driver_env,
+                    "ray": cluster.ray_version,
+                    "startup_seconds": round(cluster.startup_seconds, 2),
+                    "pids": cluster.pids,
+                    "nodes": cluster.node_info,
+                    "base_dir": str(cluster.base_dir),
+                }
+            ),
+            flush=True,
+        )
         with contextlib.suppress(KeyboardInterrupt):
             if sys.stdin.isatty():
                 input("Enter stops the cluster\n")

@@ -2,21 +2,18 @@
 work pinned to each node runs there. The ground for `team.backend=ray` (one Ray actor per robot, Ray core only).
 
 Needs `ray` (core) in this environment: `pip install 'ray>=2.9,<3'`; skipped without it. About 20 s on 2 cores
-(the cluster starts in ~18 s)."""
+(the cluster starts in 6-18 s)."""
 
 from __future__ import annotations
 
 import os
-import sys
-from pathlib import Path
 
 import pytest
 
 ray = pytest.importorskip("ray", reason="ray is not installed here (pip install 'ray>=2.9,<3')")
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).parent))
-from ray_cluster import RayCluster, _start_time  # noqa: E402
+from .ray_cluster import RayCluster, _start_time  # noqa: E402
 
 pytestmark = [pytest.mark.slow, pytest.mark.cluster]
 
@@ -52,8 +49,13 @@ class Robot:
 
     def step(self, gradient: float) -> dict:
         self.theta += gradient
-        return {"index": self.index, "theta": self.theta, "node": ray.get_runtime_context().get_node_id(),
-                "ip": ray.util.get_node_ip_address(), "pid": os.getpid()}
+        return {
+            "index": self.index,
+            "theta": self.theta,
+            "node": ray.get_runtime_context().get_node_id(),
+            "ip": ray.util.get_node_ip_address(),
+            "pid": os.getpid(),
+        }
 
 
 def test_the_driver_sees_two_alive_nodes_with_one_cpu_each(cluster):
@@ -66,8 +68,10 @@ def test_the_driver_sees_two_alive_nodes_with_one_cpu_each(cluster):
 
 def test_an_actor_pinned_to_each_node_runs_on_that_node(cluster):
     nodes = alive_nodes()
-    robots = [Robot.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False))
-              .remote(i) for i, node in enumerate(nodes)]
+    robots = [
+        Robot.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)).remote(i)
+        for i, node in enumerate(nodes)
+    ]
     first = ray.get([robot.step.remote(0.5) for robot in robots], timeout=120)
     second = ray.get([robot.step.remote(0.25) for robot in robots], timeout=120)
     assert [r["node"] for r in first] == [node["NodeID"] for node in nodes]  # each where it was pinned
