@@ -25,9 +25,9 @@ warnings.formatwarning = lambda message, *args, **kwargs: f"warning: {message}\n
 
 def _register_commands() -> None:
     """Add every command, in the order `riskplan --help` lists them."""
-    from riskplan.commands import bench, export, report, reproduce, sweep, train
+    from riskplan.commands import bench, check, export, report, reproduce, sweep, train
 
-    for module in (train, report, bench, sweep, reproduce, export):
+    for module in (train, check, report, bench, sweep, reproduce, export):
         module.register(app)
 
 

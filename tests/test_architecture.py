@@ -70,3 +70,38 @@ def test_nothing_imports_the_cli_module():
         and re.search(r"^\s*(from riskplan\.cli |from riskplan import cli|import riskplan\.cli)", p.read_text(), re.M)
     ]
     assert importers == []
+
+
+def modules_on_disk() -> set[str]:
+    """Every module of the package, as a path below riskplan/ (riskplan/conf is data, not code)."""
+    package = ROOT / "riskplan"
+    return {str(p.relative_to(package)) for p in package.rglob("*.py") if "conf" not in p.relative_to(package).parts}
+
+
+def test_the_architecture_tree_lists_exactly_the_modules_on_disk():
+    text = (ROOT / "ARCHITECTURE.md").read_text()
+    tree = text[text.index("<!-- module-tree: begin -->") : text.index("<!-- module-tree: end -->")]
+    listed, folders = set(), []
+    for line in tree.splitlines():
+        match = re.match(r"^([│ ]*)[├└]── (\S+)", line)
+        if not match:
+            continue
+        depth, name = len(match.group(1)) // 4, match.group(2)
+        folders[depth:] = [name.rstrip("/")] if name.endswith("/") else []
+        if name.endswith(".py"):
+            listed.add("/".join([*folders[:depth], name]))
+    on_disk = {m for m in modules_on_disk() if not m.endswith("__init__.py") or m == "__init__.py"}
+    assert listed == on_disk, (sorted(on_disk - listed), sorted(listed - on_disk))
+
+
+def test_no_two_modules_share_a_name():
+    names = [Path(m).stem for m in modules_on_disk() if Path(m).name not in ("__init__.py", "__main__.py")]
+    assert sorted(n for n in set(names) if names.count(n) > 1) == []
+
+
+def test_the_engine_never_imports_omegaconf_or_hydra():
+    pattern = re.compile(r"^\s*(from|import)\s+(omegaconf|hydra)\b", re.M)
+    offenders = [
+        m for m in modules_on_disk() if m.startswith("engine/") and pattern.search((ROOT / "riskplan" / m).read_text())
+    ]
+    assert offenders == []

@@ -15,7 +15,8 @@ from typer.testing import CliRunner
 
 from riskplan import compose
 from riskplan.cli import app
-from riskplan.run.training import CHECKPOINT, train
+from riskplan.run.checkpoint import CHECKPOINT
+from riskplan.run.training import train
 
 README = Path(__file__).resolve().parents[1] / "docs" / "robustness.md"
 BEGIN, END = "<!-- bad-input-table: begin -->", "<!-- bad-input-table: end -->"

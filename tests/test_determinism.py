@@ -15,8 +15,8 @@ from test_resume import FAST, TEAM, assert_same_outputs, run_cli, train_cli
 from riskplan import compose
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
-from riskplan.run.build import build_setup
-from riskplan.run.training import starts, train
+from riskplan.run.build import build_setup, starts
+from riskplan.run.training import train
 
 
 def job_dirs(sweep: Path) -> dict[int, Path]:

@@ -28,8 +28,10 @@ from typer.testing import CliRunner
 import riskplan.run.training as training
 from riskplan import compose, load_run
 from riskplan.cli import app
+from riskplan.run.checkpoint import CHECKPOINT, CRASH_ENV
+from riskplan.run.evaluation import NumericalTrouble
 from riskplan.run.record import read_log
-from riskplan.run.training import CHECKPOINT, CRASH_ENV, STOP_ENV, NumericalTrouble
+from riskplan.run.training import STOP_ENV
 
 FAST = [
     "train.iterations=30",

@@ -24,8 +24,10 @@ from typer.testing import CliRunner
 import riskplan.run.training as training
 from riskplan import compose, load_run
 from riskplan.cli import app
+from riskplan.run.checkpoint import CHECKPOINT
+from riskplan.run.evaluation import NumericalTrouble
 from riskplan.run.record import RunLog
-from riskplan.run.training import CHECKPOINT, STOP_ENV, NumericalTrouble, prepare_resume
+from riskplan.run.training import STOP_ENV, prepare_resume
 from riskplan.util.errors import BadInput
 from riskplan.util.lock import LOCK, hold, holder
 

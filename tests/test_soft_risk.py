@@ -16,11 +16,11 @@ from riskplan.config.schema import RiskConf, ScheduleConf
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
 from riskplan.risk import cvar_gradient
-from riskplan.run.build import build_setup
+from riskplan.run.build import build_setup, starts
 from riskplan.run.compose import expand_overrides, expand_shorthands
 from riskplan.run.record import read_log
 from riskplan.run.schedules import risk_level, step_size
-from riskplan.run.training import starts, train
+from riskplan.run.training import train
 
 FAST = [
     "train.iterations=8",

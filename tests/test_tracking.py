@@ -16,7 +16,7 @@ from riskplan.cli import app
 from riskplan.engine.team.convergence import consensus_error, second_largest_eigenvalue_modulus
 from riskplan.engine.team.mixer import Mixer
 from riskplan.engine.team.network import build_network
-from riskplan.run.training import CHECKPOINT, load_checkpoint
+from riskplan.run.checkpoint import CHECKPOINT, load_checkpoint
 from riskplan.util.errors import BadInput
 
 runner = CliRunner()

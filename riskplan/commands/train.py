@@ -1,4 +1,4 @@
-"""`riskplan train` (one run, or --resume one) and `riskplan check` (compose and validate, run nothing)."""
+"""`riskplan train`: one run, or --resume one."""
 
 from __future__ import annotations
 
@@ -11,11 +11,9 @@ import typer
 from riskplan.commands.common import (
     HYDRA_FLAGS,
     MULTIRUN_FLAGS,
-    OVERRIDES_HELP,
     PASS_THROUGH,
     TRAIN_OVERRIDES_HELP,
     bad_input_exits,
-    reject_hydra_flags,
 )
 from riskplan.util.errors import BadInput
 from riskplan.util.lock import LOCK, hold, holder
@@ -23,9 +21,8 @@ from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote
 
 
 def register(app: typer.Typer) -> None:
-    """Add `train` and `check` to the riskplan app."""
+    """Add `train` to the riskplan app."""
     app.command(context_settings=PASS_THROUGH)(bad_input_exits(train))
-    app.command(context_settings=PASS_THROUGH)(bad_input_exits(check))
 
 
 def train(
@@ -125,36 +122,11 @@ def check_new_run_dir(out: Path, key: str) -> None:
     raise BadInput(key, f"{out} is not empty and holds no run; give a new or empty directory")
 
 
-def check(overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP, show_default=False)) -> None:
-    """Compose and validate a config without running it; print it, the world, the team and Assumptions 5-6."""
-    from omegaconf import OmegaConf
-
-    from riskplan.engine.team.describe import describe
-    from riskplan.run.build import build_setup
-    from riskplan.run.compose import compose
-
-    args = list(overrides or [])
-    reject_hydra_flags(args, "check prints the composed config itself")
-    cfg = compose(args, validate=False)
-    setup = build_setup(cfg)
-    typer.echo(OmegaConf.to_yaml(cfg).rstrip())
-    typer.echo("")
-    typer.echo(_describe_world(setup))
-    power = cfg.train.step_size.power
-    holds = 0.5 < power <= 1.0
-    typer.echo(
-        f"Assumption 6 (sum eps = inf, sum eps^2 < inf): {'holds' if holds else 'FAILS'} "
-        f"(eps_l = {cfg.train.step_size.initial} / (1 + l/{cfg.train.step_size.decay})^{power})"
-    )
-    typer.echo(describe(setup.network, cfg.team))
-    typer.echo("config OK")
-
-
 def _resume(run_dir: Path, args: list[str]) -> None:
     """`train --resume RUN_DIR [train.iterations=N]`."""
+    from riskplan.run.checkpoint import CHECKPOINT
     from riskplan.run.compose import parse_overrides
     from riskplan.run.results import is_run_dir
-    from riskplan.run.training import CHECKPOINT
 
     if not run_dir.is_dir() or not is_run_dir(run_dir):
         raise BadInput(str(run_dir), "holds no run; give the directory of a riskplan train run to --resume")
@@ -181,7 +153,8 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
     from omegaconf.errors import OmegaConfBaseException
 
     from riskplan.experiments.hydra_app import write_status
-    from riskplan.run.training import NumericalTrouble, prepare_resume
+    from riskplan.run.evaluation import NumericalTrouble
+    from riskplan.run.training import prepare_resume
     from riskplan.run.training import train as train_run
     from riskplan.util.progress import TrainingBar
 
@@ -261,20 +234,3 @@ def summary_line(summary: dict, out: Path) -> str:
         f"episodes: mean {fig('mean')}, CVaR {fig('cvar')}, VaR {fig('value_at_risk')} | "
         f"P(risky) {summary['risky_fraction']:.1%} | reached {reached} -> {out}"
     )
-
-
-def _describe_world(setup) -> str:
-    """A few lines on the world: grid, start, sources, regions."""
-    world = setup.world
-    lines = [
-        f"world: {world.width}x{world.height} grid, horizon K={world.horizon}, "
-        f"{int(world.obstacle.sum())} obstacle cells, stop at source: {world.stop_at_source}"
-    ]
-    for j, name in enumerate(world.source_names):
-        x, y = world.xy(world.source_cells[j])
-        kind = "static" if world.source_motion[j] == 0 else f"random walk p={world.source_motion[j]:g}"
-        lines.append(f"  source {j} '{name}' at ({x}, {y}), {kind}, peak signal {world.source_amplitude[j]:.3g}")
-    for r, name in enumerate(world.region_names):
-        count = int((world.region_of == r).sum())
-        lines.append(f"  region {r} '{name}': {count} cells{', risky' if world.region_risky[r] else ''}")
-    return "\n".join(lines)

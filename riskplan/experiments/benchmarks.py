@@ -318,8 +318,9 @@ def bench_team(quick: bool) -> list[dict]:
     """100 robots (W_i = 1000) and 1000 robots (W_i = 100) on a random geometric graph, vs one robot with the same
     total samples (W = 100000)."""
     from riskplan.run.build import build_setup
+    from riskplan.run.checkpoint import State
     from riskplan.run.compose import compose
-    from riskplan.run.training import State, iterate
+    from riskplan.run.training import iterate
 
     def iteration_time(overrides: list[str]) -> float:
         setup = build_setup(compose(overrides))
@@ -454,10 +455,11 @@ class Point:
     def __init__(self, dimension: str, value: float, overrides: list[str]):
         from riskplan.engine import rng
         from riskplan.engine.rollout import simulate
-        from riskplan.run.build import build_setup
+        from riskplan.run.build import build_setup, starts
+        from riskplan.run.checkpoint import State
         from riskplan.run.compose import compose
         from riskplan.run.schedules import samples_at
-        from riskplan.run.training import State, iterate, starts
+        from riskplan.run.training import iterate
 
         self.dimension, self.value, self.overrides = dimension, value, list(overrides)
         setup = build_setup(compose(self.overrides))

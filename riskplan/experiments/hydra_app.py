@@ -34,7 +34,8 @@ _task_stderr: list = []  # the terminal's stderr, handed back to the task while 
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
 def task(cfg: DictConfig) -> float | None:
     """Train one job in Hydra's output directory; record success or failure in status.json."""
-    from riskplan.run.training import NumericalTrouble, train
+    from riskplan.run.evaluation import NumericalTrouble
+    from riskplan.run.training import train
 
     out = Path(HydraConfig.get().runtime.output_dir)
     single = HydraConfig.get().mode == RunMode.RUN

@@ -271,7 +271,7 @@ def compute_landscape(
 
     from riskplan.experiments.output_manifest import Output, claim
     from riskplan.run.build import build_setup
-    from riskplan.run.intervals import provenance
+    from riskplan.run.provenance import provenance
 
     setup = build_setup(cfg)
     config = setup.config

@@ -312,7 +312,8 @@ def job_threads() -> int | None:
 
 def _train(cfg: DictConfig, out: Path, resume: bool) -> dict:
     """Train (or resume); any error fails this job alone and is returned in its record."""
-    from riskplan.run.training import NumericalTrouble, train
+    from riskplan.run.evaluation import NumericalTrouble
+    from riskplan.run.training import train
     from riskplan.util.errors import BadInput
 
     try:

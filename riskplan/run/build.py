@@ -83,3 +83,9 @@ def logit_bound(world: World, thetas: np.ndarray) -> float:
     """
     with np.errstate(over="ignore", invalid="ignore"):
         return float(np.max(np.abs(np.asarray(thetas, dtype=float)) @ np.abs(world.source_amplitude)))
+
+
+def starts(setup: Setup) -> np.ndarray:
+    """Start cell of each robot (all at world.start unless team.starts is given)."""
+    cells = setup.world.starts
+    return np.repeat(cells, setup.robots) if len(cells) == 1 else cells

@@ -1,23 +1,14 @@
-"""Final figures of a run: bootstrap intervals on the evaluation episodes, and provenance."""
+"""Final figures of a run: the point values of mean, VaR and CVaRs on the evaluation episodes, with 95% percentile-bootstrap intervals."""
 
 from __future__ import annotations
-
-import os
-import platform
-import subprocess
-from importlib import metadata
-from pathlib import Path
 
 import numpy as np
 from numba import njit, prange
 
 from riskplan.engine.risk_measures import cvar, tail_count, value_at_risk
 from riskplan.engine.rng import BOOTSTRAP, GOLDEN, episode_state, mix, stream_key
-from riskplan.version import __version__
 
-SCHEMA_VERSION = 1
 REPORT_BETAS = (0.05, 0.1, 0.2)
-PACKAGES = ("numpy", "numba", "pandas", "pyarrow", "hydra-core", "omegaconf", "mcap", "matplotlib", "typer")
 
 
 def bootstrap_intervals(z: np.ndarray, beta: float, resamples: int, seed: int) -> dict[str, dict[str, float]]:
@@ -73,33 +64,3 @@ def _bootstrap(z_sorted, betas, tails, key, out):
             for k in range(i):
                 tail += counts[k] * (z_sorted[k] - v)
             out[b, 2 + t] = v + tail / (betas[t] * n)
-
-
-def provenance() -> dict:
-    """Versions, host and git revision, for summary.json and the MCAP metadata."""
-    versions = {}
-    for name in PACKAGES:
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            versions[name] = None
-    return {
-        "riskplan": __version__,
-        "git_sha": _git_sha(),
-        "python": platform.python_version(),
-        "platform": platform.platform(),
-        "host": platform.node(),
-        "cpus": os.cpu_count(),
-        "packages": versions,
-    }
-
-
-def _git_sha() -> str | None:
-    """HEAD of the repository riskplan runs from, if any."""
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent, capture_output=True, text=True, timeout=5
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() or None if out.returncode == 0 else None

@@ -14,7 +14,7 @@ import os
 import signal
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -29,10 +29,11 @@ from riskplan.engine.rollout import simulate
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.engine.team.network import network_metadata
 from riskplan.engine.world import world_map
-from riskplan.run.budget import EVAL_BATCH
-from riskplan.run.build import Setup, build_setup, logit_bound
+from riskplan.run.build import Setup, build_setup, logit_bound, starts
+from riskplan.run.checkpoint import CHECKPOINT, State, load_checkpoint, save_checkpoint
+from riskplan.run.evaluation import AVERAGE, NumericalTrouble, check_finite, evaluate, sample_paths, summarize
 from riskplan.run.foxglove_layout import write_layout
-from riskplan.run.intervals import SCHEMA_VERSION, bootstrap_intervals, provenance
+from riskplan.run.provenance import provenance
 from riskplan.run.record import RunLog, read_log, resume_log
 from riskplan.run.results import Run
 from riskplan.run.schedules import risk_level, samples_at, step_size
@@ -41,27 +42,10 @@ from riskplan.util.lock import hold
 from riskplan.util.paths import atomic_path, check_output_dir, write_atomic
 
 if TYPE_CHECKING:  # pandas (0.2-0.4 s to import, with pyarrow) loads after the training loop, see _train_locked
-    import pandas as pd
+    pass
 
-CHECKPOINT = "checkpoint"
 FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # written when a run ends
-AVERAGE = -1  # the `robot` id of the network average in team tables
-CRASH_ENV = "RISKPLAN_TEST_KILL_IN_CHECKPOINT"  # fault injection for the crash-safety tests
 STOP_ENV = "RISKPLAN_TEST_STOP_AFTER_ITERATION"  # SIGSTOP after logging this iteration, so a test can SIGKILL there
-
-
-class NumericalTrouble(RuntimeError):
-    """theta or a gradient stopped being finite; the last good checkpoint is kept."""
-
-
-@dataclass
-class State:
-    """What a checkpoint holds: the next iteration, every robot's theta, the mixer's buffers, the rows so far."""
-
-    iteration: int
-    thetas: np.ndarray  # (N, M)
-    mixer: dict
-    rows: list[dict]
 
 
 def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
@@ -117,13 +101,6 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
             )
         )
     return State(l + 1, new_thetas, setup.mixer.snapshot(), state.rows + rows), rows  # copied when read
-
-
-def check_finite(what: str, *arrays) -> None:
-    """NumericalTrouble unless every value is finite: a NaN or infinity is never recorded as a result."""
-    for values in arrays:
-        if not np.all(np.isfinite(values)):
-            raise NumericalTrouble(f"{what} is not finite (overflow); use smaller rewards or fewer steps")
 
 
 def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int) -> np.ndarray:
@@ -232,196 +209,6 @@ def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
             f"{per_iteration} rows per iteration); start the run again",
         )
     return metrics.to_dict("records")
-
-
-def starts(setup: Setup) -> np.ndarray:
-    """Start cell of each robot (all at world.start unless team.starts is given)."""
-    cells = setup.world.starts
-    return np.repeat(cells, setup.robots) if len(cells) == 1 else cells
-
-
-def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The evaluated policies: (robot ids, thetas, start cells); teams add the network average (robot -1)."""
-    ids = np.arange(setup.robots)
-    cells = starts(setup)
-    if not setup.team:
-        return ids, thetas, cells
-    return np.append(ids, AVERAGE), np.vstack([thetas, thetas.mean(axis=0)]), np.append(cells, cells[0])
-
-
-def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
-    """The final policies on fresh episodes (own stream), one row per episode."""
-    import pandas as pd
-
-    count = setup.params.train.eval_episodes
-    ids, evaluated, cells = policies(setup, thetas)
-    frames = []
-    for p, robot in enumerate(ids):
-        parts = []
-        for first in range(0, count, EVAL_BATCH):
-            key = np.array([rng.stream_key(setup.params.seed, rng.EVAL, p, first)], dtype=np.uint64)
-            size = min(EVAL_BATCH, count - first)
-            parts.append(simulate(setup.world, setup.kernel, evaluated[p : p + 1], cells[p : p + 1], key, size))
-        frames.append(
-            pd.DataFrame(
-                {
-                    "episode": np.arange(count, dtype=np.int64),
-                    "robot": np.full(count, robot, dtype=np.int64),
-                    "total_reward": np.concatenate([b.total_reward for b in parts]),
-                    "risky_steps": np.concatenate([b.risky_steps for b in parts]),
-                    "source_reached": np.concatenate([b.source_reached for b in parts]),
-                    "steps": np.concatenate([b.steps for b in parts]),
-                }
-            )
-        )
-    return pd.concat(frames, ignore_index=True)
-
-
-def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
-    """A few sampled paths of the initial and the final policies (own stream), one row per step."""
-    import pandas as pd
-
-    count = setup.params.train.paths
-    frames = []
-    for name, policy_thetas in (("initial", np.tile(setup.theta0, (setup.robots, 1))), ("final", thetas)):
-        ids, evaluated, cells = policies(setup, policy_thetas)
-        keys = rng.robot_keys(setup.params.seed, rng.PATHS, 0 if name == "initial" else 1, len(ids))
-        batch = simulate(setup.world, setup.kernel, evaluated, cells, keys, count, record=True)
-        alive = batch.path_cells >= 0
-        episode, step = np.nonzero(alive)
-        x, y = setup.world.xy(batch.path_cells[alive])
-        frames.append(
-            pd.DataFrame(
-                {
-                    "policy": name,
-                    "episode": (episode % max(count, 1)).astype(np.int64),
-                    "robot": ids[episode // max(count, 1)].astype(np.int64),
-                    "step": step.astype(np.int64),
-                    "x": x.astype(np.int64),
-                    "y": y.astype(np.int64),
-                    "reward": batch.path_rewards[alive],
-                }
-            )
-        )
-    return pd.concat(frames, ignore_index=True)
-
-
-def summarize(
-    setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.DataFrame, train_seconds: float
-) -> dict:
-    """summary.json: headline policy's figures with intervals, per-policy basics, timing, provenance."""
-    params = setup.params
-    headline = AVERAGE if setup.team else 0
-    z = evaluation.loc[evaluation.robot == headline]
-    check_finite("the evaluation's total reward", evaluation.total_reward.to_numpy())
-    figures = bootstrap_intervals(z.total_reward.to_numpy(), params.risk.beta, params.train.bootstrap, params.seed)
-    check_finite("the summary's figures", *[v for f in figures.values() for v in f.values()])
-    steps = float(metrics.samples[metrics.robot >= 0].sum())
-    per_policy = {}
-    for robot, group in evaluation.groupby("robot"):
-        per_policy[str(robot)] = {
-            **{k: float(v) for k, v in summary_stats(group.total_reward.to_numpy(), params.risk.beta).items()},
-            "risky_fraction": float((group.risky_steps > 0).mean()),
-            "source_reached": {
-                name: float((group.source_reached == j).mean()) for j, name in enumerate(setup.world.source_names)
-            }
-            | {"none": float((group.source_reached < 0).mean())},
-        }
-    _, final_thetas, _ = policies(setup, state.thetas)
-    return {
-        "schema_version": SCHEMA_VERSION,
-        "experiment": params.experiment,
-        "risk": params.risk.measure,
-        "beta": params.risk.beta,
-        "robots": setup.robots,
-        "headline_robot": headline,
-        **figures,
-        "risky_fraction": per_policy[str(headline)]["risky_fraction"],
-        "source_reached": per_policy[str(headline)]["source_reached"],
-        "theta_final": final_thetas[-1].tolist() if setup.team else final_thetas[0].tolist(),
-        "policies": per_policy,
-        "iterations": state.iteration,
-        "eval_episodes": params.train.eval_episodes,
-        "wall_time": train_seconds,
-        "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else None,
-        "provenance": provenance(),
-    }
-
-
-def save_checkpoint(out: Path, state: State) -> None:
-    """Write the checkpoint atomically: temp file, fsync, rename, fsync the directory."""
-    tmp = out / f"{CHECKPOINT}.tmp"
-    payload = {
-        "iteration": state.iteration,
-        "thetas": state.thetas.tolist(),
-        "mixer": {k: np.asarray(v).tolist() for k, v in state.mixer.items()},
-        "mixer_dtypes": {k: str(np.asarray(v).dtype) for k, v in state.mixer.items()},
-    }
-    with open(tmp, "w") as handle:
-        json.dump(payload, handle)
-        handle.flush()
-        os.fsync(handle.fileno())
-    if os.environ.get(CRASH_ENV) == str(state.iteration):
-        os.kill(os.getpid(), signal.SIGKILL)
-    os.replace(tmp, out / CHECKPOINT)
-    directory = os.open(out, os.O_RDONLY)
-    try:
-        os.fsync(directory)
-    finally:
-        os.close(directory)
-
-
-def load_checkpoint(out: Path, setup: Setup) -> State:
-    """The last good checkpoint of a run directory (a half-written temp file is ignored), checked against the
-    config: a checkpoint that cannot be this run's is bad input, never a run that continues."""
-    path = out / CHECKPOINT
-    if not path.exists():
-        raise BadInput(str(out), "has no checkpoint to resume from; start it again with riskplan train")
-    try:
-        payload = json.loads(path.read_text())
-        thetas = np.array(payload["thetas"], dtype=float)
-        mixer = {k: np.array(v, dtype=np.dtype(payload["mixer_dtypes"][k])) for k, v in payload["mixer"].items()}
-        iteration = payload["iteration"]
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
-        raise BadInput(
-            str(path),
-            f"is damaged ({type(err).__name__}: {err}); it was not written by riskplan, "
-            f"which replaces checkpoints atomically: start the run again",
-        ) from None
-    if type(iteration) is not int or iteration < 1:
-        raise BadInput(
-            str(path),
-            f"holds iteration {iteration!r}; a checkpoint is written after iteration 1 or later: start the run again",
-        )
-    if thetas.shape != (setup.robots, setup.world.sources):
-        raise BadInput(
-            str(out),
-            f"checkpoint holds {thetas.shape} thetas, the config needs "
-            f"{(setup.robots, setup.world.sources)}; only train.iterations may change on resume",
-        )
-    if not (np.all(np.isfinite(thetas)) and math.isfinite(logit_bound(setup.world, thetas))):
-        raise BadInput(str(path), "holds a theta that is not finite (or overflows the softmax); start the run again")
-    expected = setup.mixer.state()
-    for key, value in mixer.items():
-        if (
-            key not in expected
-            or value.shape != expected[key].shape
-            or (value.dtype.kind == "f" and not np.all(np.isfinite(value)))
-        ):
-            raise BadInput(
-                str(path),
-                f"holds a consensus state '{key}' that does not fit this team (or is not finite); start the run again",
-            )
-    if set(mixer) != set(expected):
-        raise BadInput(str(path), "lacks part of the consensus state of this team; start the run again")
-    if iteration > setup.params.train.iterations:
-        raise BadInput(
-            "train.iterations",
-            f"got {setup.params.train.iterations}, but {out} is checkpointed "
-            f"at iteration {iteration}; a resumed run can only be extended: give "
-            f"train.iterations >= {iteration}",
-        )
-    return State(iteration, thetas, mixer, [])
 
 
 def prepare_resume(config, out: Path) -> tuple[Setup, bool]:

@@ -108,8 +108,7 @@ def plot_band(ax, table: pd.DataFrame, colour: str, label: str, style: str = "-"
 
 def _world_map(config: dict) -> dict | None:
     from riskplan.engine.world import world_map
-    from riskplan.run.build import build_setup
-    from riskplan.run.training import starts
+    from riskplan.run.build import build_setup, starts
 
     try:
         setup = build_setup(config)
