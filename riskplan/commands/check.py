@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import typer
 
-from riskplan.commands.common import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
+from riskplan.commands.common import (
+    CONFIG_DIR_HELP,
+    OVERRIDES_HELP,
+    PASS_THROUGH,
+    bad_input_exits,
+    reject_hydra_flags,
+    with_config_dirs,
+)
 
 
 def register(app: typer.Typer) -> None:
@@ -12,7 +19,9 @@ def register(app: typer.Typer) -> None:
     app.command(context_settings=PASS_THROUGH)(bad_input_exits(check))
 
 
-def check(overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP, show_default=False)) -> None:
+def check(
+    overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP + CONFIG_DIR_HELP, show_default=False),
+) -> None:
     """Compose and validate a config without running it; print it, the world, the team and Assumptions 5-6."""
     from omegaconf import OmegaConf
 
@@ -20,7 +29,7 @@ def check(overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP
     from riskplan.run.build import build_setup
     from riskplan.run.compose import compose
 
-    args = list(overrides or [])
+    args = with_config_dirs(list(overrides or []))
     reject_hydra_flags(args, "check prints the composed config itself")
     cfg = compose(args, validate=False)
     setup = build_setup(cfg)

@@ -10,6 +10,7 @@ import typer
 from typer.core import TyperGroup
 
 from riskplan.util.errors import BadInput
+from riskplan.util.paths import hydra_quote
 
 # typer vendors click in recent releases and depends on it in older ones: find click's base exception either way
 ClickException = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
@@ -66,6 +67,46 @@ def bad_input_exits(command):
             raise typer.Exit(1) from None
 
     return wrapper
+
+
+CONFIG_DIR_FLAGS = ("--config-dir", "-cd")
+CONFIG_DIR_HELP = (
+    " --config-dir DIR (-cd DIR) adds DIR to the config search path, after riskplan's own conf/: your own "
+    "experiment=mine then loads DIR/experiment/mine.yaml (the same as hydra.searchpath=[file://DIR])."
+)
+
+
+def with_config_dirs(args: list[str]) -> list[str]:
+    """Hydra's `--config-dir DIR` / `-cd DIR` (or `--config-dir=DIR`) as the override it amounts to,
+    `hydra.searchpath=[file://DIR]` (merged into a hydra.searchpath the user typed): Hydra puts both after the
+    primary config directory. A directory that does not exist is bad input."""
+    rest, dirs, flags = [], [], iter(args)
+    for arg in flags:
+        flag, given, value = arg.partition("=")
+        if flag not in CONFIG_DIR_FLAGS:
+            rest.append(arg)
+            continue
+        value = value if given else next(flags, None)
+        if not value:
+            raise BadInput(f"option '{flag}'", "needs a directory, e.g. -cd my_configs")
+        path = Path(value).expanduser().resolve()
+        if not path.is_dir():
+            raise BadInput(
+                f"option '{flag}'",
+                f"{value} is not a directory; give the folder that holds your config groups "
+                f"(e.g. my_configs, with my_configs/experiment/mine.yaml)",
+            )
+        dirs.append(hydra_quote(f"file://{path}"))
+    if not dirs:
+        return rest
+    typed = [i for i, arg in enumerate(rest) if arg.split("=", 1)[0].lstrip("+") == "hydra.searchpath"]
+    if typed:  # the user's list first, then the directories
+        key, _, value = rest[typed[-1]].partition("=")
+        inner = value.strip()[1:-1].strip() if value.strip().startswith("[") else value.strip()
+        rest[typed[-1]] = f"{key}=[{', '.join(([inner] if inner else []) + dirs)}]"
+    else:
+        rest.append(f"hydra.searchpath=[{', '.join(dirs)}]")
+    return rest
 
 
 def reject_hydra_flags(args: list[str], instead: str) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from riskplan.commands.common import PASS_THROUGH, bad_input_exits
+from riskplan.commands.common import CONFIG_DIR_HELP, PASS_THROUGH, bad_input_exits, with_config_dirs
 
 SWEEP_HELP = (
     "Hydra overrides; comma lists and range(...) sweep, e.g. risk.beta=0.05,0.1,0.2 'seed=range(0,5)' "
@@ -21,7 +21,7 @@ def register(app: typer.Typer) -> None:
     @app.command(context_settings=PASS_THROUGH)
     @bad_input_exits
     def sweep(
-        overrides: list[str] | None = typer.Argument(None, help=SWEEP_HELP, show_default=False),
+        overrides: list[str] | None = typer.Argument(None, help=SWEEP_HELP + CONFIG_DIR_HELP, show_default=False),
         jobs: int | None = typer.Option(
             None,
             "--jobs",
@@ -34,5 +34,5 @@ def register(app: typer.Typer) -> None:
         """Run a grid of experiments (a Hydra multirun) into outputs/sweeps/<timestamp>/, one folder per job."""
         from riskplan.experiments.sweeping import report_outcome, run_sweep  # here: `riskplan train` starts without it
 
-        outcome = run_sweep(list(overrides or []), jobs)
+        outcome = run_sweep(with_config_dirs(list(overrides or [])), jobs)
         raise typer.Exit(report_outcome(outcome))

@@ -9,11 +9,13 @@ from pathlib import Path
 import typer
 
 from riskplan.commands.common import (
+    CONFIG_DIR_HELP,
     HYDRA_FLAGS,
     MULTIRUN_FLAGS,
     PASS_THROUGH,
     TRAIN_OVERRIDES_HELP,
     bad_input_exits,
+    with_config_dirs,
 )
 from riskplan.util.errors import BadInput
 from riskplan.util.lock import LOCK, hold, holder
@@ -26,7 +28,7 @@ def register(app: typer.Typer) -> None:
 
 
 def train(
-    overrides: list[str] | None = typer.Argument(None, help=TRAIN_OVERRIDES_HELP, show_default=False),
+    overrides: list[str] | None = typer.Argument(None, help=TRAIN_OVERRIDES_HELP + CONFIG_DIR_HELP, show_default=False),
     resume: Path | None = typer.Option(
         None,
         "--resume",
@@ -41,7 +43,7 @@ def train(
     from riskplan.experiments.hydra_app import RunFailed, run_composed, run_hydra
     from riskplan.run.compose import check_hydra_args, compose, parse_overrides
 
-    args = list(overrides or [])
+    args = with_config_dirs(list(overrides or []))
     multirun = sorted(MULTIRUN_FLAGS & set(args))
     if multirun:
         raise BadInput(

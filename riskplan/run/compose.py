@@ -38,7 +38,7 @@ def parse_overrides(overrides: list[str]) -> list:
         try:
             parsed.extend(parser.parse_overrides([text]))
         except HydraException:
-            raise BadInput(f"override '{text}'", f"malformed; {GRAMMAR}") from None
+            raise BadInput(f"override '{text}'", unquoted_problem(text) or f"malformed; {GRAMMAR}") from None
         except RecursionError:  # the override grammar recurses once per bracket
             raise BadInput(
                 f"override '{_short(text)}'",
@@ -47,6 +47,27 @@ def parse_overrides(overrides: list[str]) -> list:
         if not parsed[-1].key_or_group:  # `=5`: Hydra parses an empty key
             raise BadInput(f"override '{text}'", f"malformed; {GRAMMAR}")
     return parsed
+
+
+# What Hydra's override grammar (OverrideLexer.g4) takes in an unquoted value, besides its structure ([]{}(),:=)
+UNQUOTED = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-/\\+.$%*@?| \t[]{}(),:=~'\"")
+
+
+def unquoted_problem(text: str) -> str | None:
+    """Why a key=value override with characters Hydra takes only inside quotes (non-ASCII letters, symbols) does
+    not parse, with the quoted form that does; None when that is not the problem."""
+    key, equals, value = text.partition("=")
+    if not equals or value[:1] in ("'", '"'):
+        return None
+    outside = list(dict.fromkeys(c for c in value if c not in UNQUOTED))
+    if not outside:
+        return None
+    shown = ", ".join(f"'{c}'" for c in outside)
+    quoted = f"{key}='" + value.replace("\\", "\\\\").replace("'", "\\'") + "'"
+    return (
+        f"the value holds {shown}, which Hydra's override grammar takes only inside quotes; write {quoted} "
+        f"(in a shell: \"{quoted}\")"
+    )
 
 
 def _short(text: str, limit: int = 60) -> str:

@@ -283,9 +283,10 @@ def constant_keys(combos: list[list[str]], swept: set[str] = frozenset()) -> lis
     return constant if len(constant) < len(values) else []
 
 
-def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
+def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job], list[str]]:
     """Compose every combination against the schema (BadInput on the first failure), then check each with the
-    model. Compositions are shared between combinations that choose the same config groups."""
+    model. Compositions are shared between combinations that choose the same config groups. `search`: the
+    hydra.searchpath overrides (--config-dir) every composition needs to find the user's own config files."""
     from hydra import compose, initialize_config_dir
     from hydra._internal.config_loader_impl import ConfigLoaderImpl
     from hydra.core.global_hydra import GlobalHydra
@@ -313,7 +314,7 @@ def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
                 keys = [o for o in parsed if not is_group(o, CONF_DIR)]
                 try:
                     if groups not in bases:
-                        bases[groups] = compose(config_name="config", overrides=list(groups))
+                        bases[groups] = compose(config_name="config", overrides=[*search, *groups])
                     cfg = copy.deepcopy(bases[groups])
                     ConfigLoaderImpl._apply_overrides_to_config(keys, cfg)
                 except (HydraException, OmegaConfBaseException) as err:
@@ -321,8 +322,8 @@ def validate(combos: list[list[str]]) -> tuple[list[Job], list[str]]:
                     if choice is not None:  # a value outside a key's Choices fails only this job
                         jobs.append(Job(list(combo), combo_sha(combo), str(BadInput(*choice))))
                         continue
-                    riskplan_compose(combo, validate=False)  # raises BadInput naming the key
-                    cfg = compose(config_name="config", overrides=combo)  # composes after all: use Hydra's own
+                    riskplan_compose([*search, *combo], validate=False)  # raises BadInput naming the key
+                    cfg = compose(config_name="config", overrides=[*search, *combo])  # composes after all
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     try:

@@ -79,7 +79,8 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     if "hydra.sweep.subdir" in hydra_keys:
         check_subdir(hydra_keys["hydra.sweep.subdir"].value(), len(task_ovs) > 0)
     combos = expand(task_ovs, args)
-    job_list, notes = validate(combos)
+    search = [o.input_line for o in hydra_ovs if o.key_or_group == "hydra.searchpath"]  # --config-dir
+    job_list, notes = validate(combos, search)
     check_duplicates(job_list, task_ovs)
     if all(job.invalid for job in job_list):
         first = job_list[0].invalid

@@ -1,0 +1,89 @@
+"""Researchers' own experiment files: `--config-dir DIR` / `-cd DIR` on train, check and sweep (the same as
+hydra.searchpath), and values that Hydra's grammar takes only quoted."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from riskplan.cli import app
+from riskplan.commands.common import with_config_dirs
+
+runner = CliRunner()
+MINE = """# @package _global_
+defaults:
+  - override /risk: neutral
+experiment: mine
+world:
+  horizon: 7
+train:
+  iterations: 3
+  samples: 200
+  eval_episodes: 300
+  bootstrap: 20
+  paths: 2
+"""
+
+
+@pytest.fixture
+def config_dir(tmp_path) -> Path:
+    folder = tmp_path / "my configs"  # a space: the path is quoted in the override it becomes
+    (folder / "experiment").mkdir(parents=True)
+    (folder / "experiment" / "mine.yaml").write_text(MINE)
+    return folder
+
+
+def test_config_dir_becomes_a_searchpath_after_the_users_own(config_dir, tmp_path):
+    other = tmp_path / "other"
+    other.mkdir()
+    assert with_config_dirs(["-cd", str(config_dir), "seed=1"]) == [
+        "seed=1",
+        f"hydra.searchpath=['file://{config_dir}']",
+    ]
+    merged = with_config_dirs([f"--config-dir={config_dir}", f"hydra.searchpath=['file://{other}']"])
+    assert merged == [f"hydra.searchpath=['file://{other}', 'file://{config_dir}']"]
+
+
+@pytest.mark.parametrize("flag", ["-cd", "--config-dir"])
+def test_check_finds_an_experiment_in_the_users_folder(config_dir, flag):
+    result = runner.invoke(app, ["check", flag, str(config_dir), "experiment=mine"])
+    assert result.exit_code == 0, result.output
+    assert "experiment: mine" in result.stdout and "measure: neutral" in result.stdout
+    assert "horizon K=7" in result.stdout
+
+
+def test_train_runs_the_users_experiment(config_dir, tmp_path):
+    out = tmp_path / "run"
+    result = runner.invoke(app, ["train", "-cd", str(config_dir), "experiment=mine", f"hydra.run.dir={out}"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["experiment"], summary["risk"], summary["iterations"]) == ("mine", "neutral", 3)
+
+
+@pytest.mark.slow
+def test_sweep_runs_the_users_experiment_in_every_job(config_dir, tmp_path):
+    out = tmp_path / "sweep"
+    result = runner.invoke(
+        app, ["sweep", "-cd", str(config_dir), "experiment=mine", "seed=0,1", f"hydra.sweep.dir={out}"]
+    )
+    assert result.exit_code == 0, result.output
+    summaries = sorted(out.glob("*/summary.json"))
+    assert len(summaries) == 2
+    assert {json.loads(s.read_text())["experiment"] for s in summaries} == {"mine"}
+
+
+def test_a_missing_config_dir_is_one_line_and_exit_2(tmp_path):
+    result = runner.invoke(app, ["check", "-cd", str(tmp_path / "nope"), "experiment=mine"])
+    assert result.exit_code == 2
+    assert result.stderr.count("\n") == 1 and "is not a directory" in result.stderr
+
+
+def test_a_value_hydra_takes_only_quoted_names_the_characters_and_the_quoted_form_works():
+    bad = runner.invoke(app, ["check", "world.sources.0.name=Quelle ☢ 源"])
+    assert bad.exit_code == 2
+    assert "'☢', '源'" in bad.stderr and "world.sources.0.name='Quelle ☢ 源'" in bad.stderr
+    good = runner.invoke(app, ["check", "world.sources.0.name='Quelle ☢ 源'"])
+    assert good.exit_code == 0 and "source 0 'Quelle ☢ 源'" in good.stdout
