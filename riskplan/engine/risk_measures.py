@@ -100,8 +100,6 @@ class RiskSpec(NamedTuple):
 
 def risk_spec(risk: Any) -> RiskSpec:
     """The checked RiskSpec of a risk node: a mapping ({"measure": "wang", "eta": 0.75}) or an object with attributes."""
-    if isinstance(risk, RiskSpec):
-        return risk
     measure = _field(risk, "measure")
     if isinstance(measure, Enum):
         measure = measure.value if isinstance(measure.value, str) else measure.name
@@ -166,7 +164,7 @@ def objective_gradient(z: np.ndarray, scores: np.ndarray, risk: Any, *, baseline
         )
     if spec.measure == "entropic":
         return entropic_gradient(z, scores, spec.eta, baseline=baseline)
-    return spectral_gradient(z, scores, spec, baseline=baseline)
+    return _spectral_gradient(z, scores, spec, baseline)
 
 
 def distortion(u: np.ndarray, risk: Any) -> np.ndarray:
@@ -219,7 +217,11 @@ def spectral_gradient(z: np.ndarray, scores: np.ndarray, risk: Any, *, baseline:
     """
     spec = _spectral(risk)
     z = _sample(z)
-    scores = _scores(z, scores)
+    return _spectral_gradient(z, _scores(z, scores), spec, baseline)
+
+
+def _spectral_gradient(z: np.ndarray, scores: np.ndarray, spec: RiskSpec, baseline: bool) -> np.ndarray:
+    """`spectral_gradient` of checked arguments."""
     n = z.shape[-1]
     rows = np.ascontiguousarray(z.reshape(-1, n))
     out = np.empty((rows.shape[0], scores.shape[-1]))

@@ -1,0 +1,588 @@
+"""Risk measures behind one interface (design.md, "Risk measures"): objective and objective_gradient for neutral,
+cvar, wang, mean_cvar and entropic, against closed forms, the reference estimators, and an exactly enumerated world.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+from statistics import NormalDist
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from riskplan.config.schema import Measure, RiskConf, RiskplanConf
+from riskplan.engine import rng
+from riskplan.engine.policy import move_features, probabilities, scores
+from riskplan.engine.risk_measures import normal_cdf, normal_quantile
+from riskplan.engine.rollout import simulate
+from riskplan.risk import (
+    MEASURES,
+    cvar,
+    cvar_gradient,
+    distortion,
+    l_statistic,
+    mean_gradient,
+    objective,
+    objective_gradient,
+    risk_spec,
+    spectral_gradient,
+    spectral_weights,
+    spectrum,
+    tail_count,
+    value_at_risk,
+)
+from riskplan.run.build import build_setup
+
+UNIT = NormalDist()
+MU, SIGMA = 3.0, 2.0
+
+
+def normal_cvar(mu: float, sigma: float, beta: float) -> float:
+    """Lower-tail CVaR of N(mu, sigma^2): mu - sigma * phi(Phi^-1(beta)) / beta."""
+    return mu - sigma * UNIT.pdf(UNIT.inv_cdf(beta)) / beta
+
+
+def closed_form(risk: dict) -> float:
+    """The measure of N(MU, SIGMA^2)."""
+    measure = risk["measure"]
+    if measure == "wang":
+        return MU - risk["eta"] * SIGMA
+    if measure == "entropic":
+        return MU - risk["eta"] * SIGMA**2 / 2.0
+    if measure == "cvar":
+        return normal_cvar(MU, SIGMA, risk["beta"])
+    return (1.0 - risk["weight"]) * MU + risk["weight"] * normal_cvar(MU, SIGMA, risk["beta"])
+
+
+def standard_error(z: np.ndarray, risk: dict) -> float:
+    """The plug-in estimate's standard error: delta method (entropic) or the L-statistic's influence function, whose
+    variance is Var h(Z) with h(z) = -int_z^max phi(F(t)) dt (spectral)."""
+    if risk["measure"] == "entropic":
+        e = np.exp(-risk["eta"] * (z - z.mean()))
+        return float(e.std() / (risk["eta"] * e.mean() * math.sqrt(z.size)))
+    s = np.sort(z)
+    phi = spectrum(np.arange(1, z.size) / z.size, risk)
+    h = np.concatenate([-np.cumsum((phi * np.diff(s))[::-1])[::-1], [0.0]])
+    return float(h.std() / math.sqrt(z.size))
+
+
+def reference_spectral_gradient(z, s, risk, baseline):
+    """The spectral estimator written out in numpy: argsort, h by a reversed cumulative sum, then the mean of S (h - b)."""
+    n = z.size
+    order = np.argsort(z, kind="stable")
+    phi = spectrum(np.arange(1, n) / n, risk)
+    h_sorted = np.concatenate([-np.cumsum((phi * np.diff(z[order]))[::-1])[::-1], [0.0]])
+    h = np.empty(n)
+    h[order] = h_sorted
+    if baseline:
+        h = h - h.mean()
+    return h @ s / n
+
+
+def samples(seed: int, n: int, ties: bool) -> np.ndarray:
+    """n normal samples, rounded to a coarse grid (many ties) when `ties`."""
+    z = np.random.default_rng(seed).normal(1.0, 3.0, n)
+    return np.round(z) if ties else z
+
+
+def random_scores(seed: int, n: int, m: int = 2) -> np.ndarray:
+    return np.random.default_rng(seed + 1000).normal(0.0, 1.0, (n, m))
+
+
+# --- Phi and Phi^-1 --------------------------------------------------------------------------------------------------
+
+
+def test_normal_quantile_matches_statistics_inv_cdf_including_the_tails():
+    p = np.concatenate(
+        [
+            np.logspace(-300, -1, 400),
+            np.linspace(0.001, 0.999, 999),
+            0.5 + np.logspace(-15, -2, 60),
+            0.5 - np.logspace(-15, -2, 60),
+            1.0 - np.logspace(-16, -1, 200),
+            [0.02425, 0.97575, 0.5],  # Acklam's region boundaries and the centre
+        ]
+    )
+    expected = np.array([UNIT.inv_cdf(float(q)) for q in p])
+    got = normal_quantile(p)
+    assert got.shape == p.shape
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=0.0)
+    assert normal_quantile(0.5) == 0.0
+    assert np.all(np.diff(got[np.argsort(p)]) >= 0)  # monotone
+
+
+def test_normal_quantile_edges_and_shapes():
+    assert normal_quantile(0.0) == -np.inf
+    assert normal_quantile(1.0) == np.inf
+    assert np.all(np.isnan(normal_quantile([-0.1, 1.1, np.nan])))
+    grid = np.array([[0.1, 0.2], [0.3, 0.4]])
+    np.testing.assert_allclose(normal_quantile(grid), [[UNIT.inv_cdf(q) for q in row] for row in grid], rtol=1e-12)
+
+
+def test_normal_cdf_matches_statistics_and_inverts_the_quantile():
+    x = np.linspace(-3.0, 8.0, 1101)  # where NormalDist's 1 + erf is accurate
+    np.testing.assert_allclose(normal_cdf(x), [UNIT.cdf(v) for v in x], rtol=1e-13)
+    p = np.concatenate([np.logspace(-300, -1, 300), np.linspace(0.1, 0.9, 81)])
+    x = normal_quantile(p)
+    # relative accuracy in the tails: Phi's condition number there is ~x^2, so round-off of x costs up to ~x^2 eps
+    assert np.all(np.abs(normal_cdf(x) - p) <= 1e-15 * (1.0 + x**2) * p)
+    np.testing.assert_allclose(normal_cdf(-x), 1.0 - p, rtol=1e-15, atol=1e-16)  # the upper tail by symmetry
+    assert normal_cdf(-np.inf) == 0.0 and normal_cdf(np.inf) == 1.0
+
+
+# --- distortions, spectra and weights --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "risk",
+    [
+        {"measure": "wang", "eta": 0.5},
+        {"measure": "wang", "eta": 1.5},
+        {"measure": "mean_cvar", "beta": 0.25, "weight": 0.3},
+        {"measure": "cvar", "beta": 0.1},
+        {"measure": "neutral"},
+    ],
+)
+def test_spectrum_is_the_derivative_of_the_distortion(risk):
+    u = np.linspace(0.003, 0.997, 300)
+    u = u[np.abs(u - risk.get("beta", 2.0)) > 1e-3]  # away from cvar's kink
+    step = 1e-6
+    slope = (distortion(u + step, risk) - distortion(u - step, risk)) / (2 * step)
+    np.testing.assert_allclose(slope, spectrum(u, risk), rtol=1e-6, atol=1e-8)
+    assert distortion(0.0, risk) == 0.0
+    assert distortion(1.0, risk) == pytest.approx(1.0, abs=1e-15)
+    assert np.all(distortion(u, risk) >= u - 1e-15)  # risk-averse: the lower tail is weighted up
+
+
+def test_wang_distortion_closed_form():
+    u = np.linspace(0.01, 0.99, 99)
+    expected = [UNIT.cdf(UNIT.inv_cdf(q) + 0.75) for q in u]
+    np.testing.assert_allclose(distortion(u, {"measure": "wang", "eta": 0.75}), expected, rtol=1e-12)
+    phi = [math.exp(-0.75 * UNIT.inv_cdf(q) - 0.75**2 / 2) for q in u]
+    np.testing.assert_allclose(spectrum(u, {"measure": "wang", "eta": 0.75}), phi, rtol=1e-12)
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 6000])
+def test_spectral_weights_are_cached_read_only_distributions(n):
+    risk = {"measure": "wang", "eta": 1.5}
+    w = spectral_weights(n, risk)
+    assert w.shape == (n,)
+    assert w.sum() == pytest.approx(1.0, abs=1e-12)
+    assert np.all(w > 0)
+    if n > 1:
+        assert np.all(np.diff(w) < 0)  # phi decreases: lower samples weigh more
+        assert w[0] > 1.0 / n > w[-1]
+    assert spectral_weights(n, dict(risk)) is w
+    with pytest.raises(ValueError):
+        w[0] = 0.0
+    k = np.arange(n + 1) / n
+    np.testing.assert_allclose(w, np.diff(distortion(k, risk)), rtol=1e-9, atol=1e-15)
+
+
+# --- closed forms on a large normal sample ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def normal_sample() -> np.ndarray:
+    return np.random.default_rng(20240611).normal(MU, SIGMA, 400_000)
+
+
+@pytest.mark.parametrize(
+    "risk",
+    [
+        {"measure": "wang", "eta": 0.25},
+        {"measure": "wang", "eta": 0.75},
+        {"measure": "wang", "eta": 1.5},
+        {"measure": "entropic", "eta": 0.1},
+        {"measure": "entropic", "eta": 0.5},
+        {"measure": "mean_cvar", "beta": 0.25, "weight": 0.3},
+        {"measure": "mean_cvar", "beta": 0.1, "weight": 0.8},
+        {"measure": "cvar", "beta": 0.05},
+        {"measure": "cvar", "beta": 0.25},
+    ],
+)
+def test_normal_closed_forms(normal_sample, risk):
+    """Each estimate within 4 standard errors (the SE is estimated from the sample and is ~0.003-0.008)."""
+    se = standard_error(normal_sample, risk)
+    assert 0.0 < se < 0.01  # a tolerance that could not hide a wrong formula: measures differ by >= 0.25 here
+    assert objective(normal_sample, risk) == pytest.approx(closed_form(risk), abs=4 * se)
+
+
+def test_neutral_is_the_mean_and_measures_are_ordered(normal_sample):
+    assert objective(normal_sample, {"measure": "neutral"}) == normal_sample.mean()
+    wang = [objective(normal_sample, {"measure": "wang", "eta": eta}) for eta in (0.1, 0.5, 1.0, 2.0)]
+    entropic = [objective(normal_sample, {"measure": "entropic", "eta": eta}) for eta in (0.1, 0.5, 1.0, 2.0)]
+    assert np.all(np.diff(wang) < 0) and np.all(np.diff(entropic) < 0)  # more averse, lower
+    assert wang[0] < normal_sample.mean() and entropic[0] < normal_sample.mean()
+
+
+# --- the reference estimators, bit for bit ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [1, 7, 100, 1001, 6000])
+@pytest.mark.parametrize("beta", [0.05, 0.07, 0.1, 0.3, 1 / 3, 1.0])
+@pytest.mark.parametrize("ties", [False, True])
+def test_cvar_and_neutral_are_the_reference_functions_bit_for_bit(n, beta, ties):
+    z = samples(n + int(beta * 1000), n, ties)
+    s = random_scores(n, n, 3)
+    risk = {"measure": "cvar", "beta": beta}
+    assert objective(z, risk) == cvar(z, beta)
+    assert np.array_equal(objective_gradient(z, s, risk), cvar_gradient(z, s, beta))
+    assert objective(z, {"measure": "neutral", "beta": beta}) == z.mean()
+    assert np.array_equal(objective_gradient(z, s, {"measure": "neutral"}), mean_gradient(z, s))
+    assert np.array_equal(
+        objective_gradient(z, s, {"measure": "neutral"}, baseline=False), mean_gradient(z, s, baseline=False)
+    )
+    mixed = {"measure": "mean_cvar", "beta": beta, "weight": 0.3}
+    assert np.array_equal(objective_gradient(z, s, mixed), 0.7 * mean_gradient(z, s) + 0.3 * cvar_gradient(z, s, beta))
+    assert objective(z, mixed) == 0.7 * z.mean() + 0.3 * cvar(z, beta)
+    assert np.array_equal(objective_gradient(z, s, {**mixed, "weight": 0.0}), mean_gradient(z, s))
+    assert np.array_equal(objective_gradient(z, s, {**mixed, "weight": 1.0}), cvar_gradient(z, s, beta))
+    assert objective(z, {**mixed, "weight": 0.0}) == z.mean()
+    assert objective(z, {**mixed, "weight": 1.0}) == cvar(z, beta)
+    if n > 10 and beta < 1.0:  # not vacuous: the two measures' gradients differ
+        assert not np.allclose(cvar_gradient(z, s, beta), mean_gradient(z, s))
+
+
+def test_typed_config_objects_and_enums_are_accepted():
+    z, s = samples(3, 500, False), random_scores(3, 500)
+    conf = RiskConf(measure=Measure.cvar, beta=0.2)
+    assert np.array_equal(objective_gradient(z, s, conf), cvar_gradient(z, s, 0.2))
+    assert objective(z, conf) == cvar(z, 0.2)
+
+    class Plain(str, Enum):  # str() is "Plain.wang": the member's value names the measure
+        wang = "wang"
+
+    @dataclass(frozen=True)
+    class Node:
+        measure: object
+        beta: float = 0.1
+        eta: float = 0.75
+        weight: float = 0.5
+
+    wang = {"measure": "wang", "eta": 0.75}
+    for node in (Node(Plain.wang), Node("wang"), OmegaConf.create(wang)):
+        assert objective(z, node) == objective(z, wang)
+        assert np.array_equal(objective_gradient(z, s, node), objective_gradient(z, s, wang))
+    assert risk_spec(Node("mean_cvar")) == ("mean_cvar", 0.1, None, 0.5)
+    assert sorted(MEASURES) == sorted(["cvar", "neutral", "wang", "mean_cvar", "entropic"])
+
+
+# --- the generic L-statistic and spectral gradient with CVaR's spectrum ----------------------------------------------
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 10, 333, 6000])
+@pytest.mark.parametrize("beta", [0.01, 0.07, 0.1, 0.25, 1 / 3, 0.5, 0.999, 1.0])
+@pytest.mark.parametrize("ties", [False, True])
+def test_generic_spectral_estimators_with_cvar_spectrum_match_eq_9(n, beta, ties):
+    z = samples(7 * n + int(beta * 1000), n, ties)
+    s = random_scores(n, n)
+    risk = {"measure": "cvar", "beta": beta}
+    scale = np.abs(z).max() + 1.0
+    assert l_statistic(z, risk) == pytest.approx(cvar(z, beta), rel=1e-12, abs=1e-12 * scale)
+    expected = cvar_gradient(z, s, beta)
+    got = spectral_gradient(z, s, risk, baseline=False)
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12 * scale * np.abs(s).max())
+    if np.sum(z < value_at_risk(z, beta)) >= 1:
+        assert np.any(np.abs(expected) > 1e-3)  # not vacuous: some sample below v
+    # the baseline b = mean(h) = mean((z - v) 1{z <= v}) / beta = cvar - v shifts it by -b * mean(S), no more
+    shifted = expected - (cvar(z, beta) - value_at_risk(z, beta)) * s.mean(axis=0)
+    np.testing.assert_allclose(spectral_gradient(z, s, risk), shifted, rtol=1e-12, atol=1e-12 * scale * np.abs(s).max())
+
+
+@pytest.mark.parametrize("beta, weight", [(0.25, 0.3), (0.07, 0.9), (1.0, 0.5)])
+@pytest.mark.parametrize("ties", [False, True])
+def test_generic_spectral_estimators_for_mean_cvar_and_neutral(beta, weight, ties):
+    """The public mean_cvar estimator, (1 - lambda) mean_gradient + lambda cvar_gradient, is the spectral one up to
+    its baselines: mean_gradient centres z on its mean, cvar_gradient none (the spectral b = mean(h) shifts it by
+    -(cvar - v) mean(S))."""
+    z, s = samples(11, 777, ties), random_scores(11, 777)
+    mixed = {"measure": "mean_cvar", "beta": beta, "weight": weight}
+    scale = np.abs(z).max()
+    assert l_statistic(z, mixed) == pytest.approx(objective(z, mixed), rel=1e-12, abs=1e-12 * scale)
+    cvar_part = cvar_gradient(z, s, beta) - (cvar(z, beta) - value_at_risk(z, beta)) * s.mean(axis=0)
+    expected = (1 - weight) * mean_gradient(z, s) + weight * cvar_part
+    np.testing.assert_allclose(spectral_gradient(z, s, mixed), expected, rtol=1e-11, atol=1e-12 * scale)
+    assert not np.allclose(expected, objective_gradient(z, s, mixed), rtol=1e-3)  # the baselines do differ
+    assert l_statistic(z, {"measure": "neutral"}) == pytest.approx(z.mean(), rel=1e-12, abs=1e-12 * scale)
+    np.testing.assert_allclose(
+        spectral_gradient(z, s, {"measure": "neutral"}), mean_gradient(z, s), rtol=1e-11, atol=1e-12 * scale
+    )
+
+
+@pytest.mark.parametrize("eta", [0.25, 1.5])
+@pytest.mark.parametrize("ties", [False, True])
+def test_wang_gradient_is_the_stated_estimator(eta, ties):
+    """The numba kernel against the formula written out in numpy, with and without the baseline b = mean(h)."""
+    z, s = samples(5, 2345, ties), random_scores(5, 2345)
+    risk = {"measure": "wang", "eta": eta}
+    got = objective_gradient(z, s, risk)
+    np.testing.assert_allclose(got, reference_spectral_gradient(z, s, risk, True), rtol=1e-11)
+    np.testing.assert_allclose(
+        spectral_gradient(z, s, risk, baseline=False), reference_spectral_gradient(z, s, risk, False), rtol=1e-11
+    )
+    weights = np.diff(distortion(np.arange(z.size + 1) / z.size, risk))
+    assert objective(z, risk) == pytest.approx(np.sort(z) @ weights, rel=1e-12)
+    # the tie order does not matter: permuting the sample permutes nothing in the result
+    perm = np.random.default_rng(9).permutation(z.size)
+    np.testing.assert_allclose(objective_gradient(z[perm], s[perm], risk), got, rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "risk",
+    [
+        {"measure": "wang", "eta": 0.8},
+        {"measure": "entropic", "eta": 0.3},
+        {"measure": "mean_cvar", "beta": 0.2, "weight": 0.4},
+        {"measure": "cvar", "beta": 0.2},
+        {"measure": "neutral"},
+    ],
+)
+def test_batched_rows_equal_one_row_at_a_time(risk):
+    z = np.random.default_rng(4).normal(0.0, 1.0, (3, 2, 400))
+    s = np.random.default_rng(5).normal(0.0, 1.0, (3, 2, 400, 2))
+    rows = np.array([[objective(z[i, j], risk) for j in range(2)] for i in range(3)])
+    grads = np.array([[objective_gradient(z[i, j], s[i, j], risk) for j in range(2)] for i in range(3)])
+    np.testing.assert_allclose(objective(z, risk), rows, rtol=1e-13)
+    np.testing.assert_allclose(objective_gradient(z, s, risk), grads, rtol=1e-12, atol=1e-15)
+    assert isinstance(objective(z[0, 0], risk), float)
+
+
+# --- entropic --------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("eta", [0.5, 1.0, 5.0])
+def test_entropic_is_finite_for_large_rewards(eta):
+    z = np.where(np.arange(1000) % 4 == 0, -1e4, 1e4)  # a quarter at -1e4
+    s = random_scores(2, 1000)
+    value = objective(z, {"measure": "entropic", "eta": eta})
+    # -(1/eta) log(e^(1e4 eta) / 4 + 3 e^(-1e4 eta) / 4) = -1e4 + log(4) / eta, up to e^(-2e4 eta)
+    assert value == pytest.approx(-1e4 + math.log(4.0) / eta, rel=1e-13)
+    grad = objective_gradient(z, s, {"measure": "entropic", "eta": eta})
+    low = z < 0
+    w = np.where(low, 1.0 / low.sum(), 0.0)  # softmax(-eta z): all the weight on the low samples
+    np.testing.assert_allclose(grad, -((w - 1.0 / z.size) @ s) / eta, rtol=1e-12)
+    for scaled in (z + 1e4, z - 1e4, 1e4 * np.random.default_rng(0).standard_normal(1000)):
+        assert np.isfinite(objective(scaled, {"measure": "entropic", "eta": eta}))
+        assert np.all(np.isfinite(objective_gradient(scaled, s, {"measure": "entropic", "eta": eta})))
+    assert z.min() <= value <= z.mean()
+
+
+def test_entropic_rows_of_different_scales_in_one_batch():
+    """A batch mixing a row where eta |z - mean| < 1 (expm1/log1p) and one where it is large (shifted exp)."""
+    z = np.stack([np.random.default_rng(1).normal(0.0, 1e-3, 300), np.random.default_rng(2).normal(0.0, 1e3, 300)])
+    s = np.random.default_rng(3).normal(0.0, 1.0, (2, 300, 2))
+    risk = {"measure": "entropic", "eta": 0.5}
+    together = objective(z, risk)
+    np.testing.assert_array_equal(objective(z[::-1], risk), together[::-1])
+    for i in range(2):
+        e = np.exp(-0.5 * (z[i] - z[i].min()))
+        direct = z[i].min() - math.log(e.mean()) / 0.5  # fine here: no overflow after the shift by the minimum
+        assert together[i] == pytest.approx(objective(z[i], risk), rel=1e-14)
+        assert together[i] == pytest.approx(direct, rel=1e-12, abs=1e-14)
+        w = e / e.sum()
+        np.testing.assert_allclose(objective_gradient(z, s, risk)[i], -((w - 1 / 300) @ s[i]) / 0.5, rtol=1e-9)
+
+
+def test_entropic_small_eta_tends_to_the_mean_without_cancellation():
+    z = np.random.default_rng(3).normal(5.0, 2.0, 10_000)
+    for eta in (1e-3, 1e-6, 1e-9):
+        # -(1/eta) log E e^(-eta Z) = mean - eta var / 2 + O(eta^2)
+        expected = z.mean() - eta * z.var() / 2
+        assert objective(z, {"measure": "entropic", "eta": eta}) == pytest.approx(expected, rel=1e-12, abs=1e-5 * eta)
+
+
+# --- exact enumeration: a 3x3 world with deterministic rewards --------------------------------------------------------
+
+TINY = {
+    "world": {
+        "size": [3, 3],
+        "start": [0, 0],
+        "horizon": 3,
+        "stop_at_source": True,
+        "sources": [
+            {"position": [2, 0], "covariance": [[1.0, 0.0], [0.0, 1.0]], "reward": 10.0},
+            {"position": [0, 2], "covariance": [[2.0, 0.5], [0.5, 1.0]], "reward": 4.0},
+        ],
+        "regions": [
+            {"name": "bad", "rect": [1, 1, 1, 2], "reward": -6.0, "risky": True},
+            {"name": "rest", "rect": [0, 0, 2, 2], "reward": 1.0},
+        ],
+    },
+    "train": {"theta0": [0.5, 0.2]},
+}
+THETA = np.array([0.5, 0.2])
+EXACT_RISKS = [
+    {"measure": "wang", "eta": 0.5},
+    {"measure": "wang", "eta": 1.5},
+    {"measure": "mean_cvar", "beta": 0.25, "weight": 0.3},
+    {"measure": "entropic", "eta": 0.2},
+]
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return build_setup(OmegaConf.merge(OmegaConf.structured(RiskplanConf), TINY))
+
+
+def exact_outcomes(setup, theta):
+    """Every path enumerated (episodes stop at a source): the distinct totals z_k (ascending), their probabilities
+    p_k and d p_k / d theta = sum over the paths to z_k of p(path) * score(path) (the score of eq. 10)."""
+    world = setup.world
+    features = move_features(world)
+    probs = probabilities(features, np.asarray(theta, dtype=float))
+    step_scores = scores(features, probs)
+    sources = {int(c): j for j, c in enumerate(world.source_cells)}
+    rewards = [r.params[0] for r in world.region_rewards]
+    source_rewards = [r.params[0] for r in world.source_rewards]
+    out: dict[float, tuple[float, np.ndarray]] = {}
+
+    def add(z, p, score):
+        q, dq = out.get(z, (0.0, 0.0))
+        out[z] = (q + p, dq + p * score)
+
+    def walk(cell, k, z, p, score):
+        if k == world.horizon:
+            add(z, p, score)
+            return
+        for a in range(5):
+            nxt = int(world.next_cell[cell, a])
+            gain = rewards[world.region_of[nxt]]
+            p_next, score_next = p * probs[cell, a], score + step_scores[cell, a]
+            if nxt in sources:
+                add(z + gain + source_rewards[sources[nxt]], p_next, score_next)
+            else:
+                walk(nxt, k + 1, z + gain, p_next, score_next)
+
+    walk(int(world.starts[0]), 0, 0.0, 1.0, np.zeros(features.shape[-1]))
+    z = np.array(sorted(out))
+    return z, np.array([out[v][0] for v in z]), np.array([out[v][1] for v in z])
+
+
+def exact_objective(setup, theta, risk) -> float:
+    """rho of the exact discrete distribution: sum_k z_k [g(P_k) - g(P_(k-1))], or -(1/eta) log sum_k p_k e^(-eta z_k)."""
+    z, p, _ = exact_outcomes(setup, theta)
+    if risk["measure"] == "entropic":
+        return -math.log(np.sum(p * np.exp(-risk["eta"] * z))) / risk["eta"]
+    cumulative = np.concatenate([[0.0], np.cumsum(p)[:-1], [1.0]])
+    return float(z @ np.diff(distortion(cumulative, risk)))
+
+
+def exact_gradient(setup, theta, risk) -> np.ndarray:
+    """E[S h(Z)] with the exact F: h(z_k) = -sum_(j >= k) phi(P_j) (z_(j+1) - z_j) (spectral); for entropic
+    h(z) = -(1/eta) e^(-eta z) / E[e^(-eta Z)]."""
+    z, p, dp = exact_outcomes(setup, theta)
+    if risk["measure"] == "entropic":
+        e = np.exp(-risk["eta"] * z)
+        return -(e / np.sum(p * e)) @ dp / risk["eta"]
+    phi = spectrum(np.cumsum(p)[:-1], risk)
+    h = np.concatenate([-np.cumsum((phi * np.diff(z))[::-1])[::-1], [0.0]])
+    return h @ dp
+
+
+def central_difference(f, theta, step=1e-5) -> np.ndarray:
+    """d f / d theta_j by central differences, stacked on the last axis (f may be array-valued)."""
+    columns = []
+    for j in range(theta.size):
+        e = np.zeros_like(theta)
+        e[j] = step
+        columns.append((np.asarray(f(theta + e)) - np.asarray(f(theta - e))) / (2 * step))
+    return np.stack(columns, axis=-1)
+
+
+def test_enumeration_is_a_distribution_with_zero_mean_score(tiny):
+    z, p, dp = exact_outcomes(tiny, THETA)
+    assert len(z) >= 5
+    assert p.sum() == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(dp.sum(axis=0), 0.0, atol=1e-12)  # E[S] = 0
+    np.testing.assert_allclose(dp, central_difference(lambda t: exact_outcomes(tiny, t)[1], THETA), atol=1e-9)
+
+
+@pytest.mark.parametrize("risk", EXACT_RISKS, ids=lambda r: f"{r['measure']}-{r.get('eta', r.get('weight'))}")
+def test_exact_gradient_matches_finite_differences_of_the_exact_objective(tiny, risk):
+    _, p, _ = exact_outcomes(tiny, THETA)
+    if "beta" in risk:  # mean_cvar's g has a kink at beta: no cumulative probability may sit on it
+        assert np.min(np.abs(np.cumsum(p) - risk["beta"])) > 1e-3
+    truth = central_difference(lambda t: exact_objective(tiny, t, risk), THETA)
+    assert np.all(np.abs(truth) > 0.05)  # not vacuous
+    np.testing.assert_allclose(exact_gradient(tiny, THETA, risk), truth, rtol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def tiny_batch(tiny):
+    return simulate(
+        tiny.world, tiny.kernel, np.array([THETA]), tiny.world.starts, rng.robot_keys(7, rng.TRAIN, 0, 1), 200_000
+    )
+
+
+@pytest.mark.parametrize("risk", EXACT_RISKS, ids=lambda r: f"{r['measure']}-{r.get('eta', r.get('weight'))}")
+def test_sample_estimator_from_kernel_episodes_matches_the_exact_gradient(tiny, tiny_batch, risk):
+    """objective_gradient on 16 batches of 12,500 of the kernel's episodes: their mean within 4 standard errors of
+    the exact gradient, and the objective likewise."""
+    z = tiny_batch.total_reward.reshape(16, -1)
+    s = tiny_batch.score.reshape(16, z.shape[1], -1)
+    grads = np.array([objective_gradient(z[b], s[b], risk) for b in range(16)])
+    se = grads.std(axis=0, ddof=1) / 4.0
+    truth = exact_gradient(tiny, THETA, risk)
+    assert np.all(se < 0.1 * np.abs(truth))  # not vacuous: the tolerance is a small fraction of the gradient
+    np.testing.assert_array_less(np.abs(grads.mean(axis=0) - truth), 4 * se)
+    values = np.array([objective(z[b], risk) for b in range(16)])
+    assert abs(values.mean() - exact_objective(tiny, THETA, risk)) < 4 * values.std(ddof=1) / 4.0
+
+
+# --- bad arguments ---------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "risk, message",
+    [
+        (
+            {"measure": "variance"},
+            r"unknown risk measure 'variance'; valid measures: cvar, neutral, wang, mean_cvar, entropic",
+        ),
+        ({"measure": None}, "unknown risk measure"),
+        ({}, "unknown risk measure"),
+        ({"measure": "wang"}, r"risk\.eta is required for measure 'wang'"),
+        ({"measure": "wang", "eta": 0.0}, r"risk\.eta must be finite and > 0, got 0\.0"),
+        ({"measure": "entropic", "eta": -1.0}, r"risk\.eta must be finite and > 0"),
+        ({"measure": "entropic", "eta": float("nan")}, r"risk\.eta must be finite and > 0"),
+        ({"measure": "wang", "eta": float("inf")}, r"risk\.eta must be finite and > 0"),
+        ({"measure": "wang", "eta": "big"}, r"risk\.eta must be a number"),
+        ({"measure": "wang", "eta": True}, r"risk\.eta must be a number"),
+        ({"measure": "mean_cvar", "beta": 0.1, "weight": 1.5}, r"risk\.weight must be in \[0, 1\], got 1\.5"),
+        ({"measure": "mean_cvar", "beta": 0.1, "weight": -0.1}, r"risk\.weight must be in \[0, 1\]"),
+        ({"measure": "mean_cvar", "beta": 0.1}, r"risk\.weight is required for measure 'mean_cvar'"),
+        ({"measure": "mean_cvar", "beta": 0.0, "weight": 0.5}, r"risk\.beta must be in \(0, 1\], got 0\.0"),
+        ({"measure": "cvar", "beta": 1.5}, r"risk\.beta must be in \(0, 1\]"),
+        ({"measure": "cvar", "beta": float("nan")}, r"risk\.beta must be in \(0, 1\]"),
+        ({"measure": "cvar"}, r"risk\.beta is required for measure 'cvar'"),
+    ],
+)
+def test_bad_risk_nodes_raise_value_error_naming_the_problem(risk, message):
+    z, s = samples(0, 50, False), random_scores(0, 50)
+    with pytest.raises(ValueError, match=message):
+        objective(z, risk)
+    with pytest.raises(ValueError, match=message):
+        objective_gradient(z, s, risk)
+
+
+def test_bad_samples_and_scores_raise_value_error():
+    risk = {"measure": "wang", "eta": 0.5}
+    z = samples(0, 50, False)
+    for measure in ({"measure": "cvar", "beta": 0.1}, {"measure": "neutral"}, risk, {"measure": "entropic", "eta": 1}):
+        with pytest.raises(ValueError, match=r"W >= 1"):
+            objective(np.array([]), measure)
+        with pytest.raises(ValueError, match=r"W >= 1"):
+            objective(5.0, measure)
+        for bad in (np.zeros(50), np.zeros((51, 2)), np.zeros((50, 2, 1)), np.zeros((2, 50, 2))):
+            with pytest.raises(ValueError, match=r"scores must have shape \(50, 'M'\)"):
+                objective_gradient(z, bad, measure)
+    with pytest.raises(ValueError, match=r"W >= 1"):
+        spectral_weights(0, risk)
+    with pytest.raises(ValueError, match="not spectral"):
+        distortion(0.5, {"measure": "entropic", "eta": 1.0})
+    with pytest.raises(ValueError, match=r"beta must be in \(0, 1\]"):
+        tail_count(0.0, 10)
