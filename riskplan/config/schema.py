@@ -41,6 +41,9 @@ class Measure(Choice):
 
     cvar = "cvar"  # CVaR_beta (Algorithm 1, eq. 9)
     neutral = "neutral"  # the mean (REINFORCE, eq. 4)
+    wang = "wang"  # Wang's distortion g(u) = Phi(Phi^-1(u) + eta) of the lower tail: mu - eta sigma for a normal
+    mean_cvar = "mean_cvar"  # (1 - weight) E[Z] + weight CVaR_beta
+    entropic = "entropic"  # -(1/eta) log E[exp(-eta Z)]: mu - eta sigma^2 / 2 for a normal
 
 
 class ScheduleKind(Choice):
@@ -49,6 +52,38 @@ class ScheduleKind(Choice):
     none = "none"
     linear = "linear"
     exponential = "exponential"
+
+
+class PolicyKind(Choice):
+    """policy.kind: what theta parameterises."""
+
+    features = "features"  # a softmax over theta-weighted features of x + u (eq. 3 with policy.features)
+    tabular = "tabular"  # a softmax table over (cell, move): theta is the table of logits
+
+
+class Feature(Choice):
+    """policy.features: what a features policy sees of each move's cell x + u."""
+
+    signals = "signals"  # the M source signals s^j(x + u) of eq. (1): the paper's policy
+    risky = "risky"  # 1 when x + u lies in a risky region
+    stay = "stay"  # 1 for the stay move
+
+
+class Aggregate(Choice):
+    """team.aggregate: how a robot combines the values it receives (Byzantine-resilient rules drop extremes)."""
+
+    mean = "mean"  # the paper's weighted mix, eq. (14)
+    trimmed_mean = "trimmed_mean"  # drop the trim largest and trim smallest received values per coordinate
+    median = "median"  # the coordinate-wise median of its own and the received values
+    wmsr = "wmsr"  # W-MSR: drop up to trim received values above and below its own, per coordinate
+
+
+class FaultKind(Choice):
+    """team.faults.N.kind."""
+
+    crash = "crash"  # stops sending
+    stuck = "stuck"  # keeps sending the theta it had
+    byzantine = "byzantine"  # sends arbitrary theta: a fixed value, or seeded noise of a given scale
 
 
 class MotionKind(Choice):
@@ -124,8 +159,18 @@ class RiskConf(Frozen):
     """The objective: `cvar` optimises CVaR_beta, `neutral` the mean; beta is also the reporting level."""
 
     measure: Measure = Measure.cvar
-    beta: float = 0.1
+    beta: float = 0.1  # the CVaR level: optimised by cvar and mean_cvar, and the level CVaR is reported at
+    eta: float = 0.5  # wang: the distortion's shift (in standard deviations); entropic: aversion per unit of reward
+    weight: float = 0.5  # mean_cvar: lambda, the weight of CVaR_beta against the mean, in [0, 1]
     schedule: ScheduleConf = field(default_factory=ScheduleConf)
+
+
+@dataclass
+class PolicyConf(Frozen):
+    """The softmax policy mu_theta(u | x) (eqs. 2-3): theta weights features of x + u, or is a table of logits."""
+
+    kind: PolicyKind = PolicyKind.features
+    features: list[Feature] = field(default_factory=lambda: [Feature.signals])
 
 
 @dataclass
@@ -234,6 +279,10 @@ class TeamConf(Frozen):
     consensus_rounds: int = 1
     order: Order = Order.combine_then_adapt
     starts: list[list[int]] | None = None  # per-robot start cells; default world.start for all
+    risk: list[RiskConf] | None = None  # per-robot risk nodes; default the top-level risk for all
+    faults: list[Any] = field(default_factory=list)  # [{robot, kind, from, value | scale}], see config.faults
+    aggregate: Aggregate = Aggregate.mean
+    trim: int = 0  # F: the received values trimmed_mean and wmsr drop at each end, per coordinate
     switching: SwitchingConf = field(default_factory=SwitchingConf)
 
 
@@ -244,6 +293,7 @@ class RiskplanConf(Frozen):
     seed: int = 0
     experiment: str = "paper_single"
     risk: RiskConf = field(default_factory=RiskConf)
+    policy: PolicyConf = field(default_factory=PolicyConf)
     train: TrainConf = field(default_factory=TrainConf)
     world: WorldConf = field(default_factory=WorldConf)
     team: TeamConf = field(default_factory=TeamConf)

@@ -10,7 +10,22 @@ from __future__ import annotations
 import math
 import warnings
 
-from riskplan.config.schema import MotionKind, RiskConf, RiskplanConf, TeamConf, TrainConf, WorldConf
+from riskplan.config.faults import faults_of
+from riskplan.config.schema import (
+    Aggregate,
+    Feature,
+    Measure,
+    MotionKind,
+    Order,
+    PolicyConf,
+    PolicyKind,
+    RiskConf,
+    RiskplanConf,
+    ScheduleKind,
+    TeamConf,
+    TrainConf,
+    WorldConf,
+)
 from riskplan.util.checks import finite, require, whole
 
 SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias under the 64-bit stream keys
@@ -19,6 +34,7 @@ SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias und
 def validate(params: RiskplanConf) -> None:
     """BadInput naming the first key outside its range; a warning where only a theorem's assumption breaks."""
     check_risk(params.risk)
+    check_policy(params.policy)
     check_train(params.train)
     check_world(params.world)
     check_team(params.team)
@@ -31,26 +47,56 @@ def validate(params: RiskplanConf) -> None:
     )
 
 
-def check_risk(risk: RiskConf) -> None:
-    """beta, and the soft-risk schedule (checked whatever its kind, so a bad value never waits for kind to change)."""
-    require(0.0 < risk.beta <= 1.0, "risk.beta", f"got {risk.beta}; expected 0 < beta <= 1")
+def check_risk(risk: RiskConf, key: str = "risk") -> None:
+    """beta, eta, weight and the soft-risk schedule, whatever the measure (so a bad value never waits for the
+    measure or the schedule's kind to change). `key` names the node: risk, or team.risk.<i>."""
+    require(0.0 < risk.beta <= 1.0, f"{key}.beta", f"got {risk.beta}; expected 0 < beta <= 1")
+    require(
+        math.isfinite(risk.eta) and risk.eta > 0,
+        f"{key}.eta",
+        f"got {risk.eta}; expected a finite eta > 0 (wang: the distortion's shift in standard deviations; "
+        f"entropic: the aversion per unit of reward)",
+    )
+    require(0.0 <= risk.weight <= 1.0, f"{key}.weight", f"got {risk.weight}; expected a weight in [0, 1]")
     plan = risk.schedule
     require(
         math.isfinite(plan.start) and 0.0 < plan.start <= 1.0,
-        "risk.schedule.start",
+        f"{key}.schedule.start",
         f"got {plan.start}; expected 0 < start <= 1",
     )
     require(
         plan.start >= risk.beta,
-        "risk.schedule.start",
-        f"got {plan.start}, below risk.beta={risk.beta}; the schedule goes from start down to beta, so "
+        f"{key}.schedule.start",
+        f"got {plan.start}, below {key}.beta={risk.beta}; the schedule goes from start down to beta, so "
         f"expected beta <= start <= 1",
     )
     require(
         plan.iterations >= 1,
-        "risk.schedule.iterations",
+        f"{key}.schedule.iterations",
         f"got {plan.iterations}; expected a whole number of iterations >= 1",
     )
+    require(
+        plan.kind == ScheduleKind.none or risk.measure in (Measure.cvar, Measure.mean_cvar),
+        f"{key}.schedule.kind",
+        f"got {plan.kind}; soft risk moves the CVaR level beta, which measure={risk.measure} does not have: use "
+        f"risk=cvar or risk=mean_cvar, or {key}.schedule=none",
+    )
+
+
+def check_policy(policy: PolicyConf) -> None:
+    """A features policy sees at least one feature, each once; a tabular policy has no features to choose."""
+    names = [str(f) for f in policy.features]
+    if policy.kind == PolicyKind.tabular:
+        require(
+            names == [Feature.signals.value],
+            "policy.features",
+            f"got {names}; a tabular policy has no features (its theta is the table of (cell, move) logits): drop "
+            f"policy.features, or use policy.kind=features",
+        )
+        return
+    require(bool(names), "policy.features", "is empty; expected a list from signals, risky, stay, e.g. [signals]")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    require(not twice, "policy.features", f"lists {', '.join(twice)} twice; give each feature once")
 
 
 def check_train(train: TrainConf) -> None:
@@ -107,6 +153,23 @@ def check_team(team: TeamConf) -> None:
     require(0.0 < up <= 1.0, "team.switching.up", f"is {up:g}; the per-iteration link-up probability must be in (0, 1]")
     radius = finite(team.radius, "team.radius")
     require(radius > 0, "team.radius", f"is {radius:g}; the link radius must be > 0 (the unit square is 1 x 1)")
+    whole(team.trim, "team.trim", 0, "the number of extreme values trimmed at each end (F)")
+    require(
+        team.aggregate == Aggregate.mean or team.order != Order.gradient_tracking,
+        "team.aggregate",
+        f"got {team.aggregate}; gradient tracking mixes running sums, which trimming would break: use "
+        f"team.aggregate=mean, or team.order=combine_then_adapt or adapt_then_combine",
+    )
+    if team.risk is not None:
+        count = len(team.risk)
+        require(
+            count == team.robots,
+            "team.risk",
+            f"gives {count} risk node{'' if count == 1 else 's'} for {team.robots} robots; give one per robot or null",
+        )
+        for i, node in enumerate(team.risk):
+            check_risk(node, f"team.risk.{i}")
+    faults_of(team)
     if team.starts is not None:
         count = len(team.starts)
         require(

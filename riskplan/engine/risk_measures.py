@@ -22,6 +22,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
+from riskplan.config.schema import Measure
+
 
 def tail_count(beta: float, n: int) -> int:
     """m = ceil(beta * n), guarded against float error (0.07 * 100 gives 7, not 8)."""
@@ -85,7 +87,7 @@ def _tail_weights(z: np.ndarray, v: np.ndarray | float) -> np.ndarray:
 
 # --- Risk measures behind one interface ------------------------------------------------------------------------------
 
-MEASURES = ("cvar", "neutral", "wang", "mean_cvar", "entropic")
+MEASURES = tuple(Measure.names())  # the schema's Choices: cvar, neutral, wang, mean_cvar, entropic
 SPECTRAL = ("cvar", "neutral", "wang", "mean_cvar")  # measures with a distortion g (all but entropic)
 
 

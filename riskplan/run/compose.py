@@ -66,7 +66,7 @@ def unquoted_problem(text: str) -> str | None:
     quoted = f"{key}='" + value.replace("\\", "\\\\").replace("'", "\\'") + "'"
     return (
         f"the value holds {shown}, which Hydra's override grammar takes only inside quotes; write {quoted} "
-        f"(in a shell: \"{quoted}\")"
+        f'(in a shell: "{quoted}")'
     )
 
 
