@@ -14,14 +14,12 @@ from riskplan.config.faults import faults_of
 from riskplan.config.schema import (
     Aggregate,
     Feature,
-    Measure,
     MotionKind,
     Order,
     PolicyConf,
     PolicyKind,
     RiskConf,
     RiskplanConf,
-    ScheduleKind,
     TeamConf,
     TrainConf,
     WorldConf,
@@ -49,7 +47,8 @@ def validate(params: RiskplanConf) -> None:
 
 def check_risk(risk: RiskConf, key: str = "risk") -> None:
     """beta, eta, weight and the soft-risk schedule, whatever the measure (so a bad value never waits for the
-    measure or the schedule's kind to change). `key` names the node: risk, or team.risk.<i>."""
+    measure or the schedule's kind to change; a sweep over measures keeps one schedule, which moves the CVaR level
+    of cvar and mean_cvar and leaves the others alone). `key` names the node: risk, or team.risk.<i>."""
     require(0.0 < risk.beta <= 1.0, f"{key}.beta", f"got {risk.beta}; expected 0 < beta <= 1")
     require(
         math.isfinite(risk.eta) and risk.eta > 0,
@@ -74,12 +73,6 @@ def check_risk(risk: RiskConf, key: str = "risk") -> None:
         plan.iterations >= 1,
         f"{key}.schedule.iterations",
         f"got {plan.iterations}; expected a whole number of iterations >= 1",
-    )
-    require(
-        plan.kind == ScheduleKind.none or risk.measure in (Measure.cvar, Measure.mean_cvar),
-        f"{key}.schedule.kind",
-        f"got {plan.kind}; soft risk moves the CVaR level beta, which measure={risk.measure} does not have: use "
-        f"risk=cvar or risk=mean_cvar, or {key}.schedule=none",
     )
 
 

@@ -3,23 +3,27 @@ summary.json, and the check that no non-finite number is ever recorded as a resu
 
 from __future__ import annotations
 
+import json
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from riskplan.config.schema import Measure, RiskConf, RiskplanConf
+from riskplan.config.typed import as_dict
 from riskplan.engine import rng
-from riskplan.engine.risk_measures import summary_stats
+from riskplan.engine.risk_measures import objective, summary_stats
 from riskplan.engine.rollout import simulate
 from riskplan.run.budget import EVAL_BATCH
 from riskplan.run.build import Setup, starts
 from riskplan.run.checkpoint import State
-from riskplan.run.intervals import bootstrap_intervals
+from riskplan.run.intervals import bootstrap_intervals, objective_interval
 from riskplan.run.provenance import provenance
 
 if TYPE_CHECKING:  # pandas loads after the training loop (see riskplan.run.training)
     import pandas as pd
 
-SCHEMA_VERSION = 1  # of summary.json
+SCHEMA_VERSION = 2  # of summary.json: 2 adds objective, team_objective, theta_names and robots (a list)
+ROBOT_INTERVALS = 32  # distinct (start, risk) pairs up to which each robot's objective gets a bootstrap interval
 AVERAGE = -1  # the `robot` id of the network average in team tables
 
 
@@ -32,6 +36,11 @@ def check_finite(what: str, *arrays) -> None:
     for values in arrays:
         if not np.all(np.isfinite(values)):
             raise NumericalTrouble(f"{what} is not finite (overflow); use smaller rewards or fewer steps")
+
+
+def robot_risks(params: RiskplanConf) -> list[RiskConf]:
+    """Each robot's risk node: team.risk's, or the top-level risk for all."""
+    return list(params.team.risk) if params.team.risk is not None else [params.risk] * params.team.robots
 
 
 def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -122,17 +131,22 @@ def summarize(
             | {"none": float((group.source_reached < 0).mean())},
         }
     _, final_thetas, _ = policies(setup, state.thetas)
+    objective_figure = _objective(params.risk, z.total_reward.to_numpy(), figures, params)
+    robots, team_objective = robot_objectives(setup, state.thetas, evaluation)
     return {
         "schema_version": SCHEMA_VERSION,
         "experiment": params.experiment,
         "risk": params.risk.measure,
         "beta": params.risk.beta,
-        "robots": setup.robots,
+        "team_size": setup.robots,
         "headline_robot": headline,
+        "objective": objective_figure,
+        "team_objective": team_objective,
         **figures,
         "risky_fraction": per_policy[str(headline)]["risky_fraction"],
         "source_reached": per_policy[str(headline)]["source_reached"],
         "theta_final": final_thetas[-1].tolist() if setup.team else final_thetas[0].tolist(),
+        "robots": robots,
         "policies": per_policy,
         "iterations": state.iteration,
         "eval_episodes": params.train.eval_episodes,
@@ -140,3 +154,57 @@ def summarize(
         "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else None,
         "provenance": provenance(),
     }
+
+
+def _objective(risk, z: np.ndarray, figures: dict, params) -> dict:
+    """{"measure", "value", "low", "high"} of the trained measure on the evaluation episodes z: the figures' own for
+    CVaR at the reported beta and for the mean, else from the same bootstrap resamples."""
+    if risk.measure == Measure.cvar and risk.beta == params.risk.beta:
+        return {"measure": str(risk.measure), **figures["cvar"]}
+    if risk.measure == Measure.neutral:
+        return {"measure": str(risk.measure), **figures["mean"]}
+    return objective_interval(z, risk, params.train.bootstrap, params.seed)[0]
+
+
+def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: pd.DataFrame) -> tuple[list[dict], dict]:
+    """Each robot's objective at the network average theta-bar (from its own start, by its own measure: the team
+    objective's terms) and the team objective, their sum, with bootstrap intervals from the same resamples.
+
+    theta-bar's episodes from robot 0's start are eval.parquet's robot -1 rows; each other start gets episodes of
+    its own stream (not saved). A centralized run is a team of one: its entry is the run's own objective."""
+    params, count = setup.params, setup.params.train.eval_episodes
+    risks = robot_risks(params)
+    cells = starts(setup)
+    headline = AVERAGE if setup.team else 0
+    average = thetas.mean(axis=0, keepdims=True)
+    returns = {int(cells[0]): evaluation.total_reward[evaluation.robot == headline].to_numpy()}
+    for q, cell in enumerate(dict.fromkeys(int(c) for c in cells if int(c) not in returns)):
+        parts = []
+        for first in range(0, count, EVAL_BATCH):
+            key = np.array([rng.stream_key(params.seed, rng.EVAL, setup.robots + 1 + q, first)], dtype=np.uint64)
+            batch = simulate(setup.world, setup.kernel, average, np.array([cell]), key, min(EVAL_BATCH, count - first))
+            parts.append(batch.total_reward)
+        returns[cell] = np.concatenate(parts)
+    pairs = {(int(c), json.dumps(as_dict(r), sort_keys=True)): (int(c), r) for c, r in zip(cells, risks)}
+    with_intervals = len(pairs) <= ROBOT_INTERVALS
+    figures = {}
+    for key, (cell, risk) in pairs.items():
+        check_finite("the evaluation's total reward", returns[cell])
+        if with_intervals:
+            figures[key] = objective_interval(returns[cell], risk, params.train.bootstrap, params.seed)
+        else:
+            figures[key] = ({"measure": str(risk.measure), "value": float(objective(returns[cell], risk))}, None)
+    robots, total, resamples = [], 0.0, np.zeros(params.train.bootstrap) if with_intervals else None
+    for i, (cell, risk) in enumerate(zip(cells, risks)):
+        figure, values = figures[(int(cell), json.dumps(as_dict(risk), sort_keys=True))]
+        x, y = setup.world.xy(int(cell))
+        robots.append({"robot": i, "start": [int(x), int(y)], "objective_at_average": figure})
+        total += figure["value"]
+        if with_intervals:
+            resamples = resamples + values
+    team = {"value": total}
+    if with_intervals:
+        low, high = np.percentile(resamples, [2.5, 97.5])
+        team |= {"low": float(low), "high": float(high)}
+    check_finite("the team objective", *[v for v in team.values()])
+    return robots, team

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
 
-from riskplan.engine.risk_measures import cvar, tail_count, value_at_risk
+from riskplan.config.schema import Measure
+from riskplan.engine.risk_measures import cvar, distortion, objective, risk_spec, tail_count, value_at_risk
 from riskplan.engine.rng import BOOTSTRAP, GOLDEN, episode_state, mix, stream_key
 
 REPORT_BETAS = (0.05, 0.1, 0.2)
@@ -26,26 +29,32 @@ def bootstrap_intervals(z: np.ndarray, beta: float, resamples: int, seed: int) -
     return {name: {"value": point[i], "low": float(low[i]), "high": float(high[i])} for i, name in enumerate(names)}
 
 
-@njit(parallel=True, cache=True)
-def _bootstrap(z_sorted, betas, tails, key, out):
-    """Each resample draws n indices (own stream), then reads mean, VaR and CVaRs off the sorted counts.
-
-    One 64-bit draw gives two indices, floor(u * n / 2^32) of its 32-bit halves u (Lemire's multiply-shift): half
-    the draws, and each index's probability is within 2^-32 of 1/n (a relative error below n / 2^32)."""
-    n = z_sorted.size
+@njit(cache=True, inline="always")
+def _resample_counts(key, b, n):
+    """How often resample b (its own stream) draws each of n indices: one 64-bit draw gives two indices,
+    floor(u * n / 2^32) of its 32-bit halves u (Lemire's multiply-shift): half the draws, and each index's
+    probability is within 2^-32 of 1/n (a relative error below n / 2^32)."""
     size = np.uint64(n)
     half, low = np.uint64(32), np.uint64(0xFFFFFFFF)
+    counts = np.zeros(n, dtype=np.int32)
+    state = episode_state(key, b)
+    for _ in range(n // 2):
+        state = state + np.uint64(GOLDEN)
+        bits = mix(state)
+        counts[((bits & low) * size) >> half] += 1
+        counts[((bits >> half) * size) >> half] += 1
+    if n % 2:
+        state = state + np.uint64(GOLDEN)
+        counts[((mix(state) & low) * size) >> half] += 1
+    return counts
+
+
+@njit(parallel=True, cache=True)
+def _bootstrap(z_sorted, betas, tails, key, out):
+    """Each resample draws n indices (`_resample_counts`), then reads mean, VaR and CVaRs off the sorted counts."""
+    n = z_sorted.size
     for b in prange(out.shape[0]):
-        counts = np.zeros(n, dtype=np.int32)
-        state = episode_state(key, b)
-        for _ in range(n // 2):
-            state = state + np.uint64(GOLDEN)
-            bits = mix(state)
-            counts[((bits & low) * size) >> half] += 1
-            counts[((bits >> half) * size) >> half] += 1
-        if n % 2:
-            state = state + np.uint64(GOLDEN)
-            counts[((mix(state) & low) * size) >> half] += 1
+        counts = _resample_counts(key, b, n)
         total = 0.0
         for i in range(n):
             total += counts[i] * z_sorted[i]
@@ -64,3 +73,49 @@ def _bootstrap(z_sorted, betas, tails, key, out):
             for k in range(i):
                 tail += counts[k] * (z_sorted[k] - v)
             out[b, 2 + t] = v + tail / (betas[t] * n)
+
+
+def objective_interval(z: np.ndarray, risk, resamples: int, seed: int) -> tuple[dict, np.ndarray]:
+    """Point value and 95% percentile-bootstrap interval of the measure of z that `risk` names (a risk node), from
+    the very resamples of `bootstrap_intervals` (the same stream): ({"measure", "value", "low", "high"}, each
+    resample's value), the latter for intervals of sums over robots."""
+    spec = risk_spec(risk)
+    z = np.sort(np.asarray(z, dtype=float))
+    values = np.empty(resamples)
+    key = np.uint64(stream_key(seed, BOOTSTRAP))
+    if spec.measure == Measure.entropic:
+        _bootstrap_entropic(z, spec.eta, key, values)
+    else:  # spectral (cvar, neutral too): sum_k z_(k) [g(C_k / n) - g(C_{k-1} / n)] over the resample's counts C
+        _bootstrap_distorted(z, distortion(np.arange(z.size + 1) / z.size, spec), key, values)
+    low, high = np.percentile(values, [2.5, 97.5])
+    point = {"measure": str(spec.measure), "value": float(objective(z, spec)), "low": float(low), "high": float(high)}
+    return point, values
+
+
+@njit(parallel=True, cache=True)
+def _bootstrap_distorted(z_sorted, table, key, out):
+    """A distortion risk measure of each resample: sum_k z_(k) [table[C_k] - table[C_{k-1}]], table[c] = g(c / n)."""
+    n = z_sorted.size
+    for b in prange(out.shape[0]):
+        counts = _resample_counts(key, b, n)
+        total, cumulative = 0.0, 0
+        for i in range(n):
+            if counts[i]:
+                total += z_sorted[i] * (table[cumulative + counts[i]] - table[cumulative])
+                cumulative += counts[i]
+        out[b] = total
+
+
+@njit(parallel=True, cache=True)
+def _bootstrap_entropic(z_sorted, eta, key, out):
+    """The entropic risk of each resample, -(1/eta) log (sum_k C_k exp(-eta z_k) / n), shifted by the smallest z
+    so that no exponential overflows."""
+    n = z_sorted.size
+    shift = z_sorted[0]
+    for b in prange(out.shape[0]):
+        counts = _resample_counts(key, b, n)
+        total = 0.0
+        for i in range(n):
+            if counts[i]:
+                total += counts[i] * math.exp(-eta * (z_sorted[i] - shift))
+        out[b] = shift - math.log(total / n) / eta

@@ -124,6 +124,11 @@ OWN_SCHEMAS: dict[str, dict] = {
             "cvar": _FLOAT,
             "value_at_risk": _FLOAT,
             "std": _FLOAT,
+            "objective": {
+                **_FLOAT,
+                "description": "the robot's own risk measure (risk, or team.risk.<robot>) on its samples; on the "
+                "robot -1 row, the team objective: the sum over the robots",
+            },
             "grad_norm": _FLOAT,
             "step_size": _FLOAT,
             "beta_l": {

@@ -21,10 +21,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 from omegaconf import OmegaConf
 
-from riskplan.config.schema import Measure, Order
+from riskplan.config.schema import Measure, Order, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict, typed
 from riskplan.engine import rng
-from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, summary_stats
+from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, objective, objective_gradient, summary_stats
 from riskplan.engine.rollout import simulate
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.engine.team.network import network_metadata
@@ -64,12 +64,12 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
     with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are caught just below, in one line
         stats = summary_stats(z, beta)
         check_finite(f"iteration {l}: the statistics of the total reward", *stats.values())
-        if params.risk.measure == Measure.cvar:
-            level = risk_level(l, params.risk)  # soft risk: beta_l; the paper's beta when risk.schedule.kind=none
-            grads = cvar_gradient(z, scores, level, var=stats["value_at_risk"] if level == beta else None)
-        else:
-            level = 1.0  # the mean gradient is CVaR_1's
-            grads = mean_gradient(z, scores, params.train.baseline)
+        grads, levels, stats["objective"] = np.empty(thetas.shape), np.empty(n), np.empty(n)
+        for risk, robots in risk_groups(params):  # one group, all robots, unless team.risk gives robots their own
+            grads[robots], levels[robots], stats["objective"][robots] = gradients(
+                z[robots], scores[robots], risk, l, stats, robots, params.train.baseline, beta
+            )
+        check_finite(f"iteration {l}: the objective of the total reward", stats["objective"])
         eps = step_size(l, params.train.step_size)
         new_thetas = consensus_step(setup, thetas, grads, eps, l)
     if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(new_thetas))):
@@ -84,23 +84,47 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
         )
     error = consensus_error(thetas) if setup.team else math.nan
     seconds = time.perf_counter() - started
-    rows = _robot_rows(l, stats, thetas, grads, eps, error, episodes, seconds, level)
+    rows = _robot_rows(l, stats, thetas, grads, eps, error, episodes, seconds, levels)
     if setup.team:
+        average = summary_stats(z.ravel(), beta) | {"objective": stats["objective"].sum()}  # the team objective
+        level = levels[0] if np.all(levels == levels[0]) else math.nan
         rows.append(
-            _row(
-                l,
-                AVERAGE,
-                summary_stats(z.ravel(), beta),
-                thetas.mean(axis=0),
-                grads.mean(axis=0),
-                eps,
-                error,
-                episodes * n,
-                seconds,
-                level,
-            )
+            _row(l, AVERAGE, average, thetas.mean(axis=0), grads.mean(axis=0), eps, error, episodes * n, seconds, level)
         )
     return State(l + 1, new_thetas, setup.mixer.snapshot(), state.rows + rows), rows  # copied when read
+
+
+def risk_groups(params: RiskplanConf) -> list[tuple[RiskConf, slice | np.ndarray]]:
+    """The robots that share a risk node, as (node, index into the robot axis): one group of all robots (a slice,
+    so the default path copies nothing) unless team.risk gives robots nodes of their own."""
+    if params.team.risk is None:
+        return [(params.risk, slice(None))]
+    groups: dict[str, tuple[RiskConf, list[int]]] = {}
+    for i, node in enumerate(params.team.risk):
+        groups.setdefault(json.dumps(as_dict(node), sort_keys=True), (node, []))[1].append(i)
+    return [(node, np.array(robots)) for node, robots in groups.values()]
+
+
+def gradients(z, scores, risk, l, stats, robots, baseline, beta) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gradients, the CVaR levels beta_l (NaN for a measure without one) and the objective values of robots
+    that share the risk node `risk`: z (R, W), scores (R, W, M). CVaR is Algorithm 1 (eq. 9) at the soft-risk level
+    beta_l, the mean REINFORCE (eq. 4); the other measures are riskplan.engine.risk_measures' estimators."""
+    if risk.measure == Measure.cvar:
+        level = risk_level(l, risk)  # soft risk: beta_l; the paper's beta when risk.schedule.kind=none
+        shared = level == beta and risk.beta == beta  # the statistics' VaR is this partition's
+        grads = cvar_gradient(z, scores, level, var=stats["value_at_risk"][robots] if shared else None)
+        values = stats["cvar"][robots] if risk.beta == beta else objective(z, risk)
+    elif risk.measure == Measure.neutral:
+        level = 1.0  # the mean gradient is CVaR_1's
+        grads, values = mean_gradient(z, scores, baseline), stats["mean"][robots]
+    else:
+        schedule = risk.measure == Measure.mean_cvar
+        level = risk_level(l, risk) if schedule else math.nan
+        at_level = (
+            {"measure": risk.measure, "beta": level, "eta": risk.eta, "weight": risk.weight} if schedule else risk
+        )
+        grads, values = objective_gradient(z, scores, at_level, baseline=baseline), objective(z, risk)
+    return grads, np.full(len(z), level), values
 
 
 def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int) -> np.ndarray:
@@ -221,21 +245,24 @@ def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
     return setup, done
 
 
-def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, level) -> list[dict]:
-    """`_row` of every robot i (stats[k][i], thetas[i], grads[i]): the same dicts, copies of one template with the
-    values every robot shares, filled in column by column."""
+def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, levels) -> list[dict]:
+    """`_row` of every robot i (stats[k][i], thetas[i], grads[i], levels[i]): the same dicts, copies of one template
+    with the values every robot shares, filled in column by column."""
     n, m = thetas.shape
     if n <= 4:  # a centralized run or a small team: one _row each is quicker
         return [
-            _row(l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, samples, seconds, level)
+            _row(
+                l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, samples, seconds, levels[i]
+            )
             for i in range(n)
         ]
-    template = _row(l, 0, {k: 0.0 for k in stats}, np.zeros(m), np.zeros(1), eps, error, samples, seconds, level)
+    template = _row(l, 0, {k: 0.0 for k in stats}, np.zeros(m), np.zeros(1), eps, error, samples, seconds, levels[0])
     columns = {
         "robot": range(n),
         **{k: np.asarray(v, dtype=float).tolist() for k, v in stats.items()},
         **{f"theta_{j}": column for j, column in enumerate(np.asarray(thetas, dtype=float).T.tolist())},
         "grad_norm": _norms(grads),
+        "beta_l": np.asarray(levels, dtype=float).tolist(),
     }
     rows = [template.copy() for _ in range(n)]
     for key, column in columns.items():  # existing keys: the template's order stays
