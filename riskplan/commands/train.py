@@ -18,6 +18,7 @@ from riskplan.commands.common import (
     with_config_dirs,
 )
 from riskplan.util.errors import BadInput
+from riskplan.util.interrupt import Interrupted
 from riskplan.util.lock import LOCK, hold, holder
 from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote
 
@@ -178,6 +179,9 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
         write_status(run_dir, "running", None)
         with TrainingBar() as progress:
             train_run(setup, run_dir, resume=True, progress=progress)
+    except Interrupted as stop:
+        _try_status(run_dir, str(stop), "interrupted")
+        _stopped(stop, run_dir)
     except (NumericalTrouble, OSError) as err:
         message = str(err) if isinstance(err, NumericalTrouble) else _os_error(err, run_dir)
         _try_status(run_dir, message)
@@ -187,10 +191,18 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
     _finish(run_dir)
 
 
-def _finish(out: Path) -> None:
-    """Print the one-line summary of a finished run, or its error with exit code 1."""
-    from riskplan.experiments.hydra_app import STATUS, last_failure
+def _stopped(stop: Interrupted, out: Path) -> None:
+    """One line for a run a signal stopped (its last iteration checkpointed), and the shell's code for it."""
+    typer.echo(f"{stop}; resume with riskplan train --resume {out}", err=True)
+    raise typer.Exit(stop.exit_code)
 
+
+def _finish(out: Path) -> None:
+    """Print the one-line summary of a finished run, or why it stopped with its exit code (1, 130 or 143)."""
+    from riskplan.experiments.hydra_app import STATUS, last_failure, last_interruption
+
+    if last_interruption() is not None:
+        _stopped(last_interruption(), out)
     try:
         status = json.loads((out / STATUS).read_text())
     except (OSError, ValueError):
@@ -212,12 +224,12 @@ def _os_error(err: OSError, out: Path) -> str:
     )
 
 
-def _try_status(out: Path, message: str) -> None:
+def _try_status(out: Path, message: str, status: str = "failed") -> None:
     """Record a failure in status.json if the disk still takes it (it may be the full disk that failed)."""
     from riskplan.experiments.hydra_app import write_status
 
     try:
-        write_status(out, "failed", message)
+        write_status(out, status, message)
     except OSError:
         pass
 
@@ -230,9 +242,12 @@ def summary_line(summary: dict, out: Path) -> str:
         return f"{f['value']:.1f} [{f['low']:.1f}, {f['high']:.1f}]"
 
     reached = ", ".join(f"{k} {v:.1%}" for k, v in summary["source_reached"].items())
+    robots = summary.get("team_size", summary.get("robots"))  # summaries of schema 1 held the count as robots
+    measure = summary.get("objective", {}).get("measure", "cvar")
+    objective = "" if measure in ("cvar", "neutral") else f"{measure} {fig('objective')}, "
     return (
-        f"{summary['experiment']} risk={summary['risk']} beta={summary['beta']:g} robots={summary['robots']}: "
+        f"{summary['experiment']} risk={summary['risk']} beta={summary['beta']:g} robots={robots}: "
         f"{summary['iterations']} iterations in {summary['wall_time']:.2f} s | eval {summary['eval_episodes']} "
-        f"episodes: mean {fig('mean')}, CVaR {fig('cvar')}, VaR {fig('value_at_risk')} | "
+        f"episodes: {objective}mean {fig('mean')}, CVaR {fig('cvar')}, VaR {fig('value_at_risk')} | "
         f"P(risky) {summary['risky_fraction']:.1%} | reached {reached} -> {out}"
     )

@@ -23,11 +23,13 @@ from omegaconf import DictConfig
 
 from riskplan.config import schema
 from riskplan.util.errors import BadInput
+from riskplan.util.interrupt import Interrupted
 from riskplan.util.paths import write_atomic
 
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")  # absolute: riskplan/conf is a symlinked data dir
 STATUS = "status.json"  # written in every job directory: {"status": "done" | "failed", "error": ...}
 _failure: list[str] = []  # the last single run's failure, for when status.json cannot be written (a full disk)
+_interrupted: list[Interrupted] = []  # the last single run's stop by a signal
 _task_stderr: list = []  # the terminal's stderr, handed back to the task while Hydra's own output is captured
 
 
@@ -44,12 +46,18 @@ def task(cfg: DictConfig) -> float | None:
 
         return sweep_job(cfg, out)
     _failure.clear()
+    _interrupted.clear()
     stderr = _task_stderr[-1] if _task_stderr else sys.stderr
     with contextlib.redirect_stderr(stderr):
         try:
             write_status(out, "running", None)
             with _progress(single) as progress:
                 run = train(cfg, out, progress=progress)
+        except Interrupted as stop:  # checkpointed: status interrupted, and the CLI exits 130 or 143
+            _interrupted.append(stop)
+            with contextlib.suppress(OSError):
+                write_status(out, "interrupted", str(stop))
+            return None
         except (BadInput, NumericalTrouble) as err:
             return _failed(out, str(err))
         except OSError as err:  # a full disk, a directory removed under the run
@@ -69,6 +77,11 @@ def _failed(out: Path, error: str, trace: str | None = None) -> None:
     with contextlib.suppress(OSError):
         write_status(out, "failed", error, trace)
     return None
+
+
+def last_interruption() -> Interrupted | None:
+    """The signal that stopped the last single run in this process, if one did."""
+    return _interrupted[-1] if _interrupted else None
 
 
 def last_failure() -> str | None:

@@ -38,6 +38,7 @@ from riskplan.run.record import RunLog, read_log, resume_log
 from riskplan.run.results import Run
 from riskplan.run.schedules import risk_level, samples_at, step_size
 from riskplan.util.errors import BadInput
+from riskplan.util.interrupt import StopSignals
 from riskplan.util.lock import hold
 from riskplan.util.paths import atomic_path, check_output_dir, write_atomic
 
@@ -177,17 +178,20 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
     total = setup.params.train.iterations
     every = setup.params.train.checkpoint_every
     wall = time.perf_counter()
-    with log:
+    with log, StopSignals() as stop:  # SIGINT or SIGTERM: checkpoint the iteration in progress, then Interrupted
         while state.iteration < total:
             state, rows = iterate(setup, state)
             log.iteration(rows)
-            if state.iteration % every == 0 or state.iteration == total:
-                log.sync()  # the log of every checkpointed iteration is on disk before the checkpoint is
-                save_checkpoint(out, state)
+            saved = state.iteration % every == 0 or state.iteration == total
+            if saved:
+                _checkpoint(log, out, state)
             if progress:
                 progress(state.iteration, total, rows[-1])
             if os.environ.get(STOP_ENV) == str(state.iteration - 1):
                 os.kill(os.getpid(), signal.SIGSTOP)
+            if stop.received and not saved:
+                _checkpoint(log, out, state)  # the iteration a signal cut short is kept
+            stop.check(state.iteration)
         train_seconds = time.perf_counter() - wall
         import pandas as pd  # only now: the first iteration does not wait for it (`riskplan bench`'s start-up row)
 
@@ -195,6 +199,7 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
         evaluation = evaluate(setup, state.thetas)
         trajectories = sample_paths(setup, state.thetas)
         summary = summarize(setup, state, evaluation, metrics, train_seconds)
+        stop.check(state.iteration)  # before the final files: a resumed run evaluates again
         log.trajectories(trajectories)
         log.evaluation(evaluation)
         log.summary(summary)
@@ -204,6 +209,12 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
     write_layout(out, setup.robots, (setup.world.width, setup.world.height))  # before summary.json: done means all
     write_atomic(out / "summary.json", json.dumps(summary, indent=2, allow_nan=False))
     return Run(out, setup.config, metrics, evaluation, trajectories, summary, True)
+
+
+def _checkpoint(log: RunLog, out: Path, state: State) -> None:
+    """The log of every checkpointed iteration is on disk before the checkpoint is."""
+    log.sync()
+    save_checkpoint(out, state)
 
 
 def refuse_existing_run(out: Path, setup: Setup) -> None:

@@ -1,0 +1,67 @@
+"""Stopping cleanly on SIGINT or SIGTERM (Ctrl-C, a scheduler's preemption or requeue): the signal is noted, the
+run finishes the iteration in progress, writes a checkpoint and stops with `Interrupted`; a second signal stops at
+once, as the signal would have without riskplan."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import threading
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class Interrupted(BaseException):
+    """A run stopped by a signal after checkpointing its last finished iteration (a BaseException, as
+    KeyboardInterrupt is, so that no `except Exception` swallows it)."""
+
+    def __init__(self, signum: int, finished: int):
+        self.signum, self.finished = int(signum), int(finished)
+        super().__init__(f"interrupted by {self.name} after {self.finished} iterations, all checkpointed")
+
+    @property
+    def name(self) -> str:
+        """SIGINT or SIGTERM."""
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        """The shell's code for a process ended by the signal: 130 for SIGINT, 143 for SIGTERM."""
+        return 128 + self.signum
+
+
+class StopSignals(contextlib.AbstractContextManager):
+    """While active (in the main thread; elsewhere signals cannot be caught and this does nothing), SIGINT and
+    SIGTERM set `received` instead of stopping the process; the previous handlers come back on exit."""
+
+    def __init__(self) -> None:
+        self.received: int | None = None
+        self._previous: dict[int, object] = {}
+
+    def __enter__(self) -> StopSignals:
+        if threading.current_thread() is threading.main_thread():
+            for signum in SIGNALS:
+                self._previous[signum] = signal.signal(signum, self._note)
+        return self
+
+    def _note(self, signum: int, frame) -> None:
+        if self.received is None:
+            self.received = signum
+            return
+        self._restore()  # a second signal: what it would have done without riskplan, now
+        os.kill(os.getpid(), signum)
+
+    def _restore(self) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+    def __exit__(self, *exc) -> None:
+        self._restore()
+
+    def check(self, finished: int) -> None:
+        """Interrupted(signal, finished iterations) once a signal was received: call it where stopping loses
+        nothing."""
+        if self.received is not None:
+            raise Interrupted(self.received, finished)
