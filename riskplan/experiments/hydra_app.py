@@ -89,8 +89,12 @@ def last_failure() -> str | None:
     return _failure[-1] if _failure else None
 
 
-def run_hydra(args: list[str], capture: bool = False) -> None:
+def run_hydra(args: list[str], capture: bool = False, skip: frozenset = frozenset(), launched: list | None = None):
     """Call the Hydra app as if `riskplan <args>` were its command line.
+
+    In a multirun, the basic sweeper's jobs whose overrides are in `skip` (finished ones) are not handed to the
+    launcher, so a re-run sweep submits only the jobs that need to run; `launched` receives those it hands over,
+    in order (a launcher's task k is launched[k]).
 
     With `capture`, what Hydra itself prints on stderr (it prints a traceback for an error outside the task, e.g.
     a full disk while it writes .hydra/) is held back, and a failure becomes one line (RunFailed); the task gets
@@ -106,7 +110,7 @@ def run_hydra(args: list[str], capture: bool = False) -> None:
     try:
         with (
             contextlib.redirect_stderr(held) if capture else contextlib.nullcontext(),
-            _without_repeat_compositions(multirun="-m" in args or "--multirun" in args),
+            _without_repeat_compositions("-m" in args or "--multirun" in args, skip, launched),
         ):
             task()
     except SystemExit as stop:
@@ -157,21 +161,33 @@ def run_composed(config: DictConfig) -> None:
 
 
 @contextlib.contextmanager
-def _without_repeat_compositions(multirun: bool):
+def _without_repeat_compositions(multirun: bool, skip: frozenset = frozenset(), launched: list | None = None):
     """Skip two compositions Hydra repeats that riskplan has already done: `Hydra.get_mode` composes the config
     only to read hydra.mode (riskplan's commands fix the mode: train runs, sweep multiruns), and the basic sweeper
     composes every job once more to validate it (`plan_sweep` composed and validated each one, and Hydra's own
     comment there calls it slow for large sweeps). Each takes 0.07-0.1 s: per job, in a sweep's driver.
 
-    Both are Hydra internals (hydra-core is pinned to 1.3.x): if they move, nothing is skipped. Optimising
+    The basic sweeper's batches also leave out the jobs in `skip` (`get_job_batch`), and note the rest in
+    `launched`.
+
+    All are Hydra internals (hydra-core is pinned to 1.3.x): if they move, nothing is skipped. Optimising
     sweepers (optuna) choose their own jobs, so they still validate them."""
     from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
     from hydra._internal.hydra import Hydra
 
     mode = RunMode.MULTIRUN if multirun else RunMode.RUN
+    own_batch = BasicSweeper.get_job_batch
+
+    def job_batch(sweeper) -> list:
+        batch = [job for job in own_batch(sweeper) if tuple(job) not in skip]
+        if launched is not None:
+            launched.extend(tuple(job) for job in batch)
+        return batch
+
     replacements = {
         (Hydra, "get_mode"): lambda *args, **kwargs: mode,
         (BasicSweeper, "validate_batch_is_legal"): lambda *args, **kwargs: None,
+        (BasicSweeper, "get_job_batch"): job_batch,
     }
     originals = {key: key[0].__dict__.get(key[1]) for key in replacements if hasattr(*key)}
     try:

@@ -43,6 +43,8 @@ from pathlib import Path
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from riskplan.util.interrupt import Interrupted
+
 STATUS = "status.json"
 JOB_LOG = "job.log"  # everything the job prints (Python and native), one file per job folder
 THREADS_ENV = "RISKPLAN_JOB_THREADS"  # numba threads per job, set by `riskplan sweep` for parallel local jobs
@@ -196,7 +198,7 @@ def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | No
         numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     resume = (
         prior is not None
-        and prior.get("status") == "running"
+        and prior.get("status") in ("running", "interrupted")  # killed, or stopped by a signal (preempted)
         and prior.get("config_sha") == sha
         and (out / "checkpoint").is_file()
     )
@@ -213,7 +215,13 @@ def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | No
             + (f", ends with the sweep process {_watching[0]})" if watched and _watching else ")"),
             flush=True,
         )
-        record = _train(cfg, out, resume)
+        try:
+            record = _train(cfg, out, resume)
+        except Interrupted as stop:  # checkpointed: the job ends by the signal, leaving no result behind, so a
+            # scheduler that requeues it (preemption, submitit's checkpoint) runs it again and it resumes
+            print(f"=== {stop}", flush=True)
+            write_status(out, {"status": "interrupted", "error": str(stop), **base, "resumed": resume})
+            raise SystemExit(stop.exit_code) from None
         print(f"=== {record['status']}" + (f": {record['error']}" if record["error"] else ""), flush=True)
     finished = time.time()
     write_status(out, {**record, **base, "finished": finished, "seconds": finished - started, "resumed": resume})
@@ -294,19 +302,24 @@ def warm_up() -> tuple[int, float]:
     return os.getpid(), time.time() - started
 
 
+GRANTED = ("SLURM_CPUS_PER_TASK", "OMP_NUM_THREADS")  # CPUs a scheduler granted this job, where it says
+
+
 def job_threads() -> int | None:
     """numba threads for this job: RISKPLAN_JOB_THREADS if set, else no more than the cores this process may run
-    on (a SLURM allocation) nor OMP_NUM_THREADS (which joblib's workers and Ray's tasks get); results do not
-    depend on it."""
+    on (CPU binding), nor the CPUs SLURM granted (SLURM_CPUS_PER_TASK: a cluster that does not bind jobs to their
+    CPUs would otherwise run every job on every core of the node), nor OMP_NUM_THREADS (which joblib's workers and
+    Ray's tasks get); results do not depend on it."""
     explicit = os.environ.get(THREADS_ENV, "")
     if explicit.isdigit():
         return int(explicit)
     limits = []
     if hasattr(os, "sched_getaffinity"):
         limits.append(len(os.sched_getaffinity(0)))
-    omp = os.environ.get("OMP_NUM_THREADS", "")
-    if omp.isdigit() and int(omp) > 0:
-        limits.append(int(omp))
+    for name in GRANTED:
+        value = os.environ.get(name, "")
+        if value.isdigit() and int(value) > 0:
+            limits.append(int(value))
     return min(limits) if limits else None
 
 

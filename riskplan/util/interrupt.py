@@ -65,3 +65,42 @@ class StopSignals(contextlib.AbstractContextManager):
         nothing."""
         if self.received is not None:
             raise Interrupted(self.received, finished)
+
+
+class DriverSignals(StopSignals):
+    """StopSignals for a process that waits on others (a sweep's driver). The first SIGINT or SIGTERM is noted; a
+    SIGTERM (meant for the driver alone) is passed on to its local workers, which checkpoint and stop, so the
+    launch ends by itself; with `raise_at_once` (jobs on a cluster, which go on without the driver) the driver
+    stops waiting at once (KeyboardInterrupt). A second signal stops the driver at once."""
+
+    def __init__(self, raise_at_once: bool) -> None:
+        super().__init__()
+        self.raise_at_once = raise_at_once
+
+    def _note(self, signum: int, frame) -> None:
+        first = self.received is None
+        super()._note(signum, frame)
+        if first and signum == signal.SIGTERM:
+            for pid in descendants(os.getpid()):
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGTERM)
+        if first and self.raise_at_once:
+            raise KeyboardInterrupt
+
+
+def descendants(pid: int) -> list[int]:
+    """The live processes below `pid` (children, grandchildren, ...), from /proc; [] where there is none."""
+    parents: dict[int, int] = {}
+    for entry in os.listdir("/proc") if os.path.isdir("/proc") else ():
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as stat:
+                    parents[int(entry)] = int(stat.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+    found, frontier = [], [pid]
+    while frontier:
+        children = [child for child, parent in parents.items() if parent in frontier]
+        found += children
+        frontier = children
+    return found

@@ -14,6 +14,9 @@ from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.experiments.sweeping.search import run_optimiser
 from riskplan.experiments.sweeping.summary import summarize, write_summary
 from riskplan.experiments.sweeping.view import SweepView
+from riskplan.util.interrupt import DriverSignals
+
+LOCAL = ("joblib", "submitit_local", "basic")  # launchers whose jobs run below the driver, and stop with it
 
 
 def run_sweep(
@@ -55,15 +58,19 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         f"{len(plan.jobs)} job{'s' if len(plan.jobs) != 1 else ''}: {todo} to run, {len(finished)} already "
         f"finished ({where})"
     )
-    launcher_error = None
+    launcher_error, interrupted = None, None
     if todo:
         if plan.launcher == "joblib" and plan.workers:
             os.environ[THREADS_ENV] = str(max(1, cpu_count() // plan.workers))
         os.environ[DRIVER_ENV] = str(os.getpid())  # local workers SIGKILL themselves when this process is gone
         if before_launch is not None:
             before_launch()
-        with SweepView(plan.sweep_dir, plan.jobs, finished, title):
-            launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log")
+        # Ctrl-C reaches local workers too, and they checkpoint and stop; the driver waits for that (see
+        # DriverSignals), then reports the interruption.
+        with SweepView(plan.sweep_dir, plan.jobs, finished, title), DriverSignals(plan.launcher not in LOCAL) as stop:
+            skip = frozenset(tuple(plan.jobs[i].overrides) for i in finished)
+            launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log", skip)
+        interrupted = stop.received
     for job in plan.jobs:  # a job found under another name (an older naming) ran in its own folder now
         if (
             job.folder is not None
@@ -81,4 +88,16 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         + [f"hydra.sweep.dir={plan.sweep_dir}"]
         + (["--jobs", str(jobs)] if jobs else [])
     )
-    return Outcome(plan.sweep_dir, summary, failed, todo, len(finished), time.time() - started, launcher_error, resume)
+    return Outcome(
+        plan.sweep_dir,
+        summary,
+        failed,
+        todo,
+        len(finished),
+        time.time() - started,
+        launcher_error,
+        resume,
+        None,
+        False,
+        interrupted,
+    )

@@ -67,6 +67,7 @@ class Outcome:
     command: list[str] = field(default_factory=list)  # the `riskplan sweep` arguments that resume this sweep
     best: str | None = None  # an optimising sweeper's best trial, as it reports it
     optimiser: bool = False
+    interrupted: int | None = None  # the signal that stopped the sweep (SIGINT, SIGTERM), if one did
 
     @property
     def ok(self) -> bool:

@@ -4,23 +4,26 @@ started ahead of it (`warm_workers`)."""
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 from riskplan.experiments.sweeping.jobs import cpu_count
 
 
-def launch(argv: list[str], log_file: Path) -> str | None:
-    """Run Hydra's multirun, its printed output going to sweep.log; return the launcher's error, if any."""
+def launch(argv: list[str], log_file: Path, skip: frozenset = frozenset()) -> str | None:
+    """Run Hydra's multirun, its printed output going to sweep.log, leaving out the jobs whose overrides are in
+    `skip` (finished ones: a re-run sweep submits only what needs to run); return the launcher's error, if any."""
     import contextlib
 
     from riskplan.experiments.hydra_app import run_hydra
 
+    launched: list[tuple[str, ...]] = []
     with open(log_file, "a", buffering=1) as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
         try:
-            run_hydra(argv)
+            run_hydra(argv, skip=skip, launched=launched)
         except SystemExit as stop:  # Hydra prints an exception in the launcher, then exits 1
             if stop.code not in (0, None):
-                return _launcher_error(log_file)
+                return _launcher_error(log_file, launched)
         except KeyboardInterrupt:
             return "interrupted (Ctrl-C)"
         except Exception as err:
@@ -31,13 +34,29 @@ def launch(argv: list[str], log_file: Path) -> str | None:
     return None
 
 
-def _launcher_error(log_file: Path) -> str:
-    """The last line of the error Hydra printed into sweep.log."""
+# submitit's word for a SLURM job that ended without a result: its id, its task index and the state SLURM gave it
+UNCOMPLETED = re.compile(r"UncompletedJobError: Job (\S+) \(task: (\d+)\).*?\(state: ([A-Z_]+)")
+
+
+def _launcher_error(log_file: Path, launched: list[tuple[str, ...]]) -> str:
+    """The cause of the error Hydra printed into sweep.log: for a SLURM job that ended without a result (cancelled,
+    preempted, out of time or memory), which job and the state SLURM gave it; else the last error line."""
     try:
-        lines = [line.strip() for line in log_file.read_text().splitlines() if line.strip()]
+        text = log_file.read_text()
     except OSError:
-        lines = []
+        text = ""
+    uncompleted = UNCOMPLETED.findall(text)
+    if uncompleted:
+        job, task, state = uncompleted[-1]
+        task = int(task)
+        overrides = ",".join(launched[task]) if task < len(launched) else f"task {task}"
+        return (
+            f"the launcher stopped: SLURM job {job} ({overrides}) ended {state} without a result (submitit's "
+            f"UncompletedJobError; see {log_file})"
+        )
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
     errors = [line for line in lines if "Error" in line.split(":")[0] or "Exception" in line.split(":")[0]]
+    errors = [line for line in errors if not line.startswith("Error stream produced")] or errors
     last = errors[-1] if errors else (lines[-1] if lines else "no message")
     return f"the launcher stopped: {last[:300]} (see {log_file})"
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -55,6 +56,8 @@ def summarize(jobs: list[Job]):
             state, error = "failed", "finished, but some of its output files are missing"
         elif status.get("status") == "running":
             state, error = "interrupted", "killed while running; re-run the sweep to resume it"
+        elif status.get("status") == "interrupted":  # a signal stopped it after a checkpoint (Ctrl-C, preemption)
+            state, error = "interrupted", f"{status.get('error')}; re-run the sweep to resume it"
         else:
             state, error = "failed", status.get("error") or "no error recorded"
         for name in FIGURES:
@@ -179,6 +182,17 @@ def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) ->
     )
     if outcome.best:
         typer.echo(outcome.best)
+    if outcome.interrupted is not None:  # one line: what stopped it, and the command that resumes it
+        import shlex
+
+        stopped = sum(1 for _, error in outcome.failed)
+        typer.echo(
+            f"error: interrupted by {signal.Signals(outcome.interrupted).name}: {stopped} job"
+            f"{'' if stopped == 1 else 's'} did not finish (each keeps its last checkpoint); resume with riskplan "
+            f"sweep {shlex.join(outcome.command)}",
+            err=True,
+        )
+        return 128 + outcome.interrupted
     if outcome.launcher_error:
         typer.echo(f"error: {outcome.launcher_error}", err=True)
     if outcome.failed:
