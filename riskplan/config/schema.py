@@ -78,6 +78,13 @@ class Aggregate(Choice):
     wmsr = "wmsr"  # W-MSR: drop up to trim received values above and below its own, per coordinate
 
 
+class Backend(Choice):
+    """team.backend: where the robots run."""
+
+    simulated = "simulated"  # rows of one array stepped in lockstep, delays and drops simulated (deterministic)
+    ray = "ray"  # each robot a Ray actor with its own stream, messages through Ray, real asynchrony
+
+
 class FaultKind(Choice):
     """team.faults.N.kind."""
 
@@ -283,6 +290,10 @@ class TeamConf(Frozen):
     faults: list[Any] = field(default_factory=list)  # [{robot, kind, from, value | scale}], see config.faults
     aggregate: Aggregate = Aggregate.mean
     trim: int = 0  # F: the received values trimmed_mean and wmsr drop at each end, per coordinate
+    backend: Backend = Backend.simulated
+    staleness: int = 2  # ray: the oldest neighbour message (in iterations) a robot mixes before it waits for one
+    speeds: list[float] | None = None  # ray: per-robot slow-down factors >= 1 (4 = four times slower); null: all 1
+    address: str | None = None  # ray: an existing cluster (auto, or host:port); null: a local Ray instance
     switching: SwitchingConf = field(default_factory=SwitchingConf)
 
 

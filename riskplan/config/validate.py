@@ -13,6 +13,7 @@ import warnings
 from riskplan.config.faults import faults_of
 from riskplan.config.schema import (
     Aggregate,
+    Backend,
     Feature,
     MotionKind,
     Order,
@@ -163,6 +164,13 @@ def check_team(team: TeamConf) -> None:
         for i, node in enumerate(team.risk):
             check_risk(node, f"team.risk.{i}")
     faults_of(team)
+    require(
+        not team.faults or team.order != Order.gradient_tracking,
+        "team.faults",
+        "gradient tracking mixes running sums, whose invariant a faulty robot breaks: drop the faults, or use "
+        "team.order=combine_then_adapt or adapt_then_combine",
+    )
+    check_backend(team)
     if team.starts is not None:
         count = len(team.starts)
         require(
@@ -171,3 +179,43 @@ def check_team(team: TeamConf) -> None:
             f"gives {count} start cell{'' if count == 1 else 's'} for {team.robots} robots; give one [x, y] per "
             f"robot or null",
         )
+
+
+def check_backend(team: TeamConf) -> None:
+    """team.staleness, team.speeds and team.address, whatever the backend; the simulated network's delays, drops
+    and switching links do not apply to real messages (team.backend=ray), so they are refused there."""
+    whole(team.staleness, "team.staleness", 0, "the oldest neighbour message a robot mixes, in iterations,")
+    if team.speeds is not None:
+        require(
+            len(team.speeds) == team.robots,
+            "team.speeds",
+            f"gives {len(team.speeds)} factors for {team.robots} robots; give one per robot (1 = full speed) or null",
+        )
+        for i, speed in enumerate(team.speeds):
+            require(
+                math.isfinite(speed) and speed >= 1.0,
+                f"team.speeds.{i}",
+                f"got {speed}; expected a slow-down factor >= 1 (4 = four times slower)",
+            )
+    require(
+        team.address is None or bool(team.address.strip()),
+        "team.address",
+        "is empty; give auto, host:port of a Ray cluster's head, or null for a local Ray instance",
+    )
+    if team.backend != Backend.ray:
+        return
+    simulated = [
+        (key, value)
+        for key, value in (
+            ("team.delay.max", team.delay.max),
+            ("team.drop", team.drop),
+            ("team.switching.enabled", team.switching.enabled),
+        )
+        if value
+    ]
+    require(
+        not simulated,
+        simulated[0][0] if simulated else "team.backend",
+        f"got {simulated[0][1] if simulated else ''}; it simulates the network, and with team.backend=ray messages "
+        f"take the time they really take: drop it (bound their age with team.staleness)",
+    )
