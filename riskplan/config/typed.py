@@ -186,7 +186,7 @@ def explain(err: Exception) -> tuple[str, str]:
         group, option = missing.groups()
         listed = re.search(r"Available options in '[^']*':\n((?:\t.*(?:\n|$))+)", text)
         options = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))  # riskplan's own (not the schema's)
-        if not options and listed:  # a group of Hydra or its plugins, e.g. hydra/launcher
+        if group.startswith("hydra/") and listed:  # Hydra's and its plugins' groups (with riskplan's additions)
             options = [o.strip() for o in listed.group(1).splitlines() if o.strip()]
         return f"key '{group}'", f"no option '{option}'; available: {', '.join(options) or 'none'}"
     if "Could not override" in message:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import importlib.util
 import json
 import warnings
 from pathlib import Path
@@ -261,7 +262,7 @@ def check_hydra(hydra_args: list[str], first_job: list[str], sweeper: bool = Fal
     except (HydraException, OmegaConfBaseException) as err:
         where, message = explain(err)
         if where == "key 'hydra/launcher'":
-            message += " (pip install 'riskplan[slurm]' for submitit_local|submitit_slurm, 'riskplan[ray]' for ray)"
+            message += " (pip install 'riskplan[slurm]' for submitit_local|submitit_slurm, 'riskplan[ray]' for ray|ray_cluster)"
         if where == "key 'hydra/sweeper'":
             message += " (pip install 'riskplan[optuna]' for optuna)"
         raise BadInput(where, message) from None
@@ -373,3 +374,50 @@ def split_bad(message: str, count: int) -> tuple[str, str]:
 def first_line(err: Exception) -> str:
     text = str(err).strip()
     return text.splitlines()[0] if text else type(err).__name__
+
+
+RAY_INIT = "hydra.launcher.ray.init."
+# what ray.init refuses when it connects to an existing cluster (the nodes were sized by `ray start` on each node)
+RAY_CONNECT_REFUSES = (
+    "num_cpus",
+    "num_gpus",
+    "resources",
+    "labels",
+    "object_store_memory",
+    "_system_config",
+    "_enable_object_reconstruction",
+    "_node_name",
+)
+
+
+def ray_init_overrides(launcher: str, hydra_keys: dict) -> list[str]:
+    """Only the ray.init arguments that fit the case. hydra-ray-launcher 1.2 adds object_store_memory (75 MiB)
+    before ray.init(**init): right for a local instance, refused by ray.init when it connects to an existing
+    cluster (init.address set: auto or host:port). There riskplan sets it to null (the nodes keep the object store
+    `ray start` gave them) and refuses, as bad input, the other arguments ray.init would refuse."""
+    if launcher not in ("ray", "ray_cluster"):
+        return []
+    if importlib.util.find_spec("hydra_plugins.hydra_ray_launcher") is None:
+        raise BadInput(
+            "key 'hydra/launcher'",
+            f"{launcher} needs Hydra's Ray launcher: pip install 'riskplan[ray]' (in an environment of its own: it "
+            f"pins cloudpickle<3)",
+        )
+
+    def given(key: str):
+        override = hydra_keys.get(RAY_INIT + key)
+        return override if override is not None and not override.is_delete() else None
+
+    address = given("address")
+    connecting = address.value() is not None if address is not None else launcher == "ray_cluster"
+    if not connecting:
+        return []
+    for key in RAY_CONNECT_REFUSES:
+        override = given(key)
+        if override is not None and override.value() is not None:
+            raise BadInput(
+                f"override '{override.input_line}'",
+                "ray.init does not take it when it connects to an existing Ray cluster (hydra.launcher.ray.init."
+                "address is set): `ray start` sizes each node; CPUs per job: +hydra.launcher.ray.remote.num_cpus=N",
+            )
+    return ["++hydra.launcher.ray.init.object_store_memory=null"] if launcher == "ray" else []

@@ -14,6 +14,7 @@ from riskplan.experiments.sweeping.grid import (
     constant_keys,
     expand,
     name_folders,
+    ray_init_overrides,
     split_bad,
     target_dir,
     validate,
@@ -102,6 +103,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
             raise BadInput(
                 "--jobs", f"applies to the joblib and submitit_slurm launchers, not to hydra/launcher={launcher}"
             )
+    argv += ray_init_overrides(launcher, hydra_keys)
     if "hydra/launcher" not in hydra_keys:
         argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
     if not task_ovs and "hydra.sweep.subdir" not in hydra_keys:

@@ -7,7 +7,14 @@ import os
 import time
 from pathlib import Path
 
-from riskplan.experiments.sweeping.grid import add_naming_and_logging, check_hydra, check_subdir, target_dir, validate
+from riskplan.experiments.sweeping.grid import (
+    add_naming_and_logging,
+    check_hydra,
+    check_subdir,
+    ray_init_overrides,
+    target_dir,
+    validate,
+)
 from riskplan.experiments.sweeping.jobs import (
     DEFAULT_LAUNCHER,
     SUMMARY,
@@ -83,6 +90,7 @@ def plan_optimiser(
             argv.append("hydra.sweeper.direction=maximize")  # the trials return their CVaR: higher is better
         if jobs is not None and "hydra.sweeper.n_jobs" not in hydra_keys:
             argv.append(f"hydra.sweeper.n_jobs={jobs}")  # trials per batch: as many as run at once
+    argv += ray_init_overrides(launcher, hydra_keys)
     if "hydra/launcher" not in hydra_keys:
         argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
     if "hydra.sweep.subdir" in hydra_keys:
