@@ -1,5 +1,6 @@
 """The team as `riskplan check` prints it: graph, weights, the parts of Assumption 5, the SLEM and its predicted
-consensus rate, and what team.order does each iteration."""
+consensus rate, what team.order does each iteration, and with faults or a resilient aggregate, the resilience
+condition ((2F+1)-robustness, F-local faults)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,9 @@ import math
 
 import numpy as np
 
-from riskplan.config.schema import Order, TeamConf
-from riskplan.engine.team import graphs
+from riskplan.config.faults import faults_of
+from riskplan.config.schema import Aggregate, Order, TeamConf
+from riskplan.engine.team import graphs, robustness
 from riskplan.engine.team.network import TOL, Network
 
 
@@ -67,6 +69,9 @@ def describe(network: Network, team: TeamConf) -> str:
     if delay or team.drop or switching:
         lines.append("  (delays, drops and switching slow this down; the SLEM rate is a best case)")
     lines.append(describe_order(team))
+    faults = faults_of(team)
+    if team.aggregate != Aggregate.mean or faults:
+        lines.extend(robustness.condition(network.adjacency, team.aggregate, team.trim, faults).lines)
     return "\n".join(lines)
 
 

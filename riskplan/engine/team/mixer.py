@@ -1,5 +1,5 @@
-"""The consensus rounds of paper eq. (14) under delays, drops and switching links (Assumption 5 (3)-(4)), and
-gradient tracking: the Mixer and its typed state.
+"""The consensus rounds of paper eq. (14) under delays, drops and switching links (Assumption 5 (3)-(4)), faulty
+robots (team.faults) and resilient aggregation (team.aggregate), and gradient tracking: the Mixer and its typed state.
 
 Every random draw comes from a generator keyed by (seed, stream, iteration[, round]), so a resumed run redraws
 exactly what an uninterrupted one would have drawn.
@@ -13,8 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from riskplan.config.schema import Order, Stale, TeamConf
-from riskplan.engine.team import kernels
+from riskplan.config.faults import Fault, check_value_size, faults_of
+from riskplan.config.schema import Aggregate, FaultKind, Order, Stale, TeamConf
+from riskplan.engine.team import faulty, kernels, resilience
 from riskplan.engine.team.network import Network
 from riskplan.util.errors import BadInput
 
@@ -38,9 +39,17 @@ class Tracking:
 
 
 @dataclass
+class Stuck:
+    """The values stuck robots send (team.faults kind=stuck), frozen at their first send at or after `from`."""
+
+    stuck_theta: np.ndarray  # (N, M): robot j's frozen theta (rows of robots not stuck, or not yet: zeros)
+    stuck_since: np.ndarray  # (N,) int: the iteration it was frozen at, -1 = not (yet)
+
+
+@dataclass
 class Buffers:
     """A Mixer's state: the messages in flight and what each link last did. `as_arrays` gives the checkpoint's
-    arrays (these field names, the tracking ones merged in), `from_arrays` reads them back."""
+    arrays (these field names, the tracking and stuck ones merged in), `from_arrays` reads them back."""
 
     pending: np.ndarray  # (B0+1, R, N, N, M): per arrival slot (iteration mod B0+1), round and link, theta^j sent
     pending_sent: np.ndarray  # (B0+1, R, N, N) int: its send iteration, -1 = none
@@ -56,9 +65,10 @@ class Buffers:
     forced: np.ndarray  # (N, N) bool, last round: sends forced through by max_gap
     used_sent: np.ndarray  # (N, N) int, last round: send iteration of the value mixed, -1 = none
     tracking: Tracking | None = None
+    stuck: Stuck | None = None  # only for a team with a stuck robot
 
     @classmethod
-    def empty(cls, robots: int, params: int, slots: int, rounds: int, tracking: bool) -> Buffers:
+    def empty(cls, robots: int, params: int, slots: int, rounds: int, tracking: bool, stuck: bool = False) -> Buffers:
         """The state of a Mixer that has mixed nothing yet."""
         n, m = robots, params
         return cls(
@@ -85,15 +95,20 @@ class Buffers:
             )
             if tracking
             else None,
+            stuck=Stuck(np.zeros((n, m)), np.full(n, -1, dtype=np.int64)) if stuck else None,
         )
 
     def as_arrays(self) -> dict[str, np.ndarray]:
         """The state as named numpy arrays (the fields themselves, not copies; scalars as 0-d arrays)."""
-        arrays = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "tracking"}
+        arrays = {
+            f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("tracking", "stuck")
+        }
         arrays["up_iteration"] = np.array(self.up_iteration, dtype=np.int64)
         arrays["started"] = np.array(self.started)
         if self.tracking is not None:
             arrays.update({f.name: getattr(self.tracking, f.name) for f in dataclasses.fields(self.tracking)})
+        if self.stuck is not None:
+            arrays.update({f.name: getattr(self.stuck, f.name) for f in dataclasses.fields(self.stuck)})
         return arrays
 
     def from_arrays(self, arrays: Mapping[str, np.ndarray]) -> Buffers:
@@ -107,8 +122,11 @@ class Buffers:
         tracking = None
         if self.tracking is not None:
             tracking = Tracking(**{f.name: copies.pop(f.name) for f in dataclasses.fields(Tracking)})
+        stuck = None
+        if self.stuck is not None:
+            stuck = Stuck(**{f.name: copies.pop(f.name) for f in dataclasses.fields(Stuck)})
         copies["up_iteration"], copies["started"] = int(copies["up_iteration"]), bool(copies["started"])
-        return Buffers(**copies, tracking=tracking)
+        return Buffers(**copies, tracking=tracking, stuck=stuck)
 
     def copy(self) -> Buffers:
         """A deep copy: its arrays are its own."""
@@ -117,7 +135,8 @@ class Buffers:
     def shallow(self) -> Buffers:
         """A copy holding the same arrays: rebinding a field of either leaves the other alone."""
         tracking = None if self.tracking is None else dataclasses.replace(self.tracking)
-        return dataclasses.replace(self, tracking=tracking)
+        stuck = None if self.stuck is None else dataclasses.replace(self.stuck)
+        return dataclasses.replace(self, tracking=tracking, stuck=stuck)
 
 
 @dataclass
@@ -211,15 +230,36 @@ class Mixer:
     an undirected link together), and is forced up when it has been down for ``window`` iterations, so every
     link, hence a strongly connected graph, is up within any ``window`` consecutive iterations.
 
-    Synchronous teams (no delays, drops or switching; not gradient tracking): every message arrives in its own
-    slot, so `_sync_round` mixes sum_j a^{ij} theta^j directly and defers what the rounds did to the Buffers;
-    the store writes it in when something reads them.
+    Faults (``team.faults``, `riskplan.engine.team.faulty`) change only what robots send: from iteration `from` on a
+    crashed robot's links deliver nothing (and are never forced), a stuck robot sends the theta it sent first at or
+    after `from` (kept in the Buffers), a byzantine one sends `value` or its theta plus seeded noise. `healthy(l)`
+    says which robots have not failed by iteration l. Aggregation (``team.aggregate``,
+    `riskplan.engine.team.resilience`): mean is eq. (14); trimmed_mean, median and wmsr aggregate, per robot and
+    coordinate, its own value and the values its links would mix under the rules above, dropped links' weights
+    going to the robot itself.
+
+    Synchronous teams (no delays, drops or switching; not gradient tracking; no faults; aggregate=mean): every
+    message arrives in its own slot, so `_sync_round` mixes sum_j a^{ij} theta^j directly and defers what the rounds
+    did to the Buffers; the store writes it in when something reads them. Faults and the resilient aggregates always
+    take the general rules.
     """
 
-    def __init__(self, network: Network, team: TeamConf, seed: int):
-        """A Mixer of `network` with the validated settings of `team` (riskplan.config.validate)."""
+    def __init__(self, network: Network, team: TeamConf, seed: int, faults: tuple[Fault, ...] | None = None):
+        """A Mixer of `network` with the validated settings of `team` (riskplan.config.validate); `faults` the
+        team's checked faults (`riskplan.config.faults.faults_of(team)`, which None stands for)."""
         if team.robots != network.robots:
             raise BadInput("team.robots", f"is {team.robots} but the network has {network.robots} robots")
+        self.faults = faults_of(team) if faults is None else tuple(faults)
+        for fault in self.faults:
+            if not 0 <= fault.robot < network.robots:
+                raise ValueError(f"fault of robot {fault.robot}, but the network has robots 0..{network.robots - 1}")
+        check_value_size(self.faults, network.n_params)
+        self.aggregate, self.trim = Aggregate(team.aggregate), int(team.trim)
+        if team.order == Order.gradient_tracking and (self.faults or self.aggregate != Aggregate.mean):
+            key = "team.faults" if self.faults else "team.aggregate"
+            raise BadInput(
+                key, f"team.order={Order.gradient_tracking} mixes running sums: use team.aggregate=mean and no faults"
+            )
         self.network = network
         self.seed = int(seed) & MASK
         self.tracking = team.order == Order.gradient_tracking
@@ -228,9 +268,11 @@ class Mixer:
         self.latest_rule = team.stale == Stale.latest
         self.switching = team.switching
         slots = self.max_delay + 1
-        buffers = Buffers.empty(network.robots, network.n_params, slots, self.rounds, self.tracking)
+        stuck = any(f.kind == FaultKind.stuck for f in self.faults)
+        buffers = Buffers.empty(network.robots, network.n_params, slots, self.rounds, self.tracking, stuck)
         self._store = _Store(buffers, self._apply_deferred)
         self._sync = not self.tracking and self.max_delay == 0 and self.drop == 0.0 and not self.switching.enabled
+        self._sync = self._sync and not self.faults and self.aggregate == Aggregate.mean
         self._links: kernels.Links | None = None  # built by the first synchronous round
 
     # Diagnostics of the last call, for tests and logs.
@@ -248,6 +290,10 @@ class Mixer:
     def used_sent(self) -> np.ndarray:
         """(N, N) int: iteration at which the neighbour value mixed in the last call was sent (-1: none)."""
         return self._store.current(writing=False).used_sent.copy()
+
+    def healthy(self, iteration: int) -> np.ndarray:
+        """(N,) bool: False for the robots whose fault (team.faults) has started by `iteration`."""
+        return faulty.healthy(self.faults, self.network.robots, int(iteration))
 
     def state(self) -> dict[str, np.ndarray]:
         """Everything a resumed Mixer needs, as numpy arrays (copies)."""
@@ -442,9 +488,15 @@ class Mixer:
             b.tracking.sums[round_index] += carried
             sums, pending_sums = b.tracking.sums[round_index], b.tracking.pending_sums
         max_gap = min(self.max_gap, INT64_MAX)  # a gap of an int64 iteration never exceeds it: same as any larger B
+        adjacency, up = self.network.adjacency, self._links_up(b, iteration)
+        if self.faults:  # what faulty robots send; a crashed robot's links send nothing and are never forced
+            stuck = (None, None) if b.stuck is None else (b.stuck.stuck_theta, b.stuck.stuck_since)
+            thetas, silent = faulty.sent_values(self.faults, thetas, self.seed, iteration, round_index, *stuck)
+            if silent is not None:
+                adjacency, up = adjacency & ~silent[None, :], up & ~silent[None, :]
         kernels.send(
-            self.network.adjacency,
-            self._links_up(b, iteration),
+            adjacency,
+            up,
             kept,
             delay,
             iteration,
@@ -468,7 +520,8 @@ class Mixer:
 
         A link mixes the value that arrived (stale=arrival) or the newest it holds (stale=latest); a neighbour with
         nothing to offer hands its weight to robot i itself, keeping each row stochastic; a late message never
-        replaces a newer one, and stale slots never meet a weight, even as 0 * inf."""
+        replaces a newer one, and stale slots never meet a weight, even as 0 * inf. With team.aggregate other than
+        mean, each robot aggregates its own value and the values of the links in `use` (`resilience.aggregate_team`)."""
         adjacency = self.network.adjacency
         slot = iteration % (self.max_delay + 1)
         n = self.network.robots
@@ -489,4 +542,8 @@ class Mixer:
             use,
         )
         neighbour = b.latest if self.latest_rule else b.pending[slot, round_index]
+        if self.aggregate != Aggregate.mean:
+            weights = self.network.weights
+            mixed = resilience.aggregate_team(self.aggregate, weights, adjacency, use, neighbour, thetas, self.trim)
+            return mixed, arrived
         return kernels.mix_used(self.network.weights, adjacency, use, neighbour, thetas), arrived

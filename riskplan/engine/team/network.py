@@ -8,13 +8,15 @@ Conventions (see also riskplan.engine.team.graphs):
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from riskplan.config.schema import Graph, Order, TeamConf, WeightRule
-from riskplan.engine.team import graphs
+from riskplan.config.faults import faults_of
+from riskplan.config.schema import Aggregate, Graph, Order, TeamConf, WeightRule
+from riskplan.engine.team import graphs, robustness
 from riskplan.engine.team.convergence import second_largest_eigenvalue_modulus
 from riskplan.util.errors import BadInput
 
@@ -52,7 +54,9 @@ class Network:
 
 def build_network(team: TeamConf, n_params: int, seed: int) -> Network:
     """The team's graph and weights (a validated TeamConf), checked against Assumption 5 (1)-(2), and against the
-    doubly stochastic weights gradient tracking needs; BadInput naming the key otherwise."""
+    doubly stochastic weights gradient tracking needs; BadInput naming the key otherwise. With a resilient
+    team.aggregate, a graph that is not (2F+1)-robust, or more than F faulty in-neighbours of a healthy robot, is a
+    warning (`robustness.condition`), as Assumption 6 is: the run goes on, without the guarantee."""
     graph, directed = Graph(team.graph), team.directed
     adjacency, positions = _adjacency(team, team.robots, seed)
     if graph == Graph.random_geometric:
@@ -80,6 +84,10 @@ def build_network(team: TeamConf, n_params: int, seed: int) -> Network:
     network = Network(team.robots, adjacency, weights, positions, str(graph), directed, gamma, where)
     if team.order == Order.gradient_tracking:
         check_tracking(network)
+    if team.aggregate != Aggregate.mean and network.robots > 1:
+        warning = robustness.condition(adjacency, team.aggregate, team.trim, faults_of(team)).warning
+        if warning is not None:
+            warnings.warn(warning, stacklevel=2)
     return network
 
 
