@@ -43,13 +43,24 @@ def robot_risks(params: RiskplanConf) -> list[RiskConf]:
     return list(params.team.risk) if params.team.risk is not None else [params.risk] * params.team.robots
 
 
+def final_health(setup: Setup) -> np.ndarray:
+    """(N,) bool: the robots no fault of team.faults had stopped by the last iteration."""
+    return setup.mixer.healthy(setup.params.train.iterations - 1)
+
+
+def network_average(setup: Setup, thetas: np.ndarray) -> np.ndarray:
+    """theta-bar: the mean over the healthy robots (all of them without team.faults)."""
+    healthy = final_health(setup)
+    return thetas.mean(axis=0) if healthy.all() else thetas[healthy].mean(axis=0)
+
+
 def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The evaluated policies: (robot ids, thetas, start cells); teams add the network average (robot -1)."""
     ids = np.arange(setup.robots)
     cells = starts(setup)
     if not setup.team:
         return ids, thetas, cells
-    return np.append(ids, AVERAGE), np.vstack([thetas, thetas.mean(axis=0)]), np.append(cells, cells[0])
+    return np.append(ids, AVERAGE), np.vstack([thetas, network_average(setup, thetas)]), np.append(cells, cells[0])
 
 
 def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
@@ -58,6 +69,7 @@ def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
 
     count = setup.params.train.eval_episodes
     ids, evaluated, cells = policies(setup, thetas)
+    healthy = np.append(final_health(setup), True)  # the network average is the healthy robots'
     frames = []
     for p, robot in enumerate(ids):
         parts = []
@@ -70,6 +82,7 @@ def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
                 {
                     "episode": np.arange(count, dtype=np.int64),
                     "robot": np.full(count, robot, dtype=np.int64),
+                    "healthy": np.full(count, healthy[p], dtype=bool),
                     "total_reward": np.concatenate([b.total_reward for b in parts]),
                     "risky_steps": np.concatenate([b.risky_steps for b in parts]),
                     "source_reached": np.concatenate([b.source_reached for b in parts]),
@@ -123,6 +136,7 @@ def summarize(
     per_policy = {}
     for robot, group in evaluation.groupby("robot"):
         per_policy[str(robot)] = {
+            "healthy": bool(group.healthy.iloc[0]),
             **{k: float(v) for k, v in summary_stats(group.total_reward.to_numpy(), params.risk.beta).items()},
             "risky_fraction": float((group.risky_steps > 0).mean()),
             "source_reached": {
@@ -168,7 +182,8 @@ def _objective(risk, z: np.ndarray, figures: dict, params) -> dict:
 
 def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: pd.DataFrame) -> tuple[list[dict], dict]:
     """Each robot's objective at the network average theta-bar (from its own start, by its own measure: the team
-    objective's terms) and the team objective, their sum, with bootstrap intervals from the same resamples.
+    objective's terms) and the team objective, their sum over the healthy robots (team.faults), with bootstrap
+    intervals from the same resamples.
 
     theta-bar's episodes from robot 0's start are eval.parquet's robot -1 rows; each other start gets episodes of
     its own stream (not saved). A centralized run is a team of one: its entry is the run's own objective."""
@@ -176,7 +191,8 @@ def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: pd.DataFrame)
     risks = robot_risks(params)
     cells = starts(setup)
     headline = AVERAGE if setup.team else 0
-    average = thetas.mean(axis=0, keepdims=True)
+    average = network_average(setup, thetas)[None, :]
+    healthy = final_health(setup)
     returns = {int(cells[0]): evaluation.total_reward[evaluation.robot == headline].to_numpy()}
     for q, cell in enumerate(dict.fromkeys(int(c) for c in cells if int(c) not in returns)):
         parts = []
@@ -198,7 +214,11 @@ def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: pd.DataFrame)
     for i, (cell, risk) in enumerate(zip(cells, risks)):
         figure, values = figures[(int(cell), json.dumps(as_dict(risk), sort_keys=True))]
         x, y = setup.world.xy(int(cell))
-        robots.append({"robot": i, "start": [int(x), int(y)], "objective_at_average": figure})
+        robots.append(
+            {"robot": i, "start": [int(x), int(y)], "healthy": bool(healthy[i]), "objective_at_average": figure}
+        )
+        if not healthy[i]:  # a faulty robot's objective is reported, not counted in the team's
+            continue
         total += figure["value"]
         if with_intervals:
             resamples = resamples + values

@@ -90,6 +90,7 @@ METRICS_BASE = {
 EVAL_COLUMNS = {
     "episode": "int64",
     "robot": "int64",
+    "healthy": "bool",
     "total_reward": "float64",
     "risky_steps": "int64",
     "source_reached": "int64",
@@ -120,6 +121,7 @@ OWN_SCHEMAS: dict[str, dict] = {
         "properties": {
             "iteration": _INT,
             "robot": _INT,
+            "healthy": {"type": "boolean", "description": "false once the robot's fault (team.faults) started"},
             "mean": _FLOAT,
             "cvar": _FLOAT,
             "value_at_risk": _FLOAT,

@@ -83,15 +83,17 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
             f"iteration {l}: the new theta={new_thetas.tolist()} overflows the softmax "
             f"(theta . signal is not finite); lower train.step_size.initial"
         )
-    error = consensus_error(thetas) if setup.team else math.nan
+    healthy = setup.mixer.healthy(l)  # team.faults: the averages and the consensus error are the healthy robots'
+    ok = slice(None) if healthy.all() else healthy
+    error = consensus_error(thetas[ok]) if setup.team else math.nan
     seconds = time.perf_counter() - started
-    rows = _robot_rows(l, stats, thetas, grads, eps, error, episodes, seconds, levels)
+    rows = _robot_rows(l, stats, thetas, grads, eps, error, episodes, seconds, levels, healthy)
     if setup.team:
-        average = summary_stats(z.ravel(), beta) | {"objective": stats["objective"].sum()}  # the team objective
+        average = summary_stats(z[ok].ravel(), beta) | {"objective": stats["objective"][ok].sum()}  # team objective
         level = levels[0] if np.all(levels == levels[0]) else math.nan
-        rows.append(
-            _row(l, AVERAGE, average, thetas.mean(axis=0), grads.mean(axis=0), eps, error, episodes * n, seconds, level)
-        )
+        count = episodes * int(healthy.sum())
+        average_theta, average_grad = thetas[ok].mean(axis=0), grads[ok].mean(axis=0)
+        rows.append(_row(l, AVERAGE, average, average_theta, average_grad, eps, error, count, seconds, level, True))
     return State(l + 1, new_thetas, setup.mixer.snapshot(), state.rows + rows), rows  # copied when read
 
 
@@ -256,20 +258,33 @@ def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
     return setup, done
 
 
-def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, levels) -> list[dict]:
-    """`_row` of every robot i (stats[k][i], thetas[i], grads[i], levels[i]): the same dicts, copies of one template
-    with the values every robot shares, filled in column by column."""
+def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, levels, healthy) -> list[dict]:
+    """`_row` of every robot i (stats[k][i], thetas[i], grads[i], levels[i], healthy[i]): the same dicts, copies of
+    one template with the values every robot shares, filled in column by column."""
     n, m = thetas.shape
     if n <= 4:  # a centralized run or a small team: one _row each is quicker
         return [
             _row(
-                l, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], eps, error, samples, seconds, levels[i]
+                l,
+                i,
+                {k: v[i] for k, v in stats.items()},
+                thetas[i],
+                grads[i],
+                eps,
+                error,
+                samples,
+                seconds,
+                levels[i],
+                healthy[i],
             )
             for i in range(n)
         ]
-    template = _row(l, 0, {k: 0.0 for k in stats}, np.zeros(m), np.zeros(1), eps, error, samples, seconds, levels[0])
+    template = _row(
+        l, 0, {k: 0.0 for k in stats}, np.zeros(m), np.zeros(1), eps, error, samples, seconds, levels[0], True
+    )
     columns = {
         "robot": range(n),
+        "healthy": np.asarray(healthy, dtype=bool).tolist(),
         **{k: np.asarray(v, dtype=float).tolist() for k, v in stats.items()},
         **{f"theta_{j}": column for j, column in enumerate(np.asarray(thetas, dtype=float).T.tolist())},
         "grad_norm": _norms(grads),
@@ -290,11 +305,13 @@ def _norms(vectors: np.ndarray) -> list[float]:
     return [math.sqrt(x.dot(x)) for x in vectors]
 
 
-def _row(l, robot, stats, theta, grad, eps, error, samples, seconds, level) -> dict:
-    """One metrics.parquet row (`level`: beta_l, the CVaR level of the iteration's gradient; stats are at beta)."""
+def _row(l, robot, stats, theta, grad, eps, error, samples, seconds, level, healthy) -> dict:
+    """One metrics.parquet row (`level`: beta_l, the CVaR level of the iteration's gradient; stats are at beta;
+    `healthy`: false once the robot's fault of team.faults has started)."""
     return {
         "iteration": l,
         "robot": robot,
+        "healthy": bool(healthy),
         **{k: float(v) for k, v in stats.items()},
         **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
         "grad_norm": float(np.linalg.norm(grad)),
