@@ -9,18 +9,25 @@ Fast paths (about 2x the interpreter-only kernel): a move is picked by integer c
 interpreter or a branch on the region (`affine_form`), normals by the ziggurat (riskplan.engine.rng.next_normal); static
 worlds without recording run `_simulate_affine`, a loop without the other cases. `simulate(..., reference=True)`
 runs the interpreter and the inverse-CDF normals everywhere: the same laws from other numbers, the tests' reference.
+
+Policies (riskplan.engine.policy.Policy, packed by `make_kernel`): a features policy's moves come from per-policy
+tables of (cell, move) for static sources, whatever its features; with mobile sources `_mobile_policy` computes the
+signals at each step and adds the static extra features (risky, stay). A tabular policy's moves come from its table
+in every case (it ignores where the sources are, so mobile sources need nothing else), and its score, a (C * 5,)
+vector per episode, is accumulated step by step as e_(c, a) - mu(. | c) straight into the batch's scores, in
+`_simulate` (the general loop).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit, prange
 
 from riskplan.engine import distributions as D
-from riskplan.engine.policy import move_features, tables
+from riskplan.engine.policy import Policy, make_policy, tables, tabular_tables
 from riskplan.engine.rng import bits_uniform, episode_state, next_bits, next_normal, next_uniform, normal_quantile
 from riskplan.engine.world import MAX_STACK, World
 
@@ -32,7 +39,7 @@ class Batch:
     """Outcome of P policies x W episodes, flattened policy-major (episode e of policy p at p * W + e)."""
 
     total_reward: np.ndarray  # (P*W,) float64
-    score: np.ndarray  # (P*W, M) float64: d log f(xi) / d theta
+    score: np.ndarray  # (P*W, len(theta)) float64: d log f(xi) / d theta (M for the paper's policy, C*5 for tabular)
     risky_steps: np.ndarray  # (P*W,) int64
     source_reached: np.ndarray  # (P*W,) int64, -1 for none
     steps: np.ndarray  # (P*W,) int64: moves made
@@ -64,7 +71,11 @@ class Kernel:
     affine: bool  # every region's reward has that form: the kernel draws it without the program interpreter
     draw_uniform: bool  # some region's form has w != 0
     draw_normal: bool  # some region's form has s != 0
-    features: np.ndarray  # (C, 5, M): policy.move_features of the world, for policy.tables
+    features: np.ndarray  # (C, 5, F): the policy's move features (a tabular policy's: its seed's), for policy.tables
+    tabular: bool = False  # theta is a (C * 5,) table of logits (policy.kind=tabular)
+    signal_at: int = 0  # index in theta of the first signal weight, -1 for none (features policies)
+    extra_at: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (E,) theta index per extra
+    extras: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 0)))  # (C, 5, E): the extra features
 
 
 def affine_form(dist: D.Dist) -> tuple[float, float, float, float, float] | None:
@@ -101,8 +112,9 @@ def affine_form(dist: D.Dist) -> tuple[float, float, float, float, float] | None
     return form[0], form[1], math.sqrt(form[2]), lo, hi
 
 
-def make_kernel(world: World) -> Kernel:
-    """Pack a World for `simulate`."""
+def make_kernel(world: World, policy: Policy | None = None) -> Kernel:
+    """Pack a World and its Policy (default: the paper's, theta weighting the M signals) for `simulate`."""
+    policy = make_policy(world) if policy is None else policy
     source_at = np.full(world.cells, -1, dtype=np.int64)
     for j in range(world.sources - 1, -1, -1):  # the first source listed wins a shared cell
         source_at[world.source_cells[j]] = j
@@ -136,7 +148,11 @@ def make_kernel(world: World) -> Kernel:
         affine=affine,
         draw_uniform=affine and bool(np.any(cell_affine[:, 1] != 0.0)),
         draw_normal=affine and bool(np.any(cell_affine[:, 2] != 0.0)),
-        features=move_features(world),
+        features=policy.move_features(world),
+        tabular=policy.tabular,
+        signal_at=policy.signal_at,
+        extra_at=policy.extra_at,
+        extras=np.ascontiguousarray(policy.extras, dtype=np.float64),
     )
 
 
@@ -149,24 +165,37 @@ def simulate(
     episodes: int,
     record: bool = False,
     reference: bool = False,
+    scores: bool = True,
 ) -> Batch:
     """Run `episodes` episodes for each policy p (theta thetas[p], start cell starts[p], stream key keys[p]).
+
+    thetas is (P, len(theta)) for the kernel's policy (`make_kernel`); a tabular policy's scores are (P*W, C*5).
+    `scores=False` skips a tabular policy's scores (Batch.score is then (P*W, 0): evaluation has no use for W C 5
+    floats); a features policy's few are always filled.
 
     `reference` runs every region reward through the program interpreter and normals by the inverse CDF of one
     uniform (no fast path). The same distributions from other numbers, slower; kept as the
     reference of tests/test_kernel_speed_paths.py.
     """
     thetas = np.ascontiguousarray(thetas, dtype=np.float64)
-    policies, sources = thetas.shape
-    cum, score = tables(world, thetas, kernel.features)
+    policies, size = thetas.shape
+    if kernel.tabular:
+        cum, probs = tabular_tables(thetas, world.cells)
+        score = np.empty((0, 0, 0, 0))
+    else:
+        cum, score = tables(world, thetas, kernel.features)
+        probs = np.empty((0, 0, 5))
     bins = move_bins(cum)
     total = policies * episodes
     out_z = np.empty(total)
-    out_score = np.empty((total, sources))
+    if kernel.tabular:  # accumulated in place by the kernel, from zeros
+        out_score = np.zeros((total, size if scores else 0))
+    else:
+        out_score = np.empty((total, size))
     out_risky = np.empty(total, dtype=np.int64)
     out_reached = np.empty(total, dtype=np.int64)
     out_steps = np.empty(total, dtype=np.int64)
-    if kernel.affine and not (kernel.mobile or record or reference):
+    if kernel.affine and not (kernel.mobile or record or reference or kernel.tabular):
         _simulate_affine(
             bins,
             score,
@@ -195,7 +224,12 @@ def simulate(
     _simulate(
         bins,
         score,
+        probs,
+        kernel.tabular,
         thetas,
+        kernel.signal_at,
+        kernel.extra_at,
+        kernel.extras,
         np.asarray(starts, np.int64),
         np.asarray(keys, np.uint64),
         episodes,
@@ -358,8 +392,9 @@ def _pick_bits(bins, m):
 
 
 @njit(cache=True)
-def _mobile_policy(cell, theta, src, next_cell, amplitude, precision, height, cum, feats):
-    """Move probabilities (cumulative) and features at `cell` for sources at `src` (mobile sources)."""
+def _mobile_signals(cell, theta, src, next_cell, amplitude, precision, height, cum, feats):
+    """`_mobile_policy` of the paper's policy (theta weights the signals alone): its loop without the extras' cases
+    (the mobile kernel's speed as before them; the same numbers as `_mobile_policy`)."""
     best = -np.inf
     for a in range(5):
         nc = next_cell[cell, a]
@@ -371,6 +406,51 @@ def _mobile_policy(cell, theta, src, next_cell, amplitude, precision, height, cu
             q = precision[j, 0] * dx * dx + 2.0 * precision[j, 1] * dx * dy + precision[j, 2] * dy * dy
             feats[a, j] = amplitude[j] * math.exp(-0.5 * q)
             logit += theta[j] * feats[a, j]
+        cum[a] = logit
+        best = max(best, logit)
+    total = 0.0
+    for a in range(5):
+        cum[a] = math.exp(cum[a] - best)
+        total += cum[a]
+    acc = 0.0
+    for a in range(5):
+        acc += cum[a] / total
+        cum[a] = acc
+    cum[4] = 1.0
+
+
+@njit(cache=True)
+def _mobile_policy(cell, theta, src, next_cell, amplitude, precision, height, signal_at, extra_at, extras, cum, feats):
+    """Move probabilities (cumulative) and features (5, len(theta)) at `cell` for sources at `src` (mobile sources).
+
+    The signals (when signal_at >= 0) fill theta's columns signal_at.., the static extras (C, 5, E) columns extra_at
+    (ascending); the logit sums theta_i f_i in theta's order, each term as its feature is computed (the paper's
+    policy: the signals' terms alone, in the order and arithmetic of the kernel before the extras).
+    """
+    extra = len(extra_at)
+    before = 0  # the extras that come before the signals in theta
+    while before < extra and signal_at >= 0 and extra_at[before] < signal_at:
+        before += 1
+    if signal_at < 0:
+        before = extra
+    best = -np.inf
+    for a in range(5):
+        nc = next_cell[cell, a]
+        x, y = nc // height, nc % height
+        logit = 0.0
+        for e in range(before):
+            feats[a, extra_at[e]] = extras[cell, a, e]
+            logit += theta[extra_at[e]] * feats[a, extra_at[e]]
+        if signal_at >= 0:
+            for j in range(len(src)):
+                dx = x - src[j] // height
+                dy = y - src[j] % height
+                q = precision[j, 0] * dx * dx + 2.0 * precision[j, 1] * dx * dy + precision[j, 2] * dy * dy
+                feats[a, signal_at + j] = amplitude[j] * math.exp(-0.5 * q)
+                logit += theta[signal_at + j] * feats[a, signal_at + j]
+        for e in range(before, extra):
+            feats[a, extra_at[e]] = extras[cell, a, e]
+            logit += theta[extra_at[e]] * feats[a, extra_at[e]]
         cum[a] = logit
         best = max(best, logit)
     total = 0.0
@@ -473,7 +553,12 @@ def _simulate_affine(
 def _simulate(
     bins,
     score,
+    probs,
+    tabular,
     thetas,
+    signal_at,
+    extra_at,
+    extras,
     starts,
     keys,
     episodes,
@@ -511,18 +596,20 @@ def _simulate(
     path_cells,
     path_rewards,
 ):
-    """Episode loop; see `simulate`."""
+    """Episode loop; see `simulate`. A tabular policy's score goes straight into out_score (zeros on entry)."""
     policies = bins.shape[0]
-    sources = score.shape[3]
+    sources = source_cells.shape[0]
+    size = 0 if tabular else thetas.shape[1]  # the score kept in `acc` (a tabular policy's is written in place)
+    signals_only = signal_at == 0 and extra_at.shape[0] == 0  # the paper's policy: `_mobile_signals`
     total = policies * episodes
     chunks = (total + CHUNK - 1) // CHUNK
     for chunk in prange(chunks):
         stack = np.empty(MAX_STACK)
         src = np.empty(sources, dtype=np.int64)
         local_cum = np.empty(5)
-        feats = np.empty((5, sources))
-        expect = np.empty(sources)
-        acc = np.empty(sources)  # the episode's score, kept local: one store per episode, not per step
+        feats = np.empty((5, size))
+        expect = np.empty(size)
+        acc = np.empty(size)  # the episode's score, kept local: one store per episode, not per step
         for e in range(chunk * CHUNK, min(total, (chunk + 1) * CHUNK)):
             p = e // episodes
             state = episode_state(keys[p], e - p * episodes)
@@ -531,28 +618,51 @@ def _simulate(
             risky = 0
             reached = -1
             steps = 0
-            for j in range(sources):
+            for j in range(size):
                 acc[j] = 0.0
+            for j in range(sources):
                 src[j] = source_cells[j]
             if record:
                 path_cells[e, 0] = cell
             for k in range(horizon):
                 state, m = next_bits(state)
-                if mobile:
+                if tabular:  # the table, wherever the sources are; score e_(cell, a) - mu(. | cell)
+                    a = _pick_bits(bins[p, cell], np.int64(m))
+                    if out_score.shape[1] > 0:
+                        for b in range(5):
+                            out_score[e, cell * 5 + b] -= probs[p, cell, b]
+                        out_score[e, cell * 5 + a] += 1.0
+                elif mobile:
                     u = bits_uniform(m)
-                    _mobile_policy(cell, thetas[p], src, next_cell, amplitude, precision, height, local_cum, feats)
+                    if signals_only:
+                        _mobile_signals(cell, thetas[p], src, next_cell, amplitude, precision, height, local_cum, feats)
+                    else:
+                        _mobile_policy(
+                            cell,
+                            thetas[p],
+                            src,
+                            next_cell,
+                            amplitude,
+                            precision,
+                            height,
+                            signal_at,
+                            extra_at,
+                            extras,
+                            local_cum,
+                            feats,
+                        )
                     a = _pick(local_cum, u)
                     expect[:] = 0.0
                     prev = 0.0
                     for b in range(5):
-                        for j in range(sources):
+                        for j in range(size):
                             expect[j] += (local_cum[b] - prev) * feats[b, j]
                         prev = local_cum[b]
-                    for j in range(sources):
+                    for j in range(size):
                         acc[j] += feats[a, j] - expect[j]
                 else:
                     a = _pick_bits(bins[p, cell], np.int64(m))
-                    for j in range(sources):
+                    for j in range(size):
                         acc[j] += score[p, cell, a, j]
                 cell = next_cell[cell, a]
                 steps += 1
@@ -588,7 +698,8 @@ def _simulate(
                 if hit >= 0 and stop_at_source:
                     break
             out_z[e] = z
-            out_score[e, :] = acc
+            if not tabular:
+                out_score[e, :] = acc
             out_risky[e] = risky
             out_reached[e] = reached
             out_steps[e] = steps

@@ -5,16 +5,22 @@ grid must fail here, not while allocating), and once on the built world and netw
 Python floats from Python ints, never numpy, so a key of 10^30 (or 10^400) is a number, not an overflow.
 
 The bytes per unit are measured peaks of `riskplan train` (tracemalloc and max RSS over growing sizes, M = 2
-sources, rounded up), and the costs are in trajectory-step equivalents of limits.STEPS_PER_SECOND:
-  grid        (200 + 40 M) B per cell (next_cell, signals, features, the logged world map)
-  tables      (40 + 40 M) B per cell and robot (move probabilities and scores of every robot's policy)
-  batch       (48 + 16 M) B per episode of the largest iteration, per robot (totals, scores, sort)
-  evaluation  160 B per episode and evaluated policy (eval.parquet's frame, concatenated)
+sources, rounded up), and the costs are in trajectory-step equivalents of limits.STEPS_PER_SECOND. P is the length
+of theta: M for the paper's policy, M + the extra features (risky, stay) for a features policy, C * 5 for a
+tabular one (policy.kind, policy.features):
+  grid        (200 + 40 F) B per cell (next_cell, signals, features; F = P, or M for a tabular policy's seed)
+  tables      (40 + 40 P) B per cell and robot (move probabilities and scores of every robot's policy; a tabular
+              policy.s: 160 B, its logits, probabilities and bins)
+  batch       (48 + 16 P) B per episode of the largest iteration, per robot (totals, scores, sort): a tabular
+              policy's scores are C * 5 floats per episode, W C 5 8 B per robot
+  gradients   P / 4 steps per training episode (the scores' product with the weights: a tabular policy's C * 5)
+  evaluation  160 B per episode and evaluated policy (eval.parquet's frame, concatenated), and a tabular
+              policy's scores (8 P B per episode of a kernel call, EVAL_BATCH at most, unless it asks for none)
   paths       250 B and 400 steps per recorded step (trajectories.parquet, the /paths replay in run.mcap)
-  rows        (2000 + 200 M) B and 2000 steps per metrics row (kept for the checkpoint and the log)
-  messages    (64 + 80 M) B per (delay slot, round, ordered robot pair) of the consensus buffers (and their
+  rows        (2000 + 200 P) B and 2000 steps per metrics row (kept for the checkpoint and the log)
+  messages    (64 + 80 P) B per (delay slot, round, ordered robot pair) of the consensus buffers (and their
               checkpoint), twice that with gradient tracking, 100 steps each per checkpoint
-  network     (1000 + 400 M) B and 300 steps per ordered robot pair (weights, checks, logged graph)
+  network     (1000 + 400 P) B and 300 steps per ordered robot pair (weights, checks, logged graph)
 """
 
 from __future__ import annotations
@@ -65,11 +71,20 @@ class Sizes:
     geometric: bool
     checkpoint_every: int
     tracking: bool = False  # team.order=gradient_tracking: trackers travel with theta (about twice the buffers)
+    params: int = 0  # P, the length of theta (0: M, the paper's policy)
+    tabular: bool = False  # policy.kind=tabular: theta is the (C * 5,) table of logits
 
 
 def sizes_of(cfg, width: int, height: int, sources: int, robots: int) -> Sizes:
     """Sizes from a schema-checked config (cfg.train, cfg.world, cfg.team) and the validated grid and team."""
     train, team = cfg.train, cfg.team
+    policy = getattr(cfg, "policy", None)
+    tabular = policy is not None and str(policy.kind) == "tabular"
+    features = ["signals"] if policy is None else [str(f) for f in policy.features]
+    if tabular:
+        params = int(width) * int(height) * 5
+    else:
+        params = max(int(sources), 1) * ("signals" in features) + sum(f != "signals" for f in features)
     return Sizes(
         width,
         height,
@@ -88,6 +103,8 @@ def sizes_of(cfg, width: int, height: int, sources: int, robots: int) -> Sizes:
         team.graph == Graph.random_geometric,
         int(train.checkpoint_every),
         team.order == Order.gradient_tracking,
+        params,
+        tabular,
     )
 
 
@@ -111,6 +128,8 @@ def estimate(s: Sizes) -> tuple[list[Part], list[Part]]:
     """(memory parts in bytes, time parts in trajectory steps), each with what it is and the keys it scales with."""
     cells = _prod(s.width, s.height)
     m, n, k = float(s.sources), _f(s.robots), _f(s.horizon)
+    p = _f(s.params) if s.params else m  # the length of theta
+    f = m if s.tabular else p  # the features of each (cell, move) the world keeps
     team = s.robots > 1
     policies = n + 1.0 if team else 1.0  # evaluation adds the network average
     rows = n + 1.0 if team else 1.0  # metrics rows per iteration
@@ -137,30 +156,36 @@ def estimate(s: Sizes) -> tuple[list[Part], list[Part]]:
 
     grid = f"the {show(s.width)} x {show(s.height)} grid"
     memory = [
-        (_prod(cells, 200.0 + 40.0 * m), grid, [size]),
-        (_prod(cells, n, 40.0 + 40.0 * m), f"{grid}'s policy tables for {show(s.robots)} robot(s)", [size, robots]),
+        (_prod(cells, 200.0 + 40.0 * f), grid, [size]),
         (
-            _prod(n, w_last, 48.0 + 16.0 * m),
-            f"its training batches ({_num(w_last)} episodes per robot in the largest iteration)",
-            [samples, growth, robots],
+            _prod(cells, n, 160.0 if s.tabular else 40.0 + 40.0 * p),
+            f"{grid}'s policy tables for {show(s.robots)} robot(s)",
+            [size, robots],
         ),
         (
-            _prod(policies, s.eval_episodes, 160.0),
+            _prod(n, w_last, 48.0 + 16.0 * p),
+            f"its training batches ({_num(w_last)} episodes per robot in the largest iteration"
+            + (f", each with a tabular policy's {_num(p)} scores)" if s.tabular else ")"),
+            [samples, growth, robots] + ([size] if s.tabular else []),
+        ),
+        (
+            _prod(policies, s.eval_episodes, 160.0)
+            + (_prod(min(_f(s.eval_episodes), EVAL_BATCH), p, 8.0) if s.tabular else 0.0),
             f"its evaluation ({show(s.eval_episodes)} episodes per policy)",
-            [evals, robots],
+            [evals, robots] + ([size] if s.tabular else []),
         ),
         (_prod(record, 250.0), f"its recorded paths ({_num(record)} steps)", [paths, horizon, robots]),
         (
-            _prod(s.iterations, rows, 2000.0 + 200.0 * m),
+            _prod(s.iterations, rows, 2000.0 + 200.0 * p),
             f"its metrics ({_num(_prod(s.iterations, rows))} rows)",
             [iterations, robots],
         ),
         (
-            _prod(slots, (64.0 + 80.0 * m) * (2.0 if s.tracking else 1.0)),
+            _prod(slots, (64.0 + 80.0 * p) * (2.0 if s.tracking else 1.0)),
             f"its consensus message buffers ({_num(slots)} slots)",
             [delay, rounds, robots],
         ),
-        (_prod(pairs, 1000.0 + 400.0 * m), f"its network of {show(s.robots)} robots", [robots]),
+        (_prod(pairs, 1000.0 + 400.0 * p), f"its network of {show(s.robots)} robots", [robots]),
         (
             _prod(s.bootstrap, 100.0) + _prod(s.eval_episodes, 16.0),
             f"its bootstrap ({show(s.bootstrap)} resamples)",
@@ -172,6 +197,11 @@ def estimate(s: Sizes) -> tuple[list[Part], list[Part]]:
             _prod(n, w_total, k),
             f"its training ({_num(_prod(n, w_total))} episodes of up to {show(s.horizon)} moves)",
             [samples, iterations, growth, robots, horizon],
+        ),
+        (
+            _prod(n, w_total, p / 4.0) if s.tabular else 0.0,
+            f"its gradients ({_num(_prod(n, w_total))} episodes' scores of {_num(p)} entries)",
+            [samples, iterations, growth, robots, size],
         ),
         (
             _prod(cells, 100.0) + _prod(tables, cells, 10.0),
@@ -195,7 +225,7 @@ def estimate(s: Sizes) -> tuple[list[Part], list[Part]]:
         ),
         (_prod(record, 400.0), f"its recorded paths ({_num(record)} steps)", [paths, horizon, robots]),
         (
-            _prod(s.iterations, s.rounds, pairs, m + 1.0, 5.0) if team else 0.0,
+            _prod(s.iterations, s.rounds, pairs, p + 1.0, 5.0) if team else 0.0,
             f"its consensus rounds ({show(s.rounds)} per iteration)",
             [rounds, robots, iterations],
         ),

@@ -11,6 +11,7 @@ from omegaconf import DictConfig
 from riskplan.config.schema import RiskplanConf
 from riskplan.config.typed import as_dict, typed
 from riskplan.config.validate import validate
+from riskplan.engine.policy import Policy, make_policy
 from riskplan.engine.rollout import Kernel, make_kernel
 from riskplan.engine.team.mixer import Mixer
 from riskplan.engine.team.network import Network, build_network
@@ -29,7 +30,9 @@ class Setup:
     kernel: Kernel
     network: Network
     mixer: Mixer
-    theta0: np.ndarray  # (M,)
+    theta0: np.ndarray  # (len(theta_names),): M for the paper's policy, C * 5 for a tabular one
+    policy: Policy  # what theta parameterises (policy.kind, policy.features); the kernel packs it
+    theta_names: tuple[str, ...]  # one unique name per entry of theta (summary.json, the MCAP metadata)
 
     @property
     def robots(self) -> int:
@@ -51,38 +54,74 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
     budget.check(budget.sizes_of(params, width, height, len(params.world.sources), params.team.robots))
     starts = None if params.team.starts is None else [list(s) for s in params.team.starts]
     world = build_world(params.world, starts)
-    train = params.train
-    theta0 = np.array(list(train.theta0), dtype=float)
-    require(
-        theta0.shape == (world.sources,) and bool(np.all(np.isfinite(theta0))),
-        "train.theta0",
-        f"got {list(train.theta0)}; expected {world.sources} finite numbers, one per source",
-    )
-    require(
-        math.isfinite(logit_bound(world, theta0)),
-        "train.theta0",
-        f"got {list(train.theta0)}; the softmax logits theta . signal overflow to infinity; give smaller values",
-    )
-    network = build_network(params.team, world.sources, params.seed)
+    policy = make_policy(world, params.policy.kind, params.policy.features)
+    theta0 = initial_theta(world, policy, list(params.train.theta0))
+    network = build_network(params.team, policy.size, params.seed)
     budget.check(budget.sizes_of(params, world.width, world.height, world.sources, network.robots))  # before the Mixer
     return Setup(
         params=params,
         config=as_dict(params),
         world=world,
-        kernel=make_kernel(world),
+        kernel=make_kernel(world, policy),
         network=network,
         mixer=Mixer(network, params.team, params.seed),
         theta0=theta0,
+        policy=policy,
+        theta_names=policy.names,
     )
 
 
-def logit_bound(world: World, thetas: np.ndarray) -> float:
-    """Largest |logit| any policy in `thetas` (..., M) can produce: sum_j |theta_j| x peak |signal_j|.
+def initial_theta(world: World, policy: Policy, given: list) -> np.ndarray:
+    """theta_0 from train.theta0, which lists the weights of `policy.seed_names` in that order (the features in the
+    order of policy.features; without signals, the extras come first).
 
-    When it is finite, no logit (or partial sum of one) overflows, so the softmax stays finite.
+    Entries left off at the end start at 0 (the paper's [20, 20] with policy.features=[signals, risky] starts the
+    risky weight at 0); more entries than weights is BadInput. A features policy starts at these weights, a tabular
+    one at the logits they give (riskplan.engine.policy.Policy.initial).
     """
+    names = policy.seed_names
+    count = len(names)
+    shown = ", ".join(names) if count <= 8 else f"{', '.join(names[:8])}, ..."
+    what = "signal weights to seed its table" if policy.tabular else "parameters"
+    require(
+        len(given) <= count,
+        "train.theta0",
+        f"got {given}; the policy has {count} {what} ({shown}); give at most {count} numbers",
+    )
+    weights = np.array(given, dtype=float)
+    require(
+        bool(np.all(np.isfinite(weights))),
+        "train.theta0",
+        f"got {given}; expected finite numbers, one per parameter ({shown})",
+    )
+    weights = np.concatenate([weights, np.zeros(count - len(weights))])
+    require(
+        math.isfinite(policy.seed_bound(weights)),
+        "train.theta0",
+        f"got {given}; the softmax logits theta . signal overflow to infinity; give smaller values",
+    )
+    return policy.initial(world, weights)
+
+
+def logit_bound(world: World, thetas: np.ndarray, policy: Policy | None = None) -> float:
+    """Largest |logit| any policy in `thetas` (..., len(theta)) can produce: sum_i |theta_i| x peak |f_i| for a
+    features policy (a signal's peak |amplitude|, 1 for risky and stay), the largest |theta| for a tabular one.
+
+    When it is finite, no logit (or partial sum of one) overflows, so the softmax stays finite. Pass the run's
+    `policy` (Setup.policy) for the exact bound; without it, theta of length M is the paper's policy (exact, as
+    before), theta of length C * 5 a table, and any other length is bounded with every feature at the largest peak,
+    max(1, max |amplitude|) (an upper bound whatever the order of the features).
+    """
+    if policy is not None:
+        return policy.logit_bound(thetas)
+    thetas = np.asarray(thetas, dtype=float)
     with np.errstate(over="ignore", invalid="ignore"):
-        return float(np.max(np.abs(np.asarray(thetas, dtype=float)) @ np.abs(world.source_amplitude)))
+        if thetas.shape[-1] == world.sources:
+            return float(np.max(np.abs(thetas) @ np.abs(world.source_amplitude)))
+        if thetas.shape[-1] == world.cells * 5:
+            return float(np.max(np.abs(thetas))) if thetas.size else 0.0
+        peak = max(1.0, float(np.max(np.abs(world.source_amplitude))))
+        return float(np.max(np.abs(thetas).sum(axis=-1) * peak))
 
 
 def starts(setup: Setup) -> np.ndarray:

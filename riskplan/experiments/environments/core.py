@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from riskplan.engine import distributions as D
-from riskplan.engine.policy import move_features, probabilities
+from riskplan.engine.policy import Policy, move_features, probabilities, tabular_probabilities
 from riskplan.engine.world import MOVE_NAMES, World
 from riskplan.run.build import Setup, build_setup
 from riskplan.run.compose import compose
@@ -180,33 +180,98 @@ def _present(index: np.ndarray) -> list[int]:
 
 
 class SoftmaxPolicy:
-    """The paper's policy (2)-(3) on the environments' observations: mu(u | x) ∝ exp(theta . signals[u]).
+    """The softmax policy (2)-(3) on the environments' observations: mu(u | x) ∝ exp(theta . f(x, u)).
 
-    `signals` is the observation's (5, M) array (or a batch (B, 5, M)); `act` samples a move as the kernel does
-    (the first move whose cumulative probability exceeds a uniform draw).
+    `SoftmaxPolicy(theta)` is the paper's policy: f is the observation's "signals", a (5, M) array (or a batch
+    (B, 5, M)). `SoftmaxPolicy(theta, config)` is the policy a riskplan config (overrides, a composed config or a
+    Setup, as `make_setup` takes) trains, theta as long as its Setup.theta_names:
+      * policy.features with risky or stay: the signals and those features of x + u, in the order of
+        policy.features; the extras are looked up from the observation's "position" (x, y);
+      * policy.kind=tabular: theta is the (C * 5,) table of logits, theta[c * 5 + a] for the cell c at "position"
+        (the signals are not used).
+    `act` samples a move as the kernel does (the first move whose cumulative probability exceeds a uniform draw).
     """
 
-    def __init__(self, theta: Sequence[float] | np.ndarray):
+    def __init__(self, theta: Sequence[float] | np.ndarray, config: Any = None):
         self.theta = np.asarray(theta, dtype=float).reshape(-1)
+        self._setup = None if config is None else make_setup(config)
+        self._policy: Policy | None = None if self._setup is None else self._setup.policy
+        self._table: np.ndarray | None = None
+        policy = self._policy
+        if policy is None:
+            return
+        if self.theta.shape != (policy.size,):
+            shown = ", ".join(policy.names) if policy.size <= 8 else f"{', '.join(policy.names[:8])}, ..."
+            raise ValueError(
+                f"theta has {self.theta.size} entries; the config's {policy.kind} policy has {policy.size} ({shown})"
+            )
+        if policy.tabular:
+            self._table = tabular_probabilities(self.theta, self._setup.world.cells)  # (C, 5)
+        elif policy.features == ("signals",):
+            self._policy = None  # the paper's policy: the signals alone, no position needed
 
-    def probabilities(self, signals: np.ndarray) -> np.ndarray:
-        """Move probabilities, shape (5,) for one observation's signals, (B, 5) for a batch."""
+    @property
+    def needs_position(self) -> bool:
+        """Whether the policy looks at the observation's "position" (extra features or a table), not only signals."""
+        return self._policy is not None
+
+    def features(self, signals: np.ndarray, position: np.ndarray | None = None) -> np.ndarray:
+        """f(x, u) of each move in theta's order, (5, F) for one observation, (B, 5, F) for a batch."""
+        signals = np.asarray(signals, dtype=float)
+        policy = self._policy
+        if policy is None:
+            return signals
+        if policy.tabular:
+            raise ValueError("a tabular policy has no features: its theta is the table of (cell, move) logits")
+        one = signals.ndim == 2
+        cells = self._cells(position, 1 if one else len(signals))
+        batch = signals[None] if one else signals
+        out = np.empty(batch.shape[:2] + (policy.size,))
+        if policy.signal_at >= 0:
+            out[..., policy.signal_at : policy.signal_at + batch.shape[-1]] = batch
+        out[..., policy.extra_at] = policy.extras[cells]
+        return out[0] if one else out
+
+    def probabilities(self, signals: np.ndarray, position: np.ndarray | None = None) -> np.ndarray:
+        """Move probabilities, shape (5,) for one observation, (B, 5) for a batch. `position` (x, y) or (B, 2):
+        needed by a policy with extra features or a table (`needs_position`)."""
         signals = np.asarray(signals, dtype=float)
         one = signals.ndim == 2
-        probs = probabilities(signals[None] if one else signals, self.theta)
+        if self._table is not None:
+            probs = self._table[self._cells(position, 1 if one else len(signals))]
+        else:
+            feats = self.features(signals, position)
+            probs = probabilities(feats[None] if one else feats, self.theta)
         return probs[0] if one else probs
 
-    def act(self, signals: np.ndarray, rng: np.random.Generator) -> np.ndarray | int:
-        """A sampled move (int) for one observation's signals, or moves (B,) for a batch."""
-        probs = self.probabilities(signals)
+    def act(
+        self, signals: np.ndarray, rng: np.random.Generator, position: np.ndarray | None = None
+    ) -> np.ndarray | int:
+        """A sampled move (int) for one observation, or moves (B,) for a batch (see `probabilities`)."""
+        probs = self.probabilities(signals, position)
         cum = np.cumsum(np.atleast_2d(probs), axis=-1)
         u = rng.random(cum.shape[0])
         moves = (u[:, None] > cum[:, :4]).sum(axis=1)
         return int(moves[0]) if probs.ndim == 1 else moves
 
     def __call__(self, observation: dict, rng: np.random.Generator) -> int:
-        """A move for one environment observation (a dict with "signals")."""
-        return self.act(observation["signals"], rng)
+        """A move for one environment observation (a dict with "signals" and "position")."""
+        return self.act(observation["signals"], rng, observation.get("position"))
+
+    def _cells(self, position: np.ndarray | None, count: int) -> np.ndarray:
+        """Cell indices (count,) of positions (x, y) or (B, 2)."""
+        if position is None:
+            raise ValueError(
+                f"this {self._policy.kind} policy (features {list(self._policy.features)}) looks up the robot's cell: "
+                f'pass position (the observation\'s "position")'
+            )
+        xy = np.asarray(position, dtype=np.int64).reshape(-1, 2)
+        if len(xy) != count:
+            raise ValueError(f"got {len(xy)} positions for {count} observations")
+        world = self._setup.world
+        if ((xy < 0) | (xy >= (world.width, world.height))).any():
+            raise ValueError(f"positions off the {world.width}x{world.height} grid: {xy.tolist()}")
+        return xy[:, 0] * world.height + xy[:, 1]
 
 
 @dataclass(frozen=True)
@@ -225,12 +290,14 @@ def run_episodes(
     """`episodes` independent single-robot episodes of the softmax policy theta, all stepped at once in numpy.
 
     The same dynamics as the environments (each episode its own copy of the world), without their per-step Python
-    overhead. `start`: the start cell (default: the first robot's).
+    overhead. theta is the config's policy's (`SoftmaxPolicy(theta, config)`: the paper's, extra features or a
+    table). `start`: the start cell (default: the first robot's).
     """
     setup = make_setup(config)
     cell = robot_starts(setup)[0] if start is None else start
     worlds = Worlds(setup.world, np.full(episodes, cell, dtype=np.int64))
-    policy = SoftmaxPolicy(theta)
+    policy = SoftmaxPolicy(theta, setup)
     while not worlds.done.all():
-        worlds.step(policy.act(worlds.signals(), rng), rng)
+        position = worlds.positions() if policy.needs_position else None
+        worlds.step(policy.act(worlds.signals(), rng, position), rng)
     return Episodes(worlds.total_reward, worlds.risky_steps, worlds.source_reached, worlds.steps)
