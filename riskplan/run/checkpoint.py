@@ -74,13 +74,13 @@ def load_checkpoint(out: Path, setup: Setup) -> State:
             str(path),
             f"holds iteration {iteration!r}; a checkpoint is written after iteration 1 or later: start the run again",
         )
-    if thetas.shape != (setup.robots, setup.world.sources):
+    if thetas.shape != (setup.robots, len(setup.theta0)):
         raise BadInput(
             str(out),
             f"checkpoint holds {thetas.shape} thetas, the config needs "
-            f"{(setup.robots, setup.world.sources)}; only train.iterations may change on resume",
+            f"{(setup.robots, len(setup.theta0))}; only train.iterations may change on resume",
         )
-    if not (np.all(np.isfinite(thetas)) and math.isfinite(logit_bound(setup.world, thetas))):
+    if not (np.all(np.isfinite(thetas)) and math.isfinite(logit_bound(setup.world, thetas, setup.policy))):
         raise BadInput(str(path), "holds a theta that is not finite (or overflows the softmax); start the run again")
     expected = setup.mixer.state()
     for key, value in mixer.items():
@@ -103,3 +103,133 @@ def load_checkpoint(out: Path, setup: Setup) -> State:
             f"train.iterations >= {iteration}",
         )
     return State(iteration, thetas, mixer, [])
+
+
+# --- team.backend=ray: one checkpoint per robot, each at its own iteration (riskplan.run.ray_team) ---------------
+
+TEAM_FORMAT = "ray"  # the "format" of a checkpoint that holds per-robot states
+
+
+@dataclass
+class TeamCheckpoint:
+    """Per-robot checkpoints of a team whose robots run apart (team.backend=ray): robot i's state at its own
+    iteration (robots[i]["iteration"], the next one it runs: its theta, what it holds from its neighbours, its
+    gradient-tracking sums), taken together as a consistent cut (no robot holds a message its sender had not sent
+    by its own checkpoint), and `pending`: the rows of the iterations some robot has not finished yet, with what
+    their network-average row needs (each an {"row": dict, "z": (W,), "grad": (M,)})."""
+
+    robots: list[dict[str, np.ndarray]]
+    pending: list[dict]
+
+    @property
+    def iterations(self) -> list[int]:
+        """Each robot's next iteration."""
+        return [int(state["iteration"]) for state in self.robots]
+
+    @property
+    def iteration(self) -> int:
+        """The iteration every robot has reached: the team's (its metrics are complete before it)."""
+        return min(self.iterations)
+
+
+def save_team_checkpoint(out: Path, robots: list[dict[str, np.ndarray]], pending: list[dict]) -> None:
+    """Write every robot's checkpoint, and the pending rows, as one file replaced atomically (temp file, fsync,
+    rename, fsync the directory), so the robots' states on disk are always one consistent cut."""
+    payload = {
+        "format": TEAM_FORMAT,
+        "iteration": min(int(state["iteration"]) for state in robots),
+        "robots": [
+            {
+                "arrays": {k: np.asarray(v).tolist() for k, v in state.items()},
+                "dtypes": {k: str(np.asarray(v).dtype) for k, v in state.items()},
+                "shapes": {k: list(np.shape(v)) for k, v in state.items()},
+            }
+            for state in robots
+        ],
+        "pending": [
+            {"row": entry["row"], "z": np.asarray(entry["z"]).tolist(), "grad": np.asarray(entry["grad"]).tolist()}
+            for entry in pending
+        ],
+    }
+    tmp = out / f"{CHECKPOINT}.tmp"
+    with open(tmp, "w") as handle:
+        json.dump(payload, handle)
+        handle.flush()
+        os.fsync(handle.fileno())
+    if os.environ.get(CRASH_ENV) == str(payload["iteration"]):
+        os.kill(os.getpid(), signal.SIGKILL)
+    os.replace(tmp, out / CHECKPOINT)
+    directory = os.open(out, os.O_RDONLY)
+    try:
+        os.fsync(directory)
+    finally:
+        os.close(directory)
+
+
+def load_team_checkpoint(out: Path, setup: Setup, expected: list[dict[str, np.ndarray]]) -> TeamCheckpoint:
+    """The per-robot checkpoints of a run directory, checked against `expected` (each robot's state before its
+    first iteration: the names, shapes and dtypes a checkpoint of this team must have) and the config; anything
+    that cannot be this run's is bad input."""
+    path = out / CHECKPOINT
+    if not path.exists():
+        raise BadInput(str(out), "has no checkpoint to resume from; start it again with riskplan train")
+    try:
+        payload = json.loads(path.read_text())
+        if payload.get("format") != TEAM_FORMAT:
+            raise BadInput(
+                str(path),
+                "holds the checkpoint of a team.backend=simulated run; resume it with the config it was "
+                "started with (only train.iterations may change on resume)",
+            )
+        robots = [
+            {
+                k: np.array(v, dtype=np.dtype(entry["dtypes"][k])).reshape(entry["shapes"][k])
+                for k, v in entry["arrays"].items()
+            }
+            for entry in payload["robots"]
+        ]
+        pending = [
+            {"row": dict(p["row"]), "z": np.array(p["z"], dtype=float), "grad": np.array(p["grad"], dtype=float)}
+            for p in payload["pending"]
+        ]
+    except BadInput:
+        raise
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+        raise BadInput(
+            str(path),
+            f"is damaged ({type(err).__name__}: {err}); it was not written by riskplan, "
+            f"which replaces checkpoints atomically: start the run again",
+        ) from None
+    if len(robots) != len(expected):
+        raise BadInput(
+            str(out),
+            f"checkpoint holds {len(robots)} robots, the config has {len(expected)}; only train.iterations may "
+            f"change on resume",
+        )
+    for i, (state, want) in enumerate(zip(robots, expected)):
+        if set(state) != set(want):
+            raise BadInput(str(path), f"robot {i}'s checkpoint does not fit this team; start the run again")
+        for key, value in state.items():
+            if (
+                value.shape != np.shape(want[key])
+                or value.dtype != np.asarray(want[key]).dtype
+                or (value.dtype.kind == "f" and not np.all(np.isfinite(value)))
+            ):
+                raise BadInput(
+                    str(path),
+                    f"robot {i}'s checkpoint holds a '{key}' that does not fit this team (or is not finite); "
+                    f"start the run again",
+                )
+        if not math.isfinite(logit_bound(setup.world, state["theta"][None], setup.policy)):
+            raise BadInput(str(path), f"robot {i}'s theta overflows the softmax; start the run again")
+    checkpoint = TeamCheckpoint(robots, pending)
+    if min(checkpoint.iterations) < 0:
+        raise BadInput(str(path), "holds a negative iteration; start the run again")
+    if max(checkpoint.iterations) > setup.params.train.iterations:
+        raise BadInput(
+            "train.iterations",
+            f"got {setup.params.train.iterations}, but {out} is checkpointed "
+            f"at iteration {max(checkpoint.iterations)}; a resumed run can only be extended: give "
+            f"train.iterations >= {max(checkpoint.iterations)}",
+        )
+    return checkpoint

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from riskplan.config.schema import Measure, RiskConf, RiskplanConf
+from riskplan.config.schema import Backend, Measure, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
 from riskplan.engine import rng
 from riskplan.engine.risk_measures import objective, summary_stats
@@ -76,7 +76,9 @@ def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
         for first in range(0, count, EVAL_BATCH):
             key = np.array([rng.stream_key(setup.params.seed, rng.EVAL, p, first)], dtype=np.uint64)
             size = min(EVAL_BATCH, count - first)
-            parts.append(simulate(setup.world, setup.kernel, evaluated[p : p + 1], cells[p : p + 1], key, size))
+            parts.append(
+                simulate(setup.world, setup.kernel, evaluated[p : p + 1], cells[p : p + 1], key, size, scores=False)
+            )
         frames.append(
             pd.DataFrame(
                 {
@@ -102,7 +104,7 @@ def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
     for name, policy_thetas in (("initial", np.tile(setup.theta0, (setup.robots, 1))), ("final", thetas)):
         ids, evaluated, cells = policies(setup, policy_thetas)
         keys = rng.robot_keys(setup.params.seed, rng.PATHS, 0 if name == "initial" else 1, len(ids))
-        batch = simulate(setup.world, setup.kernel, evaluated, cells, keys, count, record=True)
+        batch = simulate(setup.world, setup.kernel, evaluated, cells, keys, count, record=True, scores=False)
         alive = batch.path_cells >= 0
         episode, step = np.nonzero(alive)
         x, y = setup.world.xy(batch.path_cells[alive])
@@ -159,12 +161,14 @@ def summarize(
         **figures,
         "risky_fraction": per_policy[str(headline)]["risky_fraction"],
         "source_reached": per_policy[str(headline)]["source_reached"],
+        "theta_names": list(setup.theta_names),
         "theta_final": final_thetas[-1].tolist() if setup.team else final_thetas[0].tolist(),
         "robots": robots,
         "policies": per_policy,
         "iterations": state.iteration,
         "eval_episodes": params.train.eval_episodes,
         "wall_time": train_seconds,
+        "deterministic": params.team.backend != Backend.ray,  # ray: the wall clock orders the messages
         "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else None,
         "provenance": provenance(),
     }
@@ -198,7 +202,8 @@ def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: pd.DataFrame)
         parts = []
         for first in range(0, count, EVAL_BATCH):
             key = np.array([rng.stream_key(params.seed, rng.EVAL, setup.robots + 1 + q, first)], dtype=np.uint64)
-            batch = simulate(setup.world, setup.kernel, average, np.array([cell]), key, min(EVAL_BATCH, count - first))
+            size = min(EVAL_BATCH, count - first)
+            batch = simulate(setup.world, setup.kernel, average, np.array([cell]), key, size, scores=False)
             parts.append(batch.total_reward)
         returns[cell] = np.concatenate(parts)
     pairs = {(int(c), json.dumps(as_dict(r), sort_keys=True)): (int(c), r) for c, r in zip(cells, risks)}

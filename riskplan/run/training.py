@@ -75,13 +75,13 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
         new_thetas = consensus_step(setup, thetas, grads, eps, l)
     if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(new_thetas))):
         raise NumericalTrouble(
-            f"iteration {l}: theta or its gradient is not finite (theta={thetas.tolist()}, "
-            f"gradient={grads.tolist()}); lower train.step_size.initial"
+            f"iteration {l}: theta or its gradient is not finite (theta={_shown(thetas)}, "
+            f"gradient={_shown(grads)}); lower train.step_size.initial"
         )
-    if not math.isfinite(logit_bound(setup.world, new_thetas)):
+    if not math.isfinite(logit_bound(setup.world, new_thetas, setup.policy)):
         raise NumericalTrouble(
-            f"iteration {l}: the new theta={new_thetas.tolist()} overflows the softmax "
-            f"(theta . signal is not finite); lower train.step_size.initial"
+            f"iteration {l}: the new theta={_shown(new_thetas)} overflows the softmax "
+            f"(theta . features is not finite); lower train.step_size.initial"
         )
     healthy = setup.mixer.healthy(l)  # team.faults: the averages and the consensus error are the healthy robots'
     ok = slice(None) if healthy.all() else healthy
@@ -106,6 +106,12 @@ def risk_groups(params: RiskplanConf) -> list[tuple[RiskConf, slice | np.ndarray
     for i, node in enumerate(params.team.risk):
         groups.setdefault(json.dumps(as_dict(node), sort_keys=True), (node, []))[1].append(i)
     return [(node, np.array(robots)) for node, robots in groups.values()]
+
+
+def _shown(values: np.ndarray) -> str:
+    """An array for a one-line message: every number when few (the paper's theta), else a summary (a table)."""
+    values = np.asarray(values, dtype=float)
+    return str(values.tolist()) if values.size <= 16 else np.array2string(values, threshold=8, max_line_width=10**6)
 
 
 def gradients(z, scores, risk, l, stats, robots, baseline, beta) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -342,5 +348,6 @@ def _log_header(log: RunLog, setup: Setup) -> None:
     """Config, provenance, network and world map at the top of run.mcap."""
     log.metadata("config", setup.config)
     log.metadata("provenance", provenance())
+    log.metadata("policy", {"kind": str(setup.policy.kind), "theta_names": list(setup.theta_names)})
     log.network(network_metadata(setup.network))
     log.world_map(world_map(setup.world, starts(setup)))
