@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import random
@@ -13,6 +14,7 @@ import tracemalloc
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from riskplan.engine.distributions import Dist
 
@@ -262,10 +264,16 @@ runpy.run_module("riskplan", run_name="__main__")  # python -m riskplan train ..
 """
 
 
+def user_env() -> dict[str, str]:
+    """The environment a user's shell gives a command: Python writes and reads its bytecode caches (a machine
+    that sets PYTHONDONTWRITEBYTECODE would compile every module from source at every start)."""
+    return {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+
+
 def wall(argv: list[str], cwd: Path, marker: str | None = None) -> float:
     """Seconds from starting `argv` to its end, or to the wall-clock time it prints after `marker`."""
     start = time.time()
-    done = subprocess.run(argv, cwd=cwd, capture_output=True, text=True, check=True)
+    done = subprocess.run(argv, cwd=cwd, capture_output=True, text=True, check=True, env=user_env())
     end = time.time()
     if marker is None:
         return end - start
@@ -282,11 +290,42 @@ def bench_startup(quick: bool) -> list[dict]:
     cli = [str(script)] if script.is_file() else [sys.executable, "-m", "riskplan"]
     runs = 2 if quick else 3
     with tempfile.TemporaryDirectory() as tmp:
+        whole, loops = [], []
+        for k in range(runs + 1):  # the first run writes the bytecode caches; it is not timed
+            seconds = wall([*cli, "train", f"hydra.run.dir={Path(tmp) / f'whole{k}'}"], Path(tmp))
+            summary = json.loads((Path(tmp) / f"whole{k}" / "summary.json").read_text())
+            compute = float(pd.read_parquet(Path(tmp) / f"whole{k}" / "metrics.parquet").seconds.sum())
+            if k:
+                whole.append(seconds)
+                loops.append((summary["wall_time"], compute))
+        loop, compute = min(loops)
         train = min(wall([sys.executable, "-c", FIRST_ITERATION], Path(tmp), "FIRST-ITERATION") for _ in range(runs))
         numba_only = min(wall([sys.executable, "-c", "import numba"], Path(tmp)) for _ in range(runs))
         helps = min(wall([*cli, "--help"], Path(tmp)) for _ in range(runs + 2))
         typer_only = min(wall([sys.executable, "-c", "import typer"], Path(tmp)) for _ in range(runs + 2))
     return [
+        {
+            "measure": "riskplan train, the paper set-up, the whole command, warm JIT cache (s)",
+            "value": min(whole),
+            "unit": "s",
+            "target": "<= 1.5",
+            "ok": min(whole) <= 1.5,
+            "baseline": numba_only,
+            "ratio": min(whole) / numba_only,
+            "note": f"best of {runs} new processes (200 iterations, W=6000, 100,000 evaluation episodes, files "
+            f"written); baseline: a process that only imports numba",
+        },
+        {
+            "measure": "training loop recorded in summary.json against its compute (s)",
+            "value": loop,
+            "unit": "s",
+            "target": "<= 1.5x its compute",
+            "ok": loop <= 1.5 * compute,
+            "baseline": compute,
+            "ratio": loop / compute,
+            "note": "the same runs: summary.json wall_time (logging, checkpoints and progress included); baseline: "
+            "the sum of metrics.parquet's per-iteration seconds (rollouts, gradients, consensus)",
+        },
         {
             "measure": "start-up: riskplan train to its first iteration, warm JIT cache (s)",
             "value": train,
