@@ -148,7 +148,7 @@ def summarize(
         }
     _, final_thetas, _ = policies(setup, state.thetas)
     objective_figure = _objective(params.risk, z.total_reward.to_numpy(), figures, params)
-    robots, team_objective = robot_objectives(setup, state.thetas, evaluation)
+    robots, team_objective = robot_objectives(setup, state.thetas, evaluation, objective_figure)
     return {
         "schema_version": SCHEMA_VERSION,
         "experiment": params.experiment,
@@ -184,20 +184,33 @@ def _objective(risk, z: np.ndarray, figures: dict, params) -> dict:
     return objective_interval(z, risk, params.train.bootstrap, params.seed)[0]
 
 
-def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: pd.DataFrame) -> tuple[list[dict], dict]:
+def robot_objectives(
+    setup: Setup, thetas: np.ndarray, evaluation: pd.DataFrame, headline: dict
+) -> tuple[list[dict], dict]:
     """Each robot's objective at the network average theta-bar (from its own start, by its own measure: the team
     objective's terms) and the team objective, their sum over the healthy robots (team.faults), with bootstrap
     intervals from the same resamples.
 
     theta-bar's episodes from robot 0's start are eval.parquet's robot -1 rows; each other start gets episodes of
-    its own stream (not saved). A centralized run is a team of one: its entry is the run's own objective."""
+    its own stream (not saved). A centralized run is a team of one: its entry is the run's own objective. When
+    every robot shares one start and one measure (the common case), each term is the headline `objective` and the
+    team objective is that many times it, interval included: no further bootstrap."""
     params, count = setup.params, setup.params.train.eval_episodes
     risks = robot_risks(params)
     cells = starts(setup)
-    headline = AVERAGE if setup.team else 0
-    average = network_average(setup, thetas)[None, :]
     healthy = final_health(setup)
-    returns = {int(cells[0]): evaluation.total_reward[evaluation.robot == headline].to_numpy()}
+    pairs = {(int(c), json.dumps(as_dict(r), sort_keys=True)): (int(c), r) for c, r in zip(cells, risks)}
+    if len(pairs) == 1 and risks[0] == params.risk:  # one term, the headline's: the robots share it
+        x, y = setup.world.xy(int(cells[0]))
+        robots = [
+            {"robot": i, "start": [int(x), int(y)], "healthy": bool(ok), "objective_at_average": headline}
+            for i, ok in enumerate(healthy)
+        ]
+        terms = int(healthy.sum())
+        return robots, {k: terms * headline[k] for k in ("value", "low", "high")}
+    headline_robot = AVERAGE if setup.team else 0
+    average = network_average(setup, thetas)[None, :]
+    returns = {int(cells[0]): evaluation.total_reward[evaluation.robot == headline_robot].to_numpy()}
     for q, cell in enumerate(dict.fromkeys(int(c) for c in cells if int(c) not in returns)):
         parts = []
         for first in range(0, count, EVAL_BATCH):
@@ -206,7 +219,6 @@ def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: pd.DataFrame)
             batch = simulate(setup.world, setup.kernel, average, np.array([cell]), key, size, scores=False)
             parts.append(batch.total_reward)
         returns[cell] = np.concatenate(parts)
-    pairs = {(int(c), json.dumps(as_dict(r), sort_keys=True)): (int(c), r) for c, r in zip(cells, risks)}
     with_intervals = len(pairs) <= ROBOT_INTERVALS
     figures = {}
     for key, (cell, risk) in pairs.items():
