@@ -1,25 +1,55 @@
-"""Shared fixtures: a fast config for end-to-end runs, and typed team settings for the engine's team tests."""
+"""Shared fixtures and the quick tier.
+
+The tests mirror the package (tests/engine, tests/engine/team, tests/config, tests/run, tests/util, tests/experiments,
+tests/commands); end-to-end runs are in tests/e2e. `pytest -m "not slow"` is the quick tier: everything under
+tests/e2e and tests/clusters is marked slow here, and the other slow tests carry the mark themselves. Shared
+helpers and the run configs (TINY, FAST) are in tests/support.py.
+"""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
+from support import FAST, TINY, team_conf  # noqa: F401  (`from conftest import FAST, team_conf` keeps working)
 
-from riskplan.config.schema import TeamConf
-from riskplan.config.typed import typed
-from riskplan.config.validate import check_team
+try:
+    from hypothesis import settings
+except ImportError:  # tests/ray_check.sh's environment has no hypothesis (nor a property test)
+    pass
+else:  # the property tests: reproducible examples, no deadline on a loaded machine
+    settings.register_profile("riskplan", max_examples=100, deadline=None, derandomize=True)
+    settings.load_profile("riskplan")
 
-FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
+TESTS = Path(__file__).resolve().parent
+SLOW_FOLDERS = ("e2e", "clusters")  # whole runs through the CLI, and real clusters
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark every test under tests/e2e and tests/clusters slow."""
+    for item in items:
+        try:
+            folder = item.path.resolve().relative_to(TESTS).parts[0]
+        except ValueError:  # a test outside tests/
+            continue
+        if folder in SLOW_FOLDERS:
+            item.add_marker(pytest.mark.slow)
+
+
+@pytest.fixture
+def in_tmp(tmp_path, monkeypatch) -> Path:
+    """A fresh working directory (a command's default outputs/ goes there)."""
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+@pytest.fixture
+def tiny_overrides() -> list[str]:
+    """The fastest overrides that still make a meaningful run (support.TINY)."""
+    return list(TINY)
 
 
 @pytest.fixture
 def fast_overrides() -> list[str]:
-    """Overrides that make a run take well under a second."""
+    """Overrides that make a run take well under a second (support.FAST)."""
     return list(FAST)
-
-
-def team_conf(**values) -> TeamConf:
-    """The typed TeamConf of these `team` values (nested dicts allowed), checked as a build checks it: BadInput
-    naming `team.<key>` on a bad type, choice or range."""
-    team = typed({"team": values}).team
-    check_team(team)
-    return team

@@ -13,6 +13,7 @@ import pytest
 import tomllib
 import yaml
 from rich.console import Console
+from support import TINY
 from typer.testing import CliRunner
 
 import riskplan
@@ -20,7 +21,6 @@ import riskplan.util.progress as progress
 from riskplan.cli import app
 
 ROOT = Path(__file__).resolve().parents[1]
-FAST = ["train.iterations=3", "train.samples=100", "train.eval_episodes=300", "train.bootstrap=5", "train.paths=1"]
 
 
 def test_the_licence_file_is_the_one_pyproject_declares():
@@ -68,7 +68,7 @@ def test_shell_completion_is_on_and_completes_commands_and_options():
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    return riskplan.train(riskplan.compose(FAST), tmp_path_factory.mktemp("run") / "run", progress=False)
+    return riskplan.train(riskplan.compose(TINY), tmp_path_factory.mktemp("run") / "run", progress=False)
 
 
 def test_a_run_reads_in_one_line_and_as_a_table_in_a_notebook(run, tmp_path):
@@ -99,6 +99,7 @@ def test_the_training_bar_runs_in_a_notebook(monkeypatch):
         assert quiet._bar.disable
 
 
+@pytest.mark.slow  # a sweep and a report
 def test_sweep_and_report_are_api_functions(tmp_path, monkeypatch):
     """riskplan.sweep and riskplan.report do what the commands do (the submodules sweeping/reporting do not shadow
     them), and return what a notebook wants: the summary table and the page."""
@@ -106,10 +107,10 @@ def test_sweep_and_report_are_api_functions(tmp_path, monkeypatch):
     import riskplan.experiments.reporting
     import riskplan.experiments.sweeping
 
-    done = riskplan.sweep([*FAST, "seed=0,1"], jobs=1)
+    done = riskplan.sweep([*TINY, "seed=0,1"], jobs=1)
     assert done.ok and list(done.summary.status) == ["done", "done"] and list(done.summary.seed) == [0, 1]
     assert done.sweep_dir.parent == Path("outputs") / "sweeps" and (done.sweep_dir / "summary.parquet").is_file()
-    again = riskplan.sweep([*FAST, "seed=0,1"], sweep_dir=done.sweep_dir)
+    again = riskplan.sweep([*TINY, "seed=0,1"], sweep_dir=done.sweep_dir)
     assert again.ran == 0 and again.skipped == 2  # finished jobs are skipped
     page = riskplan.report(done.sweep_dir)
     assert page == done.sweep_dir / "report" / "report.html" and page.is_file()

@@ -11,6 +11,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from support import TINY
 from typer.testing import CliRunner
 
 from riskplan import compose
@@ -18,16 +19,11 @@ from riskplan.cli import app
 from riskplan.run.checkpoint import CHECKPOINT
 from riskplan.run.training import train
 
-README = Path(__file__).resolve().parents[1] / "docs" / "robustness.md"
+README = Path(__file__).resolve().parents[2] / "docs" / "robustness.md"
 BEGIN, END = "<!-- bad-input-table: begin -->", "<!-- bad-input-table: end -->"
-FAST = [
-    "train.iterations=12",
-    "train.samples=300",
-    "train.eval_episodes=500",
-    "train.bootstrap=20",
-    "train.paths=2",
-    "train.checkpoint_every=5",
-]
+RUN = [*TINY, "train.iterations=12", "train.checkpoint_every=5"]  # the table's runs are checkpointed at iteration 12
+
+pytestmark = pytest.mark.slow  # a run, a landscape and a report to copy, then a command per row: 30-45 s
 
 runner = CliRunner()
 
@@ -61,7 +57,7 @@ def template(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("bad_input")
     runs = root / "outputs" / "runs"
     done = runs / "done"
-    train(compose(FAST), done)  # a finished run, checkpointed at iteration 12
+    train(compose(RUN), done)  # a finished run, checkpointed at iteration 12
     early = runs / "early"  # killed before its first checkpoint
     shutil.copytree(done, early)
     (early / CHECKPOINT).unlink()
@@ -99,7 +95,7 @@ def template(tmp_path_factory) -> Path:
     from riskplan.experiments.landscape import compute_landscape
     from riskplan.experiments.reporting import build_report
 
-    compute_landscape(compose(FAST), root / "outputs" / "landscapes" / "land", points=3, episodes=20)
+    compute_landscape(compose(RUN), root / "outputs" / "landscapes" / "land", points=3, episodes=20)
     build_report([done], root / "outputs" / "reports" / "old", ["png"])
     return root
 

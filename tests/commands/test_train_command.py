@@ -1,4 +1,5 @@
-"""`riskplan train` and `riskplan check` through the real CLI: files, columns, introspection, help."""
+"""`riskplan train` through the CLI (typer's CliRunner): every file of the output contract and its columns, a team's
+rows, run directories that never collide, and --cfg job, which prints the config without running."""
 
 from __future__ import annotations
 
@@ -35,17 +36,12 @@ EVAL = ["episode", "robot", "total_reward", "risky_steps", "source_reached", "st
 TRAJECTORIES = ["policy", "episode", "robot", "step", "x", "y", "reward"]
 
 
-@pytest.fixture
-def in_tmp(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
-
-
 def only_run(root: Path) -> Path:
     (run,) = list((root / "outputs" / "runs").iterdir())
     return run
 
 
+@pytest.mark.slow  # a whole run through the CLI
 def test_train_writes_every_contract_file(in_tmp, fast_overrides):
     result = runner.invoke(app, ["train", *fast_overrides, "risk=neutral", "seed=3"])
     assert result.exit_code == 0, result.output
@@ -83,6 +79,7 @@ def test_train_writes_every_contract_file(in_tmp, fast_overrides):
     pd.testing.assert_frame_equal(log.eval, pd.read_parquet(run / "eval.parquet"))
 
 
+@pytest.mark.slow  # a whole run through the CLI
 def test_team_run_has_per_robot_and_average_rows(in_tmp, fast_overrides):
     result = runner.invoke(app, ["train", "experiment=paper_team", *fast_overrides])
     assert result.exit_code == 0, result.output
@@ -100,6 +97,7 @@ def test_team_run_has_per_robot_and_average_rows(in_tmp, fast_overrides):
     assert log.metadata["network"]["edges"] and log.metadata["network"]["robots"] == 3
 
 
+@pytest.mark.slow  # a whole run through the CLI
 def test_explicit_run_dir_and_same_second_runs_do_not_collide(in_tmp, fast_overrides):
     result = runner.invoke(app, ["train", *fast_overrides, "hydra.run.dir=mine"])
     assert result.exit_code == 0, result.output
@@ -115,27 +113,3 @@ def test_cfg_job_prints_the_config_without_running(in_tmp):
     printed = yaml.safe_load(result.output)
     assert printed["risk"]["measure"] == "neutral" and printed["train"]["samples"] == 77
     assert not (in_tmp / "outputs").exists()
-
-
-def test_check_reports_team_assumptions(in_tmp):
-    result = runner.invoke(app, ["check", "experiment=paper_team", "team.graph=ring"])
-    assert result.exit_code == 0, result.output
-    assert "Assumption 5: holds" in result.output and "SLEM" in result.output
-    assert "Assumption 6" in result.output and "config OK" in result.output
-    assert not (in_tmp / "outputs").exists()
-
-
-def test_check_warns_when_assumption_6_fails(in_tmp):
-    with pytest.warns(UserWarning, match="Assumption 6"):
-        result = runner.invoke(app, ["check", "train.step_size.power=2"])
-    assert result.exit_code == 0
-    assert "Assumption 6" in result.output and "FAILS" in result.output
-
-
-@pytest.mark.parametrize(
-    "command", [[], ["train"], ["check"], ["bench"], ["report"], ["sweep"], ["reproduce"], ["export"]]
-)
-def test_help_explains_every_command(command):
-    result = runner.invoke(app, [*command, "--help"])
-    assert result.exit_code == 0, result.output
-    assert "Usage" in result.output

@@ -18,6 +18,7 @@ def test_the_same_config_is_typed_once_and_another_gets_its_own():
         first.seed = 5  # shared, so frozen
 
 
+@pytest.mark.slow  # composes TYPED_MEMO + 3 configs: about 2 s
 def test_a_bad_config_raises_every_time_and_old_entries_are_dropped():
     bad = OmegaConf.to_container(compose([], validate=False))
     bad["risk"]["beta"] = "abc"

@@ -8,6 +8,8 @@ import pytest
 from riskplan import compose, train
 from riskplan.risk import cvar
 
+pytestmark = pytest.mark.slow
+
 EVAL = ["train.eval_episodes=40000", "train.bootstrap=100", "train.paths=5"]
 
 

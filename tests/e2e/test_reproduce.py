@@ -1,25 +1,20 @@
-"""`riskplan reproduce` through the real command line, shrunk with plain overrides so that it stays small."""
+"""`riskplan reproduce` through the real command line, shrunk with plain overrides so that it stays small; bad input
+and sizes beyond the limits are refused before anything runs."""
 
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 
 import pandas as pd
+import pytest
+from support import FAST, riskplan_cli
 
-FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
-CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
-
-
-def riskplan(cwd, *args):
-    return subprocess.run([*CLI, *args], cwd=cwd, capture_output=True, text=True, timeout=300, env=dict(os.environ))
+pytestmark = pytest.mark.slow
 
 
 def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     # risk.beta: a user's value for the paper set-ups must not clash with the frontier's own beta sweep
-    result = riskplan(tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", *FAST, "risk.beta=0.1")
+    result = riskplan_cli(tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", *FAST, "risk.beta=0.1")
     assert result.returncode == 0, result.stdout + result.stderr
     roots = list((tmp_path / "outputs" / "reproduce").iterdir())
     assert len(roots) == 1
@@ -32,16 +27,18 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "robots: 3" in config and "iterations: 5" in config  # the user's overrides beat --quick's
     assert (root / "single" / "multirun.yaml").is_file()
     record = json.loads((root / "reproduce.json").read_text())
+    studies = {"measures", "policies", "tabular", "hetero_team", "hetero_central", "faults", "faults_free"}
     assert (
         record["seeds"] == 1
         and record["quick"]
         and set(record["parts"])
-        == {"single", "team", "wander", "soft_risk", "frontier", "landscape", "comparison", "report"}
+        == {"single", "team", "wander", "soft_risk", "frontier", "landscape", "comparison", "report"} | studies
     )
     # where the time went: measured from the jobs' own records (no timed assertion, only the structure)
     assert "where the time went" in result.stdout
     breakdown = record["breakdown"]
-    assert breakdown["jobs"]["jobs"] == 9 and breakdown["jobs"]["workers"] >= 1  # 2 + 1 + 1 + 1 + 4 jobs ran
+    # 2 + 1 + 1 + 1 + 4 jobs of the paper's set-ups, 5 + 2 + 1 + 2 + 1 + 2 + 1 of the studies beyond it
+    assert breakdown["jobs"]["jobs"] == 9 + 14 and breakdown["jobs"]["workers"] >= 1
     assert all(v is None or v >= 0 for v in breakdown["wall"].values())
     assert breakdown["wall"]["report (figures, tables, page)"] > 0 and breakdown["total"] > 0
     assert breakdown["jobs"]["training loop (summary wall_time)"] >= 0
@@ -68,9 +65,29 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     frontier = pd.read_parquet(root / "frontier" / "summary.parquet")
     assert sorted(frontier.beta) == [0.05, 0.2, 0.5, 1.0] and (frontier.status == "done").all()
     assert "CVaR_0.05" in result.stdout and "CVaR_1" in result.stdout
+    # the studies beyond the paper: every job done, each with its report figure, table and section
+    for folder in studies:
+        summary = pd.read_parquet(root / folder / "summary.parquet")
+        assert (summary.status == "done").all(), folder
+    assert sorted(pd.read_parquet(root / "measures" / "summary.parquet").risk) == sorted(
+        ["cvar", "neutral", "wang", "mean_cvar", "entropic"]
+    )
+    report = root / "report"
+    for figure, table in (
+        ("risk_measures", "measures"),
+        ("richer_policies", "policies"),
+        ("hetero_team", "hetero_team"),
+        ("faults", "faults"),
+    ):
+        assert (report / f"{figure}.png").is_file() and (report / f"{table}.csv").is_file()
+    assert len(pd.read_csv(report / "measures.csv")) == 5 and len(pd.read_csv(report / "policies.csv")) == 3
+    assert pd.read_csv(report / "hetero_team.csv").centralized.tolist() == [False, False, True]
+    assert pd.read_csv(report / "faults.csv").fault_free.tolist() == [False, False, True]
+    assert "Wang (η=0.5)" in (report / "report.html").read_text()
+    assert "8 robots from 8 starts, ring, gradient_tracking" in result.stdout
 
     # completing an existing reproduction runs nothing again
-    again = riskplan(
+    again = riskplan_cli(
         tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", "--out", str(root), *FAST, "risk.beta=0.1"
     )
     assert again.returncode == 0, again.stderr
@@ -82,7 +99,15 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
 
 def test_reproduce_rejects_sweeps_and_its_own_keys_as_bad_input(tmp_path):
     for args in (["risk.beta=0.1,0.2"], ["seed=3"], ["train.iterations=abc"], ["--seeds", "0"]):
-        result = riskplan(tmp_path, "reproduce", *args)
+        result = riskplan_cli(tmp_path, "reproduce", *args)
         assert result.returncode == 2, (args, result.stderr)
         assert "Traceback" not in result.stderr
+    assert not (tmp_path / "outputs").exists()
+
+
+def test_reproduce_seeds_are_bounded(tmp_path):
+    result = riskplan_cli(tmp_path, "reproduce", "--seeds", "40", env={"RISKPLAN_MAX_JOBS": "100"})
+    assert result.returncode == 2 and "RISKPLAN_MAX_JOBS" in result.stderr and len(result.stderr.splitlines()) == 1
+    result = riskplan_cli(tmp_path, "reproduce", "--seeds", "3", env={"RISKPLAN_MAX_HOURS": "0.0001"})
+    assert result.returncode == 2 and "RISKPLAN_MAX_HOURS" in result.stderr and len(result.stderr.splitlines()) == 1
     assert not (tmp_path / "outputs").exists()

@@ -1,4 +1,5 @@
-"""Reward-distribution grammar: parsing, errors, and the kernel's programs against numpy."""
+"""Reward distributions (riskplan.engine.distributions): parsing, errors, the kernel's programs against numpy, mixture
+weights whose sum overflows, bounds by interval arithmetic, and programs that could overflow or nest too deep."""
 
 from __future__ import annotations
 
@@ -105,7 +106,7 @@ def test_a_scaled_leaf_compiles_to_one_op_that_draws_k_times_the_leaf(leaf, k):
     )
 
 
-# ---------------------------------------------------------------------------------------------- hardening (issue 10)
+# ---------------------------------------------------------------------------------------------- overflow and nesting
 
 
 @pytest.mark.parametrize("weights", [[1e308, 1e308], [1.7e308, 1.7e308, 1.7e308, 1.7e308], [1.5e308, 1.5e308]])

@@ -17,7 +17,7 @@ from riskplan.engine.rollout import simulate
 from riskplan.risk import cvar_gradient, mean_gradient, tail_count
 from riskplan.run.build import build_setup
 
-TINY = {
+WORLD_3X3 = {
     "world": {
         "size": [3, 3],
         "start": [0, 0],
@@ -38,7 +38,7 @@ TINY = {
 
 @pytest.fixture(scope="module")
 def setup():
-    cfg = OmegaConf.merge(OmegaConf.structured(RiskplanConf), TINY)
+    cfg = OmegaConf.merge(OmegaConf.structured(RiskplanConf), WORLD_3X3)
     return build_setup(cfg)
 
 

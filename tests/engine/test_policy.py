@@ -1,7 +1,9 @@
-"""Softmax policy (eqs. 2-3): stability and the score function against finite differences of log mu."""
+"""Softmax policy (eqs. 2-3): stability, the score function against finite differences of log mu, and the kernel's
+tables against the numpy policy, whatever the thread count."""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 
@@ -60,3 +62,23 @@ def test_the_kernel_tables_are_the_numpy_policy_and_scores(world, thetas):
     np.testing.assert_allclose(np.diff(cum, prepend=0.0, axis=-1)[..., :4], probs[..., :4], rtol=1e-12, atol=1e-15)
     assert np.all(cum[..., 4] == 1.0) and np.all(np.diff(cum, axis=-1) >= 0)
     np.testing.assert_allclose(score, scores(features, probs), rtol=1e-12, atol=1e-12)
+
+
+def test_policy_tables_do_not_depend_on_the_thread_count():
+    world = build_setup(compose([])).world
+    thetas = np.random.default_rng(0).normal(size=(64, world.sources)) * 10
+    results = []
+    for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        previous = numba.get_num_threads()
+        numba.set_num_threads(threads)
+        try:
+            results.append(tables(world, thetas))
+        finally:
+            numba.set_num_threads(previous)
+    assert all(np.array_equal(a, b) for a, b in zip(results[0], results[1]))
+    few = tables(world, thetas[:5])  # fewer than PARALLEL_POLICIES: the serial loop
+    assert np.array_equal(few[0], results[0][0][:5]) and np.array_equal(few[1], results[0][1][:5])
+    features = move_features(world)
+    cum, score = results[0]
+    np.testing.assert_allclose(np.diff(cum, axis=-1, prepend=0.0), probabilities(features, thetas), atol=1e-12)
+    np.testing.assert_allclose(score, scores(features, probabilities(features, thetas)), atol=1e-12)

@@ -1,4 +1,5 @@
-"""Estimators against closed forms and exact small cases."""
+"""The risk estimators (riskplan.risk: VaR, CVaR, the mean and CVaR gradients of eqs. 4-9, tail counts) against closed
+forms and exact small cases."""
 
 from __future__ import annotations
 

@@ -79,6 +79,7 @@ def test_policies_in_one_batch_match_separate_calls(paper):
     np.testing.assert_array_equal(both.total_reward[1000:], second.total_reward)
 
 
+@pytest.mark.slow  # 120,000 episodes through the online-feature path: about a second
 def test_mobile_sources_follow_the_same_policy_as_static_ones():
     """A source that almost never moves takes the online-feature path but must give the static statistics."""
     static = build_setup(compose(["world.sources.1.reward=2000"]))

@@ -1,8 +1,10 @@
-"""The benchmark's plain-Python baseline has the kernel's semantics (else its ratio would mean nothing)."""
+"""riskplan bench (riskplan.experiments.benchmarks): the plain-Python baseline has the kernel's semantics (else its
+ratio would mean nothing), and the scaling table measures every dimension against its baseline row."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
@@ -30,6 +32,7 @@ def test_python_baseline_matches_the_kernel_in_distribution():
         assert abs(a - b) < 0.1 * batch.total_reward.std()
 
 
+@pytest.mark.slow  # builds and times a dozen set-ups, draws the plot: about 5 s
 def test_scaling_measures_every_dimension_against_the_baseline_row(tmp_path, monkeypatch):
     import json
     import math
@@ -78,7 +81,8 @@ def test_scaling_measures_every_dimension_against_the_baseline_row(tmp_path, mon
     json.dumps(rows)  # the --json file takes the rows as they are
 
 
-def test_the_scaling_dimensions_span_the_issue_and_many_sources_compose():
+@pytest.mark.slow  # builds a 64-source world: about a second
+def test_the_scaling_dimensions_span_their_ranges_and_many_sources_compose():
     from riskplan.experiments import benchmarks as bench
 
     dims = bench.scaling_dimensions()

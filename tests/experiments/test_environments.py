@@ -134,6 +134,7 @@ def gym_episodes(env, theta, episodes, seed) -> Outcomes:
 # -- the returns' distribution --------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # thousands of episodes stepped one by one in Python
 @pytest.mark.parametrize("theta", [TRAINED, THETA0], ids=["trained", "theta0"])
 def test_gym_episodes_have_the_kernels_distribution(paper, theta):
     env = SensorPlanningEnv(paper)
@@ -147,6 +148,7 @@ def test_batched_episodes_have_the_kernels_distribution(paper, theta):
     )
 
 
+@pytest.mark.slow  # over a second of episodes
 def test_mobile_sources_have_the_kernels_distribution(mobile):
     assert mobile.world.mobile
     agree(
@@ -156,6 +158,7 @@ def test_mobile_sources_have_the_kernels_distribution(mobile):
     )
 
 
+@pytest.mark.slow  # over a second of episodes
 def test_team_robots_each_have_the_kernels_distribution():
     """The paper's 3 robots, all at theta0: with static sources their episodes are independent kernel samples."""
     env = SensorTeamEnv(["experiment=paper_team"])

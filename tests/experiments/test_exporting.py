@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from support import TINY
 from typer.testing import CliRunner
 
 from riskplan import compose, train
@@ -22,7 +24,6 @@ from riskplan.experiments.reporting.collect import flatten
 from riskplan.experiments.sweep_worker import config_sha
 from riskplan.run.foxglove_layout import LAYOUT_FILE, layout, panels, topics, write_layout
 
-TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 runner = CliRunner()
 
 
@@ -99,6 +100,7 @@ def file_store(monkeypatch):
     monkeypatch.setenv("MLFLOW_ALLOW_FILE_STORE", "true")  # MLflow >= 3.7 wants it to open a file store
 
 
+@pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
 def test_mlflow_holds_every_metric_summary_param_and_tag(runs, tmp_path, file_store):
     pytest.importorskip("mlflow")
     store = tmp_path / "mlruns"
@@ -141,6 +143,7 @@ def test_mlflow_holds_every_metric_summary_param_and_tag(runs, tmp_path, file_st
     assert group["single_0"] == group["single_1"] != group["team"]
 
 
+@pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
 def test_mlflow_reexport_is_idempotent_and_replaces_a_changed_run(runs, tmp_path, file_store):
     pytest.importorskip("mlflow")
     mine = tmp_path / "runs"
@@ -173,6 +176,7 @@ def accumulator(directory: Path):
     return acc
 
 
+@pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
 def test_tensorboard_scalars_per_step_equal_the_run_within_float32(runs, tmp_path):
     pytest.importorskip("tensorboard")
     logdir = tmp_path / "tb"
@@ -192,6 +196,7 @@ def test_tensorboard_scalars_per_step_equal_the_run_within_float32(runs, tmp_pat
         assert str((runs / name).resolve()) in text and config_sha(config(runs / name)) in text
 
 
+@pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
 def test_tensorboard_reexport_replaces_one_subdirectory_per_run(runs, tmp_path):
     pytest.importorskip("tensorboard")
     mine = tmp_path / "runs"
@@ -210,6 +215,7 @@ def test_tensorboard_reexport_replaces_one_subdirectory_per_run(runs, tmp_path):
     assert [e.value for e in accumulator(only).Scalars("summary/mean")] == [1234.5]
 
 
+@pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
 def test_a_write_failure_is_one_line_exit_1_and_keeps_the_previous_export(runs, tmp_path, monkeypatch):
     pytest.importorskip("tensorboard")
     from riskplan.experiments.exporting import TensorboardTarget
@@ -234,6 +240,7 @@ def test_a_write_failure_is_one_line_exit_1_and_keeps_the_previous_export(runs, 
     assert not [p for p in logdir.iterdir() if p.name.startswith(".")]
 
 
+@pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
 def test_a_missing_optional_package_is_bad_input_and_writes_nothing(runs, tmp_path, monkeypatch):
     import sys
 
@@ -255,6 +262,7 @@ def mcap_topics(run: Path) -> set[str]:
         return {channel.topic for channel in make_reader(f).get_summary().channels.values()}
 
 
+@pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
 @pytest.mark.parametrize("name, robots", [("single_0", 1), ("team", 3)])
 def test_foxglove_layout_references_only_topics_of_the_run(runs, tmp_path, name, robots):
     run = tmp_path / name
@@ -290,7 +298,48 @@ def test_foxglove_layout_references_only_topics_of_the_run(runs, tmp_path, name,
     )
 
 
+@pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
 def test_write_layout_is_what_export_writes(runs, tmp_path):
     path = write_layout(tmp_path, robots=3, size=(12, 12))
     assert json.loads(path.read_text()) == layout(3, (12, 12))
     assert json.loads(path.read_text()) == json.loads(json.dumps(layout(3)))  # plain JSON, no NaN
+
+
+# ------------------------------------------------------------------------------------------- what a run becomes
+def test_params_figures_prefixes_and_names_known_answers():
+    """The pure parts of an export: config values as text, summary.json's finite numbers by dotted key (an interval
+    as key, key_low, key_high), the metric prefix of each robot, and TensorBoard's file-name-safe subdirectory."""
+    assert [param_value(v) for v in ("cvar", 0.1, 3, True, None, [1, 2])] == [
+        "cvar",
+        "0.1",
+        "3",
+        "true",
+        "null",
+        "[1, 2]",
+    ]
+    summary = {
+        "schema_version": 1,
+        "provenance": {"git_sha": "abc", "numpy": 2},
+        "cvar": {"value": -2.5, "low": -3.0, "high": float("nan")},
+        "theta_final": [46.5, -0.75],
+        "beta": 0.1,
+        "headline_robot": -1,
+        "complete": True,
+        "experiment": "paper_single",
+        "wall_time": float("inf"),
+    }
+    assert summary_figures(summary) == {
+        "cvar": -2.5,
+        "cvar_low": -3.0,
+        "theta_final.0": 46.5,
+        "theta_final.1": -0.75,
+        "beta": 0.1,
+        "headline_robot": -1.0,
+    }
+    assert summary_figures(None) == {}
+    assert [metric_prefix(r, 0) for r in (0, 1, -1)] == ["train", "robot_1", "team"]
+    assert [metric_prefix(r, -1) for r in (-1, 0, 2)] == ["train", "robot_0", "robot_2"]
+    name = tensorboard_name(Path("/data/runs/a b:c"))
+    assert re.fullmatch(r"a_b_c-[0-9a-f]{8}", name)
+    assert tensorboard_name(Path("/elsewhere/a b:c")) != name  # the same name in another place: another directory
+    assert tensorboard_name(Path("/data/..")).startswith("run-")

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from support import FAST
 from typer.testing import CliRunner
 
 import riskplan
@@ -20,7 +21,6 @@ from riskplan.experiments.reporting.collect import collect
 from riskplan.risk import cvar, value_at_risk
 from riskplan.run.build import build_setup
 
-FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
 runner = CliRunner()
 
 
@@ -65,6 +65,7 @@ def test_chunking_does_not_change_the_numbers(setup, monkeypatch):
     pd.testing.assert_frame_equal(L.evaluate_grid(setup, thetas, 200, 0.1, seed=3), whole)
 
 
+@pytest.mark.slow  # landscapes and a report through the CLI
 def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
     out = tmp_path / "land"
     result = runner.invoke(

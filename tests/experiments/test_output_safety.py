@@ -1,4 +1,4 @@
-"""Hardening of `riskplan report` and `riskplan landscape` (issue 10): runs with broken configs are skipped with
+"""The outputs of `riskplan report` and `riskplan landscape` are safe: runs with broken configs are skipped with
 their reason; --out is refused when it holds files riskplan did not write (a manifest marks what the command
 wrote, so re-running into its own output works); every file is written atomically, so a full disk (a real tmpfs)
 leaves the previous files whole and no temp or empty file; a read-only target (a real read-only bind mount) is one
@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from support import TINY
 from typer.testing import CliRunner
 
 import riskplan
@@ -25,7 +26,6 @@ from riskplan.experiments.landscape import compute_landscape
 from riskplan.run.results import load_run
 from riskplan.util.errors import BadInput
 
-TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 LAND = ["--points", "3", "--episodes", "20"]
 MANIFEST = ".riskplan-manifest.json"  # riskplan.experiments.output_manifest.MANIFEST
 runner = CliRunner()
@@ -91,6 +91,7 @@ BROKEN = {  # run name -> (config text or a function of the good text, what the 
 }
 
 
+@pytest.mark.slow  # renders reports
 def test_runs_with_broken_configs_are_skipped_with_the_reason(done, tmp_path, monkeypatch):
     monkeypatch.delenv("RISKPLAN_TEST_SURELY_UNSET", raising=False)
     mixed = tmp_path / "mixed"
@@ -145,6 +146,7 @@ def test_report_refuses_an_out_directory_holding_other_files(done, tmp_path):
     assert snapshot(tmp_path) == before
 
 
+@pytest.mark.slow  # renders reports
 def test_report_reruns_into_its_own_output_and_drops_its_stale_files(done, tmp_path):
     out = tmp_path / "report"
     invoke("report", done, "--out", out, "--format", "png,svg", code=0)
@@ -176,6 +178,7 @@ def test_report_reruns_into_its_own_output_and_drops_its_stale_files(done, tmp_p
     assert json.loads((out / MANIFEST).read_text())["kind"] == "report"
 
 
+@pytest.mark.slow  # five landscapes and a report through the CLI
 def test_landscape_out_ownership(done, tmp_path):
     land = tmp_path / "land"
     invoke("landscape", *TINY, *LAND, "--out", land, code=0)
@@ -269,6 +272,7 @@ def fill(disk: Path) -> None:
                 handle.flush()
 
 
+@pytest.mark.slow  # renders reports and landscapes on a full disk
 def test_full_disk_leaves_the_previous_report_and_landscape_whole(done, tmp_path):
     with tmpfs(tmp_path / "disk", "2m") as disk:
         report, land = disk / "report", disk / "land"
@@ -291,6 +295,7 @@ def test_full_disk_leaves_the_previous_report_and_landscape_whole(done, tmp_path
         assert json.loads((land / "status.json").read_text())["status"] == "done"
 
 
+@pytest.mark.slow  # renders reports
 def test_read_only_targets_are_one_line_and_nothing_is_written(done, tmp_path):
     source = tmp_path / "source"
     shutil.copytree(done, source / "run")
@@ -317,6 +322,7 @@ def test_read_only_targets_are_one_line_and_nothing_is_written(done, tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ landscape limits
+@pytest.mark.slow  # seven landscape commands through the CLI
 def test_landscape_grid_is_bounded_by_memory_and_time_before_it_runs(tmp_path, monkeypatch):
     monkeypatch.delenv("RISKPLAN_MEMORY_GB", raising=False)
     monkeypatch.delenv("RISKPLAN_MAX_HOURS", raising=False)
@@ -370,6 +376,7 @@ def test_landscape_summary_is_strict_json(tmp_path, monkeypatch):
 
 
 # ------------------------------------------------------------------------------------------------ missing values
+@pytest.mark.slow  # renders reports
 def test_missing_values_are_empty_cells_or_na_never_nan_or_inf(done, tmp_path):
     inputs = tmp_path / "inputs"
     shutil.copytree(done, inputs / "run")

@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import pytest
+from support import bad_input, setup_of
 
 from riskplan.run import budget
 from riskplan.run import build as setup_code
-from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 from riskplan.util import limits
-from riskplan.util.errors import BadInput
-
-FAST = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
 
 
 @pytest.fixture(autouse=True)
@@ -19,13 +16,6 @@ def machine(monkeypatch):
     """The same limits on every machine: 16 GB and 24 hours."""
     monkeypatch.setenv(limits.MEMORY_ENV, "16")
     monkeypatch.setenv(limits.HOURS_ENV, "24")
-
-
-def bad(*overrides: str) -> BadInput:
-    with pytest.raises(BadInput) as err:
-        build_setup(compose([*FAST, *overrides], validate=False))
-    assert "\n" not in str(err.value) and "`" not in str(err.value) and "|" not in str(err.value)
-    return err.value
 
 
 BIG = 10**30
@@ -54,7 +44,7 @@ BIG = 10**30
     ],
 )
 def test_the_dominant_key_is_named(overrides, key, kind):
-    err = bad(*overrides)
+    err = bad_input(*overrides)
     assert err.where == key
     if kind == "memory":
         assert (
@@ -72,22 +62,22 @@ def test_a_huge_grid_fails_before_the_world_is_built(monkeypatch):
         raise AssertionError("build_world ran before the size check")
 
     monkeypatch.setattr(setup_code, "build_world", refuse)
-    assert bad("world.size=[100000,100000]").where == "world.size"
+    assert bad_input("world.size=[100000,100000]").where == "world.size"
 
 
 def test_a_small_memory_limit_names_the_key_and_raising_it_lets_the_run_through(monkeypatch):
     monkeypatch.setenv(limits.MEMORY_ENV, "0.05")
-    err = bad("world.size=[400,400]", "world.regions.1.rect=[0,0,399,399]")
+    err = bad_input("world.size=[400,400]", "world.regions.1.rect=[0,0,399,399]")
     assert err.where == "world.size"
     assert "the 400 x 400 grid" in err.problem and "more than the 50 MB allowed (RISKPLAN_MEMORY_GB)" in err.problem
     monkeypatch.setenv(limits.MEMORY_ENV, "1")
-    build_setup(compose([*FAST, "world.size=[400,400]", "world.regions.1.rect=[0,0,399,399]"], validate=False))
+    setup_of("world.size=[400,400]", "world.regions.1.rect=[0,0,399,399]")
 
 
 def test_samples_growth_counts_the_last_iteration(monkeypatch):
     monkeypatch.setenv(limits.MEMORY_ENV, "1")
     # W_L = 200 * 3^10 = 11.8M episodes in the last of 3 iterations: about 0.9 GB of batch, plus the rest
-    err = bad("train.samples_growth=10", "train.samples=2000")
+    err = bad_input("train.samples_growth=10", "train.samples=2000")
     assert err.where == "train.samples_growth"
 
 

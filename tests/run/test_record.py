@@ -1,4 +1,5 @@
-"""run.mcap: round trips, truncation / SIGKILL survival, resume, Foxglove schema conformance."""
+"""The run's log, run.mcap (riskplan.run.record, riskplan.run.foxglove_scene): round trips, truncation and SIGKILL
+survival, resume, Foxglove schema conformance."""
 
 from __future__ import annotations
 
@@ -235,6 +236,7 @@ def test_empty_tables(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ truncation
+@pytest.mark.slow  # reads the log cut at some 200 offsets: about a second
 def test_truncated_at_any_offset_keeps_every_durable_iteration(tmp_path):
     rng = np.random.default_rng(5)
     path = tmp_path / "run.mcap"
@@ -283,6 +285,7 @@ def test_truncated_at_any_offset_keeps_every_durable_iteration(tmp_path):
     assert read_log(cut_path).complete
 
 
+@pytest.mark.slow  # a writer in a subprocess, SIGKILLed
 def test_sigkill_mid_run_keeps_reported_iterations(tmp_path):
     path = tmp_path / "run.mcap"
     script = textwrap.dedent(
@@ -399,6 +402,7 @@ def test_shipped_schemas_are_the_vendored_official_files():
     assert fx.schema(fx.GRID) == official("Grid")
 
 
+@pytest.mark.slow  # validates every message of a log: over a second
 def test_every_message_validates_against_its_schema(tmp_path):
     path = tmp_path / "run.mcap"
     write_full(path, iterations=3, n_eval=30)

@@ -1,8 +1,10 @@
 """A run's results are never lost or mixed: claimed and locked run directories, real read-only mounts and full
-disks, O(1) validated checkpoints, no NaN or infinity written as a result, and config strings that are never code.
+disks, O(1) validated checkpoints, and no NaN or infinity written as a result.
 
-Each test drives real `riskplan train` processes or the CLI; the mount tests need root (they are skipped with the
-reason otherwise), because root ignores permission bits and only a real read-only mount or full disk refuses it.
+Most tests drive real `riskplan train` processes or the CLI (those are slow); the mount tests need root (they are
+skipped with the reason otherwise), because root ignores permission bits and only a real read-only mount or full
+disk refuses it. The lock itself is tested in tests/util/test_lock.py, config strings in
+tests/config/test_hydra_safety.py.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from test_resume import assert_same_outputs, child_env, riskplan_command, run_cli, train_cli
+from support import TINY, assert_same_outputs, child_env, files, riskplan_command, run_cli, train_cli
 from typer.testing import CliRunner
 
 import riskplan.run.training as training
@@ -29,23 +31,11 @@ from riskplan.run.evaluation import NumericalTrouble
 from riskplan.run.record import RunLog
 from riskplan.run.training import STOP_ENV, prepare_resume
 from riskplan.util.errors import BadInput
-from riskplan.util.lock import LOCK, hold, holder
+from riskplan.util.lock import LOCK, holder
 
-FAST = [
-    "train.iterations=12",
-    "train.samples=300",
-    "train.eval_episodes=1000",
-    "train.bootstrap=20",
-    "train.paths=2",
-    "train.checkpoint_every=4",
-]
+RUN = [*TINY, "train.iterations=12", "train.checkpoint_every=4"]  # the tests know its 12 iterations
 
 runner = CliRunner()
-
-
-def files(root: Path) -> dict[str, bytes]:
-    """Every file below root with its bytes."""
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
 def strict_json(text: str):
@@ -74,17 +64,18 @@ def mounted(target: Path, *options: str):
 
 @pytest.fixture(scope="module")
 def finished(tmp_path_factory) -> Path:
-    """A finished run of FAST through the real CLI."""
+    """A finished run of RUN through the real CLI."""
     out = tmp_path_factory.mktemp("finished") / "run"
-    result = train_cli(FAST, out)
+    result = train_cli(RUN, out)
     assert result.returncode == 0, result.stderr
     return out
 
 
 # ------------------------------------------------------------------------------------ claimed, locked directories
+@pytest.mark.slow  # the `finished` run: `riskplan train` in a subprocess
 def test_a_second_run_into_a_finished_run_directory_is_refused_and_changes_nothing(finished, tmp_path):
     before = files(finished)
-    result = train_cli([*FAST, "seed=7"], finished)  # another config into the same directory
+    result = train_cli([*RUN, "seed=7"], finished)  # another config into the same directory
     assert result.returncode == 2
     assert result.stderr.strip() == (
         f"error: hydra.run.dir: {finished} already holds a run; resume it with riskplan "
@@ -94,19 +85,21 @@ def test_a_second_run_into_a_finished_run_directory_is_refused_and_changes_nothi
     assert load_run(finished).complete and load_run(finished).config["seed"] == 0
 
 
+@pytest.mark.slow  # the `finished` run: `riskplan train` in a subprocess
 def test_the_python_api_refuses_a_directory_that_holds_another_run(finished, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(finished, copy)
     before = files(copy)
     with pytest.raises(BadInput, match="already holds a run; resume it with riskplan train --resume"):
-        training.train(compose([*FAST, "seed=3"]), copy)
+        training.train(compose([*RUN, "seed=3"]), copy)
     assert files(copy) == before
 
 
+@pytest.mark.slow  # `riskplan train` in subprocesses
 def test_two_processes_never_write_one_run_directory(tmp_path):
     out = tmp_path / "run"
     first = subprocess.Popen(
-        [*riskplan_command(), "train", *FAST, f"hydra.run.dir={out}"],
+        [*riskplan_command(), "train", *RUN, f"hydra.run.dir={out}"],
         cwd=tmp_path,
         env=child_env(**{STOP_ENV: "2"}),
         stdout=subprocess.DEVNULL,
@@ -117,7 +110,7 @@ def test_two_processes_never_write_one_run_directory(tmp_path):
         assert os.WIFSTOPPED(status)
         assert holder(out) == first.pid
         before = files(out)
-        for args in (["train", *FAST, f"hydra.run.dir={out}"], ["train", "--resume", str(out)]):
+        for args in (["train", *RUN, f"hydra.run.dir={out}"], ["train", "--resume", str(out)]):
             second = run_cli(args, tmp_path)
             assert second.returncode == 2, second.stderr
             assert second.stderr.strip() == (
@@ -135,39 +128,19 @@ def test_two_processes_never_write_one_run_directory(tmp_path):
     assert holder(out) is None and load_run(out).complete  # the lock dies with its holder
 
 
-def test_the_lock_is_reentrant_within_a_process_and_exclusive_between_processes(tmp_path):
-    with hold(tmp_path):
-        with hold(tmp_path):  # the CLI holds it while Hydra runs the training loop, which takes it again
-            assert holder(tmp_path) == os.getpid()
-        probe = subprocess.run(
-            [
-                "python",
-                "-c",
-                "import sys; from riskplan.util.lock import hold\n"
-                "from riskplan.util.errors import BadInput\n"
-                f"try:\n    with hold({str(tmp_path)!r}): sys.exit(0)\n"
-                "except BadInput as err:\n    print(err); sys.exit(3)",
-            ],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
-        assert probe.returncode == 3 and f"(pid {os.getpid()})" in probe.stdout
-    assert holder(tmp_path) is None
-
-
 # ------------------------------------------------------------------------------------ read-only mounts, full disks
+@pytest.mark.slow  # `riskplan train` in subprocesses
 def test_a_read_only_output_directory_is_one_line_and_nothing_written(tmp_path):
     source = tmp_path / "source"
     source.mkdir()
     with mounted(tmp_path / "ro", "--bind", str(source)) as target:
         assert subprocess.run(["mount", "-o", "remount,bind,ro", str(target)]).returncode == 0
-        result = run_cli(["train", *FAST, f"hydra.run.dir={target / 'run'}"], tmp_path)
+        result = run_cli(["train", *RUN, f"hydra.run.dir={target / 'run'}"], tmp_path)
         assert result.returncode == 2
         assert result.stderr.strip() == (
             f"error: hydra.run.dir: {target / 'run'} is on a read-only filesystem; give a directory you can write"
         )
-        default = run_cli(["train", *FAST], target)  # outputs/runs/<timestamp> below a read-only working directory
+        default = run_cli(["train", *RUN], target)  # outputs/runs/<timestamp> below a read-only working directory
         assert default.returncode == 2
         assert default.stderr.strip() == (
             "error: outputs/runs: outputs/runs is on a read-only filesystem; give a directory you can write"
@@ -175,10 +148,11 @@ def test_a_read_only_output_directory_is_one_line_and_nothing_written(tmp_path):
     assert list(source.iterdir()) == []
 
 
+@pytest.mark.slow  # `riskplan train` in subprocesses
 def test_a_full_disk_fails_in_one_line_keeps_every_checkpoint_and_resumes_to_the_same_result(tmp_path, finished):
     with mounted(tmp_path / "small", "-t", "tmpfs", "-o", "size=160k", "tmpfs") as disk:
         out = disk / "run"
-        result = train_cli([*FAST, "train.eval_episodes=20000"], out)  # the eval table does not fit
+        result = train_cli([*RUN, "train.eval_episodes=20000"], out)  # the eval table does not fit
         assert result.returncode == 1
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and "No space left on device" in lines[0] and "--resume" in lines[0], result.stderr
@@ -196,11 +170,12 @@ def test_a_full_disk_fails_in_one_line_keeps_every_checkpoint_and_resumes_to_the
         again = run_cli(["train", "--resume", str(out)], tmp_path)
         assert again.returncode == 0, again.stderr
         reference = tmp_path / "reference"
-        assert train_cli([*FAST, "train.eval_episodes=20000"], reference).returncode == 0
+        assert train_cli([*RUN, "train.eval_episodes=20000"], reference).returncode == 0
         assert_same_outputs(out, reference)
 
 
 # ------------------------------------------------------------------------------------ checkpoints
+@pytest.mark.slow  # a 60-iteration team run
 def test_a_checkpoint_costs_the_same_at_every_iteration(tmp_path):
     """A checkpoint holds the state (theta, the consensus buffers), not the rows so far: O(1) per checkpoint."""
     sizes = {}
@@ -218,11 +193,9 @@ def test_a_checkpoint_costs_the_same_at_every_iteration(tmp_path):
                 [
                     "experiment=paper_team",
                     "team.delay.max=2",
+                    *TINY,
                     "train.iterations=60",
                     "train.samples=100",
-                    "train.eval_episodes=100",
-                    "train.bootstrap=5",
-                    "train.paths=1",
                     "train.checkpoint_every=5",
                 ]
             ),
@@ -232,6 +205,7 @@ def test_a_checkpoint_costs_the_same_at_every_iteration(tmp_path):
     assert max(sizes.values()) - min(sizes.values()) < 0.1 * min(sizes.values())  # digits of theta only
 
 
+@pytest.mark.slow  # the `finished` run: `riskplan train` in a subprocess
 def test_a_log_whose_rows_do_not_match_the_checkpoint_is_bad_input(finished, tmp_path):
     out = tmp_path / "run"
     shutil.copytree(finished, out)
@@ -241,7 +215,7 @@ def test_a_log_whose_rows_do_not_match_the_checkpoint_is_bad_input(finished, tmp
         log.iteration([{**row, "iteration": iteration}, {**row, "iteration": iteration, "robot": 5}])
     log.close()
     with pytest.raises(BadInput, match="holds rows that do not match the checkpoint"):
-        prepare_resume(compose(FAST), out)
+        prepare_resume(compose(RUN), out)
 
 
 # ------------------------------------------------------------------------------------ never a non-finite result
@@ -255,7 +229,7 @@ def test_a_non_finite_reward_stops_the_run_with_one_line_and_writes_no_result(tm
 
     monkeypatch.setattr(training, "simulate", overflowing)
     monkeypatch.chdir(tmp_path)
-    result = runner.invoke(app, ["train", *FAST, f"hydra.run.dir={tmp_path / 'run'}"])
+    result = runner.invoke(app, ["train", *RUN, f"hydra.run.dir={tmp_path / 'run'}"])
     assert result.exit_code == 1
     assert result.stderr.strip().startswith(
         "error: run failed: iteration 0: an episode's total reward is not finite (overflow)"
@@ -264,36 +238,9 @@ def test_a_non_finite_reward_stops_the_run_with_one_line_and_writes_no_result(tm
     assert json.loads((tmp_path / "run" / "status.json").read_text())["status"] == "failed"
 
 
+@pytest.mark.slow  # the `finished` run: `riskplan train` in a subprocess
 def test_summary_json_holds_no_nan_or_infinity(finished):
     summary = strict_json((finished / "summary.json").read_text())
     assert summary["throughput_episodes_per_s"] > 0
     with pytest.raises(NumericalTrouble):
         training.check_finite("x", np.array([1.0, np.nan]))
-
-
-# ------------------------------------------------------------------------------------ config strings are never code
-def test_a_callback_target_is_never_imported_or_called(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    marker = tmp_path / "pwned"
-    result = runner.invoke(
-        app, ["train", *FAST, "+hydra.callbacks.x._target_=os.makedirs", f"+hydra.callbacks.x.name={marker}"]
-    )
-    assert result.exit_code == 2 and "config strings are never code" in result.stderr
-    assert not marker.exists() and not (tmp_path / "outputs").exists()
-
-
-def test_hydra_and_riskplan_classes_are_allowed(tmp_path, monkeypatch):
-    """The allow-list lets Hydra's own callbacks through: the run finishes and the callback ran."""
-    monkeypatch.chdir(tmp_path)
-    out = tmp_path / "run"
-    result = runner.invoke(
-        app,
-        [
-            "train",
-            *FAST,
-            f"hydra.run.dir={out}",
-            "+hydra.callbacks.pickle._target_=hydra.experimental.callbacks.PickleJobInfoCallback",
-        ],
-    )
-    assert result.exit_code == 0, result.output
-    assert (out / ".hydra" / "job_return.pickle").is_file()

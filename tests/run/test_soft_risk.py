@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
-from test_resume import assert_same_outputs, kill_after_iteration, resume_cli, train_cli
+from support import TINY, assert_same_outputs, kill_after_iteration, resume_cli, train_cli
 
 from riskplan import compose
 from riskplan.config.schema import RiskConf, ScheduleConf
@@ -22,15 +22,8 @@ from riskplan.run.record import read_log
 from riskplan.run.schedules import risk_level, step_size
 from riskplan.run.training import train
 
-FAST = [
-    "train.iterations=8",
-    "train.samples=400",
-    "train.eval_episodes=1000",
-    "train.bootstrap=20",
-    "train.paths=2",
-    "train.checkpoint_every=3",
-    "train.theta0=[0,0]",
-]
+# 8 iterations of 400 samples from theta0 = (0, 0), a checkpoint every 3: the tests know these numbers
+RUN = [*TINY, "train.iterations=8", "train.samples=400", "train.checkpoint_every=3", "train.theta0=[0,0]"]
 LINEAR = ["risk.schedule=linear", "risk.schedule.iterations=5"]
 
 
@@ -74,15 +67,15 @@ def test_the_shorthand_names_the_kind_on_the_command_line():
 def test_no_schedule_is_the_papers_update_bit_for_bit(tmp_path):
     """kind=none (whatever its other keys) trains exactly like a config without the schedule, and like a hand-written
     loop of eq. (11) with Algorithm 1's gradient at beta."""
-    default = train(compose(FAST), tmp_path / "default").metrics.drop(columns="seconds")
+    default = train(compose(RUN), tmp_path / "default").metrics.drop(columns="seconds")
     named = train(
-        compose([*FAST, "risk.schedule=none", "risk.schedule.start=0.5", "risk.schedule.iterations=2"]),
+        compose([*RUN, "risk.schedule=none", "risk.schedule.start=0.5", "risk.schedule.iterations=2"]),
         tmp_path / "none",
     ).metrics.drop(columns="seconds")
     pd.testing.assert_frame_equal(default, named, check_exact=True)
     assert (default.beta_l == 0.1).all()
 
-    setup = build_setup(compose(FAST))
+    setup = build_setup(compose(RUN))
     theta = setup.theta0[None, :].copy()
     for l in range(setup.params.train.iterations):
         row = default.loc[default.iteration == l].iloc[0]
@@ -91,13 +84,13 @@ def test_no_schedule_is_the_papers_update_bit_for_bit(tmp_path):
         z, scores = batch.total_reward.reshape(1, 400), batch.score.reshape(1, 400, -1)
         theta = theta + step_size(l, setup.params.train.step_size) * cvar_gradient(z, scores, 0.1)
     assert [float(t) for t in theta[0]] == [
-        float(t) for t in train(compose(FAST), tmp_path / "again").summary["theta_final"]
+        float(t) for t in train(compose(RUN), tmp_path / "again").summary["theta_final"]
     ]
 
 
 def test_the_schedule_is_used_logged_in_parquet_and_mcap_and_metrics_stay_at_beta(tmp_path):
-    run = train(compose([*FAST, *LINEAR]), tmp_path / "linear")
-    params = build_setup(compose([*FAST, *LINEAR])).params
+    run = train(compose([*RUN, *LINEAR]), tmp_path / "linear")
+    params = build_setup(compose([*RUN, *LINEAR])).params
     expected = [risk_level(l, params.risk) for l in range(8)]
     np.testing.assert_allclose(expected[:5], [1.0, 0.82, 0.64, 0.46, 0.28], rtol=1e-12)
     assert expected[5:] == [0.1, 0.1, 0.1]  # exactly beta once the schedule is over
@@ -108,7 +101,7 @@ def test_the_schedule_is_used_logged_in_parquet_and_mcap_and_metrics_stay_at_bet
     assert log.metrics.beta_l.tolist() == expected
     pd.testing.assert_frame_equal(log.metrics, metrics, check_exact=True)
 
-    plain = train(compose(FAST), tmp_path / "plain").metrics
+    plain = train(compose(RUN), tmp_path / "plain").metrics
     same = plain.iteration == 0
     # iteration 0 draws the same episodes at the same theta: its statistics (at beta) agree, its step does not
     pd.testing.assert_series_equal(plain.loc[same, "cvar"], run.metrics.loc[same, "cvar"], check_exact=True)
@@ -121,18 +114,18 @@ def summary_beta(run) -> float:
 
 
 def test_risk_neutral_runs_log_the_mean_gradients_level_one(tmp_path):
-    run = train(compose([*FAST, "risk=neutral", *LINEAR]), tmp_path / "neutral")
-    plain = train(compose([*FAST, "risk=neutral"]), tmp_path / "plain")
+    run = train(compose([*RUN, "risk=neutral", *LINEAR]), tmp_path / "neutral")
+    plain = train(compose([*RUN, "risk=neutral"]), tmp_path / "plain")
     assert (run.metrics.beta_l == 1.0).all()
     pd.testing.assert_frame_equal(
         run.metrics.drop(columns="seconds"), plain.metrics.drop(columns="seconds"), check_exact=True
     )  # the schedule does not touch the mean gradient
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # `riskplan train` in subprocesses
 def test_a_killed_scheduled_run_resumes_to_the_uninterrupted_run(tmp_path):
     """SIGKILL between checkpoints, inside the schedule (after iteration 4 of its 5; checkpoint at 3), resume."""
-    overrides = [*FAST, *LINEAR]
+    overrides = [*RUN, *LINEAR]
     reference = tmp_path / "reference"
     assert train_cli(overrides, reference).returncode == 0
     out = tmp_path / "run"
@@ -143,11 +136,12 @@ def test_a_killed_scheduled_run_resumes_to_the_uninterrupted_run(tmp_path):
     assert pd.read_parquet(out / "metrics.parquet").beta_l.iloc[6] == 0.1
 
 
+@pytest.mark.slow  # renders a report
 def test_the_report_compares_a_schedule_with_its_fixed_beta_twin(tmp_path):
     from riskplan.experiments.reporting import write_report
 
     for name, extra in (("none", []), ("linear", LINEAR)):
-        train(compose([*FAST, *extra]), tmp_path / "runs" / name)
+        train(compose([*RUN, *extra]), tmp_path / "runs" / name)
     made = write_report([tmp_path / "runs"], tmp_path / "report", ["png"])
     assert "soft_risk" in made.figures, made.skipped
     table = pd.read_csv(tmp_path / "report" / "soft_risk.csv")

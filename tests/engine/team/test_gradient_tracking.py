@@ -1,5 +1,6 @@
 """Gradient tracking (team.order=gradient_tracking): the tracking invariant, exact consensus under constant
-gradients at the SLEM rate, running sums under delays and drops, checkpoints, `riskplan check`, bad input."""
+gradients at the SLEM rate, running sums under delays and drops, checkpoints, bad input. How `riskplan check`
+describes it is in tests/commands/test_check_command.py, the report's figure in tests/experiments/reporting."""
 
 from __future__ import annotations
 
@@ -8,27 +9,18 @@ import math
 
 import numpy as np
 import pytest
-from conftest import team_conf
-from typer.testing import CliRunner
+from support import TINY, team_conf
 
 from riskplan import compose, train
-from riskplan.cli import app
 from riskplan.engine.team.convergence import consensus_error, second_largest_eigenvalue_modulus
 from riskplan.engine.team.mixer import Mixer
 from riskplan.engine.team.network import build_network
 from riskplan.run.checkpoint import CHECKPOINT, load_checkpoint
 from riskplan.util.errors import BadInput
 
-runner = CliRunner()
-FAST = [
-    "experiment=paper_team",
-    "train.iterations=6",
-    "train.samples=300",
-    "train.eval_episodes=300",
-    "train.bootstrap=10",
-    "train.paths=1",
-    "team.order=gradient_tracking",
-]
+SINGLE = TINY  # one robot, combine then adapt
+TEAM = ["experiment=paper_team", *TINY]
+TRACKING = [*TEAM, "team.order=gradient_tracking"]
 
 
 def make_team(**values):
@@ -185,13 +177,13 @@ def test_other_orders_carry_no_tracker_state():
 
 # ---------------------------------------------------------------------------------------------- runs
 def test_a_team_of_one_with_tracking_equals_a_centralized_run(tmp_path):
-    a = train(compose(FAST[1:-1]), tmp_path / "single")
-    b = train(compose(FAST[1:]), tmp_path / "tracking_of_one")
+    a = train(compose(SINGLE), tmp_path / "single")
+    b = train(compose([*SINGLE, "team.order=gradient_tracking"]), tmp_path / "tracking_of_one")
     np.testing.assert_array_equal(a.metrics.theta_0, b.metrics.theta_0)
 
 
 def test_checkpoint_holds_the_tracker_and_a_checkpoint_without_it_is_bad_input(tmp_path):
-    cfg = compose([*FAST, "team.delay.max=1", "team.drop=0.2"])
+    cfg = compose([*TRACKING, "team.delay.max=1", "team.drop=0.2"])
     out = tmp_path / "run"
     train(cfg, out)
     from riskplan.run.build import build_setup
@@ -211,13 +203,13 @@ def test_checkpoint_holds_the_tracker_and_a_checkpoint_without_it_is_bad_input(t
         with pytest.raises(BadInput, match="consensus state"):
             load_checkpoint(out, build_setup(cfg))
     # A checkpoint of a combine-then-adapt run cannot resume a gradient-tracking one (and the other way round).
-    other = build_setup(compose([*FAST[:-1], "team.delay.max=1", "team.drop=0.2"]))
+    other = build_setup(compose([*TEAM, "team.delay.max=1", "team.drop=0.2"]))
     (out / CHECKPOINT).write_text(json.dumps(payload))
     with pytest.raises(BadInput, match="consensus state"):
         load_checkpoint(out, other)
 
 
-# ---------------------------------------------------------------------------------------------- input, check
+# ---------------------------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize(
     "overrides,where",
     [
@@ -235,27 +227,3 @@ def test_gradient_tracking_needs_doubly_stochastic_weights(overrides, where):
 def test_unknown_order_lists_the_three():
     with pytest.raises(BadInput, match="combine_then_adapt, adapt_then_combine, gradient_tracking"):
         compose(["team.order=sideways"])
-
-
-def test_check_describes_the_order(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    exact = runner.invoke(app, ["check", "experiment=paper_team", "team.order=gradient_tracking"])
-    assert exact.exit_code == 0, exact.output
-    assert "order: gradient_tracking" in exact.output and "sum_i y^i = sum_i Delta^i exactly" in exact.output
-    late = runner.invoke(app, ["check", "experiment=paper_team", "team.order=gradient_tracking", "team.delay.max=2"])
-    assert "the mass in flight" in late.output and "B + B0 = 12" in late.output
-    paper = runner.invoke(app, ["check", "experiment=paper_team"])
-    assert "order: combine_then_adapt (eq. 14)" in paper.output
-
-
-def test_report_draws_the_consensus_error_of_each_order(tmp_path):
-    from riskplan.experiments.reporting.collect import collect
-    from riskplan.experiments.reporting.figures import fig_orders
-
-    for order in ("combine_then_adapt", "gradient_tracking"):
-        train(compose([*FAST[:-1], f"team.order={order}"]), tmp_path / order)
-    spec = fig_orders(collect([tmp_path]))
-    assert not isinstance(spec, str), spec
-    labels = [t.get_text() for t in spec.figure.axes[0].get_legend().get_texts()]
-    assert labels == ["combine_then_adapt", "gradient_tracking"]
-    assert fig_orders(collect([tmp_path / "gradient_tracking"])) == "no team runs that differ in team.order"

@@ -6,7 +6,6 @@ from __future__ import annotations
 import base64
 import io
 import json
-import multiprocessing
 import os
 import re
 import shutil
@@ -21,6 +20,7 @@ import pytest
 import yaml
 from matplotlib.artist import Artist
 from PIL import Image
+from support import FAST
 from typer.testing import CliRunner
 
 import riskplan
@@ -29,12 +29,12 @@ from riskplan.experiments.landscape import compute_landscape
 from riskplan.experiments.reporting import build_report, write_report
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.figures import make_figures
-from riskplan.experiments.reporting.parallel import WORKERS_ENV, shared_map
+from riskplan.experiments.reporting.parallel import WORKERS_ENV
 from riskplan.experiments.reporting.stats import seed_interval, wilson
 from riskplan.risk import cvar, value_at_risk
-from riskplan.util.errors import BadInput
 
-FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
+pytestmark = pytest.mark.slow  # six runs, a landscape and reports drawn from them
+
 CONDITIONS = {
     "cvar_s0": [],
     "cvar_s1": ["seed=1"],
@@ -65,8 +65,10 @@ def coll(sweep):
     return collect([sweep])
 
 
-OTHER_RUNS = {"soft_risk", "consensus_orders"}  # figures of runs this sweep does not hold (tests/test_soft_risk.py
-# and tests/test_tracking.py draw them)
+OTHER_RUNS = {"soft_risk", "consensus_orders"}  # figures of runs this sweep does not hold (drawn in
+# tests/run/test_soft_risk.py and tests/experiments/reporting/test_figures.py)
+# and the figures of reproduce's studies beyond the paper (drawn in tests/experiments/reporting/test_study_tables.py)
+OTHER_RUNS |= {"risk_measures", "richer_policies", "hetero_team", "faults"}
 
 
 @pytest.fixture(scope="session")
@@ -509,25 +511,3 @@ def test_page_images_are_the_figure_files_at_130_dpi(page):
         assert shown.size == (round(file.width * 130 / 200), round(file.height * 130 / 200))
         same = np.asarray(file.convert("RGB").resize(shown.size, Image.BILINEAR), float)
         assert np.abs(np.asarray(shown, float) - same).mean() < 4  # the same picture (0-255 per channel)
-
-
-@linux_only
-def test_work_no_worker_delivered_is_done_in_this_process(monkeypatch):
-    parent = os.getpid()
-
-    def square(x):  # a worker dies at once
-        if os.getpid() != parent:
-            os._exit(1)
-        return x * x
-
-    monkeypatch.setenv(WORKERS_ENV, "3")
-    assert shared_map(square, list(range(7)), cost=lambda x: x % 3) == [x * x for x in range(7)]
-
-    def refused(process):
-        raise OSError(11, "Resource temporarily unavailable")  # fork: no pids left
-
-    monkeypatch.setattr(multiprocessing.context.ForkProcess, "start", refused)
-    assert shared_map(square, list(range(7)), cost=float) == [x * x for x in range(7)]
-    monkeypatch.setenv(WORKERS_ENV, "two")
-    with pytest.raises(BadInput, match=WORKERS_ENV):
-        shared_map(square, [1, 2], cost=float)

@@ -18,11 +18,11 @@ import tempfile
 import time
 
 import pytest
+from support import FAST
 
 import riskplan
 from riskplan.experiments.reporting import build_report
 
-FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
 CANDIDATES = (
     "chromium-headless-shell",
     "chromium",
@@ -46,11 +46,14 @@ def find_chromium() -> str | None:
 
 
 CHROMIUM = find_chromium()
-pytestmark = pytest.mark.skipif(
-    CHROMIUM is None,
-    reason="no Chromium binary found (looked for $RISKPLAN_CHROMIUM and "
-    f"{', '.join(CANDIDATES)}); CI installs chromium-headless-shell",
-)
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        CHROMIUM is None,
+        reason="no Chromium binary found (looked for $RISKPLAN_CHROMIUM and "
+        f"{', '.join(CANDIDATES)}); CI installs chromium-headless-shell",
+    ),
+]
 
 
 class DevTools:

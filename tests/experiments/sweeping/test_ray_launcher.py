@@ -5,18 +5,18 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 
 import pandas as pd
 import pytest
+from support import CLI, FAST
 
 pytest.importorskip(
     "hydra_plugins.hydra_ray_launcher",
     reason="the Ray launcher is not installed here; bash tests/ray_check.sh runs this test in its own venv",
 )
 
-FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
-CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
+pytestmark = pytest.mark.slow
+
 # a local instance only: no usage statistics sent anywhere, no dashboard
 ENV = {"RAY_USAGE_STATS_ENABLED": "0", "RAY_DISABLE_DOCKER_CPU_WARNING": "1"}
 

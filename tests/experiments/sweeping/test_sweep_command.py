@@ -1,30 +1,19 @@
-"""`riskplan sweep` through the real command line (a subprocess per call), on tiny configs."""
+"""`riskplan sweep` through the real command line (a subprocess per call), on small configs: a grid runs once, then
+skips, then reruns only what was deleted; failing jobs fail alone; bad input exits 2 before anything runs; the
+submitit launcher; a killed sweep resumes. The grid's expansion and checks are unit-tested in test_grid.py."""
 
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
+from support import FAST, riskplan_cli
 
-from riskplan.experiments.sweep_worker import config_sha
-from riskplan.experiments.sweeping import constant_keys, expand
-from riskplan.util.paths import claim_dir
-
-FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
-CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
-
-
-def riskplan(cwd: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    """Run `riskplan ARGS` in cwd (no terminal: the sweep view prints one line per finished job)."""
-    return subprocess.run(
-        [*CLI, *args], cwd=cwd, capture_output=True, text=True, timeout=300, env={**os.environ, **(env or {})}
-    )
+pytestmark = pytest.mark.slow
 
 
 def sweep_dir_of(result: subprocess.CompletedProcess, cwd: Path) -> Path:
@@ -38,7 +27,7 @@ def job_dirs(sweep: Path) -> list[Path]:
 
 
 def test_grid_runs_once_then_skips_then_reruns_only_what_was_deleted(tmp_path):
-    first = riskplan(tmp_path, "sweep", "risk.beta=0.1,0.2", "seed=range(0,2)", *FAST, "--jobs", "2")
+    first = riskplan_cli(tmp_path, "sweep", "risk.beta=0.1,0.2", "seed=range(0,2)", *FAST, "--jobs", "2")
     assert first.returncode == 0, first.stderr
     sweep = sweep_dir_of(first, tmp_path)
     assert sweep.parent == tmp_path / "outputs" / "sweeps"
@@ -81,7 +70,7 @@ def test_grid_runs_once_then_skips_then_reruns_only_what_was_deleted(tmp_path):
     assert len(re.findall(r"^\[\d/4\] done ", first.stderr, re.M)) == 4
 
     stamps = {d.name: (d / "run.mcap").stat().st_mtime_ns for d in dirs}
-    again = riskplan(tmp_path, "sweep", "risk.beta=0.1,0.2", "seed=range(0,2)", *FAST, f"hydra.sweep.dir={sweep}")
+    again = riskplan_cli(tmp_path, "sweep", "risk.beta=0.1,0.2", "seed=range(0,2)", *FAST, f"hydra.sweep.dir={sweep}")
     assert again.returncode == 0, again.stderr
     assert "4 jobs: 0 to run, 4 already finished" in again.stdout
     assert {d.name: (d / "run.mcap").stat().st_mtime_ns for d in dirs} == stamps
@@ -91,7 +80,9 @@ def test_grid_runs_once_then_skips_then_reruns_only_what_was_deleted(tmp_path):
 
     original = json.loads((sweep / "risk.beta=0.2,seed=0" / "summary.json").read_text())
     shutil.rmtree(sweep / "risk.beta=0.2,seed=0")
-    third = riskplan(tmp_path, "sweep", *reversed(FAST), "seed=0,1", "risk.beta=0.1,0.2", f"hydra.sweep.dir={sweep}")
+    third = riskplan_cli(
+        tmp_path, "sweep", *reversed(FAST), "seed=0,1", "risk.beta=0.1,0.2", f"hydra.sweep.dir={sweep}"
+    )
     assert third.returncode == 0, third.stderr
     assert "4 jobs: 1 to run, 3 already finished" in third.stdout
     after = {d.name: (d / "run.mcap").stat().st_mtime_ns for d in job_dirs(sweep)}
@@ -105,7 +96,7 @@ def test_grid_runs_once_then_skips_then_reruns_only_what_was_deleted(tmp_path):
 
 def test_an_invalid_combination_and_a_raising_job_fail_alone(tmp_path):
     # beta=1.5 is invalid for the model; step 1e308 makes theta overflow, so that job raises in training
-    result = riskplan(
+    result = riskplan_cli(
         tmp_path, "sweep", "risk.beta=0.2,1.5", "train.step_size.initial=0.1,1e308", *FAST, "hydra.sweep.dir=s"
     )
     assert result.returncode == 1
@@ -126,7 +117,7 @@ def test_an_invalid_combination_and_a_raising_job_fail_alone(tmp_path):
     assert "=== failed: iteration 0" in log
     assert "overflow" not in result.stderr + result.stdout and "===" not in result.stderr + result.stdout
     # re-running retries the failed jobs only
-    again = riskplan(
+    again = riskplan_cli(
         tmp_path, "sweep", "risk.beta=0.2,1.5", "train.step_size.initial=0.1,1e308", *FAST, "hydra.sweep.dir=s"
     )
     assert again.returncode == 1 and "4 jobs: 3 to run, 1 already finished" in again.stdout
@@ -151,7 +142,7 @@ def test_an_invalid_combination_and_a_raising_job_fail_alone(tmp_path):
     ],
 )
 def test_bad_input_exits_2_before_anything_runs(tmp_path, args, names):
-    result = riskplan(tmp_path, "sweep", *FAST, *args)
+    result = riskplan_cli(tmp_path, "sweep", *FAST, *args)
     assert result.returncode == 2, result.stdout + result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and names in lines[0], result.stderr
@@ -160,7 +151,7 @@ def test_bad_input_exits_2_before_anything_runs(tmp_path, args, names):
 
 
 def test_submitit_local_launcher_runs_a_two_job_sweep(tmp_path):
-    result = riskplan(tmp_path, "sweep", "seed=0,1", *FAST, "hydra/launcher=submitit_local", "hydra.sweep.dir=s")
+    result = riskplan_cli(tmp_path, "sweep", "seed=0,1", *FAST, "hydra/launcher=submitit_local", "hydra.sweep.dir=s")
     assert result.returncode == 0, result.stderr
     assert "(submitit_local)" in result.stdout
     summary = pd.read_parquet(tmp_path / "s" / "summary.parquet")
@@ -172,57 +163,15 @@ def test_submitit_local_launcher_runs_a_two_job_sweep(tmp_path):
 
 def test_a_killed_sweep_resumes_its_interrupted_jobs(tmp_path):
     args = ["sweep", "seed=0,1", *FAST, "train.iterations=6", "train.checkpoint_every=2", "hydra.sweep.dir=s"]
-    killed = riskplan(tmp_path, *args, env={"RISKPLAN_TEST_KILL_IN_CHECKPOINT": "4"})  # SIGKILL at iteration 4
+    killed = riskplan_cli(tmp_path, *args, env={"RISKPLAN_TEST_KILL_IN_CHECKPOINT": "4"})  # SIGKILL at iteration 4
     assert killed.returncode == 1
     summary = pd.read_parquet(tmp_path / "s" / "summary.parquet")
     assert not (summary.status == "done").any()
     assert "interrupted" in set(summary.status)
-    resumed = riskplan(tmp_path, *args)
+    resumed = riskplan_cli(tmp_path, *args)
     assert resumed.returncode == 0, resumed.stderr
     summary = pd.read_parquet(tmp_path / "s" / "summary.parquet")
     assert (summary.status == "done").all()
     statuses = [json.loads((tmp_path / "s" / f"seed={i}" / "status.json").read_text()) for i in (0, 1)]
     assert any(s["resumed"] for s in statuses)  # from its checkpoint at iteration 2, not from scratch
     assert all(len(pd.read_parquet(tmp_path / "s" / f"seed={i}" / "metrics.parquet")) == 6 for i in (0, 1))
-
-
-def test_two_sweeps_in_the_same_second_get_their_own_directories(tmp_path):
-    made = {claim_dir(tmp_path) for _ in range(3)}
-    assert len(made) == 3 and all(p.is_dir() for p in made)
-
-
-def test_expansion_is_hydras_and_folders_name_what_varies():
-    from riskplan.run.compose import parse_overrides
-
-    args = ["risk.beta=0.05,0.1", "seed=range(0,3)", "team.graph=line", "train.iterations=5"]
-    combos = expand(parse_overrides(args), args)
-    assert len(combos) == 6 and combos[0] == ["risk.beta=0.05", "seed=0", "team.graph=line", "train.iterations=5"]
-    assert constant_keys(combos) == ["team.graph", "train.iterations"]
-    assert constant_keys([["seed=0", "risk.beta=0.1"]]) == []  # nothing varies: keep every override in the name
-    assert constant_keys([["seed=0", "risk.beta=0.1"]], {"seed"}) == ["risk.beta"]  # seed=range(0,1) was a sweep
-
-
-def test_config_fingerprint_ignores_order_and_the_hydra_node():
-    assert config_sha({"a": 1, "b": {"c": 2}}) == config_sha({"b": {"c": 2}, "a": 1, "hydra": {"x": 1}})
-    assert config_sha({"a": 1}) != config_sha({"a": 2})
-
-
-def test_hydras_repeat_compositions_are_skipped_only_inside_a_launch():
-    """run_hydra skips Hydra's mode-probing composition and the basic sweeper's second composition of every job
-    (the planner composed them); both are Hydra's own again afterwards, and the optimising sweepers keep theirs."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-    from hydra._internal.hydra import Hydra
-    from hydra.plugins.sweeper import Sweeper
-    from hydra.types import RunMode
-
-    from riskplan.experiments.hydra_app import _without_repeat_compositions
-
-    get_mode = Hydra.get_mode
-    with _without_repeat_compositions(multirun=True):
-        assert Hydra.get_mode(None, "config", ["seed=0,1"]) is RunMode.MULTIRUN
-        assert BasicSweeper.validate_batch_is_legal(None, [["seed=not-a-number"]]) is None
-        assert Sweeper.validate_batch_is_legal is not BasicSweeper.validate_batch_is_legal
-    with _without_repeat_compositions(multirun=False):
-        assert Hydra.get_mode(None, "config", []) is RunMode.RUN
-    assert Hydra.get_mode is get_mode
-    assert "validate_batch_is_legal" not in BasicSweeper.__dict__

@@ -1,0 +1,71 @@
+"""Counter-based random streams (riskplan.engine.rng): a distinct key for every seed, purpose, iteration and robot,
+the vectorised robot keys equal to the scalar ones, and independent episode streams for different seeds."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from riskplan import compose
+from riskplan.engine import rng
+from riskplan.engine.rollout import simulate
+from riskplan.run.build import build_setup, starts
+
+
+def test_stream_keys_are_distinct_for_every_seed_purpose_iteration_and_robot():
+    purposes = (rng.TRAIN, rng.EVAL, rng.PATHS, rng.BOOTSTRAP, rng.LANDSCAPE)
+    keys = [
+        rng.stream_key(seed, purpose, iteration, robot)
+        for seed, purpose, iteration, robot in itertools.product(range(20), purposes, range(40), range(4))
+    ]
+    assert len(set(keys)) == len(keys)
+    assert len({rng.stream_key(seed) for seed in range(-1000, 1000)}) == 2000
+
+
+def test_different_seeds_give_independent_episode_streams():
+    setup = build_setup(compose([]))
+    theta = np.tile(setup.theta0, (1, 1))
+    episodes = 20_000
+    rewards = {}
+    for seed in (0, 1, 2):
+        batch = simulate(
+            setup.world, setup.kernel, theta, starts(setup)[:1], rng.robot_keys(seed, rng.TRAIN, 0, 1), episodes
+        )
+        rewards[seed] = batch.total_reward
+    for a, b in itertools.combinations(rewards, 2):
+        # Same policy, so the same distribution; independent streams: no shared draws, no correlation.
+        assert not set(rewards[a]) & set(rewards[b])
+        assert abs(np.corrcoef(rewards[a], rewards[b])[0, 1]) < 0.03  # 4 standard errors at n = 20000
+        assert abs(np.corrcoef(rewards[a][1:], rewards[b][:-1])[0, 1]) < 0.03  # nor a shifted copy
+        assert abs(rewards[a].mean() - rewards[b].mean()) < 5 * rewards[a].std() / np.sqrt(episodes / 2)
+
+
+@pytest.mark.parametrize(
+    "seed,purpose,iteration,robots",
+    [
+        (0, rng.TRAIN, 0, 1),
+        (0, rng.TRAIN, 7, 1000),
+        (2**63 - 1, rng.PATHS, 2**40 + 3, 50),
+        (12345, rng.EVAL, 1, 3),
+        (5, rng.TRAIN, 0, 0),
+        (2**63 - 1, rng.TRAIN, 2**64 - 1, 5),
+        (77, rng.BOOTSTRAP, 3, 4),
+    ],
+)
+def test_robot_keys_are_the_scalar_stream_keys(seed, purpose, iteration, robots):
+    keys = rng.robot_keys(seed, purpose, iteration, robots)
+    expected = np.array([rng.stream_key(seed, purpose, iteration, r) for r in range(robots)], dtype=np.uint64)
+    assert keys.dtype == np.uint64 and keys.shape == (robots,)
+    assert np.array_equal(keys, expected)
+
+
+def test_robot_keys_known_values():
+    """Keys as the scalar loop gave them before robot_keys was vectorised."""
+    assert rng.robot_keys(0, rng.TRAIN, 0, 3).tolist() == [
+        15060180617161591093,
+        17701245739403276522,
+        902475832917225024,
+    ]
+    assert int(rng.robot_keys(2**63 - 1, rng.EVAL, 99, 5)[4]) == 7221517220371294345

@@ -1,0 +1,51 @@
+"""report.csv and the page's table (riskplan.experiments.reporting.tables, .page) on two seeds of a tiny run,
+without drawing a figure: the numbers recomputed from the runs' evaluation tables, a Student-t interval across the
+seeds, and missing values as empty cells. The whole report over a sweep is in test_report_contents.py."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from support import TINY
+
+from riskplan import compose, train
+from riskplan.experiments.reporting.collect import collect
+from riskplan.experiments.reporting.page import comparison_section
+from riskplan.experiments.reporting.tables import comparison_table, csv_text, runs_table
+from riskplan.risk import cvar
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("tables")
+    for seed in (0, 1):
+        train(compose([*TINY, f"seed={seed}"]), root / f"seed_{seed}")
+    return root
+
+
+def test_a_group_of_two_seeds_is_their_mean_with_a_t_interval(runs):
+    coll = collect([runs])
+    table = comparison_table(coll)
+    (row,) = table.to_dict("records")
+    z = [pd.read_parquet(runs / f"seed_{s}" / "eval.parquet").total_reward.to_numpy() for s in (0, 1)]
+    means, cvars = [x.mean() for x in z], [cvar(x, 0.1) for x in z]
+    assert (row["seeds"], row["seed_list"], row["eval_episodes"]) == (2, "0 1", 200)
+    assert row["interval"] == "95% Student-t over 2 seeds"
+    assert row["mean"] == pytest.approx(np.mean(means), rel=1e-12)
+    assert row["cvar"] == pytest.approx(np.mean(cvars), rel=1e-12)
+    half = 12.706 * abs(means[0] - means[1]) / 2  # t(0.975, 1 df) * sd / sqrt(2), with sd = |a - b| / sqrt(2)
+    assert (row["mean_low"], row["mean_high"]) == pytest.approx((np.mean(means) - half, np.mean(means) + half))
+    used = runs_table(coll)
+    assert used.status.tolist() == ["used", "used"] and used.iterations.tolist() == [3, 3]
+    assert used.cvar.tolist() == pytest.approx(cvars, rel=1e-12)
+    html = comparison_section(table)
+    assert f"{row['cvar']:,.1f} [{row['cvar_low']:,.1f}, {row['cvar_high']:,.1f}]" in html
+    assert "95% Student-t over 2 seeds" in html
+
+
+def test_missing_and_infinite_values_are_empty_cells():
+    table = pd.DataFrame({"x": [1.5, np.nan, np.inf], "label": ["a", float("-inf"), None]})
+    assert csv_text(table) == "x,label\n1.5,a\n,\n,\n"

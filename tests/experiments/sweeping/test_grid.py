@@ -1,0 +1,47 @@
+"""Expanding and checking a sweep's grid (riskplan.experiments.sweeping.grid), before anything runs: Hydra's
+expansion, folders named by what varies, and sweeps counted without expanding them."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from riskplan.experiments.sweeping import constant_keys, expand, sweep_size
+from riskplan.run.compose import parse_overrides
+from riskplan.util.errors import BadInput
+
+
+def test_expansion_is_hydras_and_folders_name_what_varies():
+    from riskplan.run.compose import parse_overrides
+
+    args = ["risk.beta=0.05,0.1", "seed=range(0,3)", "team.graph=line", "train.iterations=5"]
+    combos = expand(parse_overrides(args), args)
+    assert len(combos) == 6 and combos[0] == ["risk.beta=0.05", "seed=0", "team.graph=line", "train.iterations=5"]
+    assert constant_keys(combos) == ["team.graph", "train.iterations"]
+    assert constant_keys([["seed=0", "risk.beta=0.1"]]) == []  # nothing varies: keep every override in the name
+    assert constant_keys([["seed=0", "risk.beta=0.1"]], {"seed"}) == ["risk.beta"]  # seed=range(0,1) was a sweep
+
+
+@pytest.mark.parametrize(
+    "args, count",
+    [
+        (["seed=range(0,100000000)"], 100_000_000),
+        (["seed=range(0,10,3)", "risk=neutral,cvar"], 8),
+        (["seed=range(5,0,-1)", "train.iterations=5"], 5),
+        (["risk.beta=range(0.1,0.5,0.1)"], 4),
+        (["risk=glob(*)", "seed=0,1"], 4),
+        (["seed=shuffle(range(0,3))"], 3),
+        (["seed=range(0,0)"], 0),
+        (["seed=range(0,100000000000000000000000000000)"], 10**29),  # more than a C integer holds
+        (["risk.beta=range(0,1,0.3)"], 4),
+    ],
+)
+def test_a_sweep_is_counted_without_expanding_it(args, count):
+    assert sweep_size(parse_overrides(args))[0] == count
+
+
+@pytest.mark.parametrize("arg", ["risk.beta=range(0,inf)", "risk.beta=range(0,nan)", "seed=range(0,5,0)"])
+def test_a_range_without_an_end_or_a_step_is_bad_input(arg):
+    with pytest.raises(BadInput, match=re.escape(f"override '{arg}': has a range")):
+        sweep_size(parse_overrides([arg]))

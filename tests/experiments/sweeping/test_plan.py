@@ -1,0 +1,39 @@
+"""A sweep planned before anything runs (riskplan.experiments.sweeping.plan): every combination composed and
+checked, its folder named by what varies, the model's rejections kept per job, the launcher's arguments; bad input
+claims no directory. The same sweeps run through the CLI in test_sweep_command.py."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from support import TINY
+
+from riskplan.experiments.sweeping.plan import plan_sweep
+from riskplan.util.errors import BadInput
+
+
+def test_a_grid_is_planned_job_by_job_before_anything_runs(in_tmp):
+    plan = plan_sweep(["risk.beta=0.2,1.5", "seed=0,1", *TINY], jobs=2)
+    assert plan.sweep_dir.parent == Path("outputs") / "sweeps" and list(plan.sweep_dir.iterdir()) == []  # claimed
+    assert (plan.launcher, plan.workers, plan.sweeper) == ("joblib", 2, "basic")
+    assert [job.folder for job in plan.jobs] == [
+        "risk.beta=0.2,seed=0",
+        "risk.beta=0.2,seed=1",
+        "risk.beta=1.5,seed=0",
+        "risk.beta=1.5,seed=1",
+    ]
+    assert [job.overrides[:2] for job in plan.jobs][2] == ["risk.beta=1.5", "seed=0"]
+    assert [job.invalid is None for job in plan.jobs] == [True, True, False, False]  # beta=1.5 fails alone
+    assert plan.jobs[2].invalid.startswith("risk.beta: got 1.5")
+    assert len({job.sha for job in plan.jobs}) == 4 and all(job.path is None for job in plan.jobs)
+    assert "hydra/launcher=joblib" in plan.argv and "hydra.launcher.n_jobs=2" in plan.argv
+
+
+@pytest.mark.parametrize(
+    "args", [["risk.bta=0.1,0.2"], ["risk.beta=2,3"], ["seed=0,0"], ["risk.beta=interval(0,1)"], ["--jobs"]]
+)
+def test_bad_input_claims_no_directory(in_tmp, args):
+    with pytest.raises(BadInput):
+        plan_sweep([*args, *TINY])
+    assert not (in_tmp / "outputs").exists()

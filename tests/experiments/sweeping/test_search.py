@@ -1,0 +1,42 @@
+"""Search spaces of an optimising sweeper (riskplan.experiments.sweeping.search): the sample values a search-space
+override is checked with before the study runs, and the ranges and intervals refused as bad input. The study
+itself runs in test_optuna_sweeper.py."""
+
+from __future__ import annotations
+
+import pytest
+
+from riskplan.experiments.sweeping.search import search_samples
+from riskplan.run.compose import parse_overrides
+from riskplan.util.errors import BadInput
+
+
+@pytest.mark.parametrize(
+    "override, samples",
+    [
+        ("x=choice(0,3)", ["0", "3"]),  # every value of a choice
+        ("x=choice(a,b,c)", ["a", "b", "c"]),
+        ("x=range(2,9,3)", ["2"]),  # the start of a range
+        ("x=range(0,1,0.25)", ["0.0"]),
+        ("x=interval(0.05,1)", ["0.525"]),  # the middle of an interval
+        ("x=tag(log,interval(1,100))", ["10.0"]),  # on a log scale: the geometric middle
+    ],
+)
+def test_a_search_space_is_checked_with_values_of_the_types_the_sweeper_draws(override, samples):
+    assert search_samples(parse_overrides([override])[0], "optuna") == samples
+
+
+@pytest.mark.parametrize(
+    "override, problem",
+    [
+        ("x=range(0,5,0)", "a step of 0"),
+        ("x=range(5,0)", "is an empty range"),
+        ("x=interval(1,0)", "has its lower bound 1.0 not below its upper bound 0.0"),
+        ("x=tag(log,interval(0,1))", "a log interval needs a lower bound above 0"),
+        ("x=glob(*)", "the optuna sweeper takes choice(...), comma lists, range(...) or interval(...), not glob(...)"),
+    ],
+)
+def test_search_spaces_that_cannot_be_drawn_from_are_bad_input(override, problem):
+    with pytest.raises(BadInput) as err:
+        search_samples(parse_overrides([override])[0], "optuna")
+    assert err.value.where == f"override '{override}'" and problem in err.value.problem

@@ -1,0 +1,198 @@
+"""What several test files share: the small run configs, typed team settings and networks, set-ups built from
+overrides, `riskplan` in a subprocess, and the comparison of a run's outputs with another run's.
+
+Test files import it as `from support import ...`: pytest puts tests/ on sys.path when it loads tests/conftest.py
+(the test folders have no __init__.py). Fixtures live in tests/conftest.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from riskplan.config.schema import TeamConf
+from riskplan.config.typed import typed
+from riskplan.config.validate import check_team
+from riskplan.engine.team.mixer import Mixer
+from riskplan.engine.team.network import Network, build_network
+from riskplan.run.build import build_setup
+from riskplan.run.checkpoint import CHECKPOINT, CRASH_ENV
+from riskplan.run.compose import compose
+from riskplan.run.record import read_log
+from riskplan.run.training import STOP_ENV
+from riskplan.util.errors import BadInput
+
+# ------------------------------------------------------------------------------------------------ run configs
+# The fastest overrides that still make a meaningful run: a few iterations, every output written (a checkpoint, the
+# evaluation, the bootstrap intervals, one path per policy). A test that needs other numbers adds them after it
+# ([*TINY, "train.iterations=12", ...]: the last value of a key wins), so the differences are visible.
+TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
+# A little more of everything (the `fast_overrides` fixture): the CLI, sweep, report and reproduce tests, whose
+# assertions know these numbers (5 iterations, 500 samples per robot).
+FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]
+# A run long enough to checkpoint several times (every 5 of its 30 iterations): killed and resumed runs, and the
+# runs the determinism checks compare.
+CHECKPOINTED = [*TINY, "train.iterations=30", "train.checkpoint_every=5"]
+CHECKPOINTED_TEAM = [*CHECKPOINTED, "experiment=paper_team", "team.delay.max=2", "team.drop=0.2"]  # mixer state
+
+
+# ------------------------------------------------------------------------------------------------ set-ups, teams
+def setup_of(*overrides: str):
+    """The built Setup of TINY plus overrides (composed without the model's checks: build_setup makes them)."""
+    return build_setup(compose([*TINY, *overrides], validate=False))
+
+
+def bad_input(*overrides: str) -> BadInput:
+    """The BadInput that building TINY plus overrides raises, checked to be one plain line."""
+    with pytest.raises(BadInput) as err:
+        setup_of(*overrides)
+    assert "\n" not in str(err.value) and "`" not in str(err.value) and "|" not in str(err.value)
+    return err.value
+
+
+def team_conf(**values) -> TeamConf:
+    """The typed TeamConf of these `team` values (nested dicts allowed), checked as a build checks it: BadInput
+    naming `team.<key>` on a bad type, choice or range."""
+    team = typed({"team": values}).team
+    check_team(team)
+    return team
+
+
+def net_of(m: int = 2, seed: int = 0, **values) -> Network:
+    """Network of a team built from overrides."""
+    return build_network(team_conf(**values), m, seed)
+
+
+def run_rounds(network, team, thetas, iterations, seed=0, rounds=1):
+    """Mix `iterations` times (each with `rounds` rounds); return the per-iteration trajectory."""
+    mixer = Mixer(network, team, seed)
+    out = [thetas]
+    for l in range(iterations):
+        for r in range(rounds):
+            thetas = mixer.mix(thetas, l, r)
+        out.append(thetas)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ the CLI
+CLI = [sys.executable, "-c", "from riskplan.cli import main; main()"]
+TIMEOUT = 300
+
+
+def riskplan_cli(cwd: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    """`riskplan ARGS` in cwd, in a subprocess of this interpreter (no terminal: a sweep's view prints one line per
+    finished job)."""
+    return subprocess.run(
+        [*CLI, *args], cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT, env={**os.environ, **(env or {})}
+    )
+
+
+def riskplan_command() -> list[str]:
+    """The installed console script next to this interpreter (the way users run it)."""
+    script = Path(sys.executable).with_name("riskplan")
+    return [str(script)] if script.is_file() else [sys.executable, "-c", "from riskplan.cli import main; main()"]
+
+
+def child_env(**extra: str) -> dict[str, str]:
+    """The test's environment without the fault-injection variables, plus `extra`."""
+    env = {k: v for k, v in os.environ.items() if k not in (CRASH_ENV, STOP_ENV)}
+    env.update(extra)
+    return env
+
+
+def run_cli(args: list[str], cwd: Path, **env: str) -> subprocess.CompletedProcess:
+    """`riskplan <args>` through the console script in a subprocess; returns when it exits (or is killed)."""
+    return subprocess.run(
+        [*riskplan_command(), *args], cwd=cwd, env=child_env(**env), capture_output=True, text=True, timeout=TIMEOUT
+    )
+
+
+def train_cli(overrides: list[str], out: Path, **env: str) -> subprocess.CompletedProcess:
+    """`riskplan train <overrides> hydra.run.dir=<out>` in a subprocess."""
+    return run_cli(["train", *overrides, f"hydra.run.dir={out}"], out.parent, **env)
+
+
+def resume_cli(out: Path, *overrides: str, **env: str) -> subprocess.CompletedProcess:
+    """`riskplan train --resume <out> [overrides]` in a subprocess."""
+    return run_cli(["train", "--resume", str(out), *overrides], out.parent, **env)
+
+
+def kill_after_iteration(overrides: list[str], out: Path, iteration: int) -> int:
+    """Start `riskplan train`, let it log `iteration` (it then stops itself), SIGKILL it; its return code."""
+    proc = subprocess.Popen(
+        [*riskplan_command(), "train", *overrides, f"hydra.run.dir={out}"],
+        cwd=out.parent,
+        env=child_env(**{STOP_ENV: str(iteration)}),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        _, status = os.waitpid(proc.pid, os.WUNTRACED)  # returns once the child is stopped (or has exited)
+        assert os.WIFSTOPPED(status), f"the run ended before iteration {iteration} (status {status})"
+        proc.send_signal(signal.SIGKILL)
+        return proc.wait(timeout=TIMEOUT)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+# ------------------------------------------------------------------------------------------------ run outputs
+TABLES = ("metrics", "eval", "trajectories")
+WALL_CLOCK = {"wall_time", "throughput_episodes_per_s"}  # summary.json fields that measure time, not results
+
+
+def files(root: Path) -> dict[str, bytes]:
+    """Every file below root with its bytes."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def checkpoint_iteration(out: Path, name: str = CHECKPOINT) -> int:
+    """The iteration a checkpoint file was written at (it parses: never half a file)."""
+    return json.loads((out / name).read_text())["iteration"]
+
+
+def comparable_summary(summary: dict) -> dict:
+    """summary.json without wall-clock fields and the git SHA (the shared tree may get commits meanwhile)."""
+    out = {k: v for k, v in summary.items() if k not in WALL_CLOCK}
+    out["provenance"] = {k: v for k, v in summary.get("provenance", {}).items() if k != "git_sha"}
+    return json.loads(json.dumps(out))  # NaN-safe comparison through one JSON round trip
+
+
+def assert_same_outputs(run: Path, reference: Path) -> None:
+    """Every value of every table and of summary.json equal, wall-clock fields aside; the same for run.mcap."""
+    for name in TABLES:
+        got, want = (pd.read_parquet(d / f"{name}.parquet") for d in (run, reference))
+        if name == "metrics":
+            got, want = got.drop(columns="seconds"), want.drop(columns="seconds")
+        pd.testing.assert_frame_equal(got, want, check_exact=True, obj=name)
+    got, want = (json.loads((d / "summary.json").read_text()) for d in (run, reference))
+    assert comparable_summary(got) == comparable_summary(want)
+    got_log, want_log = read_log(run / "run.mcap"), read_log(reference / "run.mcap")
+    assert got_log.complete and want_log.complete, got_log.problem
+    pd.testing.assert_frame_equal(
+        got_log.metrics.drop(columns="seconds"),
+        want_log.metrics.drop(columns="seconds"),
+        check_exact=True,
+        obj="run.mcap metrics",
+    )
+    pd.testing.assert_frame_equal(got_log.eval, want_log.eval, check_exact=True, obj="run.mcap eval")
+    pd.testing.assert_frame_equal(
+        got_log.trajectories, want_log.trajectories, check_exact=True, obj="run.mcap trajectories"
+    )
+    assert comparable_summary(got_log.summary) == comparable_summary(want_log.summary)
+
+
+def assert_log_holds_each_iteration_once(run: Path, iterations: int, robots: tuple[int, ...]) -> None:
+    """run.mcap's /metrics: every (iteration, robot) exactly once, and the same rows as metrics.parquet."""
+    log = read_log(run / "run.mcap")
+    pairs = list(zip(log.metrics.iteration, log.metrics.robot))
+    assert pairs == [(i, r) for i in range(iterations) for r in sorted(robots)]
+    pd.testing.assert_frame_equal(log.metrics, pd.read_parquet(run / "metrics.parquet"), check_exact=True)
