@@ -19,10 +19,12 @@ runner = CliRunner()
 METRICS = [
     "iteration",
     "robot",
+    "healthy",
     "mean",
     "cvar",
     "value_at_risk",
     "std",
+    "objective",
     "theta_0",
     "theta_1",
     "grad_norm",
@@ -32,7 +34,7 @@ METRICS = [
     "samples",
     "seconds",
 ]
-EVAL = ["episode", "robot", "total_reward", "risky_steps", "source_reached", "steps"]
+EVAL = ["episode", "robot", "healthy", "total_reward", "risky_steps", "source_reached", "steps"]
 TRAJECTORIES = ["policy", "episode", "robot", "step", "x", "y", "reward"]
 
 
@@ -72,7 +74,11 @@ def test_train_writes_every_contract_file(in_tmp, fast_overrides):
     summary = json.loads((run / "summary.json").read_text())
     for name in ("mean", "cvar", "value_at_risk", "cvar_0.05", "cvar_0.1", "cvar_0.2"):
         assert summary[name]["low"] <= summary[name]["value"] <= summary[name]["high"], name
-    assert summary["schema_version"] == 1 and summary["provenance"]["riskplan"]
+    assert summary["schema_version"] == 2 and summary["provenance"]["riskplan"]
+    assert summary["objective"] == {"measure": "neutral", **summary["mean"]}  # the trained measure: the mean
+    assert summary["theta_names"] == ["safe", "risky"] and summary["team_size"] == 1
+    assert summary["team_objective"] == {k: summary["mean"][k] for k in ("value", "low", "high")}
+    assert metrics.objective.tolist() == metrics["mean"].tolist() and metrics.healthy.all()
     log = read_log(run / "run.mcap")
     assert log.complete and log.metadata["config"]["risk"]["measure"] == "neutral"
     pd.testing.assert_frame_equal(log.metrics, metrics)

@@ -68,7 +68,7 @@ def expected_series(run: Path) -> dict[str, list[tuple[int, float]]]:
     out: dict[str, list] = {}
     for robot, rows in m.groupby("robot"):
         for c in m.columns:
-            if c in ("iteration", "robot"):
+            if c in ("iteration", "robot") or m[c].dtype == bool:  # flags (healthy) are not metrics
                 continue
             points = [(int(i), float(v)) for i, v in zip(rows.iteration, rows[c]) if math.isfinite(v)]
             if points:

@@ -218,7 +218,15 @@ def test_empty_tables(tmp_path):
     RunLog(path).close()
     d = read_log(path)
     assert d.metrics.empty and d.eval.empty and d.trajectories.empty and d.summary is None
-    assert list(d.eval.columns) == ["episode", "robot", "total_reward", "risky_steps", "source_reached", "steps"]
+    assert list(d.eval.columns) == [
+        "episode",
+        "robot",
+        "healthy",
+        "total_reward",
+        "risky_steps",
+        "source_reached",
+        "steps",
+    ]
     assert d.eval["total_reward"].dtype == np.float64 and d.metrics["iteration"].dtype == np.int64
     assert not d.complete
 

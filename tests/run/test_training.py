@@ -27,9 +27,11 @@ def test_robot_rows_are_the_per_robot_rows(n):
     z = g.normal(size=(n, 50)) * 100
     stats = summary_stats(z, 0.1)
     thetas, grads = g.normal(size=(n, 2)), g.normal(size=(n, 2)) * 1e3
-    rows = _robot_rows(4, stats, thetas, grads, 0.05, 1.25, 50, 0.5, 0.2)  # eps, error, samples, seconds, level
+    levels, healthy = g.uniform(0.1, 1.0, size=n), g.random(n) < 0.7  # per robot: team.risk, team.faults
+    rows = _robot_rows(4, stats, thetas, grads, 0.05, 1.25, 50, 0.5, levels, healthy)  # eps, error, samples, seconds
     expected = [
-        _row(4, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], 0.05, 1.25, 50, 0.5, 0.2) for i in range(n)
+        _row(4, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], 0.05, 1.25, 50, 0.5, levels[i], healthy[i])
+        for i in range(n)
     ]
     assert rows == expected
     for got, want in zip(rows, expected):

@@ -30,7 +30,7 @@ def test_expansion_is_hydras_and_folders_name_what_varies():
         (["seed=range(0,10,3)", "risk=neutral,cvar"], 8),
         (["seed=range(5,0,-1)", "train.iterations=5"], 5),
         (["risk.beta=range(0.1,0.5,0.1)"], 4),
-        (["risk=glob(*)", "seed=0,1"], 4),
+        (["risk=glob(*)", "seed=0,1"], 10),  # conf/risk: cvar, entropic, mean_cvar, neutral, wang
         (["seed=shuffle(range(0,3))"], 3),
         (["seed=range(0,0)"], 0),
         (["seed=range(0,100000000000000000000000000000)"], 10**29),  # more than a C integer holds
