@@ -88,6 +88,7 @@ def agree(env, ker) -> None:
         assert abs(x.mean() - y.mean()) <= 4 * math.hypot(se(x), se(y)) + 1e-9, f"source {j}"
 
 
+@pytest.mark.slow  # distributions of many episodes in numpy and in the kernel
 @pytest.mark.parametrize("mobile", [False, True], ids=["static", "mobile"])
 @pytest.mark.parametrize("kind", ["features", "tabular"])
 def test_run_episodes_have_the_kernels_distribution(kind, mobile):

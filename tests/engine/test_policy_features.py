@@ -120,6 +120,7 @@ def test_the_default_policy_is_the_papers():
 # -- theta0 and theta_names -----------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # four set-ups composed and built
 def test_theta0_pads_with_zeros_and_names_follow_the_features():
     paper = build_setup(compose(["policy.features=[signals,risky]"]))  # the paper's theta0: [20, 20]
     assert paper.theta0.tolist() == [20.0, 20.0, 0.0]
@@ -290,6 +291,7 @@ def test_kernel_with_extra_features_samples_the_exact_distribution(tiny):
         assert empirical.get(round(z, 9), 0.0) == pytest.approx(p, abs=5 * sd + 1e-6)
 
 
+@pytest.mark.slow  # kernel episodes against the exact enumeration
 def test_trajectory_score_with_extra_features_gives_the_exact_mean_gradient(tiny):
     h = 1e-5
     truth = np.array(

@@ -66,6 +66,7 @@ def run(setup, thetas, episodes, seed=0, **kw):
 # -- theta0, names, tables ------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # several set-ups and kernel runs
 def test_the_table_starts_from_the_features_policys_logits():
     paper = build_setup(compose([]))
     table = build_setup(compose(["policy.kind=tabular"]))
@@ -196,6 +197,7 @@ def tiny(request):
     return setup
 
 
+@pytest.mark.slow  # 200,000 kernel episodes against the exact enumeration
 def test_the_sample_gradient_of_a_table_matches_the_exact_enumeration(tiny):
     world = tiny.world
     table = tiny.theta0 + np.random.default_rng(5).normal(scale=0.7, size=world.cells * 5)
