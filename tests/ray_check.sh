@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The Ray launcher check, in an environment of its own: hydra-ray-launcher needs cloudpickle<3, and joblib 1.6
 # needs cloudpickle>=3, so the Ray environment keeps joblib<1.6 (the `ray` extra of pyproject.toml pins both).
-# It runs the Ray test, which the main suite skips because the main environment has no Ray launcher.
+# It runs the Ray launcher's tests, which the main suite skips because the main environment has no Ray launcher:
+# a sweep on a local Ray instance, and the Ray commands of docs/clusters.md run as written, on a local instance and on
+# a two-node Ray cluster started from this venv's `ray` (tests/clusters/ray_cluster.py; about a minute).
 # Usage: bash tests/ray_check.sh        (RAY_VENV=DIR to choose where the venv lives; it is reused when present)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -15,4 +17,5 @@ fi
 "$RAY_VENV/bin/python" -c "import hydra_plugins.hydra_ray_launcher, ray, cloudpickle, joblib; \
 print(f'ray {ray.__version__}, cloudpickle {cloudpickle.__version__}, joblib {joblib.__version__}')"
 export RAY_USAGE_STATS_ENABLED=0
-"$RAY_VENV/bin/python" -m pytest -q -p no:cacheprovider tests/test_ray.py
+"$RAY_VENV/bin/python" -m pytest -q -p no:cacheprovider tests/experiments/sweeping/test_ray_launcher.py \
+  tests/clusters/test_ray_sweeps.py

@@ -33,8 +33,7 @@ _interrupted: list[Interrupted] = []  # the last single run's stop by a signal
 _task_stderr: list = []  # the terminal's stderr, handed back to the task while Hydra's own output is captured
 
 
-@hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
-def task(cfg: DictConfig) -> float | None:
+def _task(cfg: DictConfig) -> float | None:
     """Train one job in Hydra's output directory; record success or failure in status.json."""
     from riskplan.run.evaluation import NumericalTrouble
     from riskplan.run.training import train
@@ -69,6 +68,9 @@ def task(cfg: DictConfig) -> float | None:
             return _failed(out, f"{type(err).__name__}: {err}", traceback.format_exc())
         write_status(out, "done", None)
     return run.summary["cvar"]["value"]
+
+
+task = hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")(_task)
 
 
 def _failed(out: Path, error: str, trace: str | None = None) -> None:

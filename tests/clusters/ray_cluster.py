@@ -1,10 +1,11 @@
 """A real multi-node Ray cluster on this machine that a test starts and stops itself (two nodes by default).
 
     with RayCluster() as cluster:                       # or cluster = RayCluster().start() ... cluster.stop()
-        os.environ.update(cluster.driver_env)           # the token (see below), before ray.init
+        os.environ.update(cluster.driver_env)           # the token and RAY_ADDRESS (see below), before ray.init
         ray.init(address=cluster.address)               # a driver; ray.nodes() shows cluster.num_nodes alive nodes
-        subprocess.run(["riskplan", "sweep", ..., f"+hydra.launcher.ray.init.address={cluster.address}"],
+        subprocess.run(["riskplan", "sweep", ..., "hydra/launcher=ray_cluster"],   # its address: auto
                        env={**os.environ, **cluster.driver_env})
+        cluster.node_of_worker(pid)                     # the ip of the node whose Ray worker had this pid
 
     RayCluster(ray_executable="/other/venv/bin/ray")    # a cluster of another venv's Ray (the driver must use the
                                                         # same Ray version: the Hydra Ray launcher's venv)
@@ -32,7 +33,14 @@ Ray >= 2.5x enables token authentication by default and, without a token, writes
 ~/.ray/auth_token. The cluster gets a random token through RAY_AUTH_MODE=token and RAY_AUTH_TOKEN instead (so it
 writes nothing to ~/.ray), and a driver needs the same two variables: `cluster.driver_env` in a child's
 environment, or `cluster.apply_driver_env()` in this process (Ray caches RAY_AUTH_MODE when it is imported, so
-setting os.environ alone is not enough there). Ray versions without token auth ignore them. Usage stats are off (RAY_USAGE_STATS_ENABLED=0, --disable-usage-stats) and the SIGTERM
+setting os.environ alone is not enough there). Ray versions without token auth ignore them.
+
+`driver_env` also holds RAY_ADDRESS (the head's GCS address, once the cluster has started), which is what a user on
+a node of the cluster has: `ray.init(address="auto")` (hydra/launcher=ray_cluster) takes RAY_ADDRESS first, then
+the address `ray start` wrote to /tmp/ray/ray_current_cluster, then any Ray instance it finds running on the
+machine. This cluster's nodes write that file into their own --temp-dir, never /tmp/ray, so without RAY_ADDRESS
+`auto` would fall back to the last rule and could pick another Ray instance on the machine (seen here: another
+test's local instance). The nodes themselves are started without RAY_ADDRESS. Usage stats are off (RAY_USAGE_STATS_ENABLED=0, --disable-usage-stats) and the SIGTERM
 drain is skipped (RAY_GRACEFUL_SHUTDOWN_DRAIN_TIMEOUT_S=0; otherwise a node waits up to 30 s before stopping).
 
 Stopping (non-head nodes first, then the head): SIGTERM to each `ray start` (it stops its node's daemons), a grace
@@ -254,8 +262,12 @@ class RayCluster:
 
     @property
     def driver_env(self) -> dict[str, str]:
-        """Environment variables a driver (ray.init(address=cluster.address)) needs: the cluster's token."""
-        return {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": self.token, "RAY_USAGE_STATS_ENABLED": "0"}
+        """Environment variables a driver needs: the cluster's token, and RAY_ADDRESS once the cluster has started
+        (so that ray.init(address="auto") finds this cluster, as it finds the one `ray start` started on a node)."""
+        env = {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": self.token, "RAY_USAGE_STATS_ENABLED": "0"}
+        if self.nodes:
+            env["RAY_ADDRESS"] = self.address
+        return env
 
     def apply_driver_env(self) -> dict[str, str | None]:
         """Put driver_env into os.environ for a driver in this process; returns the old values for restore_env.
@@ -287,6 +299,20 @@ class RayCluster:
     def node_ips(self) -> list[str]:
         return [node.ip for node in self.nodes]
 
+    def node_of_worker(self, pid: int) -> str | None:
+        """The ip of the node that ran the Ray worker process `pid` (a task's os.getpid()), from the worker log files
+        each raylet names after its workers' pids (session_*/logs/worker-<id>-<job>-<pid>.out and
+        python-core-worker-<id>_<pid>.log); None when no node's logs name it."""
+        for node in self.nodes:
+            logs = list(node.temp_dir.glob("session_*/logs"))
+            if any(
+                next(folder.glob(pattern), None) is not None
+                for folder in logs
+                for pattern in (f"worker-*-{pid}.out", f"worker-*-{pid}.err", f"python-core-worker-*_{pid}.log")
+            ):
+                return node.ip
+        return None
+
     @property
     def pids(self) -> list[int]:
         """The `ray start` processes this cluster started (each the leader of its own process group)."""
@@ -313,7 +339,7 @@ class RayCluster:
             key: value for key, value in os.environ.items() if key not in ("RAY_ADDRESS", "RAY_AUTH_TOKEN_PATH")
         }  # never join some other cluster
         env.update(
-            self.driver_env,
+            {key: value for key, value in self.driver_env.items() if key != "RAY_ADDRESS"},
             RAY_GRACEFUL_SHUTDOWN_DRAIN_TIMEOUT_S="0",
             RAY_DISABLE_DOCKER_CPU_WARNING="1",
             **self.extra_env,

@@ -25,8 +25,8 @@ def target_dir(sweep_dir: Path | None, explicit_dir: Path | None, argv: list[str
         target.mkdir(parents=True, exist_ok=True)
     else:
         target = claim_dir(SWEEPS_ROOT)
-    if explicit_dir is None:  # absolute: jobs on other machines (submitit, ray) may start in another directory
-        argv.append(f"hydra.sweep.dir={hydra_quote(target.resolve())}")
+    if explicit_dir is None or not explicit_dir.is_absolute():  # absolute: jobs on other machines (submitit, ray)
+        argv.append(f"hydra.sweep.dir={hydra_quote(target.resolve())}")  # may start in another directory
     return target
 
 

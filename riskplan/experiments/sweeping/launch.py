@@ -35,7 +35,7 @@ def launch(argv: list[str], log_file: Path, skip: frozenset = frozenset()) -> st
 
 
 # submitit's word for a SLURM job that ended without a result: its id, its task index and the state SLURM gave it
-UNCOMPLETED = re.compile(r"UncompletedJobError: Job (\S+) \(task: (\d+)\).*?\(state: ([A-Z_]+)")
+UNCOMPLETED = re.compile(r"UncompletedJobError: Job (\S+) \(task: \d+\).*?\(state: ([A-Z_]+)", re.DOTALL)
 
 
 def _launcher_error(log_file: Path, launched: list[tuple[str, ...]]) -> str:
@@ -47,9 +47,10 @@ def _launcher_error(log_file: Path, launched: list[tuple[str, ...]]) -> str:
         text = ""
     uncompleted = UNCOMPLETED.findall(text)
     if uncompleted:
-        job, task, state = uncompleted[-1]
-        task = int(task)
-        overrides = ",".join(launched[task]) if task < len(launched) else f"task {task}"
+        job, state = uncompleted[-1]
+        index = job.partition("_")[2]  # <array job>_<index>; a sweep of one job is a plain job, not an array
+        task = int(index) if index.isdigit() else (0 if len(launched) == 1 else -1)
+        overrides = ",".join(launched[task]) if 0 <= task < len(launched) else f"job {job}"
         return (
             f"the launcher stopped: SLURM job {job} ({overrides}) ended {state} without a result (submitit's "
             f"UncompletedJobError; see {log_file})"
