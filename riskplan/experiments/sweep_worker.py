@@ -206,12 +206,18 @@ def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | No
         for name in STALE:
             (out / name).unlink(missing_ok=True)
     started = time.time()
-    base = {"config_sha": sha, "started": started, "host": socket.gethostname(), "pid": os.getpid()}
+    base = {
+        "config_sha": sha,
+        "started": started,
+        "host": socket.gethostname(),
+        "pid": os.getpid(),
+        "threads": numba_threads(),
+    }
     write_status(out, {"status": "running", "error": None, **base})
     with job_output(out / JOB_LOG):
         print(
             f"=== riskplan sweep job {'resumed' if resume else 'started'} at {time.ctime(started)} "
-            f"on {base['host']} (pid {base['pid']}"
+            f"on {base['host']} ({base['threads']} numba threads, pid {base['pid']}"
             + (f", ends with the sweep process {_watching[0]})" if watched and _watching else ")"),
             flush=True,
         )
@@ -300,6 +306,13 @@ def warm_up() -> tuple[int, float]:
         for number, experiment in enumerate(WARM_UP):
             train(compose([*experiment, *WARM_UP_SIZE]), Path(scratch) / str(number), progress=False)
     return os.getpid(), time.time() - started
+
+
+def numba_threads() -> int:
+    """The threads numba runs this job's kernels with (recorded in status.json and job.log)."""
+    import numba
+
+    return int(numba.get_num_threads())
 
 
 GRANTED = ("SLURM_CPUS_PER_TASK", "OMP_NUM_THREADS")  # CPUs a scheduler granted this job, where it says

@@ -1,6 +1,7 @@
 """Stopping cleanly on SIGINT or SIGTERM (Ctrl-C, a scheduler's preemption or requeue): the signal is noted, the
 run finishes the iteration in progress, writes a checkpoint and stops with `Interrupted`; a second signal stops at
-once, as the signal would have without riskplan."""
+once, as the signal would have without riskplan. Where a job runner handles SIGUSR2 itself (submitit requeues a
+SLURM job on it before its time limit), riskplan checkpoints first, then hands the signal to that handler."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import signal
 import threading
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
+HANDED_ON = signal.SIGUSR2  # caught only while a Python handler (submitit's) has it: that handler runs after
 
 
 class Interrupted(BaseException):
@@ -43,6 +45,8 @@ class StopSignals(contextlib.AbstractContextManager):
         if threading.current_thread() is threading.main_thread():
             for signum in SIGNALS:
                 self._previous[signum] = signal.signal(signum, self._note)
+            if callable(signal.getsignal(HANDED_ON)):
+                self._previous[HANDED_ON] = signal.signal(HANDED_ON, self._note)
         return self
 
     def _note(self, signum: int, frame) -> None:
@@ -63,6 +67,10 @@ class StopSignals(contextlib.AbstractContextManager):
     def check(self, finished: int) -> None:
         """Interrupted(signal, finished iterations) once a signal was received: call it where stopping loses
         nothing."""
+        if self.received == HANDED_ON:  # checkpointed: now what the job runner does with it (submitit requeues)
+            handler = self._previous[HANDED_ON]
+            self._restore()
+            handler(HANDED_ON, None)
         if self.received is not None:
             raise Interrupted(self.received, finished)
 

@@ -36,6 +36,24 @@ def test_a_second_sigint_stops_at_once():
         os.kill(os.getpid(), signal.SIGINT)  # what Ctrl-C does without riskplan: KeyboardInterrupt, now
 
 
+def test_sigusr2_goes_on_to_the_job_runners_handler_after_the_checkpoint():
+    """submitit handles SIGUSR2 (a time limit near: it requeues the job); riskplan notes it, checkpoints at the
+    iteration's end, then calls that handler."""
+    handed = []
+    previous = signal.signal(signal.SIGUSR2, lambda signum, frame: handed.append(signum))
+    try:
+        with StopSignals() as stop:
+            os.kill(os.getpid(), signal.SIGUSR2)
+            assert stop.received == signal.SIGUSR2 and handed == []  # noted, not handled yet
+            with pytest.raises(Interrupted):
+                stop.check(3)
+        assert handed == [signal.SIGUSR2]
+    finally:
+        signal.signal(signal.SIGUSR2, previous)
+    with StopSignals():  # nobody handles SIGUSR2 in Python: riskplan leaves it alone
+        assert signal.getsignal(signal.SIGUSR2) is previous
+
+
 def interrupt_at(command: list[str], cwd: Path, iteration: int, signum: int) -> subprocess.CompletedProcess:
     """Run a riskplan command whose training stops itself (SIGSTOP) after logging `iteration`, then send it
     `signum` and let it go on: the signal arrives at a known iteration."""

@@ -24,6 +24,8 @@ from riskplan.experiments.sweeping.search import plan_optimiser
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import check_output_dir, hydra_quote
 
+REQUEUES = 3  # submitit_slurm: times a job that reaches its time limit is requeued (it resumes from its checkpoint)
+
 
 def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None) -> Plan:
     """Parse, expand and validate a sweep; claim its directory last, so bad input leaves nothing behind."""
@@ -103,6 +105,8 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
             raise BadInput(
                 "--jobs", f"applies to the joblib and submitit_slurm launchers, not to hydra/launcher={launcher}"
             )
+    if launcher == "submitit_slurm" and "hydra.launcher.max_num_timeout" not in hydra_keys:
+        argv.append(f"hydra.launcher.max_num_timeout={REQUEUES}")  # a job at its time limit is requeued, resumes
     argv += ray_init_overrides(launcher, hydra_keys)
     if "hydra/launcher" not in hydra_keys:
         argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
