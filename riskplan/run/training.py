@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from omegaconf import OmegaConf
 
-from riskplan.config.schema import Measure, Order, RiskConf, RiskplanConf
+from riskplan.config.schema import Backend, Measure, Order, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict, typed
 from riskplan.engine import rng
 from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, objective, objective_gradient, summary_stats
@@ -168,6 +168,10 @@ def train(
 
 def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
     """train() under the directory's lock."""
+    if setup.params.team.backend == Backend.ray:  # each robot a Ray actor: riskplan.run.ray_team
+        from riskplan.run.ray_team import train_ray
+
+        return train_ray(setup, out, resume, progress)
     if resume:
         state = load_checkpoint(out, setup)
         log = resume_log(out / "run.mcap", out / "run.mcap", state.iteration - 1)
@@ -270,6 +274,10 @@ def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
     """The Setup of a run to resume, after every check of its config, checkpoint and log (nothing is written), and
     whether the run is finished already (its checkpoint is at train.iterations and its tables are there)."""
     setup = build_setup(config)
+    if setup.params.team.backend == Backend.ray:
+        from riskplan.run.ray_team import prepare_ray_resume
+
+        return setup, prepare_ray_resume(setup, out)
     state = load_checkpoint(out, setup)
     logged_rows(out / "run.mcap", state.iteration, setup.robots)
     done = state.iteration == setup.params.train.iterations and all((out / f).is_file() for f in FINISHED)
