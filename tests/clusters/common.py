@@ -8,6 +8,8 @@ A block of the docs is tested when the line right before its ```bash fence is `<
     ray-local     run with a plain environment: a local Ray instance (tests/clusters/test_ray_sweeps.py)
     ray-cluster   run with the two-node Ray cluster's driver environment: RAY_ADDRESS and its token, what a user
                   on a node of the cluster has (tests/clusters/test_ray_sweeps.py)
+    ray-team      team.backend=ray on a local Ray instance (tests/clusters/test_ray_team_docs.py)
+    ray-team-cluster  team.backend=ray on the two-node Ray cluster, with its driver environment (the same file)
 
 Each block runs with `bash -euo pipefail`, so every command in it must succeed. Every `riskplan sweep` prints
 `sweep directory: DIR`; the tests check every such directory (all jobs done, each with its summary.json).
@@ -30,7 +32,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs" / "clusters.md"
 MARKER = re.compile(r"^<!-- tested: ([a-z-]+) -->\s*$")
-KINDS = ("slurm", "ray-local", "ray-cluster")
+KINDS = ("slurm", "ray-local", "ray-cluster", "ray-team", "ray-team-cluster")
 SWEEP_DIR = re.compile(r"^sweep directory: (.+)$", re.MULTILINE)
 # summary.json's numbers that a resumed job must reproduce exactly
 NUMBERS = ("mean", "cvar", "value_at_risk", "cvar_0.05", "cvar_0.1", "cvar_0.2", "risky_fraction", "theta_final")

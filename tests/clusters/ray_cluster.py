@@ -222,6 +222,9 @@ class _Node:
         return "head" if self.index == 0 else f"node{self.index}"
 
 
+PROCESS_TOKEN = secrets.token_hex(32)  # every cluster this process starts shares it (see RayCluster.token)
+
+
 class RayCluster:
     """`num_nodes` Ray nodes (one head) on this machine, each with `cpus_per_node` CPUs."""
 
@@ -245,7 +248,7 @@ class RayCluster:
         self.timeout, self.grace, self.keep_dir = timeout, grace, keep_dir
         self._base_dir_arg = None if base_dir is None else Path(base_dir)
         self.extra_env = dict(extra_env or {})
-        self.token = secrets.token_hex(32)
+        self.token = PROCESS_TOKEN  # one per process: Ray caches the token a driver process loaded first
         self.base_dir: Path | None = None
         self.nodes: list[_Node] = []
         self.node_info: list[dict] = []  # from ray.nodes() once up: id, ip, resources
