@@ -1,4 +1,4 @@
-"""Measure team.backend=ray for the docs: python bench/ray_team.py [backends|scaling|target|cluster|all] [--out DIR]
+"""Measure team.backend=ray for the docs: python bench/ray_backend.py [backends|scaling|target|cluster|all] [--out DIR]
 
 - backends: paper_team on the ray backend against the simulated one, seeds 0-4 (summary.json `cvar`, the team
   CVaR_0.1 of theta-bar on the evaluation episodes); the target is within 2%.

@@ -42,7 +42,12 @@ STUDIES = (
     "soft_risk_schedules",
     "optuna_coarse",
     "optuna_fine",
+    "tabular_steps",
 )
+# The reproduction's studies beyond the paper: their report tables (report/<name>.csv), copied by --collect
+STUDY_TABLES = ("measures", "policies", "hetero_team", "faults")
+PAPER_PARTS = ("single", "team", "wander", "soft_risk", "frontier")  # the paper's Section V and its companions
+STUDY_PARTS = ("measures", "policies", "tabular", "hetero_team", "hetero_central", "faults", "faults_free")
 
 
 # ----------------------------------------------------------------------------------------------- formatting
@@ -269,6 +274,40 @@ def gen_reproduce_time() -> str:
     )
     rows += [[k] + [num(m["breakdown"]["jobs"].get(k), 1) for _, m in parts] for k in job_keys]
     return table(header, rows) + f"\n{measured_on('reproduction')}; warm numba cache.\n"
+
+
+def gen_reproduce_parts() -> str:
+    """Wall seconds of each part of the reproduction, full and --quick: what the studies beyond the paper add."""
+    parts = [("full", reproduction_meta())]
+    quick = DATA / "reproduction" / "reproduce_quick.json"
+    if quick.is_file():
+        parts.insert(0, ("`--quick`", read_json(quick)))
+
+    def wall(meta: dict, name: str):
+        part = meta["parts"].get(name) or {}
+        return part.get("wall", part.get("seconds"))
+
+    def jobs_of(meta: dict, names) -> int:
+        return sum(int((meta["parts"].get(n) or {}).get("jobs", 0)) for n in names)
+
+    header = ["part"] + [f"{name} ({m['seeds']} seeds): jobs, wall s" for name, m in parts]
+    rows = []
+    for names, label in ((PAPER_PARTS, "Section V (single/ … frontier/)"), (STUDY_PARTS, "studies beyond the paper")):
+        for n in names:
+            rows.append([f"{n}/"] + [f"{jobs_of(m, [n])}, {num(wall(m, n), 1)}" for _, m in parts])
+        rows.append(
+            [f"**{label}**"]
+            + [f"**{jobs_of(m, names)}, {num(sum(wall(m, n) or 0.0 for n in names), 1)}**" for _, m in parts]
+        )
+    for n, label in (("landscape", "landscape"), ("report", "report (figures, tables, page)")):
+        rows.append([label] + [f"–, {num(wall(m, n), 1)}" for _, m in parts])
+    rows.append(["**the whole command**"] + [f"**–, {num(m['breakdown']['total'], 1)}**" for _, m in parts])
+    return (
+        table(header, rows)
+        + "\nA sweep's wall time runs from its planning to its summary (its jobs on 2 workers); the rows above the "
+        "totals do not add up to the command's total, which also holds start-up, the checks and the comparison "
+        f"table. {measured_on('reproduction')}.\n"
+    )
 
 
 # ----------------------------------------------------------------------------------------------- reproduction
@@ -558,13 +597,301 @@ def gen_train_line() -> str:
         return f"{f['value']:.1f} [{f['low']:.1f}, {f['high']:.1f}]"
 
     reached = ", ".join(f"{k} {v:.1%}" for k, v in s["source_reached"].items())
+    robots = s.get("team_size", s.get("robots"))  # summaries of schema 1 held the count as robots
     line = (
-        f"{s['experiment']} risk={s['risk']} beta={s['beta']:g} robots={s['robots']}: "
+        f"{s['experiment']} risk={s['risk']} beta={s['beta']:g} robots={robots}: "
         f"{s['iterations']} iterations in {s['wall_time']:.2f} s | eval {s['eval_episodes']} "
         f"episodes: mean {fig('mean')}, CVaR {fig('cvar')}, VaR {fig('value_at_risk')} | "
         f"P(risky) {s['risky_fraction']:.1%} | reached {reached} -> outputs/runs/<timestamp>_paper_single"
     )
     return f"```\n{line}\n```\n"
+
+
+# ----------------------------------------------------------------------------------------------- beyond the paper
+
+
+def study_table(name: str) -> pd.DataFrame:
+    return read_csv(DATA / "reproduction" / f"{name}.csv")
+
+
+def ci(r, name: str, digits: int = 1) -> str:
+    """A report row's value with its 95% interval ('1439.7 [1435.8, 1444.1]')."""
+    return interval(r[name], r.get(f"{name}_low"), r.get(f"{name}_high"), digits)
+
+
+def signed_pct(x, digits: int = 1) -> str:
+    """A share as a percentage with the typographic minus ('−114.78%')."""
+    return pct(x, digits).replace("-", "−")
+
+
+def ci_pct(r, name: str, digits: int = 1) -> str:
+    value, low, high = r[name], r.get(f"{name}_low"), r.get(f"{name}_high")
+    if not (finite(low) and finite(high)):
+        return signed_pct(value, digits)
+    return f"{signed_pct(value, digits)} [{signed_pct(low, digits)}, {signed_pct(high, digits)}]"
+
+
+def ci_sig(r, name: str) -> str:
+    """value [low, high] to three significant figures; a value without spread (the exact average's 0) alone."""
+    value, low, high = r[name], r.get(f"{name}_low"), r.get(f"{name}_high")
+    if not finite(value):
+        return "n/a"
+    text = sig(value, 3)
+    if not (finite(low) and finite(high)) or low == high == value:
+        return text
+    return f"{text} [{sig(low, 3)}, {sig(high, 3)}]"
+
+
+def shares(r) -> str:
+    return " / ".join(pct(r[f"reached_{s}"]) for s in ("safe", "risky", "none"))
+
+
+def seeds_of(r, what: str) -> str:
+    return f"{int(r[f'seeds_reaching_{what}'])} of {int(r['seeds'])}"
+
+
+def gen_measures() -> str:
+    d = study_table("measures")
+    rows = [
+        [
+            r["name"],
+            int(r["seeds"]),
+            ci(r, "objective"),
+            ci(r, "mean"),
+            ci(r, "cvar"),
+            pct(r["risky_fraction"]),
+            shares(r),
+            seeds_of(r, "safe"),
+        ]
+        for _, r in d.iterrows()
+    ]
+    best = d.loc[d["cvar"].idxmax()]
+    runner = d.drop(index=best.name).loc[lambda x: x["cvar"].idxmax()]
+    return (
+        table(
+            [
+                "measure (group defaults)",
+                "seeds",
+                "trained objective [95% CI]",
+                "mean [95% CI]",
+                f"CVaR_{d['beta'].iloc[0]:g} [95% CI]",
+                "P(risky)",
+                "reached safe / risky / none",
+                "seeds mostly at the safe source",
+            ],
+            rows,
+        )
+        + f"\nThe highest CVaR_{d['beta'].iloc[0]:g}: {best['name']} ({num(best['cvar'])}), then {runner['name']} "
+        f"({num(runner['cvar'])}). Intervals: 95% Student-t over the seeds, as in the report's `measures.csv`; each "
+        f"final policy is evaluated on {int(d['eval_episodes'].iloc[0]):,} fresh episodes.\n"
+    )
+
+
+def gen_measures_cross() -> str:
+    """Each measure's final policy scored under every measure of the comparison (measures.csv's under_<m>)."""
+    d = study_table("measures")
+    measures = [m for m in d["measure"] if f"under_{m}" in d]
+    names = dict(zip(d["measure"], d["name"]))
+    rows = []
+    for _, r in d.iterrows():
+        cells = []
+        for m in measures:
+            best = d[f"under_{m}"].max()
+            text = num(r[f"under_{m}"], 0)
+            cells.append(f"**{text}**" if r[f"under_{m}"] == best else text)
+        rows.append([r["name"]] + cells)
+    return (
+        table(["final policy of ↓, scored under →"] + [names[m] for m in measures], rows)
+        + "\nEach policy's evaluation episodes (the mean over its seeds) under each measure; bold: the best policy under "
+        "that measure. The diagonal is each measure's own trained objective.\n"
+    )
+
+
+def gen_policies() -> str:
+    d = study_table("policies")
+    rows = [
+        [
+            r["policy"] + (" (the paper's)" if r["kind"] == "features" and r["features"] == "signals" else ""),
+            int(r["theta_length"]),
+            int(r["seeds"]),
+            ci(r, "mean"),
+            ci(r, "cvar"),
+            pct(r["risky_fraction"]),
+            shares(r),
+            f"{seeds_of(r, 'safe')} / {seeds_of(r, 'none')}",
+            f"{num(r['gap_to_landscape_best'])} ({num(r['gap_percent'])}%)",
+        ]
+        for _, r in d.iterrows()
+    ]
+    first = d.iloc[0]
+    return (
+        table(
+            [
+                "policy (θ0 = 0)",
+                "parameters",
+                "seeds",
+                "mean [95% CI]",
+                "CVaR_0.1 [95% CI]",
+                "P(risky)",
+                "reached safe / risky / none",
+                "seeds mostly at the safe source / at none",
+                "below the landscape's best CVaR_0.1",
+            ],
+            rows,
+        )
+        + f"\nThe landscape's best CVaR_0.1 of the paper's two-parameter policy: {num(first['landscape_best_cvar'])} at "
+        f"θ = {theta_text(first['landscape_best_theta'])} on its grid (its 3×3-smoothed maximum: "
+        f"{num(first['landscape_smoothed_best_cvar'])}). Intervals: 95% Student-t over the seeds (`policies.csv`).\n"
+    )
+
+
+def gen_hetero_team() -> str:
+    d = study_table("hetero_team")
+    rows = []
+    for _, r in d.iterrows():
+        central = bool(r["centralized"])
+        rows.append(
+            [
+                "centralized (complete graph, exact average)" if central else f"{r['order']} ({r['graph']})",
+                int(r["seeds"]),
+                ci_sig(r, "consensus_floor"),
+                ci_sig(r, "theta_disagreement"),
+                ci(r, "team_objective"),
+                "–" if central else f"{ci(r, 'gap_to_central')} ({num(r['gap_percent'], 2)}%)",
+                "–" if central else ci_sig(r, "distance_to_central"),
+            ]
+        )
+    orders = d[~d["centralized"].astype(bool)].set_index("order")
+    first = d.iloc[0]
+    checks = []
+    if {"combine_then_adapt", "gradient_tracking"} <= set(orders.index):
+        cta, gt = orders.loc["combine_then_adapt"], orders.loc["gradient_tracking"]
+        checks = [
+            (
+                "gradient tracking's consensus floor below combine-then-adapt's",
+                f"{sig(gt['consensus_floor'])} vs {sig(cta['consensus_floor'])} "
+                f"({cta['consensus_floor'] / gt['consensus_floor']:.1f}×)",
+                gt["consensus_floor_high"] < cta["consensus_floor_low"],
+            ),
+            (
+                "the disagreement that persists: gone with tracking",
+                f"{sig(gt['theta_disagreement'])} vs {sig(cta['theta_disagreement'])} "
+                f"({cta['theta_disagreement'] / gt['theta_disagreement']:.0f}×)",
+                gt["theta_disagreement_high"] < cta["theta_disagreement_low"],
+            ),
+            (
+                "combine-then-adapt's team objective below the centralized run's (interval above 0)",
+                ci(cta, "gap_to_central"),
+                cta["gap_to_central_low"] > 0,
+            ),
+            (
+                "gradient tracking's gap to the centralized run: its interval holds 0",
+                ci(gt, "gap_to_central"),
+                gt["gap_to_central_low"] <= 0 <= gt["gap_to_central_high"],
+            ),
+            (
+                "combine-then-adapt's team objective below the centralized run's on every seed",
+                f"{int(cta['seeds_below_central'])} of {int(cta['seeds'])} seeds "
+                f"(gradient tracking: {int(gt['seeds_below_central'])} of {int(gt['seeds'])})",
+                int(cta["seeds_below_central"]) == int(cta["seeds"]),
+            ),
+        ]
+    return (
+        table(
+            [
+                "team.order (graph)",
+                "seeds",
+                "consensus error floor [95% CI]",
+                "persistent disagreement",
+                "team objective at θ̄",
+                "gap to the centralized run",
+                "‖θ̄ − θ̄_centralized‖",
+            ],
+            rows,
+        )
+        + f"\n{int(first['robots'])} robots from {int(first['starts'])} start cells, constant step ε = "
+        f"{first['step_size']:g}, {int(first['iterations'])} iterations. The floor is the mean consensus error over the "
+        "last quarter of the iterations; the persistent disagreement the largest distance between two robots' θ "
+        "averaged over that quarter; the team objective is summary.json's (the sum of the robots' CVaR_0.1 at θ̄, "
+        "each from its own start, on fresh episodes); gap and distance are to the centralized run of the same seed. "
+        "Intervals: 95% Student-t over the seeds (`hetero_team.csv`).\n\n"
+        + (
+            table(
+                ["prediction (eq. 14 with a constant step)", "measured", "holds"],
+                [[t, m, "yes" if ok else "**no**"] for t, m, ok in checks],
+            )
+            if checks
+            else ""
+        )
+    )
+
+
+def gen_faults() -> str:
+    d = study_table("faults")
+    rows = []
+    for _, r in d.iterrows():
+        free = bool(r["fault_free"])
+        rows.append(
+            [
+                r["name"],
+                int(r["seeds"]),
+                ci(r, "cvar"),
+                ci(r, "mean"),
+                pct(r["risky_fraction"]),
+                shares(r),
+                "–" if free else ci_pct(r, "cvar_vs_fault_free", 2),
+                "–" if free else pct(r["worst_cvar_vs_fault_free"], 2),
+                "–" if free else ("yes" if str(r["within_tolerance"]) == "True" else "**no**"),
+            ]
+        )
+    return table(
+        [
+            "faults, aggregation",
+            "seeds",
+            "CVaR_0.1 of the healthy θ̄ [95% CI]",
+            "mean",
+            "P(risky)",
+            "reached safe / risky / none",
+            "CVaR vs fault-free, per seed",
+            "largest |difference|",
+            "within 5% on every seed",
+        ],
+        rows,
+    ) + (
+        "\nThe healthy robots' network average θ̄ on its fresh evaluation episodes; CVaR vs fault-free is "
+        "(CVaR − CVaR_fault-free) / |CVaR_fault-free| against the fault-free run of the same seed. Intervals: 95% "
+        "Student-t over the seeds (`faults.csv`).\n"
+    )
+
+
+def gen_tabular_steps() -> str:
+    d = study("tabular_steps")
+    keys = ["train.theta0", "train.step_size.initial", "train.iterations"]
+    rows = []
+    for (theta0, step, iterations), sub in d.groupby(keys, sort=True):
+        rows.append(
+            [
+                theta_text(str(theta0)),
+                f"{step:g}",
+                int(iterations),
+                len(sub),
+                span(sub["cvar_0.1"], lambda x: num(x, 0)),
+                span(sub["mean"], lambda x: num(x, 0)),
+                " / ".join(span(sub[f"reached_{s}"], pct) for s in ("safe", "risky", "none")),
+            ]
+        )
+    return table(
+        [
+            "θ0 (its logits)",
+            "ε_0",
+            "iterations",
+            "seeds",
+            "CVaR_0.1 (range over seeds)",
+            "mean",
+            "reached safe / risky / none",
+        ],
+        rows,
+    )
 
 
 # ----------------------------------------------------------------------------------------------- studies
@@ -741,6 +1068,13 @@ def outputs() -> dict[str, str]:
         "soft_risk_schedules.md": gen_soft_risk_schedules,
         "optuna_coarse.md": lambda: gen_optuna("optuna_coarse"),
         "optuna_fine.md": lambda: gen_optuna("optuna_fine"),
+        "reproduce_parts.md": gen_reproduce_parts,
+        "measures.md": gen_measures,
+        "measures_cross.md": gen_measures_cross,
+        "policies.md": gen_policies,
+        "hetero_team.md": gen_hetero_team,
+        "faults.md": gen_faults,
+        "tabular_steps.md": gen_tabular_steps,
     }
     return {name: HEADER + make() for name, make in files.items()}
 
@@ -895,7 +1229,7 @@ def collect(args) -> None:
         team[["seed", "consensus_peak", "consensus_final", "consensus_theta_norm"]].rename(
             columns={"consensus_peak": "peak", "consensus_final": "final", "consensus_theta_norm": "theta_norm"}
         ).to_csv(out / "team_consensus.csv", index=False)
-        for name in ("report.csv", "soft_risk.csv"):
+        for name in ("report.csv", "soft_risk.csv", *(f"{t}.csv" for t in STUDY_TABLES)):
             shutil.copyfile(repro / "report" / name, out / name)
         land = pd.read_csv(repro / "report" / "landscape.csv")
         land["landscape"] = "landscape"  # not the absolute path of this machine

@@ -204,7 +204,7 @@ def l_statistic(z: np.ndarray, risk: Any) -> np.ndarray | float:
     """sum_k z_(k) [g(k/W) - g((k-1)/W)] along the last axis: the plug-in spectral measure (cvar's equals `cvar`)."""
     z = _sample(z)
     weights = spectral_weights(z.shape[-1], risk)
-    rows = np.ascontiguousarray(z.reshape(-1, z.shape[-1]))
+    rows = _kernel_input(z.reshape(-1, z.shape[-1]))
     out = np.empty(rows.shape[0])
     _l_statistic_rows(rows, weights, out)
     return out.reshape(z.shape[:-1])[()]
@@ -225,10 +225,10 @@ def spectral_gradient(z: np.ndarray, scores: np.ndarray, risk: Any, *, baseline:
 def _spectral_gradient(z: np.ndarray, scores: np.ndarray, spec: RiskSpec, baseline: bool) -> np.ndarray:
     """`spectral_gradient` of checked arguments."""
     n = z.shape[-1]
-    rows = np.ascontiguousarray(z.reshape(-1, n))
+    rows = _kernel_input(z.reshape(-1, n))
     out = np.empty((rows.shape[0], scores.shape[-1]))
     _spectral_gradient_rows(
-        rows, np.ascontiguousarray(scores).reshape(-1, n, scores.shape[-1]), _tables(spec, n)[1], baseline, out
+        rows, _kernel_input(scores.reshape(-1, n, scores.shape[-1])), _tables(spec, n)[1], baseline, out
     )
     return out.reshape(scores.shape[:-2] + scores.shape[-1:])
 
@@ -472,9 +472,15 @@ def _ndtr_flat(x, out):
         out[i] = 0.5 * math.erfc(-x[i] / _SQRT2)
 
 
+def _kernel_input(values: np.ndarray) -> np.ndarray:
+    """A float64, C-contiguous, writable array (copied only when it is not): a read-only input (a parquet column)
+    would make numba compile, and cache, a second specialisation of every kernel it reaches."""
+    return np.require(values, dtype=np.float64, requirements=["C", "W"])
+
+
 def _elementwise(kernel, values: np.ndarray) -> np.ndarray:
     """kernel(flat, out) applied to an array of any shape (a 0-d input gives a numpy float)."""
-    flat = np.ascontiguousarray(values, dtype=np.float64).ravel()
+    flat = _kernel_input(values).ravel()
     out = np.empty_like(flat)
     kernel(flat, out)
     return out.reshape(np.shape(values))[()]

@@ -8,6 +8,17 @@
                      local optimum that theta0 = 0 falls into)
         soft_risk/   sweep: wander/'s runs with risk.schedule.kind=linear                (soft risk, CeSoR)
         frontier/    sweep: experiment=paper_single risk.beta=0.05,0.2,0.5,1.0 seed=0,1   (the risk frontier)
+      beyond the paper, 5 seeds each (STUDY_SEEDS; 2 with --quick):
+        measures/    sweep: experiment=paper_single risk=cvar,neutral,wang,mean_cvar,entropic (risk measures)
+        policies/    sweep: experiment=paper_single train.theta0=[0,0]
+                     policy.features=[signals],[signals,risky]                            (policies that see more)
+        tabular/     sweep: policies/'s with policy.kind=tabular                          (a table of logits)
+        hetero_team/ sweep: 8 robots on a ring from 8 start cells, constant step 0.05,
+                     team.order=gradient_tracking,combine_then_adapt                      (a heterogeneous team)
+        hetero_central/ sweep: the same team on a complete graph, exact averaging         (its centralized run)
+        faults/      sweep: 7 robots, complete graph, robot 6 Byzantine from iteration 0,
+                     team.aggregate=mean,trimmed_mean team.trim=1                         (resilient consensus)
+        faults_free/ sweep: the same team without the fault                               (its reference)
         landscape/   mean and CVaR on a grid of theta for the paper world
         report/      report.html, figures, report.csv
         reproduce.json   what ran, with which options, and how long each part took
@@ -25,6 +36,7 @@ import datetime as dt
 import json
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import typer
@@ -34,6 +46,21 @@ from riskplan.util.errors import BadInput
 
 SEEDS = 10
 QUICK_SEEDS = 2
+STUDY_SEEDS = 5  # the studies beyond the paper: at most 5 seeds (2 with --quick)
+# A heterogeneous team: 8 robots from the corners and edge midpoints of the 12x12 world (ring neighbours are
+# neighbouring cells), the paper's W_i = 2000, and a constant step (eq. 14's O(eps) floor shows at a fixed eps)
+HETERO_STARTS = "[[0,0],[5,0],[11,0],[11,5],[11,11],[5,11],[0,11],[0,5]]"
+HETERO_TEAM = [
+    "experiment=paper_team",
+    "team.robots=8",
+    f"team.starts={HETERO_STARTS}",
+    "train.step_size.power=0",
+    "train.step_size.initial=0.05",
+]
+# Faults: 7 robots on a complete graph (4-robust, so F = 1 is within the resilience condition); robot 6 sends
+# theta = (-10, 40) from the first iteration, next to the risk-neutral optimum that heads for the risky source
+FAULT_TEAM = ["experiment=paper_team", "team.robots=7", "team.graph=complete"]
+BYZANTINE = "team.faults=[{robot:6,kind:byzantine,from:0,value:[-10,40]}]"
 # (folder, what it reproduces, overrides without the seeds, at most this many seeds or None for all)
 EXPERIMENTS = (
     (
@@ -68,6 +95,49 @@ EXPERIMENTS = (
         "Beyond the paper: the risk frontier, CVaR policies at beta = 0.05, 0.2, 0.5, 1",
         ["experiment=paper_single", "risk.beta=0.05,0.2,0.5,1.0"],
         2,
+    ),
+    # the studies beyond the paper (the report draws each from its own folders: reporting.collect.STUDIES)
+    (
+        "measures",
+        "Beyond the paper: risk measures, each at its group defaults (conf/risk/), one robot in the paper world",
+        ["experiment=paper_single", "risk=cvar,neutral,wang,mean_cvar,entropic"],
+        STUDY_SEEDS,
+    ),
+    (
+        "policies",
+        "Beyond the paper: from theta0 = (0, 0), the paper's policy and one that also sees the risky region",
+        ["experiment=paper_single", "train.theta0=[0,0]", "policy.features=[signals],[signals,risky]"],
+        STUDY_SEEDS,
+    ),
+    (
+        "tabular",
+        "Beyond the paper: from theta0 = (0, 0), a tabular policy (a logit per cell and move; the uniform policy)",
+        ["experiment=paper_single", "train.theta0=[0,0]", "policy.kind=tabular"],
+        STUDY_SEEDS,
+    ),
+    (
+        "hetero_team",
+        "Beyond the paper: 8 robots from 8 start cells on a ring, constant step: gradient tracking vs eq. (14)",
+        [*HETERO_TEAM, "team.graph=ring", "team.order=gradient_tracking,combine_then_adapt"],
+        STUDY_SEEDS,
+    ),
+    (
+        "hetero_central",
+        "Beyond the paper: the same 8 robots on a complete graph averaging exactly (the centralized run)",
+        [*HETERO_TEAM, "team.graph=complete", "team.weights=max_degree", "team.order=adapt_then_combine"],
+        STUDY_SEEDS,
+    ),
+    (
+        "faults",
+        "Beyond the paper: 7 robots on a complete graph, robot 6 Byzantine: the mean vs a trimmed mean (F = 1)",
+        [*FAULT_TEAM, BYZANTINE, "team.aggregate=mean,trimmed_mean", "team.trim=1"],
+        STUDY_SEEDS,
+    ),
+    (
+        "faults_free",
+        "Beyond the paper: the same 7 robots without the fault (the reference)",
+        FAULT_TEAM,
+        STUDY_SEEDS,
     ),
 )
 # --quick: fewer iterations and evaluation episodes; the same experiments, for a first look
@@ -183,7 +253,7 @@ def check_work(seeds: int, total_jobs: int, configs: dict, overrides: list[str])
 
     steps = 0.0
     for (_, _, experiment, _), jobs in zip(EXPERIMENTS, experiment_jobs(seeds)):
-        steps += jobs * job_steps(configs[experiment[0]])
+        steps += jobs * job_steps(configs[setup_of(experiment)])
     what = f"reproducing with {seeds} seeds ({total_jobs} jobs" + (f", {' '.join(overrides)})" if overrides else ")")
     check_time("--seeds and overrides" if overrides else "--seeds", steps / STEPS_PER_SECOND, what)
 
@@ -329,9 +399,20 @@ def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict
             )
     extra = [*(QUICK if quick else []), *overrides]
     configs = {}
-    for setup in dict.fromkeys(base[0] for _, _, base, _ in EXPERIMENTS):  # each set-up once, not per experiment
-        configs[setup] = compose([setup, *extra])
+    for _, _, experiment, _ in EXPERIMENTS:  # each set-up once, not per experiment: its plain overrides
+        setup = setup_of(experiment)
+        if setup not in configs:
+            with warnings.catch_warnings():  # a set-up's warnings (hetero_team's constant step) print with its sweep
+                warnings.simplefilter("ignore")
+                configs[setup] = compose([*setup, *_not_set_by(experiment, extra)])
     return extra, configs
+
+
+def setup_of(experiment: list[str]) -> tuple[str, ...]:
+    """An experiment's set-up: its overrides without the swept ones (one job's config but for the swept keys)."""
+    from riskplan.run.compose import parse_overrides
+
+    return tuple(o.input_line for o in parse_overrides(experiment) if not o.is_sweep_override())
 
 
 def _not_set_by(experiment: list[str], extra: list[str]) -> list[str]:
@@ -377,6 +458,9 @@ def _print_comparison(outcomes) -> None:
     for outcome in outcomes:
         frame = outcome.summary.copy()
         frame["sweep"] = outcome.sweep_dir.name
+        # the conditions of a study's sweep beyond risk and beta (the paper's sweeps have none)
+        swept = [c for c in CONDITION_KEYS if c in frame and frame[c].astype(str).nunique() > 1]
+        frame["condition"] = frame[swept].astype(str).agg(", ".join, axis=1) if swept else ""
         frames.append(frame)
     if not frames:
         return
@@ -395,15 +479,21 @@ def _print_comparison(outcomes) -> None:
     )
     for column in ("set-up", "objective", "seeds", "mean", "CVaR", "VaR"):
         table.add_column(column, justify="left" if column in ("set-up", "objective") else "right")
-    for (sweep, risk, beta), group in data.groupby(["sweep", "risk", "beta"], sort=False):
+    for (sweep, risk, beta, condition), group in data.groupby(["sweep", "risk", "beta", "condition"], sort=False):
         setup = {
             "team": "3 robots, line graph",
             "wander": "1 robot, θ0 = (0, 0)",
             "soft_risk": "1 robot, θ0 = (0, 0), soft risk (linear)",
+            "policies": "1 robot, θ0 = (0, 0)",
+            "tabular": "1 robot, θ0 = (0, 0), tabular policy",
+            "hetero_team": "8 robots from 8 starts, ring",
+            "hetero_central": "8 robots from 8 starts, complete graph (centralized)",
+            "faults": "7 robots, complete graph, robot 6 Byzantine",
+            "faults_free": "7 robots, complete graph, fault-free",
         }.get(sweep, "1 robot (centralized)")
         table.add_row(
-            setup,
-            f"CVaR_{beta:g}" if risk == "cvar" else "mean (risk-neutral)",
+            setup + (f", {condition}" if condition else ""),
+            {"cvar": f"CVaR_{beta:g}", "neutral": "mean (risk-neutral)"}.get(risk, str(risk)),
             str(len(group)),
             *(
                 f"{group[c].mean():.1f} ± {group[c].std(ddof=1) if len(group) > 1 else 0:.1f}"
@@ -411,6 +501,9 @@ def _print_comparison(outcomes) -> None:
             ),
         )
     (Console() if sys.stdout.isatty() else Console(width=250)).print(table)
+
+
+CONDITION_KEYS = ("policy.features", "policy.kind", "team.order", "team.aggregate")  # swept by the studies
 
 
 def stop_workers() -> None:

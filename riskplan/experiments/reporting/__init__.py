@@ -91,6 +91,7 @@ def write_report(
         landscape_table,
         runs_table,
         soft_risk_table,
+        study_tables,
     )
     from riskplan.run.results import find_runs
 
@@ -102,6 +103,7 @@ def write_report(
     runs = runs_table(coll)
     landscapes = landscape_table(coll)
     soft = soft_risk_table(coll)
+    studies = collect_studies(coll, study_tables)
     specs, skipped = make_figures(coll)
     try:
         # every figure drawn to bytes first, on all CPUs (a figure's size is a fair guess of its cost); the files
@@ -124,6 +126,7 @@ def write_report(
         ["report.csv", "runs.csv"]
         + ([] if landscapes.empty else ["landscape.csv"])
         + ([] if soft.empty else ["soft_risk.csv"])
+        + [f"{name}.csv" for name, table in studies.items() if not table.empty]
     )
     with output.writing([f"{spec.name}.{fmt}" for spec, _ in figures for fmt in formats] + tables + ["report.html"]):
         for spec, files in figures:
@@ -135,8 +138,25 @@ def write_report(
             output.write("landscape.csv", csv_text(landscapes))
         if not soft.empty:
             output.write("soft_risk.csv", csv_text(soft))
-        output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes, soft))
+        for name, table in studies.items():
+            if not table.empty:
+                output.write(f"{name}.csv", csv_text(table))
+        output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes, soft, studies))
     return Report(output.out / "report.html", coll, [spec.name for spec, _ in figures], skipped)
+
+
+def collect_studies(coll, tables) -> dict:
+    """The studies' tables (name -> DataFrame, empty when absent): those of reproduce's study folders, and any the
+    main runs hold themselves (a sweep over risk measures given to riskplan report), one table per study."""
+    import pandas as pd
+
+    out = {}
+    own = tables(coll)
+    for name, table in own.items():
+        parts = [table] + [tables(s.collection)[name] for s in coll.studies if s.name == name]
+        parts = [t for t in parts if not t.empty]
+        out[name] = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+    return out
 
 
 from riskplan.experiments.output_manifest import WriteFailed  # noqa: E402 - re-exported

@@ -2,6 +2,11 @@
 
 A *group* is a set of runs whose configs agree on every key but `seed`: the seeds of one experimental condition.
 Groups are labelled by the fewest differing keys that tell them apart (risk measure, beta, team size, graph, ...).
+
+A *study* is one of the questions `riskplan reproduce` asks beyond the paper (risk measures, richer policies, a
+heterogeneous team, faults). Its runs live in the reproduction's study folders (STUDIES); when an input directory
+holds such a folder, its runs are collected apart, as a Collection of their own (`Collection.studies`), so that
+they neither join nor relabel the groups of the paper's figures.
 """
 
 from __future__ import annotations
@@ -36,6 +41,15 @@ LABEL_PRIORITY = (
     "train.theta0",
     "experiment",
 )
+# The studies of riskplan reproduce beyond the paper: name -> (title, the folders of a reproduction holding its runs)
+STUDIES = {
+    "measures": ("Risk measures", ("measures",)),
+    "policies": ("Policies that see more", ("policies", "tabular")),
+    "hetero_team": ("A heterogeneous team", ("hetero_team", "hetero_central")),
+    "faults": ("A Byzantine robot and resilient consensus", ("faults", "faults_free")),
+}
+# How the measures read in labels, and their order in the studies' tables
+MEASURE_ORDER = ("cvar", "neutral", "wang", "mean_cvar", "entropic")
 # Okabe-Ito palette (colour-blind safe); the paper's pair is blue (risk-neutral) and black (risk-averse).
 PALETTE = ("#0072B2", "#000000", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#E69F00", "#999999")
 AVERAGE = -1  # robot id of a team's network average
@@ -132,9 +146,41 @@ class Group:
         return float(self.config.get("risk", {}).get("beta", 0.1))
 
     @property
+    def eta(self) -> float:
+        return float(self.config.get("risk", {}).get("eta", 0.5))
+
+    @property
+    def weight(self) -> float:
+        return float(self.config.get("risk", {}).get("weight", 0.5))
+
+    @property
     def schedule(self) -> str:
         """risk.schedule.kind: none (the paper), linear or exponential."""
         return str(self.first.flat.get("risk.schedule.kind", "none"))
+
+    @property
+    def policy_kind(self) -> str:
+        """policy.kind: features (eq. 3) or tabular (runs from before policy.kind existed: features)."""
+        return str((self.config.get("policy") or {}).get("kind", "features"))
+
+    @property
+    def features(self) -> list[str]:
+        """policy.features of a features policy ([signals], the paper's, when absent)."""
+        return [str(f) for f in ((self.config.get("policy") or {}).get("features") or ["signals"])]
+
+    @property
+    def team_conf(self) -> dict:
+        return self.config.get("team") or {}
+
+    @property
+    def faults(self) -> list:
+        """team.faults (a list of {robot, kind, from, ...})."""
+        return list(self.team_conf.get("faults") or [])
+
+    @property
+    def heterogeneous(self) -> bool:
+        """A team whose robots start apart (team.starts) or optimise their own measures (team.risk)."""
+        return self.team and bool(self.team_conf.get("starts") or self.team_conf.get("risk"))
 
     @property
     def robots(self) -> int:
@@ -165,6 +211,11 @@ class Collection:
     landscapes: list  # riskplan.experiments.landscape.Landscape
     groups: list[Group]
     differing: list[str]  # config keys that differ between groups
+    studies: list[Study] = field(default_factory=list)  # the runs of reproduce's study folders, apart
+
+    def every_run(self) -> list[RunInfo]:
+        """The runs of this collection and of its studies."""
+        return self.runs + [r for study in self.studies for r in study.collection.runs]
 
     def paper_pair(self) -> tuple[Group | None, Group | None]:
         """The risk-neutral and risk-averse groups of Figs. 1-2: centralized if any, differing least."""
@@ -188,6 +239,16 @@ class Collection:
         return best, teams
 
 
+@dataclass
+class Study:
+    """The runs of one of reproduce's studies (STUDIES), grouped and labelled among themselves."""
+
+    name: str  # a key of STUDIES
+    title: str
+    folders: list[Path]
+    collection: Collection
+
+
 def schedule_pairs(groups: list[Group]) -> list[tuple[Group, Group | None]]:
     """Each soft-risk group (risk.schedule.kind other than none) with the group that differs from it only in
     risk.schedule.* (its paper-schedule comparator, e.g. reproduce's wander/ for soft_risk/), or None."""
@@ -208,7 +269,8 @@ def paper_pair(groups: list[Group]) -> tuple[Group | None, Group | None]:
     """The risk-neutral and risk-averse groups of Figs. 1-2: centralized if any, differing least."""
     pool = [g for g in groups if not g.team] or list(groups)
     neutral = [g for g in pool if g.measure == "neutral"]
-    averse = [g for g in pool if g.measure != "neutral"]
+    # the paper's risk-averse policy is CVaR's; another measure stands in only when no CVaR group is there
+    averse = [g for g in pool if g.measure == "cvar"] or [g for g in pool if g.measure != "neutral"]
     if neutral and averse:
 
         def distance(pair):
@@ -251,7 +313,17 @@ def collect(paths: list[Path]) -> Collection:
     runs: list[RunInfo] = []
     broken: list[Broken] = []
     landscapes = []
+    folders = study_folders(inputs)
+    studied: dict[str, list[RunInfo]] = {}
     for path in found:
+        study = study_of(path, folders)
+        if study is not None and not is_landscape_dir(path):
+            info, problem = _load(path)
+            if info is None:
+                broken.append(Broken(path, problem))
+            else:
+                studied.setdefault(study, []).append(info)
+            continue
         if is_landscape_dir(path):
             try:
                 landscapes.append(load_landscape(path))
@@ -264,7 +336,35 @@ def collect(paths: list[Path]) -> Collection:
         else:
             runs.append(info)
     groups, differing = group_runs(runs)
-    return Collection(inputs, runs, broken, landscapes, groups, differing)
+    studies = []
+    for name, (title, _) in STUDIES.items():
+        if name in studied:
+            members, keys = group_runs(studied[name])
+            own = Collection([p for p in folders if folders[p] == name], studied[name], [], landscapes, members, keys)
+            studies.append(Study(name, title, own.inputs, own))
+    return Collection(inputs, runs, broken, landscapes, groups, differing, studies)
+
+
+def study_folders(inputs: list[Path]) -> dict[Path, str]:
+    """The study folders (STUDIES) directly inside the input directories: folder -> study name."""
+    out = {}
+    for root in inputs:
+        for name, (_, names) in STUDIES.items():
+            for folder in names:
+                if (root / folder).is_dir():
+                    out[(root / folder).resolve()] = name
+    return out
+
+
+def study_of(path: Path, folders: dict[Path, str]) -> str | None:
+    """The study whose folder holds this run directory, or None."""
+    if not folders:
+        return None
+    resolved = Path(path).resolve()
+    for folder, name in folders.items():
+        if resolved == folder or folder in resolved.parents:
+            return name
+    return None
 
 
 def _load(path: Path) -> tuple[RunInfo | None, str]:
@@ -432,21 +532,38 @@ def _label(groups: list[Group], differing: list[str]) -> None:
 
 
 def _describe(group: Group, keys: list[str], single: bool = False) -> str:
-    """Human label from the chosen keys, e.g. 'risk-averse (CVaR β=0.1), distributed N=3'."""
+    """Human label from the chosen keys, e.g. 'risk-averse (CVaR β=0.1), distributed N=3', 'Wang (η=0.5)'."""
     parts = []
     keys = list(keys)
+    handled = {"risk.measure", "risk.beta", "team.robots"}
     if "risk.measure" in keys or "risk.beta" in keys or single:
         if group.measure == "neutral":
             parts.append(
                 "risk-neutral" + (f" (β={group.beta:g})" if "risk.beta" in keys and "risk.measure" not in keys else "")
             )
-        else:
+        elif group.measure == "cvar":
             beta = f" β={group.beta:g}" if "risk.beta" in keys or single else ""
             parts.append(f"risk-averse (CVaR{beta})")
+        else:  # the other measures by name, with their own parameters
+            parts.append(measure_name(group))
+        handled |= {"risk.eta", "risk.weight"}
+    elif group.measure not in ("cvar", "neutral") and {"risk.eta", "risk.weight"} & set(keys):
+        parts.append(measure_name(group))
+        handled |= {"risk.eta", "risk.weight"}
     if "team.robots" in keys or single:
         parts.append(f"distributed N={group.robots}" if group.team else "centralized")
+    if {"policy.kind", "policy.features"} & set(keys):
+        parts.append(policy_name(group))
+        handled |= {"policy.kind", "policy.features"}
+    if {"team.faults", "team.aggregate", "team.trim"} & set(keys):
+        parts.append(fault_name(group))
+        handled |= {"team.faults", "team.aggregate", "team.trim"}
     for k in keys:
-        if k in ("risk.measure", "risk.beta", "team.robots"):
+        if k in handled:
+            continue
+        if k == "team.starts":
+            starts = group.team_conf.get("starts")
+            parts.append(f"{len(starts)} start cells" if starts else "one start cell")
             continue
         name = (
             "schedule"
@@ -457,6 +574,48 @@ def _describe(group: Group, keys: list[str], single: bool = False) -> str:
         )
         parts.append(f"{name}={_short(group.settings.get(k))}")
     return ", ".join(parts) or "runs"
+
+
+def measure_name(group: Group, beta: bool = True) -> str:
+    """The measure a group trains, by name and parameters: 'risk-neutral', 'risk-averse (CVaR β=0.1)', 'Wang (η=0.5)',
+    'mean-CVaR (λ=0.5, β=0.1)' or 'entropic (η=0.001)'."""
+    measure = group.measure
+    if measure == "neutral":
+        return "risk-neutral"
+    if measure == "cvar":
+        return f"risk-averse (CVaR{f' β={group.beta:g}' if beta else ''})"
+    if measure == "wang":
+        return f"Wang (η={group.eta:g})"
+    if measure == "mean_cvar":
+        return f"mean-CVaR (λ={group.weight:g}, β={group.beta:g})"
+    if measure == "entropic":
+        return f"entropic (η={group.eta:g})"
+    return measure
+
+
+def policy_name(group: Group) -> str:
+    """'tabular policy', or the features a features policy sees: 'features=[signals, risky]'."""
+    if group.policy_kind == "tabular":
+        return "tabular policy"
+    return f"features=[{', '.join(group.features)}]"
+
+
+def fault_name(group: Group) -> str:
+    """The team's faults and how its robots aggregate: 'fault-free, mean', 'robot 6 byzantine, trimmed_mean F=1'."""
+    faults = group.faults
+    what = (
+        ", ".join(
+            f"robot {f.get('robot')} {f.get('kind')}" + (f" from {f.get('from')}" if f.get("from") else "")
+            for f in faults
+            if isinstance(f, dict)
+        )
+        if faults
+        else "fault-free"
+    )
+    aggregate = str(group.team_conf.get("aggregate", "mean"))
+    if aggregate in ("trimmed_mean", "wmsr"):
+        aggregate += f" F={group.team_conf.get('trim', 0)}"
+    return f"{what}, {aggregate}"
 
 
 def _short(v: Any) -> str:

@@ -23,7 +23,7 @@ from matplotlib.ticker import MaxNLocator
 from PIL import Image
 
 from riskplan.engine.risk_measures import cvar, value_at_risk
-from riskplan.experiments.reporting.collect import Collection, Group, RunInfo, theta_columns
+from riskplan.experiments.reporting.collect import Collection, Group, RunInfo, measure_name, theta_columns
 from riskplan.experiments.reporting.stats import band
 
 STYLE = {
@@ -51,6 +51,7 @@ SOURCE_COLOUR = "#D55E00"  # vermillion stars (the paper's red)
 ROBOT_COLOURS = ("#E69F00", "#56B4E9", "#009E73", "#CC79A7", "#0072B2", "#D55E00", "#F0E442", "#999999")
 MAX_PATHS = 5  # sampled paths per policy in Fig. 1
 MAX_GROUPS = 8  # groups drawn in one panel
+MAX_THETA_PANELS = 6  # theta components drawn one panel each (a tabular policy's C*5 logits are not)
 
 
 @dataclass
@@ -61,6 +62,7 @@ class FigureSpec:
     title: str
     caption: str
     figure: Figure
+    study: str = ""  # the study of riskplan reproduce it belongs to (collect.STUDIES), or "" for the main runs
 
 
 def _figure(width: float, height: float, ncols: int = 1, nrows: int = 1, **kw) -> tuple[Figure, np.ndarray]:
@@ -71,8 +73,9 @@ def _figure(width: float, height: float, ncols: int = 1, nrows: int = 1, **kw) -
 
 
 def risk_name(g: Group) -> str:
-    """'risk-neutral' or 'risk-averse (CVaR β=0.1)': the legend of Figs. 1-2 whatever else differs."""
-    return "risk-neutral" if g.measure == "neutral" else f"risk-averse (CVaR β={g.beta:g})"
+    """'risk-neutral', 'risk-averse (CVaR β=0.1)' or the other measures by name ('Wang (η=0.5)'): the legend of
+    Figs. 1-2 whatever else differs."""
+    return measure_name(g)
 
 
 def _iterations(ax) -> None:
@@ -378,6 +381,14 @@ def fig_orders(coll: Collection) -> FigureSpec | str:
     )
 
 
+def faulty_robots(run: RunInfo) -> set[int]:
+    """The robots of a run that were faulty at any iteration (metrics' healthy column; none before it existed)."""
+    m = run.run.metrics
+    if "healthy" not in m:
+        return set()
+    return {int(r) for r in m.loc[(m.robot >= 0) & ~m.healthy.astype(bool), "robot"].unique()}
+
+
 def pooled_rewards(g: Group) -> np.ndarray:
     """The headline policy's evaluation rewards of every seed of a group."""
     return np.concatenate([r.eval_of().total_reward.to_numpy(float) for r in g.runs])
@@ -507,20 +518,25 @@ def fig_frontier(coll: Collection) -> FigureSpec | str:
 
 def fig_thetas(coll: Collection) -> FigureSpec | str:
     """Per-robot theta trajectories of team runs (one row per team condition, one column per component)."""
-    teams = [g for g in coll.groups if g.team][:4]
+    teams = [g for g in coll.groups if g.team]
     if not teams:
         return "no team (distributed) runs"
-    cols = theta_columns(teams[0].first.run.metrics)
+    drawable = [g for g in teams if len(theta_columns(g.first.run.metrics)) <= MAX_THETA_PANELS]
+    if not drawable:
+        return f"the team runs' theta has more than {MAX_THETA_PANELS} components (a tabular policy): not drawn"
+    cols = theta_columns(drawable[0].first.run.metrics)
+    teams = [g for g in drawable if theta_columns(g.first.run.metrics) == cols][:4]
     fig, axes = _figure(3.0 * len(cols) + 0.6, 2.6 * len(teams) + 0.5, ncols=len(cols), nrows=len(teams), sharex=True)
     for row, g in enumerate(teams):
         robots = sorted(r for r in g.first.run.metrics.robot.unique() if r >= 0)
+        faulty = faulty_robots(g.first)
         for c, col in enumerate(cols):
             ax = axes[row, c]
             for i, robot in enumerate(robots):
-                plot_band(
-                    ax, curve_table(g.runs, col, robot), ROBOT_COLOURS[i % len(ROBOT_COLOURS)], f"robot {robot}", "-"
-                )
-            plot_band(ax, curve_table(g.runs, col, -1), "#000000", "network average", "--")
+                name = f"robot {robot}" + (" (faulty)" if robot in faulty else "")
+                plot_band(ax, curve_table(g.runs, col, robot), ROBOT_COLOURS[i % len(ROBOT_COLOURS)], name, "-")
+            average = "network average" + (" (healthy robots)" if faulty else "")
+            plot_band(ax, curve_table(g.runs, col, -1), "#000000", average, "--")
             ax.set_ylabel(rf"$\theta_{{{col[6:]}}}$")
             ax.set_title(f"{g.label}{_seeds(g.runs)}" if len(teams) > 1 else f"weight of source {int(col[6:]) + 1}")
             if row == len(teams) - 1:
@@ -545,6 +561,8 @@ def fig_soft_risk(coll: Collection) -> FigureSpec | str:
         return "no runs with a soft-risk schedule (risk.schedule.kind=linear or exponential)"
     if len(theta_columns(pairs[0][0].first.run.metrics)) < 2:
         return "the soft-risk runs' world has fewer than two sources (no theta plane to draw)"
+    if pairs[0][0].policy_kind == "tabular":
+        return "the soft-risk runs' policy is tabular (its theta_0, theta_1 are two logits of one cell)"
     fig, axes = _figure(8.2, 3.6, ncols=2)
     curves, paths = axes[0]
     levels = curves.twinx()
@@ -681,6 +699,338 @@ def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
     )
 
 
+# ------------------------------------------------------------------------------------------------ studies
+# The figures of the studies beyond the paper (riskplan reproduce's measures, policies, heterogeneous team and
+# faults); each picks its groups as its table does (riskplan.experiments.reporting.tables) and says why it is not
+# drawn when a collection holds no such comparison.
+
+
+def _errorbar(ax, x: tuple, y: tuple, colour: str, label: str, marker: str = "o") -> None:
+    """A point (x, y) with its intervals: (value, low, high) each, missing bounds drawn without a bar."""
+    xerr = np.nan_to_num(np.array([[x[0] - x[1]], [x[2] - x[0]]]))
+    yerr = np.nan_to_num(np.array([[y[0] - y[1]], [y[2] - y[0]]]))
+    ax.errorbar(
+        [x[0]],
+        [y[0]],
+        xerr=xerr,
+        yerr=yerr,
+        ls="none",
+        marker=marker,
+        ms=6,
+        color=colour,
+        mec="white",
+        mew=0.6,
+        elinewidth=0.9,
+        capsize=2,
+        label=label,
+    )
+
+
+def fig_measures(coll: Collection) -> FigureSpec | str:
+    """Risk measures: each measure's final policy by its mean and CVaR (seed intervals), and its reward distribution."""
+    from riskplan.experiments.reporting.tables import _common_beta, group_row, measure_groups
+
+    groups = measure_groups(coll)
+    if not groups:
+        return "no one-robot runs that differ only in their risk measure (wang, mean_cvar or entropic among them)"
+    level = _common_beta(groups)
+    fig, axes = _figure(8.6, 3.7, ncols=2)
+    points, ecdf = axes[0]
+    probs = np.linspace(0, 1, 801)
+    for g in groups:
+        row = group_row(g, beta=level)
+        name = measure_name(g)
+        _errorbar(
+            points,
+            (row["mean"], row["mean_low"], row["mean_high"]),
+            (row["cvar"], row["cvar_low"], row["cvar_high"]),
+            g.color,
+            name + _seeds(g.runs),
+            "D" if g.measure == "neutral" else "o",
+        )
+        k = groups.index(g)
+        points.annotate(
+            name,
+            (row["mean"], row["cvar"]),
+            xytext=(6, 4 if k % 2 == 0 else -10),
+            textcoords="offset points",
+            fontsize=7,
+        )
+        z = pooled_rewards(g)
+        ecdf.plot(np.quantile(z, probs, method="inverted_cdf"), probs, color=g.color, label=name)
+        ecdf.axvline(cvar(z, level), color=g.color, ls=":", lw=1.2, label=f"_CVaR {name}")
+    points.set_xlabel("mean total reward")
+    points.set_ylabel(f"CVaR$_{{{level:g}}}$ of total reward")
+    points.set_title("(a) final policies (95% intervals over seeds)")
+    ecdf.set_xlabel("total reward")
+    ecdf.set_ylabel(r"empirical CDF  $P(Z \leq z)$")
+    ecdf.set_title(f"(b) evaluation episodes, seeds pooled (dotted: CVaR$_{{{level:g}}}$)")
+    ecdf.xaxis.set_major_locator(MaxNLocator(5))
+    fig.legend(*points.get_legend_handles_labels(), loc="outside lower center", ncols=min(3, len(groups)))
+    return FigureSpec(
+        "risk_measures",
+        "Risk measures in the paper world",
+        f"Left: the evaluated mean and CVaR at {level:g} of each measure's final policy (the across-seed mean "
+        "with a 95% Student-t interval). Right: the empirical CDF of the total reward on the evaluation episodes, "
+        "all seeds pooled, with each policy's CVaR dotted. Every measure is trained from the paper's θ0 with its "
+        "group defaults (conf/risk/).",
+        fig,
+    )
+
+
+def fig_policies(coll: Collection) -> FigureSpec | str:
+    """Policies that see more: CVaR per iteration of each policy against the landscape's best, and where they end."""
+    from riskplan.experiments.reporting.collect import policy_name
+    from riskplan.experiments.reporting.tables import landscape_for, policy_groups, run_values
+
+    groups = policy_groups(coll)
+    if not groups:
+        return "no one-robot runs that differ only in their policy (policy.kind, policy.features)"
+    fig, axes = _figure(8.6, 3.6, ncols=2)
+    curves, shares = axes[0]
+    names = []
+    for g in groups:
+        name = policy_name(g) + f" ({len(g.first.final_theta())} parameters)"
+        names.append(name)
+        plot_band(curves, curve_table(g.runs, "cvar"), g.color, name + _seeds(g.runs))
+    land = landscape_for(coll, groups[0])
+    if land is not None:
+        best = land.best("cvar")
+        curves.axhline(best["value"], color="#777777", ls="--", lw=1.0, label="_best")
+        curves.annotate(
+            "best CVaR of the paper's policy (landscape grid)",
+            (0.02, best["value"]),
+            xycoords=("axes fraction", "data"),
+            xytext=(0, -10),
+            textcoords="offset points",
+            fontsize=7,
+            color="#555555",
+        )
+    beta = groups[0].beta
+    curves.set_xlabel("iteration")
+    _iterations(curves)
+    curves.set_ylabel(f"CVaR$_{{{beta:g}}}$ of total reward (training episodes)")
+    curves.set_title("(a) CVaR per iteration")
+    sources = [k for k in run_values(groups[0].first) if k.startswith("reached_")]
+    colours = dict(zip(sources, ("#009E73", "#D55E00", "#999999", "#56B4E9", "#CC79A7")))
+    y = np.arange(len(groups))[::-1]
+    left = np.zeros(len(groups))
+    for k in sources:
+        share = np.array([np.mean([run_values(r, beta)[k] for r in g.runs]) for g in groups])
+        shares.barh(y, share, left=left, color=colours[k], edgecolor="white", label=k[len("reached_") :])
+        left += share
+    shares.set_yticks(y, [n.replace(" (", "\n(") for n in names])
+    shares.set_xlim(0, 1)
+    shares.set_xlabel("share of evaluation episodes (mean over seeds)")
+    shares.set_title("(b) the source reached")
+    shares.grid(False, axis="y")
+    shares.legend(loc="lower right", title="reached", fontsize=7, title_fontsize=7)
+    fig.legend(*curves.get_legend_handles_labels(), loc="outside lower center", ncols=1)
+    theta0 = groups[0].first.flat.get("train.theta0")
+    return FigureSpec(
+        "richer_policies",
+        "Policies that see more",
+        f"Each policy trained from θ0 = {_short_list(theta0)} (a tabular policy starts from the logits it gives). "
+        "Left: CVaR of each iteration's training episodes (across-seed mean, 95% band), and the largest CVaR over "
+        "the landscape's grid of the paper's two-parameter policy (dashed). Right: the share of evaluation episodes "
+        "that reach each source.",
+        fig,
+    )
+
+
+def _short_list(text) -> str:
+    try:
+        import json
+
+        values = json.loads(text) if isinstance(text, str) else list(text)
+        return "(" + ", ".join(f"{float(v):g}" for v in values) + ")"
+    except (TypeError, ValueError):
+        return str(text)
+
+
+def _paired_table(group: Group, reference: Group, value) -> pd.DataFrame:
+    """(iteration x seed) table of value(run's headline rows, reference's headline rows of the same seed)."""
+    by_seed = {r.seed: r for r in reference.runs}
+    series = {}
+    for r in group.runs:
+        if r.seed in by_seed:
+            mine = r.metrics_of().set_index("iteration")
+            theirs = by_seed[r.seed].metrics_of().set_index("iteration")
+            series[r.seed] = value(mine, theirs)
+    return pd.DataFrame(series).sort_index()
+
+
+def order_name(g: Group) -> str:
+    """A team's order and graph: 'gradient_tracking (ring)', or 'centralized: complete graph, exact average'."""
+    from riskplan.experiments.reporting.tables import _is_central
+
+    if _is_central(g):
+        return "centralized (complete graph, exact average each iteration)"
+    t = g.team_conf
+    return f"{t.get('order', 'combine_then_adapt')} ({t.get('graph')})"
+
+
+SMOOTH = 10  # iterations in the moving average of the objective gap of fig_hetero
+
+
+def fig_hetero(coll: Collection) -> FigureSpec | str:
+    """A heterogeneous team: the consensus error of each order, and its gap and distance to the centralized run."""
+    from riskplan.experiments.reporting.stats import seed_interval
+    from riskplan.experiments.reporting.tables import _paired, hetero_groups, team_objective
+
+    distributed, central = hetero_groups(coll)
+    if not distributed:
+        return "no heterogeneous team runs (team.starts or team.risk) that differ in their order or graph"
+    panels = 3 if central is not None else 1
+    fig, axes = _figure(4.0 * panels, 3.5, ncols=panels)
+    error = axes[0, 0]
+    colours = dict(zip(("combine_then_adapt", "adapt_then_combine", "gradient_tracking"), ROBOT_COLOURS))
+    for g in distributed:
+        colour = colours.get(str(g.team_conf.get("order")), g.color)
+        table = curve_table(g.runs, "consensus_error")
+        if np.any(table.to_numpy(float) > 0):
+            plot_band(error, table, colour, order_name(g) + _seeds(g.runs), log=True)
+    error.set_yscale("log")
+    error.set_xlabel("iteration")
+    _iterations(error)
+    error.set_ylabel(r"consensus error $\max_{i,j}\,\|\theta^i-\theta^j\|$")
+    error.set_title("(a) consensus error")
+    if central is not None:
+        gap, distance = axes[0, 1], axes[0, 2]
+        largest = 0.0
+        for g in distributed:
+            colour = colours.get(str(g.team_conf.get("order")), g.color)
+            gaps = _paired_table(g, central, lambda m, c: c["objective"].astype(float) - m["objective"].astype(float))
+            smooth = gaps.rolling(SMOOTH, min_periods=1).mean()  # each seed's gap, a moving average
+            plot_band(gap, smooth, colour, order_name(g))
+            largest = max(largest, float(np.nanmax(np.abs(smooth.to_numpy(float)))) if smooth.size else 0.0)
+            final = _paired(g, central, lambda r, c: team_objective(c) - team_objective(r))
+            if final:
+                value, low, high = seed_interval(final)
+                last = float(gaps.index.max())
+                _errorbar(gap, (last, last, last), (value, low, high), colour, f"_final {g.label}", "D")
+            thetas = theta_columns(g.first.run.metrics)
+            dist = _paired_table(
+                g,
+                central,
+                lambda m, c, cols=thetas: pd.Series(
+                    np.linalg.norm(m[cols].to_numpy(float) - c.reindex(m.index)[cols].to_numpy(float), axis=1),
+                    index=m.index,
+                ),
+            )
+            dist = dist.where(dist > 1e-9)  # the first iterations, before the orders part (rounding): not drawn
+            if np.any(dist.to_numpy(float) > 0):
+                plot_band(distance, dist, colour, order_name(g), log=True)
+        gap.axhline(0.0, color="#555555", lw=0.8)
+        gap.set_yscale("symlog", linthresh=10 ** round(np.log10(max(0.005 * largest, 1e-9))))
+        gap.set_xlabel("iteration")
+        _iterations(gap)
+        gap.set_ylabel("team objective: centralized − distributed")
+        gap.set_title(f"(b) objective gap ({SMOOTH}-iteration mean; ◆ at θ̄)")
+        distance.set_yscale("log")
+        distance.set_xlabel("iteration")
+        _iterations(distance)
+        distance.set_ylabel(r"$\|\bar\theta - \bar\theta_{\mathrm{centralized}}\|$")
+        distance.set_title("(c) distance to the centralized θ")
+    fig.legend(*error.get_legend_handles_labels(), loc="outside lower center", ncols=2)
+    t = distributed[0].team_conf
+    step = float(distributed[0].first.metrics_of(0).step_size.iloc[-1])
+    return FigureSpec(
+        "hetero_team",
+        "A heterogeneous team: the orders against the centralized run",
+        f"{distributed[0].robots} robots from {len(t.get('starts') or [])} start cells, step size {step:g} at the "
+        "end. (a) The largest distance between two robots' θ per iteration (log scale; geometric mean across seeds "
+        "with a 95% band). "
+        + (
+            f"(b) The team objective of the centralized run minus that of each order, seed by seed: per iteration "
+            f"from the training episodes (robot −1 rows: the sum of each robot's objective at its own θ^i, a "
+            f"{SMOOTH}-iteration moving average; mean with a 95% band, symmetric log scale), and at the end (◆) "
+            "summary.json's team objective at θ̄ on fresh episodes (95% interval over the seeds). The training "
+            "objective flatters a team that disagrees (each robot's θ^i leans towards its own optimum); the final "
+            "one is the team's objective at its common policy. (c) The distance between the network averages θ̄ "
+            "of each order and of the centralized run of the same seed. The centralized run is the same team on a "
+            "complete graph with uniform weights, adapt-then-combine: every robot holds the exact average after "
+            "each iteration."
+            if central is not None
+            else "No centralized comparator (the same team on a complete graph) is among these runs."
+        ),
+        fig,
+    )
+
+
+def fig_faults(coll: Collection) -> FigureSpec | str:
+    """Faults: the healthy robots' CVaR per iteration under each aggregation, against the fault-free team."""
+    from riskplan.experiments.reporting.collect import fault_name
+    from riskplan.experiments.reporting.tables import fault_groups
+
+    faulty, free = fault_groups(coll)
+    if not faulty:
+        return "no team runs with team.faults that differ only in their faults or aggregation"
+    groups = ([free] if free is not None else []) + faulty
+    two = len(theta_columns(groups[0].first.run.metrics)) == 2
+    fig, axes = _figure(8.6 if two else 4.8, 3.6, ncols=2 if two else 1)
+    curves = axes[0, 0]
+    for g in groups:
+        plot_band(
+            curves, curve_table(g.runs, "cvar"), g.color, fault_name(g) + _seeds(g.runs), "--" if g is free else "-"
+        )
+    beta = groups[0].beta
+    curves.set_xlabel("iteration")
+    _iterations(curves)
+    curves.set_ylabel(f"CVaR$_{{{beta:g}}}$ (healthy robots' training episodes)")
+    curves.set_title("(a) the healthy robots' CVaR")
+    if two:
+        plane = axes[0, 1]
+        for g in groups:
+            for r in g.runs:
+                m = r.metrics_of()
+                plane.plot(
+                    m.theta_0.to_numpy(float),
+                    m.theta_1.to_numpy(float),
+                    "--" if g is free else "-",
+                    color=g.color,
+                    lw=1.1,
+                    alpha=0.85,
+                    label=f"_{g.label} {r.seed}",
+                )
+                plane.plot(
+                    m.theta_0.iloc[-1:], m.theta_1.iloc[-1:], ls="none", marker="s", ms=5, color=g.color, label="_end"
+                )
+        sent = {
+            tuple(f["value"]) if isinstance(f.get("value"), list) else (f["value"],) * 2
+            for g in faulty
+            for f in g.faults
+            if isinstance(f, dict) and f.get("value") is not None
+        }
+        for value in sent:
+            plane.plot([value[0]], [value[1]], ls="none", marker="X", ms=9, color="#D55E00", mec="black", label="_sent")
+        if sent:
+            plane.annotate(
+                "what the faulty robot sends", next(iter(sent)), xytext=(6, 6), textcoords="offset points", fontsize=7
+            )
+        plane.set_xlabel(r"$\theta_0$ (weight of source 1)")
+        plane.set_ylabel(r"$\theta_1$ (weight of source 2)")
+        plane.set_title("(b) the healthy robots' θ̄ (square: final)")
+    fig.legend(*curves.get_legend_handles_labels(), loc="outside lower center", ncols=1)
+    return FigureSpec(
+        "faults",
+        "A faulty robot: the plain mean against a resilient aggregation",
+        f"{groups[0].robots} robots. (a) CVaR at {beta:g} of the healthy robots' training episodes per iteration "
+        "(robot −1 rows; across-seed mean with a 95% band), for each aggregation with the faulty robot and for the "
+        "fault-free team (dashed)."
+        + (" (b) The healthy robots' network average θ̄ per iteration, every seed." if two else ""),
+        fig,
+    )
+
+
+STUDY_BUILDERS = {  # study (riskplan.experiments.reporting.collect.STUDIES) -> its figure
+    "measures": ("risk_measures", fig_measures),
+    "policies": ("richer_policies", fig_policies),
+    "hetero_team": ("hetero_team", fig_hetero),
+    "faults": ("faults", fig_faults),
+}
+
+
 BUILDERS = (
     ("fig1_paths", fig_paths),
     ("fig2_cvar", fig_cvar),
@@ -691,6 +1041,7 @@ BUILDERS = (
     ("risk_frontier", fig_frontier),
     ("team_thetas", fig_thetas),
     ("soft_risk", fig_soft_risk),
+    *STUDY_BUILDERS.values(),
 )
 
 
@@ -716,6 +1067,21 @@ def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
                 specs.append(result)
             else:
                 skipped[name] = result
+        for study in coll.studies:  # reproduce's studies, each from its own runs
+            name, build = STUDY_BUILDERS[study.name]
+            try:
+                result = build(study.collection)
+            except Exception as err:
+                result = f"failed: {type(err).__name__}: {err}"
+            if isinstance(result, FigureSpec):
+                taken = {s.name for s in specs}
+                if result.name in taken:  # the main runs drew one too
+                    result.name = next(f"{name}_{k}" for k in range(2, len(taken) + 3) if f"{name}_{k}" not in taken)
+                result.study = study.name
+                specs.append(result)
+                skipped.pop(name, None)
+            else:
+                skipped.setdefault(name, f"{study.name}/: {result}")
     return specs, skipped
 
 

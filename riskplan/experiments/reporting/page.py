@@ -229,6 +229,206 @@ def soft_risk_section(table: pd.DataFrame | None) -> str:
     )
 
 
+STUDY_TEXT = {  # the question each study of riskplan reproduce answers, above its table
+    "measures": (
+        "Risk measures",
+        "One robot in the paper world from the paper's θ0, trained with each risk measure at its group defaults "
+        "(<code>risk=cvar,neutral,wang,mean_cvar,entropic</code>). The trained objective is each measure's own value "
+        "on the evaluation episodes; CVaR is at the common level β.",
+    ),
+    "policies": (
+        "Policies that see more",
+        "One robot from θ0 = 0 under CVaR: the paper's policy (the sources' signals), a policy that also sees the "
+        "risky region, and a tabular policy (one logit per cell and move). Does the richer policy reach the safe "
+        "source where the paper's does not, and how close does each come to the best CVaR of the paper's "
+        "two-parameter policy over the landscape's grid?",
+    ),
+    "hetero_team": (
+        "A heterogeneous team",
+        "Robots that start apart (<code>team.starts</code>) have different objectives, so Δ^i − Δ^j does not vanish "
+        "at the optimum: with a constant step, combine-then-adapt (eq. 14) keeps a consensus error of order "
+        "ε·‖Δ^i − Δ^j‖ and its average θ̄ is off the optimum by O(ε), while gradient tracking removes both. The "
+        "floor is the mean consensus error over the last quarter of the iterations; the disagreement is the largest "
+        "distance between two robots' θ averaged over that quarter (sampling noise averages out, a systematic "
+        "floor does not); the gap and the distance are to the centralized run of the same seed.",
+    ),
+    "faults": (
+        "A Byzantine robot and resilient consensus",
+        "One robot sends a fixed θ from the first iteration. With the plain mean (eq. 14) every healthy robot "
+        "averages it in; a trimmed mean that drops the F largest and smallest received values per coordinate "
+        "ignores it. The figures are the healthy robots' network average θ̄ on its evaluation episodes, against "
+        "the fault-free team of the same seed.",
+    ),
+}
+
+
+def study_section(name: str, table: pd.DataFrame, figures: list[tuple[FigureSpec, dict]], coll=None) -> str:
+    """A study beyond the paper: what it asks, the groups it compares, its table and its figure."""
+    if (table is None or table.empty) and not figures:
+        return ""
+    title, text = STUDY_TEXT[name]
+    parts = [f'<h2 id="study-{_esc(name)}">{_esc(title)}</h2>', f"<p>{text}</p>"]
+    if coll is not None:
+        parts.append(configs_section(coll))
+    if table is not None and not table.empty:
+        parts.append(STUDY_TABLES[name](table))
+        parts.append(
+            f'<p class="note">Brackets: 95% Student-t intervals over the seeds (one seed: over its evaluation '
+            f"episodes). The same numbers, unrounded, are in <code>{_esc(name)}.csv</code>.</p>"
+        )
+    parts += [figure_html(spec, files) for spec, files in figures]
+    return "\n".join(parts)
+
+
+def _reached(table: pd.DataFrame) -> list[str]:
+    return [c for c in table.columns if c.startswith("reached_") and not c.endswith(("_low", "_high"))]
+
+
+def _measures_html(table: pd.DataFrame) -> str:
+    reached = _reached(table)
+    head = ["measure", "seeds", "trained objective", "mean", "CVaR<sub>β</sub>", "P(risky)"] + [
+        f"P(reach {_esc(c[len('reached_') :])})" for c in reached
+    ]
+    rows = [
+        [
+            _esc(r["name"]),
+            _esc(r["seeds"]),
+            _interval(r, "objective"),
+            _interval(r, "mean"),
+            _interval(r, "cvar") + f" (β={r['beta']:g})",
+            _interval(r, "risky_fraction", True),
+        ]
+        + [_interval(r, c, True) for c in reached]
+        for _, r in table.iterrows()
+    ]
+    main = _table(head, rows, numeric=set(range(2, len(head))))
+    under = [c for c in table.columns if c.startswith("under_")]
+    if not under:
+        return main
+    names = dict(zip(table["measure"], table["name"]))
+    cross = _table(
+        ["final policy of ↓, scored under →"]
+        + [_esc(names.get(c[len("under_") :], c[len("under_") :])) for c in under],
+        [[_esc(r["name"])] + [_num(r[c]) for c in under] for _, r in table.iterrows()],
+        numeric=set(range(1, len(under) + 1)),
+    )
+    return (
+        main
+        + '<p class="note">Each final policy scored under every measure (its evaluation episodes, the mean over its '
+        "seeds): a measure whose own policy is not the best under it stopped short of its optimum.</p>" + cross
+    )
+
+
+def _policies_html(table: pd.DataFrame) -> str:
+    reached = _reached(table)
+    seeds = [c for c in table.columns if c.startswith("seeds_reaching_")]
+    head = (
+        ["policy", "parameters", "seeds", "mean", "CVaR<sub>β</sub>", "P(risky)"]
+        + [f"P(reach {_esc(c[len('reached_') :])})" for c in reached]
+        + [f"seeds mostly reaching {_esc(c[len('seeds_reaching_') :])}" for c in seeds]
+        + ["landscape's best CVaR (θ)", "gap to it"]
+    )
+    rows = [
+        [
+            _esc(r["policy"]),
+            _esc(r["theta_length"]),
+            _esc(r["seeds"]),
+            _interval(r, "mean"),
+            _interval(r, "cvar"),
+            _interval(r, "risky_fraction", True),
+        ]
+        + [_interval(r, c, True) for c in reached]
+        + [f"{_whole(r[c])} of {_whole(r['seeds'])}" for c in seeds]
+        + [
+            f"{_num(r.get('landscape_best_cvar'))} {_text(r.get('landscape_best_theta'))}",
+            f"{_num(r.get('gap_to_landscape_best'))} ({_num(r.get('gap_percent'), 1)}%)"
+            if not _missing(r.get("gap_to_landscape_best"))
+            else MISSING,
+        ]
+        for _, r in table.iterrows()
+    ]
+    return _table(head, rows, numeric=set(range(1, len(head))))
+
+
+def _hetero_html(table: pd.DataFrame) -> str:
+    head = [
+        "order (graph)",
+        "ε",
+        "seeds",
+        "consensus error floor",
+        "persistent disagreement",
+        "team objective at θ̄",
+        "gap to centralized",
+        "‖θ̄ − θ̄<sub>centralized</sub>‖",
+    ]
+    rows = []
+    for _, r in table.iterrows():
+        name = "centralized (complete graph, exact average)" if r["centralized"] else f"{r['order']} ({r['graph']})"
+        rows.append(
+            [
+                _esc(name),
+                f"{r['step_size']:g}" + ("" if r["constant_step"] else " (last)"),
+                _esc(r["seeds"]),
+                _interval_sig(r, "consensus_floor"),
+                _interval_sig(r, "theta_disagreement"),
+                _interval(r, "team_objective"),
+                _interval(r, "gap_to_central")
+                + ("" if _missing(r.get("gap_percent")) else f" ({r['gap_percent']:.2f}%)"),
+                _interval_sig(r, "distance_to_central"),
+            ]
+        )
+    return _table(head, rows, numeric=set(range(1, len(head))))
+
+
+def _interval_sig(row: pd.Series, name: str) -> str:
+    """value [low, high] to three significant figures (small distances)."""
+    value, low, high = row.get(name), row.get(f"{name}_low"), row.get(f"{name}_high")
+    if _missing(value):
+        return MISSING
+    text = f"{value:.3g}"
+    if not (_missing(low) or _missing(high)):
+        text += f" [{low:.3g}, {high:.3g}]"
+    return text
+
+
+def _faults_html(table: pd.DataFrame) -> str:
+    reached = _reached(table)
+    head = (
+        ["faults, aggregation", "seeds", "mean", "CVaR<sub>β</sub>", "P(risky)"]
+        + [f"P(reach {_esc(c[len('reached_') :])})" for c in reached]
+        + ["CVaR vs fault-free", "largest |difference|", "within 5%"]
+    )
+    rows = []
+    for _, r in table.iterrows():
+        within = r.get("within_tolerance")
+        rows.append(
+            [
+                _esc(r["name"]),
+                _esc(r["seeds"]),
+                _interval(r, "mean"),
+                _interval(r, "cvar"),
+                _interval(r, "risky_fraction", True),
+            ]
+            + [_interval(r, c, True) for c in reached]
+            + [
+                _interval(r, "cvar_vs_fault_free", True),
+                MISSING
+                if _missing(r.get("worst_cvar_vs_fault_free"))
+                else f"{100 * r['worst_cvar_vs_fault_free']:.2f}%",
+                MISSING if within is None or _missing(within) else ("yes" if within else "no"),
+            ]
+        )
+    return _table(head, rows, numeric=set(range(1, len(head) - 1)))
+
+
+STUDY_TABLES = {
+    "measures": _measures_html,
+    "policies": _policies_html,
+    "hetero_team": _hetero_html,
+    "faults": _faults_html,
+}
+
+
 def _whole(value) -> str:
     """A count (points, episodes) that may be missing or stored as a float."""
     if _missing(value):
@@ -283,16 +483,28 @@ def render(
     runs: pd.DataFrame,
     landscapes: pd.DataFrame,
     soft_risk: pd.DataFrame | None = None,
+    studies: dict[str, pd.DataFrame] | None = None,
 ) -> str:
-    """The whole page."""
+    """The whole page (`studies`: the tables of the studies beyond the paper, tables.study_tables)."""
+    from riskplan.experiments.reporting.figures import STUDY_BUILDERS
+
     now = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     inputs = ", ".join(f"<code>{_esc(p)}</code>" for p in coll.inputs)
     counts = (
         f"{len(coll.runs)} run(s) in {len(coll.groups)} group(s), {len(coll.landscapes)} landscape(s), "
         f"{len(coll.broken)} skipped"
     )
-    paper = [f for f in figures if f[0].name.startswith("fig")]
-    extra = [f for f in figures if not f[0].name.startswith("fig")]
+    if coll.studies:
+        studied = sum(len(s.collection.runs) for s in coll.studies)
+        counts += f" · {studied} run(s) in {len(coll.studies)} stud{'y' if len(coll.studies) == 1 else 'ies'} beyond the paper"
+    studied = {name: figure for name, (figure, _) in STUDY_BUILDERS.items()}
+    of_study = {
+        name: [f for f in figures if f[0].study == name or (not f[0].study and f[0].name.startswith(stem))]
+        for name, stem in studied.items()
+    }
+    taken = {id(f) for fs in of_study.values() for f in fs}
+    paper = [f for f in figures if f[0].name.startswith("fig") and id(f) not in taken]
+    extra = [f for f in figures if not f[0].name.startswith("fig") and id(f) not in taken]
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
@@ -321,6 +533,9 @@ def render(
         parts += [figure_html(spec, files) for spec, files in extra]
     parts.append(landscape_section(landscapes))
     parts.append(soft_risk_section(soft_risk))
+    for name in studied:
+        own = [s.collection for s in coll.studies if s.name == name]
+        parts.append(study_section(name, (studies or {}).get(name), of_study[name], own[0] if own else None))
     if skipped:
         items = "".join(f"<li><b>{_esc(k)}</b>: {_esc(v)}</li>" for k, v in skipped.items())
         parts.append(f'<h2>Figures not drawn</h2><ul class="note">{items}</ul>')
