@@ -38,18 +38,23 @@ riskplan sweep hydra/sweeper=optuna 'risk.beta=interval(0.05,1)' train.samples=2
   hydra.sweeper.sampler.seed=0 train.eval_episodes=20000 train.bootstrap=200 hydra.sweep.dir="$out/optuna_coarse"
 riskplan sweep hydra/sweeper=optuna 'risk.beta=interval(0.18,0.42)' hydra.sweeper.n_trials=12 \
   hydra.sweeper.sampler.seed=0 train.eval_episodes=20000 train.bootstrap=200 hydra.sweep.dir="$out/optuna_fine"
+riskplan sweep experiment=paper_single policy.kind=tabular 'train.theta0=[0,0],[20,20]' \
+  train.step_size.initial=0.1,1.0 train.iterations=200,1000 'seed=range(0,2)' "${fast[@]}" \
+  hydra.sweep.dir="$out/tabular_steps"
 
 # The figures: the reproduction's report, and reports of the studies that have figures of their own
 rm -rf "$out/orders_report" "$out/soft_risk_report"
 riskplan report "$out/orders_line" "$out/orders_rgg" --out "$out/orders_report" --format png
 riskplan report "$out/soft_risk_schedules" --out "$out/soft_risk_report" --format png
-for figure in fig1_paths fig2_cvar fig3_team fig4_consensus landscape risk_frontier; do
+for figure in fig1_paths fig2_cvar fig3_team fig4_consensus landscape risk_frontier \
+  risk_measures richer_policies hetero_team faults; do
   cp "$out/full/report/$figure.png" docs/figures/
 done
 cp "$out/orders_report/consensus_orders.png" "$out/soft_risk_report/soft_risk.png" docs/figures/
 
 studies=()
-for name in consensus_rounds orders_line orders_rgg orders_central soft_risk_schedules optuna_coarse optuna_fine; do
+for name in consensus_rounds orders_line orders_rgg orders_central soft_risk_schedules optuna_coarse optuna_fine \
+  tabular_steps; do
   studies+=(--study "$name=$out/$name")
 done
 python docs/generate.py --collect --reproduction "$out/full" --quick-reproduction "$out/quick" \
