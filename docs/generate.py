@@ -3,12 +3,13 @@
     python docs/generate.py           write docs/generated/*.md from docs/data/
     python docs/generate.py --check   exit 1 if docs/generated/ differs from what this would write (CI runs it)
     python docs/generate.py --collect --reproduction DIR [--quick-reproduction DIR] [--bench FILE]
-                            [--scaling FILE] [--study NAME=DIR ...]
+                            [--scaling FILE] [--study NAME=DIR ...] [--ray DIR]
                                       refresh docs/data/ from new measurements, then write docs/generated/
 
 The inputs are what riskplan writes: `riskplan bench --json FILE`, `riskplan bench --scaling --json FILE`, a
 `riskplan reproduce --out DIR` (its sweeps' summary.parquet, report/*.csv, reproduce.json, the landscape) and,
-for the studies that the reproduction does not run, a sweep directory each (docs/results.md names the commands).
+for the studies that the reproduction does not run, a sweep directory each (docs/results.md names the commands),
+and the JSON files of `python bench/ray_backend.py --out DIR` (the ray backend's measurements).
 `--collect` copies the small parts of them into docs/data/ as JSON and CSV (no parquet, no absolute paths), so
 that the tables can be rebuilt byte for byte from the repository alone. Only the standard library and pandas are
 used (pandas reads parquet with pyarrow, a riskplan dependency, during --collect only).
@@ -46,6 +47,8 @@ STUDIES = (
 )
 # The reproduction's studies beyond the paper: their report tables (report/<name>.csv), copied by --collect
 STUDY_TABLES = ("measures", "policies", "hetero_team", "faults")
+# The files of python bench/ray_backend.py --out DIR that --ray collects (scaling_<W>.json: scaling --samples W)
+RAY_FILES = ("backends", "scaling", "scaling_20000", "scaling_200000", "target", "cluster")
 PAPER_PARTS = ("single", "team", "wander", "soft_risk", "frontier")  # the paper's Section V and its companions
 STUDY_PARTS = ("measures", "policies", "tabular", "hetero_team", "hetero_central", "faults", "faults_free")
 
@@ -149,16 +152,18 @@ def reproduction_meta() -> dict:
     return read_json(DATA / "reproduction" / "reproduce.json")
 
 
-def measured_on(kind: str) -> str:
-    """One line on where and when the numbers of `kind` were measured (docs/data/meta.json)."""
+def measured_on(kind: str, *within: str) -> str:
+    """One line on where and when the numbers of `kind` were measured (docs/data/meta.json; meta[kind][within...])."""
     meta = read_json(DATA / "meta.json")[kind]
+    for key in within:
+        meta = meta[key]
     parts = [f"measured {meta['when']}"]
     if meta.get("host"):
         parts.append(meta["host"])
     if meta.get("versions"):
         parts.append(meta["versions"])
     if meta.get("load"):
-        parts.append(f"load average {meta['load']} as it started")
+        parts.append(f"load average {meta['load']} as it {meta.get('load_at', 'started')}")
     return "; ".join(parts)
 
 
@@ -1046,6 +1051,172 @@ def gen_optuna(name: str) -> str:
     )
 
 
+# ----------------------------------------------------------------------------------------------- the ray backend
+
+
+def ray_data(name: str) -> dict:
+    return read_json(DATA / "ray" / f"{name}.json")
+
+
+def signed_rel(x, digits: int = 2) -> str:
+    """A relative difference as '+0.01%' / '−0.03%'."""
+    return "n/a" if not finite(x) else f"{100 * x:+.{digits}f}%".replace("-", "−")
+
+
+def gen_ray_backends() -> str:
+    """paper_team on team.backend=ray against the simulated backend, per seed (bench/ray_backend.py backends)."""
+    data = ray_data("backends")
+    rows = [
+        [
+            r["seed"],
+            num(r["cvar_simulated"]),
+            interval(r["cvar_ray"], r["cvar_ray_low"], r["cvar_ray_high"]),
+            signed_rel(r["relative"]),
+            f"{num(r['train_s_simulated'])} / {num(r['train_s_ray'])}",
+            num(r["elapsed_s_ray"]),
+            num(r["max_staleness"], 0),
+        ]
+        for r in data["rows"]
+    ]
+    relative = [r["relative"] for r in data["rows"]]
+    worst = max(abs(x) for x in relative)
+    return (
+        table(
+            [
+                "seed",
+                "CVaR_0.1 simulated",
+                "CVaR_0.1 ray [95% CI]",
+                "ray vs simulated",
+                "train s simulated / ray",
+                "ray run s (start-up and evaluation included)",
+                "max staleness mixed (ray)",
+            ],
+            rows,
+        )
+        + f"\nMean over the {len(rows)} seeds: simulated {num(data['mean_simulated'])}, ray {num(data['mean_ray'])} "
+        f"({signed_rel(data['mean_ray'] / data['mean_simulated'] - 1, 3)}); {measured_on('ray', 'backends')}.\n\n"
+        + table(
+            ["target", "measured over the seeds", "met"],
+            [
+                [
+                    "ray's CVaR_0.1 within 2% of the simulated backend's on every seed",
+                    span([abs(x) for x in relative], lambda x: pct(x, 2)),
+                    "yes" if worst <= 0.02 else "**no**",
+                ]
+            ],
+        )
+    )
+
+
+def gen_ray_scaling() -> str:
+    """Robots per core on one machine, for W = 2000, 20,000 and 200,000 episodes per robot and iteration."""
+    rows, lines = [], []
+    for name, samples in (("scaling", 2000), ("scaling_20000", 20000), ("scaling_200000", 200000)):
+        if not (DATA / "ray" / f"{name}.json").is_file():
+            continue
+        data = ray_data(name)["rows"]
+        base = data[0]
+        for r in data:
+            rows.append(
+                [
+                    f"{samples:,}",
+                    r["robots"],
+                    num(r["robots"] / r["cores"]),
+                    sig(r["iterations_per_s_per_robot"]),
+                    pct(r["iterations_per_s_per_robot"] / base["iterations_per_s_per_robot"], 0),
+                    sig(r["compute_only_iterations_per_s"]),
+                    pct(r["waiting_fraction"], 0),
+                    sig(r["episodes_per_s"]),
+                    f"{r['episodes_per_s'] / base['episodes_per_s']:.2f}",
+                    num(r["startup_s"]),
+                ]
+            )
+        lines.append(f"W = {samples:,}: {measured_on('ray', name)}")
+    return (
+        table(
+            [
+                "W per robot",
+                "robots",
+                "robots per core",
+                "iterations/s per robot",
+                "of 1 robot's",
+                "robot's own compute, iterations/s",
+                "waiting",
+                "team episodes/s",
+                "× 1 robot's",
+                "start-up s",
+            ],
+            rows,
+        )
+        + "\n"
+        + "".join(f"- {line}.\n" for line in lines)
+    )
+
+
+def gen_ray_cluster() -> str:
+    """16 robots on a two-node Ray cluster, one of them slow (bench/ray_backend.py cluster)."""
+    r = ray_data("cluster")
+    per_node = " + ".join(str(n) for n in sorted(r["robots_per_node"].values(), reverse=True))
+    return (
+        table(
+            [
+                "robots",
+                "nodes (robots on each)",
+                "consensus error: max over iterations 1–19 → mean of the last 10",
+                "max staleness mixed: all / slow robot",
+                "mean staleness: fast / slow robot",
+                "waiting: fast / slow robot",
+                "train s",
+                "start-up s",
+                "CVaR_0.1 of θ̄",
+            ],
+            [
+                [
+                    r["robots"],
+                    f"{r['nodes']} ({per_node})",
+                    f"{num(r['consensus_error_early_max'], 2)} → {num(r['consensus_error_late_mean'], 2)}",
+                    f"{num(r['max_staleness_all'], 0)} / {num(r['max_staleness_slow'], 0)}",
+                    f"{num(r['mean_staleness_fast'], 2)} / {num(r['mean_staleness_slow'], 2)}",
+                    f"{pct(r['fast_waiting_fraction'], 0)} / {pct(r['slow_waiting_fraction'], 0)}",
+                    num(r["train_s"]),
+                    num(r["startup_s"]),
+                    num(r["cvar"]),
+                ]
+            ],
+        )
+        + f"\n{measured_on('ray', 'cluster')}.\n"
+    )
+
+
+def gen_ray_target() -> str:
+    """Time to a target training CVaR_0.1 against robots (bench/ray_backend.py target)."""
+    data = ray_data("target")["rows"]
+    value = data[0]["target"]
+    rows = [
+        [
+            r["robots"],
+            "not reached" if r["iteration"] is None else int(r["iteration"]),
+            "not reached" if r["seconds"] is None else sig(r["seconds"]),
+            num(r["train_s"]),
+            num(r["final_cvar"]),
+        ]
+        for r in data
+    ]
+    return (
+        table(
+            [
+                "robots",
+                f"iteration at which training CVaR_0.1 ≥ {value:g}",
+                "seconds to it (slowest robot's own time)",
+                "train s (all iterations)",
+                "final CVaR_0.1 of θ̄",
+            ],
+            rows,
+        )
+        + f"\n{measured_on('ray', 'target')}.\n"
+    )
+
+
 # ----------------------------------------------------------------------------------------------- driver
 
 
@@ -1075,6 +1246,10 @@ def outputs() -> dict[str, str]:
         "hetero_team.md": gen_hetero_team,
         "faults.md": gen_faults,
         "tabular_steps.md": gen_tabular_steps,
+        "ray_backends.md": gen_ray_backends,
+        "ray_scaling.md": gen_ray_scaling,
+        "ray_cluster.md": gen_ray_cluster,
+        "ray_target.md": gen_ray_target,
     }
     return {name: HEADER + make() for name, make in files.items()}
 
@@ -1263,7 +1438,29 @@ def collect(args) -> None:
         collect_sweep(Path(path)).to_csv(DATA / "studies" / f"{name}.csv", index=False)
         when = dt.datetime.fromtimestamp((Path(path) / "summary.parquet").stat().st_mtime, dt.timezone.utc)
         meta.setdefault("studies", {})[name] = {"when": when.strftime("%Y-%m-%d %H:%M UTC"), "host": describe_host()}
+    if args.ray:
+        collect_ray(Path(args.ray), meta)
     meta_path.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+
+
+def collect_ray(source: Path, meta: dict) -> None:
+    """bench/ray_backend.py's JSON files, copied as they are; meta.json notes each one's time and load average
+    (the JSON's `load`, read as that measurement ended; or a FILE.load note, read as it started)."""
+    found = [name for name in RAY_FILES if (source / f"{name}.json").is_file()]
+    if not found:
+        raise SystemExit(f"--ray {source}: none of {', '.join(f'{n}.json' for n in RAY_FILES)} there")
+    (DATA / "ray").mkdir(exist_ok=True)
+    for name in found:
+        path = source / f"{name}.json"
+        data = read_json(path)
+        shutil.copyfile(path, DATA / "ray" / f"{name}.json")
+        when = dt.datetime.fromtimestamp(path.stat().st_mtime, dt.timezone.utc)
+        entry = {"when": when.strftime("%Y-%m-%d %H:%M UTC"), "host": describe_host()}
+        if data.get("load"):
+            entry.update(load=" ".join(str(v) for v in data["load"]), load_at="ended")
+        else:
+            entry["load"] = load_before(path)
+        meta.setdefault("ray", {})[name] = entry
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -1274,6 +1471,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick-reproduction", help="a riskplan reproduce --quick --out directory (its timing)")
     parser.add_argument("--bench", help="the file of riskplan bench --json FILE")
     parser.add_argument("--scaling", help="the file of riskplan bench --scaling --json FILE")
+    parser.add_argument("--ray", help="the --out directory of python bench/ray_backend.py (its JSON files)")
     parser.add_argument(
         "--study",
         action="append",
@@ -1285,7 +1483,7 @@ def main(argv: list[str] | None = None) -> int:
         return check()
     if args.collect:
         collect(args)
-    elif any((args.reproduction, args.quick_reproduction, args.bench, args.scaling, args.study)):
+    elif any((args.reproduction, args.quick_reproduction, args.bench, args.scaling, args.study, args.ray)):
         parser.error("the input files go with --collect")
     write()
     return 0

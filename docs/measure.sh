@@ -5,9 +5,11 @@
 #                                    e.g. in an activated venv)
 #
 # Run it on a quiet machine before a release: the benchmark, its scaling table, a full and a quick reproduction,
-# the studies that docs/results.md shows beyond the reproduction, and the figures of all of them (about 8 minutes
-# on 2 cores). A step whose result is already in OUT is not measured again (delete it to re-measure); the sweeps
-# skip their finished jobs.
+# the studies that docs/results.md shows beyond the reproduction, the figures of all of them, and the ray backend
+# (bench/ray_backend.py; needs Ray: pip install -e '.[distributed]'). About 25 minutes on 2 cores, an estimate from
+# the parts' own times, not timed as a whole (the ray backend's part took 11 of them on a loaded machine). A step
+# whose result is already in OUT is not measured again (delete it to re-measure); the sweeps and
+# bench/ray_backend.py skip their finished runs.
 # Then: python docs/generate.py --check passes, and git diff shows what the new measurements changed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -42,6 +44,12 @@ riskplan sweep experiment=paper_single policy.kind=tabular 'train.theta0=[0,0],[
   train.step_size.initial=0.1,1.0 train.iterations=200,1000 'seed=range(0,2)' "${fast[@]}" \
   hydra.sweep.dir="$out/tabular_steps"
 
+# The ray backend (docs/results.md, Robots as Ray actors): its JSON files record the load average as each ends
+[ -f "$out/ray/cluster.json" ] || python bench/ray_backend.py all --out "$out/ray"
+for samples in 20000 200000; do
+  [ -f "$out/ray/scaling_$samples.json" ] || python bench/ray_backend.py scaling --samples "$samples" --out "$out/ray"
+done
+
 # The figures: the reproduction's report, and reports of the studies that have figures of their own
 rm -rf "$out/orders_report" "$out/soft_risk_report"
 riskplan report "$out/orders_line" "$out/orders_rgg" --out "$out/orders_report" --format png
@@ -58,5 +66,5 @@ for name in consensus_rounds orders_line orders_rgg orders_central soft_risk_sch
   studies+=(--study "$name=$out/$name")
 done
 python docs/generate.py --collect --reproduction "$out/full" --quick-reproduction "$out/quick" \
-  --bench "$out/bench.json" --scaling "$out/scaling.json" "${studies[@]}"
+  --bench "$out/bench.json" --scaling "$out/scaling.json" "${studies[@]}" --ray "$out/ray"
 python docs/generate.py --check

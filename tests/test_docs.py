@@ -32,6 +32,82 @@ def test_the_generated_tables_match_their_data():
     assert done.returncode == 0, done.stdout + done.stderr
 
 
+def load_generate(data: Path):
+    """docs/generate.py as a module that reads its data from `data`."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_generate", ROOT / "docs" / "generate.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.DATA = data
+    return module
+
+
+def test_the_ray_tables_show_bench_ray_backend_json(tmp_path):
+    """Known bench/ray_backend.py JSON files give known rows, with the load average as each measurement ended."""
+    import json
+
+    ray = tmp_path / "ray"
+    ray.mkdir()
+    where = {"when": "2026-01-02 03:04 UTC", "host": "2 cores", "load": "9.00 8.00 7.00", "load_at": "ended"}
+    names = ("backends", "scaling", "cluster", "target")
+    (tmp_path / "meta.json").write_text(json.dumps({"ray": {name: where for name in names}}))
+    row = {"seed": 0, "cvar_simulated": 1444.0, "cvar_ray": 1443.0, "cvar_ray_low": 1441.0, "cvar_ray_high": 1445.0}
+    row |= {"relative": -0.0005, "train_s_simulated": 2.0, "train_s_ray": 9.0, "elapsed_s_ray": 30.0}
+    backends = {"rows": [row | {"max_staleness": 2.0}], "mean_simulated": 1444.0, "mean_ray": 1443.0}
+    (ray / "backends.json").write_text(json.dumps(backends))
+    scaling = [
+        {"robots": n, "cores": 2, "iterations_per_s_per_robot": rate, "compute_only_iterations_per_s": rate}
+        | {"waiting_fraction": wait, "episodes_per_s": episodes, "startup_s": 1.0}
+        for n, rate, wait, episodes in ((1, 100.0, 0.0, 2e5), (2, 80.0, 0.1, 3.2e5))
+    ]
+    (ray / "scaling.json").write_text(json.dumps({"rows": scaling}))
+    cluster = {"robots": 16, "nodes": 2, "robots_per_node": {"a": 8, "b": 8}, "consensus_error_early_max": 19.7}
+    cluster |= {"consensus_error_late_mean": 2.5, "max_staleness_all": 2.0, "max_staleness_slow": 2.0}
+    cluster |= {"mean_staleness_fast": 0.8, "mean_staleness_slow": -1.1, "fast_waiting_fraction": 0.7}
+    cluster |= {"slow_waiting_fraction": 0.3, "train_s": 1.5, "startup_s": 19.0, "cvar": 1440.7}
+    (ray / "cluster.json").write_text(json.dumps(cluster))
+    target = [{"robots": 1, "target": 1380.0, "seconds": 0.5, "iteration": 12, "train_s": 0.2, "final_cvar": 1436.4}]
+    target += [{"robots": 4, "target": 1380.0, "seconds": None, "iteration": None, "train_s": 1.7, "final_cvar": 0.0}]
+    (ray / "target.json").write_text(json.dumps({"rows": target}))
+    generate = load_generate(tmp_path)
+    measured = "measured 2026-01-02 03:04 UTC; 2 cores; load average 9.00 8.00 7.00 as it ended"
+
+    text = generate.gen_ray_backends()
+    assert "| 0 | 1444.0 | 1443.0 [1441.0, 1445.0] | −0.05% | 2.0 / 9.0 | 30.0 | 2 |" in text
+    assert f"simulated 1444.0, ray 1443.0 (−0.069%); {measured}." in text
+    assert "| ray's CVaR_0.1 within 2% of the simulated backend's on every seed | 0.05% | yes |" in text
+    text = generate.gen_ray_scaling()
+    assert "| 2,000 | 1 | 0.5 | 100 | 100% | 100 | 0% | 2e+05 | 1.00 | 1.0 |" in text
+    assert "| 2,000 | 2 | 1.0 | 80 | 80% | 80 | 10% | 3.2e+05 | 1.60 | 1.0 |" in text
+    assert f"- W = 2,000: {measured}." in text and "20,000 |" not in text  # the missing files: no rows
+    text = generate.gen_ray_cluster()
+    assert "| 16 | 2 (8 + 8) | 19.70 → 2.50 | 2 / 2 | 0.80 / −1.10 | 70% / 30% | 1.5 | 19.0 | 1440.7 |" in text
+    text = generate.gen_ray_target()
+    assert "| 1 | 12 | 0.5 | 0.2 | 1436.4 |" in text and "| 4 | not reached | not reached | 1.7 | 0.0 |" in text
+    assert "training CVaR_0.1 ≥ 1380 |" in text and text.endswith(f"{measured}.\n")
+
+
+def test_collecting_the_ray_files_notes_their_load_average(tmp_path):
+    """--ray DIR copies bench/ray_backend.py's files; the load average is the JSON's (as it ended) or FILE.load's."""
+    import json
+
+    source, data = tmp_path / "bench-ray", tmp_path / "data"
+    source.mkdir(), data.mkdir()
+    (source / "backends.json").write_text(json.dumps({"rows": [], "load": ["8.99", "8.80", "6.16"]}))
+    (source / "target.json").write_text(json.dumps({"rows": []}))
+    (source / "target.json.load").write_text("unknown (measured under load from parallel test runs)\n")
+    generate = load_generate(data)
+    meta = {}
+    generate.collect_ray(source, meta)
+    assert sorted(p.name for p in (data / "ray").iterdir()) == ["backends.json", "target.json"]
+    assert json.loads((data / "ray" / "backends.json").read_text())["load"] == ["8.99", "8.80", "6.16"]
+    assert meta["ray"]["backends"]["load"] == "8.99 8.80 6.16" and meta["ray"]["backends"]["load_at"] == "ended"
+    assert meta["ray"]["target"]["load"].startswith("unknown") and "load_at" not in meta["ray"]["target"]
+    with pytest.raises(SystemExit, match="none of"):
+        generate.collect_ray(tmp_path / "empty", meta)
+
+
 @pytest.mark.slow
 def test_the_docs_site_builds_strictly(tmp_path):
     mkdocs = Path(sys.executable).with_name("mkdocs")
