@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from riskplan.config import schema
+from riskplan.config.hydra_safety import interpolation_reason
 from riskplan.config.schema import CONF_DIR
 from riskplan.util.errors import BadInput
 
@@ -93,8 +94,6 @@ def resolved(cfg: DictConfig) -> dict:
         text = OmegaConf.to_container(cfg, resolve=False)
         for part in filter(None, key.split(".")):
             text = text[int(part)] if isinstance(text, list) else text.get(part) if isinstance(text, dict) else text
-        from riskplan.config.hydra_safety import interpolation_reason
-
         raise BadInput(
             f"key '{key}'" if key else "config",
             f"the interpolation {text} cannot be resolved ({interpolation_reason(err)}); give a plain "

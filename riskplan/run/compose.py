@@ -13,8 +13,10 @@ from omegaconf import DictConfig, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from riskplan.config import schema
+from riskplan.config.hydra_safety import check_hydra_node
 from riskplan.config.schema import CONF_DIR
 from riskplan.config.typed import explain, typed
+from riskplan.run.build import build_setup
 from riskplan.util.errors import BadInput
 
 __all__ = [
@@ -152,16 +154,12 @@ def compose(
         raise BadInput("config", "is nested too deeply; reward programs may nest at most 32 levels") from None
     finally:
         GlobalHydra.instance().clear()
-    from riskplan.config.hydra_safety import check_hydra_node
-
     check_hydra_node(cfg, [o for o in parsed if o.is_hydra_override()])
     full = copy.deepcopy(cfg) if with_hydra else None
     with open_dict(cfg):
         del cfg["hydra"]
     typed(cfg)  # the schema check, remembered: build_setup below types the same config
     if validate:
-        from riskplan.run.build import build_setup
-
         build_setup(cfg)
     return cfg if full is None else full
 

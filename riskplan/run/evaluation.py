@@ -4,9 +4,9 @@ summary.json, and the check that no non-finite number is ever recorded as a resu
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING
 
 import numpy as np
+import pandas as pd
 
 from riskplan.config.schema import Backend, Measure, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
@@ -18,9 +18,6 @@ from riskplan.run.build import Setup, starts
 from riskplan.run.checkpoint import State
 from riskplan.run.intervals import bootstrap_intervals, objective_interval
 from riskplan.run.provenance import provenance
-
-if TYPE_CHECKING:  # pandas loads after the training loop (see riskplan.run.training)
-    import pandas as pd
 
 SCHEMA_VERSION = 2  # of summary.json: 2 adds objective, team_objective, theta_names and robots (a list)
 ROBOT_INTERVALS = 32  # distinct (start, risk) pairs up to which each robot's objective gets a bootstrap interval
@@ -65,8 +62,6 @@ def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
     """The final policies on fresh episodes (own stream), one row per episode."""
-    import pandas as pd
-
     count = setup.params.train.eval_episodes
     ids, evaluated, cells = policies(setup, thetas)
     healthy = np.append(final_health(setup), True)  # the network average is the healthy robots'
@@ -97,8 +92,6 @@ def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
 
 def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
     """A few sampled paths of the initial and the final policies (own stream), one row per step."""
-    import pandas as pd
-
     count = setup.params.train.paths
     frames = []
     for name, policy_thetas in (("initial", np.tile(setup.theta0, (setup.robots, 1))), ("final", thetas)):

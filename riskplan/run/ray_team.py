@@ -92,7 +92,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
+import pandas as pd
 from omegaconf import OmegaConf
 
 from riskplan.config.schema import Aggregate, FaultKind, Measure, Order, Stale, TeamConf
@@ -124,6 +126,7 @@ from riskplan.run.schedules import risk_level, samples_at, step_size
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted, StopSignals
 from riskplan.util.paths import atomic_path, write_atomic
+from riskplan.version import __version__
 
 EXTRA = "riskplan[distributed]"
 FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # as training.FINISHED
@@ -496,9 +499,7 @@ class RobotActor:
 
     def where(self) -> dict:
         """Where it runs: node id, ip, pid, riskplan's version."""
-        import ray
-
-        from riskplan.version import __version__
+        import ray  # optional: the distributed extra; the actor runs only where Ray is
 
         return {
             "robot": self.core.i,
@@ -535,8 +536,6 @@ class RobotActor:
 
     def run(self, total: int) -> dict:
         """Its iterations up to `total`; {"robot", "iteration", "stopped"}."""
-        import numba
-
         numba.set_num_threads(max(1, min(self.threads, numba.config.NUMBA_NUM_THREADS)))  # this thread's kernels
         try:
             while self.core.iteration < total:
@@ -693,8 +692,6 @@ class _Team:
                 ).remote(setup.config, i, self.history[i][-1], threads)
             )
         self.where = self._get([a.where.remote() for a in self.actors], stop, START_SECONDS)
-        from riskplan.version import __version__
-
         for place in self.where:
             if place["version"] != __version__:
                 raise BadInput(
@@ -883,7 +880,7 @@ def _placements(ray, robots: int) -> list:
     when none does), as a soft node affinity (Ray places it elsewhere if that node cannot take it). Ray's own SPREAD
     strategy spreads actors that reserve no CPU only as a best effort (three robots on two nodes may all land on
     one), so the spread is made explicit; a single node gets SPREAD."""
-    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy  # optional: the distributed extra
 
     alive = [node for node in ray.nodes() if node.get("Alive")]
     working = [node for node in alive if node.get("Resources", {}).get("CPU", 0) > 0] or alive
@@ -913,7 +910,7 @@ def _reachable(address: str) -> str:
     resolved = address
     if address == "auto":
         try:
-            from ray._private.services import get_ray_address_from_environment
+            from ray._private.services import get_ray_address_from_environment  # optional: the distributed extra
 
             resolved = get_ray_address_from_environment("auto", None)
         except Exception as err:  # Ray's own words: no running cluster found
@@ -1005,10 +1002,8 @@ def train_ray(setup: Setup, out: Path, resume: bool, progress) -> Run:
             train_seconds = time.perf_counter() - team.started
             ray_up.close()  # every actor is gone: Ray's own processes (a local instance) go too, before evaluating
             log.metadata("ray_team_end", _end_record(team, train_seconds))
-            import pandas as pd
-
             thetas = team.final_thetas()
-            metrics = _metrics_table(pd, team.rows)
+            metrics = _metrics_table(team.rows)
             evaluation = evaluate(setup, thetas)
             trajectories = sample_paths(setup, thetas)
             summary = summarize(setup, State(total, thetas, {}, []), evaluation, metrics, train_seconds)
@@ -1085,7 +1080,7 @@ def _stop_team(team: _Team) -> None:
     team.checkpoint()
 
 
-def _metrics_table(pd, rows: list[dict]):
+def _metrics_table(rows: list[dict]) -> pd.DataFrame:
     """metrics.parquet: every row, sorted; each robot row with its iteration's consensus error (the team's)."""
     metrics = pd.DataFrame(rows).sort_values(["iteration", "robot"], ignore_index=True)
     team = metrics[metrics.robot == AVERAGE].set_index("iteration").consensus_error

@@ -39,9 +39,10 @@ import time as _time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
+import pandas as pd
 from mcap.opcode import Opcode
 from mcap.records import Channel, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader
@@ -49,9 +50,7 @@ from mcap.writer import CompressionType, Writer
 
 from riskplan.run import foxglove_scene as fx
 from riskplan.util.errors import BadInput
-
-if TYPE_CHECKING:  # pandas loads only when a table is written or read: not before a run's first iteration
-    import pandas as pd
+from riskplan.version import __version__
 
 MAGIC = b"\x89MCAP0\r\n"
 BATCH_ROWS = 20_000
@@ -265,8 +264,6 @@ def _float(v: Any) -> float:
 
 
 def _isna(v: Any) -> bool:
-    import pandas as pd
-
     return v is None or v is pd.NA or v is pd.NaT or (isinstance(v, float) and v != v)
 
 
@@ -284,8 +281,6 @@ def _encode_column(s: pd.Series) -> tuple[str, list]:
 
 
 def _decode_column(dtype: str, values: list) -> Any:
-    import pandas as pd
-
     try:
         dt = pd.api.types.pandas_dtype(dtype)
     except (TypeError, ValueError):
@@ -308,8 +303,6 @@ def _decode_column(dtype: str, values: list) -> Any:
 
 
 def _empty(columns: dict[str, str]) -> pd.DataFrame:
-    import pandas as pd
-
     return pd.DataFrame({c: pd.Series([], dtype=d) for c, d in columns.items()})
 
 
@@ -324,8 +317,6 @@ class RunLog:
     def _setup(self, fh) -> None:
         self._fh = fh
         self._w = Writer(fh, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
-        from riskplan.version import __version__
-
         self._w.start(profile="", library=f"riskplan {__version__}")
         self._schema_ids: dict[str, int] = {}
         self._channel_ids: dict[str, int] = {}
@@ -591,8 +582,6 @@ def _iteration_messages(msgs: Iterable[_Raw]) -> tuple[dict[str, list[tuple[_Raw
 
 
 def _column(values: list) -> Any:
-    import pandas as pd
-
     if values and all(type(v) is int for v in values):
         return np.asarray(values, dtype=np.int64)
     if values and all(type(v) is bool for v in values):
@@ -603,8 +592,6 @@ def _column(values: list) -> Any:
 
 
 def _metrics_frame(rows: list[dict]) -> pd.DataFrame:
-    import pandas as pd
-
     if not rows:
         return _empty(METRICS_BASE)
     cols = list(dict.fromkeys(k for r in rows for k in r))
@@ -613,8 +600,6 @@ def _metrics_frame(rows: list[dict]) -> pd.DataFrame:
 
 
 def _table_frame(batches: list[dict], empty: dict[str, str]) -> pd.DataFrame:
-    import pandas as pd
-
     if not batches:
         return _empty(empty)
     dtypes = batches[0]["dtypes"]

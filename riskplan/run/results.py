@@ -3,18 +3,20 @@
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
+from html import escape
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+import pandas as pd
 import yaml
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
+from riskplan.run.record import read_log
 from riskplan.util.errors import BadInput
 
 SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's when PyYAML has it: 10x faster, as safe
-
-if TYPE_CHECKING:  # pandas loads when a run's tables are read, not on `riskplan train`'s way to its first iteration
-    import pandas as pd
 
 TABLES = ("metrics", "eval", "trajectories")
 
@@ -52,8 +54,6 @@ class Run:
 
     def _repr_html_(self) -> str:
         """A small table for notebooks: the run, its status and the headline figures with their 95% intervals."""
-        from html import escape
-
         rows = [("run", str(self.path)), ("what", self.headline().split(", CVaR")[0])]
         if self.complete and self.summary:
             for name in ("mean", "cvar", "value_at_risk"):
@@ -103,8 +103,6 @@ def find_runs(paths: list[Path]) -> list[Path]:
 
 def load_run(path: str | Path) -> Run:
     """Load a run: parquet tables when all are there, else rebuilt from run.mcap (a killed run included)."""
-    import pandas as pd
-
     path = Path(path)
     if not path.is_dir() or not is_run_dir(path):
         raise BadInput(str(path), "holds no run (no run.mcap or .hydra/config.yaml); give a run directory")
@@ -130,8 +128,6 @@ def load_run(path: str | Path) -> Run:
             False,
             "no run.mcap and no tables: the run never started or its files were removed",
         )
-    from riskplan.run.record import read_log
-
     log = read_log(path / "run.mcap")
     problem = log.problem or damaged
     return Run(
@@ -152,8 +148,6 @@ def _config(path: Path) -> dict:
     BadInput naming the file when it cannot be a config: unreadable, not valid YAML, not a mapping of keys, too
     large, or with an interpolation that does not resolve (${oc.env:UNSET}, a missing key, a self-reference).
     """
-    import re
-
     file = path / ".hydra" / "config.yaml"
     if not file.is_file():
         return {}
@@ -182,9 +176,6 @@ def _config(path: Path) -> dict:
         raise BadInput(
             str(file), f"expands to more than {CONFIG_NODES} values (YAML aliases?); it was not written by riskplan"
         )
-    from omegaconf import OmegaConf
-    from omegaconf.errors import OmegaConfBaseException
-
     try:
         resolved = OmegaConf.to_container(OmegaConf.create(data), resolve=True)
     except (OmegaConfBaseException, ValueError, TypeError, KeyError, RecursionError) as err:

@@ -16,9 +16,9 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
+import pandas as pd
 from omegaconf import OmegaConf
 
 from riskplan.config.schema import Backend, Measure, Order, RiskConf, RiskplanConf
@@ -35,6 +35,7 @@ from riskplan.run.checkpoint import CHECKPOINT, State, load_checkpoint, save_che
 from riskplan.run.evaluation import AVERAGE, NumericalTrouble, check_finite, evaluate, sample_paths, summarize
 from riskplan.run.foxglove_layout import write_layout
 from riskplan.run.provenance import provenance
+from riskplan.run.ray_team import prepare_ray_resume, train_ray
 from riskplan.run.record import RunLog, read_log, resume_log
 from riskplan.run.results import Run
 from riskplan.run.schedules import risk_level, samples_at, step_size
@@ -42,9 +43,6 @@ from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import StopSignals
 from riskplan.util.lock import hold
 from riskplan.util.paths import atomic_path, check_output_dir, write_atomic
-
-if TYPE_CHECKING:  # pandas (0.2-0.4 s to import, with pyarrow) loads after the training loop, see _train_locked
-    pass
 
 FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # written when a run ends
 STOP_ENV = "RISKPLAN_TEST_STOP_AFTER_ITERATION"  # SIGSTOP after logging this iteration, so a test can SIGKILL there
@@ -169,8 +167,6 @@ def train(
 def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
     """train() under the directory's lock."""
     if setup.params.team.backend == Backend.ray:  # each robot a Ray actor: riskplan.run.ray_team
-        from riskplan.run.ray_team import train_ray
-
         return train_ray(setup, out, resume, progress)
     if resume:
         state = load_checkpoint(out, setup)
@@ -207,8 +203,6 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
                 _checkpoint(log, out, state)  # the iteration a signal cut short is kept
             stop.check(state.iteration)
         train_seconds = time.perf_counter() - wall
-        import pandas as pd  # only now: the first iteration does not wait for it (`riskplan bench`'s start-up row)
-
         metrics = pd.DataFrame(state.rows).sort_values(["iteration", "robot"], ignore_index=True)
         evaluation = evaluate(setup, state.thetas)
         trajectories = sample_paths(setup, state.thetas)
@@ -275,8 +269,6 @@ def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
     whether the run is finished already (its checkpoint is at train.iterations and its tables are there)."""
     setup = build_setup(config)
     if setup.params.team.backend == Backend.ray:
-        from riskplan.run.ray_team import prepare_ray_resume
-
         return setup, prepare_ray_resume(setup, out)
     state = load_checkpoint(out, setup)
     logged_rows(out / "run.mcap", state.iteration, setup.robots)
