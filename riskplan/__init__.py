@@ -10,6 +10,8 @@ Python API (the same composition, validation and files as the CLI):
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from riskplan.version import __version__
 
 __all__ = ["__version__", "compose", "load_run", "report", "sweep", "train"]
@@ -53,8 +55,6 @@ def report(paths, out_dir=None, formats=("png", "pdf")):
     """Figures, tables and report.html from the finished runs below `paths`, as `riskplan report` does; into
     `out_dir` (default: PATH/report for one path, else outputs/reports/<timestamp>/). Returns the page's path
     (riskplan.experiments.reporting.build_report)."""
-    from pathlib import Path
-
     from riskplan.experiments.reporting import build_report, default_out
 
     inputs = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]

@@ -10,6 +10,7 @@ import warnings
 
 import typer
 
+from riskplan.commands import bench, check, export, report, reproduce, sweep, train
 from riskplan.commands.common import OneLineErrors
 
 app = typer.Typer(
@@ -25,8 +26,6 @@ warnings.formatwarning = lambda message, *args, **kwargs: f"warning: {message}\n
 
 def _register_commands() -> None:
     """Add every command, in the order `riskplan --help` lists them."""
-    from riskplan.commands import bench, check, export, report, reproduce, sweep, train
-
     for module in (train, check, report, bench, sweep, reproduce, export):
         module.register(app)
 

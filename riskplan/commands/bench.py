@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 from pathlib import Path
@@ -33,14 +34,6 @@ def register(app: typer.Typer) -> None:
         import numba
         from rich.console import Console
 
-        console = Console(soft_wrap=True)  # one line per figure, also in a log file
-        console.print(
-            f"numba {numba.__version__}, {numba.get_num_threads()} threads "
-            f"({numba.config.THREADING_LAYER} layer), {os.cpu_count()} cores"
-        )
-        if scaling:
-            _scaling(console, quick, json_out, plot, csv_out)
-            return
         from riskplan.experiments.benchmarks import (
             bench_checkpoints,
             bench_jit,
@@ -50,6 +43,14 @@ def register(app: typer.Typer) -> None:
             bench_training,
         )
 
+        console = Console(soft_wrap=True)  # one line per figure, also in a log file
+        console.print(
+            f"numba {numba.__version__}, {numba.get_num_threads()} threads "
+            f"({numba.config.THREADING_LAYER} layer), {os.cpu_count()} cores"
+        )
+        if scaling:
+            _scaling(console, quick, json_out, plot, csv_out)
+            return
         rows: list[dict] = []
         for section in (
             lambda: bench_rollout(quick),
@@ -100,8 +101,6 @@ def _scaling(console, quick: bool, json_out: Path | None, plot: Path, csv_out: P
         json_out.write_text(json.dumps({"rows": rows, "slopes": scaling_slopes(rows, cache)}, indent=2, default=float))
         console.print(f"json: {json_out}")
     if csv_out:
-        import csv
-
         with open(csv_out, "w", newline="") as handle:
             writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
             writer.writeheader()

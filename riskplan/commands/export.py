@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from riskplan.commands.common import bad_input_exits
+from riskplan.util.errors import BadInput
 
 
 def register(app: typer.Typer) -> None:
@@ -44,8 +45,6 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"{done.action} {done.path} -> {done.where}")
 
         if not experiment.strip():
-            from riskplan.util.errors import BadInput
-
             raise BadInput("--experiment", "got ''; give an MLflow experiment name, e.g. riskplan")
         try:
             result = export_runs(list(paths or []), to, uri, experiment=experiment, echo=echo)

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import json
 from pathlib import Path
 
 import typer
 
 from riskplan.commands.common import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
+from riskplan.experiments.output_manifest import WriteFailed, claim
 from riskplan.util.errors import BadInput
 
 
@@ -26,8 +28,6 @@ def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
 @contextlib.contextmanager
 def write_errors_exit():
     """A file that cannot be written at run time (a full disk, ...): one line on stderr and exit code 1."""
-    from riskplan.experiments.output_manifest import WriteFailed
-
     try:
         yield
     except WriteFailed as err:
@@ -100,9 +100,7 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """Evaluate mean and CVaR of the total reward on a grid of theta (common random numbers, seeded)."""
-        from riskplan.experiments.landscape import check_grid, compute_landscape
-        from riskplan.experiments.output_manifest import claim
-        from riskplan.experiments.reporting import LANDSCAPES_ROOT
+        from riskplan.experiments.landscape import LANDSCAPES_ROOT, check_grid, compute_landscape
         from riskplan.run.build import build_setup
         from riskplan.run.compose import compose
 
@@ -141,8 +139,6 @@ def register(app: typer.Typer) -> None:
                 overrides=args,
                 key="--out",
             )
-        import json
-
         s = json.loads((path / "summary.json").read_text())
         best = s["best"]
 

@@ -7,7 +7,10 @@ from pathlib import Path
 import typer
 
 from riskplan.commands.common import PASS_THROUGH, bad_input_exits, check_out_dir
-from riskplan.experiments.reproduction import QUICK_SEEDS, SEEDS, process_started, reproduce
+
+# --seeds' defaults, here rather than in riskplan.experiments.reproduction: --help does not import it
+SEEDS = 10
+QUICK_SEEDS = 2
 
 
 def register(app: typer.Typer) -> None:
@@ -44,6 +47,9 @@ def register(app: typer.Typer) -> None:
         formats: str = typer.Option("png,pdf", "--format", help="Figure files of the report: any of png,pdf,svg."),
     ) -> None:
         """Run every experiment of the paper's Section V (several seeds each), then the report."""
+        from riskplan.experiments.reproduction import process_started, reproduce
+
+        seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
         raise typer.Exit(
             reproduce(check_out_dir(out), quick, seeds, jobs, formats, list(overrides or []), since=process_started())
         )

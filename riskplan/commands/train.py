@@ -104,6 +104,8 @@ def run_dir_override(parsed: list) -> Path | None:
 
 def check_new_run_dir(out: Path, key: str) -> None:
     """A run starts only in a new or empty directory: never over another run's files (resume is explicit)."""
+    from riskplan.run.results import is_run_dir
+
     if not out.is_dir():
         return
     entries = [p for p in out.iterdir() if p.name != LOCK]
@@ -116,8 +118,6 @@ def check_new_run_dir(out: Path, key: str) -> None:
             f"is in use by another riskplan process (pid {pid or 'unknown'}); one process "
             f"writes a run directory at a time: wait for it to end or stop it",
         )
-    from riskplan.run.results import is_run_dir
-
     if is_run_dir(out):
         raise BadInput(
             key, f"{out} already holds a run; resume it with riskplan train --resume {out}, or give a new directory"

@@ -15,8 +15,18 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import NullLocator
 
+from riskplan.engine import rng
 from riskplan.engine.distributions import Dist
+from riskplan.engine.rollout import simulate
+from riskplan.run.build import build_setup, starts
+from riskplan.run.checkpoint import State
+from riskplan.run.compose import compose
+from riskplan.run.schedules import samples_at
+from riskplan.run.training import iterate, train
 
 
 def rss_mb(field: str = "VmRSS") -> float:
@@ -97,11 +107,6 @@ def python_rollouts(world, theta: np.ndarray, episodes: int, seed: int) -> tuple
 
 def bench_rollout(quick: bool) -> list[dict]:
     """Batched kernel vs the plain Python loop on the paper world at theta0, W = 6000."""
-    from riskplan.engine import rng
-    from riskplan.engine.rollout import simulate
-    from riskplan.run.build import build_setup
-    from riskplan.run.compose import compose
-
     setup = build_setup(compose([]))
     theta = setup.theta0[None, :]
     keys = rng.robot_keys(0, rng.TRAIN, 0, 1)
@@ -130,9 +135,6 @@ def bench_rollout(quick: bool) -> list[dict]:
 
 def bench_training(quick: bool) -> list[dict]:
     """200 iterations at W = 6000 with logging and checkpoints, evaluation excluded; memory over import."""
-    from riskplan.run.compose import compose
-    from riskplan.run.training import train
-
     import_rss = rss_mb()
     cfg = compose(
         ["train.eval_episodes=1000", "train.bootstrap=10", "train.paths=2"] + (["train.iterations=50"] if quick else [])
@@ -170,9 +172,6 @@ def bench_training(quick: bool) -> list[dict]:
 
 def bench_checkpoints(quick: bool) -> list[dict]:
     """Many cheap iterations with a checkpoint every 10 against one checkpoint at the end: O(1) per checkpoint."""
-    from riskplan.run.compose import compose
-    from riskplan.run.training import train
-
     iterations = 1000 if quick else 4000
     base = [
         "train.samples=20",
@@ -236,11 +235,6 @@ def bench_jit() -> list[dict]:
 
 def bench_rollout_once() -> None:
     """One small rollout (used by bench_jit in a child process)."""
-    from riskplan.engine import rng
-    from riskplan.engine.rollout import simulate
-    from riskplan.run.build import build_setup
-    from riskplan.run.compose import compose
-
     setup = build_setup(compose([]))
     simulate(setup.world, setup.kernel, setup.theta0[None, :], setup.world.starts, rng.robot_keys(0, 1, 0, 1), 100)
 
@@ -356,10 +350,6 @@ TEAM_SAMPLES = 100_000  # total samples per iteration of the team benchmarks and
 def bench_team(quick: bool) -> list[dict]:
     """100 robots (W_i = 1000) and 1000 robots (W_i = 100) on a random geometric graph, vs one robot with the same
     total samples (W = 100000)."""
-    from riskplan.run.build import build_setup
-    from riskplan.run.checkpoint import State
-    from riskplan.run.compose import compose
-    from riskplan.run.training import iterate
 
     def iteration_time(overrides: list[str]) -> float:
         setup = build_setup(compose(overrides))
@@ -492,14 +482,6 @@ class Point:
     """One world of the scaling benchmark, built once: its kernel call and its training iteration, ready to time."""
 
     def __init__(self, dimension: str, value: float, overrides: list[str]):
-        from riskplan.engine import rng
-        from riskplan.engine.rollout import simulate
-        from riskplan.run.build import build_setup, starts
-        from riskplan.run.checkpoint import State
-        from riskplan.run.compose import compose
-        from riskplan.run.schedules import samples_at
-        from riskplan.run.training import iterate
-
         self.dimension, self.value, self.overrides = dimension, value, list(overrides)
         setup = build_setup(compose(self.overrides))
         first = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
@@ -629,16 +611,12 @@ def scaling_table(rows: list[dict]) -> str:
 
 def plot_scaling(rows: list[dict], path: Path, cache: int | None = None) -> Path:
     """Steps/s (top) and bytes per sample (bottom) against each dimension, log axes; the baseline dashed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import matplotlib.ticker
-
     cache = cache_bytes() if cache is None else cache
     base = rows[0]
     dims = list(dict.fromkeys(r["dimension"] for r in rows if r["dimension"] != "baseline"))
-    fig, axes = plt.subplots(2, len(dims), figsize=(3.0 * len(dims), 5.2), squeeze=False, constrained_layout=True)
+    fig = Figure(figsize=(3.0 * len(dims), 5.2), constrained_layout=True)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2, len(dims), squeeze=False)
     for col, dimension in enumerate(dims):
         points = [r for r in rows if r["dimension"] == dimension]
         categorical = dimension == "mobile"
@@ -681,7 +659,7 @@ def plot_scaling(rows: list[dict], path: Path, cache: int | None = None) -> Path
             else:
                 ax.set_xscale("log")
                 ax.set_xticks(xs, [f"{x:g}" for x in xs], rotation=45 if len(xs) > 6 else 0)
-                ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+                ax.xaxis.set_minor_locator(NullLocator())
                 beyond = [x for x, r in zip(xs, points) if r["table_bytes"] > cache]
                 if beyond:
                     ax.axvspan(
@@ -705,5 +683,4 @@ def plot_scaling(rows: list[dict], path: Path, cache: int | None = None) -> Path
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110, metadata={"Software": None})
-    plt.close(fig)
     return path

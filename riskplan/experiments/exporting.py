@@ -39,6 +39,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from urllib.parse import unquote, urlparse
+
+import numpy as np
+import pandas as pd
 
 from riskplan.experiments.reporting.collect import Broken, RunInfo, collect, flatten
 from riskplan.experiments.sweep_worker import config_sha
@@ -151,9 +155,6 @@ def metric_prefix(robot: int, headline: int) -> str:
 
 def iteration_points(info: RunInfo, start: float) -> list[tuple[str, int, float, float]]:
     """(key, iteration, value, wall time) for every finite value of metrics.parquet but iteration and robot."""
-    import numpy as np
-    import pandas as pd
-
     m = info.run.metrics.sort_values(["iteration", "robot"], kind="stable")
     columns = [
         c
@@ -256,8 +257,6 @@ def check_uri(to: str, uri: str | None) -> str:
     if to == "mlflow" and URI_SCHEME.match(text) and not text.startswith("file:"):
         return text  # sqlite:///..., http://..., databricks: MLflow checks these itself
     if to == "mlflow" and text.startswith("file:"):
-        from urllib.parse import unquote, urlparse
-
         text = unquote(urlparse(text).path) if text.startswith("file://") else text[len("file:") :]
     check_output_dir(text, "--uri")
     directory = Path(os.path.abspath(os.path.expanduser(text)))
@@ -308,7 +307,7 @@ class MlflowTarget:
     """An MLflow tracking store: one experiment, one MLflow run per riskplan run."""
 
     def __init__(self, uri: str, experiment: str = EXPERIMENT) -> None:
-        from mlflow.tracking import MlflowClient
+        from mlflow.tracking import MlflowClient  # optional: the mlflow extra
 
         self.uri = uri
         self.client = MlflowClient(tracking_uri=uri)
@@ -329,8 +328,8 @@ class MlflowTarget:
                 break
 
     def write(self, rec: Record) -> Exported:
-        from mlflow.entities import Metric, Param
-        from mlflow.utils.validation import (
+        from mlflow.entities import Metric, Param  # optional: the mlflow extra
+        from mlflow.utils.validation import (  # optional: the mlflow extra
             MAX_METRICS_PER_BATCH,
             MAX_PARAM_VAL_LENGTH,
             MAX_PARAMS_TAGS_PER_BATCH,
@@ -426,11 +425,11 @@ class TensorboardTarget:
 
     @staticmethod
     def _events(directory: Path, name: str, rec: Record) -> None:
-        from tensorboard.compat.proto.event_pb2 import Event
-        from tensorboard.compat.proto.summary_pb2 import Summary
-        from tensorboard.plugins.hparams import summary_v2 as hparams
-        from tensorboard.plugins.text import summary_v2 as text
-        from tensorboard.summary.writer.event_file_writer import EventFileWriter
+        from tensorboard.compat.proto.event_pb2 import Event  # optional: the tensorboard extra
+        from tensorboard.compat.proto.summary_pb2 import Summary  # optional: the tensorboard extra
+        from tensorboard.plugins.hparams import summary_v2 as hparams  # optional: the tensorboard extra
+        from tensorboard.plugins.text import summary_v2 as text  # optional: the tensorboard extra
+        from tensorboard.summary.writer.event_file_writer import EventFileWriter  # optional: the tensorboard extra
 
         writer = EventFileWriter(str(directory), max_queue_size=1024, flush_secs=3600)
         try:
@@ -484,7 +483,7 @@ class FoxgloveTarget:
 def _store_errors(target: str) -> tuple[type[BaseException], ...]:
     """What a failure to write the destination raises: OSError, and MLflow's own exception."""
     if target == "mlflow":
-        from mlflow.exceptions import MlflowException
+        from mlflow.exceptions import MlflowException  # optional: the mlflow extra
 
         return OSError, MlflowException, ImportError  # ImportError: a store that needs the full mlflow
     return (OSError,)

@@ -16,15 +16,23 @@ import traceback
 from pathlib import Path
 
 import hydra
+from hydra._internal.callbacks import Callbacks
+from hydra._internal.core_plugins import basic_sweeper
+from hydra._internal.hydra import Hydra
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.types import RunMode
-from omegaconf import DictConfig
+from hydra.core.utils import configure_log, run_job
+from hydra.types import HydraContext, RunMode
+from omegaconf import DictConfig, open_dict
 
 from riskplan.config import schema
+from riskplan.experiments.sweep_worker import sweep_job
+from riskplan.run.evaluation import NumericalTrouble
+from riskplan.run.training import train
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
 from riskplan.util.paths import write_atomic
+from riskplan.util.progress import TrainingBar, silent
 
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")  # absolute: riskplan/conf is a symlinked data dir
 STATUS = "status.json"  # written in every job directory: {"status": "done" | "failed", "error": ...}
@@ -35,14 +43,9 @@ _task_stderr: list = []  # the terminal's stderr, handed back to the task while 
 
 def _task(cfg: DictConfig) -> float | None:
     """Train one job in Hydra's output directory; record success or failure in status.json."""
-    from riskplan.run.evaluation import NumericalTrouble
-    from riskplan.run.training import train
-
     out = Path(HydraConfig.get().runtime.output_dir)
     single = HydraConfig.get().mode == RunMode.RUN
     if not single:  # a sweep job: skips itself when finished, resumes when killed, logs to its own folder
-        from riskplan.experiments.sweep_worker import sweep_job
-
         return sweep_job(cfg, out)
     _failure.clear()
     _interrupted.clear()
@@ -133,11 +136,6 @@ def run_composed(config: DictConfig) -> None:
     with_hydra=True): what `Hydra.run` does after composing, so the config is not composed a second time (0.1 s of
     `riskplan train`'s start). The run's directory is hydra.run.dir; `.hydra/`, logging and callbacks are Hydra's.
     A failure outside the task (Hydra cannot write `.hydra/`: a full disk) is RunFailed, one line."""
-    from hydra._internal.callbacks import Callbacks
-    from hydra.core.utils import configure_log, run_job
-    from hydra.types import HydraContext
-    from omegaconf import open_dict
-
     with open_dict(config.hydra):
         config.hydra.mode = RunMode.RUN
     _task_stderr.append(sys.stderr)
@@ -174,10 +172,9 @@ def _without_repeat_compositions(multirun: bool, skip: frozenset = frozenset(), 
 
     All are Hydra internals (hydra-core is pinned to 1.3.x): if they move, nothing is skipped. Optimising
     sweepers (optuna) choose their own jobs, so they still validate them."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-    from hydra._internal.hydra import Hydra
-
     mode = RunMode.MULTIRUN if multirun else RunMode.RUN
+    # the class as it is now: Hydra's plugin scan executes its module again, defining a new BasicSweeper
+    BasicSweeper = basic_sweeper.BasicSweeper
     own_batch = BasicSweeper.get_job_batch
 
     def job_batch(sweeper) -> list:
@@ -245,6 +242,4 @@ def write_status(out: Path, status: str, error: str | None, trace: str | None = 
 
 def _progress(enabled: bool):
     """A rich progress bar for a single run; silent inside sweeps (the sweep shows its own view)."""
-    from riskplan.util.progress import TrainingBar, silent
-
     return TrainingBar() if enabled else silent()

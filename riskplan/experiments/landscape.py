@@ -19,11 +19,21 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import yaml
+from numpy.lib.stride_tricks import sliding_window_view
+from omegaconf import OmegaConf
 
 from riskplan.engine import rng
 from riskplan.engine.risk_measures import tail_count
+from riskplan.engine.rollout import simulate
+from riskplan.experiments.output_manifest import Output, claim
+from riskplan.run.build import build_setup
+from riskplan.run.compose import compose
+from riskplan.run.provenance import provenance
+from riskplan.run.results import _config
 from riskplan.util.errors import BadInput
+from riskplan.util.limits import STEPS_PER_SECOND, check_memory, check_time
 
+LANDSCAPES_ROOT = Path("outputs") / "landscapes"  # where riskplan landscape claims its folders
 KIND = "landscape"
 TABLE = "landscape.parquet"
 SCHEMA_VERSION = 1
@@ -60,8 +70,6 @@ class Landscape:
 
     def smoothed_best(self, column: str) -> dict:
         """The maximum of the 3x3 moving average of `column` (robust to the Monte Carlo noise of single points)."""
-        from numpy.lib.stride_tricks import sliding_window_view
-
         va, vb, values = self.grid(column)
         smooth = sliding_window_view(np.pad(values, 1, mode="edge"), (3, 3)).mean(axis=(2, 3))
         if not np.isfinite(smooth).any():
@@ -104,8 +112,6 @@ def load_landscape(path: Path) -> Landscape:
     path = Path(path)
     if not (path / TABLE).is_file():
         raise ValueError(f"no {TABLE} (the landscape did not finish)")
-    from riskplan.run.results import _config
-
     table = pd.read_parquet(path / TABLE)
     summary = json.loads((path / "summary.json").read_text()) if (path / "summary.json").is_file() else {}
     if not isinstance(summary, dict):
@@ -142,8 +148,6 @@ def evaluate_grid(setup, thetas: np.ndarray, episodes: int, beta: float, seed: i
     mean_se and cvar_se are the estimators' asymptotic standard errors at each point: std(Z)/sqrt(W) and
     std((Z - v) 1{Z <= v}) / (beta sqrt(W)) (the influence function of the Rockafellar-Uryasev form).
     """
-    from riskplan.engine.rollout import simulate
-
     world, kernel = setup.world, setup.kernel
     key = np.uint64(rng.stream_key(seed, rng.LANDSCAPE))
     start = world.starts[0]
@@ -194,8 +198,6 @@ def run_landscape(
     axes: tuple[int, int] = (0, 1),
 ) -> Path:
     """Compose the config from overrides, evaluate the landscape and write it to out_dir (returned)."""
-    from riskplan.run.compose import compose
-
     cfg = compose(list(overrides))
     return compute_landscape(
         cfg, out_dir, points=points, episodes=episodes, ranges=ranges, axes=axes, overrides=list(overrides)
@@ -230,8 +232,6 @@ def estimate(points: int, episodes: int, sources: int, horizon: int) -> tuple[fl
     rounded up to whole grid points (simulate's outputs and evaluate_grid's sorted copies and temporaries); the
     time is every episode running to the horizon at limits.STEPS_PER_SECOND.
     """
-    from riskplan.util.limits import STEPS_PER_SECOND
-
     cells = float(points) * float(points)
     table = cells * (2 * sources + 12) * 8 * 4
     per_call = max(1, CHUNK_EPISODES // max(episodes, 1))
@@ -242,8 +242,6 @@ def estimate(points: int, episodes: int, sources: int, horizon: int) -> tuple[fl
 
 def check_size(points: int, episodes: int, sources: int, horizon: int) -> None:
     """BadInput naming --points or --episodes when the grid would not fit in memory or time (riskplan.util.limits)."""
-    from riskplan.util.limits import check_memory, check_time
-
     table, chunk, seconds = estimate(points, episodes, sources, horizon)
     what = f"a {points}x{points} grid x {episodes} episodes"
     check_memory("--episodes" if chunk > table else "--points", table + chunk, what)
@@ -267,12 +265,6 @@ def compute_landscape(
     must be new, empty or a previous landscape's; `key` names it); the grid is evaluated, then every file written
     atomically (WriteFailed, an OSError, when one cannot be: the previous files stay whole).
     """
-    from omegaconf import OmegaConf
-
-    from riskplan.experiments.output_manifest import Output, claim
-    from riskplan.run.build import build_setup
-    from riskplan.run.provenance import provenance
-
     setup = build_setup(cfg)
     config = setup.config
     ranges, (a, b) = check_grid(setup, points, episodes, ranges, axes)

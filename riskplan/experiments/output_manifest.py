@@ -27,6 +27,7 @@ from pathlib import Path
 
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import atomic_path, check_output_dir
+from riskplan.version import __version__
 
 MANIFEST = ".riskplan-manifest.json"
 TEMP = re.compile(r"\..+\.\d+\.tmp")  # what paths.atomic_path leaves behind when the process is killed
@@ -202,8 +203,6 @@ class Output:
         self._manifest(sorted(set(self.previous) | set(self.planned)))
 
     def _manifest(self, files: list[str]) -> None:
-        from riskplan.version import __version__
-
         data = json.dumps(
             {"kind": self.kind, "written_by": f"riskplan {self.kind} {__version__}", "files": files}, indent=1
         )

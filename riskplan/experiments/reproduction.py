@@ -34,18 +34,30 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import os
+import shlex
 import sys
 import time
 import warnings
 from pathlib import Path
 
+import pandas as pd
 import typer
+from rich.console import Console
+from rich.table import Table
 
-from riskplan.experiments.reporting import REPRODUCE_ROOT
+from riskplan.experiments.landscape import compute_landscape
+from riskplan.experiments.reporting import REPRODUCE_ROOT, build_report, check_formats
+from riskplan.experiments.reporting.parallel import workers as report_workers
+from riskplan.experiments.sweeping import report_outcome, run_sweep, sweep_size, warm_workers
+from riskplan.experiments.sweeping.jobs import cpu_count
+from riskplan.run import budget
+from riskplan.run.compose import compose, parse_overrides
+from riskplan.util import lock
 from riskplan.util.errors import BadInput
+from riskplan.util.limits import JOBS_ENV, STEPS_PER_SECOND, check_time, job_budget
+from riskplan.util.paths import check_output_dir, claim_dir, write_atomic
 
-SEEDS = 10
-QUICK_SEEDS = 2
 STUDY_SEEDS = 5  # the studies beyond the paper: at most 5 seeds (2 with --quick)
 # A heterogeneous team: 8 robots from the corners and edge midpoints of the 12x12 world (ring neighbours are
 # neighbouring cells), the paper's W_i = 2000, and a constant step (eq. 14's O(eps) floor shows at a fixed eps)
@@ -148,27 +160,22 @@ QUICK_LANDSCAPE = {"points": 31, "episodes": 1000, "ranges": ((-30.0, 60.0), (-3
 
 
 def reproduce(
-    out: Path | None = None,
-    quick: bool = False,
-    seeds: int | None = None,
+    out: Path | None,
+    quick: bool,
+    seeds: int,
     jobs: int | None = None,
     formats: str = "png,pdf",
     overrides: list[str] | None = None,
     *,
     since: float | None = None,
 ) -> int:
-    """Run Section V and the report; return the exit code (1 when a job or the report failed).
+    """Run Section V and the report, `seeds` seeds per condition; return the exit code (1 when a job or the report
+    failed).
 
     `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000. `since`: when the
     command started (epoch seconds; the CLI gives its process's start), so the time breakdown includes start-up.
     """
-    from riskplan.experiments.reporting import check_formats
-    from riskplan.experiments.reporting.parallel import workers as report_workers
-    from riskplan.util import lock
-    from riskplan.util.paths import check_output_dir, claim_dir
-
     entered = time.time()
-    seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
     if seeds < 1:
         raise BadInput("--seeds", f"got {seeds}; expected at least 1")
     jobs_total = check_seeds(seeds)
@@ -203,18 +210,12 @@ def reproduce(
 def _warm_workers(jobs: int | None, seeds: int):
     """Start and warm up the sweeps' local workers in the background (riskplan.experiments.sweeping.warm_workers); returns
     the function that waits for them, or None when the sweeps run their jobs in this process (one worker)."""
-    from riskplan.experiments.sweeping import warm_workers
-    from riskplan.experiments.sweeping.jobs import cpu_count
-
     workers = min(jobs or cpu_count(), max(experiment_jobs(seeds)))
     return warm_workers(workers) if workers > 1 else None
 
 
 def experiment_jobs(seeds: int) -> list[int]:
     """Jobs of each sweep of EXPERIMENTS with this many seeds (counted from the overrides, nothing expanded)."""
-    from riskplan.experiments.sweeping import sweep_size
-    from riskplan.run.compose import parse_overrides
-
     counts = []
     for _, _, experiment, most in EXPERIMENTS:
         counts.append(sweep_size(parse_overrides(experiment))[0] * min(seeds, most or seeds))
@@ -223,8 +224,6 @@ def experiment_jobs(seeds: int) -> list[int]:
 
 def check_seeds(seeds: int) -> int:
     """Bad input when the sweeps with `seeds` seeds hold more jobs than RISKPLAN_MAX_JOBS; the total otherwise."""
-    from riskplan.util.limits import JOBS_ENV, job_budget
-
     total = sum(experiment_jobs(seeds))
     budget = job_budget()
     if total > budget:
@@ -240,8 +239,6 @@ def check_seeds(seeds: int) -> int:
 def job_steps(cfg) -> float:
     """Trajectory-step equivalents one job takes (riskplan.run.budget's estimate of a run: training, evaluation,
     bootstrap, logging)."""
-    from riskplan.run import budget
-
     width, height = (int(v) for v in cfg.world.size)
     sizes = budget.sizes_of(cfg, width, height, len(cfg.world.sources), int(cfg.team.robots))
     return sum(amount for amount, _, _ in budget.estimate(sizes)[1])
@@ -249,8 +246,6 @@ def job_steps(cfg) -> float:
 
 def check_work(seeds: int, total_jobs: int, configs: dict, overrides: list[str]) -> None:
     """Bad input when the sweeps are estimated to simulate for longer than RISKPLAN_MAX_HOURS."""
-    from riskplan.util.limits import STEPS_PER_SECOND, check_time
-
     steps = 0.0
     for (_, _, experiment, _), jobs in zip(EXPERIMENTS, experiment_jobs(seeds)):
         steps += jobs * job_steps(configs[setup_of(experiment)])
@@ -271,16 +266,7 @@ def _reproduce(
 ) -> int:
     """The reproduction into `target`, whose lock this process holds (`clock`: when reproduce() was entered and
     when its checks ended, for the time breakdown; `warmed`: waits for the warmed-up workers, see _warm_workers)."""
-    import threading
-
-    from riskplan.experiments.reporting import build_report
-    from riskplan.experiments.sweeping import report_outcome, run_sweep
-    from riskplan.util.paths import write_atomic
-
     started = time.time()
-    # the report's modules (matplotlib, pandas) load while this process mostly waits for the sweeps' jobs
-    importing = threading.Thread(target=_import_report_modules, name="riskplan-report-imports", daemon=True)
-    importing.start()
     warm_up: dict = {}
 
     def wait_for_workers() -> None:
@@ -332,7 +318,6 @@ def _reproduce(
     _print_comparison(outcomes)
     record["parts"]["comparison"] = {"seconds": round(time.time() - tic, 2)}
     tic = time.time()
-    importing.join()
     try:
         page = build_report([target], target / "report", fmts)
         typer.echo(f"report: {page}")
@@ -355,8 +340,6 @@ def _reproduce(
     write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
     typer.echo(f"reproduced in {record['seconds']:.0f} s: {target}")
     if code:
-        import shlex
-
         again = ["--out", str(target), *(["--quick"] if quick else []), "--seeds", str(seeds), *(overrides or [])]
         typer.echo(
             f"to retry what did not finish (finished jobs are skipped): riskplan reproduce {shlex.join(again)}",
@@ -365,27 +348,9 @@ def _reproduce(
     return code
 
 
-def _import_report_modules() -> None:
-    """Import what the report needs (a head start, on a background thread; a failure shows in the report)."""
-    import importlib
-
-    for name in (
-        "riskplan.experiments.reporting.collect",
-        "riskplan.experiments.reporting.figures",
-        "riskplan.experiments.reporting.page",
-        "riskplan.experiments.reporting.tables",
-    ):
-        try:
-            importlib.import_module(name)
-        except Exception:
-            return
-
-
 def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict]:
     """The overrides every sweep gets (--quick's, then the user's), checked on both set-ups before anything runs;
     and the composed config of each set-up (by its experiment=... override)."""
-    from riskplan.run.compose import compose, parse_overrides
-
     for override in parse_overrides(overrides):
         if override.is_sweep_override() or override.is_hydra_override():
             raise BadInput(
@@ -410,25 +375,18 @@ def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict
 
 def setup_of(experiment: list[str]) -> tuple[str, ...]:
     """An experiment's set-up: its overrides without the swept ones (one job's config but for the swept keys)."""
-    from riskplan.run.compose import parse_overrides
-
     return tuple(o.input_line for o in parse_overrides(experiment) if not o.is_sweep_override())
 
 
 def _not_set_by(experiment: list[str], extra: list[str]) -> list[str]:
     """The extra overrides whose key the experiment does not set itself (frontier/ sweeps risk.beta, whatever the
     user gave for the paper's set-ups)."""
-    from riskplan.run.compose import parse_overrides
-
     own = {o.key_or_group for o in parse_overrides(experiment)}
     return [o.input_line for o in parse_overrides(extra) if o.key_or_group not in own]
 
 
 def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
     """The objective landscape of the paper world (skipped when it is already there)."""
-    from riskplan.experiments.landscape import compute_landscape
-    from riskplan.run.compose import compose
-
     grid = QUICK_LANDSCAPE if quick else LANDSCAPE
     done = out / "status.json"
     try:
@@ -450,10 +408,6 @@ def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
 
 def _print_comparison(outcomes) -> None:
     """Across seeds: the mean and CVaR of each condition (the paper's claims in four lines)."""
-    import pandas as pd
-    from rich.console import Console
-    from rich.table import Table
-
     frames = []
     for outcome in outcomes:
         frame = outcome.summary.copy()
@@ -523,8 +477,6 @@ def process_started() -> float | None:
 
 def _started_of(pid) -> float | None:
     """When process `pid` started (epoch seconds) from /proc/<pid>/stat and /proc/stat's btime; None if unknown."""
-    import os
-
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         boot = next(
@@ -539,10 +491,6 @@ def _sweep_timing(outcome, tic: float, toc: float) -> dict:
     """Where a sweep's wall time went, from its jobs' status.json (started, finished, seconds, pid), their
     summary.json (wall_time: the training loop) and metrics.parquet (iteration 0's extra time in a worker's first
     job: the numba cache load). Only the jobs that ran in this launch count."""
-    import os
-
-    import pandas as pd
-
     launched = toc - outcome.seconds  # _run_plan's start: planning (composing and validating every job) is before
     jobs = []
     for path in outcome.summary.get("path", pd.Series(dtype=object)).dropna():

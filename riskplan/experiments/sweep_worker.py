@@ -35,15 +35,23 @@ import signal
 import socket
 import string
 import sys
+import tempfile
 import threading
 import time
 import traceback
 from pathlib import Path
 
+import numba
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from riskplan.run.compose import compose
+from riskplan.run.evaluation import NumericalTrouble
+from riskplan.run.training import train
+from riskplan.util import lock
+from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
+from riskplan.util.paths import write_atomic
 
 STATUS = "status.json"
 JOB_LOG = "job.log"  # everything the job prints (Python and native), one file per job folder
@@ -155,8 +163,6 @@ def _finite(value):
 
 def write_status(out: Path, record: dict) -> None:
     """Write status.json atomically (a reader never sees half a file, a full disk leaves no temp file)."""
-    from riskplan.util.paths import write_atomic
-
     write_atomic(Path(out) / STATUS, json.dumps(_finite(record), indent=2, allow_nan=False))
 
 
@@ -176,9 +182,6 @@ def sweep_job(cfg: DictConfig, out: Path) -> float | None:
 
 def _lock_folder(stack: contextlib.ExitStack, out: Path) -> bool:
     """Take the job folder's lock into `stack`; False when another process holds it."""
-    from riskplan.util import lock
-    from riskplan.util.errors import BadInput
-
     try:
         stack.enter_context(lock.hold(out, "sweep job folder"))
     except BadInput:
@@ -193,8 +196,6 @@ def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | No
         return prior.get("cvar")
     threads = job_threads()
     if threads:
-        import numba
-
         numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     resume = (
         prior is not None
@@ -295,11 +296,6 @@ def warm_up() -> tuple[int, float]:
     """Import what a job needs and load the compiled kernels from numba's cache, by training tiny runs in a scratch
     directory: `riskplan reproduce` runs this on its sweep workers while it checks and plans, so that its first
     jobs start at once. Returns (this worker's pid, seconds taken)."""
-    import tempfile
-
-    from riskplan.run.compose import compose
-    from riskplan.run.training import train
-
     started = time.time()
     watch_driver()
     with tempfile.TemporaryDirectory(prefix="riskplan-warm-up-") as scratch:
@@ -310,8 +306,6 @@ def warm_up() -> tuple[int, float]:
 
 def numba_threads() -> int:
     """The threads numba runs this job's kernels with (recorded in status.json and job.log)."""
-    import numba
-
     return int(numba.get_num_threads())
 
 
@@ -338,10 +332,6 @@ def job_threads() -> int | None:
 
 def _train(cfg: DictConfig, out: Path, resume: bool) -> dict:
     """Train (or resume); any error fails this job alone and is returned in its record."""
-    from riskplan.run.evaluation import NumericalTrouble
-    from riskplan.run.training import train
-    from riskplan.util.errors import BadInput
-
     try:
         if resume:
             try:

@@ -12,6 +12,22 @@ import datetime as dt
 from dataclasses import dataclass
 from pathlib import Path
 
+import pandas as pd
+
+from riskplan.experiments.output_manifest import Output, WriteFailed, claim
+from riskplan.experiments.reporting.collect import collect
+from riskplan.experiments.reporting.figures import figure_files, make_figures
+from riskplan.experiments.reporting.page import render
+from riskplan.experiments.reporting.parallel import shared_map
+from riskplan.experiments.reporting.tables import (
+    comparison_table,
+    csv_text,
+    landscape_table,
+    runs_table,
+    soft_risk_table,
+    study_tables,
+)
+from riskplan.run.results import find_runs
 from riskplan.util.errors import BadInput
 
 FORMATS = ("png", "pdf", "svg")
@@ -19,7 +35,6 @@ DEFAULT_FORMATS = ("png", "pdf")
 
 REPRODUCE_ROOT = Path("outputs") / "reproduce"  # where riskplan reproduce claims its folders
 REPORTS_ROOT = Path("outputs") / "reports"
-LANDSCAPES_ROOT = Path("outputs") / "landscapes"
 
 
 def latest_reproduction(root: Path = REPRODUCE_ROOT) -> Path:
@@ -80,21 +95,6 @@ def write_report(
     paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS, key: str = "out_dir"
 ) -> Report:
     """build_report, returning what was made (for the CLI's listing)."""
-    from riskplan.experiments.output_manifest import Output, claim
-    from riskplan.experiments.reporting.collect import collect
-    from riskplan.experiments.reporting.figures import figure_files, make_figures
-    from riskplan.experiments.reporting.page import render
-    from riskplan.experiments.reporting.parallel import shared_map
-    from riskplan.experiments.reporting.tables import (
-        comparison_table,
-        csv_text,
-        landscape_table,
-        runs_table,
-        soft_risk_table,
-        study_tables,
-    )
-    from riskplan.run.results import find_runs
-
     formats = check_formats(list(formats))
     find_runs([Path(p) for p in paths])  # the inputs first (a missing path, one without runs), then --out
     previous = claim(out_dir, "report", key)  # before reading any run: a bad --out is refused at once
@@ -148,8 +148,6 @@ def write_report(
 def collect_studies(coll, tables) -> dict:
     """The studies' tables (name -> DataFrame, empty when absent): those of reproduce's study folders, and any the
     main runs hold themselves (a sweep over risk measures given to riskplan report), one table per study."""
-    import pandas as pd
-
     out = {}
     own = tables(coll)
     for name, table in own.items():
@@ -158,8 +156,6 @@ def collect_studies(coll, tables) -> dict:
         out[name] = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
     return out
 
-
-from riskplan.experiments.output_manifest import WriteFailed  # noqa: E402 - re-exported
 
 __all__ = [
     "DEFAULT_FORMATS",

@@ -21,6 +21,8 @@ from typing import Any
 import pandas as pd
 
 from riskplan.config.schema import ScheduleConf
+from riskplan.config.typed import check_schema
+from riskplan.experiments.landscape import is_landscape_dir, load_landscape
 from riskplan.run.results import TABLES, Run, find_runs, load_run
 from riskplan.util.errors import BadInput
 
@@ -306,8 +308,6 @@ def theta_columns(metrics: pd.DataFrame) -> list[str]:
 
 def collect(paths: list[Path]) -> Collection:
     """Find, load and group every run under `paths`; BadInput only for a path that holds no run at all."""
-    from riskplan.experiments.landscape import is_landscape_dir, load_landscape
-
     inputs = [Path(p) for p in paths]
     found = find_runs(inputs)  # BadInput for a missing path or one without any run
     runs: list[RunInfo] = []
@@ -436,8 +436,6 @@ _CHECKED: dict[str, str] = {}  # config (without its seed) as JSON -> problem ('
 def config_problem(config: dict) -> str:
     """Why a run's config cannot be reported (it fails the schema, or a value the report relies on is out of
     range), or ''."""
-    from riskplan.config.typed import check_schema
-
     seed = config.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         return f"config fails the schema: seed is {seed!r}; expected a whole number"

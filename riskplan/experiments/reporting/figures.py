@@ -8,6 +8,7 @@ Curves over several seeds are the across-seed mean with a 95% t band; single-see
 from __future__ import annotations
 
 import io
+import json
 from dataclasses import dataclass
 
 import matplotlib
@@ -23,8 +24,33 @@ from matplotlib.ticker import MaxNLocator
 from PIL import Image
 
 from riskplan.engine.risk_measures import cvar, value_at_risk
-from riskplan.experiments.reporting.collect import Collection, Group, RunInfo, measure_name, theta_columns
-from riskplan.experiments.reporting.stats import band
+from riskplan.engine.world import world_map
+from riskplan.experiments.reporting.collect import (
+    Collection,
+    Group,
+    RunInfo,
+    fault_name,
+    measure_name,
+    policy_name,
+    schedule_pairs,
+    theta_columns,
+)
+from riskplan.experiments.reporting.stats import band, seed_interval
+from riskplan.experiments.reporting.tables import (
+    _common_beta,
+    _is_central,
+    _paired,
+    fault_groups,
+    group_row,
+    hetero_groups,
+    landscape_for,
+    measure_groups,
+    policy_groups,
+    run_values,
+    runs_on,
+    team_objective,
+)
+from riskplan.run.build import build_setup, starts
 
 STYLE = {
     "font.family": "DejaVu Sans",
@@ -110,9 +136,6 @@ def plot_band(ax, table: pd.DataFrame, colour: str, label: str, style: str = "-"
 
 
 def _world_map(config: dict) -> dict | None:
-    from riskplan.engine.world import world_map
-    from riskplan.run.build import build_setup, starts
-
     try:
         setup = build_setup(config)
     except Exception:
@@ -450,8 +473,6 @@ def frontier_beta(coll: Collection) -> float:
 
 def fig_frontier(coll: Collection) -> FigureSpec | str:
     """Risk frontier: evaluated mean vs CVaR at one common level, one point per group, beta sweeps joined."""
-    from riskplan.experiments.reporting.tables import group_row
-
     if len(coll.groups) < 2:
         return "needs at least two conditions (e.g. a risk.beta sweep)"
     alpha = frontier_beta(coll)
@@ -554,8 +575,6 @@ def fig_thetas(coll: Collection) -> FigureSpec | str:
 
 def fig_soft_risk(coll: Collection) -> FigureSpec | str:
     """Soft risk: CVaR per iteration and the paths of theta, each risk.schedule group against its kind=none twin."""
-    from riskplan.experiments.reporting.collect import schedule_pairs
-
     pairs = schedule_pairs(coll.groups)[:3]
     if not pairs:
         return "no runs with a soft-risk schedule (risk.schedule.kind=linear or exponential)"
@@ -623,8 +642,6 @@ def _level_curve(g: Group) -> tuple[np.ndarray, np.ndarray]:
 
 def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
     """Mean and CVaR heatmaps over the theta grid, with the training paths of the runs on that world."""
-    from riskplan.experiments.reporting.tables import runs_on
-
     a, b = land.axes
     fig, axes = _figure(8.2, 3.9, ncols=2)
     runs = runs_on(land, coll)
@@ -728,8 +745,6 @@ def _errorbar(ax, x: tuple, y: tuple, colour: str, label: str, marker: str = "o"
 
 def fig_measures(coll: Collection) -> FigureSpec | str:
     """Risk measures: each measure's final policy by its mean and CVaR (seed intervals), and its reward distribution."""
-    from riskplan.experiments.reporting.tables import _common_beta, group_row, measure_groups
-
     groups = measure_groups(coll)
     if not groups:
         return "no one-robot runs that differ only in their risk measure (wang, mean_cvar or entropic among them)"
@@ -780,9 +795,6 @@ def fig_measures(coll: Collection) -> FigureSpec | str:
 
 def fig_policies(coll: Collection) -> FigureSpec | str:
     """Policies that see more: CVaR per iteration of each policy against the landscape's best, and where they end."""
-    from riskplan.experiments.reporting.collect import policy_name
-    from riskplan.experiments.reporting.tables import landscape_for, policy_groups, run_values
-
     groups = policy_groups(coll)
     if not groups:
         return "no one-robot runs that differ only in their policy (policy.kind, policy.features)"
@@ -840,8 +852,6 @@ def fig_policies(coll: Collection) -> FigureSpec | str:
 
 def _short_list(text) -> str:
     try:
-        import json
-
         values = json.loads(text) if isinstance(text, str) else list(text)
         return "(" + ", ".join(f"{float(v):g}" for v in values) + ")"
     except (TypeError, ValueError):
@@ -862,8 +872,6 @@ def _paired_table(group: Group, reference: Group, value) -> pd.DataFrame:
 
 def order_name(g: Group) -> str:
     """A team's order and graph: 'gradient_tracking (ring)', or 'centralized: complete graph, exact average'."""
-    from riskplan.experiments.reporting.tables import _is_central
-
     if _is_central(g):
         return "centralized (complete graph, exact average each iteration)"
     t = g.team_conf
@@ -875,9 +883,6 @@ SMOOTH = 10  # iterations in the moving average of the objective gap of fig_hete
 
 def fig_hetero(coll: Collection) -> FigureSpec | str:
     """A heterogeneous team: the consensus error of each order, and its gap and distance to the centralized run."""
-    from riskplan.experiments.reporting.stats import seed_interval
-    from riskplan.experiments.reporting.tables import _paired, hetero_groups, team_objective
-
     distributed, central = hetero_groups(coll)
     if not distributed:
         return "no heterogeneous team runs (team.starts or team.risk) that differ in their order or graph"
@@ -960,9 +965,6 @@ def fig_hetero(coll: Collection) -> FigureSpec | str:
 
 def fig_faults(coll: Collection) -> FigureSpec | str:
     """Faults: the healthy robots' CVaR per iteration under each aggregation, against the fault-free team."""
-    from riskplan.experiments.reporting.collect import fault_name
-    from riskplan.experiments.reporting.tables import fault_groups
-
     faulty, free = fault_groups(coll)
     if not faulty:
         return "no team runs with team.faults that differ only in their faults or aggregation"

@@ -11,7 +11,7 @@ from pathlib import Path
 import pandas as pd
 
 from riskplan.experiments.reporting.collect import Collection
-from riskplan.experiments.reporting.figures import FigureSpec
+from riskplan.experiments.reporting.figures import STUDY_BUILDERS, FigureSpec
 from riskplan.version import __version__
 
 CSS = """
@@ -486,8 +486,6 @@ def render(
     studies: dict[str, pd.DataFrame] | None = None,
 ) -> str:
     """The whole page (`studies`: the tables of the studies beyond the paper, tables.study_tables)."""
-    from riskplan.experiments.reporting.figures import STUDY_BUILDERS
-
     now = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     inputs = ", ".join(f"<code>{_esc(p)}</code>" for p in coll.inputs)
     counts = (

@@ -21,9 +21,20 @@ import math
 import numpy as np
 import pandas as pd
 
-from riskplan.engine.risk_measures import cvar, value_at_risk
+from riskplan.engine.risk_measures import cvar, objective, value_at_risk
 from riskplan.experiments.reporting.collect import AVERAGE as AVERAGE_ROBOT
-from riskplan.experiments.reporting.collect import Collection, Group, RunInfo
+from riskplan.experiments.reporting.collect import (
+    MEASURE_ORDER,
+    Collection,
+    Group,
+    RunInfo,
+    fault_name,
+    flatten,
+    measure_name,
+    policy_name,
+    schedule_pairs,
+    theta_columns,
+)
 from riskplan.experiments.reporting.stats import seed_interval, wilson
 from riskplan.run.intervals import bootstrap_intervals
 
@@ -207,8 +218,6 @@ def theta_text(theta: list[float]) -> str:
 def soft_risk_table(coll: Collection) -> pd.DataFrame:
     """soft_risk.csv: per seed, each soft-risk group (risk.schedule.kind other than none) and the group that differs
     from it only in risk.schedule (kind=none, the paper): the final policy's evaluated figures at risk.beta."""
-    from riskplan.experiments.reporting.collect import schedule_pairs
-
     rows = []
     seen: set[int] = set()
     for scheduled, plain in schedule_pairs(coll.groups):
@@ -258,8 +267,6 @@ def runs_on(land, coll: Collection) -> list[RunInfo]:
 
 
 def _flat_world(config: dict) -> dict:
-    from riskplan.experiments.reporting.collect import flatten
-
     return {k: v for k, v in flatten(config).items() if k.startswith("world.")}
 
 
@@ -385,8 +392,6 @@ def _family(groups: list[Group], varying: tuple[str, ...], kind, wanted) -> list
 def measure_groups(coll: Collection) -> list[Group]:
     """One robot's groups that differ only in their risk measure (risk.*), when one of them is not CVaR or the mean,
     in MEASURE_ORDER."""
-    from riskplan.experiments.reporting.collect import MEASURE_ORDER
-
     alone = [g for g in coll.groups if not g.team]
     family = _family(
         alone,
@@ -401,8 +406,6 @@ def measure_groups(coll: Collection) -> list[Group]:
 def run_objective(run: RunInfo, risk: dict | None = None) -> float:
     """The measure the run trained (its risk node), or the node `risk`, on its headline policy's evaluation
     episodes."""
-    from riskplan.engine.risk_measures import objective
-
     # a writable copy: the numba kernels behind objective() then run on the arrays training gives them (a read-only
     # parquet column would compile and cache a second signature of each kernel)
     z = np.array(run.eval_of().total_reward.to_numpy(dtype=float), dtype=float, copy=True)
@@ -414,8 +417,6 @@ def measures_table(coll: Collection) -> pd.DataFrame:
     P(risky) and the shares of episodes reaching each source (report.csv's figures and intervals); and under_<m>:
     the policy scored by each measure m of the comparison (the mean over the seeds), so that each measure's own
     policy can be set against the others' under that measure."""
-    from riskplan.experiments.reporting.collect import measure_name
-
     groups = measure_groups(coll)
     if not groups:
         return pd.DataFrame()
@@ -498,8 +499,6 @@ def landscape_for(coll: Collection, group: Group):
 def policies_table(coll: Collection) -> pd.DataFrame:
     """policies.csv: per policy, its length of theta, its final policy's figures (report.csv's), the seeds that reach
     each source, and the best CVaR over the landscape's grid of the paper's 2-parameter policy, with the gap to it."""
-    from riskplan.experiments.reporting.collect import policy_name
-
     groups = policy_groups(coll)
     if not groups:
         return pd.DataFrame()
@@ -579,8 +578,6 @@ def consensus_floor(run: RunInfo) -> float:
 def theta_disagreement(run: RunInfo) -> float:
     """The largest distance between two healthy robots' theta averaged over the last quarter of the iterations: the
     disagreement that persists (sampling noise averages out; a heterogeneous floor does not)."""
-    from riskplan.experiments.reporting.collect import theta_columns
-
     m = run.run.metrics
     cols = theta_columns(m)
     last = int(m.iteration.max()) + 1
@@ -694,8 +691,6 @@ def _relative_cvar(run: RunInfo, reference: RunInfo, beta: float) -> float:
 def faults_table(coll: Collection) -> pd.DataFrame:
     """faults.csv: per aggregation under the faults, and the fault-free team, the healthy robots' theta-bar on its
     evaluation episodes (report.csv's figures), and its CVaR against the fault-free run of the same seed."""
-    from riskplan.experiments.reporting.collect import fault_name
-
     faulty, free = fault_groups(coll)
     if not faulty:
         return pd.DataFrame()

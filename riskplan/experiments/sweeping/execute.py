@@ -8,12 +8,14 @@ from pathlib import Path
 
 import typer
 
+from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, is_finished
 from riskplan.experiments.sweeping.jobs import SUMMARY, Outcome, Plan, cpu_count, locate
 from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.experiments.sweeping.search import run_optimiser
 from riskplan.experiments.sweeping.summary import summarize, write_summary
 from riskplan.experiments.sweeping.view import SweepView
+from riskplan.util import lock
 from riskplan.util.interrupt import DriverSignals
 
 LOCAL = ("joblib", "submitit_local", "basic")  # launchers whose jobs run below the driver, and stop with it
@@ -30,16 +32,12 @@ def run_sweep(
     """Plan, launch through Hydra, show progress, write summary.parquet. BadInput before anything runs.
 
     `before_launch`: called between planning and launching (reproduce waits there for its warmed-up workers)."""
-    from riskplan.util import lock
-
     plan = plan_sweep(args, jobs, sweep_dir)
     with lock.hold(plan.sweep_dir, "sweep directory"):  # one driver per sweep directory, for the whole launch
         return _run_plan(plan, args, jobs, title, out, before_launch)
 
 
 def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, before_launch=None) -> Outcome:
-    from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, is_finished
-
     echo = out or (lambda text: typer.echo(text))
     for note in plan.warnings:
         typer.echo(f"warning: {note}", err=True)

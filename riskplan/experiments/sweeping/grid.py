@@ -7,11 +7,34 @@ import copy
 import hashlib
 import importlib.util
 import json
+import math
+import posixpath
 import warnings
+from fractions import Fraction
 from pathlib import Path
 
+from hydra import compose as hydra_compose
+from hydra import initialize_config_dir
+from hydra._internal.config_loader_impl import ConfigLoaderImpl, get_overrides_dirname
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+from hydra._internal.utils import create_config_search_path
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import ChoiceSweep, RangeSweep
+from hydra.errors import HydraException
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from riskplan.config import schema
+from riskplan.config.hydra_safety import check_hydra_node
+from riskplan.config.typed import choice_problem
+from riskplan.experiments.sweep_worker import config_sha, folder_name
 from riskplan.experiments.sweeping.jobs import SWEEPS_ROOT, Job
+from riskplan.run.build import build_setup
+from riskplan.run.compose import CONF_DIR, explain, parse_overrides
+from riskplan.run.compose import compose as riskplan_compose
 from riskplan.util.errors import BadInput
+from riskplan.util.limits import check_jobs
 from riskplan.util.paths import claim_dir, hydra_quote
 
 
@@ -33,10 +56,6 @@ def target_dir(sweep_dir: Path | None, explicit_dir: Path | None, argv: list[str
 def sweep_size(task_ovs: list) -> tuple[int, object]:
     """How many combinations the overrides make, from their parsed values (a range is never listed), and the
     swept override with the most values."""
-    import math
-
-    from hydra.core.override_parser.types import ChoiceSweep, RangeSweep
-
     parser = override_parser()
     total, biggest, most = 1, None, 0
     for override in task_ovs:
@@ -74,9 +93,6 @@ def sweep_size(task_ovs: list) -> tuple[int, object]:
 def _range_length(start, stop, step) -> int | float:
     """len(range(start, stop, step)) for ints of any size and for floats, without listing it (inf when unbounded;
     0 for a zero or undefined step, which expand() then reports)."""
-    import math
-    from fractions import Fraction
-
     try:
         if all(isinstance(v, int) for v in (start, stop, step)):
             return max(0, math.ceil(Fraction(stop - start, step))) if step else 0
@@ -90,8 +106,6 @@ def _range_length(start, stop, step) -> int | float:
 
 def check_size(task_ovs: list) -> None:
     """A sweep larger than the job budget (RISKPLAN_MAX_JOBS) is bad input, before anything is expanded."""
-    from riskplan.util.limits import check_jobs
-
     total, biggest = sweep_size(task_ovs)
     swept = [o for o in task_ovs if o.is_sweep_override()]
     key = f"override '{biggest.input_line}'" if len(swept) == 1 and biggest is not None else "sweep"
@@ -101,8 +115,6 @@ def check_size(task_ovs: list) -> None:
 def check_subdir(value, several: bool) -> None:
     """A hydra.sweep.subdir of the user's: without an interpolation it must be one relative folder, and it cannot
     serve several jobs (they would share it)."""
-    import posixpath
-
     text = "" if value is None else str(value)
     if "${" in text:
         return  # per job (${hydra.job.num}, ...): the user's naming
@@ -178,10 +190,6 @@ def _repeated(override) -> str | None:
 def name_folders(job_list: list[Job], naming: dict, task_ovs: list) -> None:
     """The folder each job gets (Hydra's override_dirname through riskplan.experiments.sweep_worker.folder_name); two jobs that
     would share one are bad input."""
-    from hydra._internal.config_loader_impl import get_overrides_dirname
-
-    from riskplan.experiments.sweep_worker import folder_name
-
     parser = override_parser()
     owners: dict[str, Job] = {}
     for job in job_list:
@@ -219,9 +227,6 @@ def add_naming_and_logging(argv: list[str], hydra_keys: dict, constant: list[str
 
 def expand(task_ovs: list, args: list[str]) -> list[list[str]]:
     """Every combination, as Hydra's basic sweeper makes it (the same grammar, the same job overrides)."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-    from hydra.errors import HydraException
-
     parser = override_parser()
     try:
         reparsed = parser.parse_overrides([o.input_line for o in task_ovs])
@@ -238,22 +243,12 @@ def check_hydra(hydra_args: list[str], first_job: list[str], sweeper: bool = Fal
     """Compose Hydra's own config (launcher and its settings) once: a bad one is bad input, before anything runs.
     Returns hydra.job.config.override_dirname (exclude_keys, item_sep, kv_sep), which names the job folders, and
     with `sweeper` also hydra.sweeper (its settings, enums as text)."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.errors import HydraException
-    from omegaconf import OmegaConf
-    from omegaconf.errors import OmegaConfBaseException
-
-    from riskplan.config import schema
-    from riskplan.config.hydra_safety import check_hydra_node
-    from riskplan.run.compose import CONF_DIR, explain, parse_overrides
-
     schema.register()
     GlobalHydra.instance().clear()
 
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-            cfg = compose(config_name="config", overrides=[*hydra_args, *first_job], return_hydra_config=True)
+            cfg = hydra_compose(config_name="config", overrides=[*hydra_args, *first_job], return_hydra_config=True)
             check_hydra_node(cfg, [o for o in parse_overrides(hydra_args) if o.is_hydra_override()])
             naming = OmegaConf.to_container(cfg.hydra.job.config.override_dirname, resolve=True)
             if sweeper:
@@ -273,8 +268,6 @@ def check_hydra(hydra_args: list[str], first_job: list[str], sweeper: bool = Fal
 def constant_keys(combos: list[list[str]], swept: set[str] = frozenset()) -> list[str]:
     """The override keys left out of job folder names: those with one value in every job that were not typed as a
     sweep (`seed=range(0,1)` keeps its key), as long as some key remains."""
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
     parser = OverridesParser.create()
     values: dict[str, set[str]] = {}
     for combo in combos:
@@ -288,19 +281,6 @@ def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job]
     """Compose every combination against the schema (BadInput on the first failure), then check each with the
     model. Compositions are shared between combinations that choose the same config groups. `search`: the
     hydra.searchpath overrides (--config-dir) every composition needs to find the user's own config files."""
-    from hydra import compose, initialize_config_dir
-    from hydra._internal.config_loader_impl import ConfigLoaderImpl
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
-
-    from riskplan.config import schema
-    from riskplan.config.typed import choice_problem
-    from riskplan.experiments.sweep_worker import config_sha
-    from riskplan.run.build import build_setup
-    from riskplan.run.compose import CONF_DIR
-    from riskplan.run.compose import compose as riskplan_compose
-
     parser = override_parser()
     schema.register()
     GlobalHydra.instance().clear()
@@ -315,7 +295,7 @@ def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job]
                 keys = [o for o in parsed if not is_group(o, CONF_DIR)]
                 try:
                     if groups not in bases:
-                        bases[groups] = compose(config_name="config", overrides=[*search, *groups])
+                        bases[groups] = hydra_compose(config_name="config", overrides=[*search, *groups])
                     cfg = copy.deepcopy(bases[groups])
                     ConfigLoaderImpl._apply_overrides_to_config(keys, cfg)
                 except (HydraException, OmegaConfBaseException) as err:
@@ -324,7 +304,7 @@ def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job]
                         jobs.append(Job(list(combo), combo_sha(combo), str(BadInput(*choice))))
                         continue
                     riskplan_compose([*search, *combo], validate=False)  # raises BadInput naming the key
-                    cfg = compose(config_name="config", overrides=[*search, *combo])  # composes after all
+                    cfg = hydra_compose(config_name="config", overrides=[*search, *combo])  # composes after all
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     try:
@@ -348,12 +328,6 @@ def combo_sha(combo: list[str]) -> str:
 
 def override_parser():
     """Hydra's override parser, with a config loader so that glob(...) over config groups works."""
-    from hydra._internal.config_loader_impl import ConfigLoaderImpl
-    from hydra._internal.utils import create_config_search_path
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    from riskplan.run.compose import CONF_DIR
-
     loader = ConfigLoaderImpl(config_search_path=create_config_search_path(str(CONF_DIR)))
     return OverridesParser.create(config_loader=loader)
 

@@ -7,6 +7,11 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
+
+from riskplan.experiments.sweep_worker import read_status
+from riskplan.util import lock
+
 SWEEPS_ROOT = Path("outputs") / "sweeps"
 
 
@@ -76,8 +81,6 @@ class Outcome:
 
 def locate(sweep_dir: Path, jobs: list[Job]) -> None:
     """Find each job's folder by the overrides Hydra recorded in it (whatever hydra.sweep.subdir is)."""
-    import yaml
-
     missing = {job.key: job for job in jobs if job.path is None}
     if not missing or not Path(sweep_dir).is_dir():
         return
@@ -119,9 +122,6 @@ def override_files(root: Path):
 
 def job_state(job: Job, since: float) -> tuple[str, dict | None]:
     """pending | running | done | failed, as far as this launch is concerned (older records are pending)."""
-    from riskplan.experiments.sweep_worker import read_status
-    from riskplan.util import lock
-
     if job.path is None:
         return "pending", None
     status = read_status(job.path)

@@ -3,20 +3,25 @@ started ahead of it (`warm_workers`)."""
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import os
 import re
+import threading
+import traceback
 from pathlib import Path
 
+from hydra_plugins.hydra_joblib_launcher.config import JobLibLauncherConf
+from joblib import Parallel, delayed
+
+from riskplan.experiments.hydra_app import run_hydra
+from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, warm_up
 from riskplan.experiments.sweeping.jobs import cpu_count
 
 
 def launch(argv: list[str], log_file: Path, skip: frozenset = frozenset()) -> str | None:
     """Run Hydra's multirun, its printed output going to sweep.log, leaving out the jobs whose overrides are in
     `skip` (finished ones: a re-run sweep submits only what needs to run); return the launcher's error, if any."""
-    import contextlib
-
-    from riskplan.experiments.hydra_app import run_hydra
-
     launched: list[tuple[str, ...]] = []
     with open(log_file, "a", buffering=1) as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
         try:
@@ -27,8 +32,6 @@ def launch(argv: list[str], log_file: Path, skip: frozenset = frozenset()) -> st
         except KeyboardInterrupt:
             return "interrupted (Ctrl-C)"
         except Exception as err:
-            import traceback
-
             traceback.print_exc()
             return f"the launcher stopped: {type(err).__name__}: {err} (see {log_file})"
     return None
@@ -75,14 +78,6 @@ def warm_workers(workers: int):
 
     joblib reuses a loky executor made with the same arguments, so the call uses the joblib launcher's own
     settings, and the environment `_run_plan` gives a sweep's workers is set before they are spawned."""
-    import dataclasses
-    import threading
-
-    from hydra_plugins.hydra_joblib_launcher.config import JobLibLauncherConf
-    from joblib import Parallel, delayed
-
-    from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, warm_up
-
     os.environ[THREADS_ENV] = str(max(1, cpu_count() // workers))
     os.environ[DRIVER_ENV] = str(os.getpid())
     settings = {key: value for key, value in dataclasses.asdict(JobLibLauncherConf()).items() if key != "_target_"}

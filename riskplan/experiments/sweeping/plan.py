@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from riskplan.experiments.sweep_worker import SUBDIR
 from riskplan.experiments.sweeping.grid import (
     add_naming_and_logging,
     check_duplicates,
@@ -21,6 +22,7 @@ from riskplan.experiments.sweeping.grid import (
 )
 from riskplan.experiments.sweeping.jobs import DEFAULT_LAUNCHER, Plan, cpu_count
 from riskplan.experiments.sweeping.search import plan_optimiser
+from riskplan.run.compose import expand_shorthands, parse_overrides
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import check_output_dir, hydra_quote
 
@@ -29,8 +31,6 @@ REQUEUES = 3  # submitit_slurm: times a job that reaches its time limit is reque
 
 def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None) -> Plan:
     """Parse, expand and validate a sweep; claim its directory last, so bad input leaves nothing behind."""
-    from riskplan.run.compose import expand_shorthands, parse_overrides
-
     for arg in args:
         if arg.startswith("-"):
             raise BadInput(
@@ -114,8 +114,6 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         argv.append("hydra.sweep.subdir=defaults")  # one job without overrides: still a folder of its own
     elif "hydra.sweep.subdir" not in hydra_keys:
         # folder names that stay one path component, whatever the values hold ('/', '..', '%', NUL)
-        from riskplan.experiments.sweep_worker import SUBDIR
-
         argv.append(f"hydra.sweep.subdir={hydra_quote(SUBDIR)}")
         argv.append("+hydra.callbacks.riskplan_folders._target_=riskplan.experiments.sweep_worker.FolderNames")
     constant = constant_keys(combos, {o.key_or_group for o in task_ovs if o.is_sweep_override()})

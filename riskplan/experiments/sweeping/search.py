@@ -3,10 +3,15 @@ as they run, one summary row per trial."""
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from pathlib import Path
 
+import yaml
+from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, RangeSweep
+
+from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, TRIAL_SUBDIR, read_status
 from riskplan.experiments.sweeping.grid import (
     add_naming_and_logging,
     check_hydra,
@@ -29,6 +34,7 @@ from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.summary import summarize, write_summary
 from riskplan.experiments.sweeping.view import SweepView
 from riskplan.util.errors import BadInput
+from riskplan.util.limits import check_jobs
 from riskplan.util.paths import hydra_quote
 
 OPTIMISER_FORMS = "choice(...), comma lists, range(...) or interval(...)"
@@ -50,8 +56,6 @@ def plan_optimiser(
     input; a sample the model rejects is a warning (its trials fail alone), unless every sample is rejected for a
     key that is not searched (bad input). The trials run as jobs of the grid do (sweepjob), in folders numbered by
     trial; each returns its CVaR to the sweeper, or None when it failed (optuna records that trial as failed)."""
-    from riskplan.experiments.sweep_worker import TRIAL_SUBDIR
-
     hydra_keys = {o.key_or_group: o for o in hydra_ovs}
     search = [o for o in task_ovs if o.is_sweep_override()]
     fixed = [o for o in task_ovs if not o.is_sweep_override()]
@@ -127,10 +131,6 @@ def plan_optimiser(
 def search_samples(override, sweeper: str) -> list[str]:
     """Values to compose a search-space override with, of the types the sweeper will draw: every value of a
     choice, the start of a range (and its next value), the middle of an interval (an int for an int interval)."""
-    import math
-
-    from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, RangeSweep
-
     value = override.value()
     line = f"override '{override.input_line}'"
     if isinstance(value, ChoiceSweep):
@@ -167,8 +167,6 @@ def search_samples(override, sweeper: str) -> list[str]:
 
 def check_optimiser(sweeper: str, settings: dict, search: list) -> tuple[int | None, int | None]:
     """The optuna sweeper's settings that would fail only once it runs; returns (trials, trials per batch)."""
-    from riskplan.util.limits import check_jobs
-
     if sweeper != "optuna":
         return None, None
     trials, batch = settings.get("n_trials"), settings.get("n_jobs")
@@ -208,8 +206,6 @@ def check_optimiser(sweeper: str, settings: dict, search: list) -> tuple[int | N
 
 def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, echo) -> Outcome:
     """Launch a sweep whose sweeper chooses the trials; then one summary row per trial it ran."""
-    from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV
-
     started = time.time()
     where = f"{plan.launcher}" + (f", {plan.workers} workers" if plan.workers else "")
     echo(f"{title} directory: {plan.sweep_dir}")
@@ -223,7 +219,7 @@ def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, ech
     os.environ[DRIVER_ENV] = str(os.getpid())
     if plan.sweeper == "optuna":  # optuna's messages go where Hydra's go (sweep.log), not to the terminal
         try:
-            import optuna
+            import optuna  # optional: the optuna extra (hydra/sweeper=optuna installs it)
 
             optuna.logging.disable_default_handler()
             optuna.logging.enable_propagation()
@@ -251,8 +247,6 @@ def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, ech
         + [f"hydra.sweep.dir={plan.sweep_dir}"]
         + (["--jobs", str(jobs)] if jobs else [])
     )
-    from riskplan.experiments.sweep_worker import read_status
-
     earlier = sum(
         1
         for job in trials
@@ -269,8 +263,6 @@ def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, ech
 
 def discover_trials(sweep_dir: Path, since: float) -> list[Job]:
     """The job folders Hydra wrote since `since` (each launch rewrites a job's .hydra/), as Jobs of any config."""
-    import yaml
-
     found = []
     for file in override_files(Path(sweep_dir)):
         try:
@@ -288,10 +280,6 @@ def discover_trials(sweep_dir: Path, since: float) -> list[Job]:
 def trial_jobs(sweep_dir: Path, since: float) -> list[Job]:
     """The trials launched since `since`, in the sweeper's order (hydra.job.num), each with the fingerprint of
     its composed config."""
-    import yaml
-
-    from riskplan.util.errors import BadInput as _Bad
-
     trials = discover_trials(sweep_dir, since)
     for job in trials:
         try:
@@ -302,15 +290,13 @@ def trial_jobs(sweep_dir: Path, since: float) -> list[Job]:
         try:
             checked, _ = validate([job.overrides])
             job.sha, job.invalid = checked[0].sha, checked[0].invalid
-        except _Bad as err:
+        except BadInput as err:
             job.sha, job.invalid = "", str(err)
     return sorted(trials, key=lambda j: (j.trial, j.name))
 
 
 def best_trial(sweep_dir: Path, since: float) -> str | None:
     """What the sweeper reports as its best (optuna's optimization_results.yaml), written by this launch."""
-    import yaml
-
     file = Path(sweep_dir) / "optimization_results.yaml"
     try:
         if file.stat().st_mtime < since - 2:

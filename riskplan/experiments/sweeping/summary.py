@@ -4,13 +4,20 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import signal
 import sys
 from pathlib import Path
 
+import pandas as pd
 import typer
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from rich.console import Console
+from rich.table import Table
 
+from riskplan.experiments.sweep_worker import is_finished, read_status
 from riskplan.experiments.sweeping.jobs import SUMMARY, Job, Outcome
+from riskplan.util import lock
 from riskplan.util.paths import atomic_path
 
 FIGURES = ("mean", "cvar", "value_at_risk")
@@ -21,11 +28,6 @@ EXTRA_CVARS = ("cvar_0.05", "cvar_0.1", "cvar_0.2")
 
 def summarize(jobs: list[Job]):
     """One row per job: its overrides as columns, final figures with 95% intervals, wall time, status, error."""
-    import pandas as pd
-
-    from riskplan.experiments.sweep_worker import is_finished, read_status
-    from riskplan.util import lock
-
     rows = []
     for job in jobs:
         row: dict = {"job": job.name}
@@ -97,8 +99,6 @@ def summarize(jobs: list[Job]):
 
 def _override_columns(overrides: list[str]) -> dict:
     """{key: value} of a job's overrides; numbers stay numbers, lists and dicts become their JSON text."""
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
     out = {}
     for o in OverridesParser.create().parse_overrides(overrides):
         value = o.value()
@@ -138,9 +138,6 @@ def varying_columns(frame) -> list[str]:
 
 def print_table(frame, title: str, limit: int = 40) -> None:
     """The summary as a terminal table (the varying overrides, status, figures with intervals, wall time)."""
-    from rich.console import Console
-    from rich.table import Table
-
     table = Table(title=title, title_justify="left", show_edge=False, pad_edge=False)
     keys = (["trial"] if "trial" in frame.columns else []) + varying_columns(frame)
     reached = [c for c in frame.columns if str(c).startswith("reached_")]
@@ -183,8 +180,6 @@ def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) ->
     if outcome.best:
         typer.echo(outcome.best)
     if outcome.interrupted is not None:  # one line: what stopped it, and the command that resumes it
-        import shlex
-
         stopped = sum(1 for _, error in outcome.failed)
         typer.echo(
             f"error: interrupted by {signal.Signals(outcome.interrupted).name}: {stopped} job"
@@ -204,8 +199,6 @@ def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) ->
         for name, error in outcome.failed:
             typer.echo(f"  {name}: {error}", err=True)
     if hint and not outcome.ok and outcome.command:
-        import shlex
-
         what = (
             "to run the study again in this directory (a trial that draws the values of a finished one, as "
             "with a seeded sampler, is skipped)"

@@ -9,6 +9,9 @@ import threading
 import time
 from pathlib import Path
 
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
 from riskplan.experiments.sweeping.jobs import Job, job_state, locate
 
 
@@ -38,8 +41,6 @@ class SweepView:
         self.stop = threading.Event()
 
     def __enter__(self):
-        from rich.console import Console
-
         sys.stderr.flush()
         self.stream = os.fdopen(os.dup(2), "w", buffering=1)
         self.tty = self.stream.isatty()
@@ -47,8 +48,6 @@ class SweepView:
         self.since = time.time()
         self.bar = None
         if self.tty:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
             self.bar = Progress(
                 TextColumn(f"[bold]{self.title}"),
                 BarColumn(),
