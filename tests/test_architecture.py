@@ -1,8 +1,9 @@
-"""The layered house: lint-imports keeps the contract in pyproject.toml, and nothing below the config layer reads raw
-config dicts."""
+"""The layered house: lint-imports keeps the contract in pyproject.toml, nothing below the config layer reads raw
+config dicts, and imports sit at the top of each module except at the command boundary."""
 
 from __future__ import annotations
 
+import ast
 import re
 import shutil
 import subprocess
@@ -14,6 +15,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 # Everything that takes the typed config rather than composing it: the engine and the run layer.
 BELOW_CONFIG = ("engine", "run", "experiments/sweep_worker.py", "experiments/hydra_app.py")
+# Where a function may import without saying why: the command boundary (a command imports its work when it runs) and
+# the public faces that load theirs on first use (`import riskplan` comes before every submodule).
+BOUNDARY = ("cli.py", "commands/")
+LAZY_FACES = ("__init__.py", "envs.py", "risk.py")
+REASONS = ("# optional:", "# cycle:", "# lazy:")  # what any other import inside a function says on its line
 
 
 def lint_imports() -> list[str]:
@@ -105,3 +111,52 @@ def test_the_engine_never_imports_omegaconf_or_hydra():
         m for m in modules_on_disk() if m.startswith("engine/") and pattern.search((ROOT / "riskplan" / m).read_text())
     ]
     assert offenders == []
+
+
+def imports_in_functions() -> list[tuple[str, int, str]]:
+    """(module below riskplan/, line, source) of every import statement inside a function."""
+    found = set()
+    for module in modules_on_disk():
+        text = (ROOT / "riskplan" / module).read_text()
+        lines = text.splitlines()
+        for function in ast.walk(ast.parse(text)):
+            if isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                for node in ast.walk(function):
+                    if isinstance(node, (ast.Import, ast.ImportFrom)):
+                        found.add((module, node.lineno, "\n".join(lines[node.lineno - 1 : node.end_lineno])))
+    return sorted(found)
+
+
+def test_imports_inside_functions_say_why():
+    """Module-level imports show each module's dependencies: an import inside a function is at the command
+    boundary, in a lazy public face, or says why (an optional extra, a cycle, a heavy module on a rare path)."""
+    found = imports_in_functions()
+    assert any(module.startswith("commands/") for module, _, _ in found)  # the walk sees function bodies
+    unexplained = [
+        f"{module}:{line}: {source.strip()}"
+        for module, line, source in found
+        if not module.startswith(BOUNDARY) and module not in LAZY_FACES and not any(r in source for r in REASONS)
+    ]
+    assert unexplained == []
+
+
+def loaded_after(*modules: str) -> set[str]:
+    """Every module a new interpreter holds after importing `modules`."""
+    code = f"import sys, {', '.join(modules)}; print(*sys.modules)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    return set(done.stdout.split())
+
+
+def test_the_cli_imports_no_commands_work():
+    """`riskplan --help`, and every command before it runs, imports the typer app and the command modules only."""
+    heavy = {"numpy", "numba", "pandas", "pyarrow", "matplotlib", "hydra", "omegaconf", "mcap", "joblib"}
+    assert loaded_after("riskplan.cli") & heavy == set()
+
+
+def test_a_run_starts_without_the_report_or_the_sweeps():
+    """What `riskplan train` imports before its run starts (riskplan.commands.train.train's imports) leaves out
+    matplotlib, the launchers and the optional extras, and the report and sweep modules that would bring them."""
+    elsewhere = {"matplotlib", "PIL", "joblib", "hydra_plugins", "ray", "optuna", "mlflow", "tensorboard", "gymnasium"}
+    elsewhere |= {"riskplan.experiments.reporting", "riskplan.experiments.sweeping", "riskplan.experiments.landscape"}
+    loaded = loaded_after("riskplan.cli", "omegaconf", "riskplan.experiments.hydra_app", "riskplan.run.compose")
+    assert loaded & elsewhere == set()
