@@ -8,6 +8,7 @@ helpers and the run configs (TINY, FAST) are in tests/support.py.
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 
 import pytest
@@ -34,6 +35,16 @@ def pytest_collection_modifyitems(config, items):
             continue
         if folder in SLOW_FOLDERS:
             item.add_marker(pytest.mark.slow)
+
+
+@pytest.fixture(autouse=True)
+def signal_handlers_restored():
+    """Each test starts with the handlers the one before it found: a `ray.init` in this process (a test's fixture, a
+    cluster driver) makes SIGTERM call sys.exit and leaves it so after shutdown."""
+    saved = {number: signal.getsignal(number) for number in (signal.SIGTERM, signal.SIGINT)}
+    yield
+    for number, handler in saved.items():
+        signal.signal(number, handler)
 
 
 @pytest.fixture

@@ -68,7 +68,7 @@ processes (they share the driver's process group), and the actors that die of it
 
 Where it runs. team.address null: a local Ray instance (`ray.init` with num_cpus, no dashboard, a small object
 store, no worker logs), shut down at the end; `auto` or host:port: an existing cluster (`ray.init(address=...)`
-alone), the robots spread round robin over its nodes (`_placements`: soft node affinity; no CPUs reserved: robots
+alone), the robots spread round robin over its nodes (`_placements`: hard node affinity; no CPUs reserved: robots
 share cores), the driver disconnecting at the end. A Ray this process has initialised already is used as it is,
 whatever team.address says, and left up. Every node needs riskplan (the same version: checked) installed. Each
 robot's kernels use max(1, cluster CPUs // robots) numba threads. A cluster that does not answer (a TCP check of
@@ -85,6 +85,7 @@ import json
 import logging
 import math
 import os
+import signal
 import socket
 import threading
 import time
@@ -877,9 +878,11 @@ class _Team:
 
 def _placements(ray, robots: int) -> list:
     """Where each robot's actor goes: round robin over the cluster's alive nodes that offer CPUs (all alive nodes
-    when none does), as a soft node affinity (Ray places it elsewhere if that node cannot take it). Ray's own SPREAD
-    strategy spreads actors that reserve no CPU only as a best effort (three robots on two nodes may all land on
-    one), so the spread is made explicit; a single node gets SPREAD."""
+    when none does), as a hard node affinity; a single node gets SPREAD. Ray's own SPREAD strategy spreads actors
+    that reserve no CPU only as a best effort (three robots on two nodes may all land on one), and a soft affinity
+    was seen to put them on the wrong node (Ray 2.60: all on the head, or each on the other node), so the spread is
+    made explicit. An actor needs no resources, so it fits any alive node; a node that dies before its actor starts
+    fails the start with one line."""
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy  # optional: the distributed extra
 
     alive = [node for node in ray.nodes() if node.get("Alive")]
@@ -887,7 +890,7 @@ def _placements(ray, robots: int) -> list:
     nodes = sorted(node["NodeID"] for node in working)
     if len(nodes) < 2:
         return ["SPREAD"] * robots
-    return [NodeAffinitySchedulingStrategy(nodes[i % len(nodes)], soft=True) for i in range(robots)]
+    return [NodeAffinitySchedulingStrategy(nodes[i % len(nodes)], soft=False) for i in range(robots)]
 
 
 class _Interrupt(Exception):
@@ -942,6 +945,8 @@ def ray_runtime(team: TeamConf) -> Iterator[Any]:
     (or disconnected) on the way out; a Ray this process had initialised already is used as it is and left up."""
     ray = import_ray()
     owned = not ray.is_initialized()
+    # ray.init makes SIGTERM call sys.exit and leaves it so after shutdown; this process's handler comes back
+    handler = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
     if owned:
         if team.address is None:
             ray.init(
@@ -967,6 +972,8 @@ def ray_runtime(team: TeamConf) -> Iterator[Any]:
     finally:
         if owned:
             ray.shutdown()
+        if handler is not None:
+            signal.signal(signal.SIGTERM, handler)
 
 
 # --------------------------------------------------------------------------------------------- the run

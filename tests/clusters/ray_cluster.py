@@ -126,6 +126,20 @@ def _unavailable(reason: str):
     pytest.skip(reason)
 
 
+def _refresh_ray_auth() -> None:
+    """After RAY_AUTH_MODE/RAY_AUTH_TOKEN change in os.environ: Ray caches the mode in its config when it is imported
+    and the token in its token loader once read, and a stale token makes the next local `ray.init` in this process
+    fail ("InvalidAuthToken"), so both caches are refreshed (as ray._private.authentication does when it turns token
+    auth on)."""
+    if "ray" not in sys.modules:
+        return
+    with contextlib.suppress(ImportError, AttributeError):
+        from ray._raylet import AuthenticationTokenLoader, Config
+
+        Config.initialize("")
+        AuthenticationTokenLoader.instance().reset_cache()
+
+
 def _start_time(pid: int) -> int | None:
     """The process's start time in clock ticks (field 22 of /proc/PID/stat), None when it is gone."""
     try:
@@ -274,15 +288,10 @@ class RayCluster:
 
     def apply_driver_env(self) -> dict[str, str | None]:
         """Put driver_env into os.environ for a driver in this process; returns the old values for restore_env.
-        Ray reads RAY_AUTH_MODE into a config it caches when it is imported, so that config is refreshed too (what
-        ray itself does when it turns token auth on: ray._private.authentication.authentication_token_setup)."""
+        Ray caches what these say (see _refresh_ray_auth), so its caches are refreshed too."""
         saved = {key: os.environ.get(key) for key in self.driver_env}
         os.environ.update(self.driver_env)
-        if "ray" in sys.modules:
-            with contextlib.suppress(ImportError, AttributeError):
-                from ray._raylet import Config
-
-                Config.initialize("")
+        _refresh_ray_auth()
         return saved
 
     @staticmethod
@@ -292,11 +301,7 @@ class RayCluster:
                 os.environ.pop(key, None)
             else:
                 os.environ[key] = value
-        if "ray" in sys.modules:
-            with contextlib.suppress(ImportError, AttributeError):
-                from ray._raylet import Config
-
-                Config.initialize("")
+        _refresh_ray_auth()
 
     @property
     def node_ips(self) -> list[str]:

@@ -445,10 +445,11 @@ class Unfinished(Artist):
 
 
 def with_artist(monkeypatch, artist: Callable[[], Artist], names: set[str] | None = None) -> None:
-    """make_figures adds an artist() to the figures named (to every figure when names is None)."""
-    from riskplan.experiments.reporting import figures
+    """make_figures, as the report calls it, adds an artist() to the figures named (to every figure when names is
+    None)."""
+    from riskplan.experiments import reporting
 
-    make = figures.make_figures
+    make = reporting.make_figures
 
     def patched(coll):
         specs, skipped = make(coll)
@@ -457,7 +458,7 @@ def with_artist(monkeypatch, artist: Callable[[], Artist], names: set[str] | Non
                 spec.figure.add_artist(artist())
         return specs, skipped
 
-    monkeypatch.setattr(figures, "make_figures", patched)
+    monkeypatch.setattr(reporting, "make_figures", patched)
 
 
 def files_of(out: Path) -> dict[str, bytes]:
