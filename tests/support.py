@@ -1,5 +1,5 @@
 """What several test files share: the small run configs, typed team settings and networks, set-ups built from
-overrides, `riskplan` in a subprocess, and the comparison of a run's outputs with another run's.
+overrides, the 3x3 world whose every path is enumerated, `riskplan` in a subprocess, and the comparison of a run's outputs with another run's.
 
 Test files import it as `from support import ...`: pytest puts tests/ on sys.path when it loads tests/conftest.py
 (the test folders have no __init__.py). Fixtures live in tests/conftest.py.
@@ -14,12 +14,17 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
+from omegaconf import OmegaConf
 
-from riskplan.config.schema import TeamConf
+from riskplan.config.schema import RiskplanConf, TeamConf
 from riskplan.config.typed import typed
 from riskplan.config.validate import check_team
+from riskplan.engine import rng
+from riskplan.engine.policy import probabilities
+from riskplan.engine.rollout import simulate
 from riskplan.engine.team.mixer import Mixer
 from riskplan.engine.team.network import Network, build_network
 from riskplan.run.build import build_setup
@@ -79,6 +84,84 @@ def run_rounds(network, team, thetas, iterations, seed=0, rounds=1):
             thetas = mixer.mix(thetas, l, r)
         out.append(thetas)
     return out
+
+
+# ------------------------------------------------------------------------------------------------ exact enumeration
+# A 3x3 world, K = 3, deterministic rewards: few enough paths to enumerate every one, so objectives are exact.
+WORLD_3X3 = {
+    "world": {
+        "size": [3, 3],
+        "start": [0, 0],
+        "horizon": 3,
+        "stop_at_source": True,
+        "sources": [
+            {"position": [2, 0], "covariance": [[1.0, 0.0], [0.0, 1.0]], "reward": 10.0},
+            {"position": [0, 2], "covariance": [[2.0, 0.5], [0.5, 1.0]], "reward": 4.0},
+        ],
+        "regions": [
+            {"name": "bad", "rect": [1, 1, 1, 2], "reward": -6.0, "risky": True},
+            {"name": "rest", "rect": [0, 0, 2, 2], "reward": 1.0},
+        ],
+    },
+    "train": {"theta0": [0.5, 0.2]},
+}
+
+
+def world_3x3(*extra: dict):
+    """The built Setup of WORLD_3X3 merged with extra config dicts."""
+    return build_setup(OmegaConf.merge(OmegaConf.structured(RiskplanConf), WORLD_3X3, *extra))
+
+
+def exact_outcomes(setup, probs: np.ndarray, step_scores: np.ndarray | None = None):
+    """Every path of the policy with move probabilities probs (C, 5), enumerated (episodes stop at a source): the
+    distinct totals z_k (ascending), their probabilities p_k and, given the per-move scores (C, 5, d), d p_k / d theta
+    = sum over the paths to z_k of p(path) * score(path) (the score of eq. 10; None without step_scores)."""
+    world = setup.world
+    sources = {int(c): j for j, c in enumerate(world.source_cells)}
+    rewards = [r.params[0] for r in world.region_rewards]
+    source_rewards = [r.params[0] for r in world.source_rewards]
+    out: dict[float, tuple[float, np.ndarray]] = {}
+
+    def add(z, p, score):
+        q, dq = out.get(z, (0.0, 0.0))
+        out[z] = (q + p, dq + p * score)
+
+    def walk(cell, k, z, p, score):
+        if k == world.horizon:
+            add(z, p, score)
+            return
+        for a in range(5):
+            nxt = int(world.next_cell[cell, a])
+            gain = rewards[world.region_of[nxt]]
+            p_next = p * probs[cell, a]
+            score_next = score if step_scores is None else score + step_scores[cell, a]
+            if nxt in sources:
+                add(z + gain + source_rewards[sources[nxt]], p_next, score_next)
+            else:
+                walk(nxt, k + 1, z + gain, p_next, score_next)
+
+    walk(int(world.starts[0]), 0, 0.0, 1.0, 0.0 if step_scores is None else np.zeros(step_scores.shape[-1]))
+    z = np.array(sorted(out))
+    gradient = None if step_scores is None else np.array([out[v][1] for v in z])
+    return z, np.array([out[v][0] for v in z]), gradient
+
+
+def exact_distribution(setup, theta) -> dict[float, float]:
+    """P(Z = z) under the setup's features policy with weights theta, by enumerating every path."""
+    probs = probabilities(setup.policy.move_features(setup.world), np.asarray(theta, dtype=float))
+    z, p, _ = exact_outcomes(setup, probs)
+    return dict(zip(z.tolist(), p.tolist()))
+
+
+def exact_mean(setup, theta) -> float:
+    """E[Z] under the setup's features policy with weights theta, exactly."""
+    return sum(z * p for z, p in exact_distribution(setup, theta).items())
+
+
+def rollouts(setup, theta, episodes: int, seed: int = 0):
+    """One robot's episodes of the setup's kernel under theta (the training stream of `seed`)."""
+    keys = rng.robot_keys(seed, rng.TRAIN, 0, 1)
+    return simulate(setup.world, setup.kernel, np.array([theta]), setup.world.starts, keys, episodes)
 
 
 # ------------------------------------------------------------------------------------------------ the CLI

@@ -8,69 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
+from support import exact_distribution, exact_mean, rollouts, world_3x3
 
-from riskplan.config.schema import RiskplanConf
-from riskplan.engine import rng
-from riskplan.engine.policy import move_features, probabilities
-from riskplan.engine.rollout import simulate
 from riskplan.risk import cvar_gradient, mean_gradient, tail_count
-from riskplan.run.build import build_setup
-
-WORLD_3X3 = {
-    "world": {
-        "size": [3, 3],
-        "start": [0, 0],
-        "horizon": 3,
-        "stop_at_source": True,
-        "sources": [
-            {"position": [2, 0], "covariance": [[1.0, 0.0], [0.0, 1.0]], "reward": 10.0},
-            {"position": [0, 2], "covariance": [[2.0, 0.5], [0.5, 1.0]], "reward": 4.0},
-        ],
-        "regions": [
-            {"name": "bad", "rect": [1, 1, 1, 2], "reward": -6.0, "risky": True},
-            {"name": "rest", "rect": [0, 0, 2, 2], "reward": 1.0},
-        ],
-    },
-    "train": {"theta0": [0.5, 0.2]},
-}
 
 
 @pytest.fixture(scope="module")
 def setup():
-    cfg = OmegaConf.merge(OmegaConf.structured(RiskplanConf), WORLD_3X3)
-    return build_setup(cfg)
-
-
-def exact_distribution(setup, theta) -> dict[float, float]:
-    """P(Z = z) by enumerating every path (episodes stop at a source)."""
-    world = setup.world
-    probs = probabilities(move_features(world), np.asarray(theta, dtype=float))
-    sources = {int(c): j for j, c in enumerate(world.source_cells)}
-    rewards = [r.params[0] for r in world.region_rewards]
-    source_rewards = [r.params[0] for r in world.source_rewards]
-    out: dict[float, float] = {}
-
-    def walk(cell, k, z, p):
-        if k == world.horizon:
-            out[z] = out.get(z, 0.0) + p
-            return
-        for a in range(5):
-            nxt = int(world.next_cell[cell, a])
-            gain = rewards[world.region_of[nxt]]
-            if nxt in sources:
-                gain += source_rewards[sources[nxt]]
-                out[z + gain] = out.get(z + gain, 0.0) + p * probs[cell, a]
-            else:
-                walk(nxt, k + 1, z + gain, p * probs[cell, a])
-
-    walk(int(world.starts[0]), 0, 0.0, 1.0)
-    return out
-
-
-def exact_mean(setup, theta) -> float:
-    dist = exact_distribution(setup, theta)
-    return sum(z * p for z, p in dist.items())
+    return world_3x3()
 
 
 def exact_cvar(setup, theta, beta) -> float:
@@ -89,17 +34,6 @@ def finite_difference(f, theta, h=1e-5) -> np.ndarray:
         step[j] = h
         grad[j] = (f(theta + step) - f(theta - step)) / (2 * h)
     return grad
-
-
-def rollouts(setup, theta, episodes, seed=0):
-    return simulate(
-        setup.world,
-        setup.kernel,
-        np.array([theta]),
-        setup.world.starts,
-        rng.robot_keys(seed, rng.TRAIN, 0, 1),
-        episodes,
-    )
 
 
 def test_enumeration_is_a_distribution(setup):

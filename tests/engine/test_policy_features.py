@@ -10,11 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
+from support import WORLD_3X3, exact_distribution, exact_mean, rollouts
 
 from riskplan.config.schema import RiskplanConf
-from riskplan.engine import rng
 from riskplan.engine.policy import make_policy, move_features, probabilities, scores, tables
-from riskplan.engine.rollout import simulate
 from riskplan.risk import mean_gradient
 from riskplan.run.build import build_setup, logit_bound
 from riskplan.run.compose import compose
@@ -45,24 +44,6 @@ E, W, STAY, N, S = range(5)
 # (cell, move) whose x + u is (1, 0), worked out by hand (blocked moves stay: off the grid, or into the obstacle)
 RISKY_MOVES = {(0, E), (2, STAY), (2, N), (2, S), (3, S), (4, W)}
 
-# The 3x3, K = 3 world of tests/engine/test_exact_enumeration.py (copied: test files are being moved).
-TINY = {
-    "world": {
-        "size": [3, 3],
-        "start": [0, 0],
-        "horizon": 3,
-        "stop_at_source": True,
-        "sources": [
-            {"position": [2, 0], "covariance": [[1.0, 0.0], [0.0, 1.0]], "reward": 10.0},
-            {"position": [0, 2], "covariance": [[2.0, 0.5], [0.5, 1.0]], "reward": 4.0},
-        ],
-        "regions": [
-            {"name": "bad", "rect": [1, 1, 1, 2], "reward": -6.0, "risky": True},
-            {"name": "rest", "rect": [0, 0, 2, 2], "reward": 1.0},
-        ],
-    },
-    "train": {"theta0": [0.5, 0.2]},
-}
 ALL = ["signals", "risky", "stay"]
 THETA = np.array([0.5, 0.2, -1.5, 0.8])  # safe, risky signal, risky_region, stay
 
@@ -156,7 +137,7 @@ def test_theta_names_stay_unique():
             ]
         }
     }
-    setup = built(TINY, clash, with_policy(ALL))
+    setup = built(WORLD_3X3, clash, with_policy(ALL))
     assert setup.theta_names == ("risky_region", "stay", "feature_risky_region", "feature_stay")
     twins = {
         "world": {
@@ -166,7 +147,7 @@ def test_theta_names_stay_unique():
             ]
         }
     }
-    assert built(TINY, twins, with_policy(["signals", "stay"])).theta_names == ("a", "a_2", "stay")
+    assert built(WORLD_3X3, twins, with_policy(["signals", "stay"])).theta_names == ("a", "a_2", "stay")
 
 
 # -- the logit bound ------------------------------------------------------------------------------------------------
@@ -225,46 +206,11 @@ def test_the_kernel_tables_with_extra_features_are_the_numpy_policy():
 # -- the kernel against an exact enumeration ------------------------------------------------------------------------
 
 
-def exact_distribution(setup, theta) -> dict[float, float]:
-    """P(Z = z) by enumerating every path (episodes stop at a source), for the setup's features policy."""
-    world = setup.world
-    probs = probabilities(setup.policy.move_features(world), np.asarray(theta, dtype=float))
-    sources = {int(c): j for j, c in enumerate(world.source_cells)}
-    rewards = [r.params[0] for r in world.region_rewards]
-    source_rewards = [r.params[0] for r in world.source_rewards]
-    out: dict[float, float] = {}
-
-    def walk(cell, k, z, p):
-        if k == world.horizon:
-            out[z] = out.get(z, 0.0) + p
-            return
-        for a in range(5):
-            nxt = int(world.next_cell[cell, a])
-            gain = rewards[world.region_of[nxt]]
-            if nxt in sources:
-                gain += source_rewards[sources[nxt]]
-                out[z + gain] = out.get(z + gain, 0.0) + p * probs[cell, a]
-            else:
-                walk(nxt, k + 1, z + gain, p * probs[cell, a])
-
-    walk(int(world.starts[0]), 0, 0.0, 1.0)
-    return out
-
-
-def exact_mean(setup, theta) -> float:
-    return sum(z * p for z, p in exact_distribution(setup, theta).items())
-
-
-def rollouts(setup, theta, episodes, seed=0):
-    keys = rng.robot_keys(seed, rng.TRAIN, 0, 1)
-    return simulate(setup.world, setup.kernel, np.array([theta]), setup.world.starts, keys, episodes)
-
-
 # "mobile": a source that almost never walks (1e-12 per step), so the distribution is the static world's, but the
 # mobile kernel computes the features on the fly (`rollout._mobile_policy`, with the extras).
 @pytest.fixture(scope="module", params=["static", "mobile"])
 def tiny(request):
-    data = OmegaConf.to_container(OmegaConf.create(TINY))
+    data = OmegaConf.to_container(OmegaConf.create(WORLD_3X3))
     if request.param == "mobile":
         data["world"]["sources"][0]["motion"] = {"kind": "random_walk", "prob": 1e-12}
     setup = built(data, with_policy(ALL, THETA))

@@ -12,12 +12,11 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
+from support import exact_outcomes, rollouts, world_3x3
 
-from riskplan.config.schema import Measure, RiskConf, RiskplanConf
-from riskplan.engine import rng
+from riskplan.config.schema import Measure, RiskConf
 from riskplan.engine.policy import move_features, probabilities, scores
 from riskplan.engine.risk_measures import normal_cdf, normal_quantile
-from riskplan.engine.rollout import simulate
 from riskplan.risk import (
     MEASURES,
     cvar,
@@ -34,7 +33,6 @@ from riskplan.risk import (
     tail_count,
     value_at_risk,
 )
-from riskplan.run.build import build_setup
 
 UNIT = NormalDist()
 MU, SIGMA = 3.0, 2.0
@@ -397,23 +395,6 @@ def test_entropic_small_eta_tends_to_the_mean_without_cancellation():
 
 # --- exact enumeration: a 3x3 world with deterministic rewards --------------------------------------------------------
 
-TINY = {
-    "world": {
-        "size": [3, 3],
-        "start": [0, 0],
-        "horizon": 3,
-        "stop_at_source": True,
-        "sources": [
-            {"position": [2, 0], "covariance": [[1.0, 0.0], [0.0, 1.0]], "reward": 10.0},
-            {"position": [0, 2], "covariance": [[2.0, 0.5], [0.5, 1.0]], "reward": 4.0},
-        ],
-        "regions": [
-            {"name": "bad", "rect": [1, 1, 1, 2], "reward": -6.0, "risky": True},
-            {"name": "rest", "rect": [0, 0, 2, 2], "reward": 1.0},
-        ],
-    },
-    "train": {"theta0": [0.5, 0.2]},
-}
 THETA = np.array([0.5, 0.2])
 EXACT_RISKS = [
     {"measure": "wang", "eta": 0.5},
@@ -425,46 +406,19 @@ EXACT_RISKS = [
 
 @pytest.fixture(scope="module")
 def tiny():
-    return build_setup(OmegaConf.merge(OmegaConf.structured(RiskplanConf), TINY))
+    return world_3x3()
 
 
-def exact_outcomes(setup, theta):
-    """Every path enumerated (episodes stop at a source): the distinct totals z_k (ascending), their probabilities
-    p_k and d p_k / d theta = sum over the paths to z_k of p(path) * score(path) (the score of eq. 10)."""
-    world = setup.world
-    features = move_features(world)
+def outcomes_at(setup, theta):
+    """The exact outcomes (z_k, p_k, d p_k / d theta) of the paper's policy with weights theta."""
+    features = move_features(setup.world)
     probs = probabilities(features, np.asarray(theta, dtype=float))
-    step_scores = scores(features, probs)
-    sources = {int(c): j for j, c in enumerate(world.source_cells)}
-    rewards = [r.params[0] for r in world.region_rewards]
-    source_rewards = [r.params[0] for r in world.source_rewards]
-    out: dict[float, tuple[float, np.ndarray]] = {}
-
-    def add(z, p, score):
-        q, dq = out.get(z, (0.0, 0.0))
-        out[z] = (q + p, dq + p * score)
-
-    def walk(cell, k, z, p, score):
-        if k == world.horizon:
-            add(z, p, score)
-            return
-        for a in range(5):
-            nxt = int(world.next_cell[cell, a])
-            gain = rewards[world.region_of[nxt]]
-            p_next, score_next = p * probs[cell, a], score + step_scores[cell, a]
-            if nxt in sources:
-                add(z + gain + source_rewards[sources[nxt]], p_next, score_next)
-            else:
-                walk(nxt, k + 1, z + gain, p_next, score_next)
-
-    walk(int(world.starts[0]), 0, 0.0, 1.0, np.zeros(features.shape[-1]))
-    z = np.array(sorted(out))
-    return z, np.array([out[v][0] for v in z]), np.array([out[v][1] for v in z])
+    return exact_outcomes(setup, probs, scores(features, probs))
 
 
 def exact_objective(setup, theta, risk) -> float:
     """rho of the exact discrete distribution: sum_k z_k [g(P_k) - g(P_(k-1))], or -(1/eta) log sum_k p_k e^(-eta z_k)."""
-    z, p, _ = exact_outcomes(setup, theta)
+    z, p, _ = outcomes_at(setup, theta)
     if risk["measure"] == "entropic":
         return -math.log(np.sum(p * np.exp(-risk["eta"] * z))) / risk["eta"]
     cumulative = np.concatenate([[0.0], np.cumsum(p)[:-1], [1.0]])
@@ -474,7 +428,7 @@ def exact_objective(setup, theta, risk) -> float:
 def exact_gradient(setup, theta, risk) -> np.ndarray:
     """E[S h(Z)] with the exact F: h(z_k) = -sum_(j >= k) phi(P_j) (z_(j+1) - z_j) (spectral); for entropic
     h(z) = -(1/eta) e^(-eta z) / E[e^(-eta Z)]."""
-    z, p, dp = exact_outcomes(setup, theta)
+    z, p, dp = outcomes_at(setup, theta)
     if risk["measure"] == "entropic":
         e = np.exp(-risk["eta"] * z)
         return -(e / np.sum(p * e)) @ dp / risk["eta"]
@@ -494,16 +448,16 @@ def central_difference(f, theta, step=1e-5) -> np.ndarray:
 
 
 def test_enumeration_is_a_distribution_with_zero_mean_score(tiny):
-    z, p, dp = exact_outcomes(tiny, THETA)
+    z, p, dp = outcomes_at(tiny, THETA)
     assert len(z) >= 5
     assert p.sum() == pytest.approx(1.0, abs=1e-12)
     np.testing.assert_allclose(dp.sum(axis=0), 0.0, atol=1e-12)  # E[S] = 0
-    np.testing.assert_allclose(dp, central_difference(lambda t: exact_outcomes(tiny, t)[1], THETA), atol=1e-9)
+    np.testing.assert_allclose(dp, central_difference(lambda t: outcomes_at(tiny, t)[1], THETA), atol=1e-9)
 
 
 @pytest.mark.parametrize("risk", EXACT_RISKS, ids=lambda r: f"{r['measure']}-{r.get('eta', r.get('weight'))}")
 def test_exact_gradient_matches_finite_differences_of_the_exact_objective(tiny, risk):
-    _, p, _ = exact_outcomes(tiny, THETA)
+    _, p, _ = outcomes_at(tiny, THETA)
     if "beta" in risk:  # mean_cvar's g has a kink at beta: no cumulative probability may sit on it
         assert np.min(np.abs(np.cumsum(p) - risk["beta"])) > 1e-3
     truth = central_difference(lambda t: exact_objective(tiny, t, risk), THETA)
@@ -513,9 +467,7 @@ def test_exact_gradient_matches_finite_differences_of_the_exact_objective(tiny, 
 
 @pytest.fixture(scope="module")
 def tiny_batch(tiny):
-    return simulate(
-        tiny.world, tiny.kernel, np.array([THETA]), tiny.world.starts, rng.robot_keys(7, rng.TRAIN, 0, 1), 200_000
-    )
+    return rollouts(tiny, THETA, 200_000, seed=7)
 
 
 @pytest.mark.parametrize("risk", EXACT_RISKS, ids=lambda r: f"{r['measure']}-{r.get('eta', r.get('weight'))}")

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
+from support import WORLD_3X3, exact_outcomes, world_3x3
 
-from riskplan.config.schema import RiskplanConf
 from riskplan.engine import rng
 from riskplan.engine.policy import (
     feature_logits,
@@ -30,30 +30,13 @@ from riskplan.run.build import build_setup, logit_bound
 from riskplan.run.compose import compose
 from riskplan.util.errors import BadInput
 
-# The 3x3, K = 3 world of tests/engine/test_exact_enumeration.py (copied: test files are being moved).
-TINY = {
-    "world": {
-        "size": [3, 3],
-        "start": [0, 0],
-        "horizon": 3,
-        "stop_at_source": True,
-        "sources": [
-            {"position": [2, 0], "covariance": [[1.0, 0.0], [0.0, 1.0]], "reward": 10.0},
-            {"position": [0, 2], "covariance": [[2.0, 0.5], [0.5, 1.0]], "reward": 4.0},
-        ],
-        "regions": [
-            {"name": "bad", "rect": [1, 1, 1, 2], "reward": -6.0, "risky": True},
-            {"name": "rest", "rect": [0, 0, 2, 2], "reward": 1.0},
-        ],
-    },
-    "train": {"theta0": [0.5, 0.2]},
-    "policy": {"kind": "tabular"},
-}
+TABULAR = {"policy": {"kind": "tabular"}}
 MOBILE = ["world.sources.0.motion.kind=random_walk", "world.sources.0.motion.prob=0.5"]
 
 
 def tiny_setup(*extra: dict):
-    return build_setup(OmegaConf.merge(OmegaConf.structured(RiskplanConf), TINY, *extra))
+    """The tabular policy on the 3x3 world of tests/support.py."""
+    return world_3x3(TABULAR, *extra)
 
 
 def run(setup, thetas, episodes, seed=0, **kw):
@@ -162,34 +145,14 @@ def test_without_scores_a_table_draws_the_same_episodes():
 
 def exact_mean(setup, table) -> float:
     """E[Z] by enumerating every path of the tabular policy `table` (C * 5,)."""
-    world = setup.world
-    probs = tabular_probabilities(table, world.cells)
-    sources = {int(c): j for j, c in enumerate(world.source_cells)}
-    rewards = [r.params[0] for r in world.region_rewards]
-    source_rewards = [r.params[0] for r in world.source_rewards]
-    total = 0.0
-
-    def walk(cell, k, z, p):
-        nonlocal total
-        if k == world.horizon:
-            total += p * z
-            return
-        for a in range(5):
-            nxt = int(world.next_cell[cell, a])
-            gain = rewards[world.region_of[nxt]]
-            if nxt in sources:
-                total += p * probs[cell, a] * (z + gain + source_rewards[sources[nxt]])
-            else:
-                walk(nxt, k + 1, z + gain, p * probs[cell, a])
-
-    walk(int(world.starts[0]), 0, 0.0, 1.0)
-    return total
+    z, p, _ = exact_outcomes(setup, tabular_probabilities(table, setup.world.cells))
+    return float(z @ p)
 
 
 @pytest.fixture(scope="module", params=["static", "mobile"])
 def tiny(request):
     """The tiny world; "mobile": a source that almost never walks, the same law through the mobile kernel."""
-    data = OmegaConf.to_container(OmegaConf.create(TINY))
+    data = OmegaConf.to_container(OmegaConf.create(WORLD_3X3))
     if request.param == "mobile":
         data["world"]["sources"][0]["motion"] = {"kind": "random_walk", "prob": 1e-12}
     setup = tiny_setup(data)
