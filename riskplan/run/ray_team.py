@@ -96,20 +96,16 @@ from typing import Any, NamedTuple
 import numba
 import numpy as np
 import pandas as pd
-from omegaconf import OmegaConf
 
 from riskplan.config.schema import Aggregate, FaultKind, Measure, Order, Stale, TeamConf
-from riskplan.config.typed import as_dict, typed
 from riskplan.engine import rng
 from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, objective, objective_gradient, summary_stats
 from riskplan.engine.rollout import simulate
 from riskplan.engine.team import faulty, resilience
 from riskplan.engine.team.convergence import consensus_error
-from riskplan.engine.team.network import network_metadata
-from riskplan.engine.world import world_map
 from riskplan.run import record
 from riskplan.run.build import Setup, build_setup, logit_bound, starts
-from riskplan.run.checkpoint import CHECKPOINT, State, TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
+from riskplan.run.checkpoint import State, TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
 from riskplan.run.evaluation import (
     AVERAGE,
     NumericalTrouble,
@@ -120,9 +116,9 @@ from riskplan.run.evaluation import (
     summarize,
 )
 from riskplan.run.foxglove_layout import write_layout
-from riskplan.run.provenance import provenance
-from riskplan.run.record import RunLog, read_log, resume_log
+from riskplan.run.record import RunLog
 from riskplan.run.results import Run
+from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log
 from riskplan.run.schedules import risk_level, samples_at, step_size
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted, StopSignals
@@ -130,7 +126,6 @@ from riskplan.util.paths import atomic_path, write_atomic
 from riskplan.version import __version__
 
 EXTRA = "riskplan[distributed]"
-FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # as training.FINISHED
 OBJECT_STORE_BYTES = 100 * 1000 * 1000  # a local instance's object store (Ray's minimum is 75 MiB)
 POLL_SECONDS = 0.2  # the driver looks at signals and finished actors this often
 DRAIN_SECONDS = 1.0  # an actor's drain call returns after this long when it has nothing to report
@@ -988,19 +983,10 @@ def train_ray(setup: Setup, out: Path, resume: bool, progress) -> Run:
         # First Ray (an unreachable cluster writes nothing), unless no robot has an iteration left to run
         ray = ray_up.enter_context(contextlib.nullcontext() if idle else ray_runtime(setup.params.team))
         if checkpoint is not None:
-            log = resume_log(out / "run.mcap", out / "run.mcap", checkpoint.iteration - 1)
-            rows = _logged_rows(out / "run.mcap", checkpoint.iteration, setup.robots)
-            if _config_changed(out, setup.config):
-                _write_config(out, setup.config, replace=True)
-                log.metadata("config", setup.config)
-            for name in FINISHED:
-                (out / name).unlink(missing_ok=True)
+            log, rows = reopen_log(out, setup, checkpoint.iteration)
             states, pending = checkpoint.robots, checkpoint.pending
         else:
-            _refuse_existing_run(out, setup)
-            _write_config(out, setup.config)
-            log = RunLog(out / "run.mcap")
-            _log_header(log, setup)
+            log = start_log(out, setup)
             states, pending, rows = expected, [], []
         with log, StopSignals() as stop:
             team = _Team(ray, setup, out, log, states, pending, rows)
@@ -1101,53 +1087,8 @@ def prepare_ray_resume(setup: Setup, out: Path) -> bool:
     finished already."""
     expected = [initial_state(setup, i) for i in range(setup.robots)]
     checkpoint = load_team_checkpoint(out, setup, expected)
-    _logged_rows(out / "run.mcap", checkpoint.iteration, setup.robots)
-    return min(checkpoint.iterations) == setup.params.train.iterations and all((out / f).is_file() for f in FINISHED)
-
-
-def _logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
-    """The rows of iterations 0..iterations-1 (complete for every robot) from run.mcap (`training.logged_rows`)."""
-    metrics = read_log(path).metrics
-    metrics = metrics[metrics.iteration < iterations]
-    per_iteration = robots + (1 if robots > 1 else 0)
-    counts = metrics.groupby("iteration").size()
-    if len(counts) != iterations or (iterations and not bool((counts == per_iteration).all())):
-        raise BadInput(
-            str(path),
-            f"holds rows that do not match the checkpoint (iteration {iterations}, "
-            f"{per_iteration} rows per iteration); start the run again",
-        )
-    return metrics.to_dict("records")
-
-
-# What the run directory needs beside the loop, as `riskplan.run.training` does it (that module sits above this one).
-def _write_config(out: Path, config: dict, replace: bool = False) -> None:
-    path = out / ".hydra" / "config.yaml"
-    if replace or not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
-        os.replace(tmp, path)
-
-
-def _config_changed(out: Path, config: dict) -> bool:
-    return as_dict(typed(OmegaConf.load(out / ".hydra" / "config.yaml"))) != config
-
-
-def _refuse_existing_run(out: Path, setup: Setup) -> None:
-    if any((out / name).exists() for name in (*FINISHED, CHECKPOINT, "run.mcap")) or (
-        (out / ".hydra" / "config.yaml").is_file() and _config_changed(out, setup.config)
-    ):
-        raise BadInput(
-            str(out), f"already holds a run; resume it with riskplan train --resume {out}, or give a new directory"
-        )
-
-
-def _log_header(log: RunLog, setup: Setup) -> None:
-    log.metadata("config", setup.config)
-    log.metadata("provenance", provenance())
-    log.network(network_metadata(setup.network))
-    log.world_map(world_map(setup.world, starts(setup)))
+    logged_rows(out / "run.mcap", checkpoint.iteration, setup.robots)
+    return min(checkpoint.iterations) == setup.params.train.iterations and has_finished(out)
 
 
 __all__ = [

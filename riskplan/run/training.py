@@ -19,32 +19,27 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from omegaconf import OmegaConf
 
 from riskplan.config.schema import Backend, Measure, Order, RiskConf, RiskplanConf
-from riskplan.config.typed import as_dict, typed
+from riskplan.config.typed import as_dict
 from riskplan.engine import rng
 from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, objective, objective_gradient, summary_stats
 from riskplan.engine.rollout import simulate
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.engine.team.kernels import Links, mix_linked
-from riskplan.engine.team.network import network_metadata
-from riskplan.engine.world import world_map
 from riskplan.run.build import Setup, build_setup, logit_bound, starts
-from riskplan.run.checkpoint import CHECKPOINT, State, load_checkpoint, save_checkpoint
+from riskplan.run.checkpoint import State, load_checkpoint, save_checkpoint
 from riskplan.run.evaluation import AVERAGE, NumericalTrouble, check_finite, evaluate, sample_paths, summarize
 from riskplan.run.foxglove_layout import write_layout
-from riskplan.run.provenance import provenance
 from riskplan.run.ray_team import prepare_ray_resume, train_ray
-from riskplan.run.record import RunLog, read_log, resume_log
+from riskplan.run.record import RunLog
 from riskplan.run.results import Run
+from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log
 from riskplan.run.schedules import risk_level, samples_at, step_size
-from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import StopSignals
 from riskplan.util.lock import hold
 from riskplan.util.paths import atomic_path, check_output_dir, write_atomic
 
-FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # written when a run ends
 STOP_ENV = "RISKPLAN_TEST_STOP_AFTER_ITERATION"  # SIGSTOP after logging this iteration, so a test can SIGKILL there
 
 
@@ -170,20 +165,12 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
         return train_ray(setup, out, resume, progress)
     if resume:
         state = load_checkpoint(out, setup)
-        log = resume_log(out / "run.mcap", out / "run.mcap", state.iteration - 1)
-        state = replace(state, rows=logged_rows(out / "run.mcap", state.iteration, setup.robots))
+        log, rows = reopen_log(out, setup, state.iteration)
+        state = replace(state, rows=rows)
         setup.mixer.restore(state.mixer)
-        if _config_changed(out, setup.config):  # extended: the run's config now says the new train.iterations
-            _write_config(out, setup.config, replace=True)
-            log.metadata("config", setup.config)
-        for name in FINISHED:  # an extended run is not finished until it finishes again
-            (out / name).unlink(missing_ok=True)
     else:
-        refuse_existing_run(out, setup)
-        _write_config(out, setup.config)
+        log = start_log(out, setup)
         state = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
-        log = RunLog(out / "run.mcap")
-        _log_header(log, setup)
     total = setup.params.train.iterations
     every = setup.params.train.checkpoint_every
     load_kernels(setup, state)  # numba's cache, before the loop: wall_time is the loop's own
@@ -235,35 +222,6 @@ def _checkpoint(log: RunLog, out: Path, state: State) -> None:
     save_checkpoint(out, state)
 
 
-def refuse_existing_run(out: Path, setup: Setup) -> None:
-    """A fresh run never writes over another run's files: BadInput naming --resume instead."""
-    if any((out / name).exists() for name in (*FINISHED, CHECKPOINT, "run.mcap")) or (
-        (out / ".hydra" / "config.yaml").is_file() and _config_changed(out, setup.config)
-    ):
-        raise BadInput(
-            str(out), f"already holds a run; resume it with riskplan train --resume {out}, or give a new directory"
-        )
-
-
-def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
-    """The metrics rows of iterations 0..iterations-1 from run.mcap: what a checkpoint no longer copies.
-
-    Every iteration must be there with one row per robot (and the network average in a team); anything else means
-    the log and the checkpoint are not of one run, which is bad input.
-    """
-    metrics = read_log(path).metrics
-    metrics = metrics[metrics.iteration < iterations]
-    per_iteration = robots + (1 if robots > 1 else 0)
-    counts = metrics.groupby("iteration").size()
-    if len(counts) != iterations or (iterations and not bool((counts == per_iteration).all())):
-        raise BadInput(
-            str(path),
-            f"holds rows that do not match the checkpoint (iteration {iterations}, "
-            f"{per_iteration} rows per iteration); start the run again",
-        )
-    return metrics.to_dict("records")
-
-
 def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
     """The Setup of a run to resume, after every check of its config, checkpoint and log (nothing is written), and
     whether the run is finished already (its checkpoint is at train.iterations and its tables are there)."""
@@ -272,7 +230,7 @@ def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
         return setup, prepare_ray_resume(setup, out)
     state = load_checkpoint(out, setup)
     logged_rows(out / "run.mcap", state.iteration, setup.robots)
-    done = state.iteration == setup.params.train.iterations and all((out / f).is_file() for f in FINISHED)
+    done = state.iteration == setup.params.train.iterations and has_finished(out)
     return setup, done
 
 
@@ -339,27 +297,3 @@ def _row(l, robot, stats, theta, grad, eps, error, samples, seconds, level, heal
         "samples": int(samples),
         "seconds": seconds,
     }
-
-
-def _write_config(out: Path, config: dict, replace: bool = False) -> None:
-    """.hydra/config.yaml for runs started from the Python API (Hydra writes it for the CLI), or `replace` it."""
-    path = out / ".hydra" / "config.yaml"
-    if replace or not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
-        os.replace(tmp, path)
-
-
-def _config_changed(out: Path, config: dict) -> bool:
-    """Whether the run's .hydra/config.yaml differs from `config` (after `--resume ... train.iterations=N`)."""
-    return as_dict(typed(OmegaConf.load(out / ".hydra" / "config.yaml"))) != config
-
-
-def _log_header(log: RunLog, setup: Setup) -> None:
-    """Config, provenance, network and world map at the top of run.mcap."""
-    log.metadata("config", setup.config)
-    log.metadata("provenance", provenance())
-    log.metadata("policy", {"kind": str(setup.policy.kind), "theta_names": list(setup.theta_names)})
-    log.network(network_metadata(setup.network))
-    log.world_map(world_map(setup.world, starts(setup)))

@@ -412,6 +412,8 @@ def test_a_ray_run_writes_what_a_simulated_run_writes(local_ray, tmp_path):
     assert (average.samples == 3 * 400).all()
     log = read_log(tmp_path / "ray" / "run.mcap")
     assert log.complete
+    assert set(log.metadata) == set(read_log(tmp_path / "sim" / "run.mcap").metadata) | {"ray_team", "ray_team_end"}
+    assert log.metadata["policy"]["theta_names"] == list(sim_run.summary["theta_names"])
     where = log.metadata["ray_team"]["robots"]
     assert [r["robot"] for r in where] == [0, 1, 2] and all(r["node_id"] and r["pid"] for r in where)
     checkpoint = json.loads((tmp_path / "ray" / CHECKPOINT).read_text())

@@ -1,0 +1,97 @@
+"""A run directory beside the training loop, the same for both backends: its config file, the refusal to write over
+another run, run.mcap opened fresh (with its header) or reopened at a checkpoint, and whether the run has finished."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from omegaconf import OmegaConf
+
+from riskplan.config.typed import as_dict, typed
+from riskplan.engine.team.network import network_metadata
+from riskplan.engine.world import world_map
+from riskplan.run.build import Setup, starts
+from riskplan.run.checkpoint import CHECKPOINT
+from riskplan.run.provenance import provenance
+from riskplan.run.record import RunLog, read_log, resume_log
+from riskplan.util.errors import BadInput
+
+FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # written when a run ends
+
+
+def refuse_existing_run(out: Path, setup: Setup) -> None:
+    """A fresh run never writes over another run's files: BadInput naming --resume instead."""
+    if any((out / name).exists() for name in (*FINISHED, CHECKPOINT, "run.mcap")) or (
+        (out / ".hydra" / "config.yaml").is_file() and _config_changed(out, setup.config)
+    ):
+        raise BadInput(
+            str(out), f"already holds a run; resume it with riskplan train --resume {out}, or give a new directory"
+        )
+
+
+def start_log(out: Path, setup: Setup) -> RunLog:
+    """A fresh run's run.mcap, with its header (config, provenance, policy, network, world map), after its config
+    file; refuses a directory that holds another run."""
+    refuse_existing_run(out, setup)
+    _write_config(out, setup.config)
+    log = RunLog(out / "run.mcap")
+    log.metadata("config", setup.config)
+    log.metadata("provenance", provenance())
+    log.metadata("policy", {"kind": str(setup.policy.kind), "theta_names": list(setup.theta_names)})
+    log.network(network_metadata(setup.network))
+    log.world_map(world_map(setup.world, starts(setup)))
+    return log
+
+
+def reopen_log(out: Path, setup: Setup, iteration: int) -> tuple[RunLog, list[dict]]:
+    """run.mcap cut back to a checkpoint at `iteration`, and its metrics rows before it. An extended run
+    (`--resume ... train.iterations=N`) gets its new config written and logged, and is not finished until it
+    finishes again."""
+    log = resume_log(out / "run.mcap", out / "run.mcap", iteration - 1)
+    rows = logged_rows(out / "run.mcap", iteration, setup.robots)
+    if _config_changed(out, setup.config):
+        _write_config(out, setup.config, replace=True)
+        log.metadata("config", setup.config)
+    for name in FINISHED:
+        (out / name).unlink(missing_ok=True)
+    return log, rows
+
+
+def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
+    """The metrics rows of iterations 0..iterations-1 from run.mcap: what a checkpoint no longer copies.
+
+    Every iteration must be there with one row per robot (and the network average in a team); anything else means
+    the log and the checkpoint are not of one run, which is bad input.
+    """
+    metrics = read_log(path).metrics
+    metrics = metrics[metrics.iteration < iterations]
+    per_iteration = robots + (1 if robots > 1 else 0)
+    counts = metrics.groupby("iteration").size()
+    if len(counts) != iterations or (iterations and not bool((counts == per_iteration).all())):
+        raise BadInput(
+            str(path),
+            f"holds rows that do not match the checkpoint (iteration {iterations}, "
+            f"{per_iteration} rows per iteration); start the run again",
+        )
+    return metrics.to_dict("records")
+
+
+def has_finished(out: Path) -> bool:
+    """Whether the run's final tables and summary are all there."""
+    return all((out / name).is_file() for name in FINISHED)
+
+
+def _write_config(out: Path, config: dict, replace: bool = False) -> None:
+    """.hydra/config.yaml for runs started from the Python API (Hydra writes it for the CLI), or `replace` it."""
+    path = out / ".hydra" / "config.yaml"
+    if replace or not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
+        os.replace(tmp, path)
+
+
+def _config_changed(out: Path, config: dict) -> bool:
+    """Whether the run's .hydra/config.yaml differs from `config` (after `--resume ... train.iterations=N`)."""
+    return as_dict(typed(OmegaConf.load(out / ".hydra" / "config.yaml"))) != config
