@@ -140,6 +140,27 @@ def _normal_edge(state, i, u):
 
 
 @njit(inline="always")
+def _quantile_tail(q):
+    """Acklam's tail approximation at q = sqrt(-2 log p), for p below 0.02425 (its mirror image above 0.97575)."""
+    return (
+        (
+            (
+                ((-7.784894002430293e-03 * q - 3.223964580411365e-01) * q - 2.400758277161838e00) * q
+                - 2.549732539343734e00
+            )
+            * q
+            + 4.374664141464968e00
+        )
+        * q
+        + 2.938163982698783e00
+    ) / (
+        (((7.784695709041462e-03 * q + 3.224671290700398e-01) * q + 2.445134137142996e00) * q + 3.754408661907416e00)
+        * q
+        + 1.0
+    )
+
+
+@njit(inline="always")
 def normal_quantile(p):
     """Inverse standard-normal CDF (Acklam's rational approximation, relative error < 1.2e-9).
 
@@ -147,47 +168,9 @@ def normal_quantile(p):
     tests/test_kernel_speed_paths.py compares the ziggurat and the kernel's return distributions against.
     """
     if p < 0.02425:
-        q = math.sqrt(-2.0 * math.log(p))
-        return (
-            (
-                (
-                    ((-7.784894002430293e-03 * q - 3.223964580411365e-01) * q - 2.400758277161838e00) * q
-                    - 2.549732539343734e00
-                )
-                * q
-                + 4.374664141464968e00
-            )
-            * q
-            + 2.938163982698783e00
-        ) / (
-            (
-                ((7.784695709041462e-03 * q + 3.224671290700398e-01) * q + 2.445134137142996e00) * q
-                + 3.754408661907416e00
-            )
-            * q
-            + 1.0
-        )
+        return _quantile_tail(math.sqrt(-2.0 * math.log(p)))
     if p > 0.97575:
-        q = math.sqrt(-2.0 * math.log(1.0 - p))
-        return -(
-            (
-                (
-                    ((-7.784894002430293e-03 * q - 3.223964580411365e-01) * q - 2.400758277161838e00) * q
-                    - 2.549732539343734e00
-                )
-                * q
-                + 4.374664141464968e00
-            )
-            * q
-            + 2.938163982698783e00
-        ) / (
-            (
-                ((7.784695709041462e-03 * q + 3.224671290700398e-01) * q + 2.445134137142996e00) * q
-                + 3.754408661907416e00
-            )
-            * q
-            + 1.0
-        )
+        return -_quantile_tail(math.sqrt(-2.0 * math.log(1.0 - p)))
     q = p - 0.5
     r = q * q
     return (

@@ -29,20 +29,15 @@ class State:
     rows: list[dict]
 
 
-def save_checkpoint(out: Path, state: State) -> None:
-    """Write the checkpoint atomically: temp file, fsync, rename, fsync the directory."""
+def _write_durably(out: Path, payload: dict) -> None:
+    """The checkpoint file replaced atomically: temp file, fsync, rename, fsync the directory (CRASH_ENV: SIGKILL
+    before the rename at that iteration, for the tests)."""
     tmp = out / f"{CHECKPOINT}.tmp"
-    payload = {
-        "iteration": state.iteration,
-        "thetas": state.thetas.tolist(),
-        "mixer": {k: np.asarray(v).tolist() for k, v in state.mixer.items()},
-        "mixer_dtypes": {k: str(np.asarray(v).dtype) for k, v in state.mixer.items()},
-    }
     with open(tmp, "w") as handle:
         json.dump(payload, handle)
         handle.flush()
         os.fsync(handle.fileno())
-    if os.environ.get(CRASH_ENV) == str(state.iteration):
+    if os.environ.get(CRASH_ENV) == str(payload["iteration"]):
         os.kill(os.getpid(), signal.SIGKILL)
     os.replace(tmp, out / CHECKPOINT)
     directory = os.open(out, os.O_RDONLY)
@@ -50,6 +45,17 @@ def save_checkpoint(out: Path, state: State) -> None:
         os.fsync(directory)
     finally:
         os.close(directory)
+
+
+def save_checkpoint(out: Path, state: State) -> None:
+    """Write the checkpoint atomically: temp file, fsync, rename, fsync the directory."""
+    payload = {
+        "iteration": state.iteration,
+        "thetas": state.thetas.tolist(),
+        "mixer": {k: np.asarray(v).tolist() for k, v in state.mixer.items()},
+        "mixer_dtypes": {k: str(np.asarray(v).dtype) for k, v in state.mixer.items()},
+    }
+    _write_durably(out, payload)
 
 
 def load_checkpoint(out: Path, setup: Setup) -> State:
@@ -151,19 +157,7 @@ def save_team_checkpoint(out: Path, robots: list[dict[str, np.ndarray]], pending
             for entry in pending
         ],
     }
-    tmp = out / f"{CHECKPOINT}.tmp"
-    with open(tmp, "w") as handle:
-        json.dump(payload, handle)
-        handle.flush()
-        os.fsync(handle.fileno())
-    if os.environ.get(CRASH_ENV) == str(payload["iteration"]):
-        os.kill(os.getpid(), signal.SIGKILL)
-    os.replace(tmp, out / CHECKPOINT)
-    directory = os.open(out, os.O_RDONLY)
-    try:
-        os.fsync(directory)
-    finally:
-        os.close(directory)
+    _write_durably(out, payload)
 
 
 def load_team_checkpoint(out: Path, setup: Setup, expected: list[dict[str, np.ndarray]]) -> TeamCheckpoint:
