@@ -65,24 +65,13 @@ def test_chunking_does_not_change_the_numbers(setup, monkeypatch):
     pd.testing.assert_frame_equal(L.evaluate_grid(setup, thetas, 200, 0.1, seed=3), whole)
 
 
+LANDSCAPE_COMMAND = ["landscape", *FAST, "seed=4", "--points", "5", "--episodes", "200", "--range=-10,50,-20,40"]
+
+
 @pytest.mark.slow  # landscapes and a report through the CLI
 def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
     out = tmp_path / "land"
-    result = runner.invoke(
-        app,
-        [
-            "landscape",
-            *FAST,
-            "seed=4",
-            "--points",
-            "5",
-            "--episodes",
-            "200",
-            "--range=-10,50,-20,40",
-            "--out",
-            str(out),
-        ],
-    )
+    result = runner.invoke(app, [*LANDSCAPE_COMMAND, "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert f"landscape directory: {out}" in result.output and "max CVaR_0.1" in result.output
     table = pd.read_parquet(out / "landscape.parquet")
@@ -109,21 +98,7 @@ def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
     assert json.loads((out / "status.json").read_text())["status"] == "done"
     # reproducible: the same command gives the same table
     again = tmp_path / "again"
-    runner.invoke(
-        app,
-        [
-            "landscape",
-            *FAST,
-            "seed=4",
-            "--points",
-            "5",
-            "--episodes",
-            "200",
-            "--range=-10,50,-20,40",
-            "--out",
-            str(again),
-        ],
-    )
+    runner.invoke(app, [*LANDSCAPE_COMMAND, "--out", str(again)])
     pd.testing.assert_frame_equal(pd.read_parquet(again / "landscape.parquet"), table)
 
     coll = collect([out])

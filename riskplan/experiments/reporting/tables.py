@@ -137,42 +137,30 @@ def comparison_table(coll: Collection) -> pd.DataFrame:
     return table[front + figures + config]
 
 
+def used_row(r, group: str) -> dict:
+    """The runs table's row of a run the report used, under `group`."""
+    v = run_values(r)
+    return {
+        "path": str(r.path),
+        "status": "used",
+        "group": group,
+        "seed": r.seed,
+        "note": "tables rebuilt from run.mcap" if r.rebuilt else "",
+        "iterations": int(r.run.metrics.iteration.max()) + 1,
+        "mean": v["mean"],
+        "cvar": v["cvar"],
+        "value_at_risk": v["value_at_risk"],
+        "theta_final": theta_text(r.final_theta()),
+    }
+
+
 def runs_table(coll: Collection) -> pd.DataFrame:
     """Every run directory found: used (with its group and figures) or skipped (with the reason)."""
-    rows = []
-    for r in coll.runs:
-        v = run_values(r)
-        rows.append(
-            {
-                "path": str(r.path),
-                "status": "used",
-                "group": r.group.label if r.group else "",
-                "seed": r.seed,
-                "note": "tables rebuilt from run.mcap" if r.rebuilt else "",
-                "iterations": int(r.run.metrics.iteration.max()) + 1,
-                "mean": v["mean"],
-                "cvar": v["cvar"],
-                "value_at_risk": v["value_at_risk"],
-                "theta_final": theta_text(r.final_theta()),
-            }
-        )
+    rows = [used_row(r, r.group.label if r.group else "") for r in coll.runs]
     for study in coll.studies:  # reproduce's studies: their runs, labelled by study and group
-        for r in study.collection.runs:
-            v = run_values(r)
-            rows.append(
-                {
-                    "path": str(r.path),
-                    "status": "used",
-                    "group": f"{study.name}: {r.group.label}" if r.group else study.name,
-                    "seed": r.seed,
-                    "note": "tables rebuilt from run.mcap" if r.rebuilt else "",
-                    "iterations": int(r.run.metrics.iteration.max()) + 1,
-                    "mean": v["mean"],
-                    "cvar": v["cvar"],
-                    "value_at_risk": v["value_at_risk"],
-                    "theta_final": theta_text(r.final_theta()),
-                }
-            )
+        rows += [
+            used_row(r, f"{study.name}: {r.group.label}" if r.group else study.name) for r in study.collection.runs
+        ]
     for land in coll.landscapes:
         rows.append(
             {
