@@ -103,7 +103,6 @@ from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, objectiv
 from riskplan.engine.rollout import simulate
 from riskplan.engine.team import faulty, resilience
 from riskplan.engine.team.convergence import consensus_error
-from riskplan.run import record
 from riskplan.run.build import Setup, build_setup, logit_bound, starts
 from riskplan.run.checkpoint import State, TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
 from riskplan.run.evaluation import (
@@ -611,26 +610,6 @@ def tracking_balance(setup: Setup, states: list[dict[str, np.ndarray]]) -> tuple
     return held, want
 
 
-def _log_rows(log: RunLog, rows: list[dict], complete: tuple[int, float] | None = None) -> None:
-    """Rows of one iteration on /metrics and /theta, stamped with the wall-clock time now, and with `complete`
-    ((iteration, consensus error)) its /consensus_error message, which marks the iteration complete. What
-    `RunLog.iteration` writes, but one robot's row at a time."""
-    log._check_open()
-    t = log._now()
-    encoded = [{k: record._scalar(v) for k, v in row.items()} for row in rows]
-    for row in encoded:
-        log._add(record.METRICS, row, t)
-    for row in encoded:
-        names = sorted((k for k in row if k.startswith("theta_")), key=lambda k: int(k[6:]))
-        log._add(
-            record.THETA, {"iteration": row["iteration"], "robot": row["robot"], "theta": [row[k] for k in names]}, t
-        )
-    if complete is not None:
-        log._add(record.CONSENSUS, {"iteration": complete[0], "consensus_error": record._scalar(complete[1])}, t)
-        log.last_iteration = complete[0]
-    log._durable()
-
-
 class _RobotDied(Exception):
     def __init__(self, robot: int, detail: str):
         self.robot, self.detail = robot, detail
@@ -664,7 +643,7 @@ class _Team:
         self.startup = 0.0  # seconds from creating the actors to all of them up and connected
         for entry in pending:
             row = entry["row"]
-            _log_rows(log, [row])
+            log.rows([row])
             self.rows.append(row)
             self.partial.setdefault(int(row["iteration"]), {})[int(row["robot"])] = entry
 
@@ -790,7 +769,7 @@ class _Team:
                 continue
             if l > self.reached[i]:  # drains hand reports over until they are acknowledged: never a gap
                 raise RuntimeError(f"robot {i} reported iteration {l} before {self.reached[i]}")
-            _log_rows(self.log, [row])
+            self.log.rows([row])
             self.rows.append(row)
             self.history[i].append(report["state"])
             self.reached[i] = l + 1
@@ -836,7 +815,7 @@ class _Team:
                     max(stale) if stale else math.nan,
                 )
             )
-        _log_rows(self.log, rows, (l, error))
+        self.log.rows(rows, (l, error))
         self.rows.extend(rows)
         if self.progress is not None:
             self.progress(l + 1, params.train.iterations, rows[-1] if rows else entries[0]["row"])

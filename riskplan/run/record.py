@@ -408,22 +408,30 @@ class RunLog:
 
     def iteration(self, rows: list[dict]) -> None:
         """Log one training iteration (its metrics.parquet rows) and make it durable before returning."""
-        self._check_open()
         if not rows:
             raise ValueError("iteration(): no rows")
-        t = self._now()
-        enc = [{k: _scalar(v) for k, v in row.items()} for row in rows]
-        it = enc[0]["iteration"]
-        if any(r["iteration"] != it for r in enc):
+        if len({int(r["iteration"]) for r in rows}) > 1:
             raise ValueError("iteration(): rows of more than one iteration")
-        theta_keys = sorted((k for k in enc[0] if k.startswith("theta_")), key=lambda k: int(k[6:]))
-        for r in enc:
-            self._add(METRICS, r, t)
-        for r in enc:
-            self._add(THETA, {"iteration": it, "robot": r["robot"], "theta": [r[k] for k in theta_keys]}, t)
-        self._add(CONSENSUS, {"iteration": it, "consensus_error": enc[0].get("consensus_error")}, t)
+        self.rows(rows, complete=(int(rows[0]["iteration"]), rows[0].get("consensus_error")))
+
+    def rows(self, rows: list[dict], complete: tuple[int, Any] | None = None) -> None:
+        """Metrics rows on /metrics and /theta, stamped with the wall-clock time now, durable before returning; with
+        `complete` ((iteration, consensus error)) the /consensus_error message that marks that iteration complete.
+        `iteration` logs a whole iteration at once; the ray team logs each robot's rows as they arrive."""
+        self._check_open()
+        t = self._now()
+        encoded = [{k: _scalar(v) for k, v in row.items()} for row in rows]
+        for row in encoded:
+            self._add(METRICS, row, t)
+        for row in encoded:
+            names = sorted((k for k in row if k.startswith("theta_")), key=lambda k: int(k[6:]))
+            self._add(
+                THETA, {"iteration": row["iteration"], "robot": row["robot"], "theta": [row[k] for k in names]}, t
+            )
+        if complete is not None:
+            self._add(CONSENSUS, {"iteration": complete[0], "consensus_error": _scalar(complete[1])}, t)
+            self.last_iteration = complete[0]
         self._durable()
-        self.last_iteration = it
 
     def trajectories(self, df: pd.DataFrame, step_seconds: float = STEP_SECONDS) -> None:
         """Raw rows on /trajectories (exact rebuild) and a step-by-step replay on /paths."""
