@@ -37,14 +37,19 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.slow)
 
 
-@pytest.fixture(autouse=True)
-def signal_handlers_restored():
-    """Each test starts with the handlers the one before it found: a `ray.init` in this process (a test's fixture, a
-    cluster driver) makes SIGTERM call sys.exit and leaves it so after shutdown."""
+def _handlers_kept():
+    """Put SIGTERM's and SIGINT's handlers back afterwards: a `ray.init` in this process (a fixture, a cluster
+    driver) makes SIGTERM call sys.exit and leaves it so after shutdown."""
     saved = {number: signal.getsignal(number) for number in (signal.SIGTERM, signal.SIGINT)}
     yield
     for number, handler in saved.items():
         signal.signal(number, handler)
+
+
+# Both scopes: a module's fixtures (set up before any test's) may call ray.init too. Autouse fixtures come first
+# within their scope, so these save the handlers before the fixtures of their scope run.
+signal_handlers_kept_per_module = pytest.fixture(scope="module", autouse=True)(_handlers_kept)
+signal_handlers_kept_per_test = pytest.fixture(autouse=True)(_handlers_kept)
 
 
 @pytest.fixture

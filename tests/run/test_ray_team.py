@@ -488,7 +488,7 @@ LONG = [
     "train.bootstrap=20",
     "train.paths=1",
     "train.checkpoint_every=5",
-    "team.speeds=[5,5,5]",
+    "team.speeds=[40,40,40]",  # an iteration sleeps 39x its compute: a signal lands mid-run however loaded the machine
 ]
 
 
