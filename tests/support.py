@@ -227,6 +227,15 @@ def kill_after_iteration(overrides: list[str], out: Path, iteration: int) -> int
             proc.wait()
 
 
+def alive(pid: int) -> bool:
+    """Whether pid is a live process (a zombie, state Z, counts as gone)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
 # ------------------------------------------------------------------------------------------------ run outputs
 TABLES = ("metrics", "eval", "trajectories")
 WALL_CLOCK = {"wall_time", "throughput_episodes_per_s"}  # summary.json fields that measure time, not results

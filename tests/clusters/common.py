@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from support import alive  # noqa: F401  (re-exported: the cluster tests import it from here)
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs" / "clusters.md"
@@ -36,15 +37,6 @@ KINDS = ("slurm", "ray-local", "ray-cluster", "ray-team", "ray-team-cluster")
 SWEEP_DIR = re.compile(r"^sweep directory: (.+)$", re.MULTILINE)
 # summary.json's numbers that a resumed job must reproduce exactly
 NUMBERS = ("mean", "cvar", "value_at_risk", "cvar_0.05", "cvar_0.1", "cvar_0.2", "risky_fraction", "theta_final")
-
-
-def alive(pid: int) -> bool:
-    """Whether pid is a live (not zombie) process."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
 def cluster_pids(conf: Path) -> list[int]:

@@ -10,25 +10,15 @@ import os
 import signal
 import subprocess
 import time
-from pathlib import Path
 
 import pandas as pd
 import pytest
-from support import CLI, TINY, files, riskplan_cli
+from support import CLI, TINY, alive, files, riskplan_cli
 
 from riskplan.experiments.sweep_worker import NAME_MAX
 from riskplan.util import lock
 
 pytestmark = pytest.mark.slow
-
-
-def alive(pid: int) -> bool:
-    """Whether pid is a live process (a zombie, state Z, counts as gone)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
 # ------------------------------------------------------------------------------------------------ dying workers
