@@ -115,7 +115,7 @@ from riskplan.run.evaluation import (
     summarize,
 )
 from riskplan.run.foxglove_layout import write_layout
-from riskplan.run.record import RunLog
+from riskplan.run.record import RunLog, metrics_row
 from riskplan.run.results import Run
 from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log
 from riskplan.run.schedules import risk_level, samples_at, step_size
@@ -246,24 +246,6 @@ def robot_gradient(z, scores, risk, l, stats, baseline, beta) -> tuple[np.ndarra
         )
         grads, values = objective_gradient(z, scores, at_level, baseline=baseline), objective(z, risk)
     return grads, np.full(len(z), level), np.asarray(values, dtype=float).reshape(len(z))
-
-
-def metrics_row(l, robot, stats, theta, grad, eps, error, samples, seconds, level, healthy, staleness) -> dict:
-    """One metrics.parquet row: the simulated backend's columns in its order (`training._row`), then `staleness`."""
-    return {
-        "iteration": int(l),
-        "robot": int(robot),
-        "healthy": bool(healthy),
-        **{k: float(v) for k, v in stats.items()},
-        **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
-        "grad_norm": float(np.linalg.norm(grad)),
-        "step_size": eps,
-        "beta_l": float(level),
-        "consensus_error": error,
-        "samples": int(samples),
-        "seconds": seconds,
-        "staleness": float(staleness),
-    }
 
 
 class RobotCore:
@@ -470,7 +452,7 @@ class RobotCore:
             seconds,
             step.level,
             healthy,
-            staleness,
+            staleness=float(staleness),
         )
 
 
@@ -812,7 +794,7 @@ class _Team:
                     max(e["row"]["seconds"] for e in entries),
                     level,
                     True,
-                    max(stale) if stale else math.nan,
+                    staleness=float(max(stale)) if stale else math.nan,
                 )
             )
         self.log.rows(rows, (l, error))

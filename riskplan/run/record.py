@@ -226,6 +226,26 @@ def _nonfinite(f: float) -> Any:
     return "Infinity" if f > 0 else "-Infinity"
 
 
+def metrics_row(l, robot, stats, theta, grad, eps, error, samples, seconds, level, healthy, **extra) -> dict:
+    """One metrics.parquet row, its columns in their order (`level`: beta_l, the CVaR level of the iteration's
+    gradient; stats are at beta; `healthy`: false once the robot's fault of team.faults has started), then `extra`
+    columns (the ray backend's `staleness`)."""
+    return {
+        "iteration": int(l),
+        "robot": int(robot),
+        "healthy": bool(healthy),
+        **{k: float(v) for k, v in stats.items()},
+        **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
+        "grad_norm": float(np.linalg.norm(grad)),
+        "step_size": eps,
+        "beta_l": float(level),
+        "consensus_error": error,
+        "samples": int(samples),
+        "seconds": seconds,
+        **extra,
+    }
+
+
 def _scalar(v: Any) -> Any:
     if isinstance(v, float):  # includes np.float64
         return v if math.isfinite(v) else _nonfinite(v)

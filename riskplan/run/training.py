@@ -32,7 +32,7 @@ from riskplan.run.checkpoint import State, load_checkpoint, save_checkpoint
 from riskplan.run.evaluation import AVERAGE, NumericalTrouble, check_finite, evaluate, sample_paths, summarize
 from riskplan.run.foxglove_layout import write_layout
 from riskplan.run.ray_team import prepare_ray_resume, train_ray
-from riskplan.run.record import RunLog
+from riskplan.run.record import RunLog, metrics_row
 from riskplan.run.results import Run
 from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log
 from riskplan.run.schedules import risk_level, samples_at, step_size
@@ -87,7 +87,9 @@ def iterate(setup: Setup, state: State) -> tuple[State, list[dict]]:
         level = levels[0] if np.all(levels == levels[0]) else math.nan
         count = episodes * int(healthy.sum())
         average_theta, average_grad = thetas[ok].mean(axis=0), grads[ok].mean(axis=0)
-        rows.append(_row(l, AVERAGE, average, average_theta, average_grad, eps, error, count, seconds, level, True))
+        rows.append(
+            metrics_row(l, AVERAGE, average, average_theta, average_grad, eps, error, count, seconds, level, True)
+        )
     return State(l + 1, new_thetas, setup.mixer.snapshot(), state.rows + rows), rows  # copied when read
 
 
@@ -235,12 +237,12 @@ def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
 
 
 def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, levels, healthy) -> list[dict]:
-    """`_row` of every robot i (stats[k][i], thetas[i], grads[i], levels[i], healthy[i]): the same dicts, copies of
-    one template with the values every robot shares, filled in column by column."""
+    """`metrics_row` of every robot i (stats[k][i], thetas[i], grads[i], levels[i], healthy[i]): the same dicts,
+    copies of one template with the values every robot shares, filled in column by column."""
     n, m = thetas.shape
-    if n <= 4:  # a centralized run or a small team: one _row each is quicker
+    if n <= 4:  # a centralized run or a small team: one metrics_row each is quicker
         return [
-            _row(
+            metrics_row(
                 l,
                 i,
                 {k: v[i] for k, v in stats.items()},
@@ -255,7 +257,7 @@ def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, levels, h
             )
             for i in range(n)
         ]
-    template = _row(
+    template = metrics_row(
         l, 0, {k: 0.0 for k in stats}, np.zeros(m), np.zeros(1), eps, error, samples, seconds, levels[0], True
     )
     columns = {
@@ -279,21 +281,3 @@ def _norms(vectors: np.ndarray) -> list[float]:
     if hasattr(np, "vecdot"):
         return np.sqrt(np.vecdot(vectors, vectors)).tolist()
     return [math.sqrt(x.dot(x)) for x in vectors]
-
-
-def _row(l, robot, stats, theta, grad, eps, error, samples, seconds, level, healthy) -> dict:
-    """One metrics.parquet row (`level`: beta_l, the CVaR level of the iteration's gradient; stats are at beta;
-    `healthy`: false once the robot's fault of team.faults has started)."""
-    return {
-        "iteration": l,
-        "robot": robot,
-        "healthy": bool(healthy),
-        **{k: float(v) for k, v in stats.items()},
-        **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
-        "grad_norm": float(np.linalg.norm(grad)),
-        "step_size": eps,
-        "beta_l": float(level),
-        "consensus_error": error,
-        "samples": int(samples),
-        "seconds": seconds,
-    }

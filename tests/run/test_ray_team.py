@@ -39,7 +39,6 @@ from riskplan.run.ray_team import (
     consistent_cut,
     in_neighbours,
     initial_state,
-    metrics_row,
     out_neighbours,
     robot_gradient,
     tracking_balance,
@@ -216,10 +215,17 @@ def test_each_robot_estimates_its_gradient_as_the_simulated_team_does(risk):
             np.testing.assert_array_equal(a, b)
 
 
-def test_rows_have_the_simulated_columns_then_staleness():
-    stats = {"mean": 1.0, "cvar": 0.5, "value_at_risk": 0.7, "std": 0.2, "objective": 0.5}
-    args = (3, 1, stats, np.array([1.0, 2.0]), np.array([0.3, 0.4]), 0.1, math.nan, 400, 0.01, 0.1, True)
-    assert list(metrics_row(*args, 2.0)) == [*training._row(*args), "staleness"]
+def test_a_robots_row_has_the_simulated_columns_then_staleness():
+    core = RobotCore(setup_of(), 1)
+    step = fake_step(0, np.array([0.3, 0.4]))
+    value, carried, eps = core.begin(step)
+    row = core.finish(step, value, carried, eps, 2.0, 0.01)
+    stats = {k: np.array([v]) for k, v in step.stats.items()}
+    (simulated,) = training._robot_rows(
+        0, stats, np.array([core.theta]), np.array([step.grad]), eps, math.nan, 1, 0.01, [0.1], [True]
+    )
+    assert list(row) == [*simulated, "staleness"] and row["staleness"] == 2.0
+    assert [type(v) for v in row.values()][:-1] == [type(v) for v in simulated.values()]
 
 
 def test_a_robot_alone_steps_as_the_centralized_loop():

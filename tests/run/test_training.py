@@ -15,8 +15,8 @@ from riskplan import compose, load_run
 from riskplan.risk import summary_stats
 from riskplan.run.checkpoint import CHECKPOINT
 from riskplan.run.evaluation import NumericalTrouble
-from riskplan.run.record import read_log
-from riskplan.run.training import _robot_rows, _row
+from riskplan.run.record import metrics_row, read_log
+from riskplan.run.training import _robot_rows
 
 # ---------------------------------------------------------------------------------------------- rows
 
@@ -30,7 +30,9 @@ def test_robot_rows_are_the_per_robot_rows(n):
     levels, healthy = g.uniform(0.1, 1.0, size=n), g.random(n) < 0.7  # per robot: team.risk, team.faults
     rows = _robot_rows(4, stats, thetas, grads, 0.05, 1.25, 50, 0.5, levels, healthy)  # eps, error, samples, seconds
     expected = [
-        _row(4, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], 0.05, 1.25, 50, 0.5, levels[i], healthy[i])
+        metrics_row(
+            4, i, {k: v[i] for k, v in stats.items()}, thetas[i], grads[i], 0.05, 1.25, 50, 0.5, levels[i], healthy[i]
+        )
         for i in range(n)
     ]
     assert rows == expected
