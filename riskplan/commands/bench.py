@@ -37,6 +37,7 @@ def register(app: typer.Typer) -> None:
         from riskplan.experiments.benchmarks import (
             bench_checkpoints,
             bench_jit,
+            bench_measures,
             bench_rollout,
             bench_startup,
             bench_team,
@@ -55,6 +56,7 @@ def register(app: typer.Typer) -> None:
         for section in (
             lambda: bench_rollout(quick),
             lambda: bench_training(quick),
+            lambda: bench_measures(quick),
             lambda: bench_checkpoints(quick),
             bench_jit,
             lambda: bench_startup(quick),

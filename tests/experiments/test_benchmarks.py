@@ -8,7 +8,7 @@ import pytest
 
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
-from riskplan.experiments.benchmarks import python_rollouts
+from riskplan.experiments.benchmarks import bench_measures, python_rollouts
 from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 
@@ -95,3 +95,15 @@ def test_the_scaling_dimensions_span_their_ranges_and_many_sources_compose():
     assert all(f"train.samples={bench.TEAM_SAMPLES // int(n)}" in ovs for n, ovs in dims["robots"])
     setup = build_setup(compose(bench.source_overrides(64)))
     assert setup.world.sources == 64 and setup.theta0.shape == (64,)
+
+
+@pytest.mark.slow  # composes and times the paper set-up under four measures: a few seconds
+def test_each_risk_measure_is_timed_against_a_cvar_iteration_on_the_same_episodes():
+    rows = bench_measures(quick=True)
+    assert [r["measure"] for r in rows] == [
+        f"iteration under risk={m}, the paper set-up (s)" for m in ("wang", "mean_cvar", "entropic")
+    ]
+    assert len({r["baseline"] for r in rows}) == 1  # one CVaR iteration, the baseline of each
+    for row in rows:
+        assert row["value"] > 0 and row["ratio"] == pytest.approx(row["value"] / row["baseline"])
+        assert row["ok"] == (row["value"] <= 1.2 * row["baseline"])
