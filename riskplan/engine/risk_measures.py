@@ -224,13 +224,31 @@ def spectral_gradient(z: np.ndarray, scores: np.ndarray, risk: Any, *, baseline:
 
 def _spectral_gradient(z: np.ndarray, scores: np.ndarray, spec: RiskSpec, baseline: bool) -> np.ndarray:
     """`spectral_gradient` of checked arguments."""
+    return _spectral_value_and_gradient(z, scores, spec, baseline)[1]
+
+
+def _spectral_value_and_gradient(
+    z: np.ndarray, scores: np.ndarray, spec: RiskSpec, baseline: bool
+) -> tuple[np.ndarray | float, np.ndarray]:
+    """(`l_statistic`, `spectral_gradient`) of checked arguments, from one sort of each row."""
     n = z.shape[-1]
     rows = _kernel_input(z.reshape(-1, n))
-    out = np.empty((rows.shape[0], scores.shape[-1]))
-    _spectral_gradient_rows(
-        rows, _kernel_input(scores.reshape(-1, n, scores.shape[-1])), _tables(spec, n)[1], baseline, out
-    )
-    return out.reshape(scores.shape[:-2] + scores.shape[-1:])
+    values, grads = np.empty(rows.shape[0]), np.empty((rows.shape[0], scores.shape[-1]))
+    weights, phi = _tables(spec, n)
+    _spectral_rows(rows, _kernel_input(scores.reshape(-1, n, scores.shape[-1])), weights, phi, baseline, values, grads)
+    return values.reshape(z.shape[:-1])[()], grads.reshape(scores.shape[:-2] + scores.shape[-1:])
+
+
+def objective_and_gradient(
+    z: np.ndarray, scores: np.ndarray, risk: Any, *, baseline: bool = True
+) -> tuple[np.ndarray | float, np.ndarray]:
+    """(`objective`, `objective_gradient`) of the same sample, the same numbers as the two calls; a spectral
+    measure's (wang) sorts each row once for both."""
+    spec = risk_spec(risk)
+    if spec.measure != "wang":
+        return objective(z, risk), objective_gradient(z, scores, risk, baseline=baseline)
+    z = _sample(z)
+    return _spectral_value_and_gradient(z, _scores(z, scores), spec, baseline)
 
 
 def entropic(z: np.ndarray, eta: float) -> np.ndarray | float:
@@ -375,15 +393,22 @@ def _l_statistic_rows(z, weights, out):
 
 
 @njit(cache=True)
-def _spectral_gradient_rows(z, scores, phi, baseline, out):
-    """`spectral_gradient` of each row: z (R, W), scores (R, W, M), phi[j - 1] = phi(j/W) -> out (R, M).
+def _spectral_rows(z, scores, weights, phi, baseline, values, out):
+    """`l_statistic` and `spectral_gradient` of each row: z (R, W), scores (R, W, M), the L-statistic weights,
+    phi[j - 1] = phi(j/W) -> values (R,), out (R, M).
 
-    h is accumulated from the top sample down (h(z_(W)) = 0), so tied samples get the same h whatever their order.
+    The value sums z_(k) weights[k] in ascending order, as `_l_statistic_rows` does on np.sort(z): the same sorted
+    values, so the same number. h is accumulated from the top sample down (h(z_(W)) = 0), so tied samples get the
+    same h whatever their order.
     """
     rows, n, dims = scores.shape
     h = np.empty(n)
     for r in range(rows):
         order = np.argsort(z[r])
+        total = 0.0
+        for k in range(n):
+            total += z[r, order[k]] * weights[k]
+        values[r] = total
         acc = 0.0
         total = 0.0
         above = z[r, order[n - 1]]

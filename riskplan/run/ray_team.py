@@ -97,9 +97,9 @@ import numba
 import numpy as np
 import pandas as pd
 
-from riskplan.config.schema import Aggregate, FaultKind, Measure, Order, Stale, TeamConf
+from riskplan.config.schema import Aggregate, FaultKind, Order, Stale, TeamConf
 from riskplan.engine import rng
-from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, objective, objective_gradient, summary_stats
+from riskplan.engine.risk_measures import summary_stats
 from riskplan.engine.rollout import simulate
 from riskplan.engine.team import faulty, resilience
 from riskplan.engine.team.convergence import consensus_error
@@ -115,10 +115,11 @@ from riskplan.run.evaluation import (
     summarize,
 )
 from riskplan.run.foxglove_layout import write_layout
+from riskplan.run.gradients import gradients
 from riskplan.run.record import RunLog, metrics_row
 from riskplan.run.results import Run
 from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log
-from riskplan.run.schedules import risk_level, samples_at, step_size
+from riskplan.run.schedules import samples_at, step_size
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted, StopSignals
 from riskplan.util.paths import atomic_path, write_atomic
@@ -227,25 +228,10 @@ def initial_state(setup: Setup, robot: int) -> dict[str, np.ndarray]:
 
 
 def robot_gradient(z, scores, risk, l, stats, baseline, beta) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`training.gradients` for robots that share the risk node `risk`, all of them given: z (R, W), scores
-    (R, W, M), stats those of z at beta. The same estimators at the same levels: Algorithm 1 (eq. 9) at beta_l for
-    CVaR, REINFORCE (eq. 4) for the mean, riskplan.engine.risk_measures' estimators for the others."""
-    if risk.measure == Measure.cvar:
-        level = risk_level(l, risk)
-        shared = level == beta and risk.beta == beta  # the statistics' VaR is this partition's
-        grads = cvar_gradient(z, scores, level, var=stats["value_at_risk"] if shared else None)
-        values = stats["cvar"] if risk.beta == beta else objective(z, risk)
-    elif risk.measure == Measure.neutral:
-        level = 1.0
-        grads, values = mean_gradient(z, scores, baseline), stats["mean"]
-    else:
-        schedule = risk.measure == Measure.mean_cvar
-        level = risk_level(l, risk) if schedule else math.nan
-        at_level = (
-            {"measure": risk.measure, "beta": level, "eta": risk.eta, "weight": risk.weight} if schedule else risk
-        )
-        grads, values = objective_gradient(z, scores, at_level, baseline=baseline), objective(z, risk)
-    return grads, np.full(len(z), level), np.asarray(values, dtype=float).reshape(len(z))
+    """`run.gradients.gradients` for robots that share the risk node `risk`, all of them given: z (R, W), scores
+    (R, W, M), stats those of z at beta; the objective values as an array of R."""
+    grads, levels, values = gradients(z, scores, risk, l, stats, slice(None), baseline, beta)
+    return grads, levels, np.asarray(values, dtype=float).reshape(len(z))
 
 
 class RobotCore:

@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from riskplan.config.schema import Backend, Measure, Order, RiskConf, RiskplanConf
+from riskplan.config.schema import Backend, Order, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
 from riskplan.engine import rng
-from riskplan.engine.risk_measures import cvar_gradient, mean_gradient, objective, objective_gradient, summary_stats
+from riskplan.engine.risk_measures import summary_stats
 from riskplan.engine.rollout import simulate
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.engine.team.kernels import Links, mix_linked
@@ -31,11 +31,12 @@ from riskplan.run.build import Setup, build_setup, logit_bound, starts
 from riskplan.run.checkpoint import State, load_checkpoint, save_checkpoint
 from riskplan.run.evaluation import AVERAGE, NumericalTrouble, check_finite, evaluate, sample_paths, summarize
 from riskplan.run.foxglove_layout import write_layout
+from riskplan.run.gradients import gradients
 from riskplan.run.ray_team import prepare_ray_resume, train_ray
 from riskplan.run.record import RunLog, metrics_row
 from riskplan.run.results import Run
 from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log
-from riskplan.run.schedules import risk_level, samples_at, step_size
+from riskplan.run.schedules import samples_at, step_size
 from riskplan.util.interrupt import StopSignals
 from riskplan.util.lock import hold
 from riskplan.util.paths import atomic_path, check_output_dir, write_atomic
@@ -108,28 +109,6 @@ def _shown(values: np.ndarray) -> str:
     """An array for a one-line message: every number when few (the paper's theta), else a summary (a table)."""
     values = np.asarray(values, dtype=float)
     return str(values.tolist()) if values.size <= 16 else np.array2string(values, threshold=8, max_line_width=10**6)
-
-
-def gradients(z, scores, risk, l, stats, robots, baseline, beta) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The gradients, the CVaR levels beta_l (NaN for a measure without one) and the objective values of robots
-    that share the risk node `risk`: z (R, W), scores (R, W, M). CVaR is Algorithm 1 (eq. 9) at the soft-risk level
-    beta_l, the mean REINFORCE (eq. 4); the other measures are riskplan.engine.risk_measures' estimators."""
-    if risk.measure == Measure.cvar:
-        level = risk_level(l, risk)  # soft risk: beta_l; the paper's beta when risk.schedule.kind=none
-        shared = level == beta and risk.beta == beta  # the statistics' VaR is this partition's
-        grads = cvar_gradient(z, scores, level, var=stats["value_at_risk"][robots] if shared else None)
-        values = stats["cvar"][robots] if risk.beta == beta else objective(z, risk)
-    elif risk.measure == Measure.neutral:
-        level = 1.0  # the mean gradient is CVaR_1's
-        grads, values = mean_gradient(z, scores, baseline), stats["mean"][robots]
-    else:
-        schedule = risk.measure == Measure.mean_cvar
-        level = risk_level(l, risk) if schedule else math.nan
-        at_level = (
-            {"measure": risk.measure, "beta": level, "eta": risk.eta, "weight": risk.weight} if schedule else risk
-        )
-        grads, values = objective_gradient(z, scores, at_level, baseline=baseline), objective(z, risk)
-    return grads, np.full(len(z), level), values
 
 
 def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int) -> np.ndarray:

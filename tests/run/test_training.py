@@ -76,7 +76,7 @@ def _fail_at(monkeypatch, name: str, iteration: int, bad):
 @pytest.mark.parametrize(
     "name, bad, message",
     [
-        ("cvar_gradient", lambda g: np.full_like(g, np.nan), "theta or its gradient is not finite"),
+        ("gradients", lambda r: (np.full_like(r[0], np.nan), *r[1:]), "theta or its gradient is not finite"),
         ("consensus_step", lambda t: np.full_like(t, 1.5e308), "overflows the softmax"),  # finite, but theta.s = inf
     ],
 )
