@@ -16,7 +16,7 @@ from support import exact_outcomes, rollouts, world_3x3
 
 from riskplan.config.schema import Measure, RiskConf
 from riskplan.engine.policy import move_features, probabilities, scores
-from riskplan.engine.risk_measures import normal_cdf, normal_quantile
+from riskplan.engine.risk_measures import normal_cdf, normal_quantile, objective_and_gradient
 from riskplan.risk import (
     MEASURES,
     cvar,
@@ -538,3 +538,12 @@ def test_bad_samples_and_scores_raise_value_error():
         distortion(0.5, {"measure": "entropic", "eta": 1.0})
     with pytest.raises(ValueError, match=r"beta must be in \(0, 1\]"):
         tail_count(0.0, 10)
+
+
+@pytest.mark.parametrize("risk", [*EXACT_RISKS, {"measure": "cvar", "beta": 0.1}, {"measure": "neutral"}])
+def test_objective_and_gradient_together_are_the_two_calls_bit_for_bit(risk):
+    z = np.random.default_rng(5).normal(100.0, 30.0, (3, 2001)).round(1)  # rounded: ties among the samples
+    scores = np.random.default_rng(6).normal(size=(3, 2001, 2))
+    value, gradient = objective_and_gradient(z, scores, risk)
+    np.testing.assert_array_equal(value, objective(z, risk))
+    np.testing.assert_array_equal(gradient, objective_gradient(z, scores, risk))
