@@ -303,7 +303,7 @@ def test_a_cancelled_job_is_named_with_its_overrides(slurm_cluster, slurm_env, t
     assert run.returncode == 1, run.explain(slurm_cluster)
     assert run.acted["seed=1"] == ["cancel"], run.explain(slurm_cluster)
     job_id = run.slurm_ids["seed=1"]
-    assert slurm_cluster.state(job_id) == "CANCELLED"
+    assert slurm_cluster.wait_for(job_id, timeout=60) == "CANCELLED"
     cancelled = status(run.sweep_dir / "seed=1")
     assert cancelled.get("status") == "interrupted", cancelled  # checkpointed on the way out
     assert status(run.sweep_dir / "seed=0").get("status") == "done"
@@ -441,7 +441,8 @@ def test_the_docs_slurm_commands_run_as_written(slurm_cluster, slurm_env, tmp_pa
             jobs = finished_jobs(sweep_dir)
             for name, job in jobs.items():  # each ran as a SLURM job (its id is Hydra's hydra.job.id), COMPLETED
                 job_id = str(OmegaConf.load(job / ".hydra" / "hydra.yaml").hydra.job.id)
-                assert slurm_cluster.state(job_id) == "COMPLETED", (str(block), name, job_id)
+                # slurmctld hands a finished job to slurmdbd a moment later: sacct may not know it yet
+                assert slurm_cluster.wait_for(job_id, timeout=60) == "COMPLETED", (str(block), name, job_id)
             counts = re.search(r"^(\d+) jobs?: (\d+) to run", result.stdout, re.M)
             if counts is None or counts[2] == "0":
                 continue  # a re-run that found every job finished
