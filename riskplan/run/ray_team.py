@@ -81,7 +81,6 @@ from __future__ import annotations
 
 import contextlib
 import importlib
-import json
 import logging
 import math
 import os
@@ -114,15 +113,13 @@ from riskplan.run.evaluation import (
     sample_paths,
     summarize,
 )
-from riskplan.run.foxglove_layout import write_layout
 from riskplan.run.gradients import gradients
 from riskplan.run.record import RunLog, metrics_row
 from riskplan.run.results import Run
-from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log
+from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log, write_finished
 from riskplan.run.schedules import samples_at, step_size
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted, StopSignals
-from riskplan.util.paths import atomic_path, write_atomic
 from riskplan.version import __version__
 
 EXTRA = "riskplan[distributed]"
@@ -951,12 +948,7 @@ def train_ray(setup: Setup, out: Path, resume: bool, progress) -> Run:
             log.trajectories(trajectories)
             log.evaluation(evaluation)
             log.summary(summary)
-    for name, table in (("metrics", metrics), ("eval", evaluation), ("trajectories", trajectories)):
-        with atomic_path(out / f"{name}.parquet") as tmp:
-            table.to_parquet(tmp, index=False)
-    write_layout(out, setup.robots, (setup.world.width, setup.world.height))
-    write_atomic(out / "summary.json", json.dumps(summary, indent=2, allow_nan=False))
-    return Run(out, setup.config, metrics, evaluation, trajectories, summary, True)
+    return write_finished(out, setup, metrics, evaluation, trajectories, summary)
 
 
 def _run_team(team: _Team, stop: StopSignals, total: int, out: Path) -> None:

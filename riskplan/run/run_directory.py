@@ -1,11 +1,14 @@
 """A run directory beside the training loop, the same for both backends: its config file, the refusal to write over
-another run, run.mcap opened fresh (with its header) or reopened at a checkpoint, and whether the run has finished."""
+another run, run.mcap opened fresh (with its header) or reopened at a checkpoint, the files of a finished run, and
+whether the run has finished."""
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
+import pandas as pd
 from omegaconf import OmegaConf
 
 from riskplan.config.typed import as_dict, typed
@@ -13,9 +16,12 @@ from riskplan.engine.team.network import network_metadata
 from riskplan.engine.world import world_map
 from riskplan.run.build import Setup, starts
 from riskplan.run.checkpoint import CHECKPOINT
+from riskplan.run.foxglove_layout import write_layout
 from riskplan.run.provenance import provenance
 from riskplan.run.record import RunLog, read_log, resume_log
+from riskplan.run.results import Run
 from riskplan.util.errors import BadInput
+from riskplan.util.paths import atomic_path, write_atomic
 
 FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # written when a run ends
 
@@ -75,6 +81,18 @@ def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
             f"{per_iteration} rows per iteration); start the run again",
         )
     return metrics.to_dict("records")
+
+
+def write_finished(
+    out: Path, setup: Setup, metrics: pd.DataFrame, evaluation: pd.DataFrame, trajectories: pd.DataFrame, summary: dict
+) -> Run:
+    """A finished run's files, each written atomically, summary.json last (it marks the run done), and the Run."""
+    for name, table in (("metrics", metrics), ("eval", evaluation), ("trajectories", trajectories)):
+        with atomic_path(out / f"{name}.parquet") as tmp:
+            table.to_parquet(tmp, index=False)
+    write_layout(out, setup.robots, (setup.world.width, setup.world.height))
+    write_atomic(out / "summary.json", json.dumps(summary, indent=2, allow_nan=False))
+    return Run(out, setup.config, metrics, evaluation, trajectories, summary, True)
 
 
 def has_finished(out: Path) -> bool:

@@ -30,16 +30,15 @@ from riskplan.engine.team.kernels import Links, mix_linked
 from riskplan.run.build import Setup, build_setup, logit_bound, starts
 from riskplan.run.checkpoint import State, load_checkpoint, save_checkpoint
 from riskplan.run.evaluation import AVERAGE, NumericalTrouble, check_finite, evaluate, sample_paths, summarize
-from riskplan.run.foxglove_layout import write_layout
 from riskplan.run.gradients import gradients
 from riskplan.run.ray_team import prepare_ray_resume, train_ray
 from riskplan.run.record import RunLog, metrics_row
 from riskplan.run.results import Run
-from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log
+from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log, write_finished
 from riskplan.run.schedules import samples_at, step_size
 from riskplan.util.interrupt import StopSignals
 from riskplan.util.lock import hold
-from riskplan.util.paths import atomic_path, check_output_dir, write_atomic
+from riskplan.util.paths import check_output_dir
 
 STOP_ENV = "RISKPLAN_TEST_STOP_AFTER_ITERATION"  # SIGSTOP after logging this iteration, so a test can SIGKILL there
 
@@ -179,12 +178,7 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
         log.trajectories(trajectories)
         log.evaluation(evaluation)
         log.summary(summary)
-    for name, table in (("metrics", metrics), ("eval", evaluation), ("trajectories", trajectories)):
-        with atomic_path(out / f"{name}.parquet") as tmp:
-            table.to_parquet(tmp, index=False)
-    write_layout(out, setup.robots, (setup.world.width, setup.world.height))  # before summary.json: done means all
-    write_atomic(out / "summary.json", json.dumps(summary, indent=2, allow_nan=False))
-    return Run(out, setup.config, metrics, evaluation, trajectories, summary, True)
+    return write_finished(out, setup, metrics, evaluation, trajectories, summary)
 
 
 def load_kernels(setup: Setup, state: State) -> None:
