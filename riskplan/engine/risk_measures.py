@@ -23,6 +23,7 @@ import numpy as np
 from numba import njit
 
 from riskplan.config.schema import Measure
+from riskplan.engine.sorting import argsort_into, workspace
 
 
 def tail_count(beta: float, n: int) -> int:
@@ -132,11 +133,7 @@ def objective(z: np.ndarray, risk: Any) -> np.ndarray | float:
     if spec.measure == "neutral":
         return z.mean(axis=-1)[()]
     if spec.measure == "mean_cvar":
-        if spec.weight == 0.0:
-            return z.mean(axis=-1)[()]
-        if spec.weight == 1.0:
-            return cvar(z, spec.beta)
-        return ((1.0 - spec.weight) * z.mean(axis=-1) + spec.weight * cvar(z, spec.beta))[()]
+        return mean_cvar_mix(z.mean(axis=-1), cvar(z, spec.beta), spec.weight)[()]
     if spec.measure == "entropic":
         return entropic(z, spec.eta)
     return l_statistic(z, spec)
@@ -157,16 +154,20 @@ def objective_gradient(z: np.ndarray, scores: np.ndarray, risk: Any, *, baseline
     if spec.measure == "neutral":
         return mean_gradient(z, scores, baseline)
     if spec.measure == "mean_cvar":
-        if spec.weight == 0.0:
-            return mean_gradient(z, scores, baseline)
-        if spec.weight == 1.0:
-            return cvar_gradient(z, scores, spec.beta)
-        return (1.0 - spec.weight) * mean_gradient(z, scores, baseline) + spec.weight * cvar_gradient(
-            z, scores, spec.beta
-        )
+        return mean_cvar_mix(mean_gradient(z, scores, baseline), cvar_gradient(z, scores, spec.beta), spec.weight)
     if spec.measure == "entropic":
         return entropic_gradient(z, scores, spec.eta, baseline=baseline)
     return _spectral_gradient(z, scores, spec, baseline)
+
+
+def mean_cvar_mix(mean_part: np.ndarray, cvar_part: np.ndarray, weight: float) -> np.ndarray:
+    """(1 - lambda) mean_part + lambda cvar_part, exactly the one part when lambda is 0 or 1: mean-CVaR's objective
+    or gradient from its parts, which a caller may have already (the training loop's statistics)."""
+    if weight == 0.0:
+        return np.asarray(mean_part)
+    if weight == 1.0:
+        return np.asarray(cvar_part)
+    return (1.0 - weight) * mean_part + weight * cvar_part
 
 
 def distortion(u: np.ndarray, risk: Any) -> np.ndarray:
@@ -384,11 +385,13 @@ def _tables(spec: RiskSpec, n: int) -> tuple[np.ndarray, np.ndarray]:
 @njit(cache=True)
 def _l_statistic_rows(z, weights, out):
     """out[r] = sum_k sort(z[r])_k weights[k] for each row of z (R, W)."""
+    order = np.empty(z.shape[1], np.int64)
+    keys, spare, counts = workspace(z.shape[1])
     for r in range(z.shape[0]):
-        ordered = np.sort(z[r])
+        argsort_into(z[r], order, keys, spare, counts)
         total = 0.0
         for k in range(z.shape[1]):
-            total += ordered[k] * weights[k]
+            total += z[r, order[k]] * weights[k]
         out[r] = total
 
 
@@ -397,14 +400,15 @@ def _spectral_rows(z, scores, weights, phi, baseline, values, out):
     """`l_statistic` and `spectral_gradient` of each row: z (R, W), scores (R, W, M), the L-statistic weights,
     phi[j - 1] = phi(j/W) -> values (R,), out (R, M).
 
-    The value sums z_(k) weights[k] in ascending order, as `_l_statistic_rows` does on np.sort(z): the same sorted
-    values, so the same number. h is accumulated from the top sample down (h(z_(W)) = 0), so tied samples get the
-    same h whatever their order.
+    The value sums z_(k) weights[k] in ascending order, as `_l_statistic_rows` does: the same number. h is
+    accumulated from the top sample down (h(z_(W)) = 0), so tied samples get the same h whatever their order.
     """
     rows, n, dims = scores.shape
     h = np.empty(n)
+    order = np.empty(n, np.int64)
+    keys, spare, counts = workspace(n)
     for r in range(rows):
-        order = np.argsort(z[r])
+        argsort_into(z[r], order, keys, spare, counts)
         total = 0.0
         for k in range(n):
             total += z[r, order[k]] * weights[k]

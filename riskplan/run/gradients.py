@@ -11,10 +11,10 @@ import numpy as np
 from riskplan.config.schema import Measure
 from riskplan.engine.risk_measures import (
     cvar_gradient,
+    mean_cvar_mix,
     mean_gradient,
     objective,
     objective_and_gradient,
-    objective_gradient,
 )
 from riskplan.run.schedules import risk_level
 
@@ -31,14 +31,16 @@ def gradients(z, scores, risk, l, stats, robots, baseline, beta) -> tuple[np.nda
     elif risk.measure == Measure.neutral:
         level = 1.0  # the mean gradient is CVaR_1's
         grads, values = mean_gradient(z, scores, baseline), stats["mean"][robots]
-    else:
-        schedule = risk.measure == Measure.mean_cvar
-        level = risk_level(l, risk) if schedule else math.nan
-        at_level = (
-            {"measure": risk.measure, "beta": level, "eta": risk.eta, "weight": risk.weight} if schedule else risk
-        )
-        if at_level is risk:  # one call: wang sorts each row once for both
-            values, grads = objective_and_gradient(z, scores, risk, baseline=baseline)
+    elif risk.measure == Measure.mean_cvar:  # CVaR's part as above, the mean's REINFORCE; the statistics reused
+        level = risk_level(l, risk)
+        shared = level == beta and risk.beta == beta
+        cvar_part = cvar_gradient(z, scores, level, var=stats["value_at_risk"][robots] if shared else None)
+        grads = mean_cvar_mix(mean_gradient(z, scores, baseline), cvar_part, risk.weight)
+        if risk.beta == beta:
+            values = mean_cvar_mix(stats["mean"][robots], stats["cvar"][robots], risk.weight)
         else:
-            grads, values = objective_gradient(z, scores, at_level, baseline=baseline), objective(z, risk)
+            values = objective(z, risk)
+    else:  # wang sorts each row once for both; entropic
+        level = math.nan
+        values, grads = objective_and_gradient(z, scores, risk, baseline=baseline)
     return grads, np.full(len(z), level), values
