@@ -12,6 +12,7 @@ import typer
 
 from riskplan.commands import bench, check, export, report, reproduce, sweep, train
 from riskplan.commands.common import OneLineErrors
+from riskplan.util.collector import command_line_process
 
 app = typer.Typer(
     cls=OneLineErrors,
@@ -34,7 +35,8 @@ _register_commands()
 
 
 def main() -> None:
-    """Entry point for `python -m riskplan`."""
+    """Entry point of the `riskplan` script and `python -m riskplan`."""
+    command_line_process()
     app(prog_name="riskplan")
 
 

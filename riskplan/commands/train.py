@@ -17,6 +17,7 @@ from riskplan.commands.common import (
     bad_input_exits,
     with_config_dirs,
 )
+from riskplan.util.collector import pause_collection, resume_collection
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
 from riskplan.util.lock import LOCK, hold, holder
@@ -39,12 +40,21 @@ def train(
     ),
 ) -> None:
     """Train one experiment (default: experiment=paper_single) into outputs/runs/<timestamp>_<experiment>/."""
+    pause_collection()  # the start-up only allocates; the training loop resumes it (riskplan.util.collector)
+    try:
+        _train(list(overrides or []), resume)
+    finally:
+        resume_collection()
+
+
+def _train(overrides: list[str], resume: Path | None) -> None:
+    """The train command, for its overrides and --resume."""
     from omegaconf import open_dict
 
     from riskplan.experiments.hydra_app import RunFailed, run_composed, run_hydra
     from riskplan.run.compose import check_hydra_args, compose, parse_overrides
 
-    args = with_config_dirs(list(overrides or []))
+    args = with_config_dirs(overrides)
     multirun = sorted(MULTIRUN_FLAGS & set(args))
     if multirun:
         raise BadInput(

@@ -36,6 +36,7 @@ from riskplan.run.record import RunLog, metrics_row
 from riskplan.run.results import Run
 from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log, write_finished
 from riskplan.run.schedules import samples_at, step_size
+from riskplan.util.collector import resume_collection
 from riskplan.util.interrupt import StopSignals
 from riskplan.util.lock import hold
 from riskplan.util.paths import check_output_dir
@@ -154,6 +155,7 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
     total = setup.params.train.iterations
     every = setup.params.train.checkpoint_every
     load_kernels(setup, state)  # numba's cache, before the loop: wall_time is the loop's own
+    resume_collection()  # the start-up is over: a command that paused the collector for it gets it back here
     wall = time.perf_counter()
     with log, StopSignals() as stop:  # SIGINT or SIGTERM: checkpoint the iteration in progress, then Interrupted
         while state.iteration < total:
