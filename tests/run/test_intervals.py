@@ -8,8 +8,8 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
-from riskplan.risk import tail_count
-from riskplan.run.intervals import REPORT_BETAS, _bootstrap, bootstrap_intervals
+from riskplan.risk import cvar, tail_count, value_at_risk
+from riskplan.run.intervals import REPORT_BETAS, _bootstrap, _resample_counts, bootstrap_intervals
 
 STD = NormalDist()
 
@@ -65,3 +65,22 @@ def test_the_same_seed_gives_the_same_intervals_and_another_seed_others():
     first, again = bootstrap_intervals(z, 0.2, 200, 4), bootstrap_intervals(z, 0.2, 200, 4)
     assert first == again
     assert bootstrap_intervals(z, 0.2, 200, 5)["mean"] != first["mean"]
+
+
+@pytest.mark.parametrize("resamples", [1, 3, 4, 9])  # the kernel sums LANES = 4 resamples side by side
+@pytest.mark.parametrize("beta", [0.1, 0.3])  # 0.1 is also a reported level: its CVaR is read once
+def test_each_resample_row_is_the_statistics_of_its_own_draws(resamples, beta):
+    z = np.sort(np.random.default_rng(4).normal(10.0, 3.0, 501))
+    seed = 7
+    rows = resample_stats(z, resamples, seed=seed, beta=beta)
+    for b, row in enumerate(rows):
+        counts = _resample_counts(np.uint64(seed), b, z.size)
+        assert counts.sum() == z.size
+        drawn = np.repeat(z, counts)
+        total = 0.0
+        for c, value in zip(counts, z):  # the kernel's order of additions: the same number, bit for bit
+            total += c * value
+        assert row[0] == total / z.size
+        assert row[1] == value_at_risk(drawn, beta)
+        for level, got in zip([beta, *REPORT_BETAS], row[2:]):
+            assert got == pytest.approx(cvar(drawn, level), rel=1e-12)
