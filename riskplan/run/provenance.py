@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+import functools
 import os
 import platform
 import subprocess
@@ -14,7 +16,14 @@ PACKAGES = ("numpy", "numba", "pandas", "pyarrow", "hydra-core", "omegaconf", "m
 
 
 def provenance() -> dict:
-    """Versions, host and git revision, for summary.json and the MCAP metadata."""
+    """Versions, host and git revision, for summary.json and the MCAP metadata (a copy the caller may change)."""
+    return copy.deepcopy(_provenance())
+
+
+@functools.cache
+def _provenance() -> dict:
+    """`provenance`, looked up once per process: the code that runs is the code imported at its start, whatever
+    happens to the checkout or the environment later (a run asks twice: the log's header and summary.json)."""
     versions = {}
     for name in PACKAGES:
         try:
