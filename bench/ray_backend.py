@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from riskplan import compose, train
-from riskplan.run.record import read_log
+from riskplan.run.log_reader import read_log
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK_EVAL = ["train.eval_episodes=20000", "train.bootstrap=200", "train.paths=2"]

@@ -30,7 +30,7 @@ from riskplan.engine.team.network import Network, build_network
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import CHECKPOINT, CRASH_ENV
 from riskplan.run.compose import compose
-from riskplan.run.record import read_log
+from riskplan.run.log_reader import read_log
 from riskplan.run.training import STOP_ENV
 from riskplan.util.errors import BadInput
 

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from support import TINY
 
 ROOT = Path(__file__).resolve().parents[1]
 # Everything that takes the typed config rather than composing it: the engine and the run layer.
@@ -160,3 +161,25 @@ def test_a_run_starts_without_the_report_or_the_sweeps():
     elsewhere |= {"riskplan.experiments.reporting", "riskplan.experiments.sweeping", "riskplan.experiments.landscape"}
     loaded = loaded_after("riskplan.cli", "omegaconf", "riskplan.experiments.hydra_app", "riskplan.run.compose")
     assert loaded & elsewhere == set()
+
+
+def test_a_whole_run_of_riskplan_train_never_imports_pandas(tmp_path):
+    """`riskplan train` builds, logs and writes its tables as numpy columns (riskplan/run/columns.py): pandas, a
+    quarter of a second to import, is for reading runs back (load_run, the report)."""
+    code = (
+        "import sys\n"
+        "sys.argv = ['riskplan', 'train', *sys.argv[1:]]\n"
+        "from riskplan.cli import main\n"
+        "try:\n"
+        "    main()\n"
+        "except SystemExit as stop:\n"
+        "    assert not stop.code, stop.code\n"
+        "print(sorted({name.split('.')[0] for name in sys.modules} & {'pandas', 'matplotlib'}))\n"
+    )
+    run = tmp_path / "run"
+    done = subprocess.run(
+        [sys.executable, "-c", code, *TINY, f"hydra.run.dir={run}"], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip().splitlines()[-1] == "[]"
+    assert (run / "summary.json").is_file() and (run / "eval.parquet").is_file()

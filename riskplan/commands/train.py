@@ -114,7 +114,7 @@ def run_dir_override(parsed: list) -> Path | None:
 
 def check_new_run_dir(out: Path, key: str) -> None:
     """A run starts only in a new or empty directory: never over another run's files (resume is explicit)."""
-    from riskplan.run.results import is_run_dir
+    from riskplan.run.run_files import is_run_dir
 
     if not out.is_dir():
         return
@@ -139,7 +139,7 @@ def _resume(run_dir: Path, args: list[str]) -> None:
     """`train --resume RUN_DIR [train.iterations=N]`."""
     from riskplan.run.checkpoint import CHECKPOINT
     from riskplan.run.compose import parse_overrides
-    from riskplan.run.results import is_run_dir
+    from riskplan.run.run_files import is_run_dir
 
     if not run_dir.is_dir() or not is_run_dir(run_dir):
         raise BadInput(str(run_dir), "holds no run; give the directory of a riskplan train run to --resume")

@@ -28,7 +28,7 @@ from omegaconf import DictConfig, open_dict
 from riskplan.config import schema
 from riskplan.experiments.sweep_worker import sweep_job
 from riskplan.run.evaluation import NumericalTrouble
-from riskplan.run.training import train
+from riskplan.run.training import train_summary
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
 from riskplan.util.paths import write_atomic
@@ -54,7 +54,7 @@ def _task(cfg: DictConfig) -> float | None:
         try:
             write_status(out, "running", None)
             with _progress(single) as progress:
-                run = train(cfg, out, progress=progress)
+                summary = train_summary(cfg, out, progress=progress)
         except Interrupted as stop:  # checkpointed: status interrupted, and the CLI exits 130 or 143
             _interrupted.append(stop)
             with contextlib.suppress(OSError):
@@ -70,7 +70,7 @@ def _task(cfg: DictConfig) -> float | None:
         except Exception as err:  # a job that raises fails alone; its status records why, the others go on
             return _failed(out, f"{type(err).__name__}: {err}", traceback.format_exc())
         write_status(out, "done", None)
-    return run.summary["cvar"]["value"]
+    return summary["cvar"]["value"]
 
 
 task = hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")(_task)

@@ -47,7 +47,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from riskplan.run.compose import compose
 from riskplan.run.evaluation import NumericalTrouble
-from riskplan.run.training import train
+from riskplan.run.training import train_summary
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
@@ -300,7 +300,7 @@ def warm_up() -> tuple[int, float]:
     watch_driver()
     with tempfile.TemporaryDirectory(prefix="riskplan-warm-up-") as scratch:
         for number, experiment in enumerate(WARM_UP):
-            train(compose([*experiment, *WARM_UP_SIZE]), Path(scratch) / str(number), progress=False)
+            train_summary(compose([*experiment, *WARM_UP_SIZE]), Path(scratch) / str(number), progress=False)
     return os.getpid(), time.time() - started
 
 
@@ -335,7 +335,7 @@ def _train(cfg: DictConfig, out: Path, resume: bool) -> dict:
     try:
         if resume:
             try:
-                run = train(cfg, out, resume=True)
+                summary = train_summary(cfg, out, resume=True)
             except (BadInput, NumericalTrouble):
                 raise
             except Exception:  # an unreadable checkpoint or log: start this job again from scratch
@@ -343,16 +343,16 @@ def _train(cfg: DictConfig, out: Path, resume: bool) -> dict:
                 print("=== resume failed; training from scratch", flush=True)
                 for name in STALE:
                     (out / name).unlink(missing_ok=True)
-                run = train(cfg, out)
+                summary = train_summary(cfg, out)
         else:
-            run = train(cfg, out)
+            summary = train_summary(cfg, out)
     except (BadInput, NumericalTrouble) as err:
         return {"status": "failed", "error": str(err)}
     except Exception as err:  # a job that raises fails alone; the sweep goes on
         trace = traceback.format_exc()
         print(trace, file=sys.stderr, flush=True)
         return {"status": "failed", "error": f"{type(err).__name__}: {err}", "traceback": trace}
-    return {"status": "done", "error": None, "cvar": run.summary["cvar"]["value"]}
+    return {"status": "done", "error": None, "cvar": summary["cvar"]["value"]}
 
 
 @contextlib.contextmanager

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pandas as pd
 
 from riskplan.config.schema import Backend, Measure, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
@@ -16,6 +15,7 @@ from riskplan.engine.rollout import simulate
 from riskplan.run.budget import EVAL_BATCH
 from riskplan.run.build import Setup, starts
 from riskplan.run.checkpoint import State
+from riskplan.run.columns import Columns, concat, rows_where
 from riskplan.run.intervals import bootstrap_intervals, objective_interval
 from riskplan.run.provenance import provenance
 
@@ -60,7 +60,7 @@ def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     return np.append(ids, AVERAGE), np.vstack([thetas, network_average(setup, thetas)]), np.append(cells, cells[0])
 
 
-def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
+def evaluate(setup: Setup, thetas: np.ndarray) -> Columns:
     """The final policies on fresh episodes (own stream), one row per episode."""
     count = setup.params.train.eval_episodes
     ids, evaluated, cells = policies(setup, thetas)
@@ -75,22 +75,20 @@ def evaluate(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
                 simulate(setup.world, setup.kernel, evaluated[p : p + 1], cells[p : p + 1], key, size, scores=False)
             )
         frames.append(
-            pd.DataFrame(
-                {
-                    "episode": np.arange(count, dtype=np.int64),
-                    "robot": np.full(count, robot, dtype=np.int64),
-                    "healthy": np.full(count, healthy[p], dtype=bool),
-                    "total_reward": np.concatenate([b.total_reward for b in parts]),
-                    "risky_steps": np.concatenate([b.risky_steps for b in parts]),
-                    "source_reached": np.concatenate([b.source_reached for b in parts]),
-                    "steps": np.concatenate([b.steps for b in parts]),
-                }
-            )
+            {
+                "episode": np.arange(count, dtype=np.int64),
+                "robot": np.full(count, robot, dtype=np.int64),
+                "healthy": np.full(count, healthy[p], dtype=bool),
+                "total_reward": np.concatenate([b.total_reward for b in parts]),
+                "risky_steps": np.concatenate([b.risky_steps for b in parts]),
+                "source_reached": np.concatenate([b.source_reached for b in parts]),
+                "steps": np.concatenate([b.steps for b in parts]),
+            }
         )
-    return pd.concat(frames, ignore_index=True)
+    return concat(frames)
 
 
-def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
+def sample_paths(setup: Setup, thetas: np.ndarray) -> Columns:
     """A few sampled paths of the initial and the final policies (own stream), one row per step."""
     count = setup.params.train.paths
     frames = []
@@ -102,45 +100,42 @@ def sample_paths(setup: Setup, thetas: np.ndarray) -> pd.DataFrame:
         episode, step = np.nonzero(alive)
         x, y = setup.world.xy(batch.path_cells[alive])
         frames.append(
-            pd.DataFrame(
-                {
-                    "policy": name,
-                    "episode": (episode % max(count, 1)).astype(np.int64),
-                    "robot": ids[episode // max(count, 1)].astype(np.int64),
-                    "step": step.astype(np.int64),
-                    "x": x.astype(np.int64),
-                    "y": y.astype(np.int64),
-                    "reward": batch.path_rewards[alive],
-                }
-            )
+            {
+                "policy": np.full(len(step), name, dtype=object),
+                "episode": (episode % max(count, 1)).astype(np.int64),
+                "robot": ids[episode // max(count, 1)].astype(np.int64),
+                "step": step.astype(np.int64),
+                "x": x.astype(np.int64),
+                "y": y.astype(np.int64),
+                "reward": batch.path_rewards[alive],
+            }
         )
-    return pd.concat(frames, ignore_index=True)
+    return concat(frames)
 
 
-def summarize(
-    setup: Setup, state: State, evaluation: pd.DataFrame, metrics: pd.DataFrame, train_seconds: float
-) -> dict:
+def summarize(setup: Setup, state: State, evaluation: Columns, metrics: Columns, train_seconds: float) -> dict:
     """summary.json: headline policy's figures with intervals, per-policy basics, timing, provenance."""
     params = setup.params
     headline = AVERAGE if setup.team else 0
-    z = evaluation.loc[evaluation.robot == headline]
-    check_finite("the evaluation's total reward", evaluation.total_reward.to_numpy())
-    figures = bootstrap_intervals(z.total_reward.to_numpy(), params.risk.beta, params.train.bootstrap, params.seed)
+    z = evaluation["total_reward"][evaluation["robot"] == headline]
+    check_finite("the evaluation's total reward", evaluation["total_reward"])
+    figures = bootstrap_intervals(z, params.risk.beta, params.train.bootstrap, params.seed)
     check_finite("the summary's figures", *[v for f in figures.values() for v in f.values()])
-    steps = float(metrics.samples[metrics.robot >= 0].sum())
+    steps = float(metrics["samples"][metrics["robot"] >= 0].sum())
     per_policy = {}
-    for robot, group in evaluation.groupby("robot"):
+    for robot in np.unique(evaluation["robot"]):
+        group = rows_where(evaluation, evaluation["robot"] == robot)
         per_policy[str(robot)] = {
-            "healthy": bool(group.healthy.iloc[0]),
-            **{k: float(v) for k, v in summary_stats(group.total_reward.to_numpy(), params.risk.beta).items()},
-            "risky_fraction": float((group.risky_steps > 0).mean()),
+            "healthy": bool(group["healthy"][0]),
+            **{k: float(v) for k, v in summary_stats(group["total_reward"], params.risk.beta).items()},
+            "risky_fraction": float((group["risky_steps"] > 0).mean()),
             "source_reached": {
-                name: float((group.source_reached == j).mean()) for j, name in enumerate(setup.world.source_names)
+                name: float((group["source_reached"] == j).mean()) for j, name in enumerate(setup.world.source_names)
             }
-            | {"none": float((group.source_reached < 0).mean())},
+            | {"none": float((group["source_reached"] < 0).mean())},
         }
     _, final_thetas, _ = policies(setup, state.thetas)
-    objective_figure = _objective(params.risk, z.total_reward.to_numpy(), figures, params)
+    objective_figure = _objective(params.risk, z, figures, params)
     robots, team_objective = robot_objectives(setup, state.thetas, evaluation, objective_figure)
     return {
         "schema_version": SCHEMA_VERSION,
@@ -177,9 +172,7 @@ def _objective(risk, z: np.ndarray, figures: dict, params) -> dict:
     return objective_interval(z, risk, params.train.bootstrap, params.seed)[0]
 
 
-def robot_objectives(
-    setup: Setup, thetas: np.ndarray, evaluation: pd.DataFrame, headline: dict
-) -> tuple[list[dict], dict]:
+def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: Columns, headline: dict) -> tuple[list[dict], dict]:
     """Each robot's objective at the network average theta-bar (from its own start, by its own measure: the team
     objective's terms) and the team objective, their sum over the healthy robots (team.faults), with bootstrap
     intervals from the same resamples.
@@ -203,7 +196,7 @@ def robot_objectives(
         return robots, {k: terms * headline[k] for k in ("value", "low", "high")}
     headline_robot = AVERAGE if setup.team else 0
     average = network_average(setup, thetas)[None, :]
-    returns = {int(cells[0]): evaluation.total_reward[evaluation.robot == headline_robot].to_numpy()}
+    returns = {int(cells[0]): evaluation["total_reward"][evaluation["robot"] == headline_robot]}
     for q, cell in enumerate(dict.fromkeys(int(c) for c in cells if int(c) not in returns)):
         parts = []
         for first in range(0, count, EVAL_BATCH):

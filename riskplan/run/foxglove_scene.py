@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import base64
 import json
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from functools import cache
 from importlib import resources
 from typing import Any
@@ -241,7 +241,7 @@ def network_scene(network: dict, t_ns: int) -> dict:
 
 # ----------------------------------------------------------------------------------------------- paths
 def path_scenes(
-    df, t0_ns: int, step_ns: int, width: int | None = None, height: int | None = None
+    table: Mapping[str, Any], t0_ns: int, step_ns: int, width: int | None = None, height: int | None = None
 ) -> Iterator[tuple[int, dict]]:
     """Yield (log_time_ns, foxglove.SceneUpdate) to replay sampled paths.
 
@@ -250,25 +250,25 @@ def path_scenes(
     names the policy and episode; then one message per step moves a sphere per robot ("robot/<r>") to its cell
     centre. Consecutive steps are `step_ns` apart, and groups are separated by a pause of 4 steps.
     """
-    n = len(df)
-    if n == 0:
+    xs = np.asarray(table["x"], dtype=np.float64) + 0.5
+    if len(xs) == 0:
         return
-    xs = df["x"].to_numpy(dtype=np.float64) + 0.5
-    ys = df["y"].to_numpy(dtype=np.float64) + 0.5
+    ys = np.asarray(table["y"], dtype=np.float64) + 0.5
     if width is None:
         width = int(np.nanmax(xs[np.isfinite(xs)], initial=0.5))
     if height is None:
         height = int(np.nanmax(ys[np.isfinite(ys)], initial=0.5))
-    group = df.groupby(["policy", "episode"], sort=False).ngroup().to_numpy()
-    steps = df["step"].to_numpy()
-    robots = df["robot"].to_numpy()
+    policies, episodes = np.asarray(table["policy"], dtype=object), np.asarray(table["episode"], dtype=object)
+    numbers: dict[tuple, int] = {}  # (policy, episode) -> its group, numbered in order of first appearance
+    group = np.array([numbers.setdefault(key, len(numbers)) for key in zip(policies, episodes)], dtype=np.int64)
+    steps = np.asarray(table["step"])
+    robots = np.asarray(table["robot"])
     order = np.lexsort((robots, steps, group))
-    labels = df[["policy", "episode"]].to_numpy()
     bounds = np.flatnonzero(np.diff(group[order])) + 1
     t = int(t0_ns)
     step_ns = int(step_ns)
     for idx in np.split(order, bounds):
-        policy, episode = labels[idx[0]]
+        policy, episode = policies[idx[0]], episodes[idx[0]]
         g_steps, g_robots = steps[idx].tolist(), robots[idx].tolist()
         g_x, g_y = xs[idx].tolist(), ys[idx].tolist()
         paths: dict[int, list] = {}

@@ -94,7 +94,6 @@ from typing import Any, NamedTuple
 
 import numba
 import numpy as np
-import pandas as pd
 
 from riskplan.config.schema import Aggregate, FaultKind, Order, Stale, TeamConf
 from riskplan.engine import rng
@@ -104,6 +103,7 @@ from riskplan.engine.team import faulty, resilience
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.run.build import Setup, build_setup, logit_bound, starts
 from riskplan.run.checkpoint import State, TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
+from riskplan.run.columns import Columns, from_rows, sorted_by
 from riskplan.run.evaluation import (
     AVERAGE,
     NumericalTrouble,
@@ -115,8 +115,8 @@ from riskplan.run.evaluation import (
 )
 from riskplan.run.gradients import gradients
 from riskplan.run.record import RunLog, metrics_row
-from riskplan.run.results import Run
-from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log, write_finished
+from riskplan.run.run_directory import logged_rows, reopen_log, start_log, write_finished
+from riskplan.run.run_files import has_finished
 from riskplan.run.schedules import samples_at, step_size
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted, StopSignals
@@ -916,9 +916,9 @@ def ray_runtime(team: TeamConf) -> Iterator[Any]:
 
 
 # --------------------------------------------------------------------------------------------- the run
-def train_ray(setup: Setup, out: Path, resume: bool, progress) -> Run:
-    """`training.train` for team.backend=ray, under the run directory's lock: the same files, written the same
-    way, from a team of Ray actors (see the module docstring)."""
+def train_ray(setup: Setup, out: Path, resume: bool, progress) -> dict:
+    """`training.train_summary` for team.backend=ray, under the run directory's lock: the same files, written the
+    same way, from a team of Ray actors (see the module docstring); returns the summary."""
     total = setup.params.train.iterations
     expected = [initial_state(setup, i) for i in range(setup.robots)]
     checkpoint = load_team_checkpoint(out, setup, expected) if resume else None
@@ -948,7 +948,8 @@ def train_ray(setup: Setup, out: Path, resume: bool, progress) -> Run:
             log.trajectories(trajectories)
             log.evaluation(evaluation)
             log.summary(summary)
-    return write_finished(out, setup, metrics, evaluation, trajectories, summary)
+    write_finished(out, setup, metrics, evaluation, trajectories, summary)
+    return summary
 
 
 def _run_team(team: _Team, stop: StopSignals, total: int, out: Path) -> None:
@@ -1012,12 +1013,13 @@ def _stop_team(team: _Team) -> None:
     team.checkpoint()
 
 
-def _metrics_table(rows: list[dict]) -> pd.DataFrame:
+def _metrics_table(rows: list[dict]) -> Columns:
     """metrics.parquet: every row, sorted; each robot row with its iteration's consensus error (the team's)."""
-    metrics = pd.DataFrame(rows).sort_values(["iteration", "robot"], ignore_index=True)
-    team = metrics[metrics.robot == AVERAGE].set_index("iteration").consensus_error
-    if len(team):
-        metrics["consensus_error"] = metrics.iteration.map(team).astype(float)
+    metrics = sorted_by(from_rows(rows), "iteration", "robot")
+    average = metrics["robot"] == AVERAGE
+    if average.any():
+        team = dict(zip(metrics["iteration"][average].tolist(), metrics["consensus_error"][average].tolist()))
+        metrics["consensus_error"] = np.array([team.get(i, np.nan) for i in metrics["iteration"].tolist()], dtype=float)
     return metrics
 
 

@@ -36,13 +36,12 @@ import json
 import math
 import os
 import time as _time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 from mcap.opcode import Opcode
 from mcap.records import Channel, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader
@@ -275,55 +274,25 @@ def _dumps(obj: Any) -> str:
     return json.dumps(obj, allow_nan=False, separators=(",", ":"), default=str)
 
 
-def _float(v: Any) -> float:
-    if v is None:
-        return math.nan
-    if isinstance(v, str):
-        return {"Infinity": math.inf, "-Infinity": -math.inf}.get(v, math.nan)
-    return float(v)
-
-
 def _isna(v: Any) -> bool:
-    return v is None or v is pd.NA or v is pd.NaT or (isinstance(v, float) and v != v)
+    """None, NaN, or pandas' NA and NaT (by name: the writer does not import pandas)."""
+    return v is None or (isinstance(v, float) and v != v) or type(v).__name__ in ("NAType", "NaTType")
 
 
-def _encode_column(s: pd.Series) -> tuple[str, list]:
-    dt = s.dtype
+def _encode_column(values: Any) -> tuple[str, list]:
+    """(dtype name, JSON values) of a column: a numpy array, or a pandas Series (its dtype's name as pandas gives
+    it). Text in a numpy object array is "str", pandas' name for its text columns."""
+    dt = values.dtype
     if isinstance(dt, np.dtype) and dt.kind in "iub":
-        return str(dt), s.to_numpy().tolist()
+        return str(dt), np.asarray(values).tolist()
     if isinstance(dt, np.dtype) and dt.kind == "f":
-        arr = s.to_numpy()
+        arr = np.asarray(values)
         vals = arr.tolist()
         if not np.isfinite(arr).all():
             vals = [_scalar(v) for v in vals]
         return str(dt), vals
-    return str(dt), [None if _isna(v) else _scalar(v) for v in s.tolist()]
-
-
-def _decode_column(dtype: str, values: list) -> Any:
-    try:
-        dt = pd.api.types.pandas_dtype(dtype)
-    except (TypeError, ValueError):
-        dt = np.dtype(object)
-    if isinstance(dt, np.dtype):
-        if dt.kind in "iub":
-            return np.asarray(values, dtype=dt)
-        if dt.kind == "f":
-            try:  # None -> nan, "Infinity" -> inf
-                arr = np.asarray(values, dtype=np.float64)
-            except (TypeError, ValueError):
-                arr = np.asarray([_float(v) for v in values], dtype=np.float64)
-            return arr.astype(dt, copy=False)
-        if dt == np.dtype(object):
-            return pd.Series(values, dtype=object)
-    try:
-        return pd.array(values, dtype=dt)
-    except (TypeError, ValueError):
-        return pd.Series(values, dtype=object)
-
-
-def _empty(columns: dict[str, str]) -> pd.DataFrame:
-    return pd.DataFrame({c: pd.Series([], dtype=d) for c, d in columns.items()})
+    name = "str" if isinstance(values, np.ndarray) and dt.kind == "O" else str(dt)
+    return name, [None if _isna(v) else _scalar(v) for v in values.tolist()]
 
 
 # --------------------------------------------------------------------------------------- writer
@@ -387,17 +356,23 @@ class RunLog:
         if self._closed:
             raise ValueError(f"{self.path}: RunLog is closed")
 
-    def _table(self, topic: str, table: str, df: pd.DataFrame, t: int) -> None:
-        n = len(df)
+    def _table(self, topic: str, table: str, columns: Mapping[str, Any], t: int) -> None:
+        """A table (columns: numpy arrays, or a DataFrame) in batches of BATCH_ROWS rows."""
+        names = list(columns)  # a dict's keys, a DataFrame's column names
+        n = len(columns[names[0]]) if names else 0
         starts = range(0, n, BATCH_ROWS) if n else [0]
         for start in starts:
-            part = df.iloc[start : start + BATCH_ROWS]
-            dtypes, columns = {}, {}
-            for c in df.columns:
-                dtypes[str(c)], columns[str(c)] = _encode_column(part[c])
-            self._add(
-                topic, {"table": table, "offset": start, "rows": len(part), "dtypes": dtypes, "columns": columns}, t
-            )
+            dtypes, encoded = {}, {}
+            for name in names:
+                values = columns[name]
+                part = (
+                    values.iloc[start : start + BATCH_ROWS]
+                    if hasattr(values, "iloc")
+                    else values[start : start + BATCH_ROWS]
+                )
+                dtypes[str(name)], encoded[str(name)] = _encode_column(part)
+            rows = min(BATCH_ROWS, n - start)
+            self._add(topic, {"table": table, "offset": start, "rows": rows, "dtypes": dtypes, "columns": encoded}, t)
 
     # -- public
     def metadata(self, name: str, data: dict) -> None:
@@ -453,7 +428,7 @@ class RunLog:
             self.last_iteration = complete[0]
         self._durable()
 
-    def trajectories(self, df: pd.DataFrame, step_seconds: float = STEP_SECONDS) -> None:
+    def trajectories(self, df: Mapping[str, Any], step_seconds: float = STEP_SECONDS) -> None:
         """Raw rows on /trajectories (exact rebuild) and a step-by-step replay on /paths."""
         self._check_open()
         t = self._now()
@@ -467,7 +442,7 @@ class RunLog:
             self._t = max(self._t, ts + 1)
         self._durable()
 
-    def evaluation(self, df: pd.DataFrame) -> None:
+    def evaluation(self, df: Mapping[str, Any]) -> None:
         """eval.parquet rows on /eval, columnar batches of BATCH_ROWS rows (zstd-compressed chunks)."""
         self._check_open()
         self._table(EVAL, "eval", df, self._now())
@@ -504,18 +479,7 @@ class RunLog:
         self.close()
 
 
-# --------------------------------------------------------------------------------------- reading
-@dataclass
-class LogData:
-    metadata: dict[str, dict]
-    metrics: pd.DataFrame
-    eval: pd.DataFrame
-    trajectories: pd.DataFrame
-    summary: dict | None
-    complete: bool
-    problem: str | None
-
-
+# --------------------------------------------------------------------------------------- scanning (the reader is riskplan.run.log_reader)
 @dataclass
 class _Raw:
     topic: str
@@ -609,83 +573,6 @@ def _iteration_messages(msgs: Iterable[_Raw]) -> tuple[dict[str, list[tuple[_Raw
     return by_topic, done
 
 
-def _column(values: list) -> Any:
-    if values and all(type(v) is int for v in values):
-        return np.asarray(values, dtype=np.int64)
-    if values and all(type(v) is bool for v in values):
-        return np.asarray(values, dtype=bool)
-    if all(v is None or (type(v) in (int, float)) or v in ("Infinity", "-Infinity") for v in values):
-        return np.asarray([_float(v) for v in values], dtype=np.float64)
-    return pd.Series(values, dtype=object)
-
-
-def _metrics_frame(rows: list[dict]) -> pd.DataFrame:
-    if not rows:
-        return _empty(METRICS_BASE)
-    cols = list(dict.fromkeys(k for r in rows for k in r))
-    df = pd.DataFrame({c: _column([r.get(c) for r in rows]) for c in cols})
-    return df.sort_values(["iteration", "robot"], kind="stable").reset_index(drop=True)
-
-
-def _table_frame(batches: list[dict], empty: dict[str, str]) -> pd.DataFrame:
-    if not batches:
-        return _empty(empty)
-    dtypes = batches[0]["dtypes"]
-    cols: dict[str, list] = {c: [] for c in dtypes}
-    for b in batches:
-        for c in cols:
-            cols[c].extend(b["columns"].get(c, [None] * int(b["rows"])))
-    return pd.DataFrame({c: _decode_column(dtypes[c], v) for c, v in cols.items()})
-
-
-def read_log(path: Path | str) -> LogData:
-    """Everything decodable in run.mcap, closed or truncated. BadInput only if it is not an MCAP file."""
-    scan = _scan(_read_bytes(path), str(path))
-    metadata = {name: _decode_metadata(m) for name, m in scan.metadata}
-
-    by_topic, done = _iteration_messages(scan.messages)
-    seen: set[tuple[int, int]] = set()
-    rows = []
-    for _, r in by_topic[METRICS]:
-        key = (int(r["iteration"]), int(r.get("robot", 0)))
-        if key[0] in done and key not in seen:
-            seen.add(key)
-            rows.append(r)
-    metrics = _metrics_frame(rows)
-
-    tables: dict[str, list[dict]] = {EVAL: [], TRAJECTORIES: []}
-    summary = None
-    for m in scan.messages:
-        if m.topic in tables:
-            try:
-                tables[m.topic].append(json.loads(m.data))
-            except ValueError:
-                pass
-        elif m.topic == SUMMARY:
-            try:
-                summary = json.loads(m.data)
-            except ValueError:
-                pass
-
-    last = max(done) if done else None
-    after = f"after iteration {last}" if last is not None else "before any iteration was complete"
-    if not scan.closed:
-        problem = f"truncated {after} ({scan.stop})"
-    elif summary is None:
-        problem = f"no /summary: the run stopped {after}"
-    else:
-        problem = None
-    return LogData(
-        metadata=metadata,
-        metrics=metrics,
-        eval=_table_frame(tables[EVAL], EVAL_COLUMNS),
-        trajectories=_table_frame(tables[TRAJECTORIES], TRAJECTORY_COLUMNS),
-        summary=summary,
-        complete=problem is None,
-        problem=problem,
-    )
-
-
 def resume_log(src: Path | str, dst: Path | str, last_iteration: int) -> RunLog:
     """A RunLog on `dst` holding `src`'s metadata, world map and iterations <= last_iteration, open for appending.
 
@@ -736,4 +623,4 @@ def resume_log(src: Path | str, dst: Path | str, last_iteration: int) -> RunLog:
     return log
 
 
-__all__ = ["BATCH_ROWS", "LogData", "RunLog", "read_log", "resume_log"]
+__all__ = ["BATCH_ROWS", "RunLog", "resume_log"]

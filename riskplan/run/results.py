@@ -13,12 +13,11 @@ import yaml
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from riskplan.run.record import read_log
+from riskplan.run.log_reader import read_log
+from riskplan.run.run_files import TABLES, is_run_dir
 from riskplan.util.errors import BadInput
 
 SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's when PyYAML has it: 10x faster, as safe
-
-TABLES = ("metrics", "eval", "trajectories")
 
 
 @dataclass
@@ -76,11 +75,6 @@ class Run:
         return f"<table><caption style='text-align:left'><b>riskplan Run</b></caption>{body}</table>"
 
 
-def is_run_dir(path: Path) -> bool:
-    """A run directory holds a run.mcap or a .hydra/config.yaml."""
-    return (path / "run.mcap").is_file() or (path / ".hydra" / "config.yaml").is_file()
-
-
 def find_runs(paths: list[Path]) -> list[Path]:
     """Every run directory at or below the given paths, sorted; BadInput for a path that holds none."""
     found: list[Path] = []
@@ -110,9 +104,7 @@ def load_run(path: str | Path) -> Run:
     summary_file = path / "summary.json"
     if all((path / f"{name}.parquet").is_file() for name in TABLES) and summary_file.is_file():
         try:
-            tables = {name: pd.read_parquet(path / f"{name}.parquet") for name in TABLES}
-            summary = json.loads(summary_file.read_text())
-            return Run(path, config, tables["metrics"], tables["eval"], tables["trajectories"], summary, True)
+            return finished_run(path, config, json.loads(summary_file.read_text()))
         except (OSError, ValueError) as err:  # a damaged table: fall back to the log of record
             damaged = f"unreadable tables ({err}); rebuilt from run.mcap"
     else:
@@ -140,6 +132,12 @@ def load_run(path: str | Path) -> Run:
         log.complete,
         problem,
     )
+
+
+def finished_run(path: Path, config: dict, summary: dict) -> Run:
+    """The Run of a finished run directory: its config and summary as given, its tables from the parquet files."""
+    tables = {name: pd.read_parquet(path / f"{name}.parquet") for name in TABLES}
+    return Run(path, config, tables["metrics"], tables["eval"], tables["trajectories"], summary, True)
 
 
 def _config(path: Path) -> dict:

@@ -8,7 +8,6 @@ import json
 import os
 from pathlib import Path
 
-import pandas as pd
 from omegaconf import OmegaConf
 
 from riskplan.config.typed import as_dict, typed
@@ -16,14 +15,13 @@ from riskplan.engine.team.network import network_metadata
 from riskplan.engine.world import world_map
 from riskplan.run.build import Setup, starts
 from riskplan.run.checkpoint import CHECKPOINT
+from riskplan.run.columns import Columns, write_parquet
 from riskplan.run.foxglove_layout import write_layout
 from riskplan.run.provenance import provenance
-from riskplan.run.record import RunLog, read_log, resume_log
-from riskplan.run.results import Run
+from riskplan.run.record import RunLog, resume_log
+from riskplan.run.run_files import FINISHED
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import atomic_path, write_atomic
-
-FINISHED = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet")  # written when a run ends
 
 
 def refuse_existing_run(out: Path, setup: Setup) -> None:
@@ -70,6 +68,8 @@ def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
     Every iteration must be there with one row per robot (and the network average in a team); anything else means
     the log and the checkpoint are not of one run, which is bad input.
     """
+    from riskplan.run.log_reader import read_log  # lazy: pandas, which only a resume needs
+
     metrics = read_log(path).metrics
     metrics = metrics[metrics.iteration < iterations]
     per_iteration = robots + (1 if robots > 1 else 0)
@@ -84,20 +84,14 @@ def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
 
 
 def write_finished(
-    out: Path, setup: Setup, metrics: pd.DataFrame, evaluation: pd.DataFrame, trajectories: pd.DataFrame, summary: dict
-) -> Run:
-    """A finished run's files, each written atomically, summary.json last (it marks the run done), and the Run."""
+    out: Path, setup: Setup, metrics: Columns, evaluation: Columns, trajectories: Columns, summary: dict
+) -> None:
+    """A finished run's files, each written atomically, summary.json last (it marks the run done)."""
     for name, table in (("metrics", metrics), ("eval", evaluation), ("trajectories", trajectories)):
         with atomic_path(out / f"{name}.parquet") as tmp:
-            table.to_parquet(tmp, index=False)
+            write_parquet(table, tmp)
     write_layout(out, setup.robots, (setup.world.width, setup.world.height))
     write_atomic(out / "summary.json", json.dumps(summary, indent=2, allow_nan=False))
-    return Run(out, setup.config, metrics, evaluation, trajectories, summary, True)
-
-
-def has_finished(out: Path) -> bool:
-    """Whether the run's final tables and summary are all there."""
-    return all((out / name).is_file() for name in FINISHED)
 
 
 def _write_config(out: Path, config: dict, replace: bool = False) -> None:

@@ -16,9 +16,9 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from riskplan.config.schema import Backend, Order, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
@@ -29,17 +29,21 @@ from riskplan.engine.team.convergence import consensus_error
 from riskplan.engine.team.kernels import Links, mix_linked
 from riskplan.run.build import Setup, build_setup, logit_bound, starts
 from riskplan.run.checkpoint import State, load_checkpoint, save_checkpoint
+from riskplan.run.columns import from_rows, sorted_by
 from riskplan.run.evaluation import AVERAGE, NumericalTrouble, check_finite, evaluate, sample_paths, summarize
 from riskplan.run.gradients import gradients
 from riskplan.run.ray_team import prepare_ray_resume, train_ray
 from riskplan.run.record import RunLog, metrics_row
-from riskplan.run.results import Run
-from riskplan.run.run_directory import has_finished, logged_rows, reopen_log, start_log, write_finished
+from riskplan.run.run_directory import logged_rows, reopen_log, start_log, write_finished
+from riskplan.run.run_files import has_finished
 from riskplan.run.schedules import samples_at, step_size
 from riskplan.util.collector import resume_collection
 from riskplan.util.interrupt import StopSignals
 from riskplan.util.lock import hold
 from riskplan.util.paths import check_output_dir
+
+if TYPE_CHECKING:
+    from riskplan.run.results import Run
 
 STOP_ENV = "RISKPLAN_TEST_STOP_AFTER_ITERATION"  # SIGSTOP after logging this iteration, so a test can SIGKILL there
 
@@ -127,11 +131,24 @@ def consensus_step(setup: Setup, thetas: np.ndarray, grads: np.ndarray, eps: flo
 def train(
     config, out_dir: str | Path, *, resume: bool = False, progress: Callable[[int, int, dict], None] | None = None
 ) -> Run:
-    """Train, evaluate and record one experiment into out_dir; with resume, continue from its checkpoint.
+    """Train, evaluate and record one experiment into out_dir; with resume, continue from its checkpoint. Returns
+    the Run, its tables read back from the files just written (`train_summary` skips that).
 
     `config` is a composed config (or a Setup built from one). The directory is locked for the whole run: a second
     process writing it gets BadInput naming this one's pid. A fresh run refuses a directory that holds another run.
     """
+    setup = config if isinstance(config, Setup) else build_setup(config)
+    summary = train_summary(setup, out_dir, resume=resume, progress=progress)
+    from riskplan.run.results import finished_run  # lazy: pandas, for the Run's tables; train_summary needs none
+
+    return finished_run(Path(out_dir), setup.config, summary)
+
+
+def train_summary(
+    config, out_dir: str | Path, *, resume: bool = False, progress: Callable[[int, int, dict], None] | None = None
+) -> dict:
+    """`train`, returning summary.json's dict instead of the Run: what `riskplan train` and sweep jobs need, and
+    without pandas."""
     setup = config if isinstance(config, Setup) else build_setup(config)
     out = Path(out_dir)
     check_output_dir(out, str(out))
@@ -140,7 +157,7 @@ def train(
         return _train_locked(setup, out, resume, progress)
 
 
-def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
+def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> dict:
     """train() under the directory's lock."""
     if setup.params.team.backend == Backend.ray:  # each robot a Ray actor: riskplan.run.ray_team
         return train_ray(setup, out, resume, progress)
@@ -172,7 +189,7 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
                 _checkpoint(log, out, state)  # the iteration a signal cut short is kept
             stop.check(state.iteration)
         train_seconds = time.perf_counter() - wall
-        metrics = pd.DataFrame(state.rows).sort_values(["iteration", "robot"], ignore_index=True)
+        metrics = sorted_by(from_rows(state.rows), "iteration", "robot")
         evaluation = evaluate(setup, state.thetas)
         trajectories = sample_paths(setup, state.thetas)
         summary = summarize(setup, state, evaluation, metrics, train_seconds)
@@ -180,7 +197,8 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> Run:
         log.trajectories(trajectories)
         log.evaluation(evaluation)
         log.summary(summary)
-    return write_finished(out, setup, metrics, evaluation, trajectories, summary)
+    write_finished(out, setup, metrics, evaluation, trajectories, summary)
+    return summary
 
 
 def load_kernels(setup: Setup, state: State) -> None:

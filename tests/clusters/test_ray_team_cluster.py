@@ -16,7 +16,7 @@ import pytest
 ray = pytest.importorskip("ray", reason="ray is not installed here (pip install 'riskplan[distributed]')")
 
 import riskplan  # noqa: E402
-from riskplan.run.record import read_log  # noqa: E402
+from riskplan.run.log_reader import read_log  # noqa: E402
 
 from .ray_cluster import RayCluster, _start_time  # noqa: E402
 

@@ -15,7 +15,7 @@ import pytest
 
 pytest.importorskip("ray", reason="ray is not installed here (pip install 'riskplan[distributed]')")
 
-from riskplan.run.record import read_log
+from riskplan.run.log_reader import read_log
 
 from .common import marked_blocks, run_block, with_venv_on_path
 from .ray_cluster import RayCluster

@@ -12,7 +12,7 @@ import yaml
 from typer.testing import CliRunner
 
 from riskplan.cli import app
-from riskplan.run.record import read_log
+from riskplan.run.log_reader import read_log
 from riskplan.util.paths import claim_dir
 
 runner = CliRunner()

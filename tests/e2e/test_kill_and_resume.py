@@ -34,7 +34,7 @@ import riskplan.run.training as training
 from riskplan import compose, load_run
 from riskplan.cli import app
 from riskplan.run.checkpoint import CHECKPOINT, CRASH_ENV
-from riskplan.run.record import read_log
+from riskplan.run.log_reader import read_log
 
 pytestmark = pytest.mark.slow
 

@@ -32,6 +32,7 @@ import riskplan.run.training as training
 from riskplan.engine.risk_measures import summary_stats
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import CHECKPOINT, load_team_checkpoint, save_team_checkpoint
+from riskplan.run.log_reader import read_log
 from riskplan.run.ray_team import (
     STATE_KEYS,
     RobotCore,
@@ -43,7 +44,6 @@ from riskplan.run.ray_team import (
     robot_gradient,
     tracking_balance,
 )
-from riskplan.run.record import read_log
 from riskplan.util.errors import BadInput
 
 HAVE_RAY = importlib.util.find_spec("ray") is not None

@@ -21,7 +21,8 @@ import pytest
 from mcap.reader import make_reader
 
 from riskplan.run import foxglove_scene as fx
-from riskplan.run.record import BATCH_ROWS, RunLog, read_log, resume_log
+from riskplan.run.log_reader import read_log
+from riskplan.run.record import BATCH_ROWS, RunLog, resume_log
 from riskplan.util.errors import BadInput
 
 SCHEMAS = Path(fx.__file__).parent / "schemas"

@@ -18,7 +18,7 @@ from riskplan.engine.rollout import simulate
 from riskplan.risk import cvar_gradient
 from riskplan.run.build import build_setup, starts
 from riskplan.run.compose import expand_overrides, expand_shorthands
-from riskplan.run.record import read_log
+from riskplan.run.log_reader import read_log
 from riskplan.run.schedules import risk_level, step_size
 from riskplan.run.training import train
 

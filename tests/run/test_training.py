@@ -15,7 +15,8 @@ from riskplan import compose, load_run
 from riskplan.risk import summary_stats
 from riskplan.run.checkpoint import CHECKPOINT
 from riskplan.run.evaluation import NumericalTrouble
-from riskplan.run.record import metrics_row, read_log
+from riskplan.run.log_reader import read_log
+from riskplan.run.record import metrics_row
 from riskplan.run.training import _robot_rows
 
 # ---------------------------------------------------------------------------------------------- rows

@@ -1,0 +1,78 @@
+"""A run's tables while it is written: columns, an ordered dict of equal-length numpy arrays, and their parquet
+files written by pyarrow. `riskplan train` builds, logs and writes its tables without pandas (a quarter of a
+second to import); `load_run` reads the files back as DataFrames, with the dtypes pandas gave them before."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+Columns = dict[str, np.ndarray]
+
+
+def concat(parts: list[Columns]) -> Columns:
+    """The rows of each part in turn (every part has the first one's columns)."""
+    return {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
+
+
+def rows_where(table: Columns, mask: np.ndarray) -> Columns:
+    """The rows where mask is true, in order."""
+    return {name: values[mask] for name, values in table.items()}
+
+
+def from_rows(rows: list[dict]) -> Columns:
+    """Columns of row dicts, in the order the keys first appear, typed as pandas.DataFrame(rows) types them: all
+    bool -> bool, all integer -> int64, numbers with gaps (a missing key or None) -> float64 with NaN, else
+    object."""
+    names = list(dict.fromkeys(key for row in rows for key in row))
+    return {name: _column([row.get(name) for row in rows]) for name in names}
+
+
+def sorted_by(table: Columns, *keys: str) -> Columns:
+    """The rows sorted by keys[0], then keys[1], ... (stable)."""
+    order = np.lexsort([table[key] for key in reversed(keys)])
+    return {name: values[order] for name, values in table.items()}
+
+
+def write_parquet(table: Mapping[str, np.ndarray], path: Path) -> None:
+    """One parquet file of the columns, as pandas writes a DataFrame of them (text as large_string, NaN as null)."""
+    pq.write_table(pa.Table.from_arrays([_arrow(values) for values in table.values()], names=list(table)), path)
+
+
+def _arrow(values: np.ndarray) -> pa.Array:
+    """An arrow array of a column, built from its buffers: pa.array() imports pandas to ask whether its argument
+    is a pandas object, a quarter of a second that `riskplan train` does not spend."""
+    n = len(values)
+    if values.dtype.kind == "O" and n == 0:  # pandas cannot tell an empty column's type: arrow's null type
+        return pa.nulls(0)
+    if values.dtype.kind == "O":  # text
+        encoded = [str(v).encode() for v in values]
+        offsets = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum([len(b) for b in encoded], out=offsets[1:])
+        return pa.Array.from_buffers(
+            pa.large_string(), n, [None, pa.py_buffer(offsets), pa.py_buffer(b"".join(encoded))]
+        )
+    if values.dtype.kind == "b":
+        return pa.Array.from_buffers(pa.bool_(), n, [None, pa.py_buffer(np.packbits(values, bitorder="little"))])
+    values = np.ascontiguousarray(values)
+    valid = None
+    if values.dtype.kind == "f" and np.isnan(values).any():  # pandas' missing value: null in the file
+        valid = pa.py_buffer(np.packbits(~np.isnan(values), bitorder="little"))
+    return pa.Array.from_buffers(pa.from_numpy_dtype(values.dtype), n, [valid, pa.py_buffer(values)])
+
+
+def _column(values: list) -> np.ndarray:
+    """One column of Python (or numpy) scalars, typed as pandas infers it."""
+    if values and all(isinstance(v, (bool, np.bool_)) for v in values):
+        return np.asarray(values, dtype=bool)
+    if values and all(isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) for v in values):
+        return np.asarray(values, dtype=np.int64)
+    if all(
+        v is None or (isinstance(v, (int, float, np.number)) and not isinstance(v, (bool, np.bool_))) for v in values
+    ):
+        return np.asarray([np.nan if v is None else v for v in values], dtype=np.float64)
+    return np.asarray(values, dtype=object)
