@@ -106,4 +106,7 @@ def _write_config(out: Path, config: dict, replace: bool = False) -> None:
 
 def _config_changed(out: Path, config: dict) -> bool:
     """Whether the run's .hydra/config.yaml differs from `config` (after `--resume ... train.iterations=N`)."""
-    return as_dict(typed(OmegaConf.load(out / ".hydra" / "config.yaml"))) != config
+    written = OmegaConf.load(out / ".hydra" / "config.yaml")
+    if OmegaConf.to_container(written) == config:  # as typed already (Hydra wrote this run's own config)
+        return False
+    return as_dict(typed(written)) != config
