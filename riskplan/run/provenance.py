@@ -12,7 +12,7 @@ from pathlib import Path
 
 from riskplan.version import __version__
 
-PACKAGES = ("numpy", "numba", "pandas", "pyarrow", "hydra-core", "omegaconf", "mcap", "matplotlib", "typer")
+PACKAGES = ("numpy", "numba", "pandas", "pyarrow", "hydra-core", "omegaconf", "mcap", "orjson", "matplotlib", "typer")
 
 
 def provenance() -> dict:

@@ -7,6 +7,7 @@ import base64
 import hashlib
 import itertools
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -22,7 +23,7 @@ from mcap.reader import make_reader
 
 from riskplan.run import foxglove_scene as fx
 from riskplan.run.log_reader import read_log
-from riskplan.run.record import BATCH_ROWS, RunLog, resume_log
+from riskplan.run.record import BATCH_ROWS, RunLog, _json, _jsonable, resume_log
 from riskplan.util.errors import BadInput
 
 SCHEMAS = Path(fx.__file__).parent / "schemas"
@@ -561,3 +562,24 @@ def test_durability_without_writer_flush_method(tmp_path):
     assert (
         d.problem == f"truncated after iteration 3 (file ends at byte {killed.stat().st_size}, inside a record header)"
     )
+
+
+def test_messages_hold_the_values_the_json_module_wrote():
+    """orjson writes the messages: numpy scalars are numbers (even those no writer converted first), floats read
+    back bit for bit at any magnitude, and text and paths are text, as the json module wrote the writer's values."""
+    rng = np.random.default_rng(9)
+    floats = (rng.normal(size=500) * 10.0 ** rng.integers(-300, 300, 500)).tolist() + [5e-324, 1e-5, 1e16, -0.0]
+    message = {
+        "value": np.float64(1418.029753422557),
+        "count": np.int64(7),
+        "ok": np.bool_(True),
+        "path": Path("/runs/a"),
+        "name": "Quelle ☢ 源",
+        "floats": floats,
+        "nested": [{"x": np.float32(0.5)}],
+    }
+    written = json.loads(_json(message))
+    assert written == json.loads(json.dumps(_jsonable(message), default=str))
+    assert isinstance(written["value"], float) and isinstance(written["count"], int) and written["ok"] is True
+    assert [math.copysign(1.0, x) for x in written["floats"]] == [math.copysign(1.0, x) for x in floats]
+    assert written["floats"] == floats  # bit for bit: the shortest round-trip form
