@@ -33,7 +33,7 @@ QUICK_TIER = "not slow"
 @pytest.hookimpl(tryfirst=True)
 def pytest_cmdline_main(config):
     """The quick tier runs on every core (pytest-xdist, in the test extra): `pytest -m "not slow"` alone, as the
-    README gives it, takes about 60 s in one process on 2 cores and about 35 s on two. An explicit -n wins, and the
+    README gives it, takes about 60 s in one process on 2 cores and about 40 s on two. An explicit -n wins, and the
     full suite stays in one process (its cluster tests start services that two workers would both start)."""
     if (
         config.option.markexpr == QUICK_TIER
