@@ -29,6 +29,7 @@ threads 7-10 s, the docs' commands 12-20 s: about 2 minutes with test_slurm_clus
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -179,8 +180,12 @@ def run_sweep(
             sweep.kill()  # this test's own child, by its pid
         sweep.wait()
         reader.join(timeout=30)
-        queued = cluster.queue()  # jobs outlive a failed sweep (as SLURM jobs should): end them here
-        if queued:
+        queued = cluster.queue()
+        if queued and sweep.returncode == 0:  # a finished sweep's last job may still be exiting: let it end
+            with contextlib.suppress(AssertionError):
+                wait_until(lambda: not cluster.queue(), 60, "the sweep's jobs to end")
+            queued = cluster.queue()
+        if queued:  # jobs outlive a failed sweep (as SLURM jobs should): end them here
             cluster.run("scancel", *queued, check=False)
             wait_until(lambda: not cluster.queue(), 60, "an empty queue")
     run.returncode = sweep.returncode
@@ -189,9 +194,20 @@ def run_sweep(
 
 
 def sacct_states(cluster: SlurmCluster, job_id: str) -> list[str]:
-    """Every state sacct recorded for the job's allocation, oldest first (-D: a requeued job's earlier runs too)."""
-    out = cluster.run("sacct", "-D", "-X", "-n", "-P", "-o", "State", "-j", job_id).stdout
-    return [line.split()[0] for line in out.splitlines() if line.strip()]
+    """Every state sacct recorded for the job's allocation, oldest first (-D: a requeued job's earlier runs too),
+    once the last is final: slurmdbd records a job's end a moment after it."""
+    states: list[str] = []
+
+    def final() -> bool:
+        out = cluster.run("sacct", "-D", "-X", "-n", "-P", "-o", "State", "-j", job_id).stdout
+        states[:] = [line.split()[0] for line in out.splitlines() if line.strip()]
+        return bool(states) and states[-1] not in UNFINISHED
+
+    wait_until(final, 60, f"the final state of job {job_id} in sacct")
+    return states
+
+
+UNFINISHED = ("PENDING", "RUNNING", "COMPLETING", "REQUEUED", "SUSPENDED", "RESIZING")
 
 
 def all_slurm_jobs(cluster: SlurmCluster) -> list[str]:
