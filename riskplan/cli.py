@@ -12,6 +12,7 @@ import typer
 
 from riskplan.commands import bench, check, export, report, reproduce, sweep, train
 from riskplan.commands.common import OneLineErrors
+from riskplan.util.blas_threads import single_threaded_blas
 from riskplan.util.collector import command_line_process
 
 app = typer.Typer(
@@ -36,6 +37,7 @@ _register_commands()
 
 def main() -> None:
     """Entry point of the `riskplan` script and `python -m riskplan`."""
+    single_threaded_blas()  # before numpy loads: riskplan.util.blas_threads
     command_line_process()
     app(prog_name="riskplan")
 

@@ -1,0 +1,20 @@
+"""numpy's BLAS threads in a process that is the `riskplan` command line.
+
+riskplan's compute runs in numba kernels, which own the cores (`numba.set_num_threads`). BLAS gets only small
+problems (a source's 2x2 covariance, a gradient's norm), which OpenBLAS runs on the calling thread whatever its pool
+holds. Yet numpy's OpenBLAS (and scipy's, where installed) starts a pool at import whose threads spin while they
+wait for work: on a 2-core machine they took a core from the command itself, 0.1 s of a 1.5 s `riskplan train`
+(docs/benchmarks.md). A command-line process therefore starts OpenBLAS with one thread, and so do the processes it
+starts (sweep jobs, Ray workers). A value the user set is kept. Results do not depend on it.
+"""
+
+from __future__ import annotations
+
+import os
+
+BLAS_THREADS = "OPENBLAS_NUM_THREADS"  # read once, when numpy (or scipy) loads OpenBLAS
+
+
+def single_threaded_blas() -> None:
+    """OpenBLAS, when it loads in this process or its children, runs one thread unless the user said otherwise."""
+    os.environ.setdefault(BLAS_THREADS, "1")
