@@ -5,7 +5,7 @@ problems (a source's 2x2 covariance, a gradient's norm), which OpenBLAS runs on 
 holds. Yet numpy's OpenBLAS (and scipy's, where installed) starts a pool at import whose threads spin while they
 wait for work: on a 2-core machine they took a core from the command itself, 0.1 s of a 1.5 s `riskplan train`
 (docs/benchmarks.md). A command-line process therefore starts OpenBLAS with one thread, and so do the processes it
-starts (sweep jobs, Ray workers). A value the user set is kept. Results do not depend on it.
+starts (sweep jobs, Ray workers). An OPENBLAS_NUM_THREADS the user set is kept. Results do not depend on it.
 """
 
 from __future__ import annotations
@@ -16,5 +16,6 @@ BLAS_THREADS = "OPENBLAS_NUM_THREADS"  # read once, when numpy (or scipy) loads 
 
 
 def single_threaded_blas() -> None:
-    """OpenBLAS, when it loads in this process or its children, runs one thread unless the user said otherwise."""
+    """OpenBLAS, when it loads in this process or its children, runs one thread unless OPENBLAS_NUM_THREADS says
+    otherwise."""
     os.environ.setdefault(BLAS_THREADS, "1")
