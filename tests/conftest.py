@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import signal
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -24,6 +25,9 @@ else:  # the property tests: reproducible examples, no deadline on a loaded mach
     settings.load_profile("riskplan")
 
 TESTS = Path(__file__).resolve().parent
+# Runs record their cost for the time estimates (riskplan.run.cost): the tests' runs go to a folder of their own,
+# not into the user's cache, and a test that checks the calibration sets its own.
+os.environ.setdefault("RISKPLAN_CACHE_DIR", tempfile.mkdtemp(prefix="riskplan-tests-cache-"))
 SLOW_FOLDERS = ("e2e", "clusters")  # whole runs through the CLI, and real clusters
 
 

@@ -34,11 +34,11 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import os
 import shlex
 import sys
 import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -50,12 +50,20 @@ from riskplan.experiments.landscape import compute_landscape
 from riskplan.experiments.reporting import REPRODUCE_ROOT, build_report, check_formats
 from riskplan.experiments.reporting.parallel import workers as report_workers
 from riskplan.experiments.sweeping import report_outcome, run_sweep, sweep_size, warm_workers
-from riskplan.experiments.sweeping.jobs import cpu_count
-from riskplan.run import budget
+from riskplan.experiments.timing import (
+    Schedule,
+    Stage,
+    plan_line,
+    print_breakdown,
+    report_seconds,
+    sweep_timing,
+    time_breakdown,
+)
+from riskplan.run import cost
 from riskplan.run.compose import compose, parse_overrides
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
-from riskplan.util.limits import JOBS_ENV, STEPS_PER_SECOND, check_time, job_budget
+from riskplan.util.limits import JOBS_ENV, STEPS_PER_SECOND, check_time, cpu_count, job_budget
 from riskplan.util.paths import check_output_dir, claim_dir, write_atomic
 
 STUDY_SEEDS = 5  # the studies beyond the paper: at most 5 seeds (2 with --quick)
@@ -159,6 +167,14 @@ LANDSCAPE = {"points": 46, "episodes": 4000, "ranges": ((-30.0, 60.0), (-30.0, 6
 QUICK_LANDSCAPE = {"points": 31, "episodes": 1000, "ranges": ((-30.0, 60.0), (-30.0, 60.0))}
 
 
+PAPER = ("single", "team")  # the folders of Section V itself (--paper-only): Figs. 1-4
+
+
+def chosen(paper_only: bool) -> tuple:
+    """The experiments a reproduction runs: all of EXPERIMENTS, or Section V's alone."""
+    return tuple(e for e in EXPERIMENTS if e[0] in PAPER) if paper_only else EXPERIMENTS
+
+
 def reproduce(
     out: Path | None,
     quick: bool,
@@ -168,9 +184,10 @@ def reproduce(
     overrides: list[str] | None = None,
     *,
     since: float | None = None,
+    paper_only: bool = False,
 ) -> int:
-    """Run Section V and the report, `seeds` seeds per condition; return the exit code (1 when a job or the report
-    failed).
+    """Run Section V (and, unless `paper_only`, the studies beyond it and the landscape), then the report,
+    `seeds` seeds per condition; return the exit code (1 when a job or the report failed).
 
     `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000. `since`: when the
     command started (epoch seconds; the CLI gives its process's start), so the time breakdown includes start-up.
@@ -178,11 +195,12 @@ def reproduce(
     entered = time.time()
     if seeds < 1:
         raise BadInput("--seeds", f"got {seeds}; expected at least 1")
-    jobs_total = check_seeds(seeds)
-    warmed = _warm_workers(jobs, seeds)  # the workers start while the checks run
+    experiments = chosen(paper_only)
+    jobs_total = check_seeds(seeds, experiments)
+    warmed = _warm_workers(jobs, seeds, experiments)  # the workers start while the checks run
     try:
-        extra, configs = _check_overrides(list(overrides or []), quick)
-        check_work(seeds, jobs_total, configs, list(overrides or []))
+        extra, configs, own = _check_overrides(list(overrides or []), quick)
+        check_work(seeds, jobs_total, configs, list(overrides or []), experiments)
         fmts = check_formats(formats)
         report_workers()  # a bad RISKPLAN_REPORT_WORKERS is bad input now, not after the sweeps
         if out is not None:
@@ -196,40 +214,58 @@ def reproduce(
     with lock.hold(target, "reproduction directory"):
         return _reproduce(
             target,
-            quick,
-            seeds,
-            jobs,
-            fmts,
-            list(overrides or []),
-            extra,
+            Options(quick, seeds, jobs, fmts, list(overrides or []), extra, experiments, own),
+            schedule_of(seeds, configs, experiments, jobs, quick),
             {"since": since, "entered": entered, "checked": checked},
             warmed,
         )
 
 
-def _warm_workers(jobs: int | None, seeds: int):
+@dataclass(frozen=True)
+class Options:
+    """What a reproduction was asked for, checked."""
+
+    quick: bool
+    seeds: int
+    jobs: int | None
+    formats: list[str]
+    overrides: list[str]  # the user's, for every experiment
+    extra: list[str]  # --quick's and the user's: what every sweep gets
+    experiments: tuple
+    own_warnings: dict  # set-up -> the warnings it raises of its own (see _check_overrides)
+
+    @property
+    def paper_only(self) -> bool:
+        return len(self.experiments) < len(EXPERIMENTS)
+
+
+def _warm_workers(jobs: int | None, seeds: int, experiments: tuple = EXPERIMENTS):
     """Start and warm up the sweeps' local workers in the background (riskplan.experiments.sweeping.warm_workers); returns
     the function that waits for them, or None when the sweeps run their jobs in this process (one worker)."""
-    workers = min(jobs or cpu_count(), max(experiment_jobs(seeds)))
+    workers = _workers(jobs, seeds, experiments)
     return warm_workers(workers) if workers > 1 else None
 
 
-def experiment_jobs(seeds: int) -> list[int]:
-    """Jobs of each sweep of EXPERIMENTS with this many seeds (counted from the overrides, nothing expanded)."""
+def _workers(jobs: int | None, seeds: int, experiments: tuple) -> int:
+    return min(jobs or cpu_count(), max(experiment_jobs(seeds, experiments)))
+
+
+def experiment_jobs(seeds: int, experiments: tuple = EXPERIMENTS) -> list[int]:
+    """Jobs of each sweep of `experiments` with this many seeds (counted from the overrides, nothing expanded)."""
     counts = []
-    for _, _, experiment, most in EXPERIMENTS:
+    for _, _, experiment, most in experiments:
         counts.append(sweep_size(parse_overrides(experiment))[0] * min(seeds, most or seeds))
     return counts
 
 
-def check_seeds(seeds: int) -> int:
+def check_seeds(seeds: int, experiments: tuple = EXPERIMENTS) -> int:
     """Bad input when the sweeps with `seeds` seeds hold more jobs than RISKPLAN_MAX_JOBS; the total otherwise."""
-    total = sum(experiment_jobs(seeds))
+    total = sum(experiment_jobs(seeds, experiments))
     budget = job_budget()
     if total > budget:
         raise BadInput(
             "--seeds",
-            f"got {seeds}: the {len(EXPERIMENTS)} sweeps would hold {total} jobs, more than "
+            f"got {seeds}: the {len(experiments)} sweeps would hold {total} jobs, more than "
             f"the {budget} "
             f"allowed; give fewer seeds, or raise the limit with {JOBS_ENV}=<jobs>",
         )
@@ -237,33 +273,39 @@ def check_seeds(seeds: int) -> int:
 
 
 def job_steps(cfg) -> float:
-    """Trajectory-step equivalents one job takes (riskplan.run.budget's estimate of a run: training, evaluation,
-    bootstrap, logging)."""
+    """Trajectory-step equivalents one job of a composed config takes (riskplan.run.cost)."""
     width, height = (int(v) for v in cfg.world.size)
-    sizes = budget.sizes_of(cfg, width, height, len(cfg.world.sources), int(cfg.team.robots))
-    return sum(amount for amount, _, _ in budget.estimate(sizes)[1])
+    return cost.config_steps(cfg, width, height, len(cfg.world.sources), int(cfg.team.robots))
 
 
-def check_work(seeds: int, total_jobs: int, configs: dict, overrides: list[str]) -> None:
+def check_work(
+    seeds: int, total_jobs: int, configs: dict, overrides: list[str], experiments: tuple = EXPERIMENTS
+) -> None:
     """Bad input when the sweeps are estimated to simulate for longer than RISKPLAN_MAX_HOURS."""
     steps = 0.0
-    for (_, _, experiment, _), jobs in zip(EXPERIMENTS, experiment_jobs(seeds)):
+    for (_, _, experiment, _), jobs in zip(experiments, experiment_jobs(seeds, experiments)):
         steps += jobs * job_steps(configs[setup_of(experiment)])
     what = f"reproducing with {seeds} seeds ({total_jobs} jobs" + (f", {' '.join(overrides)})" if overrides else ")")
     check_time("--seeds and overrides" if overrides else "--seeds", steps / STEPS_PER_SECOND, what)
 
 
-def _reproduce(
-    target: Path,
-    quick: bool,
-    seeds: int,
-    jobs: int | None,
-    fmts,
-    overrides: list[str],
-    extra: list[str],
-    clock: dict | None = None,
-    warmed=None,
-) -> int:
+def schedule_of(seeds: int, configs: dict, experiments: tuple, jobs: int | None, quick: bool) -> Schedule:
+    """The stages and their estimated seconds on this machine: each sweep, the landscape, the report."""
+    model = cost.model()
+    workers = _workers(jobs, seeds, experiments)
+    stages = []
+    for (folder, _, experiment, _), count in zip(experiments, experiment_jobs(seeds, experiments)):
+        steps = job_steps(configs[setup_of(experiment)])
+        stages.append(Stage(folder, model.sweep_seconds([steps] * count, min(workers, count)), count))
+    if len(experiments) == len(EXPERIMENTS):
+        grid = QUICK_LANDSCAPE if quick else LANDSCAPE
+        horizon = int(next(iter(configs.values())).world.horizon)
+        stages.append(Stage("landscape", model.run_seconds(grid["points"] ** 2 * grid["episodes"] * horizon)))
+    stages.append(Stage("report", report_seconds(sum(stage.jobs for stage in stages))))
+    return Schedule(stages)
+
+
+def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict | None = None, warmed=None) -> int:
     """The reproduction into `target`, whose lock this process holds (`clock`: when reproduce() was entered and
     when its checks ended, for the time breakdown; `warmed`: waits for the warmed-up workers, see _warm_workers)."""
     started = time.time()
@@ -282,22 +324,35 @@ def _reproduce(
                 }
             )
 
-    typer.echo(f"reproduction directory: {target} ({'quick' if quick else 'full'}, {seeds} seeds)")
+    quick, seeds, overrides = options.quick, options.seeds, options.overrides
+    what = ("quick" if quick else "full") + (", Section V only" if options.paper_only else "")
+    typer.echo(f"reproduction directory: {target} ({what}, {seeds} seeds)")
+    typer.echo(plan_line(schedule, _workers(options.jobs, seeds, options.experiments)))
     record = {
         "quick": quick,
+        "paper_only": options.paper_only,
         "seeds": seeds,
-        "overrides": list(overrides or []),
+        "overrides": list(overrides),
         "started": dt.datetime.now().isoformat(timespec="seconds"),
+        "estimate": {stage.name: round(stage.estimate, 1) for stage in schedule.stages},
         "parts": {},
     }
     code = 0
     outcomes = []
-    for folder, what, experiment, most in EXPERIMENTS:
-        args = [*experiment, f"seed=range(0,{min(seeds, most or seeds)})", *_not_set_by(experiment, extra)]
-        typer.echo(f"\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
+    for folder, what, experiment, most in options.experiments:
+        args = [*experiment, f"seed=range(0,{min(seeds, most or seeds)})", *_not_set_by(experiment, options.extra)]
+        typer.echo(f"\n{schedule.header(folder)}\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
         tic = time.time()
-        outcome = run_sweep(args, jobs, sweep_dir=target / folder, title=folder, before_launch=wait_for_workers)
+        outcome = run_sweep(
+            args,
+            options.jobs,
+            sweep_dir=target / folder,
+            title=folder,
+            before_launch=wait_for_workers,
+            expected=options.own_warnings.get(setup_of(experiment), frozenset()),
+        )
         toc = time.time()
+        schedule.finished(folder, toc - tic)
         outcomes.append(outcome)
         code = max(code, report_outcome(outcome, folder, hint=False))
         record["parts"][folder] = {
@@ -308,18 +363,23 @@ def _reproduce(
             "failed": len(outcome.failed),
             "seconds": round(outcome.seconds, 2),
             "wall": round(toc - tic, 2),
-            "timing": _sweep_timing(outcome, tic, toc),
+            "timing": sweep_timing(outcome, tic, toc),
         }
     if warm_up:
         record["warm_up"] = warm_up
     stop_workers()  # before the report, which may fork: no idle workers, nor their threads, in this process
-    record["parts"]["landscape"] = _landscape(target / "landscape", quick, list(overrides or []))
+    if not options.paper_only:
+        typer.echo(f"\n{schedule.header('landscape')}")
+        tic = time.time()
+        record["parts"]["landscape"] = _landscape(target / "landscape", quick, list(overrides))
+        schedule.finished("landscape", time.time() - tic)
     tic = time.time()
     _print_comparison(outcomes)
     record["parts"]["comparison"] = {"seconds": round(time.time() - tic, 2)}
+    typer.echo(f"\n{schedule.header('report')}")
     tic = time.time()
     try:
-        page = build_report([target], target / "report", fmts)
+        page = build_report([target], target / "report", options.formats)
         typer.echo(f"report: {page}")
         record["parts"]["report"] = {"seconds": round(time.time() - tic, 2), "page": str(page)}
     except BadInput:
@@ -332,15 +392,27 @@ def _reproduce(
         )
         code = 1
     record["seconds"] = round(time.time() - started, 2)
+    total = record["seconds"]
     try:  # never fails the reproduction: it only says where the time went
-        record["breakdown"] = time_breakdown(record, clock or {}, started)
+        folders = [folder for folder, *_ in options.experiments]
+        record["breakdown"] = time_breakdown(record, clock or {}, started, folders)
+        total = record["breakdown"]["total"]  # from the command's start: the one total both lines give
         print_breakdown(record["breakdown"])
     except Exception as err:
         typer.echo(f"(no time breakdown: {type(err).__name__}: {err})", err=True)
     write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
-    typer.echo(f"reproduced in {record['seconds']:.0f} s: {target}")
+    estimated = schedule.total
+    typer.echo(f"reproduced in {total:.0f} s (estimated {cost.say(estimated).removeprefix('about ')}): {target}")
     if code:
-        again = ["--out", str(target), *(["--quick"] if quick else []), "--seeds", str(seeds), *(overrides or [])]
+        again = [
+            "--out",
+            str(target),
+            *(["--quick"] if quick else []),
+            *(["--paper-only"] if options.paper_only else []),
+            "--seeds",
+            str(seeds),
+            *overrides,
+        ]
         typer.echo(
             f"to retry what did not finish (finished jobs are skipped): riskplan reproduce {shlex.join(again)}",
             err=True,
@@ -348,9 +420,11 @@ def _reproduce(
     return code
 
 
-def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict]:
+def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict, dict]:
     """The overrides every sweep gets (--quick's, then the user's), checked on both set-ups before anything runs;
-    and the composed config of each set-up (by its experiment=... override)."""
+    the composed config of each set-up (by its experiment=... override); and the warnings each set-up raises of
+    its own (hetero_team's constant step breaks Assumption 6 on purpose): its sweep does not repeat those, while a
+    warning the user's overrides bring still prints."""
     for override in parse_overrides(overrides):
         if override.is_sweep_override() or override.is_hydra_override():
             raise BadInput(
@@ -363,14 +437,19 @@ def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict
                 "is set by reproduce; use --seeds N, or riskplan sweep for other experiments",
             )
     extra = [*(QUICK if quick else []), *overrides]
-    configs = {}
+    configs, own = {}, {}
     for _, _, experiment, _ in EXPERIMENTS:  # each set-up once, not per experiment: its plain overrides
         setup = setup_of(experiment)
         if setup not in configs:
-            with warnings.catch_warnings():  # a set-up's warnings (hetero_team's constant step) print with its sweep
-                warnings.simplefilter("ignore")
+            with warnings.catch_warnings(record=True) as caught:  # a set-up's warnings print with its sweep
+                warnings.simplefilter("always")
                 configs[setup] = compose([*setup, *_not_set_by(experiment, extra)])
-    return extra, configs
+                own[setup] = frozenset()
+                if caught:
+                    caught.clear()
+                    compose(list(setup))
+                    own[setup] = frozenset(str(w.message) for w in caught)
+    return extra, configs, own
 
 
 def setup_of(experiment: list[str]) -> tuple[str, ...]:
@@ -468,162 +547,6 @@ def stop_workers() -> None:
     executor = getattr(sys.modules["joblib.externals.loky.reusable_executor"], "_executor", None)
     if executor is not None:
         executor.shutdown(wait=False, kill_workers=True)
-
-
-def process_started() -> float | None:
-    """When this process started (epoch seconds, Linux /proc; None elsewhere): the CLI's `since`."""
-    return _started_of("self")
-
-
-def _started_of(pid) -> float | None:
-    """When process `pid` started (epoch seconds) from /proc/<pid>/stat and /proc/stat's btime; None if unknown."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        boot = next(
-            float(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines() if line.startswith("btime ")
-        )
-        return boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError, StopIteration):
-        return None
-
-
-def _sweep_timing(outcome, tic: float, toc: float) -> dict:
-    """Where a sweep's wall time went, from its jobs' status.json (started, finished, seconds, pid), their
-    summary.json (wall_time: the training loop) and metrics.parquet (iteration 0's extra time in a worker's first
-    job: the numba cache load). Only the jobs that ran in this launch count."""
-    launched = toc - outcome.seconds  # _run_plan's start: planning (composing and validating every job) is before
-    jobs = []
-    for path in outcome.summary.get("path", pd.Series(dtype=object)).dropna():
-        try:
-            status = json.loads((Path(path) / "status.json").read_text())
-            summary = json.loads((Path(path) / "summary.json").read_text())
-        except (OSError, ValueError):
-            continue
-        if (
-            status.get("status") != "done"
-            or not isinstance(status.get("started"), (int, float))
-            or status["started"] < launched - 2
-        ):
-            continue
-        jobs.append(
-            {
-                "path": str(path),
-                "pid": status.get("pid"),
-                "started": status["started"],
-                "finished": status["finished"],
-                "seconds": status["seconds"],
-                "training": float(summary.get("wall_time") or 0.0),
-            }
-        )
-    timing = {"planning": round(launched - tic, 3), "jobs": len(jobs)}
-    if not jobs:
-        return timing
-    first, last = min(j["started"] for j in jobs), max(j["finished"] for j in jobs)
-    timing.update(
-        {
-            "to_first_job": round(first - launched, 3),
-            "running": round(last - first, 3),
-            "after_last_job": round(toc - last, 3),
-            "job_seconds": round(sum(j["seconds"] for j in jobs), 3),
-            "training": round(sum(j["training"] for j in jobs), 3),
-            "workers": {},
-        }
-    )
-    for pid in dict.fromkeys(j["pid"] for j in jobs):
-        own = sorted((j for j in jobs if j["pid"] == pid), key=lambda j: j["started"])
-        load = None
-        try:
-            seconds = pd.read_parquet(Path(own[0]["path"]) / "metrics.parquet", columns=["iteration", "seconds"])
-            per = seconds.groupby("iteration").seconds.first()
-            if len(per) > 1:
-                load = max(0.0, float(per.iloc[0] - per.iloc[1:].median()))
-        except (OSError, ValueError, KeyError, ImportError):
-            pass
-        spawned = _started_of(pid) if pid != os.getpid() else None  # a one-job sweep runs in this process
-        timing["workers"][str(pid)] = {
-            "jobs": len(own),
-            "first_job": own[0]["started"],
-            "spawned": spawned,
-            "numba_load": load,
-        }
-    return timing
-
-
-def time_breakdown(record: dict, clock: dict, started: float) -> dict:
-    """Wall seconds of the command by part, and inside the sweeps' jobs (core-seconds, summed over the jobs)."""
-    sweeps = [record["parts"][folder] for folder, *_ in EXPERIMENTS if folder in record["parts"]]
-    timings = [part.get("timing", {}) for part in sweeps]
-    begun = clock.get("since")
-    ended = started + record["seconds"]
-    wall = {
-        "start-up (interpreter, imports)": (clock["entered"] - begun) if begun and "entered" in clock else None,
-        "checks (compose each set-up, budget)": (clock["checked"] - clock["entered"]) if "checked" in clock else None,
-        "sweeps: planning (compose and validate every job)": sum(t.get("planning", 0.0) for t in timings),
-        "sweeps: waiting for the warmed-up workers": record.get("warm_up", {}).get("waited", 0.0),
-        "sweeps: launch to first job (Hydra, worker start and imports)": sum(
-            t.get("to_first_job", 0.0) for t in timings
-        )
-        - record.get("warm_up", {}).get("waited", 0.0),
-        "sweeps: jobs running (first start to last finish)": sum(t.get("running", 0.0) for t in timings),
-        "sweeps: after the last job (summary, Hydra)": sum(t.get("after_last_job", 0.0) for t in timings),
-        "landscape": record["parts"].get("landscape", {}).get("seconds", 0.0),
-        "comparison table": record["parts"].get("comparison", {}).get("seconds", 0.0),
-        "report (figures, tables, page)": record["parts"].get("report", {}).get("seconds", 0.0),
-    }
-    known = sum(v for v in wall.values() if v is not None)
-    total = ended - (begun or clock.get("entered", started))
-    wall["other (lock, directories, record)"] = max(0.0, total - known)
-    workers: dict[str, dict] = {}
-    for t in timings:
-        for pid, w in t.get("workers", {}).items():
-            entry = workers.setdefault(
-                pid, {"jobs": 0, "spawned": w["spawned"], "first_job": w["first_job"], "numba_load": w["numba_load"]}
-            )
-            entry["jobs"] += w["jobs"]
-    warm = record.get("warm_up")
-    jobs = {
-        "jobs": sum(t.get("jobs", 0) for t in timings),
-        "workers": len(workers),
-        **(
-            {"worker warm-up (imports, numba cache; while the checks and planning ran)": sum(warm["seconds"])}
-            if warm
-            else {
-                "worker start to its first job (imports, unpickling)": sum(
-                    w["first_job"] - w["spawned"] for w in workers.values() if w["spawned"]
-                )
-            }
-        ),
-        "numba cache load (iteration 0's extra, first job of each worker)": sum(
-            w["numba_load"] or 0.0 for w in workers.values()
-        ),
-        "training loop (summary wall_time)": sum(t.get("training", 0.0) for t in timings),
-        "set-up, evaluation episodes, bootstrap, files (job seconds - wall_time)": sum(
-            t.get("job_seconds", 0.0) - t.get("training", 0.0) for t in timings
-        ),
-    }
-    jobs["training loop (summary wall_time)"] -= jobs[
-        "numba cache load (iteration 0's extra, first job of each worker)"
-    ]
-    return {
-        "total": round(total, 2),
-        "wall": {k: None if v is None else round(v, 2) for k, v in wall.items()},
-        "jobs": {k: round(v, 2) if isinstance(v, float) else v for k, v in jobs.items()},
-    }
-
-
-def print_breakdown(breakdown: dict) -> None:
-    """Where the time went, as two short tables."""
-    typer.echo(f"\nwhere the time went ({breakdown['total']:.1f} s from the command's start to its end):")
-    for name, seconds in breakdown["wall"].items():
-        typer.echo(f"  {'?' if seconds is None else f'{seconds:6.1f}'} s  {name}")
-    jobs = breakdown["jobs"]
-    typer.echo(
-        f"inside the {jobs['jobs']} jobs that ran, on {jobs['workers']} worker processes (seconds summed over "
-        f"jobs; they run in parallel):"
-    )
-    for name, seconds in jobs.items():
-        if name not in ("jobs", "workers"):
-            typer.echo(f"  {seconds:6.1f} s  {name}")
 
 
 def _shell(arg: str) -> str:

@@ -18,6 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 from riskplan.config.schema import Backend, Order, RiskConf, RiskplanConf
@@ -27,6 +28,7 @@ from riskplan.engine.risk_measures import summary_stats
 from riskplan.engine.rollout import simulate
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.engine.team.kernels import Links, mix_linked
+from riskplan.run import cost
 from riskplan.run.build import Setup, build_setup, logit_bound, starts
 from riskplan.run.checkpoint import State, load_checkpoint, save_checkpoint
 from riskplan.run.columns import from_rows, sorted_by
@@ -39,6 +41,7 @@ from riskplan.run.run_files import has_finished
 from riskplan.run.schedules import samples_at, step_size
 from riskplan.util.collector import resume_collection
 from riskplan.util.interrupt import StopSignals
+from riskplan.util.limits import cpu_count
 from riskplan.util.lock import hold
 from riskplan.util.paths import check_output_dir
 
@@ -161,6 +164,7 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> dict:
     """train() under the directory's lock."""
     if setup.params.team.backend == Backend.ray:  # each robot a Ray actor: riskplan.run.ray_team
         return train_ray(setup, out, resume, progress)
+    entered = time.perf_counter()
     if resume:
         state = load_checkpoint(out, setup)
         log, rows = reopen_log(out, setup, state.iteration)
@@ -171,6 +175,7 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> dict:
         state = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
     total = setup.params.train.iterations
     every = setup.params.train.checkpoint_every
+    resumed_at = state.iteration
     load_kernels(setup, state)  # numba's cache, before the loop: wall_time is the loop's own
     resume_collection()  # the start-up is over: a command that paused the collector for it gets it back here
     wall = time.perf_counter()
@@ -193,11 +198,15 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> dict:
         evaluation = evaluate(setup, state.thetas)
         trajectories = sample_paths(setup, state.thetas)
         summary = summarize(setup, state, evaluation, metrics, train_seconds)
+        if resumed_at:  # wall_time is this process's part of the loop; the run line says so
+            summary["resumed_at"] = resumed_at
         stop.check(state.iteration)  # before the final files: a resumed run evaluates again
         log.trajectories(trajectories)
         log.evaluation(evaluation)
         log.summary(summary)
     write_finished(out, setup, metrics, evaluation, trajectories, summary)
+    if not resumed_at:  # a whole run calibrates the time estimates of sweeps and reproductions on this machine
+        cost.record(cost.setup_steps(setup), time.perf_counter() - entered, numba.get_num_threads() / cpu_count())
     return summary
 
 

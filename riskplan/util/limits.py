@@ -33,6 +33,14 @@ def _env_number(name: str, default: float) -> float:
     return value
 
 
+def cpu_count() -> int:
+    """Cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
 def available_memory() -> float:
     """Bytes of memory available now (MemAvailable), or the physical memory where /proc/meminfo is missing."""
     try:

@@ -4,6 +4,7 @@ and sizes beyond the limits are refused before anything runs."""
 from __future__ import annotations
 
 import json
+import re
 
 import pandas as pd
 import pytest
@@ -34,8 +35,16 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
         and set(record["parts"])
         == {"single", "team", "wander", "soft_risk", "frontier", "landscape", "comparison", "report"} | studies
     )
+    # said up front: the plan with its estimate, then each stage out of the total with the overall ETA
+    assert re.search(r"plan: 14 stages, 23 jobs on \d+ workers?; estimated time ", result.stdout)
+    assert "[stage 1 of 14: single]" in result.stdout and "[stage 14 of 14: report]" in result.stdout
+    assert set(record["estimate"]) == set(record["parts"]) - {"comparison"}
+    assert "Assumption 6" not in result.stderr  # hetero_team's constant step is the study's own choice
     # where the time went: measured from the jobs' own records (no timed assertion, only the structure)
     assert "where the time went" in result.stdout
+    # the closing totals are one number
+    went = float(re.search(r"where the time went \(([0-9.]+) s", result.stdout).group(1))
+    assert re.search(rf"reproduced in {went:.0f} s ", result.stdout)
     breakdown = record["breakdown"]
     # 2 + 1 + 1 + 1 + 4 jobs of the paper's set-ups, 5 + 2 + 1 + 2 + 1 + 2 + 1 of the studies beyond it
     assert breakdown["jobs"]["jobs"] == 9 + 14 and breakdown["jobs"]["workers"] >= 1
@@ -95,6 +104,17 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "1 job: 0 to run, 1 already finished" in again.stdout
     assert "4 jobs: 0 to run, 4 already finished" in again.stdout
     assert json.loads((root / "reproduce.json").read_text())["breakdown"]["jobs"]["jobs"] == 0
+
+
+def test_reproduce_paper_only_runs_section_v_alone(tmp_path):
+    result = riskplan_cli(tmp_path, "reproduce", "--quick", "--paper-only", "--seeds", "1", "--format", "png", *FAST)
+    assert result.returncode == 0, result.stdout + result.stderr
+    (root,) = (tmp_path / "outputs" / "reproduce").iterdir()
+    assert sorted(p.name for p in root.iterdir() if p.is_dir()) == ["report", "single", "team"]
+    record = json.loads((root / "reproduce.json").read_text())
+    assert record["paper_only"] and set(record["parts"]) == {"single", "team", "comparison", "report"}
+    assert "plan: 3 stages, 3 jobs" in result.stdout and "[stage 3 of 3: report]" in result.stdout
+    assert (root / "report" / "fig1_paths.png").is_file() and (root / "report" / "fig3_team.png").is_file()
 
 
 def test_reproduce_rejects_sweeps_and_its_own_keys_as_bad_input(tmp_path):

@@ -9,14 +9,16 @@ from pathlib import Path
 import typer
 
 from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, is_finished
-from riskplan.experiments.sweeping.jobs import SUMMARY, Outcome, Plan, cpu_count, locate
+from riskplan.experiments.sweeping.jobs import SUMMARY, Outcome, Plan, locate
 from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.experiments.sweeping.search import run_optimiser
 from riskplan.experiments.sweeping.summary import summarize, write_summary
 from riskplan.experiments.sweeping.view import SweepView
+from riskplan.run import cost
 from riskplan.util import lock
 from riskplan.util.interrupt import DriverSignals
+from riskplan.util.limits import cpu_count
 
 LOCAL = ("joblib", "submitit_local", "basic")  # launchers whose jobs run below the driver, and stop with it
 
@@ -28,11 +30,14 @@ def run_sweep(
     title: str = "sweep",
     out=None,
     before_launch=None,
+    expected: frozenset[str] = frozenset(),
 ) -> Outcome:
     """Plan, launch through Hydra, show progress, write summary.parquet. BadInput before anything runs.
 
-    `before_launch`: called between planning and launching (reproduce waits there for its warmed-up workers)."""
+    `before_launch`: called between planning and launching (reproduce waits there for its warmed-up workers).
+    `expected`: warnings the caller chose on purpose (reproduce's own studies), not repeated."""
     plan = plan_sweep(args, jobs, sweep_dir)
+    plan.warnings = [note for note in plan.warnings if note not in expected]
     with lock.hold(plan.sweep_dir, "sweep directory"):  # one driver per sweep directory, for the whole launch
         return _run_plan(plan, args, jobs, title, out, before_launch)
 
@@ -50,12 +55,15 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
     if plan.workers_arg is not None and plan.workers and todo and todo < plan.workers:
         plan.workers = todo  # no more workers than jobs to run: each gets more threads
         plan.argv[plan.workers_arg] = f"hydra.launcher.n_jobs={todo}"
-    where = f"{plan.launcher}" + (f", {plan.workers} workers" if plan.workers else "")
+    plural = "s" if plan.workers != 1 else ""
+    where = f"{plan.launcher}" + (f", {plan.workers} worker{plural}" if plan.workers else "")
     echo(f"{title} directory: {plan.sweep_dir}")
     echo(
         f"{len(plan.jobs)} job{'s' if len(plan.jobs) != 1 else ''}: {todo} to run, {len(finished)} already "
         f"finished ({where})"
     )
+    if todo:
+        echo(estimate_line([job for i, job in enumerate(plan.jobs) if i not in finished], plan))
     launcher_error, interrupted = None, None
     if todo:
         if plan.launcher == "joblib" and plan.workers:
@@ -99,3 +107,17 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         False,
         interrupted,
     )
+
+
+def estimate_seconds(jobs: list, plan: Plan) -> float:
+    """The wall seconds these jobs of the plan should take on this machine (riskplan.run.cost)."""
+    return cost.model().sweep_seconds([job.steps for job in jobs], plan.workers or 1)
+
+
+def estimate_line(jobs: list, plan: Plan) -> str:
+    """What the jobs still to run should take: wall time for a local launcher, compute for a cluster's."""
+    model = cost.model()
+    if plan.launcher in LOCAL:
+        return f"estimated time: {cost.say(estimate_seconds(jobs, plan))} ({model.describe()})"
+    compute = sum(model.run_seconds(job.steps) for job in jobs)
+    return f"estimated compute: {cost.say(compute)} of this machine's time ({model.describe()})"

@@ -33,6 +33,7 @@ from riskplan.experiments.sweeping.jobs import SWEEPS_ROOT, Job
 from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, explain, parse_overrides
 from riskplan.run.compose import compose as riskplan_compose
+from riskplan.run.cost import setup_steps
 from riskplan.util.errors import BadInput
 from riskplan.util.limits import check_jobs
 from riskplan.util.paths import claim_dir, hydra_quote
@@ -308,14 +309,14 @@ def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job]
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     try:
-                        build_setup(cfg)
+                        steps = setup_steps(build_setup(cfg))
                         invalid = None
                     except BadInput as err:
-                        invalid = str(err)
+                        steps, invalid = 0.0, str(err)
                 for w in caught:
                     if str(w.message) not in notes:
                         notes.append(str(w.message))
-                jobs.append(Job(list(combo), config_sha(cfg), invalid))
+                jobs.append(Job(list(combo), config_sha(cfg), invalid, steps=steps))
     finally:
         GlobalHydra.instance().clear()
     return jobs, notes

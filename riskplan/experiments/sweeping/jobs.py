@@ -32,6 +32,7 @@ class Job:
     label: str = ""  # the overrides that vary between jobs: its name until its folder exists
     folder: str | None = None  # the folder name Hydra will give it (None when the user set hydra.sweep.subdir)
     trial: int = -1  # under an optimising sweeper: its trial number (hydra.job.num)
+    steps: float = 0.0  # its estimated cost in trajectory-step equivalents (riskplan.run.cost)
 
     @property
     def key(self) -> tuple[str, ...]:
@@ -40,6 +41,11 @@ class Job:
     @property
     def name(self) -> str:
         return self.path.name if self.path is not None else (self.label or ",".join(self.overrides))
+
+    @property
+    def shown(self) -> str:
+        """How progress names it: the overrides that vary, as typed (its folder name is percent-encoded)."""
+        return self.label or ",".join(self.overrides) or self.name
 
 
 @dataclass
@@ -138,11 +144,3 @@ def job_state(job: Job, since: float) -> tuple[str, dict | None]:
 
 def as_number(value) -> float:
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else 0.0
-
-
-def cpu_count() -> int:
-    """Cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1

@@ -16,7 +16,7 @@ from joblib import Parallel, delayed
 
 from riskplan.experiments.hydra_app import run_hydra
 from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, warm_up
-from riskplan.experiments.sweeping.jobs import cpu_count
+from riskplan.util.limits import cpu_count
 
 
 def launch(argv: list[str], log_file: Path, skip: frozenset = frozenset()) -> str | None:

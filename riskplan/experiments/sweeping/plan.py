@@ -20,10 +20,11 @@ from riskplan.experiments.sweeping.grid import (
     target_dir,
     validate,
 )
-from riskplan.experiments.sweeping.jobs import DEFAULT_LAUNCHER, Plan, cpu_count
+from riskplan.experiments.sweeping.jobs import DEFAULT_LAUNCHER, Plan
 from riskplan.experiments.sweeping.search import plan_optimiser
 from riskplan.run.compose import expand_shorthands, parse_overrides
 from riskplan.util.errors import BadInput
+from riskplan.util.limits import cpu_count
 from riskplan.util.paths import check_output_dir, hydra_quote
 
 REQUEUES = 3  # submitit_slurm: times a job that reaches its time limit is requeued (it resumes from its checkpoint)

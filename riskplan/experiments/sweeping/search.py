@@ -27,14 +27,13 @@ from riskplan.experiments.sweeping.jobs import (
     Outcome,
     Plan,
     as_number,
-    cpu_count,
     override_files,
 )
 from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.summary import summarize, write_summary
 from riskplan.experiments.sweeping.view import SweepView
 from riskplan.util.errors import BadInput
-from riskplan.util.limits import check_jobs
+from riskplan.util.limits import check_jobs, cpu_count
 from riskplan.util.paths import hydra_quote
 
 OPTIMISER_FORMS = "choice(...), comma lists, range(...) or interval(...)"

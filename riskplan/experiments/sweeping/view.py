@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from riskplan.experiments.sweeping.jobs import Job, job_state, locate
@@ -109,9 +110,9 @@ class SweepView:
         seconds = (status or {}).get("seconds")
         took = f" ({seconds:.1f} s)" if isinstance(seconds, (int, float)) else ""
         if state == "failed":
-            line = f"[red]failed[/red] {job.name}: {(status or {}).get('error')}"
+            line = f"[red]failed[/red] {escape(job.shown)}: {escape(str((status or {}).get('error')))}"
         else:
-            line = f"done {job.name}{took}"
+            line = f"done {escape(job.shown)}{took}"
         if self.bar is not None:
             if state == "failed":
                 self.bar.console.print(line, markup=True, highlight=False)

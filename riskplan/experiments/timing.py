@@ -1,0 +1,232 @@
+"""Where a reproduction's time goes: the estimate said before it starts, the stage and overall ETA while it runs,
+and the breakdown of the wall time at its end (reproduce.json's `breakdown`).
+
+The estimate is riskplan.run.cost's model of this machine applied to each stage's jobs; while the stages run, the
+remaining estimate is scaled by how the finished stages compared with theirs, so the ETA follows the machine's
+load.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+import typer
+
+from riskplan.run import cost
+
+REPORT_SECONDS = (3.0, 0.1)  # the report: a fixed part and a part per run (figures, tables, page)
+
+
+@dataclass
+class Stage:
+    """One part of a reproduction: a sweep, the landscape or the report, with its estimated wall seconds."""
+
+    name: str
+    estimate: float
+    jobs: int = 0
+
+
+@dataclass
+class Schedule:
+    """The stages in order, and what the finished ones took: the ETA of the rest."""
+
+    stages: list[Stage]
+    taken: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def total(self) -> float:
+        return sum(stage.estimate for stage in self.stages)
+
+    def remaining(self) -> float:
+        """Seconds left: the unfinished stages' estimates, times how the finished ones compared with theirs."""
+        done = [stage for stage in self.stages if stage.name in self.taken]
+        expected = sum(stage.estimate for stage in done)
+        scale = (sum(self.taken[stage.name] for stage in done) / expected) if expected > 0 else 1.0
+        scale = min(max(scale, 0.25), 4.0)  # one odd stage (all its jobs skipped, a cold cache) says little
+        return scale * sum(stage.estimate for stage in self.stages if stage.name not in self.taken)
+
+    def header(self, name: str) -> str:
+        """`stage k of n` and the overall ETA, printed as a stage starts."""
+        index = next(i for i, stage in enumerate(self.stages) if stage.name == name)
+        left = self.remaining()
+        ends = (dt.datetime.now() + dt.timedelta(seconds=left)).strftime("%H:%M")
+        return f"[stage {index + 1} of {len(self.stages)}: {name}] {cost.say(left)} left in all (ETA {ends})"
+
+    def finished(self, name: str, seconds: float) -> None:
+        self.taken[name] = seconds
+
+
+def plan_line(schedule: Schedule, workers: int) -> str:
+    """The estimate said before anything runs."""
+    jobs = sum(stage.jobs for stage in schedule.stages)
+    return (
+        f"plan: {len(schedule.stages)} stages, {jobs} jobs on {workers} worker{'s' if workers != 1 else ''}; "
+        f"estimated time {cost.say(schedule.total)} ({cost.model().describe()}; finished jobs are skipped)"
+    )
+
+
+def report_seconds(runs: int) -> float:
+    fixed, per_run = REPORT_SECONDS
+    return fixed + per_run * runs
+
+
+def process_started() -> float | None:
+    """When this process started (epoch seconds, Linux /proc; None elsewhere): the CLI's `since`."""
+    return _started_of("self")
+
+
+def _started_of(pid) -> float | None:
+    """When process `pid` started (epoch seconds) from /proc/<pid>/stat and /proc/stat's btime; None if unknown."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        boot = next(
+            float(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines() if line.startswith("btime ")
+        )
+        return boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return None
+
+
+def sweep_timing(outcome, tic: float, toc: float) -> dict:
+    """Where a sweep's wall time went, from its jobs' status.json (started, finished, seconds, pid), their
+    summary.json (wall_time: the training loop) and metrics.parquet (iteration 0's extra time in a worker's first
+    job: the numba cache load). Only the jobs that ran in this launch count."""
+    launched = toc - outcome.seconds  # _run_plan's start: planning (composing and validating every job) is before
+    jobs = []
+    for path in outcome.summary.get("path", pd.Series(dtype=object)).dropna():
+        try:
+            status = json.loads((Path(path) / "status.json").read_text())
+            summary = json.loads((Path(path) / "summary.json").read_text())
+        except (OSError, ValueError):
+            continue
+        if (
+            status.get("status") != "done"
+            or not isinstance(status.get("started"), (int, float))
+            or status["started"] < launched - 2
+        ):
+            continue
+        jobs.append(
+            {
+                "path": str(path),
+                "pid": status.get("pid"),
+                "started": status["started"],
+                "finished": status["finished"],
+                "seconds": status["seconds"],
+                "training": float(summary.get("wall_time") or 0.0),
+            }
+        )
+    timing = {"planning": round(launched - tic, 3), "jobs": len(jobs)}
+    if not jobs:
+        return timing
+    first, last = min(j["started"] for j in jobs), max(j["finished"] for j in jobs)
+    timing.update(
+        {
+            "to_first_job": round(first - launched, 3),
+            "running": round(last - first, 3),
+            "after_last_job": round(toc - last, 3),
+            "job_seconds": round(sum(j["seconds"] for j in jobs), 3),
+            "training": round(sum(j["training"] for j in jobs), 3),
+            "workers": {},
+        }
+    )
+    for pid in dict.fromkeys(j["pid"] for j in jobs):
+        own = sorted((j for j in jobs if j["pid"] == pid), key=lambda j: j["started"])
+        load = None
+        try:
+            seconds = pd.read_parquet(Path(own[0]["path"]) / "metrics.parquet", columns=["iteration", "seconds"])
+            per = seconds.groupby("iteration").seconds.first()
+            if len(per) > 1:
+                load = max(0.0, float(per.iloc[0] - per.iloc[1:].median()))
+        except (OSError, ValueError, KeyError, ImportError):
+            pass
+        spawned = _started_of(pid) if pid != os.getpid() else None  # a one-job sweep runs in this process
+        timing["workers"][str(pid)] = {
+            "jobs": len(own),
+            "first_job": own[0]["started"],
+            "spawned": spawned,
+            "numba_load": load,
+        }
+    return timing
+
+
+def time_breakdown(record: dict, clock: dict, started: float, folders: list[str]) -> dict:
+    """Wall seconds of the command by part, and inside the sweeps' jobs (core-seconds, summed over the jobs);
+    `folders`: the sweeps' parts of `record`."""
+    sweeps = [record["parts"][folder] for folder in folders if folder in record["parts"]]
+    timings = [part.get("timing", {}) for part in sweeps]
+    begun = clock.get("since")
+    ended = started + record["seconds"]
+    wall = {
+        "start-up (interpreter, imports)": (clock["entered"] - begun) if begun and "entered" in clock else None,
+        "checks (compose each set-up, budget)": (clock["checked"] - clock["entered"]) if "checked" in clock else None,
+        "sweeps: planning (compose and validate every job)": sum(t.get("planning", 0.0) for t in timings),
+        "sweeps: waiting for the warmed-up workers": record.get("warm_up", {}).get("waited", 0.0),
+        "sweeps: launch to first job (Hydra, worker start and imports)": sum(
+            t.get("to_first_job", 0.0) for t in timings
+        )
+        - record.get("warm_up", {}).get("waited", 0.0),
+        "sweeps: jobs running (first start to last finish)": sum(t.get("running", 0.0) for t in timings),
+        "sweeps: after the last job (summary, Hydra)": sum(t.get("after_last_job", 0.0) for t in timings),
+        "landscape": record["parts"].get("landscape", {}).get("seconds", 0.0),
+        "comparison table": record["parts"].get("comparison", {}).get("seconds", 0.0),
+        "report (figures, tables, page)": record["parts"].get("report", {}).get("seconds", 0.0),
+    }
+    known = sum(v for v in wall.values() if v is not None)
+    total = ended - (begun or clock.get("entered", started))
+    wall["other (lock, directories, record)"] = max(0.0, total - known)
+    workers: dict[str, dict] = {}
+    for t in timings:
+        for pid, w in t.get("workers", {}).items():
+            entry = workers.setdefault(
+                pid, {"jobs": 0, "spawned": w["spawned"], "first_job": w["first_job"], "numba_load": w["numba_load"]}
+            )
+            entry["jobs"] += w["jobs"]
+    warm = record.get("warm_up")
+    jobs = {
+        "jobs": sum(t.get("jobs", 0) for t in timings),
+        "workers": len(workers),
+        **(
+            {"worker warm-up (imports, numba cache; while the checks and planning ran)": sum(warm["seconds"])}
+            if warm
+            else {
+                "worker start to its first job (imports, unpickling)": sum(
+                    w["first_job"] - w["spawned"] for w in workers.values() if w["spawned"]
+                )
+            }
+        ),
+        "numba cache load (iteration 0's extra, first job of each worker)": sum(
+            w["numba_load"] or 0.0 for w in workers.values()
+        ),
+        "training loop (summary wall_time)": sum(t.get("training", 0.0) for t in timings),
+        "set-up, evaluation episodes, bootstrap, files (job seconds - wall_time)": sum(
+            t.get("job_seconds", 0.0) - t.get("training", 0.0) for t in timings
+        ),
+    }
+    jobs["training loop (summary wall_time)"] -= jobs[
+        "numba cache load (iteration 0's extra, first job of each worker)"
+    ]
+    return {
+        "total": round(total, 2),
+        "wall": {k: None if v is None else round(v, 2) for k, v in wall.items()},
+        "jobs": {k: round(v, 2) if isinstance(v, float) else v for k, v in jobs.items()},
+    }
+
+
+def print_breakdown(breakdown: dict) -> None:
+    """Where the time went, as two short tables."""
+    typer.echo(f"\nwhere the time went ({breakdown['total']:.1f} s from the command's start to its end):")
+    for name, seconds in breakdown["wall"].items():
+        typer.echo(f"  {'?' if seconds is None else f'{seconds:6.1f}'} s  {name}")
+    jobs = breakdown["jobs"]
+    typer.echo(
+        f"inside the {jobs['jobs']} jobs that ran, on {jobs['workers']} worker processes (seconds summed over "
+        f"jobs; they run in parallel):"
+    )
+    for name, seconds in jobs.items():
+        if name not in ("jobs", "workers"):
+            typer.echo(f"  {seconds:6.1f} s  {name}")

@@ -1,0 +1,128 @@
+"""How long runs will take on this machine, said before they start: budget.estimate's cost of a run, in
+trajectory-step equivalents, turned into seconds by a model calibrated on the runs that finished here.
+
+Every run that finishes records (its estimated steps, its whole-machine seconds) in a small file of this host's
+(RISKPLAN_CACHE_DIR, else $XDG_CACHE_HOME/riskplan or ~/.cache/riskplan). A run that had only some of the cores
+(a sweep job with fewer numba threads) counts its seconds times its share of the cores, so sweeps and single runs
+calibrate one number. The model is seconds = overhead + steps / rate, fitted to the latest records; before any
+run has finished here it assumes limits.STEPS_PER_SECOND and a one-second overhead, and says so. The file is a
+hint: a missing, unreadable, read-only or corrupt one never stops a run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from riskplan.run import budget
+from riskplan.util.limits import STEPS_PER_SECOND, duration
+from riskplan.util.paths import write_atomic
+
+CACHE_ENV = "RISKPLAN_CACHE_DIR"
+KEEP = 64  # records kept: the latest runs say most about the machine as it is now
+DEFAULT_OVERHEAD = 1.0  # seconds a run takes beyond its steps (imports, set-up, files) before calibration
+LAUNCH = 3.0  # seconds a local sweep takes to start its workers and finish (Hydra, joblib, the summary)
+
+
+@dataclass(frozen=True)
+class Model:
+    """seconds = overhead + steps / rate, for one run on the whole machine."""
+
+    rate: float  # trajectory-step equivalents per second
+    overhead: float  # seconds per run beyond its steps
+    runs: int  # finished runs it was fitted to (0: the defaults)
+
+    def run_seconds(self, steps: float) -> float:
+        return self.overhead + steps / self.rate
+
+    def sweep_seconds(self, steps: list[float], workers: int) -> float:
+        """A sweep's wall seconds: its steps share the machine's cores whatever the workers, while each worker
+        pays the per-run overhead of its own jobs."""
+        if not steps:
+            return 0.0
+        return LAUNCH + sum(steps) / self.rate + len(steps) * self.overhead / max(workers, 1)
+
+    def describe(self) -> str:
+        if self.runs:
+            return f"calibrated on {self.runs} run{'s' if self.runs != 1 else ''} finished on this machine"
+        return f"not yet calibrated on this machine: {STEPS_PER_SECOND / 1e6:.0f}M steps/s assumed"
+
+
+def setup_steps(setup) -> float:
+    """A built run's estimated cost in trajectory-step equivalents (riskplan.run.build.Setup)."""
+    world = setup.world
+    return config_steps(setup.params, world.width, world.height, world.sources, setup.robots)
+
+
+def config_steps(params, width: int, height: int, sources: int, robots: int) -> float:
+    """A typed config's estimated cost in trajectory-step equivalents, given its grid and team sizes."""
+    sizes = budget.sizes_of(params, width, height, sources, robots)
+    return sum(amount for amount, _, _ in budget.estimate(sizes)[1])
+
+
+def cache_file() -> Path:
+    """This host's calibration file."""
+    root = os.environ.get(CACHE_ENV, "").strip()
+    if not root:
+        base = os.environ.get("XDG_CACHE_HOME", "").strip() or str(Path.home() / ".cache")
+        root = str(Path(base) / "riskplan")
+    host = re.sub(r"[^A-Za-z0-9._-]", "_", platform.node() or "host")[:64]
+    return Path(root) / f"cost-{host}-{os.cpu_count() or 1}cpu.json"
+
+
+def _records() -> list[tuple[float, float]]:
+    try:
+        data = json.loads(cache_file().read_text())
+    except (OSError, ValueError):
+        return []
+    records = data.get("runs", []) if isinstance(data, dict) else []
+    return [
+        (float(r[0]), float(r[1]))
+        for r in records
+        if isinstance(r, list)
+        and len(r) == 2
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in r)
+    ][-KEEP:]
+
+
+def record(steps: float, seconds: float, share: float = 1.0) -> None:
+    """Add a finished run: its estimated steps, its wall seconds, and the share of the cores it had."""
+    effective = seconds * min(max(share, 0.0), 1.0)
+    if not (math.isfinite(steps) and math.isfinite(effective) and steps > 0 and effective > 0):
+        return
+    runs = [*_records(), (steps, effective)][-KEEP:]
+    try:
+        path = cache_file()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, json.dumps({"runs": [list(r) for r in runs]}))
+    except OSError:
+        pass  # a read-only or full cache costs the next estimate its calibration, nothing else
+
+
+def model() -> Model:
+    """The model fitted to this machine's records: least squares of seconds on steps when the runs' sizes differ
+    enough to tell overhead from rate, else the default overhead and the median rate."""
+    runs = _records()
+    if not runs:
+        return Model(STEPS_PER_SECOND, DEFAULT_OVERHEAD, 0)
+    steps = [s for s, _ in runs]
+    seconds = [t for _, t in runs]
+    if len(runs) >= 3 and max(steps) > 1.5 * min(steps):
+        mean_s, mean_t = sum(steps) / len(runs), sum(seconds) / len(runs)
+        spread = sum((s - mean_s) ** 2 for s in steps)
+        slope = sum((s - mean_s) * (t - mean_t) for s, t in runs) / spread
+        overhead = mean_t - slope * mean_s
+        if slope > 0 and overhead >= 0:
+            return Model(1.0 / slope, overhead, len(runs))
+    rates = sorted(s / max(t - DEFAULT_OVERHEAD, 0.1 * t) for s, t in runs)
+    return Model(rates[len(rates) // 2], DEFAULT_OVERHEAD, len(runs))
+
+
+def say(seconds: float) -> str:
+    """An estimate, rounded as an estimate should be."""
+    return "under 10 s" if seconds < 10 else f"about {duration(seconds)}"

@@ -1,0 +1,100 @@
+"""The run-cost model calibrated on this machine (riskplan.run.cost): fitted to known records, robust to a cache
+that is missing, corrupt or read-only, and recorded by every finished run."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+from support import TINY
+
+from riskplan.run import cost
+from riskplan.run.compose import compose
+from riskplan.run.training import train_summary
+from riskplan.util.limits import STEPS_PER_SECOND
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv(cost.CACHE_ENV, str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+def test_without_records_the_model_assumes_the_default_speed_and_says_so(cache):
+    model = cost.model()
+    assert (model.rate, model.overhead, model.runs) == (STEPS_PER_SECOND, cost.DEFAULT_OVERHEAD, 0)
+    assert "not yet calibrated" in model.describe()
+
+
+def test_the_model_recovers_overhead_and_rate_from_runs_of_different_sizes(cache):
+    for steps in (1e7, 3e7, 6e7, 1e8):
+        cost.record(steps, 2.0 + steps / 4e7)  # 2 s of overhead, 40M steps/s
+    model = cost.model()
+    assert model.runs == 4 and "calibrated on 4 runs" in model.describe()
+    assert model.overhead == pytest.approx(2.0) and model.rate == pytest.approx(4e7)
+    assert model.run_seconds(8e7) == pytest.approx(4.0)
+    # a sweep: its steps share the machine, each worker pays its jobs' overheads, plus the launch
+    assert model.sweep_seconds([8e7] * 4, workers=2) == pytest.approx(cost.LAUNCH + 8.0 + 4 * 2.0 / 2)
+    assert model.sweep_seconds([], workers=2) == 0.0
+
+
+def test_runs_of_one_size_give_the_median_rate(cache):
+    for seconds in (3.0, 5.0, 100.0):  # one run on a loaded machine does not move the median
+        cost.record(1e8, seconds)
+    model = cost.model()
+    assert model.overhead == cost.DEFAULT_OVERHEAD and model.rate == pytest.approx(1e8 / 4.0)
+
+
+def test_a_run_with_part_of_the_cores_counts_its_share(cache):
+    cost.record(1e8, 10.0, share=0.5)
+    assert json.loads(next(cache.iterdir()).read_text())["runs"] == [[1e8, 5.0]]
+
+
+def test_only_the_latest_records_are_kept(cache):
+    for i in range(cost.KEEP + 10):
+        cost.record(1e6 * (i + 1), 1.0 + i)
+    runs = json.loads(next(cache.iterdir()).read_text())["runs"]
+    assert len(runs) == cost.KEEP and runs[-1] == [1e6 * (cost.KEEP + 10), float(cost.KEEP + 10)]
+
+
+@pytest.mark.parametrize("text", ["{", "[1, 2]", '{"runs": [[1, "x"], [NaN, 1], [-1, 2], [1e7, 1e999]]}'])
+def test_a_corrupt_cache_is_no_calibration(cache, text):
+    cache.mkdir()
+    cost.cache_file().write_text(text)
+    assert cost.model().runs == 0
+    cost.record(1e7, 1.5)  # and the next run starts it again
+    assert cost.model().runs == 1
+
+
+def test_non_finite_or_empty_records_are_not_kept(cache):
+    for steps, seconds in ((float("inf"), 1.0), (1e7, float("nan")), (0.0, 1.0), (1e7, 0.0)):
+        cost.record(steps, seconds)
+    assert cost.model().runs == 0
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_a_read_only_cache_costs_only_the_calibration(cache):
+    cache.mkdir(mode=0o500)
+    cost.record(1e7, 1.0)
+    assert cost.model().runs == 0
+
+
+def test_a_cache_path_that_is_a_file_costs_only_the_calibration(tmp_path, monkeypatch):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    monkeypatch.setenv(cost.CACHE_ENV, str(blocker / "cache"))
+    cost.record(1e7, 1.0)
+    assert cost.model().runs == 0
+
+
+def test_a_finished_run_records_its_estimated_steps(cache, tmp_path):
+    config = compose(TINY)
+    train_summary(config, tmp_path / "run")
+    (record,) = json.loads(cost.cache_file().read_text())["runs"]
+    width, height = (int(v) for v in config.world.size)
+    assert record[0] == cost.config_steps(config, width, height, len(config.world.sources), 1) and record[1] > 0
+
+
+def test_say_rounds_as_an_estimate():
+    assert cost.say(3.0) == "under 10 s" and cost.say(59.0) == "about 59 s" and cost.say(600.0) == "about 10 min"
