@@ -594,20 +594,11 @@ def gen_soft_risk() -> str:
 
 
 def gen_train_line() -> str:
-    """The line `riskplan train` prints at its end, built from a run's summary.json as the command builds it."""
-    s = read_json(DATA / "reproduction" / "example_summary.json")
+    """The line `riskplan train` prints at its end, from a run's summary.json by the command's own function."""
+    from riskplan.commands.train import summary_line
 
-    def fig(name: str) -> str:
-        f = s[name]
-        return f"{f['value']:.1f} [{f['low']:.1f}, {f['high']:.1f}]"
-
-    reached = ", ".join(f"{k} {v:.1%}" for k, v in s["source_reached"].items())
-    robots = s.get("team_size", s.get("robots"))  # summaries of schema 1 held the count as robots
-    line = (
-        f"{s['experiment']} risk={s['risk']} beta={s['beta']:g} robots={robots}: "
-        f"{s['iterations']} iterations in {s['wall_time']:.2f} s | eval {s['eval_episodes']} "
-        f"episodes: mean {fig('mean')}, CVaR {fig('cvar')}, VaR {fig('value_at_risk')} | "
-        f"P(risky) {s['risky_fraction']:.1%} | reached {reached} -> outputs/runs/<timestamp>_paper_single"
+    line = summary_line(
+        read_json(DATA / "reproduction" / "example_summary.json"), "outputs/runs/<timestamp>_paper_single"
     )
     return f"```\n{line}\n```\n"
 

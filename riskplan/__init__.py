@@ -6,6 +6,9 @@ Python API (the same composition, validation and files as the CLI):
     run = riskplan.load_run("outputs/runs/my_run")   # .metrics .eval .trajectories .config .summary .complete
     done = riskplan.sweep(["risk.beta=0.05,0.1", "seed=range(0,3)"])   # .summary (DataFrame) .sweep_dir .ok
     page = riskplan.report([done.sweep_dir])           # -> <sweep_dir>/report/report.html
+
+riskplan.BadInput is the error every bad input raises (its str() is the one line the CLI prints), and riskplan.Run
+the type of a loaded run; both load when first used.
 """
 
 from __future__ import annotations
@@ -14,7 +17,21 @@ from pathlib import Path
 
 from riskplan.version import __version__
 
-__all__ = ["__version__", "compose", "load_run", "report", "sweep", "train"]
+__all__ = ["BadInput", "Run", "__version__", "compose", "load_run", "report", "sweep", "train"]
+# Loaded on first use: Run's module needs pandas, which `import riskplan` does not load.
+_LAZY = {"BadInput": "riskplan.util.errors", "Run": "riskplan.run.results"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'riskplan' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(__all__)
 
 
 def compose(overrides=()):

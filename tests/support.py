@@ -238,7 +238,8 @@ def alive(pid: int) -> bool:
 
 # ------------------------------------------------------------------------------------------------ run outputs
 TABLES = ("metrics", "eval", "trajectories")
-WALL_CLOCK = {"wall_time", "throughput_episodes_per_s"}  # summary.json fields that measure time, not results
+# summary.json fields that say how the run was carried out (its time, where it was resumed), not its results
+WALL_CLOCK = {"wall_time", "throughput_episodes_per_s", "resumed_at"}
 
 
 def files(root: Path) -> dict[str, bytes]:

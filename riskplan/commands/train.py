@@ -255,9 +255,17 @@ def summary_line(summary: dict, out: Path) -> str:
     robots = summary.get("team_size", summary.get("robots"))  # summaries of schema 1 held the count as robots
     measure = summary.get("objective", {}).get("measure", "cvar")
     objective = "" if measure in ("cvar", "neutral") else f"{measure} {fig('objective')}, "
+    beta = f"{summary['beta']:g}"
+    trained = f" beta={beta}" if measure in ("cvar", "mean_cvar") else ""  # the others only report at beta
+    resumed = summary.get("resumed_at")
+    loop = (
+        f"{summary['iterations']} iterations (resumed at {resumed}: the last {summary['iterations'] - resumed} "
+        f"in {summary['wall_time']:.2f} s)"
+        if resumed
+        else f"{summary['iterations']} iterations in {summary['wall_time']:.2f} s"
+    )
     return (
-        f"{summary['experiment']} risk={summary['risk']} beta={summary['beta']:g} robots={robots}: "
-        f"{summary['iterations']} iterations in {summary['wall_time']:.2f} s | eval {summary['eval_episodes']} "
-        f"episodes: {objective}mean {fig('mean')}, CVaR {fig('cvar')}, VaR {fig('value_at_risk')} | "
-        f"P(risky) {summary['risky_fraction']:.1%} | reached {reached} -> {out}"
+        f"{summary['experiment']} risk={summary['risk']}{trained} robots={robots}: {loop} | eval "
+        f"{summary['eval_episodes']} episodes: {objective}mean {fig('mean')}, CVaR_{beta} {fig('cvar')}, "
+        f"VaR_{beta} {fig('value_at_risk')} | P(risky) {summary['risky_fraction']:.1%} | reached {reached} -> {out}"
     )

@@ -119,3 +119,27 @@ def test_cfg_job_prints_the_config_without_running(in_tmp):
     printed = yaml.safe_load(result.output)
     assert printed["risk"]["measure"] == "neutral" and printed["train"]["samples"] == 77
     assert not (in_tmp / "outputs").exists()
+
+
+EXAMPLE = json.loads(
+    (Path(__file__).resolve().parents[2] / "docs" / "data" / "reproduction" / "example_summary.json").read_text()
+)
+
+
+def test_the_run_line_names_beta_only_where_it_was_trained_and_the_level_of_every_figure():
+    from riskplan.commands.train import summary_line
+
+    cvar = summary_line(EXAMPLE, Path("out"))
+    assert "risk=cvar beta=0.1 robots=1: 200 iterations in 0.32 s" in cvar
+    assert "CVaR_0.1 1442.4 [1440.6, 1444.1]" in cvar and "VaR_0.1 1504.9" in cvar
+    neutral = summary_line(
+        {**EXAMPLE, "risk": "neutral", "objective": {**EXAMPLE["objective"], "measure": "neutral"}}, "o"
+    )
+    assert "risk=neutral robots=1:" in neutral and "beta=" not in neutral and "CVaR_0.1 " in neutral
+
+
+def test_a_resumed_run_line_says_which_part_its_time_is():
+    from riskplan.commands.train import summary_line
+
+    line = summary_line({**EXAMPLE, "iterations": 600, "resumed_at": 400, "wall_time": 0.98}, "o")
+    assert "600 iterations (resumed at 400: the last 200 in 0.98 s)" in line

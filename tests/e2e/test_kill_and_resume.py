@@ -150,6 +150,8 @@ def test_resume_with_more_iterations_extends_a_finished_run(tmp_path, monkeypatc
 
     again = runner.invoke(app, ["train", "--resume", str(out), "train.iterations=30"])
     assert again.exit_code == 0, again.output
+    assert "30 iterations (resumed at 15: the last 15 in " in again.output
+    assert json.loads((out / "summary.json").read_text())["resumed_at"] == 15
     assert_same_outputs(out, baseline)
     assert_log_holds_each_iteration_once(out, 30, (0,))
     run = load_run(out)
