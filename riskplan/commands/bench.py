@@ -47,8 +47,10 @@ def register(app: typer.Typer) -> None:
         console = Console(soft_wrap=True)  # one line per figure, also in a log file
         console.print(
             f"numba {numba.__version__}, {numba.get_num_threads()} threads "
-            f"({numba.config.THREADING_LAYER} layer), {os.cpu_count()} cores"
+            f"({numba.config.THREADING_LAYER} layer), {os.cpu_count()} cores, load average {_load():.2f}"
         )
+        if _busy():
+            console.print(f"warning: {_busy()}", style="yellow")
         if scaling:
             _scaling(console, quick, json_out, plot, csv_out)
             return
@@ -69,8 +71,35 @@ def register(app: typer.Typer) -> None:
                 )
                 console.print(f"    baseline {row['baseline']:.4g}, ratio {row['ratio']:.3g}; {row['note']}")
                 rows.append(row)
+        met = sum(bool(row["ok"]) for row in rows)
+        console.print(
+            f"{met} of {len(rows)} targets met (load average {_load():.2f} at the end, {os.cpu_count()} cores)"
+        )
+        if met < len(rows) and _busy():
+            console.print(f"warning: {_busy()}", style="yellow")
         if json_out:
             json_out.write_text(json.dumps(rows, indent=2, default=float))
+
+
+def _load() -> float:
+    """The one-minute load average (0 where the system does not say)."""
+    try:
+        return os.getloadavg()[0]
+    except OSError:
+        return 0.0
+
+
+def _busy() -> str:
+    """Why timings on this machine are slower now than idle, or "" when it looks idle (load under half a core per
+    core)."""
+    cores = os.cpu_count() or 1
+    load = _load()
+    if load < 0.5 * cores:
+        return ""
+    return (
+        f"the machine is busy (load average {load:.2f} on {cores} cores): timings are slower than on an idle "
+        "machine, and a target may be missed for that reason alone; run it again when the machine is idle"
+    )
 
 
 def _scaling(console, quick: bool, json_out: Path | None, plot: Path, csv_out: Path | None) -> None:

@@ -3,6 +3,8 @@ ratio would mean nothing), and the scaling table measures every dimension agains
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -107,3 +109,32 @@ def test_each_risk_measure_is_timed_against_a_cvar_iteration_on_the_same_episode
     for row in rows:
         assert row["value"] > 0 and row["ratio"] == pytest.approx(row["value"] / row["baseline"])
         assert row["ok"] == (row["value"] <= 1.2 * row["baseline"])
+
+
+def _row(name: str, ok: bool) -> dict:
+    return {"measure": name, "value": 1.0, "unit": "s", "target": "<= 1", "ok": ok, "baseline": 1.0, "ratio": 1.0}
+
+
+@pytest.mark.parametrize(("per_core", "busy"), [(0.05, False), (3.0, True)])
+def test_bench_counts_the_targets_met_and_says_when_the_machine_is_busy(monkeypatch, per_core, busy):
+    from typer.testing import CliRunner
+
+    from riskplan.cli import app
+    from riskplan.experiments import benchmarks as bench
+
+    for name in (
+        "bench_rollout",
+        "bench_training",
+        "bench_measures",
+        "bench_checkpoints",
+        "bench_startup",
+        "bench_team",
+    ):
+        monkeypatch.setattr(bench, name, lambda quick, name=name: [{**_row(name, name != "bench_team"), "note": ""}])
+    monkeypatch.setattr(bench, "bench_jit", lambda: [{**_row("jit", True), "note": ""}])
+    load = per_core * (os.cpu_count() or 1)
+    monkeypatch.setattr("os.getloadavg", lambda: (load, load, load))
+    result = CliRunner().invoke(app, ["bench"])
+    assert result.exit_code == 0, result.output
+    assert "6 of 7 targets met" in result.output and f"load average {load:.2f}" in result.output
+    assert ("the machine is busy" in result.output) == busy
