@@ -93,6 +93,14 @@ class FaultKind(Choice):
     byzantine = "byzantine"  # sends arbitrary theta: a fixed value, or seeded noise of a given scale
 
 
+class MapUnknown(Choice):
+    """world.map_unknown: what the map's unknown pixels (neither occupied nor free) become."""
+
+    obstacle = "obstacle"  # cells that cannot be entered, as nav2's planners treat unknown space by default
+    free = "free"  # free cells
+    risky = "risky"  # a risky region `unknown`, paid as the first region with risky: true
+
+
 class MotionKind(Choice):
     """world.sources.N.motion.kind."""
 
@@ -227,7 +235,7 @@ class SourceConf(Frozen):
 
 @dataclass
 class RegionConf(Frozen):
-    """A named cell set with a per-step reward; give exactly one of rect, halfplane, cells."""
+    """A named cell set with a per-step reward; give exactly one of rect, halfplane, cells, mask."""
 
     name: str = ""
     reward: Any = 0.0
@@ -235,6 +243,7 @@ class RegionConf(Frozen):
     rect: list[int] | None = None  # [x0, y0, x1, y1], inclusive corners
     halfplane: list[float] | None = None  # [a, b, c]: the cells with a*x + b*y > c ("y > x" is [-1, 1, 0])
     cells: list[list[int]] | None = None  # [[x, y], ...]
+    mask: str | None = None  # an image the map's size whose dark pixels are the region (relative: to world.map's folder)
 
 
 @dataclass
@@ -248,6 +257,9 @@ class WorldConf(Frozen):
     obstacles: list[list[int]] = field(default_factory=list)
     sources: list[SourceConf] = field(default_factory=list)
     regions: list[RegionConf] = field(default_factory=list)
+    map: str | None = None  # a ROS map YAML (map_server): the grid's size and obstacles come from its image
+    map_unknown: MapUnknown = MapUnknown.obstacle  # what the map's unknown pixels become
+    map_cell: int = 1  # k: one cell is k x k of the map's pixels (occupied if any of them is)
 
 
 @dataclass

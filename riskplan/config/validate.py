@@ -119,8 +119,12 @@ def check_train(train: TrainConf) -> None:
 
 
 def check_world(world: WorldConf) -> None:
-    """The horizon and each source's motion probability (cells, shapes and rewards need the grid: engine.world)."""
+    """The horizon, world.map_cell and each source's motion probability (cells, shapes and rewards need the grid:
+    engine.world; the map's files are read by run.maps)."""
     require(world.horizon >= 1, "world.horizon", f"got {world.horizon}; expected a whole number of moves >= 1")
+    require(
+        world.map_cell >= 1, "world.map_cell", f"got {world.map_cell}; expected k >= 1 (one cell is k x k map pixels)"
+    )
     for j, source in enumerate(world.sources):
         where = f"world.sources.{j}.motion.prob"
         prob = source.motion.prob  # checked for static sources too: a probability outside [0, 1] is a typo

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from riskplan.config.schema import MotionKind, WorldConf
+from riskplan.config.schema import MapUnknown, MotionKind, WorldConf
 from riskplan.engine import distributions
 from riskplan.engine.distributions import Dist
 from riskplan.util.errors import BadInput
@@ -77,15 +77,41 @@ class World:
         return self.source_amplitude * np.exp(-0.5 * quad)
 
 
-def build_world(world: WorldConf, starts: list | None = None) -> World:
+@dataclass(frozen=True)
+class Layout:
+    """A world's cells read from a map (riskplan.run.maps reads the files): plain arrays indexed [x, y], x to the
+    right and y up from the map's lower-left corner."""
+
+    occupied: np.ndarray  # (W, H) bool: the map's occupied cells
+    unknown: np.ndarray  # (W, H) bool: cells neither occupied nor free (world.map_unknown says what they become)
+    masks: tuple[np.ndarray | None, ...]  # per world.regions entry: (W, H) bool of a `mask` region, None otherwise
+    name: str = "world.map"  # how messages name the map
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in cells."""
+        return int(self.occupied.shape[0]), int(self.occupied.shape[1])
+
+
+def build_world(world: WorldConf, starts: list | None = None, layout: Layout | None = None) -> World:
     """Build a World from a validated `world` config (and optional per-robot starts), checking what needs the grid:
-    cells on it, obstacles, reachability, covariances, reward programs and their bounds."""
-    width, height = grid_size(world.size)
+    cells on it, obstacles, reachability, covariances, reward programs and their bounds.
+
+    With a `layout` (world.map), the grid's size is the map's, its occupied cells are obstacles beside
+    world.obstacles, its unknown cells follow world.map_unknown, and `mask` regions take their cells from it."""
+    width, height = grid_size(world.size) if layout is None else layout.size
     cells = width * height
     obstacle = np.zeros((width, height), dtype=bool)
     for i, cell in enumerate(world.obstacles):
         x, y = _cell(cell, width, height, f"world.obstacles.{i}")
         obstacle[x, y] = True
+    occupied = "is an obstacle"
+    if layout is not None:
+        kind = "occupied or unknown" if world.map_unknown == MapUnknown.obstacle else "occupied"
+        occupied = f"is an obstacle (an {kind} cell of {layout.name})"
+        obstacle |= layout.occupied
+        if world.map_unknown == MapUnknown.obstacle:
+            obstacle |= layout.unknown
     obstacle = obstacle.ravel()
 
     horizon = world.horizon
@@ -97,7 +123,7 @@ def build_world(world: WorldConf, starts: list | None = None) -> World:
         here = where if starts is None else f"{where}.{i}"
         x, y = _cell(start, width, height, here)
         if obstacle[x * height + y]:
-            raise BadInput(here, f"({x}, {y}) is an obstacle; choose a free cell")
+            raise BadInput(here, f"({x}, {y}) {occupied}; choose a free cell")
         start_cells.append(x * height + y)
 
     if len(world.sources) == 0:
@@ -107,7 +133,7 @@ def build_world(world: WorldConf, starts: list | None = None) -> World:
         here = f"world.sources.{j}"
         x, y = _cell(source.position, width, height, f"{here}.position")
         if obstacle[x * height + y]:
-            raise BadInput(f"{here}.position", f"({x}, {y}) is an obstacle; move the source or the obstacle")
+            raise BadInput(f"{here}.position", f"({x}, {y}) {occupied}; move the source or the obstacle")
         if x * height + y in src_cells:
             other = src_cells.index(x * height + y)
             raise BadInput(
@@ -151,11 +177,14 @@ def build_world(world: WorldConf, starts: list | None = None) -> World:
     region_names, region_risky, region_rewards = [], [], []
     for r, region in enumerate(world.regions):
         here = f"world.regions.{r}"
-        member = _region_cells(region, width, height, here)
+        mask = None if layout is None or r >= len(layout.masks) else layout.masks[r]
+        member = _region_cells(region, width, height, here, mask)
         region_of[(region_of < 0) & member] = r
         region_names.append(region.name or f"region_{r}")
         region_risky.append(bool(region.risky))
         region_rewards.append(_dist(region.reward, f"{here}.reward"))
+    if layout is not None and world.map_unknown == MapUnknown.risky and layout.unknown.any():
+        _unknown_region(world, layout, region_of, region_names, region_risky, region_rewards)
 
     next_cell = _next_cell(width, height, obstacle)
     if obstacle.any():
@@ -304,11 +333,36 @@ def _next_cell(width: int, height: int, obstacle: np.ndarray) -> np.ndarray:
     return np.where(blocked, stay, target).astype(np.int64)
 
 
-def _region_cells(region: Any, width: int, height: int, where: str) -> np.ndarray:
-    """Membership mask (C,) of a region given as exactly one of rect, halfplane, cells."""
-    given = [k for k in ("rect", "halfplane", "cells") if getattr(region, k) is not None]
+def _unknown_region(
+    world: WorldConf, layout: Layout, region_of: np.ndarray, names: list, risky: list, rewards: list
+) -> None:
+    """world.map_unknown=risky: the map's unknown cells become a first, risky region `unknown`, paid as the first
+    region with risky: true (region indices shift by one)."""
+    first = next((r for r, region in enumerate(world.regions) if region.risky), None)
+    if first is None:
+        raise BadInput(
+            "world.map_unknown",
+            f"got risky, and world.regions has no region with risky: true whose reward the unknown cells of "
+            f"{layout.name} would take; add one, or use world.map_unknown=obstacle or free",
+        )
+    unknown = layout.unknown.ravel()
+    region_of[region_of >= 0] += 1
+    region_of[unknown] = 0
+    names.insert(0, "unknown")
+    risky.insert(0, True)
+    rewards.insert(0, rewards[first])
+
+
+def _region_cells(region: Any, width: int, height: int, where: str, mask: np.ndarray | None = None) -> np.ndarray:
+    """Membership mask (C,) of a region given as exactly one of rect, halfplane, cells, mask (`mask`: its cells,
+    read from the image by riskplan.run.maps)."""
+    given = [k for k in ("rect", "halfplane", "cells", "mask") if getattr(region, k, None) is not None]
     if len(given) != 1:
-        raise BadInput(where, f"gives {given or 'no shape'}; give exactly one of rect, halfplane, cells")
+        raise BadInput(where, f"gives {given or 'no shape'}; give exactly one of rect, halfplane, cells, mask")
+    if given[0] == "mask":
+        if mask is None:
+            raise BadInput(f"{where}.mask", "a mask region needs world.map (the mask is drawn over the map's image)")
+        return np.asarray(mask, dtype=bool).ravel()
     x, y = np.divmod(np.arange(width * height), height)
     if given[0] == "rect":
         rect = list(region.rect)

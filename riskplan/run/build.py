@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,8 +17,9 @@ from riskplan.engine.rollout import Kernel, make_kernel
 from riskplan.engine.team.mixer import Mixer
 from riskplan.engine.team.network import Network, build_network
 from riskplan.engine.world import World, build_world, grid_size
-from riskplan.run import budget
+from riskplan.run import budget, maps
 from riskplan.util.checks import require
+from riskplan.util.errors import BadInput
 
 
 @dataclass(frozen=True)
@@ -49,11 +51,13 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
     """Type and validate the config once, then build the run's objects; raises BadInput on the first problem."""
     params = typed(cfg)  # types, unknown keys, Choices, interpolations: the frozen config everything below reads
     validate(params)  # every range, once
-    # Sizes first: nothing big is allocated before the memory and time estimates pass.
-    width, height = grid_size(params.world.size)
-    budget.check(budget.sizes_of(params, width, height, len(params.world.sources), params.team.robots))
+    # Sizes first: nothing big is allocated before the memory and time estimates pass (a map's from its header).
+    found = maps.read_map(params.world)
+    width, height = grid_size(params.world.size) if found is None else found.cells
+    check_sizes(params, found, width, height)
+    layout = None if found is None else maps.load_layout(params.world, found)
     starts = None if params.team.starts is None else [list(s) for s in params.team.starts]
-    world = build_world(params.world, starts)
+    world = build_world(params.world, starts, layout)
     policy = make_policy(world, params.policy.kind, params.policy.features)
     theta0 = initial_theta(world, policy, list(params.train.theta0))
     network = build_network(params.team, policy.size, params.seed)
@@ -69,6 +73,21 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
         policy=policy,
         theta_names=policy.names,
     )
+
+
+def check_sizes(params: RiskplanConf, found: maps.MapFile | None, width: int, height: int) -> None:
+    """The memory and time estimates of the grid before it is built; a map too large is named as world.map."""
+    try:
+        budget.check(budget.sizes_of(params, width, height, len(params.world.sources), params.team.robots))
+    except BadInput as err:
+        if found is None or err.where != "world.size":
+            raise
+        problem = re.sub(r"^got [^;]*; ", "", err.problem)
+        raise BadInput(
+            "world.map",
+            f"{found.shown} is {found.pixels[0]}x{found.pixels[1]} pixels, a {width}x{height} grid at "
+            f"world.map_cell={found.cell}: {problem}; or give a smaller map or a larger world.map_cell",
+        ) from None
 
 
 def initial_theta(world: World, policy: Policy, given: list) -> np.ndarray:
