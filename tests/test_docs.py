@@ -25,6 +25,39 @@ def test_the_readme_fits_and_gives_the_two_commands():
     assert "pytest" in text and re.search(r"^pytest\b", ci, re.M)  # and runs the README's test command
 
 
+# What a clone of the repository does not have: the sibling folder the project was written beside, and the
+# contract file that lived there (its content is docs/contract.md now). Written as patterns, so that this file
+# does not name them itself.
+OUTSIDE = re.compile(r"(?:\.\.|/work)/shared\b|\bdesign\.md\b")
+
+
+def tracked_text_files() -> list[Path]:
+    """The repository's tracked files that are text (no NUL byte in their first 8 KiB), symlinks left out."""
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout (an sdist): the tracked files are unknown")
+    listed = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
+    files = []
+    for name in listed.decode().split("\0"):
+        path = ROOT / name
+        if name and path.is_file() and not path.is_symlink() and b"\0" not in path.read_bytes()[:8192]:
+            files.append(path)
+    return files
+
+
+def test_no_tracked_file_points_outside_the_repository():
+    """The repository stands alone: no file refers to the folder beside it or to a contract file kept there (the
+    public contract is docs/contract.md, and the paper is cited by its reference in CITATION.cff)."""
+    files = tracked_text_files()
+    assert any(f.name == "contract.md" for f in files)  # the scan sees the docs
+    found = [
+        f"{path.relative_to(ROOT)}:{number}: {line.strip()}"
+        for path in files
+        for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1)
+        if OUTSIDE.search(line)
+    ]
+    assert not found, "lines that point outside the repository:\n" + "\n".join(found)
+
+
 def test_the_generated_tables_match_their_data():
     done = subprocess.run(
         [sys.executable, str(ROOT / "docs" / "generate.py"), "--check"], cwd=ROOT, capture_output=True, text=True

@@ -21,6 +21,7 @@ import riskplan.util.progress as progress
 from riskplan.cli import app
 
 ROOT = Path(__file__).resolve().parents[1]
+PAPER_TITLE = "Risk-Averse Sensor Planning using Distributed Policy Gradient"  # Ma, Dentcheva, Zavlanos, ACC 2017
 
 
 def test_the_licence_file_is_the_one_pyproject_declares():
@@ -35,14 +36,12 @@ def test_citation_cff_cites_this_version_and_the_paper():
     assert citation["cff-version"] == "1.2.0" and citation["type"] == "software"
     assert citation["version"] == riskplan.__version__ and citation["license"] == "MIT"
     (paper,) = citation["references"]
-    title = (
-        next(line for line in (ROOT.parent / "shared" / "paper.md").read_text().splitlines() if line.startswith("# "))
-        if (ROOT.parent / "shared" / "paper.md").is_file()
-        else None
-    )
-    assert paper["title"] == "Risk-Averse Sensor Planning using Distributed Policy Gradient"
-    assert title is None or title == f"# {paper['title']}"
+    assert paper["type"] == "conference-paper"
+    assert paper["title"] == PAPER_TITLE
     assert [a["family-names"] for a in paper["authors"]] == ["Ma", "Dentcheva", "Zavlanos"]
+    assert paper["collection-title"] == "2017 American Control Conference (ACC)" and paper["year"] == 2017
+    # the docs cite the paper by the same title (the package metadata and the site's home page)
+    assert PAPER_TITLE in (ROOT / "mkdocs.yml").read_text() and PAPER_TITLE in (ROOT / "docs" / "index.md").read_text()
 
 
 def test_shell_completion_is_on_and_completes_commands_and_options():
