@@ -71,9 +71,10 @@ def register(app: typer.Typer) -> None:
         rebuilt = [r for r in coll.runs if r.rebuilt]
         for r in rebuilt:
             typer.echo(f"rebuilt tables of {r.path} from run.mcap")
+        repeats = f", {len(coll.duplicates)} duplicate (counted once)" if coll.duplicates else ""
         typer.echo(
             f"{len(coll.runs)} run(s) in {len(coll.groups)} group(s), {len(coll.landscapes)} landscape(s), "
-            f"{len(coll.broken)} skipped; {len(result.figures)} figures"
+            f"{len(coll.broken)} skipped{repeats}; {len(result.figures)} figures"
         )
         typer.echo(f"report: {result.page}")
 

@@ -5,6 +5,8 @@ Kept apart from `riskplan.experiments.sweeping` (the command side) so that worke
 A job's `status.json` says where it stands: "running" while it trains, then "done" or "failed" (with the error
 and the traceback). It also holds `config_sha`, a fingerprint of the job's resolved config: a re-run of the
 sweep recognises a finished job by that fingerprint and its output files, never by its job number, and skips it.
+The fingerprint is `run_identity`, riskplan's one rule for when two runs are the same sample (the same
+config and seed, wherever they were written): the report, the export and the sweep summary count each once.
 A job that was killed while "running" resumes from its checkpoint when its config is unchanged.
 
 One writer per job folder: a job holds the folder's lock (`riskplan.util.lock`) before it reads, deletes or writes
@@ -39,7 +41,9 @@ import tempfile
 import threading
 import time
 import traceback
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import TypeVar
 
 import numba
 from hydra.experimental.callback import Callback
@@ -53,6 +57,7 @@ from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
 from riskplan.util.paths import write_atomic
 
+T = TypeVar("T")
 STATUS = "status.json"
 JOB_LOG = "job.log"  # everything the job prints (Python and native), one file per job folder
 THREADS_ENV = "RISKPLAN_JOB_THREADS"  # numba threads per job, set by `riskplan sweep` for parallel local jobs
@@ -76,13 +81,49 @@ STALE = (
 )
 
 
-def config_sha(cfg: DictConfig | dict) -> str:
-    """Fingerprint of a job's resolved config (without the hydra node): what makes two jobs the same job."""
-    if isinstance(cfg, DictConfig):
-        cfg = OmegaConf.to_container(cfg, resolve=True)
-    cfg = {k: v for k, v in cfg.items() if k != "hydra"}
-    text = json.dumps(cfg, sort_keys=True, separators=(",", ":"), default=str)
+OUTPUT_KEYS = ("hydra",)  # where a run was written (hydra.run.dir, hydra.sweep.dir and subdir, ...), never what ran
+
+
+def run_identity(config: DictConfig | dict) -> str:
+    """What makes two runs one sample: a fingerprint of the resolved config, its seed included and its output paths
+    (the hydra node) left out. Two runs with the same identity draw the same numbers, wherever they were written.
+
+    The one rule for it: a sweep job records it in status.json as `config_sha` (a re-run skips the finished job),
+    and the report, the export and the sweep summary count each identity once (`distinct`)."""
+    if isinstance(config, DictConfig):
+        config = OmegaConf.to_container(config, resolve=True)
+    config = {k: v for k, v in config.items() if k not in OUTPUT_KEYS}
+    text = json.dumps(config, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+config_sha = run_identity  # the name status.json and the sweep's jobs give it
+
+
+def distinct(items: Iterable[T], config_of: Callable[[T], DictConfig | dict]) -> tuple[list[T], list[tuple[T, T]]]:
+    """Items (runs) in the order given, each identity once: the first item of each identity, and each later one
+    as (the repeat, the item it repeats)."""
+    first: dict[str, T] = {}
+    kept: list[T] = []
+    repeats: list[tuple[T, T]] = []
+    for item in items:
+        identity = run_identity(config_of(item))
+        if identity in first:
+            repeats.append((item, first[identity]))
+        else:
+            first[identity] = item
+            kept.append(item)
+    return kept, repeats
+
+
+def repeats_line(count: int, where: str, what: str = "run") -> str:
+    """The one warning line for `count` repeats: '2 runs repeat another run's config and seed (the same sample);
+    each is counted once (<where>)'."""
+    plural = count != 1
+    return (
+        f"{count} {what}{'s' if plural else ''} repeat{'' if plural else 's'} another {what}'s config and seed "
+        f"(the same sample); each is counted once ({where})"
+    )
 
 
 def folder_name(dirname: str) -> str:

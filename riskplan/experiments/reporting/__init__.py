@@ -3,12 +3,15 @@
     build_report([Path("outputs/sweeps/...")], Path("report"), ["png", "pdf"]) -> Path("report/report.html")
 
 The report reads the runs' tables (parquet, or rebuilt from run.mcap when missing) and never re-simulates.
-Broken or partial runs are listed with the reason and skipped; a path holding no run at all is BadInput.
+Broken or partial runs are listed with the reason and skipped; a path holding no run at all is BadInput. A run
+whose config and seed repeat another's is the same sample: it is counted once, listed in runs.csv as `duplicate`,
+with one warning.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +30,7 @@ from riskplan.experiments.reporting.tables import (
     soft_risk_table,
     study_tables,
 )
+from riskplan.experiments.sweep_worker import repeats_line
 from riskplan.run.results import find_runs
 from riskplan.util.errors import BadInput
 
@@ -99,6 +103,8 @@ def write_report(
     find_runs([Path(p) for p in paths])  # the inputs first (a missing path, one without runs), then --out
     previous = claim(out_dir, "report", key)  # before reading any run: a bad --out is refused at once
     coll = collect([Path(p) for p in paths])
+    if coll.duplicates:  # one line (the CLI shows warnings as `warning: ...`); runs.csv names each
+        warnings.warn(repeats_line(len(coll.duplicates), "runs.csv lists them as duplicate"), stacklevel=3)
     comparison = comparison_table(coll)
     runs = runs_table(coll)
     landscapes = landscape_table(coll)

@@ -7,6 +7,10 @@ A *study* is one of the questions `riskplan reproduce` asks beyond the paper (ri
 heterogeneous team, faults). Its runs live in the reproduction's study folders (STUDIES); when an input directory
 holds such a folder, its runs are collected apart, as a Collection of their own (`Collection.studies`), so that
 they neither join nor relabel the groups of the paper's figures.
+
+A run whose config and seed repeat another's (`riskplan.experiments.sweep_worker.run_identity`: the same config,
+wherever it was written) is the same sample: the first by path is used, the others are `Collection.duplicates`,
+so that no seed is counted twice.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import pandas as pd
 from riskplan.config.schema import ScheduleConf
 from riskplan.config.typed import check_schema
 from riskplan.experiments.landscape import is_landscape_dir, load_landscape
+from riskplan.experiments.sweep_worker import distinct
 from riskplan.run.results import TABLES, Run, find_runs, load_run
 from riskplan.util.errors import BadInput
 
@@ -122,6 +127,15 @@ class Broken:
 
 
 @dataclass
+class Duplicate:
+    """A run whose config and seed repeat another's: the same sample, so only that other run is used."""
+
+    path: Path
+    of: RunInfo  # the run it repeats (the first of them by path), the one the report counts
+    seed: int
+
+
+@dataclass
 class Group:
     """The runs (seeds) of one condition."""
 
@@ -214,6 +228,7 @@ class Collection:
     groups: list[Group]
     differing: list[str]  # config keys that differ between groups
     studies: list[Study] = field(default_factory=list)  # the runs of reproduce's study folders, apart
+    duplicates: list[Duplicate] = field(default_factory=list)  # runs repeating another's config and seed: unused
 
     def every_run(self) -> list[RunInfo]:
         """The runs of this collection and of its studies."""
@@ -310,20 +325,11 @@ def collect(paths: list[Path]) -> Collection:
     """Find, load and group every run under `paths`; BadInput only for a path that holds no run at all."""
     inputs = [Path(p) for p in paths]
     found = find_runs(inputs)  # BadInput for a missing path or one without any run
-    runs: list[RunInfo] = []
     broken: list[Broken] = []
     landscapes = []
     folders = study_folders(inputs)
-    studied: dict[str, list[RunInfo]] = {}
+    loaded: list[tuple[RunInfo, str | None]] = []  # each usable run with its study (None: none), in path order
     for path in found:
-        study = study_of(path, folders)
-        if study is not None and not is_landscape_dir(path):
-            info, problem = _load(path)
-            if info is None:
-                broken.append(Broken(path, problem))
-            else:
-                studied.setdefault(study, []).append(info)
-            continue
         if is_landscape_dir(path):
             try:
                 landscapes.append(load_landscape(path))
@@ -334,7 +340,14 @@ def collect(paths: list[Path]) -> Collection:
         if info is None:
             broken.append(Broken(path, problem))
         else:
-            runs.append(info)
+            loaded.append((info, study_of(path, folders)))
+    kept, repeats = distinct(loaded, lambda pair: as_compared(pair[0].config))  # one sample per config and seed
+    duplicates = [Duplicate(info.path, of, info.seed) for (info, _), (of, _) in repeats]
+    runs = [info for info, study in kept if study is None]
+    studied: dict[str, list[RunInfo]] = {}
+    for info, study in kept:
+        if study is not None:
+            studied.setdefault(study, []).append(info)
     groups, differing = group_runs(runs)
     studies = []
     for name, (title, _) in STUDIES.items():
@@ -342,7 +355,18 @@ def collect(paths: list[Path]) -> Collection:
             members, keys = group_runs(studied[name])
             own = Collection([p for p in folders if folders[p] == name], studied[name], [], landscapes, members, keys)
             studies.append(Study(name, title, own.inputs, own))
-    return Collection(inputs, runs, broken, landscapes, groups, differing, studies)
+    return Collection(inputs, runs, broken, landscapes, groups, differing, studies, duplicates)
+
+
+def as_compared(config: dict) -> dict:
+    """The config as the report compares runs, for their groups and for repeats: risk.schedule's defaults filled in
+    (runs from before risk.schedule existed ran without one)."""
+    risk = config.get("risk")
+    if not isinstance(risk, dict):
+        return config
+    schedule = risk.get("schedule")
+    defaults = {key.rsplit(".", 1)[1]: value for key, value in SCHEDULE_DEFAULTS.items()}
+    return {**config, "risk": {**risk, "schedule": {**defaults, **(schedule if isinstance(schedule, dict) else {})}}}
 
 
 def study_folders(inputs: list[Path]) -> dict[Path, str]:
@@ -393,9 +417,7 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
     rebuilt = not all((path / f"{name}.parquet").is_file() for name in TABLES) or bool(
         run.problem and "rebuilt" in run.problem
     )
-    flat = {k: v for k, v in flatten(run.config).items() if k not in IGNORED_KEYS}
-    for key, value in SCHEDULE_DEFAULTS.items():  # runs from before risk.schedule existed ran without one
-        flat.setdefault(key, value)
+    flat = {k: v for k, v in flatten(as_compared(run.config)).items() if k not in IGNORED_KEYS}
     info = RunInfo(run, flat, rebuilt)
     try:
         usable = not info.eval_of().empty and not info.metrics_of().empty

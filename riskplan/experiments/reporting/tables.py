@@ -5,7 +5,8 @@
   percentile bootstrap over the evaluation episodes (the run's seed and train.bootstrap, as in summary.json) and
   a Wilson interval for proportions; with several seeds the point is the across-seed mean and the interval a
   Student-t interval over the seeds. This is report.csv.
-- `runs_table`: every run found, used or skipped (with the reason).
+- `runs_table`: every run found, used, duplicate (its config and seed repeat a used run's) or skipped (with
+  the reason).
 - `landscape_table`: per landscape, its optima and how far each group's trained theta ended from them.
 - `soft_risk_table`: per seed, each soft-risk group (risk.schedule) against its twin with the paper's fixed beta.
 - The studies beyond the paper (`study_tables`): `measures_table` (risk measures), `policies_table` (policies that
@@ -93,7 +94,7 @@ def group_row(group: Group, beta: float | None = None) -> dict:
         "policy": ("network average" + (", from robot 0's start" if group.heterogeneous else ""))
         if group.team
         else "robot 0",
-        "seeds": len(group.runs),
+        "seeds": len(set(group.seeds)),  # distinct seeds (collect keeps one run per config and seed)
         "seed_list": " ".join(str(s) for s in group.seeds),
         "eval_episodes": per_run[0]["episodes"],
     }
@@ -104,7 +105,7 @@ def group_row(group: Group, beta: float | None = None) -> dict:
             row[k] = per_run[0][k]
             row[f"{k}_low"], row[f"{k}_high"] = intervals.get(k, (math.nan, math.nan))
     else:
-        row["interval"] = f"95% Student-t over {len(per_run)} seeds"
+        row["interval"] = f"95% Student-t over {row['seeds']} seeds"
         for k in names:
             row[k], row[f"{k}_low"], row[f"{k}_high"] = seed_interval([v.get(k, math.nan) for v in per_run])
     for key, value in group.settings.items():
@@ -155,12 +156,24 @@ def used_row(r, group: str) -> dict:
 
 
 def runs_table(coll: Collection) -> pd.DataFrame:
-    """Every run directory found: used (with its group and figures) or skipped (with the reason)."""
+    """Every run directory found: used (with its group and figures), duplicate (its config and seed repeat a used
+    run's: the same sample, counted once) or skipped (with the reason)."""
     rows = [used_row(r, r.group.label if r.group else "") for r in coll.runs]
     for study in coll.studies:  # reproduce's studies: their runs, labelled by study and group
         rows += [
             used_row(r, f"{study.name}: {r.group.label}" if r.group else study.name) for r in study.collection.runs
         ]
+    groups = {row["path"]: row["group"] for row in rows}
+    for d in coll.duplicates:
+        rows.append(
+            {
+                "path": str(d.path),
+                "status": "duplicate",
+                "group": groups.get(str(d.of.path), ""),
+                "seed": d.seed,
+                "note": f"the same config and seed as {d.of.path}: one sample, counted once",
+            }
+        )
     for land in coll.landscapes:
         rows.append(
             {

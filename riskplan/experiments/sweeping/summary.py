@@ -15,7 +15,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from rich.console import Console
 from rich.table import Table
 
-from riskplan.experiments.sweep_worker import is_finished, read_status
+from riskplan.experiments.sweep_worker import is_finished, read_status, repeats_line
 from riskplan.experiments.sweeping.jobs import SUMMARY, Job, Outcome
 from riskplan.util import lock
 from riskplan.util.paths import atomic_path
@@ -27,8 +27,12 @@ EXTRA_CVARS = ("cvar_0.05", "cvar_0.1", "cvar_0.2")
 
 
 def summarize(jobs: list[Job]):
-    """One row per job: its overrides as columns, final figures with 95% intervals, wall time, status, error."""
+    """One row per job: its overrides as columns, final figures with 95% intervals, wall time, status, error, and
+    `duplicate_of`: for a finished job whose config and seed repeat an earlier finished job's (the same
+    `run_identity`, as two trials of an optimiser that drew the same values), that job's name (one sample), else
+    None."""
     rows = []
+    first_done: dict[str, str] = {}  # run identity -> the first finished job of it
     for job in jobs:
         row: dict = {"job": job.name}
         row.update(_override_columns(job.overrides))
@@ -82,6 +86,10 @@ def summarize(jobs: list[Job]):
         row["train_time"] = (summary or {}).get("wall_time", float("nan"))
         row["status"] = state
         row["error"] = error
+        row["duplicate_of"] = None
+        if state == "done" and job.sha:
+            first = first_done.setdefault(job.sha, job.name)
+            row["duplicate_of"] = first if first != job.name else None
         row["path"] = str(job.path) if job.path is not None else None
         rows.append(row)
     frame = pd.DataFrame(rows)
@@ -123,6 +131,7 @@ def varying_columns(frame) -> list[str]:
         "trial",
         "status",
         "error",
+        "duplicate_of",
         "path",
         "beta",
         "wall_time",
@@ -152,7 +161,12 @@ def print_table(frame, title: str, limit: int = 40) -> None:
     for values in frame.head(limit).to_dict("records"):
         cells = [str(values[k]) for k in keys]
         status = values["status"]
-        cells.append(status if status == "done" else f"[red]{status}[/red]")
+        if status != "done":
+            cells.append(f"[red]{status}[/red]")
+        elif isinstance(values.get("duplicate_of"), str):  # the same sample as an earlier job: counted once
+            cells.append("[yellow]duplicate[/yellow]")
+        else:
+            cells.append(status)
         for name in ("mean", "cvar"):
             v, lo, hi = values[name], values[f"{name}_low"], values[f"{name}_high"]
             cells.append("" if v != v else f"{v:.1f} [{lo:.1f}, {hi:.1f}]")
@@ -173,6 +187,13 @@ def print_table(frame, title: str, limit: int = 40) -> None:
 def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) -> int:
     """Print the summary table and the failures; return the exit code (0, or 1 when a job failed)."""
     print_table(outcome.summary, f"{title}: {outcome.sweep_dir}")
+    repeats = outcome.summary["duplicate_of"].notna().sum() if "duplicate_of" in outcome.summary else 0
+    if repeats:
+        what = "trial" if outcome.optimiser else "job"
+        typer.echo(
+            f"warning: {repeats_line(int(repeats), f'{SUMMARY} names the {what} each repeats in duplicate_of', what)}",
+            err=True,
+        )
     typer.echo(
         f"summary: {outcome.sweep_dir / SUMMARY} ({outcome.ran} launched, {outcome.skipped} skipped, "
         f"{outcome.seconds:.1f} s)"
