@@ -38,7 +38,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Replay finished runs into MLflow or TensorBoard: metrics per iteration and robot, the summary with its
         intervals, the config as parameters, seed groups as tags. A run exported before is replaced when it
-        changed and left as it is otherwise; broken runs are skipped with their reason."""
+        changed and left as it is otherwise; broken runs are skipped with their reason, and a run repeating another's
+        config and seed is exported once."""
         from riskplan.experiments.exporting import ExportFailed, export_runs
 
         def echo(done) -> None:
@@ -53,9 +54,15 @@ def register(app: typer.Typer) -> None:
             raise typer.Exit(1) from None
         for broken in result.skipped:
             typer.echo(f"skipped {broken.path}: {broken.reason}", err=True)
+        for repeat in result.duplicates:
+            typer.echo(
+                f"duplicate {repeat.path}: the same config and seed as {repeat.of.path}; not exported (one sample)",
+                err=True,
+            )
         where = result.destination + (f" (experiment {experiment})" if result.target == "mlflow" else "")
+        repeats = f", {len(result.duplicates)} duplicate" if result.duplicates else ""
         typer.echo(
             f"{len(result.done)} run(s) to {result.target}: {result.count('exported')} exported, "
             f"{result.count('replaced')} replaced, {result.count('unchanged')} unchanged, "
-            f"{len(result.skipped)} skipped -> {where}"
+            f"{len(result.skipped)} skipped{repeats} -> {where}"
         )

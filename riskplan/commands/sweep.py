@@ -33,6 +33,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run a grid of experiments (a Hydra multirun) into outputs/sweeps/<timestamp>/, one folder per job."""
         from riskplan.experiments.sweeping import report_outcome, run_sweep  # here: `riskplan train` starts without it
+        from riskplan.run.compose import check_extras
 
-        outcome = run_sweep(with_config_dirs(list(overrides or [])), jobs)
+        args = with_config_dirs(list(overrides or []))
+        check_extras(args)  # a launcher, sweeper or team.backend whose extra is missing: before any folder
+        outcome = run_sweep(args, jobs)
         raise typer.Exit(report_outcome(outcome))

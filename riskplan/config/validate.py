@@ -25,9 +25,37 @@ from riskplan.config.schema import (
     TrainConf,
     WorldConf,
 )
-from riskplan.util.checks import finite, require, whole
+from riskplan.util.checks import finite, require, require_installed, whole
 
 SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias under the 64-bit stream keys
+
+# The values that need an optional extra: (key, value) -> (the module that provides it, what it is, the extra, a
+# note). A missing one is bad input (MissingExtra) in check, train and sweep, before anything is written.
+EXTRAS = {
+    ("team.backend", "ray"): ("ray", "Ray", "distributed", ""),
+    **{
+        ("hydra/launcher", name): ("hydra_plugins.hydra_submitit_launcher", "Hydra's Submitit launcher", "slurm", "")
+        for name in ("submitit_slurm", "submitit_local")
+    },
+    **{
+        ("hydra/launcher", name): (
+            "hydra_plugins.hydra_ray_launcher",
+            "Hydra's Ray launcher",
+            "ray",
+            "(in an environment of its own: it pins cloudpickle<3)",
+        )
+        for name in ("ray", "ray_cluster")
+    },
+    ("hydra/sweeper", "optuna"): ("hydra_plugins.hydra_optuna_sweeper", "Hydra's Optuna sweeper", "optuna", ""),
+}
+
+
+def check_extra(key: str, value: object) -> None:
+    """MissingExtra naming `key=value` when the value needs an optional extra (EXTRAS) that is not installed."""
+    needed = EXTRAS.get((key, str(value)))
+    if needed is not None:
+        module, what, extra, note = needed
+        require_installed(module, f"{key}={value}", what, extra, note)
 
 
 def validate(params: RiskplanConf) -> None:
@@ -208,6 +236,7 @@ def check_backend(team: TeamConf) -> None:
     )
     if team.backend != Backend.ray:
         return
+    check_extra("team.backend", team.backend)  # Ray, before the run: not a failed run directory
     simulated = [
         (key, value)
         for key, value in (

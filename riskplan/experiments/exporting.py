@@ -24,6 +24,9 @@ written anew ("replaced"). TensorBoard gets one subdirectory per run, `<run name
 `riskplan-export.json` marker; it is replaced as a whole (written beside it, then renamed into place).
 
 Broken, killed and failed runs are skipped with their reason, as in the report; never fatal.
+A run whose config and seed repeat another's (`riskplan.experiments.sweep_worker.run_identity`, as in the report)
+is the same sample: it is exported once, as the first of them by path, and the others are listed as duplicates
+(`ExportResult.duplicates`), not exported, so that no tracker counts a seed twice.
 """
 
 from __future__ import annotations
@@ -44,9 +47,10 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 import pandas as pd
 
-from riskplan.experiments.reporting.collect import Broken, RunInfo, collect, flatten
+from riskplan.experiments.reporting.collect import Broken, Duplicate, RunInfo, collect, flatten
 from riskplan.experiments.sweep_worker import config_sha
 from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
+from riskplan.util.checks import require_installed
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import check_output_dir, write_atomic
 
@@ -98,6 +102,7 @@ class ExportResult:
     destination: str
     done: list[Exported] = field(default_factory=list)
     skipped: list[Broken] = field(default_factory=list)
+    duplicates: list[Duplicate] = field(default_factory=list)  # the same config and seed as an exported run
 
     def count(self, action: str) -> int:
         return sum(1 for d in self.done if d.action == action)
@@ -277,16 +282,10 @@ def _is_mlflow_store(directory: Path) -> bool:
 
 
 def check_installed(to: str) -> None:
-    """The optional package a target needs; BadInput naming the pip install when it is missing."""
-    if to not in EXTRA:
-        return
-    module, package = EXTRA[to]
-    try:
-        __import__(module)
-    except ImportError:
-        raise BadInput(
-            "--to", f"{to} needs the {package} package, which is not installed; pip install 'riskplan[{to}]'"
-        ) from None
+    """The optional package a target needs; MissingExtra (bad input) naming the pip install when it is missing."""
+    if to in EXTRA:
+        module, package = EXTRA[to]
+        require_installed(module, f"--to {to}", f"the {package} package", to)
 
 
 @contextlib.contextmanager
@@ -518,6 +517,7 @@ def export_runs(
     result.skipped = list(coll.broken) + [
         Broken(Path(land.path), "a landscape, not a training run") for land in coll.landscapes
     ]
+    result.duplicates = list(coll.duplicates)  # one sample: exported once, as the run each repeats
     if not coll.runs:
         return result
     try:

@@ -16,12 +16,14 @@ from riskplan.config import schema
 from riskplan.config.hydra_safety import check_hydra_node
 from riskplan.config.schema import CONF_DIR
 from riskplan.config.typed import explain, typed
+from riskplan.config.validate import check_extra
 from riskplan.run.build import build_setup
 from riskplan.util.errors import BadInput
 
 __all__ = [
     "CONF_DIR",
     "GRAMMAR",
+    "check_extras",
     "check_hydra_args",
     "compose",
     "expand_overrides",
@@ -91,6 +93,29 @@ def group_options(group: str) -> list[str] | None:
     return sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else None
 
 
+def check_extras(overrides: list[str]) -> None:
+    """An override choosing what an optional extra provides (team.backend=ray, hydra/launcher=submitit_slurm or
+    ray, hydra/sweeper=optuna; a sweep's values included) when the extra is not installed: MissingExtra naming it
+    and the pip install that fixes it, before anything is composed or written. An override that does not parse is
+    left to the command's own checks."""
+    parser = OverridesParser.create()
+    for text in overrides:
+        try:
+            (override,) = parser.parse_overrides([text])
+        except (HydraException, RecursionError, ValueError):
+            continue
+        if override.is_delete():
+            continue
+        if not override.is_sweep_override():
+            values = [override.value()]
+        elif override.is_choice_sweep():
+            values = list(override.sweep_string_iterator())
+        else:
+            continue
+        for value in values:
+            check_extra(override.key_or_group, value)
+
+
 def expand_overrides(overrides: list[str]) -> list[str]:
     """Make `...reward={...}` replace a distribution instead of merging into it (Hydra merges dicts), and expand
     the shorthands (`risk.schedule=linear` is `risk.schedule.kind=linear`)."""
@@ -134,6 +159,7 @@ def compose(
     overrides = list(overrides)
     parsed = parse_overrides(overrides)
     check_groups(parsed)
+    check_extras(overrides)  # before composing: Hydra would only say that a plugin's option does not exist
     for override in parsed:
         if override.key_or_group == "hydra.mode":
             raise BadInput(

@@ -6,11 +6,12 @@ they share.
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import numbers
 from typing import Any
 
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, MissingExtra
 
 
 def require(ok: bool, key: str, problem: str) -> None:
@@ -48,3 +49,21 @@ def one_of(value: Any, key: str, valid: tuple[str, ...]) -> str:
     """One of the valid names, or BadInput listing them."""
     require(value in valid, key, f"unknown value {value!r}; valid: {', '.join(valid)}")
     return str(value)
+
+
+def installed(module: str) -> bool:
+    """Whether an optional module can be imported, without importing it (a dotted name imports its parents)."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):  # a parent that is missing, or a module whose __spec__ is unset
+        return False
+
+
+def require_installed(module: str, where: str, needs: str, extra: str, note: str = "") -> None:
+    """MissingExtra unless `module` is installed: '<where>: needs <needs>, which is not installed; pip install
+    'riskplan[<extra>]' <note>'."""
+    if not installed(module):
+        raise MissingExtra(
+            where,
+            f"needs {needs}, which is not installed; pip install 'riskplan[{extra}]'" + (f" {note}" if note else ""),
+        )

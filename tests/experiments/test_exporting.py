@@ -197,6 +197,25 @@ def test_tensorboard_scalars_per_step_equal_the_run_within_float32(runs, tmp_pat
 
 
 @pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
+def test_a_run_repeating_another_config_and_seed_is_exported_once(runs, tmp_path):
+    pytest.importorskip("tensorboard")
+    copies = tmp_path / "copies"
+    for name in ("a", "b"):  # one run in two directories: the same config and seed, one sample
+        shutil.copytree(runs / "single_0", copies / name)
+    shutil.copytree(runs / "single_1", copies / "c")  # another seed: a sample of its own
+    logdir = tmp_path / "tb"
+    result = invoke(str(copies), "--to", "tensorboard", "--uri", str(logdir))
+    assert result.exit_code == 0, result.output
+    assert "2 run(s) to tensorboard: 2 exported, 0 replaced, 0 unchanged, 0 skipped, 1 duplicate" in result.stdout
+    assert result.stderr.splitlines() == [
+        f"duplicate {copies / 'b'}: the same config and seed as {copies / 'a'}; not exported (one sample)"
+    ]
+    assert sorted(p.name for p in logdir.iterdir()) == sorted(
+        tensorboard_name((copies / n).resolve()) for n in ("a", "c")
+    )
+
+
+@pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
 def test_tensorboard_reexport_replaces_one_subdirectory_per_run(runs, tmp_path):
     pytest.importorskip("tensorboard")
     mine = tmp_path / "runs"
@@ -249,7 +268,7 @@ def test_a_missing_optional_package_is_bad_input_and_writes_nothing(runs, tmp_pa
     result = invoke(str(runs), "--to", "mlflow")
     assert result.exit_code == 2
     assert result.stderr.splitlines() == [
-        "error: --to: mlflow needs the mlflow-skinny package, which is not installed; pip install 'riskplan[mlflow]'"
+        "error: --to mlflow: needs the mlflow-skinny package, which is not installed; pip install 'riskplan[mlflow]'"
     ]
     assert list(tmp_path.iterdir()) == []
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import importlib.util
 import json
 import math
 import posixpath
@@ -28,13 +27,14 @@ from omegaconf.errors import OmegaConfBaseException
 from riskplan.config import schema
 from riskplan.config.hydra_safety import check_hydra_node
 from riskplan.config.typed import choice_problem
+from riskplan.config.validate import check_extra
 from riskplan.experiments.sweep_worker import config_sha, folder_name
 from riskplan.experiments.sweeping.jobs import SWEEPS_ROOT, Job
 from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, explain, parse_overrides
 from riskplan.run.compose import compose as riskplan_compose
 from riskplan.run.cost import setup_steps
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, MissingExtra
 from riskplan.util.limits import check_jobs
 from riskplan.util.paths import claim_dir, hydra_quote
 
@@ -311,6 +311,8 @@ def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job]
                     try:
                         steps = setup_steps(build_setup(cfg))
                         invalid = None
+                    except MissingExtra:  # a missing package fails the whole sweep, not only this job
+                        raise
                     except BadInput as err:
                         steps, invalid = 0.0, str(err)
                 for w in caught:
@@ -372,12 +374,7 @@ def ray_init_overrides(launcher: str, hydra_keys: dict) -> list[str]:
     `ray start` gave them) and refuses, as bad input, the other arguments ray.init would refuse."""
     if launcher not in ("ray", "ray_cluster"):
         return []
-    if importlib.util.find_spec("hydra_plugins.hydra_ray_launcher") is None:
-        raise BadInput(
-            "key 'hydra/launcher'",
-            f"{launcher} needs Hydra's Ray launcher: pip install 'riskplan[ray]' (in an environment of its own: it "
-            f"pins cloudpickle<3)",
-        )
+    check_extra("hydra/launcher", launcher)  # Hydra's Ray launcher, an extra of its own
 
     def given(key: str):
         override = hydra_keys.get(RAY_INIT + key)
