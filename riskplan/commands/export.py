@@ -22,8 +22,8 @@ def register(app: typer.Typer) -> None:
         to: str | None = typer.Option(
             None,
             "--to",
-            help="mlflow (a tracking store), tensorboard (event files) or foxglove "
-            "(foxglove_layout.json into each run directory).",
+            help="mlflow (a tracking store), tensorboard (event files), foxglove "
+            "(foxglove_layout.json into each run directory) or ros2 (a rosbag2 directory per run).",
             show_default=False,
         ),
         uri: str | None = typer.Option(
@@ -35,6 +35,13 @@ def register(app: typer.Typer) -> None:
             show_default=False,
         ),
         experiment: str = typer.Option("riskplan", "--experiment", help="The MLflow experiment to log into."),
+        out: Path | None = typer.Option(
+            None,
+            "--out",
+            help="ros2: the folder for the bags, one rosbag2 directory per run (default: rosbag2/ inside each run "
+            "directory).",
+            show_default=False,
+        ),
     ) -> None:
         """Replay finished runs into MLflow or TensorBoard: metrics per iteration and robot, the summary with its
         intervals, the config as parameters, seed groups as tags. A run exported before is replaced when it
@@ -47,6 +54,12 @@ def register(app: typer.Typer) -> None:
 
         if not experiment.strip():
             raise BadInput("--experiment", "got ''; give an MLflow experiment name, e.g. riskplan")
+        ros2 = (to or "").strip().lower() == "ros2"
+        if out is not None and not ros2:
+            raise BadInput("--out", "only --to ros2 writes into --out; mlflow and tensorboard take --uri")
+        if ros2 and uri is not None:
+            raise BadInput("--uri", "--to ros2 writes its bags into --out DIR (default: each run directory)")
+        uri = str(out) if ros2 and out is not None else uri
         try:
             result = export_runs(list(paths or []), to, uri, experiment=experiment, echo=echo)
         except ExportFailed as err:

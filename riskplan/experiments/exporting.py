@@ -47,6 +47,7 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 import pandas as pd
 
+from riskplan.experiments import ros2_bag
 from riskplan.experiments.reporting.collect import Broken, Duplicate, RunInfo, collect, flatten
 from riskplan.experiments.sweep_worker import config_sha
 from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
@@ -54,12 +55,16 @@ from riskplan.util.checks import require_installed
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import check_output_dir, write_atomic
 
-TARGETS = ("mlflow", "tensorboard", "foxglove")
+TARGETS = ("mlflow", "tensorboard", "foxglove", "ros2")
 DEFAULT_URI = {"mlflow": Path("outputs") / "mlruns", "tensorboard": Path("outputs") / "tensorboard"}
 EXPERIMENT = "riskplan"
 MARKER = "riskplan-export.json"
 EXPORT_VERSION = 1  # part of the fingerprint: a change of what an export writes replaces older exports
-EXTRA = {"mlflow": ("mlflow", "mlflow-skinny"), "tensorboard": ("tensorboard", "tensorboard")}
+EXTRA = {
+    "mlflow": ("mlflow", "mlflow-skinny"),
+    "tensorboard": ("tensorboard", "tensorboard"),
+    "ros2": ("mcap_ros2", "mcap-ros2-support"),
+}
 URI_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:")  # file:, sqlite:, http:, databricks: (not C:\...)
 
 
@@ -249,7 +254,10 @@ def check_target(to: str | None) -> str:
 
 def check_uri(to: str, uri: str | None) -> str:
     """--uri for a target: an MLflow tracking URI or store directory, a TensorBoard log directory, nothing for
-    foxglove. Returns the destination: a tracking URI (mlflow) or a directory (tensorboard), '' for foxglove."""
+    foxglove, the bags' folder for ros2 (the command's --out). Returns the destination: a tracking URI (mlflow) or a
+    directory (tensorboard, ros2), '' for foxglove and for ros2 into each run directory."""
+    if to == "ros2":
+        return "" if uri is None else str(check_output_dir(uri, "--out").expanduser().absolute())
     if to == "foxglove":
         if uri is not None:
             raise BadInput(
@@ -478,6 +486,21 @@ class FoxgloveTarget:
         return Exported(rec.path, "replaced" if existed else "exported", str(path))
 
 
+# ------------------------------------------------------------------------------------------- ROS 2
+class Ros2Target:
+    """One rosbag2 directory per run (riskplan.experiments.ros2_bag): in `out`, or in each run directory."""
+
+    def __init__(self, out: str) -> None:
+        self.out = Path(out) if out else None
+
+    def write(self, rec: Record) -> Exported:
+        try:
+            action, where = ros2_bag.write_run(rec.path, rec.config, self.out, rec.start, rec.fingerprint)
+        except BadInput as err:  # its world cannot be rebuilt (a map moved), or the bag's folder is someone else's
+            raise Skip(str(err)) from None
+        return Exported(rec.path, action, str(where))
+
+
 # ------------------------------------------------------------------------------------------- the command's work
 def _store_errors(target: str) -> tuple[type[BaseException], ...]:
     """What a failure to write the destination raises: OSError, and MLflow's own exception."""
@@ -526,6 +549,7 @@ def export_runs(
                 "mlflow": lambda: MlflowTarget(destination, experiment),
                 "tensorboard": lambda: TensorboardTarget(destination),
                 "foxglove": FoxgloveTarget,
+                "ros2": lambda: Ros2Target(destination),
             }[target]()
             for info in coll.runs:
                 try:

@@ -143,9 +143,7 @@ def test_map_cell_merges_k_by_k_pixels_from_the_lower_left(tmp_path):
 
 def test_a_mask_region_holds_the_dark_pixels_of_its_image(tmp_path, small_map):
     write_pgm(tmp_path / "mask.pgm", [[255, 255, 255, 255], [255, 127, 255, 255], [128, 0, 255, 255]])
-    regions = (
-        "world.regions=[{name:watched,mask:mask.pgm,risky:true,reward:-5},{name:rest,rect:[0,0,3,2],reward:1}]"
-    )
+    regions = "world.regions=[{name:watched,mask:mask.pgm,risky:true,reward:-5},{name:rest,rect:[0,0,3,2],reward:1}]"
     world = world_of(small_map, regions)
     assert world.region_names == ("watched", "rest")
     watched = cells(world.region_of == 0, world)
