@@ -36,16 +36,6 @@ class Choice(str, Enum):
         return [member.value for member in cls]
 
 
-class Measure(Choice):
-    """risk.measure: the objective whose gradient training follows."""
-
-    cvar = "cvar"  # CVaR_beta (Algorithm 1, eq. 9)
-    neutral = "neutral"  # the mean (REINFORCE, eq. 4)
-    wang = "wang"  # Wang's distortion g(u) = Phi(Phi^-1(u) + eta) of the lower tail: mu - eta sigma for a normal
-    mean_cvar = "mean_cvar"  # (1 - weight) E[Z] + weight CVaR_beta
-    entropic = "entropic"  # -(1/eta) log E[exp(-eta Z)]: mu - eta sigma^2 / 2 for a normal
-
-
 class ScheduleKind(Choice):
     """risk.schedule.kind: how the gradient's CVaR level beta_l moves to risk.beta (soft risk)."""
 
@@ -171,13 +161,18 @@ class ScheduleConf(Frozen):
 
 @dataclass
 class RiskConf(Frozen):
-    """The objective: `cvar` optimises CVaR_beta, `neutral` the mean; beta is also the reporting level."""
+    """The objective: `cvar` optimises CVaR_beta, `neutral` the mean; beta is also the reporting level.
 
-    measure: Measure = Measure.cvar
+    measure: a registered measure's name, checked when the run is built (riskplan.engine.measures.registry): cvar
+    (Algorithm 1, eq. 9), neutral (the mean, eq. 4), wang, mean_cvar, entropic, or one an installed package adds.
+    """
+
+    measure: str = "cvar"
     beta: float = 0.1  # the CVaR level: optimised by cvar and mean_cvar, and the level CVaR is reported at
     eta: float = 0.5  # wang: the distortion's shift (in standard deviations); entropic: aversion per unit of reward
     weight: float = 0.5  # mean_cvar: lambda, the weight of CVaR_beta against the mean, in [0, 1]
     schedule: ScheduleConf = field(default_factory=ScheduleConf)
+    params: dict[str, float] = field(default_factory=dict)  # a package's measure's parameters: risk.params.KEY=VALUE
 
 
 @dataclass
@@ -323,10 +318,13 @@ class RiskplanConf(Frozen):
 
 
 def structured() -> DictConfig:
-    """The schema as a typed OmegaConf node, for merging a config onto it."""
-    return OmegaConf.structured(RiskplanConf)
+    """The schema as a typed OmegaConf node, for merging a config onto it. risk.params takes any key (its measure
+    names its parameters, checked when the run is built), so `risk.params.gamma=0.5` needs no `+`."""
+    node = OmegaConf.structured(RiskplanConf)
+    OmegaConf.set_struct(node.risk.params, False)
+    return node
 
 
 def register() -> None:
     """Register the schema so conf/config.yaml can extend it."""
-    ConfigStore.instance().store(name="riskplan_schema", node=RiskplanConf)
+    ConfigStore.instance().store(name="riskplan_schema", node=structured())

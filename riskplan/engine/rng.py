@@ -58,6 +58,26 @@ def episode_state(key, episode):
     return mix(key ^ mix(np.uint64(episode) + np.uint64(GOLDEN)))
 
 
+@njit(cache=True, inline="always")
+def resample_counts(key, b, n):
+    """How often bootstrap resample b (its own stream of `key`) draws each of n indices: one 64-bit draw gives two
+    indices, floor(u * n / 2^32) of its 32-bit halves u (Lemire's multiply-shift): half the draws, and each index's
+    probability is within 2^-32 of 1/n (a relative error below n / 2^32)."""
+    size = np.uint64(n)
+    half, low = np.uint64(32), np.uint64(0xFFFFFFFF)
+    counts = np.zeros(n, dtype=np.int32)
+    state = episode_state(key, b)
+    for _ in range(n // 2):
+        state = state + np.uint64(GOLDEN)
+        bits = mix(state)
+        counts[((bits & low) * size) >> half] += 1
+        counts[((bits >> half) * size) >> half] += 1
+    if n % 2:
+        state = state + np.uint64(GOLDEN)
+        counts[((mix(state) & low) * size) >> half] += 1
+    return counts
+
+
 @njit(inline="always")
 def next_bits(state):
     """Advance a stream: (new state, 53 random bits m as a uint64); the uniform of `next_uniform` is bits_uniform(m)."""

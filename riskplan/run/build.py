@@ -12,6 +12,7 @@ from omegaconf import DictConfig
 from riskplan.config.schema import RiskplanConf
 from riskplan.config.typed import as_dict, typed
 from riskplan.config.validate import validate
+from riskplan.engine.measures.registry import check_risk_nodes
 from riskplan.engine.policy import Policy, make_policy
 from riskplan.engine.rollout import Kernel, make_kernel
 from riskplan.engine.team.mixer import Mixer
@@ -51,6 +52,7 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
     """Type and validate the config once, then build the run's objects; raises BadInput on the first problem."""
     params = typed(cfg)  # types, unknown keys, Choices, interpolations: the frozen config everything below reads
     validate(params)  # every range, once
+    check_risk_nodes(params)  # each risk node's measure (built in or a package's) and its parameters
     # Sizes first: nothing big is allocated before the memory and time estimates pass (a map's from its header).
     found = maps.read_map(params.world)
     width, height = grid_size(params.world.size) if found is None else found.cells

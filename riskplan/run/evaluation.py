@@ -7,9 +7,10 @@ import json
 
 import numpy as np
 
-from riskplan.config.schema import Backend, Measure, RiskConf, RiskplanConf
+from riskplan.config.schema import Backend, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
 from riskplan.engine import rng
+from riskplan.engine.measures.registry import risk_spec
 from riskplan.engine.risk_measures import objective, summary_stats
 from riskplan.engine.rollout import simulate
 from riskplan.run.budget import EVAL_BATCH
@@ -163,12 +164,12 @@ def summarize(setup: Setup, state: State, evaluation: Columns, metrics: Columns,
 
 
 def _objective(risk, z: np.ndarray, figures: dict, params) -> dict:
-    """{"measure", "value", "low", "high"} of the trained measure on the evaluation episodes z: the figures' own for
-    CVaR at the reported beta and for the mean, else from the same bootstrap resamples."""
-    if risk.measure == Measure.cvar and risk.beta == params.risk.beta:
-        return {"measure": str(risk.measure), **figures["cvar"]}
-    if risk.measure == Measure.neutral:
-        return {"measure": str(risk.measure), **figures["mean"]}
+    """{"measure", "value", "low", "high"} of the trained measure on the evaluation episodes z: the figures' own
+    where the measure is one of them (CVaR at the reported beta, the mean), else from the same bootstrap resamples."""
+    measure, values = risk_spec(risk)
+    figure = measure.reported(values, figures, params.risk.beta)
+    if figure is not None:
+        return {"measure": measure.name, **figure}
     return objective_interval(z, risk, params.train.bootstrap, params.seed)[0]
 
 
@@ -212,7 +213,10 @@ def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: Columns, head
         if with_intervals:
             figures[key] = objective_interval(returns[cell], risk, params.train.bootstrap, params.seed)
         else:
-            figures[key] = ({"measure": str(risk.measure), "value": float(objective(returns[cell], risk))}, None)
+            figures[key] = (
+                {"measure": risk_spec(risk).measure.name, "value": float(objective(returns[cell], risk))},
+                None,
+            )
     robots, total, resamples = [], 0.0, np.zeros(params.train.bootstrap) if with_intervals else None
     for i, (cell, risk) in enumerate(zip(cells, risks)):
         figure, values = figures[(int(cell), json.dumps(as_dict(risk), sort_keys=True))]

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
 
-from riskplan.config.schema import Measure
-from riskplan.engine.risk_measures import cvar, distortion, objective, risk_spec, tail_count, value_at_risk
-from riskplan.engine.rng import BOOTSTRAP, GOLDEN, episode_state, mix, stream_key
+from riskplan.engine.estimators import cvar, tail_count, value_at_risk
+from riskplan.engine.measures.registry import risk_spec
+from riskplan.engine.rng import BOOTSTRAP, resample_counts, stream_key
 
 REPORT_BETAS = (0.05, 0.1, 0.2)
 
@@ -29,26 +27,6 @@ def bootstrap_intervals(z: np.ndarray, beta: float, resamples: int, seed: int) -
     return {name: {"value": point[i], "low": float(low[i]), "high": float(high[i])} for i, name in enumerate(names)}
 
 
-@njit(cache=True, inline="always")
-def _resample_counts(key, b, n):
-    """How often resample b (its own stream) draws each of n indices: one 64-bit draw gives two indices,
-    floor(u * n / 2^32) of its 32-bit halves u (Lemire's multiply-shift): half the draws, and each index's
-    probability is within 2^-32 of 1/n (a relative error below n / 2^32)."""
-    size = np.uint64(n)
-    half, low = np.uint64(32), np.uint64(0xFFFFFFFF)
-    counts = np.zeros(n, dtype=np.int32)
-    state = episode_state(key, b)
-    for _ in range(n // 2):
-        state = state + np.uint64(GOLDEN)
-        bits = mix(state)
-        counts[((bits & low) * size) >> half] += 1
-        counts[((bits >> half) * size) >> half] += 1
-    if n % 2:
-        state = state + np.uint64(GOLDEN)
-        counts[((mix(state) & low) * size) >> half] += 1
-    return counts
-
-
 LANES = 4  # resamples summed side by side: four independent chains of additions instead of one
 
 
@@ -62,10 +40,10 @@ def _bootstrap(z_sorted, betas, tails, key, out):
     n, resamples = z_sorted.size, out.shape[0]
     for group in prange((resamples + LANES - 1) // LANES):
         first = group * LANES
-        c0 = _resample_counts(key, first, n)
-        c1 = _resample_counts(key, first + 1, n) if first + 1 < resamples else c0  # past the end: a stand-in
-        c2 = _resample_counts(key, first + 2, n) if first + 2 < resamples else c0
-        c3 = _resample_counts(key, first + 3, n) if first + 3 < resamples else c0
+        c0 = resample_counts(key, first, n)
+        c1 = resample_counts(key, first + 1, n) if first + 1 < resamples else c0  # past the end: a stand-in
+        c2 = resample_counts(key, first + 2, n) if first + 2 < resamples else c0
+        c3 = resample_counts(key, first + 3, n) if first + 3 < resamples else c0
         t0 = t1 = t2 = t3 = 0.0
         for i in range(n):
             t0 += c0[i] * z_sorted[i]
@@ -105,43 +83,10 @@ def objective_interval(z: np.ndarray, risk, resamples: int, seed: int) -> tuple[
     """Point value and 95% percentile-bootstrap interval of the measure of z that `risk` names (a risk node), from
     the very resamples of `bootstrap_intervals` (the same stream): ({"measure", "value", "low", "high"}, each
     resample's value), the latter for intervals of sums over robots."""
-    spec = risk_spec(risk)
+    measure, params = risk_spec(risk)
     z = np.sort(np.asarray(z, dtype=float))
     values = np.empty(resamples)
-    key = np.uint64(stream_key(seed, BOOTSTRAP))
-    if spec.measure == Measure.entropic:
-        _bootstrap_entropic(z, spec.eta, key, values)
-    else:  # spectral (cvar, neutral too): sum_k z_(k) [g(C_k / n) - g(C_{k-1} / n)] over the resample's counts C
-        _bootstrap_distorted(z, distortion(np.arange(z.size + 1) / z.size, spec), key, values)
+    measure.bootstrap(z, params, np.uint64(stream_key(seed, BOOTSTRAP)), values)
     low, high = np.percentile(values, [2.5, 97.5])
-    point = {"measure": str(spec.measure), "value": float(objective(z, spec)), "low": float(low), "high": float(high)}
-    return point, values
-
-
-@njit(parallel=True, cache=True)
-def _bootstrap_distorted(z_sorted, table, key, out):
-    """A distortion risk measure of each resample: sum_k z_(k) [table[C_k] - table[C_{k-1}]], table[c] = g(c / n)."""
-    n = z_sorted.size
-    for b in prange(out.shape[0]):
-        counts = _resample_counts(key, b, n)
-        total, cumulative = 0.0, 0
-        for i in range(n):
-            if counts[i]:
-                total += z_sorted[i] * (table[cumulative + counts[i]] - table[cumulative])
-                cumulative += counts[i]
-        out[b] = total
-
-
-@njit(parallel=True, cache=True)
-def _bootstrap_entropic(z_sorted, eta, key, out):
-    """The entropic risk of each resample, -(1/eta) log (sum_k C_k exp(-eta z_k) / n), shifted by the smallest z
-    so that no exponential overflows."""
-    n = z_sorted.size
-    shift = z_sorted[0]
-    for b in prange(out.shape[0]):
-        counts = _resample_counts(key, b, n)
-        total = 0.0
-        for i in range(n):
-            if counts[i]:
-                total += counts[i] * math.exp(-eta * (z_sorted[i] - shift))
-        out[b] = shift - math.log(total / n) / eta
+    value = float(measure.objective(z, params))
+    return {"measure": measure.name, "value": value, "low": float(low), "high": float(high)}, values

@@ -14,14 +14,14 @@ import pytest
 from omegaconf import OmegaConf
 from support import exact_outcomes, rollouts, world_3x3
 
-from riskplan.config.schema import Measure, RiskConf
+from riskplan.config.schema import RiskConf
 from riskplan.engine.policy import move_features, probabilities, scores
 from riskplan.engine.risk_measures import normal_cdf, normal_quantile, objective_and_gradient
 from riskplan.risk import (
     MEASURES,
     cvar,
     cvar_gradient,
-    distortion,
+    distortion_at,
     l_statistic,
     mean_gradient,
     objective,
@@ -33,6 +33,7 @@ from riskplan.risk import (
     tail_count,
     value_at_risk,
 )
+from riskplan.util.errors import BadInput
 
 UNIT = NormalDist()
 MU, SIGMA = 3.0, 2.0
@@ -148,17 +149,17 @@ def test_spectrum_is_the_derivative_of_the_distortion(risk):
     u = np.linspace(0.003, 0.997, 300)
     u = u[np.abs(u - risk.get("beta", 2.0)) > 1e-3]  # away from cvar's kink
     step = 1e-6
-    slope = (distortion(u + step, risk) - distortion(u - step, risk)) / (2 * step)
+    slope = (distortion_at(u + step, risk) - distortion_at(u - step, risk)) / (2 * step)
     np.testing.assert_allclose(slope, spectrum(u, risk), rtol=1e-6, atol=1e-8)
-    assert distortion(0.0, risk) == 0.0
-    assert distortion(1.0, risk) == pytest.approx(1.0, abs=1e-15)
-    assert np.all(distortion(u, risk) >= u - 1e-15)  # risk-averse: the lower tail is weighted up
+    assert distortion_at(0.0, risk) == 0.0
+    assert distortion_at(1.0, risk) == pytest.approx(1.0, abs=1e-15)
+    assert np.all(distortion_at(u, risk) >= u - 1e-15)  # risk-averse: the lower tail is weighted up
 
 
 def test_wang_distortion_closed_form():
     u = np.linspace(0.01, 0.99, 99)
     expected = [UNIT.cdf(UNIT.inv_cdf(q) + 0.75) for q in u]
-    np.testing.assert_allclose(distortion(u, {"measure": "wang", "eta": 0.75}), expected, rtol=1e-12)
+    np.testing.assert_allclose(distortion_at(u, {"measure": "wang", "eta": 0.75}), expected, rtol=1e-12)
     phi = [math.exp(-0.75 * UNIT.inv_cdf(q) - 0.75**2 / 2) for q in u]
     np.testing.assert_allclose(spectrum(u, {"measure": "wang", "eta": 0.75}), phi, rtol=1e-12)
 
@@ -177,7 +178,7 @@ def test_spectral_weights_are_cached_read_only_distributions(n):
     with pytest.raises(ValueError):
         w[0] = 0.0
     k = np.arange(n + 1) / n
-    np.testing.assert_allclose(w, np.diff(distortion(k, risk)), rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(w, np.diff(distortion_at(k, risk)), rtol=1e-9, atol=1e-15)
 
 
 # --- closed forms on a large normal sample ---------------------------------------------------------------------------
@@ -247,7 +248,7 @@ def test_cvar_and_neutral_are_the_reference_functions_bit_for_bit(n, beta, ties)
 
 def test_typed_config_objects_and_enums_are_accepted():
     z, s = samples(3, 500, False), random_scores(3, 500)
-    conf = RiskConf(measure=Measure.cvar, beta=0.2)
+    conf = RiskConf(measure="cvar", beta=0.2)
     assert np.array_equal(objective_gradient(z, s, conf), cvar_gradient(z, s, 0.2))
     assert objective(z, conf) == cvar(z, 0.2)
 
@@ -265,7 +266,8 @@ def test_typed_config_objects_and_enums_are_accepted():
     for node in (Node(Plain.wang), Node("wang"), OmegaConf.create(wang)):
         assert objective(z, node) == objective(z, wang)
         assert np.array_equal(objective_gradient(z, s, node), objective_gradient(z, s, wang))
-    assert risk_spec(Node("mean_cvar")) == ("mean_cvar", 0.1, None, 0.5)
+    spec = risk_spec(Node("mean_cvar"))
+    assert spec.measure.name == "mean_cvar" and spec.params == {"weight": 0.5, "beta": 0.1}
     assert sorted(MEASURES) == sorted(["cvar", "neutral", "wang", "mean_cvar", "entropic"])
 
 
@@ -322,7 +324,7 @@ def test_wang_gradient_is_the_stated_estimator(eta, ties):
     np.testing.assert_allclose(
         spectral_gradient(z, s, risk, baseline=False), reference_spectral_gradient(z, s, risk, False), rtol=1e-11
     )
-    weights = np.diff(distortion(np.arange(z.size + 1) / z.size, risk))
+    weights = np.diff(distortion_at(np.arange(z.size + 1) / z.size, risk))
     assert objective(z, risk) == pytest.approx(np.sort(z) @ weights, rel=1e-12)
     # the tie order does not matter: permuting the sample permutes nothing in the result
     perm = np.random.default_rng(9).permutation(z.size)
@@ -422,7 +424,7 @@ def exact_objective(setup, theta, risk) -> float:
     if risk["measure"] == "entropic":
         return -math.log(np.sum(p * np.exp(-risk["eta"] * z))) / risk["eta"]
     cumulative = np.concatenate([[0.0], np.cumsum(p)[:-1], [1.0]])
-    return float(z @ np.diff(distortion(cumulative, risk)))
+    return float(z @ np.diff(distortion_at(cumulative, risk)))
 
 
 def exact_gradient(setup, theta, risk) -> np.ndarray:
@@ -493,31 +495,40 @@ def test_sample_estimator_from_kernel_episodes_matches_the_exact_gradient(tiny, 
     [
         (
             {"measure": "variance"},
-            r"unknown risk measure 'variance'; valid measures: cvar, neutral, wang, mean_cvar, entropic",
+            r"risk\.measure: got 'variance'; expected a built-in measure \(cvar, neutral, wang, mean_cvar, entropic\) "
+            r"or one an installed package registers in the entry-point group riskplan\.risk_measures",
         ),
-        ({"measure": None}, "unknown risk measure"),
-        ({}, "unknown risk measure"),
-        ({"measure": "wang"}, r"risk\.eta is required for measure 'wang'"),
-        ({"measure": "wang", "eta": 0.0}, r"risk\.eta must be finite and > 0, got 0\.0"),
-        ({"measure": "entropic", "eta": -1.0}, r"risk\.eta must be finite and > 0"),
-        ({"measure": "entropic", "eta": float("nan")}, r"risk\.eta must be finite and > 0"),
-        ({"measure": "wang", "eta": float("inf")}, r"risk\.eta must be finite and > 0"),
-        ({"measure": "wang", "eta": "big"}, r"risk\.eta must be a number"),
-        ({"measure": "wang", "eta": True}, r"risk\.eta must be a number"),
-        ({"measure": "mean_cvar", "beta": 0.1, "weight": 1.5}, r"risk\.weight must be in \[0, 1\], got 1\.5"),
-        ({"measure": "mean_cvar", "beta": 0.1, "weight": -0.1}, r"risk\.weight must be in \[0, 1\]"),
-        ({"measure": "mean_cvar", "beta": 0.1}, r"risk\.weight is required for measure 'mean_cvar'"),
-        ({"measure": "mean_cvar", "beta": 0.0, "weight": 0.5}, r"risk\.beta must be in \(0, 1\], got 0\.0"),
-        ({"measure": "cvar", "beta": 1.5}, r"risk\.beta must be in \(0, 1\]"),
-        ({"measure": "cvar", "beta": float("nan")}, r"risk\.beta must be in \(0, 1\]"),
-        ({"measure": "cvar"}, r"risk\.beta is required for measure 'cvar'"),
+        ({"measure": None}, r"risk\.measure: got None; expected a measure's name"),
+        ({}, r"risk\.measure: got None"),
+        ({"measure": "wang"}, r"risk\.eta: missing; measure 'wang' needs a finite eta > 0"),
+        ({"measure": "wang", "eta": 0.0}, r"risk\.eta: got 0; expected a finite eta > 0"),
+        ({"measure": "entropic", "eta": -1.0}, r"risk\.eta: got -1; expected a finite eta > 0"),
+        ({"measure": "entropic", "eta": float("nan")}, r"risk\.eta: got nan; expected a finite eta > 0"),
+        ({"measure": "wang", "eta": float("inf")}, r"risk\.eta: got inf; expected a finite eta > 0"),
+        ({"measure": "wang", "eta": "big"}, r"risk\.eta: got 'big'; expected a number"),
+        ({"measure": "wang", "eta": True}, r"risk\.eta: got True; expected a number"),
+        ({"measure": "mean_cvar", "beta": 0.1, "weight": 1.5}, r"risk\.weight: got 1\.5; expected 0 <= weight <= 1"),
+        ({"measure": "mean_cvar", "beta": 0.1, "weight": -0.1}, r"risk\.weight: got -0\.1; expected 0 <= weight <= 1"),
+        ({"measure": "mean_cvar", "beta": 0.1}, r"risk\.weight: missing; measure 'mean_cvar' needs 0 <= weight <= 1"),
+        ({"measure": "mean_cvar", "beta": 0.0, "weight": 0.5}, r"risk\.beta: got 0; expected 0 < beta <= 1"),
+        ({"measure": "cvar", "beta": 1.5}, r"risk\.beta: got 1\.5; expected 0 < beta <= 1"),
+        ({"measure": "cvar", "beta": float("nan")}, r"risk\.beta: got nan; expected 0 < beta <= 1"),
+        ({"measure": "cvar"}, r"risk\.beta: missing; measure 'cvar' needs 0 < beta <= 1"),
+        (
+            {"measure": "wang", "eta": 0.5, "params": {"eta": 0.7}},
+            r"risk\.params\.eta: the built-in measure 'wang' takes risk\.eta",
+        ),
+        (
+            {"measure": "neutral", "params": {"gamma": 0.7}},
+            r"risk\.params\.gamma: the built-in measure 'neutral' takes no",
+        ),
     ],
 )
-def test_bad_risk_nodes_raise_value_error_naming_the_problem(risk, message):
+def test_bad_risk_nodes_raise_bad_input_naming_the_key(risk, message):
     z, s = samples(0, 50, False), random_scores(0, 50)
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(BadInput, match=message):
         objective(z, risk)
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(BadInput, match=message):
         objective_gradient(z, s, risk)
 
 
@@ -535,7 +546,7 @@ def test_bad_samples_and_scores_raise_value_error():
     with pytest.raises(ValueError, match=r"W >= 1"):
         spectral_weights(0, risk)
     with pytest.raises(ValueError, match="not spectral"):
-        distortion(0.5, {"measure": "entropic", "eta": 1.0})
+        distortion_at(0.5, {"measure": "entropic", "eta": 1.0})
     with pytest.raises(ValueError, match=r"beta must be in \(0, 1\]"):
         tail_count(0.0, 10)
 

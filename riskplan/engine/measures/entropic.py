@@ -1,0 +1,46 @@
+"""entropic: -(1/eta) log E[exp(-eta Z)] (mu - eta sigma^2 / 2 for a normal total reward)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from riskplan.engine.estimators import as_sample, entropic, entropic_gradient
+from riskplan.engine.measures.base import Measure, Parameter, Params
+from riskplan.engine.rng import resample_counts
+
+ETA = Parameter("eta", 0.0, math.inf, symbol="η")  # the aversion per unit of reward
+
+
+class Entropic(Measure):
+    """The entropic risk, and its self-normalised likelihood-ratio gradient (`riskplan.engine.estimators`)."""
+
+    name = "entropic"
+    parameters = (ETA,)
+    built_in = True
+
+    def objective(self, z: np.ndarray, params: Params) -> np.ndarray | float:
+        return entropic(as_sample(z), params.eta)
+
+    def gradient(self, z: np.ndarray, scores: np.ndarray, params: Params, *, baseline: bool = True) -> np.ndarray:
+        return entropic_gradient(z, scores, params.eta, baseline=baseline)
+
+    def bootstrap(self, z_sorted: np.ndarray, params: Params, key: np.uint64, out: np.ndarray) -> None:
+        _bootstrap_entropic(z_sorted, params.eta, key, out)
+
+
+@njit(parallel=True, cache=True)
+def _bootstrap_entropic(z_sorted, eta, key, out):
+    """The entropic risk of each resample, -(1/eta) log (sum_k C_k exp(-eta z_k) / n), shifted by the smallest z
+    so that no exponential overflows."""
+    n = z_sorted.size
+    shift = z_sorted[0]
+    for b in prange(out.shape[0]):
+        counts = resample_counts(key, b, n)
+        total = 0.0
+        for i in range(n):
+            if counts[i]:
+                total += counts[i] * math.exp(-eta * (z_sorted[i] - shift))
+        out[b] = shift - math.log(total / n) / eta
