@@ -26,6 +26,7 @@ import pandas as pd
 
 from riskplan.config.schema import ScheduleConf
 from riskplan.config.typed import check_schema
+from riskplan.engine.measures.registry import MEASURES, label, parameter_keys
 from riskplan.experiments.landscape import is_landscape_dir, load_landscape
 from riskplan.experiments.sweep_worker import distinct
 from riskplan.run.results import TABLES, Run, find_runs, load_run
@@ -55,8 +56,8 @@ STUDIES = {
     "hetero_team": ("A heterogeneous team", ("hetero_team", "hetero_central")),
     "faults": ("A Byzantine robot and resilient consensus", ("faults", "faults_free")),
 }
-# How the measures read in labels, and their order in the studies' tables
-MEASURE_ORDER = ("cvar", "neutral", "wang", "mean_cvar", "entropic")
+# The measures' order in the studies' tables: the built-in ones (riskplan.engine.measures), then any other by name
+MEASURE_ORDER = MEASURES
 # Okabe-Ito palette (colour-blind safe); the paper's pair is blue (risk-neutral) and black (risk-averse).
 PALETTE = ("#0072B2", "#000000", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#E69F00", "#999999")
 AVERAGE = -1  # robot id of a team's network average
@@ -556,20 +557,12 @@ def _describe(group: Group, keys: list[str], single: bool = False) -> str:
     parts = []
     keys = list(keys)
     handled = {"risk.measure", "risk.beta", "team.robots"}
-    if "risk.measure" in keys or "risk.beta" in keys or single:
-        if group.measure == "neutral":
-            parts.append(
-                "risk-neutral" + (f" (β={group.beta:g})" if "risk.beta" in keys and "risk.measure" not in keys else "")
-            )
-        elif group.measure == "cvar":
-            beta = f" β={group.beta:g}" if "risk.beta" in keys or single else ""
-            parts.append(f"risk-averse (CVaR{beta})")
-        else:  # the other measures by name, with their own parameters
-            parts.append(measure_name(group))
-        handled |= {"risk.eta", "risk.weight"}
-    elif group.measure not in ("cvar", "neutral") and {"risk.eta", "risk.weight"} & set(keys):
-        parts.append(measure_name(group))
-        handled |= {"risk.eta", "risk.weight"}
+    risk = _risk(group)
+    if {"risk.measure", "risk.beta"} & set(keys) or single or (parameter_keys(risk) - {"risk.beta"}) & set(keys):
+        # the measure's own label (riskplan.engine.measures), with the CVaR level where it tells groups apart
+        beta = group.beta if "risk.beta" in keys and "risk.measure" not in keys else None
+        parts.append(label(risk, short=not ("risk.beta" in keys or single), beta=beta))
+        handled |= {"risk.eta", "risk.weight"} | {k for k in keys if k.startswith("risk.params.")}
     if "team.robots" in keys or single:
         parts.append(f"distributed N={group.robots}" if group.team else "centralized")
     if {"policy.kind", "policy.features"} & set(keys):
@@ -597,20 +590,14 @@ def _describe(group: Group, keys: list[str], single: bool = False) -> str:
 
 
 def measure_name(group: Group, beta: bool = True) -> str:
-    """The measure a group trains, by name and parameters: 'risk-neutral', 'risk-averse (CVaR β=0.1)', 'Wang (η=0.5)',
-    'mean-CVaR (λ=0.5, β=0.1)' or 'entropic (η=0.001)'."""
-    measure = group.measure
-    if measure == "neutral":
-        return "risk-neutral"
-    if measure == "cvar":
-        return f"risk-averse (CVaR{f' β={group.beta:g}' if beta else ''})"
-    if measure == "wang":
-        return f"Wang (η={group.eta:g})"
-    if measure == "mean_cvar":
-        return f"mean-CVaR (λ={group.weight:g}, β={group.beta:g})"
-    if measure == "entropic":
-        return f"entropic (η={group.eta:g})"
-    return measure
+    """The measure a group trains, by name and parameters (the measure's label): 'risk-neutral', 'risk-averse
+    (CVaR β=0.1)', 'Wang (η=0.5)', 'mean-CVaR (λ=0.5, β=0.1)', 'entropic (η=0.001)', 'power (gamma=0.5)'."""
+    return label(_risk(group), short=not beta)
+
+
+def _risk(group: Group) -> dict:
+    """The group's risk node (its measure cvar when the config names none)."""
+    return {"measure": group.measure, **group.config.get("risk", {})}
 
 
 def policy_name(group: Group) -> str:
