@@ -85,10 +85,11 @@ def check_sizes(params: RiskplanConf, found: maps.MapFile | None, width: int, he
         if found is None or err.where != "world.size":
             raise
         problem = re.sub(r"^got [^;]*; ", "", err.problem)
+        problem = problem.replace("lower it, or", "give a smaller map or a larger world.map_cell, or")
         raise BadInput(
             "world.map",
             f"{found.shown} is {found.pixels[0]}x{found.pixels[1]} pixels, a {width}x{height} grid at "
-            f"world.map_cell={found.cell}: {problem}; or give a smaller map or a larger world.map_cell",
+            f"world.map_cell={found.cell}: {problem}",
         ) from None
 
 
