@@ -246,6 +246,7 @@ def _try_status(out: Path, message: str, status: str = "failed") -> None:
 
 def summary_line(summary: dict, out: Path) -> str:
     """One line: what ran, how long, the headline figures with 95% intervals."""
+    from riskplan.engine.measures.registry import parameter_keys
 
     def fig(name: str) -> str:
         f = summary[name]
@@ -253,10 +254,15 @@ def summary_line(summary: dict, out: Path) -> str:
 
     reached = ", ".join(f"{k} {v:.1%}" for k, v in summary["source_reached"].items())
     robots = summary.get("team_size", summary.get("robots"))  # summaries of schema 1 held the count as robots
-    measure = summary.get("objective", {}).get("measure", "cvar")
-    objective = "" if measure in ("cvar", "neutral") else f"{measure} {fig('objective')}, "
+    own = summary.get("objective", {})
+    figure = {k: v for k, v in own.items() if k != "measure"}
+    # the line shows the mean and CVaR at beta anyway; a measure that is neither is named with its figure
+    objective = (
+        "" if not own or figure in (summary["cvar"], summary["mean"]) else f"{own['measure']} {fig('objective')}, "
+    )
     beta = f"{summary['beta']:g}"
-    trained = f" beta={beta}" if measure in ("cvar", "mean_cvar") else ""  # the others only report at beta
+    takes = "risk.beta" in parameter_keys({"measure": summary["risk"]})  # the others only report at beta
+    trained = f" beta={beta}" if takes else ""
     resumed = summary.get("resumed_at")
     loop = (
         f"{summary['iterations']} iterations (resumed at {resumed}: the last {summary['iterations'] - resumed} "
