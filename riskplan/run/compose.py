@@ -16,7 +16,7 @@ from riskplan.config import schema
 from riskplan.config.hydra_safety import check_hydra_node
 from riskplan.config.schema import CONF_DIR
 from riskplan.config.typed import explain, typed
-from riskplan.config.validate import check_extra
+from riskplan.config.validate import EXTRAS, check_extra
 from riskplan.run.build import build_setup
 from riskplan.util.errors import BadInput
 
@@ -93,6 +93,9 @@ def group_options(group: str) -> list[str] | None:
     return sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else None
 
 
+EXTRA_KEYS = frozenset(key for key, _ in EXTRAS)  # team.backend, hydra/launcher, hydra/sweeper
+
+
 def check_extras(overrides: list[str]) -> None:
     """An override choosing what an optional extra provides (team.backend=ray, hydra/launcher=submitit_slurm or
     ray, hydra/sweeper=optuna; a sweep's values included) when the extra is not installed: MissingExtra naming it
@@ -104,12 +107,15 @@ def check_extras(overrides: list[str]) -> None:
             (override,) = parser.parse_overrides([text])
         except (HydraException, RecursionError, ValueError):
             continue
-        if override.is_delete():
+        if override.is_delete() or override.key_or_group not in EXTRA_KEYS:
             continue
         if not override.is_sweep_override():
             values = [override.value()]
         elif override.is_choice_sweep():
-            values = list(override.sweep_string_iterator())
+            try:
+                values = list(override.sweep_string_iterator())
+            except HydraException:  # glob(...) over a config group: its options are on disk, not in the override
+                continue
         else:
             continue
         for value in values:

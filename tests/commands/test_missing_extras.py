@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from riskplan.cli import app
 from riskplan.config.validate import check_extra
+from riskplan.run.compose import check_extras
 from riskplan.util.checks import installed
 from riskplan.util.errors import BadInput, MissingExtra
 
@@ -117,3 +118,12 @@ def test_with_the_extras_installed_the_same_commands_pass_the_check(in_tmp):
     result = runner.invoke(app, ["check", "experiment=paper_team", "team.backend=ray"])
     assert result.exit_code == 0, result.output
     assert result.stdout.rstrip().endswith("config OK")
+
+
+def test_the_overrides_are_read_as_a_sweep_gives_them(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)
+    for given in ("team.backend=ray", "team.backend=simulated,ray", "team.backend=choice(simulated,ray)"):
+        with pytest.raises(MissingExtra, match="^team.backend=ray: needs Ray"):
+            check_extras(["seed=0,1", given])
+    # what needs no extra, a glob over a config group, a malformed override (the command's own checks name it)
+    check_extras(["team.backend=simulated", "risk=glob(*)", "hydra/launcher=glob(*)", "~team.backend", "risk.beta=="])
