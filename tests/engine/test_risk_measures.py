@@ -5,12 +5,14 @@ cvar, wang, mean_cvar and entropic, against closed forms, the reference estimato
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from enum import Enum
 from statistics import NormalDist
 
 import numpy as np
 import pytest
+from measure_cases import measure_cases
 from omegaconf import OmegaConf
 from support import exact_outcomes, rollouts, world_3x3
 
@@ -19,10 +21,13 @@ from riskplan.engine.policy import move_features, probabilities, scores
 from riskplan.engine.risk_measures import normal_cdf, normal_quantile, objective_and_gradient
 from riskplan.risk import (
     MEASURES,
+    Spectral,
     cvar,
     cvar_gradient,
+    distortion,
     distortion_at,
     l_statistic,
+    lookup,
     mean_gradient,
     objective,
     objective_gradient,
@@ -558,3 +563,124 @@ def test_objective_and_gradient_together_are_the_two_calls_bit_for_bit(risk):
     value, gradient = objective_and_gradient(z, scores, risk)
     np.testing.assert_array_equal(value, objective(z, risk))
     np.testing.assert_array_equal(gradient, objective_gradient(z, scores, risk))
+
+
+# --- every registered measure: the registry's own tests (a new measure needs no new test code) -----------------------
+
+CASES = measure_cases()
+SPECTRAL_CASES = measure_cases(spectral_only=True)
+
+
+@pytest.fixture(scope="module")
+def unit_normal_sample() -> np.ndarray:
+    return np.random.default_rng(20250101).normal(MU, 1.0, 400_000)
+
+
+@pytest.mark.parametrize("risk", CASES)
+def test_every_measure_estimates_its_closed_form_on_a_normal(unit_normal_sample, risk):
+    """The plug-in estimate within 4 bootstrap standard errors (each measure's own resampling) of `of_normal`."""
+    measure, params = risk_spec(risk)
+    expected = measure.of_normal(MU, 1.0, params)
+    if expected is None:
+        pytest.skip(f"{measure.name} has no closed form on a normal")
+    resampled = np.empty(200)
+    measure.bootstrap(np.sort(unit_normal_sample), params, np.uint64(2024), resampled)
+    se = resampled.std()
+    assert 0.0 < se < 0.01  # a tolerance that could not hide a wrong formula
+    assert measure.objective(unit_normal_sample, params) == pytest.approx(expected, abs=4 * se)
+    assert objective(unit_normal_sample, risk) == measure.objective(unit_normal_sample, params)
+
+
+@pytest.mark.parametrize("risk", SPECTRAL_CASES)
+def test_every_spectral_measure_is_its_distortion(risk):
+    """g is a distortion (g(0) = 0, g(1) = 1, increasing), phi its derivative, the closed form on a normal the
+    quantile integral int F^-1 dg, and the L-statistic's weights the increments of g."""
+    measure, params = risk_spec(risk)
+    u = np.linspace(0.003, 0.997, 300)
+    u = u[np.abs(u - params.get("beta", 2.0)) > 1e-3]  # away from a CVaR kink
+    g = measure.distortion(u, params)
+    assert measure.distortion(np.array([0.0]), params)[0] == 0.0
+    assert measure.distortion(np.array([1.0]), params)[0] == pytest.approx(1.0, abs=1e-15)
+    assert np.all(np.diff(g) >= 0) and g[-1] > g[0]
+    step = 1e-6
+    slope = (measure.distortion(u + step, params) - measure.distortion(u - step, params)) / (2 * step)
+    np.testing.assert_allclose(slope, measure.spectrum(u, params), rtol=1e-5, atol=1e-8)
+    quantile_integral = Spectral.of_normal(measure, MU, SIGMA, params)
+    assert measure.of_normal(MU, SIGMA, params) == pytest.approx(quantile_integral, abs=1e-6)
+    n = 1000
+    weights = spectral_weights(n, risk)
+    np.testing.assert_allclose(weights, np.diff(measure.distortion(np.arange(n + 1) / n, params)), atol=1e-15)
+    assert weights.sum() == pytest.approx(1.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("risk", CASES)
+def test_every_measure_gives_the_same_numbers_together_batched_and_by_node(risk):
+    """objective_and_gradient is the two calls bit for bit; rows of a batch are the rows one at a time; the
+    measure's methods are what a risk node names."""
+    measure, params = risk_spec(risk)
+    z = np.random.default_rng(5).normal(100.0, 30.0, (3, 2001)).round(1)  # rounded: ties among the samples
+    s = np.random.default_rng(6).normal(size=(3, 2001, 2))
+    value, gradient = measure.objective_and_gradient(z, s, params)
+    np.testing.assert_array_equal(value, measure.objective(z, params))
+    np.testing.assert_array_equal(gradient, measure.gradient(z, s, params))
+    np.testing.assert_array_equal(value, objective(z, risk))
+    np.testing.assert_array_equal(gradient, objective_gradient(z, s, risk))
+    rows = [measure.objective(z[i], params) for i in range(3)]
+    np.testing.assert_allclose(value, rows, rtol=1e-13)
+    np.testing.assert_allclose(gradient, [measure.gradient(z[i], s[i], params) for i in range(3)], rtol=1e-12)
+    assert isinstance(rows[0], float)
+
+
+@pytest.mark.parametrize("risk", CASES)
+def test_every_measure_checks_its_parameters_and_names_itself(risk):
+    measure, params = risk_spec(risk)
+    assert measure.check(dict(params)) == params
+    assert not measure.built_in or lookup(measure.name) is measure  # the tests' own distortions are not registered
+    label = measure.label(params)
+    assert label and "\n" not in label
+    for p in measure.parameters:
+        key = measure.key(p.name)
+        outside = (p.low - 1.0 if p.low_closed else p.low, p.high + 1.0 if p.high_closed else p.high)
+        for bad in (*outside, math.nan, "x"):
+            given = {**params, p.name: bad}
+            with pytest.raises(BadInput, match=rf"^{re.escape(key)}: got .*; expected"):
+                measure.check(given)
+        assert f"{params[p.name]:g}" in label
+    with pytest.raises(BadInput, match=r"unknown parameter"):
+        measure.check({**params, "nonsense": 1.0})
+
+
+def test_a_distortion_is_checked_when_its_parameters_are():
+    """G(0) = 0, G(1) = 1 and G increasing, with the given parameters; the problem in one line naming the key."""
+    shifted = distortion("shifted", lambda u, c: u + c, c=(-1.0, 1.0))
+    assert shifted.check({"c": 0.0}) == {"c": 0.0}
+    with pytest.raises(
+        BadInput, match=r"^risk\.params: shifted's G\(u, c=0\.5\) gives G\(0\) = 0\.5 and G\(1\) = 1\.5"
+    ):
+        shifted.check({"c": 0.5})
+    falling = distortion("falling", lambda u, a: u + a * np.sin(2 * np.pi * u), a=(0.0, 1.0))
+    with pytest.raises(BadInput, match=r"gives a G that decreases"):
+        falling.check({"a": 0.5})
+    infinite = distortion("infinite", lambda u, a: u / (a - 0.9) * (a - 0.9), a=(0.0, 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"), pytest.raises(BadInput, match=r"values that are not finite"):
+        infinite.check({"a": 0.9})
+
+    def lookup_table(u, a):
+        raise KeyError(a)
+
+    broken = distortion("broken", lookup_table, a=(0.0, 1.0))
+    with pytest.raises(BadInput, match=r"^risk\.params: broken's G\(u, a=0\.25\) raised KeyError: 0\.25$"):
+        broken.check({"a": 0.25})
+    with pytest.raises(ValueError, match=r"letters, digits and underscores"):
+        distortion("two words", lambda u: u)
+    with pytest.raises(TypeError, match=r"the range of gamma is \(low, high\)"):
+        distortion("bad", lambda u, gamma: u**gamma, gamma=0.5)
+    with pytest.raises(ValueError, match=r"low < high"):
+        distortion("bad", lambda u, gamma: u**gamma, gamma=(1, 0))
+
+
+def test_the_built_in_measures_and_nothing_else_are_found_without_packages():
+    assert MEASURES == ("cvar", "neutral", "wang", "mean_cvar", "entropic")
+    assert all(lookup(name).name == name and lookup(name).built_in for name in MEASURES)
+    with pytest.raises(BadInput, match=r"^team\.risk\.2\.measure: got 'nonexistent'; expected a built-in measure"):
+        risk_spec({"measure": "nonexistent"}, "team.risk.2")

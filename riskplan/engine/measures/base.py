@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from riskplan.engine.estimators import normal_quantile
 from riskplan.engine.rng import resample_counts
 from riskplan.util.errors import BadInput
 
@@ -111,6 +112,12 @@ class Statistics(NamedTuple):
 
 # the CVaR level, a parameter of cvar and mean_cvar (and the level every run reports CVaR at)
 BETA = Parameter("beta", 0.0, 1.0, high_closed=True, symbol="β")
+
+
+def normal_tail(beta: float) -> float:
+    """phi(Phi^-1(beta)) / beta: how many standard deviations CVaR_beta of a normal lies below its mean."""
+    x = float(normal_quantile(beta))
+    return math.exp(-0.5 * x * x) / math.sqrt(2.0 * math.pi) / beta
 
 
 def field(risk: Any, key: str) -> Any:
@@ -226,6 +233,16 @@ class Measure:
         of `key`). This default evaluates `objective` on each resample; the built-in measures have kernels."""
         for b in range(out.size):
             out[b] = self.objective(np.repeat(z_sorted, resample_counts(key, b, z_sorted.size)), params)
+
+    def of_normal(self, mu: float, sigma: float, params: Params) -> float | None:
+        """The measure of a normal total reward N(mu, sigma^2), where there is a closed form (the docs' and the
+        tests' known answer); None where there is none."""
+        return None
+
+    def of_distribution(self, values: np.ndarray, probabilities: np.ndarray, params: Params) -> float | None:
+        """The measure of a discrete distribution: ascending values and their probabilities (an exactly enumerated
+        world); None where the measure cannot say."""
+        return None
 
     def label(self, params: Params, *, short: bool = False, beta: float | None = None) -> str:
         """The measure by name and parameters, for legends and tables: 'Wang (η=0.5)', 'power (gamma=0.5)'.

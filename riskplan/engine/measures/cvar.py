@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from riskplan.engine.estimators import as_sample, as_scores, cvar, cvar_gradient, tail_count
-from riskplan.engine.measures.base import BETA, Measure, Params, Statistics
+from riskplan.engine.measures.base import BETA, Measure, Params, Statistics, normal_tail
 from riskplan.engine.measures.spectral import Spectral
 
 
@@ -52,6 +52,10 @@ class CVaR(Spectral):
         shared = level == stats.beta and beta == stats.beta
         grads = cvar_gradient(z, scores, level, var=stats.value_at_risk if shared else None)
         return grads, stats.cvar if beta == stats.beta else self.objective(z, params)
+
+    def of_normal(self, mu: float, sigma: float, params: Params) -> float:
+        """mu - sigma phi(Phi^-1(beta)) / beta."""
+        return mu - sigma * normal_tail(params.beta)
 
     def reported(self, params: Params, figures: dict, beta: float) -> dict | None:
         return figures["cvar"] if params.beta == beta else None

@@ -27,6 +27,16 @@ class Entropic(Measure):
     def gradient(self, z: np.ndarray, scores: np.ndarray, params: Params, *, baseline: bool = True) -> np.ndarray:
         return entropic_gradient(z, scores, params.eta, baseline=baseline)
 
+    def of_normal(self, mu: float, sigma: float, params: Params) -> float:
+        """mu - eta sigma^2 / 2."""
+        return mu - params.eta * sigma**2 / 2.0
+
+    def of_distribution(self, values: np.ndarray, probabilities: np.ndarray, params: Params) -> float:
+        """-(1/eta) log sum_k p_k exp(-eta z_k), shifted by the smallest z."""
+        z, eta = np.asarray(values, dtype=float), params.eta
+        low = z.min()
+        return float(low - math.log(np.sum(probabilities * np.exp(-eta * (z - low)))) / eta)
+
     def bootstrap(self, z_sorted: np.ndarray, params: Params, key: np.uint64, out: np.ndarray) -> None:
         _bootstrap_entropic(z_sorted, params.eta, key, out)
 

@@ -13,7 +13,7 @@ from riskplan.engine.estimators import (
     mean_gradient,
     tail_count,
 )
-from riskplan.engine.measures.base import BETA, Measure, Parameter, Params, Statistics
+from riskplan.engine.measures.base import BETA, Measure, Parameter, Params, Statistics, normal_tail
 from riskplan.engine.measures.spectral import Spectral
 
 WEIGHT = Parameter("weight", 0.0, 1.0, low_closed=True, high_closed=True, symbol="λ")
@@ -58,6 +58,10 @@ class MeanCVaR(Spectral):
         weight, beta = params.weight, params.beta
         tail = k[1:-1] < tail_count(beta, n)
         return np.diff(self.distortion(k / n, params)), (1.0 - weight) + np.where(tail, weight / beta, 0.0)
+
+    def of_normal(self, mu: float, sigma: float, params: Params) -> float:
+        """(1 - lambda) mu + lambda (mu - sigma phi(Phi^-1(beta)) / beta)."""
+        return (1.0 - params.weight) * mu + params.weight * (mu - sigma * normal_tail(params.beta))
 
     def training(
         self, z: np.ndarray, scores: np.ndarray, params: Params, level: float | None, stats: Statistics, baseline: bool

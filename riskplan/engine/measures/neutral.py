@@ -42,5 +42,8 @@ class Neutral(Spectral):
     ) -> tuple[np.ndarray, np.ndarray]:
         return mean_gradient(z, scores, baseline), stats.mean
 
+    def of_normal(self, mu: float, sigma: float, params: Params) -> float:
+        return mu
+
     def reported(self, params: Params, figures: dict, beta: float) -> dict | None:
         return figures["mean"]

@@ -36,3 +36,7 @@ class Wang(Spectral):
         lower, upper = normal_cdf(x + eta), normal_cdf(-x - eta)
         weights = np.where(lower[1:] <= 0.5, np.diff(lower), -np.diff(upper))
         return weights, np.exp(-eta * x[1:-1] - 0.5 * eta**2)
+
+    def of_normal(self, mu: float, sigma: float, params: Params) -> float:
+        """mu - eta sigma."""
+        return mu - params.eta * sigma
