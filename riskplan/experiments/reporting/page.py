@@ -523,12 +523,15 @@ def render(
         "<h2>Final policies</h2>",
         comparison_section(comparison),
     ]
-    if paper:
+    if any(spec.paper for spec, _ in paper):  # a reproduction's runs: the paper's figures, then the others
         parts.append("<h2>The paper's figures (Section V)</h2>")
         parts += [figure_html(spec, files) for spec, files in paper]
-    if extra:
-        parts.append("<h2>Beyond the paper</h2>")
-        parts += [figure_html(spec, files) for spec, files in extra]
+        if extra:
+            parts.append("<h2>Beyond the paper</h2>")
+            parts += [figure_html(spec, files) for spec, files in extra]
+    elif paper or extra:  # a user's runs: plain titles
+        parts.append("<h2>Figures</h2>")
+        parts += [figure_html(spec, files) for spec, files in paper + extra]
     parts.append(landscape_section(landscapes))
     parts.append(soft_risk_section(soft_risk))
     for name in studied:

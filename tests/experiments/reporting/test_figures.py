@@ -19,6 +19,7 @@ def test_report_draws_the_consensus_error_of_each_order(tmp_path):
         train(compose([*TEAM, f"team.order={order}"]), tmp_path / order)
     spec = fig_orders(collect([tmp_path]))
     assert not isinstance(spec, str), spec
-    labels = [t.get_text() for t in spec.figure.axes[0].get_legend().get_texts()]
+    assert spec.figure.axes[0].get_legend() is None  # the legend sits outside the panels
+    labels = [t.get_text() for t in spec.figure.legends[0].get_texts()]
     assert labels == ["combine_then_adapt", "gradient_tracking"]
     assert fig_orders(collect([tmp_path / "gradient_tracking"])) == "no team runs that differ in team.order"

@@ -29,6 +29,7 @@ from riskplan.experiments.landscape import compute_landscape
 from riskplan.experiments.reporting import build_report, write_report
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.figures import make_figures
+from riskplan.experiments.reporting.figures.naming import names
 from riskplan.experiments.reporting.parallel import WORKERS_ENV
 from riskplan.experiments.reporting.stats import seed_interval, wilson
 from riskplan.risk import cvar, value_at_risk
@@ -43,7 +44,8 @@ CONDITIONS = {
     "team_s0": ["experiment=paper_team"],
     "team_s1": ["experiment=paper_team", "seed=1"],
 }
-NEUTRAL, AVERSE = "risk-neutral", "risk-averse (CVaR β=0.1)"
+NEUTRAL, AVERSE = "risk-neutral", "risk-averse (CVaR β=0.1)"  # the paper's pair, in a reproduction's figures
+USER_NAMES = {"neutral": "risk-neutral, N=1", "cvar": "CVaR, N=1", "team": "CVaR, N=3"}  # what differs, in a user's
 runner = CliRunner()
 
 
@@ -75,6 +77,21 @@ OTHER_RUNS |= {"risk_measures", "richer_policies", "hetero_team", "faults"}
 def figures(coll):
     specs, skipped = make_figures(coll)
     assert set(skipped) <= OTHER_RUNS, skipped
+    return {s.name: s for s in specs}
+
+
+@pytest.fixture(scope="session")
+def reproduction(sweep, tmp_path_factory) -> Path:
+    """The same runs laid out as riskplan reproduce lays them out: the paper's pair in single/, the team in team/."""
+    root = tmp_path_factory.mktemp("reproduction")
+    for name in CONDITIONS:
+        shutil.copytree(sweep / name, root / ("team" if name.startswith("team") else "single") / name)
+    return root
+
+
+@pytest.fixture(scope="session")
+def paper_figures(reproduction):
+    specs, _ = make_figures(collect([reproduction]))
     return {s.name: s for s in specs}
 
 
@@ -122,8 +139,10 @@ def test_runs_are_grouped_by_what_differs(coll):
 
 
 # ------------------------------------------------------------------------------------------------ paper figures
-def test_fig1_world_sources_start_and_final_paths(figures, sweep):
-    ax = figures["fig1_paths"].figure.axes[0]
+def test_fig1_world_sources_start_and_final_paths(paper_figures, sweep):
+    spec = paper_figures["fig1_paths"]
+    assert spec.paper and spec.title.startswith("Fig. 1")  # a reproduction's runs: the paper's figure
+    ax = spec.figure.axes[0]
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (cell)", "y (cell)")
     shade = np.asarray(ax.images[0].get_array())
     x, y = np.meshgrid(np.arange(12), np.arange(12))
@@ -136,47 +155,88 @@ def test_fig1_world_sources_start_and_final_paths(figures, sweep):
     assert {NEUTRAL, AVERSE} <= set(lines)
     assert lines[NEUTRAL].get_color() != lines[AVERSE].get_color()
     for name, run in ((NEUTRAL, "neutral_s0"), (AVERSE, "cvar_s0")):
-        colour = lines[name].get_color()
-        paths = [ln for ln in ax.get_lines() if ln.get_color() == colour and ln.get_linestyle() == "-"]
-        ends = [ln for ln in ax.get_lines() if ln.get_color() == colour and ln.get_marker() == "s"]
-        t = pd.read_parquet(sweep / run / "trajectories.parquet")
-        t = t.loc[(t.policy == "final") & (t.robot == 0)]
-        assert len(paths) == len(ends) == t.episode.nunique() == 3
-        for line, end, (_, episode) in zip(paths, ends, t.groupby("episode")):
-            episode = episode.sort_values("step")
-            assert np.array_equal(np.round(line.get_xdata()), episode.x) and np.array_equal(
-                np.round(line.get_ydata()), episode.y
-            )  # the logged path, jittered by < 0.5 cell
-            assert (round(end.get_xdata()[0]), round(end.get_ydata()[0])) == (episode.x.iloc[-1], episode.y.iloc[-1])
+        assert_paths(ax, lines[name].get_color(), sweep / run, robot=0)
 
 
-def test_fig2_cvar_per_iteration_is_the_across_seed_mean_with_a_band(figures, sweep):
-    ax = figures["fig2_cvar"].figure.axes[0]
+def assert_paths(ax, colour: str, run: Path, robot: int) -> None:
+    """The axis draws the run's logged final paths in this colour, each with its end point."""
+    paths = [ln for ln in ax.get_lines() if ln.get_color() == colour and ln.get_linestyle() == "-"]
+    ends = [ln for ln in ax.get_lines() if ln.get_color() == colour and ln.get_marker() == "s"]
+    t = pd.read_parquet(run / "trajectories.parquet")
+    t = t.loc[(t.policy == "final") & (t.robot == robot)]
+    assert len(paths) == len(ends) == t.episode.nunique() == 3
+    for line, end, (_, episode) in zip(paths, ends, t.groupby("episode")):
+        episode = episode.sort_values("step")
+        assert np.array_equal(np.round(line.get_xdata()), episode.x) and np.array_equal(
+            np.round(line.get_ydata()), episode.y
+        )  # the logged path, jittered by < 0.5 cell
+        assert (round(end.get_xdata()[0]), round(end.get_ydata()[0])) == (episode.x.iloc[-1], episode.y.iloc[-1])
+
+
+def test_fig1_of_a_users_runs_has_a_panel_per_group(figures, sweep):
+    spec = figures["fig1_paths"]
+    assert not spec.paper and "Fig." not in spec.title
+    panels = {ax.get_title(): ax for ax in spec.figure.axes}
+    assert set(panels) == {f"{name} (seed 0)" for name in USER_NAMES.values()}
+    for run, name in USER_NAMES.items():
+        ax = panels[f"{name} (seed 0)"]
+        colour = next(ln.get_color() for ln in ax.get_lines() if ln.get_linestyle() == "-")
+        assert_paths(ax, colour, sweep / f"{run}_s0", robot=-1 if run == "team" else 0)
+
+
+def test_fig2_cvar_per_iteration_is_the_across_seed_mean_with_a_band(paper_figures, sweep):
+    spec = paper_figures["fig2_cvar"]
+    ax = spec.figure.axes[0]
     assert ax.get_xlabel() == "iteration" and "CVaR" in ax.get_ylabel()
     lines = labelled(ax)
-    assert set(lines) == {f"{NEUTRAL} (2 seeds)", f"{AVERSE} (2 seeds)"}
+    assert set(lines) == {NEUTRAL, AVERSE} and "2 seeds" in spec.caption
     for name, runs in ((NEUTRAL, ["neutral_s0", "neutral_s1"]), (AVERSE, ["cvar_s0", "cvar_s1"])):
-        line = lines[f"{name} (2 seeds)"]
+        line = lines[name]
         assert np.array_equal(line.get_xdata(), np.arange(5))
         np.testing.assert_allclose(line.get_ydata(), seed_mean(sweep, runs, "cvar"), rtol=1e-12)
     assert len(ax.collections) == 2  # one 95% band per curve
+    assert ax.get_legend() is None and spec.figure.legends  # the legend outside the axes
 
 
-def test_fig3_centralized_vs_distributed_mean_and_cvar(figures, sweep):
-    ax = figures["fig3_team"].figure.axes[0]
-    assert ax.get_xlabel() == "iteration" and ax.get_ylabel() == "total reward"
+def test_fig2_of_a_users_runs_draws_every_group(figures, sweep):
+    spec = figures["fig2_cvar"]
+    assert not spec.paper and spec.title == "Learning curves: CVaR of the total reward"
+    (ax,) = spec.figure.axes
     lines = labelled(ax)
-    expected = {f"{who}: {what} (2 seeds)" for who in ("centralized", "distributed (N=3)") for what in ("mean", "CVaR")}
-    assert set(lines) == expected
-    np.testing.assert_allclose(
-        lines["distributed (N=3): mean (2 seeds)"].get_ydata(),
-        seed_mean(sweep, ["team_s0", "team_s1"], "mean", robot=-1),
-        rtol=1e-12,
-    )
-    np.testing.assert_allclose(
-        lines["centralized: CVaR (2 seeds)"].get_ydata(), seed_mean(sweep, ["cvar_s0", "cvar_s1"], "cvar"), rtol=1e-12
-    )
-    assert lines["centralized: CVaR (2 seeds)"].get_linestyle() == "--"
+    assert set(lines) == set(USER_NAMES.values())
+    for run, name in USER_NAMES.items():
+        robot = -1 if run == "team" else None
+        expected = seed_mean(sweep, [f"{run}_s0", f"{run}_s1"], "cvar", robot)
+        np.testing.assert_allclose(lines[name].get_ydata(), expected, rtol=1e-12)
+    assert len(ax.collections) == 3
+
+
+def test_fig3_centralized_and_team_both_seen_with_their_difference(figures, sweep):
+    fig = figures["fig3_team"].figure
+    mean_ax, cvar_ax, difference = fig.axes
+    assert mean_ax.get_ylabel() == "mean total reward" and "CVaR" in cvar_ax.get_ylabel()
+    for ax, column in ((mean_ax, "mean"), (cvar_ax, "cvar")):
+        assert ax.get_xlabel() == "iteration"
+        lines = labelled(ax)
+        assert set(lines) == {"distributed (N=3)", "centralized"}
+        team, central = lines["distributed (N=3)"], lines["centralized"]
+        np.testing.assert_allclose(
+            team.get_ydata(), seed_mean(sweep, ["team_s0", "team_s1"], column, robot=-1), rtol=1e-12
+        )
+        np.testing.assert_allclose(central.get_ydata(), seed_mean(sweep, ["cvar_s0", "cvar_s1"], column), rtol=1e-12)
+        # the centralized curve over the team's: another colour, dashed, with markers
+        assert team.get_color() != central.get_color()
+        assert (team.get_linestyle(), team.get_marker()) == ("-", "None")
+        assert (central.get_linestyle(), central.get_marker()) == ("--", "o")
+        assert central.get_zorder() > team.get_zorder()
+    assert difference.get_ylabel() == "team − centralized"
+    for column in ("mean", "cvar"):
+        (line,) = [ln for ln in difference.get_lines() if ln.get_label().endswith(f" {column}")]
+        expected = seed_mean(sweep, ["team_s0", "team_s1"], column, robot=-1) - seed_mean(
+            sweep, ["cvar_s0", "cvar_s1"], column
+        )
+        np.testing.assert_allclose(line.get_ydata(), expected, rtol=1e-9, atol=1e-9)
+    assert len(difference.collections) == 2  # each difference with its band over the seeds
 
 
 def test_fig4_consensus_error_on_a_log_scale(figures, sweep):
@@ -196,14 +256,14 @@ def test_fig4_consensus_error_on_a_log_scale(figures, sweep):
 def test_reward_distribution_marks_var_and_cvar(figures, sweep, coll):
     full, _tail = figures["reward_distribution"].figure.axes[:2]
     assert full.get_xlabel() == "total reward" and "CDF" in full.get_ylabel()
-    assert set(labelled(full)) == {f"{g.label} (2 seeds)" for g in coll.groups}
-    for g in coll.groups:
+    assert set(labelled(full)) == set(USER_NAMES.values())
+    for g, name in zip(coll.groups, names(coll.groups)):
         z = np.concatenate([eval_of(r.path).total_reward.to_numpy() for r in g.runs])
         var = [ln for ln in full.get_lines() if ln.get_label() == f"_VaR {g.label}"]
         cv = [ln for ln in full.get_lines() if ln.get_label() == f"_CVaR {g.label}"]
         assert var[0].get_xdata()[0] == pytest.approx(value_at_risk(z, 0.1))
         assert cv[0].get_xdata()[0] == pytest.approx(cvar(z, 0.1))
-        ecdf = labelled(full)[f"{g.label} (2 seeds)"]
+        ecdf = labelled(full)[name]
         assert np.all(np.diff(ecdf.get_ydata()) > 0) and ecdf.get_ydata()[-1] == 1.0
 
 
@@ -495,7 +555,8 @@ def test_a_figure_failing_in_a_worker_is_skipped_and_the_others_written(sweep, t
     manifest = set(json.loads((out / ".riskplan-manifest.json").read_text())["files"])
     drawn = {f"{name}.{fmt}" for name in made.figures for fmt in ("png", "pdf")}
     assert drawn <= manifest and drawn <= {p.name for p in out.iterdir()}
-    assert not any(name.split(".")[0] in failed for name in manifest | {p.name for p in out.iterdir()})
+    written = {name for name in manifest | {p.name for p in out.iterdir()} if name.endswith((".png", ".pdf"))}
+    assert not any(name.split(".")[0] in failed for name in written)
     html = made.page.read_text()
     assert all(f'<figure id="{name}">' in html for name in made.figures)
     assert all(f"<li><b>{name}</b>: failed: RuntimeError: half-drawn</li>" in html for name in failed)

@@ -1,0 +1,99 @@
+"""The report's figures, drawn from the logged tables only (the report never re-simulates).
+
+Every builder returns a `FigureSpec` (or the reason it is not drawn) holding a matplotlib `Figure`:
+
+- `paper`: Figs. 1-4 of Section V (the paper's pair and titles only for a reproduction's runs);
+- `beyond`: consensus by order, the reward distribution, the risk frontier, the team's θ, soft risk, the landscape;
+- `studies`: the studies of riskplan reproduce beyond the paper;
+- `naming`: what a figure calls its groups (only what differs between them) and its small multiples;
+- `drawing`: the style, panels, curves with bands, and the files (`figure_files`).
+"""
+
+from __future__ import annotations
+
+import matplotlib
+
+from riskplan.experiments.reporting.collect import Collection
+from riskplan.experiments.reporting.figures.beyond import (
+    fig_distribution,
+    fig_frontier,
+    fig_landscape,
+    fig_orders,
+    fig_soft_risk,
+    fig_thetas,
+)
+from riskplan.experiments.reporting.figures.drawing import STYLE, FigureSpec, figure_files
+from riskplan.experiments.reporting.figures.paper import fig_consensus, fig_cvar, fig_paths, fig_team, risk_name
+from riskplan.experiments.reporting.figures.studies import STUDY_BUILDERS
+
+BUILDERS = (
+    ("fig1_paths", fig_paths),
+    ("fig2_cvar", fig_cvar),
+    ("fig3_team", fig_team),
+    ("fig4_consensus", fig_consensus),
+    ("consensus_orders", fig_orders),
+    ("reward_distribution", fig_distribution),
+    ("risk_frontier", fig_frontier),
+    ("team_thetas", fig_thetas),
+    ("soft_risk", fig_soft_risk),
+    *STUDY_BUILDERS.values(),
+)
+
+
+def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
+    """Every figure the runs support, and for the others why not (name -> reason). Never raises."""
+    specs: list[FigureSpec] = []
+    skipped: dict[str, str] = {}
+    with matplotlib.rc_context(STYLE):
+        jobs = list(BUILDERS) + [
+            (f"landscape{'' if i == 0 else f'_{i + 1}'}", (lambda c, land=land, i=i: fig_landscape(c, land, i)))
+            for i, land in enumerate(coll.landscapes)
+        ]
+        for name, build in jobs:
+            if not coll.runs and not name.startswith("landscape"):
+                skipped[name] = "no usable runs"
+                continue
+            try:
+                result = build(coll)
+            except Exception as err:
+                skipped[name] = f"failed: {type(err).__name__}: {err}"
+                continue
+            if isinstance(result, FigureSpec):
+                specs.append(result)
+            else:
+                skipped[name] = result
+        for study in coll.studies:  # reproduce's studies, each from its own runs
+            name, build = STUDY_BUILDERS[study.name]
+            try:
+                result = build(study.collection)
+            except Exception as err:
+                result = f"failed: {type(err).__name__}: {err}"
+            if isinstance(result, FigureSpec):
+                taken = {s.name for s in specs}
+                if result.name in taken:  # the main runs drew one too
+                    result.name = next(f"{name}_{k}" for k in range(2, len(taken) + 3) if f"{name}_{k}" not in taken)
+                result.study = study.name
+                specs.append(result)
+                skipped.pop(name, None)
+            else:
+                skipped.setdefault(name, f"{study.name}/: {result}")
+    return specs, skipped
+
+
+__all__ = [
+    "BUILDERS",
+    "STUDY_BUILDERS",
+    "FigureSpec",
+    "fig_consensus",
+    "fig_cvar",
+    "fig_distribution",
+    "fig_frontier",
+    "fig_orders",
+    "fig_paths",
+    "fig_soft_risk",
+    "fig_team",
+    "fig_thetas",
+    "figure_files",
+    "make_figures",
+    "risk_name",
+]
