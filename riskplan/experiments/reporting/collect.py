@@ -10,7 +10,8 @@ they neither join nor relabel the groups of the paper's figures.
 
 A run whose config and seed repeat another's (`riskplan.experiments.sweep_worker.run_identity`: the same config,
 wherever it was written) is the same sample: the first by path is used, the others are `Collection.duplicates`,
-so that no seed is counted twice.
+so that no seed is counted twice. The paper's runs and each study's are pooled apart, so a study's run that repeats
+one of the paper's (the measures study's CVaR and risk-neutral runs) is used by both.
 """
 
 from __future__ import annotations
@@ -342,13 +343,16 @@ def collect(paths: list[Path]) -> Collection:
             broken.append(Broken(path, problem))
         else:
             loaded.append((info, study_of(path, folders)))
-    kept, repeats = distinct(loaded, lambda pair: as_compared(pair[0].config))  # one sample per config and seed
-    duplicates = [Duplicate(info.path, of, info.seed) for (info, _), (of, _) in repeats]
-    runs = [info for info, study in kept if study is None]
-    studied: dict[str, list[RunInfo]] = {}
-    for info, study in kept:
-        if study is not None:
-            studied.setdefault(study, []).append(info)
+    pools: dict[str | None, list[RunInfo]] = {}  # the paper's runs (None) and each study's, pooled apart
+    for info, study in loaded:
+        pools.setdefault(study, []).append(info)
+    duplicates = []
+    for study, members in pools.items():  # one sample per config and seed in each pool
+        pools[study], repeats = distinct(members, lambda r: as_compared(r.config))
+        duplicates += [Duplicate(info.path, of, info.seed) for info, of in repeats]
+    duplicates.sort(key=lambda d: str(d.path))
+    runs = pools.pop(None, [])
+    studied: dict[str, list[RunInfo]] = pools
     groups, differing = group_runs(runs)
     studies = []
     for name, (title, _) in STUDIES.items():

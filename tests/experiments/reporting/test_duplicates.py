@@ -111,6 +111,19 @@ def test_another_seed_is_not_a_duplicate_and_a_copy_is(runs, tmp_path):
     assert {(d.path.name, d.of.path.name) for d in coll.duplicates} == {("cli", "api"), ("copy", "api")}
 
 
+def test_a_study_repeating_a_paper_run_uses_it_too(runs, tmp_path):
+    """reproduce's study folders are pooled apart from the paper's runs: a repeat across the two is no duplicate."""
+    shutil.copytree(runs / "api", tmp_path / "single" / "cvar,seed=0")
+    shutil.copytree(runs / "api", tmp_path / "measures" / "cvar,seed=0")
+    shutil.copytree(runs / "api", tmp_path / "measures" / "cvar,seed=0,again")  # within the study: a duplicate
+    coll = collect([tmp_path])
+    assert [r.path for r in coll.runs] == [tmp_path / "single" / "cvar,seed=0"]
+    assert [[r.path for r in s.collection.runs] for s in coll.studies] == [[tmp_path / "measures" / "cvar,seed=0"]]
+    assert [(d.path, d.of.path) for d in coll.duplicates] == [
+        (tmp_path / "measures" / "cvar,seed=0,again", tmp_path / "measures" / "cvar,seed=0")
+    ]
+
+
 def test_the_command_prints_one_warning_line(runs, tmp_path):
     result = run_cli(["report", str(runs / "api"), str(runs / "cli"), "--out", str(tmp_path / "out")], tmp_path)
     assert result.returncode == 0, result.stderr
