@@ -204,17 +204,27 @@ PARALLEL_POLICIES = 16  # from this many policies on, `tables` fills them in par
 CHUNK = 8  # policies per parallel work item
 
 
-def tables(world: World, thetas: np.ndarray, features: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def tables(
+    world: World, thetas: np.ndarray, features: np.ndarray | None = None, cells: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-policy cumulative move probabilities (P, C, 5) and scores (P, C, 5, M) for thetas (P, M).
 
     `features` is move_features(world) when the caller keeps it (riskplan.engine.rollout.Kernel does: computing it is
-    most of a small batch's fixed cost).
+    most of a small batch's fixed cost). With `cells` (an index array), only those cells' rows are filled, each with
+    the numbers it has in the full tables, and the other rows are left unset: the kernel passes the cells its
+    episodes can reach (riskplan.engine.rollout.reach), so a large map costs what its reachable part costs.
     """
     features = move_features(world) if features is None else features
     cum = np.empty(thetas.shape[:1] + features.shape[:2])
     score = np.empty(thetas.shape[:1] + features.shape)
     thetas = np.ascontiguousarray(thetas, dtype=np.float64)
-    if len(thetas) >= PARALLEL_POLICIES:
+    if cells is not None:
+        cells = np.ascontiguousarray(cells, dtype=np.int64)
+        if len(thetas) >= PARALLEL_POLICIES:
+            _fill_tables_at_parallel(features, thetas, cum, score, cells)
+        else:
+            _fill_tables_at(features, thetas, cum, score, 0, len(thetas), cells)
+    elif len(thetas) >= PARALLEL_POLICIES:
         _fill_tables_parallel(features, thetas, cum, score)
     else:
         _fill_tables(features, thetas, cum, score, 0, len(thetas))
@@ -228,6 +238,44 @@ def _fill_tables_parallel(features, thetas, cum, score):
     chunks = (thetas.shape[0] + CHUNK - 1) // CHUNK
     for chunk in prange(chunks):
         _fill_tables(features, thetas, cum, score, chunk * CHUNK, min(thetas.shape[0], (chunk + 1) * CHUNK))
+
+
+@njit(parallel=True, cache=True)
+def _fill_tables_at_parallel(features, thetas, cum, score, cells):
+    """`_fill_tables_at` of all policies, CHUNK at a time in parallel, as `_fill_tables_parallel`."""
+    chunks = (thetas.shape[0] + CHUNK - 1) // CHUNK
+    for chunk in prange(chunks):
+        _fill_tables_at(features, thetas, cum, score, chunk * CHUNK, min(thetas.shape[0], (chunk + 1) * CHUNK), cells)
+
+
+@njit(cache=True)
+def _fill_tables_at(features, thetas, cum, score, first, last, cells):
+    """`_fill_tables` for the listed cells only: the same loop body, so each row holds the same numbers."""
+    mu = np.empty(5)
+    for p in range(first, last):
+        for c in cells:
+            best = -np.inf
+            for a in range(5):
+                mu[a] = 0.0
+                for j in range(thetas.shape[1]):
+                    mu[a] += thetas[p, j] * features[c, a, j]
+                best = max(best, mu[a])
+            total = 0.0
+            for a in range(5):
+                mu[a] = math.exp(mu[a] - best)  # max-shift: no overflow for large theta
+                total += mu[a]
+            running = 0.0
+            for a in range(5):
+                mu[a] /= total
+                running += mu[a]
+                cum[p, c, a] = running
+            cum[p, c, 4] = 1.0  # guard the last bin against round-off so a uniform draw always lands
+            for j in range(thetas.shape[1]):
+                expected = 0.0
+                for a in range(5):
+                    expected += mu[a] * features[c, a, j]
+                for a in range(5):
+                    score[p, c, a, j] = features[c, a, j] - expected
 
 
 @njit(cache=True)

@@ -76,6 +76,7 @@ class Kernel:
     signal_at: int = 0  # index in theta of the first signal weight, -1 for none (features policies)
     extra_at: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (E,) theta index per extra
     extras: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 0)))  # (C, 5, E): the extra features
+    reached: dict = field(default_factory=dict, compare=False, repr=False)  # `reach` by start cells, remembered
 
 
 def affine_form(dist: D.Dist) -> tuple[float, float, float, float, float] | None:
@@ -182,10 +183,12 @@ def simulate(
     if kernel.tabular:
         cum, probs = tabular_tables(thetas, world.cells)
         score = np.empty((0, 0, 0, 0))
-    else:
-        cum, score = tables(world, thetas, kernel.features)
+        bins = move_bins(cum)
+    else:  # the tables of the cells episodes can reach (none with mobile sources: their moves are computed)
+        cells = reach(kernel, starts)
+        cum, score = tables(world, thetas, kernel.features, cells)
         probs = np.empty((0, 0, 5))
-    bins = move_bins(cum)
+        bins = move_bins(cum, cells)
     total = policies * episodes
     out_z = np.empty(total)
     if kernel.tabular:  # accumulated in place by the kernel, from zeros
@@ -358,11 +361,63 @@ def _pick(cum, u):
     return (u > cum[0]) + (u > cum[1]) + (u > cum[2]) + (u > cum[3])
 
 
-def move_bins(cum: np.ndarray) -> np.ndarray:
-    """`_bins` of every policy's (P, C, 5) cumulative move probabilities: (P, C, 4) integer bounds."""
+def move_bins(cum: np.ndarray, cells: np.ndarray | None = None) -> np.ndarray:
+    """`_bins` of every policy's (P, C, 5) cumulative move probabilities: (P, C, 4) integer bounds (of the listed
+    `cells` only, the other rows unset, when given)."""
     bins = np.empty((cum.shape[0], cum.shape[1], 4), dtype=np.int64)
-    _bins(cum, bins)
+    if cells is None:
+        _bins(cum, bins)
+    else:
+        _bins_at(cum, bins, np.ascontiguousarray(cells, dtype=np.int64))
     return bins
+
+
+def reach(kernel: Kernel, starts: np.ndarray) -> np.ndarray:
+    """The cells at which an episode from `starts` can pick a move (sorted): those within horizon - 1 moves of a
+    start through next_cell. The kernel reads the policy tables at these cells only, so `simulate` fills only
+    theirs (a 256 x 256 map whose episodes see a few hundred cells costs what those cost). Empty with mobile
+    sources, whose moves the kernel computes at each step. Remembered per start cells."""
+    if kernel.mobile:
+        return np.zeros(0, dtype=np.int64)
+    key = np.unique(np.asarray(starts, dtype=np.int64)).tobytes()
+    found = kernel.reached.get(key)
+    if found is None:
+        found = _reach(kernel.next_cell, np.frombuffer(key, dtype=np.int64), kernel.horizon - 1)
+        found.flags.writeable = False
+        if len(kernel.reached) >= REACH_MEMO:
+            kernel.reached.clear()
+        kernel.reached[key] = found
+    return found
+
+
+REACH_MEMO = 64  # start sets remembered per kernel (a team's, an environment's resets)
+
+
+@njit(cache=True)
+def _reach(next_cell, starts, moves):
+    """Cells within `moves` moves of any start (breadth first over next_cell), sorted."""
+    seen = np.zeros(next_cell.shape[0], dtype=np.bool_)
+    order = np.empty(next_cell.shape[0], dtype=np.int64)
+    count = 0
+    for start in starts:
+        if not seen[start]:
+            seen[start] = True
+            order[count] = start
+            count += 1
+    begin = 0
+    for _ in range(moves):
+        end = count
+        for i in range(begin, end):
+            for a in range(next_cell.shape[1]):
+                nxt = next_cell[order[i], a]
+                if not seen[nxt]:
+                    seen[nxt] = True
+                    order[count] = nxt
+                    count += 1
+        if count == end:
+            break
+        begin = end
+    return np.sort(order[:count])
 
 
 @njit(cache=True)
@@ -378,6 +433,19 @@ def _bins(cum, bins):
     top = np.int64(9007199254740992)  # 2^53: one past the largest m
     for p in range(cum.shape[0]):
         for c in range(cum.shape[1]):
+            for a in range(4):
+                scaled = cum[p, c, a] * 9007199254740992.0
+                below = np.int64(math.floor(scaled - 0.5)) + 1
+                above = np.int64(min(scaled, 9007199254740992.0)) | 1
+                bins[p, c, a] = min(max(below if scaled < 4503599627370496.0 else above, 0), top)
+
+
+@njit(cache=True)
+def _bins_at(cum, bins, cells):
+    """`_bins` for the listed cells only: the same arithmetic, row by row."""
+    top = np.int64(9007199254740992)  # 2^53: one past the largest m
+    for p in range(cum.shape[0]):
+        for c in cells:
             for a in range(4):
                 scaled = cum[p, c, a] * 9007199254740992.0
                 below = np.int64(math.floor(scaled - 0.5)) + 1
