@@ -238,7 +238,7 @@ class RegionConf(Frozen):
     rect: list[int] | None = None  # [x0, y0, x1, y1], inclusive corners
     halfplane: list[float] | None = None  # [a, b, c]: the cells with a*x + b*y > c ("y > x" is [-1, 1, 0])
     cells: list[list[int]] | None = None  # [[x, y], ...]
-    mask: str | None = None  # an image the map's size whose dark pixels are the region (relative: to world.map's folder)
+    mask: str | None = None  # an image the map's size: its dark pixels (relative to world.map's folder)
 
 
 @dataclass

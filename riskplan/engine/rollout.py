@@ -11,7 +11,8 @@ worlds without recording run `_simulate_affine`, a loop without the other cases.
 runs the interpreter and the inverse-CDF normals everywhere: the same laws from other numbers, the tests' reference.
 
 Policies (riskplan.engine.policy.Policy, packed by `make_kernel`): a features policy's moves come from per-policy
-tables of (cell, move) for static sources, whatever its features; with mobile sources `_mobile_policy` computes the
+tables of (cell, move) for static sources, whatever its features, filled only for the cells its episodes can reach
+(`reach`: a 256 x 256 map costs what the few hundred cells within the horizon cost); with mobile sources `_mobile_policy` computes the
 signals at each step and adds the static extra features (risky, stay). A tabular policy's moves come from its table
 in every case (it ignores where the sources are, so mobile sources need nothing else), and its score, a (C * 5,)
 vector per episode, is accumulated step by step as e_(c, a) - mu(. | c) straight into the batch's scores, in
