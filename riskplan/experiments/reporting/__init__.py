@@ -1,11 +1,12 @@
-"""`riskplan report`: the paper's figures, tables, the objective landscape and a self-contained report.html.
+"""`riskplan report`: figures, tables, the objective landscape and a self-contained report.html.
 
     build_report([Path("outputs/sweeps/...")], Path("report"), ["png", "pdf"]) -> Path("report/report.html")
 
-The report reads the runs' tables (parquet, or rebuilt from run.mcap when missing) and never re-simulates.
-Broken or partial runs are listed with the reason and skipped; a path holding no run at all is BadInput. A run
-whose config and seed repeat another's is the same sample: it is counted once, listed in runs.csv as `duplicate`,
-with one warning.
+The figures follow what differs between the groups of runs (one curve per β of a β sweep); they are the paper's
+Figs. 1-4, under its titles, only for a reproduction's runs (reporting.figures). The report reads the runs' tables
+(parquet, or rebuilt from run.mcap when missing) and never re-simulates. Broken or partial runs are listed with
+the reason and skipped; a path holding no run at all is BadInput. A run whose config and seed repeat another's is
+the same sample: it is counted once, listed in runs.csv as `duplicate`, with one warning.
 """
 
 from __future__ import annotations
