@@ -10,6 +10,8 @@ Test files import it as `from measure_cases import ...`, as they import support.
 from __future__ import annotations
 
 import math
+import shutil
+from pathlib import Path
 
 import pytest
 
@@ -46,3 +48,45 @@ def measure_cases(spectral_only: bool = False) -> list:
         for fraction in FRACTIONS if measure.parameters else FRACTIONS[:1]:
             cases.append(pytest.param(node(measure, fraction), id=f"{measure.name}-{fraction}"))
     return cases
+
+
+# ------------------------------------------------------------------------------------------------ a user's package
+ENTRY_POINTS = {"power": "riskplan_power:power"}  # the package's entry points in the group riskplan.risk_measures
+PYPROJECT = """\
+[build-system]
+requires = ["setuptools>=61"]
+build-backend = "setuptools.build_meta"
+
+[project]
+name = "riskplan-power"
+version = "0.1.0"
+dependencies = ["riskplan"]
+
+[project.entry-points."riskplan.risk_measures"]
+""" + "".join(f'{name} = "{target}"\n' for name, target in ENTRY_POINTS.items())
+MODULE = '''\
+"""A power distortion for riskplan: G(u) = u^gamma, risk-averse for gamma < 1."""
+
+import riskplan.risk
+
+power = riskplan.risk.distortion("power", lambda u, gamma: u**gamma, gamma=(0, 1))
+'''
+
+
+def install_package(root: Path, module: str = MODULE, entry_points: dict[str, str] | None = None) -> Path:
+    """A measure's package written as a user writes it (root/riskplan-power: pyproject.toml and riskplan_power.py)
+    and installed as pip installs it, without a build: the module and a dist-info whose entry_points.txt holds the
+    pyproject's entry points (or `entry_points`), in root/site. Put that on sys.path or PYTHONPATH."""
+    source, site = root / "riskplan-power", root / "site"
+    dist = site / "riskplan_power-0.1.0.dist-info"
+    source.mkdir(parents=True)
+    dist.mkdir(parents=True)
+    (source / "pyproject.toml").write_text(PYPROJECT)
+    (source / "riskplan_power.py").write_text(module)
+    shutil.copy(source / "riskplan_power.py", site)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: riskplan-power\nVersion: 0.1.0\n")
+    points = ENTRY_POINTS if entry_points is None else entry_points
+    (dist / "entry_points.txt").write_text(
+        "[riskplan.risk_measures]\n" + "".join(f"{k} = {v}\n" for k, v in points.items())
+    )
+    return site
