@@ -79,10 +79,15 @@ class Params(Mapping):
 
     def __getattr__(self, name: str) -> float:
         """A value by attribute: params.beta."""
+        if name.startswith("_"):  # not a parameter (and never _values itself, before it is set)
+            raise AttributeError(name)
         try:
             return self._values[name]
         except KeyError:
             raise AttributeError(f"no parameter {name!r} among {list(self._values)}") from None
+
+    def __reduce__(self) -> tuple:
+        return Params, (self._values,)
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._values)
