@@ -165,8 +165,8 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
+    from riskplan.engine.step import NumericalTrouble
     from riskplan.experiments.hydra_app import write_status
-    from riskplan.run.evaluation import NumericalTrouble
     from riskplan.run.training import prepare_resume
     from riskplan.run.training import train as train_run
     from riskplan.util.progress import TrainingBar

@@ -10,7 +10,7 @@ import numpy as np
 
 from riskplan.engine.measures.base import Statistics
 from riskplan.engine.measures.registry import risk_spec
-from riskplan.run.schedules import risk_level
+from riskplan.engine.schedules import risk_level
 
 
 def gradients(z, scores, risk, l, stats, robots, baseline, beta) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -22,10 +22,11 @@ from matplotlib.ticker import NullLocator
 from riskplan.engine import rng
 from riskplan.engine.distributions import Dist
 from riskplan.engine.rollout import simulate
-from riskplan.run.build import build_setup, starts
+from riskplan.engine.schedules import samples_at
+from riskplan.engine.step import starts
+from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import State
 from riskplan.run.compose import compose
-from riskplan.run.schedules import samples_at
 from riskplan.run.training import iterate, train
 
 

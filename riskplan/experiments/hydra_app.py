@@ -26,8 +26,8 @@ from hydra.types import HydraContext, RunMode
 from omegaconf import DictConfig, open_dict
 
 from riskplan.config import schema
+from riskplan.engine.step import NumericalTrouble
 from riskplan.experiments.sweep_worker import sweep_job
-from riskplan.run.evaluation import NumericalTrouble
 from riskplan.run.training import train_summary
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted

@@ -49,8 +49,8 @@ import numba
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from riskplan.engine.step import NumericalTrouble
 from riskplan.run.compose import compose
-from riskplan.run.evaluation import NumericalTrouble
 from riskplan.run.training import train_summary
 from riskplan.util import lock
 from riskplan.util.errors import BadInput

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
 
 import numpy as np
 from omegaconf import DictConfig
@@ -14,38 +13,14 @@ from riskplan.config.typed import as_dict, typed
 from riskplan.config.validate import validate
 from riskplan.engine.measures.registry import check_risk_nodes
 from riskplan.engine.policy import Policy, make_policy
-from riskplan.engine.rollout import Kernel, make_kernel
+from riskplan.engine.rollout import make_kernel
+from riskplan.engine.step import Setup
 from riskplan.engine.team.mixer import Mixer
-from riskplan.engine.team.network import Network, build_network
+from riskplan.engine.team.network import build_network
 from riskplan.engine.world import World, build_world, grid_size
 from riskplan.run import budget, maps
 from riskplan.util.checks import require
 from riskplan.util.errors import BadInput
-
-
-@dataclass(frozen=True)
-class Setup:
-    """A validated experiment: its frozen config, world, kernel arrays, team network."""
-
-    params: RiskplanConf  # what the engine and the training loop read
-    config: dict  # the same as plain data, for the records (.hydra/config.yaml, run.mcap metadata)
-    world: World
-    kernel: Kernel
-    network: Network
-    mixer: Mixer
-    theta0: np.ndarray  # (len(theta_names),): M for the paper's policy, C * 5 for a tabular one
-    policy: Policy  # what theta parameterises (policy.kind, policy.features); the kernel packs it
-    theta_names: tuple[str, ...]  # one unique name per entry of theta (summary.json, the MCAP metadata)
-
-    @property
-    def robots(self) -> int:
-        """Team size N."""
-        return self.network.robots
-
-    @property
-    def team(self) -> bool:
-        """Whether this is a distributed run (N > 1)."""
-        return self.network.robots > 1
 
 
 def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
@@ -123,30 +98,3 @@ def initial_theta(world: World, policy: Policy, given: list) -> np.ndarray:
         f"got {given}; the softmax logits theta . signal overflow to infinity; give smaller values",
     )
     return policy.initial(world, weights)
-
-
-def logit_bound(world: World, thetas: np.ndarray, policy: Policy | None = None) -> float:
-    """Largest |logit| any policy in `thetas` (..., len(theta)) can produce: sum_i |theta_i| x peak |f_i| for a
-    features policy (a signal's peak |amplitude|, 1 for risky and stay), the largest |theta| for a tabular one.
-
-    When it is finite, no logit (or partial sum of one) overflows, so the softmax stays finite. Pass the run's
-    `policy` (Setup.policy) for the exact bound; without it, theta of length M is the paper's policy (exact, as
-    before), theta of length C * 5 a table, and any other length is bounded with every feature at the largest peak,
-    max(1, max |amplitude|) (an upper bound whatever the order of the features).
-    """
-    if policy is not None:
-        return policy.logit_bound(thetas)
-    thetas = np.asarray(thetas, dtype=float)
-    with np.errstate(over="ignore", invalid="ignore"):
-        if thetas.shape[-1] == world.sources:
-            return float(np.max(np.abs(thetas) @ np.abs(world.source_amplitude)))
-        if thetas.shape[-1] == world.cells * 5:
-            return float(np.max(np.abs(thetas))) if thetas.size else 0.0
-        peak = max(1.0, float(np.max(np.abs(world.source_amplitude))))
-        return float(np.max(np.abs(thetas).sum(axis=-1) * peak))
-
-
-def starts(setup: Setup) -> np.ndarray:
-    """Start cell of each robot (all at world.start unless team.starts is given)."""
-    cells = setup.world.starts
-    return np.repeat(cells, setup.robots) if len(cells) == 1 else cells

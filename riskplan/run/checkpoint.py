@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from riskplan.run.build import Setup, logit_bound
+from riskplan.engine.step import Setup, logit_bound
 from riskplan.util.errors import BadInput
 
 CHECKPOINT = "checkpoint"

@@ -13,27 +13,16 @@ from riskplan.engine import rng
 from riskplan.engine.measures.registry import risk_spec
 from riskplan.engine.risk_measures import objective, summary_stats
 from riskplan.engine.rollout import simulate
+from riskplan.engine.step import Setup, check_finite, starts
 from riskplan.run.budget import EVAL_BATCH
-from riskplan.run.build import Setup, starts
 from riskplan.run.checkpoint import State
 from riskplan.run.columns import Columns, concat, rows_where
 from riskplan.run.intervals import bootstrap_intervals, objective_interval
 from riskplan.run.provenance import provenance
+from riskplan.run.record import AVERAGE
 
 SCHEMA_VERSION = 2  # of summary.json: 2 adds objective, team_objective, theta_names and robots (a list)
 ROBOT_INTERVALS = 32  # distinct (start, risk) pairs up to which each robot's objective gets a bootstrap interval
-AVERAGE = -1  # the `robot` id of the network average in team tables
-
-
-class NumericalTrouble(RuntimeError):
-    """theta or a gradient stopped being finite; the last good checkpoint is kept."""
-
-
-def check_finite(what: str, *arrays) -> None:
-    """NumericalTrouble unless every value is finite: a NaN or infinity is never recorded as a result."""
-    for values in arrays:
-        if not np.all(np.isfinite(values)):
-            raise NumericalTrouble(f"{what} is not finite (overflow); use smaller rewards or fewer steps")
 
 
 def robot_risks(params: RiskplanConf) -> list[RiskConf]:

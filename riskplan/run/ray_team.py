@@ -10,12 +10,12 @@ for the robot's loop) builds the world and kernel itself from the run's plain co
 `RobotCore`, robot i's side of the algorithm without Ray. Iteration l of robot i:
   1. W_l episodes at its own theta^i_l from its own stream (`rng.stream_key(seed, rng.TRAIN, l, i)`: the key the
      simulated team gives robot i, so its episodes do not depend on scheduling), and its gradient for its own risk
-     node (team.risk), by the estimators `training.gradients` uses (`robot_gradient`);
+     node (team.risk): riskplan.engine.step's `rollouts` and `estimate` for robot i alone;
   2. a robot with team.speeds factor s > 1 sleeps (s - 1) x that compute time (uneven hardware);
   3. for each consensus round r: it sends its value (theta, or theta + eps Delta for adapt_then_combine; with
      gradient tracking also its running sums) to its out-neighbours, fire-and-forget (`deliver`), then waits until
      each in-neighbour's newest round-r message has iteration >= l - team.staleness, and mixes its own row;
-  4. theta^i_{l+1} by team.order, exactly as `training.consensus_step` composes it; a report (its metrics row, its
+  4. theta^i_{l+1} by team.order, exactly as `engine.step.consensus_step` composes it, and the step's checks; a report (its metrics row, its
      episodes' total rewards and gradient, its state after the iteration) waits for the driver.
 
 Messages. `Message(sender, iteration, round, theta, sums)`: theta the value sent (what `faulty.sent_value` makes of
@@ -96,28 +96,26 @@ import numba
 import numpy as np
 
 from riskplan.config.schema import Aggregate, FaultKind, Order, Stale, TeamConf
-from riskplan.engine import rng
-from riskplan.engine.risk_measures import summary_stats
 from riskplan.engine.rollout import simulate
+from riskplan.engine.schedules import step_size
+from riskplan.engine.step import (
+    NumericalTrouble,
+    Setup,
+    check_step,
+    estimate,
+    rollouts,
+    starts,
+    team_statistics,
+)
 from riskplan.engine.team import faulty, resilience
 from riskplan.engine.team.convergence import consensus_error
-from riskplan.run.build import Setup, build_setup, logit_bound, starts
+from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import State, TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
 from riskplan.run.columns import Columns, from_rows, sorted_by
-from riskplan.run.evaluation import (
-    AVERAGE,
-    NumericalTrouble,
-    check_finite,
-    evaluate,
-    robot_risks,
-    sample_paths,
-    summarize,
-)
-from riskplan.run.gradients import gradients
-from riskplan.run.record import RunLog, metrics_row
+from riskplan.run.evaluation import evaluate, robot_risks, sample_paths, summarize
+from riskplan.run.record import AVERAGE, RunLog, average_row, metrics_row
 from riskplan.run.run_directory import logged_rows, reopen_log, start_log, write_finished
 from riskplan.run.run_files import has_finished
-from riskplan.run.schedules import samples_at, step_size
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted, StopSignals
 from riskplan.version import __version__
@@ -224,13 +222,6 @@ def initial_state(setup: Setup, robot: int) -> dict[str, np.ndarray]:
     }
 
 
-def robot_gradient(z, scores, risk, l, stats, baseline, beta) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`run.gradients.gradients` for robots that share the risk node `risk`, all of them given: z (R, W), scores
-    (R, W, M), stats those of z at beta; the objective values as an array of R."""
-    grads, levels, values = gradients(z, scores, risk, l, stats, slice(None), baseline, beta)
-    return grads, levels, np.asarray(values, dtype=float).reshape(len(z))
-
-
 class RobotCore:
     """Robot i's side of the algorithm, without Ray or threads: its rollouts and gradient, what it sends, what it
     takes in, whether it may mix, its row of the mix, its step, and its state (`state`, `initial_state`).
@@ -281,22 +272,12 @@ class RobotCore:
 
     # -- step 1: rollouts and gradient
     def compute(self, l: int) -> Step:
-        """W_l episodes at its theta from its own stream, and its gradient for its own risk node."""
-        params, beta = self.setup.params, self.setup.params.risk.beta
-        episodes = samples_at(l, params.train)
-        key = np.array([rng.stream_key(params.seed, rng.TRAIN, l, self.i)], dtype=np.uint64)
-        batch = simulate(self.setup.world, self.setup.kernel, self.theta[None], self.start, key, episodes)
-        z = batch.total_reward
-        scores = batch.score.reshape(1, episodes, -1)
-        where = f"iteration {l}: robot {self.i}"
-        check_finite(f"{where}: an episode's total reward", z)
-        with np.errstate(over="ignore", invalid="ignore"):
-            stats = summary_stats(z[None], beta)
-            check_finite(f"{where}: the statistics of the total reward", *stats.values())
-            grads, levels, values = robot_gradient(z[None], scores, self.risk, l, stats, params.train.baseline, beta)
-            stats["objective"] = values
-            check_finite(f"{where}: the objective of the total reward", values)
-        return Step(l, z, grads[0], float(levels[0]), {k: float(np.asarray(v)[0]) for k, v in stats.items()}, episodes)
+        """W_l episodes at its theta from its own stream, and its gradient for its own risk node: steps 1-3 of
+        riskplan.engine.step for robot i alone."""
+        z, scores = rollouts(self.setup, l, self.theta[None], robots=[self.i])
+        own = estimate(self.setup, l, z, scores, robots=[self.i], where=f"robot {self.i}")
+        stats = {k: float(v[0]) for k, v in own.stats.items()}
+        return Step(l, own.z[0], own.grads[0], float(own.levels[0]), stats, own.episodes)
 
     # -- step 3: the consensus rounds
     def begin(self, step: Step) -> tuple[np.ndarray, np.ndarray | None, float]:
@@ -407,16 +388,7 @@ class RobotCore:
         l = step.iteration
         theta = self.theta.copy()
         new = value if self._direction is None else value + eps * self._direction
-        if not (np.all(np.isfinite(step.grad)) and np.all(np.isfinite(new))):
-            raise NumericalTrouble(
-                f"iteration {l}: robot {self.i}: theta or its gradient is not finite (theta={theta.tolist()}, "
-                f"gradient={step.grad.tolist()}); lower train.step_size.initial"
-            )
-        if not math.isfinite(logit_bound(self.setup.world, new[None], self.setup.policy)):
-            raise NumericalTrouble(
-                f"iteration {l}: robot {self.i}: the new theta={new.tolist()} overflows the softmax "
-                f"(theta . signal is not finite); lower train.step_size.initial"
-            )
+        check_step(self.setup, l, theta, step.grad, new, who=f"robot {self.i}")
         if carried is not None:
             self.s["tracker"] = np.array(carried, dtype=float)
             self.s["gradient"] = np.array(step.grad, dtype=float)
@@ -757,26 +729,24 @@ class _Team:
         error = consensus_error(thetas[ok]) if setup.team else math.nan
         rows = []
         if setup.team:
-            beta = params.risk.beta
-            z = np.concatenate([entries[i]["z"] for i in ok])
-            average = summary_stats(z, beta) | {"objective": sum(entries[i]["row"]["objective"] for i in ok)}
+            objectives = np.array([e["row"]["objective"] for e in entries])
+            team = team_statistics(setup, l, np.stack([e["z"] for e in entries]), objectives)
             levels = np.array([e["row"]["beta_l"] for e in entries])
-            level = levels[0] if np.all(levels == levels[0]) else math.nan
+            grads = np.array([e["grad"] for e in entries])
             stale = [e["row"]["staleness"] for e in entries if not math.isnan(e["row"]["staleness"])]
-            first = entries[0]["row"]
+            first, seconds = entries[0]["row"], max(e["row"]["seconds"] for e in entries)
             rows.append(
-                metrics_row(
+                average_row(
                     l,
-                    AVERAGE,
-                    average,
-                    thetas[ok].mean(axis=0),
-                    np.mean([entries[i]["grad"] for i in ok], axis=0),
+                    team,
+                    thetas,
+                    grads,
+                    levels,
+                    healthy,
                     first["step_size"],
                     error,
-                    first["samples"] * len(ok),
-                    max(e["row"]["seconds"] for e in entries),
-                    level,
-                    True,
+                    first["samples"],
+                    seconds,
                     staleness=float(max(stale)) if stale else math.nan,
                 )
             )
@@ -1042,7 +1012,6 @@ __all__ = [
     "initial_state",
     "prepare_ray_resume",
     "ray_runtime",
-    "robot_gradient",
     "tracking_balance",
     "train_ray",
 ]

@@ -48,9 +48,12 @@ from mcap.records import Channel, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from riskplan.engine.step import Statistics
 from riskplan.run import foxglove_scene as fx
 from riskplan.util.errors import BadInput
 from riskplan.version import __version__
+
+AVERAGE = -1  # the `robot` id of the network average in team tables
 
 MAGIC = b"\x89MCAP0\r\n"
 BATCH_ROWS = 20_000
@@ -224,6 +227,90 @@ def _nonfinite(f: float) -> Any:
     if f != f:
         return None
     return "Infinity" if f > 0 else "-Infinity"
+
+
+def statistics_rows(statistics: Statistics, seconds: float) -> list[dict]:
+    """An iteration's metrics rows from riskplan.engine.step's Statistics: one per robot, then a team's network
+    average (robot AVERAGE: its statistics on the healthy robots' pooled episodes, their mean theta and gradient).
+    `seconds`: the iteration's time, on every row."""
+    l, thetas, e = statistics.iteration, statistics.thetas, statistics.estimates
+    eps, error, healthy = statistics.step_size, statistics.consensus_error, statistics.healthy
+    rows = _robot_rows(l, e.stats, thetas, e.grads, eps, error, e.episodes, seconds, e.levels, healthy)
+    if statistics.team is not None:
+        rows.append(
+            average_row(l, statistics.team, thetas, e.grads, e.levels, healthy, eps, error, e.episodes, seconds)
+        )
+    return rows
+
+
+def average_row(l, team, thetas, grads, levels, healthy, eps, error, samples, seconds, **extra) -> dict:
+    """A team's network-average row (robot AVERAGE): `team`, its statistics on the healthy robots' pooled episodes
+    (riskplan.engine.step.team_statistics), their mean theta and gradient, their episodes (`samples` per robot), and
+    beta_l where every robot shares it; then `extra` columns."""
+    ok = slice(None) if np.all(healthy) else np.asarray(healthy, dtype=bool)
+    level = levels[0] if np.all(levels == levels[0]) else math.nan
+    count = samples * int(np.sum(healthy))
+    return metrics_row(
+        l,
+        AVERAGE,
+        team,
+        thetas[ok].mean(axis=0),
+        grads[ok].mean(axis=0),
+        eps,
+        error,
+        count,
+        seconds,
+        level,
+        True,
+        **extra,
+    )
+
+
+def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, levels, healthy) -> list[dict]:
+    """`metrics_row` of every robot i (stats[k][i], thetas[i], grads[i], levels[i], healthy[i]): the same dicts,
+    copies of one template with the values every robot shares, filled in column by column."""
+    n, m = thetas.shape
+    if n <= 4:  # a centralized run or a small team: one metrics_row each is quicker
+        return [
+            metrics_row(
+                l,
+                i,
+                {k: v[i] for k, v in stats.items()},
+                thetas[i],
+                grads[i],
+                eps,
+                error,
+                samples,
+                seconds,
+                levels[i],
+                healthy[i],
+            )
+            for i in range(n)
+        ]
+    template = metrics_row(
+        l, 0, {k: 0.0 for k in stats}, np.zeros(m), np.zeros(1), eps, error, samples, seconds, levels[0], True
+    )
+    columns = {
+        "robot": range(n),
+        "healthy": np.asarray(healthy, dtype=bool).tolist(),
+        **{k: np.asarray(v, dtype=float).tolist() for k, v in stats.items()},
+        **{f"theta_{j}": column for j, column in enumerate(np.asarray(thetas, dtype=float).T.tolist())},
+        "grad_norm": _norms(grads),
+        "beta_l": np.asarray(levels, dtype=float).tolist(),
+    }
+    rows = [template.copy() for _ in range(n)]
+    for key, column in columns.items():  # existing keys: the template's order stays
+        for row, value in zip(rows, column):
+            row[key] = value
+    return rows
+
+
+def _norms(vectors: np.ndarray) -> list[float]:
+    """np.linalg.norm of each row, bit for bit: that is sqrt(x.dot(x)), and numpy's vecdot (numpy >= 2) takes each
+    row's dot product by the very function x.dot(x) calls (the dtype's dot, a BLAS ddot)."""
+    if hasattr(np, "vecdot"):
+        return np.sqrt(np.vecdot(vectors, vectors)).tolist()
+    return [math.sqrt(x.dot(x)) for x in vectors]
 
 
 def metrics_row(l, robot, stats, theta, grad, eps, error, samples, seconds, level, healthy, **extra) -> dict:

@@ -11,9 +11,9 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from riskplan.config.typed import as_dict, typed
+from riskplan.engine.step import Setup, starts
 from riskplan.engine.team.network import network_metadata
 from riskplan.engine.world import world_map
-from riskplan.run.build import Setup, starts
 from riskplan.run.checkpoint import CHECKPOINT
 from riskplan.run.columns import Columns, write_parquet
 from riskplan.run.foxglove_layout import write_layout

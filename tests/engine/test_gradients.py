@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from riskplan.config.schema import RiskConf, ScheduleConf
+from riskplan.engine.gradients import gradients
 from riskplan.engine.risk_measures import objective, objective_gradient, summary_stats
-from riskplan.run.gradients import gradients
-from riskplan.run.schedules import risk_level
+from riskplan.engine.schedules import risk_level
 
 BETA = 0.1  # the run's risk.beta, at which the iteration's statistics are taken
 

@@ -14,8 +14,9 @@ from support import WORLD_3X3, exact_distribution, exact_mean, rollouts
 
 from riskplan.config.schema import RiskplanConf
 from riskplan.engine.policy import make_policy, move_features, probabilities, scores, tables
+from riskplan.engine.step import logit_bound
 from riskplan.risk import mean_gradient
-from riskplan.run.build import build_setup, logit_bound
+from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 from riskplan.util.errors import BadInput
 

@@ -11,7 +11,8 @@ import pytest
 from riskplan import compose
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
-from riskplan.run.build import build_setup, starts
+from riskplan.engine.step import starts
+from riskplan.run.build import build_setup
 
 
 def test_stream_keys_are_distinct_for_every_seed_purpose_iteration_and_robot():

@@ -1,4 +1,4 @@
-"""Per-iteration schedules (riskplan.run.schedules): the step size eps_l when its denominator overflows, and the
+"""Per-iteration schedules (riskplan.engine.schedules): the step size eps_l when its denominator overflows, and the
 growing number of samples W_l = W (1 + l)^g. The soft-risk level beta_l is in test_soft_risk.py."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from support import TINY
 
 from riskplan import compose, train
 from riskplan.config.schema import StepSizeConf
-from riskplan.run.schedules import step_size
+from riskplan.engine.schedules import step_size
 
 
 def test_a_step_size_whose_denominator_overflows_is_zero_not_an_error():

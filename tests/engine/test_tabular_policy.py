@@ -23,10 +23,11 @@ from riskplan.engine.policy import (
     tabular_tables,
 )
 from riskplan.engine.rollout import make_kernel, simulate
+from riskplan.engine.step import logit_bound
 from riskplan.engine.world import MOVE_NAMES
 from riskplan.risk import mean_gradient
 from riskplan.run import build
-from riskplan.run.build import build_setup, logit_bound
+from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 from riskplan.util.errors import BadInput
 

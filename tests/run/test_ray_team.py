@@ -28,8 +28,10 @@ import pandas as pd
 import pytest
 
 import riskplan
+import riskplan.engine.step as engine_step
+import riskplan.run.record as record
 import riskplan.run.training as training
-from riskplan.engine.risk_measures import summary_stats
+from riskplan.engine.schedules import step_size
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import CHECKPOINT, load_team_checkpoint, save_team_checkpoint
 from riskplan.run.log_reader import read_log
@@ -41,7 +43,6 @@ from riskplan.run.ray_team import (
     in_neighbours,
     initial_state,
     out_neighbours,
-    robot_gradient,
     tracking_balance,
 )
 from riskplan.util.errors import BadInput
@@ -78,7 +79,7 @@ def fake_step(l: int, grad: np.ndarray) -> Step:
 )
 def test_robots_in_lockstep_step_as_the_simulated_team(overrides):
     """With every message of iteration l delivered before anyone mixes (staleness 0, the synchronous schedule), the
-    robots' own rows give the simulated backend's consensus step (training.consensus_step, the Mixer) to rounding."""
+    robots' own rows give the simulated backend's consensus step (riskplan.engine.step.consensus_step, the Mixer) to rounding."""
     ray_setup = setup_of("team.staleness=0", *overrides)
     sim_setup = build_setup(riskplan.compose(["experiment=paper_team", *SMALL, *overrides]))
     n, m = ray_setup.robots, ray_setup.network.n_params
@@ -87,8 +88,8 @@ def test_robots_in_lockstep_step_as_the_simulated_team(overrides):
     noise = np.random.default_rng(7)
     for l in range(6):
         grads = noise.normal(0.0, 0.3, (n, m))
-        want = training.consensus_step(
-            sim_setup, thetas, grads, training.step_size(l, sim_setup.params.train.step_size), l
+        want = engine_step.consensus_step(
+            sim_setup, sim_setup.mixer, thetas, grads, step_size(l, sim_setup.params.train.step_size), l
         )
         steps = [fake_step(l, grads[i]) for i in range(n)]
         begun = [core.begin(step) for core, step in zip(cores, steps)]
@@ -200,19 +201,18 @@ def test_tracking_mass_is_conserved_under_random_delays(seed):
     "risk", ["risk=cvar", "risk=neutral", "risk=wang", "risk=mean_cvar", "risk=entropic", "risk.schedule.kind=linear"]
 )
 def test_each_robot_estimates_its_gradient_as_the_simulated_team_does(risk):
+    """engine.step.estimate for robot i alone (what a Ray robot runs) gives the whole team's row i."""
     setup = setup_of(risk)
-    params = setup.params
     draw = np.random.default_rng(3)
     z = draw.normal(1500.0, 400.0, (3, 300))
     scores = draw.normal(0.0, 1.0, (3, 300, 2))
-    stats = summary_stats(z, params.risk.beta)
     for l in (0, 7):
-        want = training.gradients(
-            z, scores, params.risk, l, stats, slice(None), params.train.baseline, params.risk.beta
-        )
-        got = robot_gradient(z, scores, params.risk, l, stats, params.train.baseline, params.risk.beta)
-        for a, b in zip(got, want):
-            np.testing.assert_array_equal(a, b)
+        team = engine_step.estimate(setup, l, z, scores)
+        for i in range(3):
+            alone = engine_step.estimate(setup, l, z[i : i + 1], scores[i : i + 1], robots=[i], where=f"robot {i}")
+            np.testing.assert_array_equal(alone.grads[0], team.grads[i])
+            np.testing.assert_array_equal(alone.levels[0], team.levels[i])
+            assert {k: v[0] for k, v in alone.stats.items()} == {k: v[i] for k, v in team.stats.items()}
 
 
 def test_a_robots_row_has_the_simulated_columns_then_staleness():
@@ -221,7 +221,7 @@ def test_a_robots_row_has_the_simulated_columns_then_staleness():
     value, carried, eps = core.begin(step)
     row = core.finish(step, value, carried, eps, 2.0, 0.01)
     stats = {k: np.array([v]) for k, v in step.stats.items()}
-    (simulated,) = training._robot_rows(
+    (simulated,) = record._robot_rows(
         0, stats, np.array([core.theta]), np.array([step.grad]), eps, math.nan, 1, 0.01, [0.1], [True]
     )
     assert list(row) == [*simulated, "staleness"] and row["staleness"] == 2.0

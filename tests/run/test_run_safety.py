@@ -26,8 +26,8 @@ from typer.testing import CliRunner
 import riskplan.run.training as training
 from riskplan import compose, load_run
 from riskplan.cli import app
+from riskplan.engine.step import NumericalTrouble
 from riskplan.run.checkpoint import CHECKPOINT
-from riskplan.run.evaluation import NumericalTrouble
 from riskplan.run.record import RunLog
 from riskplan.run.training import STOP_ENV, prepare_resume
 from riskplan.util.errors import BadInput

@@ -15,11 +15,12 @@ from riskplan import compose
 from riskplan.config.schema import RiskConf, ScheduleConf
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
+from riskplan.engine.schedules import risk_level, step_size
+from riskplan.engine.step import starts
 from riskplan.risk import cvar_gradient
-from riskplan.run.build import build_setup, starts
+from riskplan.run.build import build_setup
 from riskplan.run.compose import expand_overrides, expand_shorthands
 from riskplan.run.log_reader import read_log
-from riskplan.run.schedules import risk_level, step_size
 from riskplan.run.training import train
 
 # 8 iterations of 400 samples from theta0 = (0, 0), a checkpoint every 3: the tests know these numbers

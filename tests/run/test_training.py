@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from support import CHECKPOINTED, TABLES, assert_log_holds_each_iteration_once, train_cli
 
+import riskplan.engine.step as engine_step
 import riskplan.run.training as training
 from riskplan import compose, load_run
+from riskplan.engine.step import NumericalTrouble
 from riskplan.risk import summary_stats
 from riskplan.run.checkpoint import CHECKPOINT
-from riskplan.run.evaluation import NumericalTrouble
 from riskplan.run.log_reader import read_log
-from riskplan.run.record import metrics_row
-from riskplan.run.training import _robot_rows
+from riskplan.run.record import _robot_rows, metrics_row
 
 # ---------------------------------------------------------------------------------------------- rows
 
@@ -45,7 +45,7 @@ def test_robot_rows_are_the_per_robot_rows(n):
 
 @pytest.mark.parametrize("m", [1, 2, 3, 40])
 def test_row_norms_are_numpy_norms_bit_for_bit(m):
-    from riskplan.run.training import _norms
+    from riskplan.run.record import _norms
 
     g = np.random.default_rng(m)
     vectors = g.normal(size=(2000, m)) * 10.0 ** g.integers(-150, 150, size=(2000, m))
@@ -57,10 +57,10 @@ def test_row_norms_are_numpy_norms_bit_for_bit(m):
 
 
 def _fail_at(monkeypatch, name: str, iteration: int, bad):
-    """Make riskplan.run.training.<name> return bad(result) from the given iteration on (the iteration is read off
+    """Make riskplan.engine.step.<name> return bad(result) from the given iteration on (the iteration is read off
     the `samples_at` call that opens every iteration)."""
-    original, seen = getattr(training, name), {"l": 0}
-    original_samples = training.samples_at
+    original, seen = getattr(engine_step, name), {"l": 0}
+    original_samples = engine_step.samples_at
 
     def samples(l, train):
         seen["l"] = l
@@ -70,8 +70,8 @@ def _fail_at(monkeypatch, name: str, iteration: int, bad):
         result = original(*args, **kwargs)
         return bad(result) if seen["l"] >= iteration else result
 
-    monkeypatch.setattr(training, "samples_at", samples)
-    monkeypatch.setattr(training, name, patched)
+    monkeypatch.setattr(engine_step, "samples_at", samples)
+    monkeypatch.setattr(engine_step, name, patched)
 
 
 @pytest.mark.parametrize(

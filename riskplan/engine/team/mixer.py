@@ -196,10 +196,13 @@ class _Store:
         self._buffers, self._apply = buffers, apply
         self.deferred: Deferred | None = None
         self._shared = False  # a snapshot holds the arrays: copy them before changing them in place
+        self.latest: MixerState | None = None  # the snapshot of the state the Buffers are in, while they are
 
     def current(self, writing: bool = True) -> Buffers:
         """The Buffers, up to date; with `writing=False` the caller promises only to read them (no copy is made
         for a snapshot's sake unless deferred rounds must be written in)."""
+        if writing:
+            self.latest = None
         if self._shared and (writing or self.deferred is not None):
             self._buffers, self._shared = self._buffers.copy(), False
         if self.deferred is not None:
@@ -211,11 +214,12 @@ class _Store:
         """The state of this moment, copied only when read (see Mixer.snapshot)."""
         self._shared = True
         deferred = None if self.deferred is None else self.deferred.copy()
-        return MixerState(self._buffers.shallow(), deferred, self._apply)
+        self.latest = MixerState(self._buffers.shallow(), deferred, self._apply)
+        return self.latest
 
     def replace(self, buffers: Buffers) -> None:
         """Hold `buffers` from now on (restore)."""
-        self._buffers, self.deferred, self._shared = buffers, None, False
+        self._buffers, self.deferred, self._shared, self.latest = buffers, None, False, None
 
 
 class Mixer:
@@ -269,8 +273,8 @@ class Mixer:
         self.switching = team.switching
         slots = self.max_delay + 1
         stuck = any(f.kind == FaultKind.stuck for f in self.faults)
-        buffers = Buffers.empty(network.robots, network.n_params, slots, self.rounds, self.tracking, stuck)
-        self._store = _Store(buffers, self._apply_deferred)
+        self._sizes = (network.robots, network.n_params, slots, self.rounds, self.tracking, stuck)
+        self._store = _Store(Buffers.empty(*self._sizes), self._apply_deferred)
         self._sync = not self.tracking and self.max_delay == 0 and self.drop == 0.0 and not self.switching.enabled
         self._sync = self._sync and not self.faults and self.aggregate == Aggregate.mean
         self._links: kernels.Links | None = None  # built by the first synchronous round
@@ -303,6 +307,15 @@ class Mixer:
         """The state() of this moment as a read-only mapping that copies nothing until it is read (a checkpoint
         reads it; most iterations' snapshots are never read). Its arrays are the state()'s, bit for bit."""
         return self._store.snapshot()
+
+    def fresh(self) -> MixerState:
+        """The state of this team's Mixer before it has mixed anything (a run's iteration 0)."""
+        return MixerState(Buffers.empty(*self._sizes), None, self._apply_deferred)
+
+    def at(self, state: Mapping[str, np.ndarray]) -> Mixer:
+        """This Mixer in `state`: restored from it, unless `state` is the snapshot of the state it is in already
+        (its last snapshot, with nothing changed since: what the engine's step hands back and gets again)."""
+        return self if state is self._store.latest else self.restore(state)
 
     def restore(self, state: Mapping[str, np.ndarray]) -> Mixer:
         """Load a state() (or snapshot()) taken from a Mixer of the same team; returns self."""

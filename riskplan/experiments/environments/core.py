@@ -23,8 +23,9 @@ import numpy as np
 
 from riskplan.engine import distributions as D
 from riskplan.engine.policy import Policy, move_features, probabilities, tabular_probabilities
+from riskplan.engine.step import Setup
 from riskplan.engine.world import MOVE_NAMES, World
-from riskplan.run.build import Setup, build_setup
+from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 
 WALK = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.int64)  # a source's random-walk steps: E, W, N, S

@@ -14,6 +14,7 @@ from matplotlib.colors import ListedColormap
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from riskplan.engine.step import starts
 from riskplan.engine.world import world_map
 from riskplan.experiments.reporting.collect import PALETTE, Collection, Group, measure_name
 from riskplan.experiments.reporting.figures.drawing import (
@@ -39,7 +40,7 @@ from riskplan.experiments.reporting.figures.naming import (
     layout,
     names,
 )
-from riskplan.run.build import build_setup, starts
+from riskplan.run.build import build_setup
 
 MAX_PATHS = 5  # sampled paths per policy in Fig. 1
 OVERLAID = 2  # Fig. 1 draws this many policies in one world; more get a panel each
