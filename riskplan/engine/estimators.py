@@ -1,6 +1,6 @@
 """The estimators behind the risk measures (paper eqs. 4-9, Algorithm 1): plain arrays in, arrays out.
 
-CVaR is the Rockafellar-Uryasev form at the empirical quantile (design.md):
+CVaR is the Rockafellar-Uryasev form at the empirical quantile:
     cvar = v + (1 / (beta W)) * sum_i (z_i - v) 1{z_i <= v},   v = z_(m), m = ceil(beta W)
 which equals the mean of the m lowest samples when beta W is whole and there are no ties (eq. 6), and whose
 score-function gradient is eq. (9).

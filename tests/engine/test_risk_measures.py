@@ -1,5 +1,6 @@
-"""Risk measures behind one interface (design.md, "Risk measures"): objective and objective_gradient for neutral,
-cvar, wang, mean_cvar and entropic, against closed forms, the reference estimators, and an exactly enumerated world.
+"""Risk measures behind one interface: objective and objective_gradient for neutral, cvar, wang, mean_cvar and
+entropic, against closed forms, the reference estimators, and an exactly enumerated world; and every registered
+measure (measure_cases), against its own closed form, its distortion and its parameters' ranges.
 """
 
 from __future__ import annotations
