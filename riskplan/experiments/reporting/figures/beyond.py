@@ -23,6 +23,7 @@ from riskplan.experiments.reporting.figures.drawing import (
     new_figure,
     outer,
     panel_grid,
+    panel_title,
     plot_band,
     pooled_rewards,
     seeds_text,
@@ -145,7 +146,7 @@ def fig_distribution(coll: Collection) -> FigureSpec | str:
         for ax, p in zip(axes, lay.panels):
             for g, name, colour in zip(p.groups, p.names, p.colours):
                 _ecdf(ax, g, name, colour, probs)
-            ax.set_title(p.title)
+            panel_title(ax, p.title)
             ax.xaxis.set_major_locator(MaxNLocator(4))
         outer(axes, "total reward", r"$P(Z \leq z)$")
         what = "." + lay.note()
@@ -214,7 +215,7 @@ def fig_frontier(coll: Collection) -> FigureSpec | str:
     for ax, p in zip(axes, lay.panels):
         _frontier_panel(ax, p.groups, p.names, p.colours, rows)
         if not lay.single:
-            ax.set_title(p.title)
+            panel_title(ax, p.title)
     outer(axes, "mean total reward", f"CVaR$_{{{alpha:g}}}$ of total reward")
     if lay.shared:
         handles = [

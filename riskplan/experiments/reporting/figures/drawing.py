@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import math
+import textwrap
 from dataclasses import dataclass
 
 import matplotlib
@@ -88,6 +89,11 @@ def panel_grid(count: int, panel: tuple[float, float], extra: float = 0.0, **kw)
     return fig, flat[:count]
 
 
+def panel_title(ax, text: str) -> None:
+    """A small multiple's title, wrapped to its panel's width."""
+    ax.set_title(textwrap.fill(text, PANEL_TITLE, break_on_hyphens=False))
+
+
 def outer(axes: list, xlabel: str | None, ylabel: str | None) -> None:
     """Axis labels on the outer panels of a grid only: x along the bottom of each column, y on the first column."""
     for ax in axes:
@@ -105,14 +111,23 @@ def _below(ax, axes: list) -> bool:
     return any(o.get_subplotspec().colspan.start == column and o.get_subplotspec().rowspan.start > row for o in axes)
 
 
+PANEL_TITLE = 36  # characters of a line of a small multiple's title
+LEGEND_LINE = 34  # characters of a legend entry's line; a longer name wraps
+
+
+def _labels(handles: list) -> list[str]:
+    return [textwrap.fill(h.get_label(), LEGEND_LINE, break_on_hyphens=False) for h in handles]
+
+
 def legend_right(fig: Figure, handles: list, **kw) -> None:
     """The figure's legend beside its panels, outside them (constrained layout makes room)."""
-    fig.legend(handles=handles, loc="outside right upper", **kw)
+    fig.legend(handles=handles, labels=_labels(handles), loc="outside right upper", **kw)
 
 
 def legend_below(fig: Figure, handles: list, ncols: int | None = None, **kw) -> None:
     """The figure's legend under its panels, outside them."""
-    fig.legend(handles=handles, loc="outside lower center", ncols=ncols or min(len(handles), 3) or 1, **kw)
+    ncols = ncols or min(len(handles), 3) or 1
+    fig.legend(handles=handles, labels=_labels(handles), loc="outside lower center", ncols=ncols, **kw)
 
 
 def legend(fig: Figure, handles: list) -> None:

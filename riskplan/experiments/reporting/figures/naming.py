@@ -217,7 +217,7 @@ class Layout:
     shared: bool = True
     left_out: int = 0
     keys: list[str] = field(default_factory=list)
-    facet: str = ""  # the key whose values make the panels, or "" (one panel, or one per group)
+    facet: tuple[str, ...] = ()  # the keys whose values make the panels (none: one panel, or one per group)
 
     @property
     def single(self) -> bool:
@@ -238,7 +238,7 @@ class Layout:
             text = (
                 " One panel per group (shared axes)."
                 if all(len(p.groups) == 1 for p in self.panels)
-                else f" One panel per {key_name(self.facet)} (shared axes)."
+                else f" One panel per {' and '.join(key_name(k) for k in self.facet)} (shared axes)."
             )
         if self.left_out:
             text += f" {self.left_out} more groups are not drawn (at most {MAX_PANELS} panels)."
@@ -247,22 +247,23 @@ class Layout:
 
 def layout(groups: list[Group], most: int = MAX_CURVES, palette: tuple[str, ...] = PALETTE) -> Layout:
     """One panel of all the groups when they are at most `most`; else small multiples: one panel per value of the
-    naming key that leaves the fewest panels of at most `most` groups each (the other keys name the curves, one
-    colour per name in every panel), or, when no key does, one panel per group."""
+    naming key (or pair of keys) that leaves the fewest panels of at most `most` groups each (the other keys name
+    the curves, one colour per name in every panel), or, when none does, one panel per group."""
     keys = naming_keys(groups)
     if len(groups) <= most:
         return Layout([Panel(list(groups), names(groups), colours(groups))], keys=keys)
     best = None
-    for facet in keys if len(keys) > 1 else []:
+    facets = [(k,) for k in keys] + (list(combinations(keys, 2)) if len(keys) > 2 else [])
+    for facet in facets if len(keys) > 1 else []:
         values: dict[str, list[Group]] = {}
         for g in groups:
-            values.setdefault(text(g, facet), []).append(g)
+            values.setdefault(", ".join(text(g, k) for k in facet), []).append(g)
         if max(len(v) for v in values.values()) <= most and len(values) <= MAX_PANELS:
             if best is None or len(values) < len(best[1]):
                 best = (facet, values)
     if best is not None:
         facet, values = best
-        rest = [k for k in keys if k != facet]
+        rest = [k for k in keys if k not in facet]
         everyone = names(groups, rest, unique=False)  # unique within each panel: the facet's value differs
         chosen: dict[str, str] = {}
         for name in everyone:

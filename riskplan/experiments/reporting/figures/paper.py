@@ -29,6 +29,7 @@ from riskplan.experiments.reporting.figures.drawing import (
     outer,
     paired_table,
     panel_grid,
+    panel_title,
     plot_band,
     seeds_text,
 )
@@ -207,7 +208,7 @@ def fig_paths(coll: Collection) -> FigureSpec | str:
         for ax, g, name, colour in zip(axes, groups, called, colours):
             draw_world(ax, worlds[_world_key(g.config)], labels=not same)
             _draw_paths(ax, g, colour, name)
-            ax.set_title(f"{name} (seed {g.first.seed})")
+            panel_title(ax, f"{name} (seed {g.first.seed})")
         if same:
             outer(axes, "x (cell)", "y (cell)")
         legend_below(fig, MARKS, ncols=4)
@@ -249,7 +250,7 @@ def draw_curves(lay: Layout, column: str, ylabel: str, log: bool = False, panel:
         if log:
             ax.set_yscale("log")
         if p.title and not lay.single:
-            ax.set_title(p.title)
+            panel_title(ax, p.title)
         integer_iterations(ax)
     outer(axes, "iteration", ylabel)
     if lay.shared and drawn:
@@ -370,7 +371,7 @@ def fig_team(coll: Collection) -> FigureSpec | str:
             if central is not None:
                 _central(ax, central, "mean", "-", "_centralized mean")
                 _central(ax, central, "cvar", "--", "_centralized CVaR")
-            ax.set_title(p.title if p.title else ", ".join(p.names))
+            panel_title(ax, p.title if p.title else ", ".join(p.names))
             integer_iterations(ax)
         outer(axes, "iteration", "total reward")
         handles = [
