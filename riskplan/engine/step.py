@@ -19,6 +19,7 @@ state from `state.mixer` and returns the new one, so the same state always gives
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from collections.abc import Mapping
@@ -137,6 +138,30 @@ def rollouts(setup: Setup, l: int, thetas: np.ndarray, robots=None) -> tuple[np.
         cells = np.asarray(starts(setup)[np.asarray(robots)])
     batch = simulate(setup.world, setup.kernel, thetas, cells, keys, episodes)
     return batch.total_reward.reshape(n, episodes), batch.score.reshape(n, episodes, -1)
+
+
+def batched_rollouts(setups: list[Setup], l: int, thetas: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Step 1 for many runs at once: one kernel call over every run's robots, each run's episodes from its own
+    streams (its seed) and start cells, so each run's (z, scores) are bit for bit those `rollouts` gives it alone.
+    The runs must share a world, a policy and W_l (batch_key)."""
+    first = setups[0]
+    episodes = samples_at(l, first.params.train)
+    keys = np.concatenate([rng.robot_keys(s.params.seed, rng.TRAIN, l, s.robots) for s in setups])
+    cells = np.concatenate([starts(s) for s in setups])
+    batch = simulate(first.world, first.kernel, np.vstack(thetas), cells, keys, episodes)
+    z = batch.total_reward.reshape(len(keys), episodes)
+    scores = batch.score.reshape(len(keys), episodes, -1)
+    bounds = np.cumsum([0] + [s.robots for s in setups])
+    return [(z[a:b], scores[a:b]) for a, b in itertools.pairwise(bounds)]
+
+
+def batch_key(params: RiskplanConf) -> str:
+    """What runs must share to run their episodes in one kernel call: the world (grid, sources, rewards, regions,
+    horizon), the policy, and the sample schedule W_l. Seeds, risk measures and levels, step sizes, theta_0, team
+    sizes, graphs and the iterations may differ."""
+    shared = {"world": as_dict(params.world), "policy": as_dict(params.policy)}
+    shared["samples"] = [params.train.samples, params.train.samples_growth]
+    return json.dumps(shared, sort_keys=True, default=str)
 
 
 def team_statistics(setup: Setup, l: int, z: np.ndarray, objectives: np.ndarray) -> dict[str, float]:

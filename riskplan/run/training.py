@@ -27,7 +27,7 @@ from riskplan.run.checkpoint import State, load_checkpoint, save_checkpoint
 from riskplan.run.columns import from_rows, sorted_by
 from riskplan.run.evaluation import evaluate, sample_paths, summarize
 from riskplan.run.ray_team import prepare_ray_resume, train_ray
-from riskplan.run.record import RunLog, statistics_rows
+from riskplan.run.record import statistics_rows
 from riskplan.run.run_directory import logged_rows, reopen_log, start_log, write_finished
 from riskplan.run.run_files import has_finished
 from riskplan.util.collector import resume_collection
@@ -84,49 +84,90 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> dict:
     """train() under the directory's lock."""
     if setup.params.team.backend == Backend.ray:  # each robot a Ray actor: riskplan.run.ray_team
         return train_ray(setup, out, resume, progress)
-    entered = time.perf_counter()
-    if resume:
-        state = load_checkpoint(out, setup)
-        log, rows = reopen_log(out, setup, state.iteration)
-        state = replace(state, rows=rows)
-    else:
-        log = start_log(out, setup)
-        state = State(*initial_state(setup), [])
-    total = setup.params.train.iterations
-    every = setup.params.train.checkpoint_every
-    resumed_at = state.iteration
-    load_kernels(setup, state)  # numba's cache, before the loop: wall_time is the loop's own
+    run = Driver(setup, out, resume, progress)
+    load_kernels(setup, run.state)  # numba's cache, before the loop: wall_time is the loop's own
     resume_collection()  # the start-up is over: a command that paused the collector for it gets it back here
     wall = time.perf_counter()
-    with log, StopSignals() as stop:  # SIGINT or SIGTERM: checkpoint the iteration in progress, then Interrupted
-        while state.iteration < total:
-            state, rows = iterate(setup, state)
-            log.iteration(rows)
-            saved = state.iteration % every == 0 or state.iteration == total
-            if saved:
-                _checkpoint(log, out, state)
-            if progress:
-                progress(state.iteration, total, rows[-1])
-            if os.environ.get(STOP_ENV) == str(state.iteration - 1):
-                os.kill(os.getpid(), signal.SIGSTOP)
-            if stop.received and not saved:
-                _checkpoint(log, out, state)  # the iteration a signal cut short is kept
-            stop.check(state.iteration)
-        train_seconds = time.perf_counter() - wall
+    with run.log, StopSignals() as stop:  # SIGINT or SIGTERM: checkpoint the iteration in progress, then Interrupted
+        while not run.trained:
+            run.record(*iterate(setup, run.state), stop)
+            stop.check(run.state.iteration)
+        run.evaluate(time.perf_counter() - wall)
+        stop.check(run.state.iteration)  # before the final files: a resumed run evaluates again
+        run.log_results()
+    return run.finish()
+
+
+class Driver:
+    """One simulated run's I/O around the engine's step: run.mcap opened fresh or at its checkpoint, each
+    iteration's rows, checkpoints and progress, then the evaluation and the finished files. The same for a run
+    alone (`train`) and a run in a batch (riskplan.run.batch); the caller holds the directory's lock."""
+
+    def __init__(self, setup: Setup, out: Path, resume: bool, progress=None):
+        self.setup, self.out, self.progress = setup, out, progress
+        self.entered = time.perf_counter()
+        if resume:
+            state = load_checkpoint(out, setup)
+            self.log, rows = reopen_log(out, setup, state.iteration)
+            self.state = replace(state, rows=rows)
+        else:
+            self.log = start_log(out, setup)
+            self.state = State(*initial_state(setup), [])
+        self.resumed_at = self.state.iteration
+        self.total = setup.params.train.iterations
+        self.results: tuple | None = None  # (metrics, evaluation, trajectories, summary) once evaluated
+
+    @property
+    def trained(self) -> bool:
+        return self.state.iteration >= self.total
+
+    def record(self, state: State, rows: list[dict], stop: StopSignals) -> None:
+        """An iteration done: its rows into run.mcap, a checkpoint when one is due (or a signal came), progress."""
+        self.state = state
+        self.log.iteration(rows)
+        saved = state.iteration % self.setup.params.train.checkpoint_every == 0 or state.iteration == self.total
+        if saved:
+            self.checkpoint()
+        if self.progress:
+            self.progress(state.iteration, self.total, rows[-1])
+        if os.environ.get(STOP_ENV) == str(state.iteration - 1):
+            os.kill(os.getpid(), signal.SIGSTOP)
+        if stop.received and not saved:
+            self.checkpoint()  # the iteration a signal cut short is kept
+
+    def checkpoint(self) -> None:
+        """The log of every checkpointed iteration is on disk before the checkpoint is."""
+        self.log.sync()
+        save_checkpoint(self.out, self.state)
+
+    def evaluate(self, train_seconds: float) -> dict:
+        """The final policies on fresh episodes, the sampled paths and summary.json's figures."""
+        setup, state = self.setup, self.state
         metrics = sorted_by(from_rows(state.rows), "iteration", "robot")
         evaluation = evaluate(setup, state.thetas)
         trajectories = sample_paths(setup, state.thetas)
         summary = summarize(setup, state, evaluation, metrics, train_seconds)
-        if resumed_at:  # wall_time is this process's part of the loop; the run line says so
-            summary["resumed_at"] = resumed_at
-        stop.check(state.iteration)  # before the final files: a resumed run evaluates again
-        log.trajectories(trajectories)
-        log.evaluation(evaluation)
-        log.summary(summary)
-    write_finished(out, setup, metrics, evaluation, trajectories, summary)
-    if not resumed_at:  # a whole run calibrates the time estimates of sweeps and reproductions on this machine
-        cost.record(cost.setup_steps(setup), time.perf_counter() - entered, numba.get_num_threads() / cpu_count())
-    return summary
+        if self.resumed_at:  # wall_time is this process's part of the loop; the run line says so
+            summary["resumed_at"] = self.resumed_at
+        self.results = (metrics, evaluation, trajectories, summary)
+        return summary
+
+    def log_results(self) -> None:
+        """The evaluation's records into run.mcap (before it closes)."""
+        _, evaluation, trajectories, summary = self.results
+        self.log.trajectories(trajectories)
+        self.log.evaluation(evaluation)
+        self.log.summary(summary)
+
+    def finish(self) -> dict:
+        """The finished run's files (after run.mcap closed), summary.json last; returns the summary. A whole run
+        calibrates the time estimates of sweeps and reproductions on this machine (riskplan.run.cost)."""
+        metrics, evaluation, trajectories, summary = self.results
+        write_finished(self.out, self.setup, metrics, evaluation, trajectories, summary)
+        if not self.resumed_at:
+            share = numba.get_num_threads() / cpu_count()
+            cost.record(cost.setup_steps(self.setup), time.perf_counter() - self.entered, share)
+        return summary
 
 
 def load_kernels(setup: Setup, state: State) -> None:
@@ -137,12 +178,6 @@ def load_kernels(setup: Setup, state: State) -> None:
     simulate(setup.world, setup.kernel, state.thetas[:1], cells, np.zeros(1, dtype=np.uint64), 1)
     if setup.team and state.thetas.shape[1] > 1:
         mix_linked(setup.network, Links(setup.network), state.thetas.copy(), state.thetas.copy())
-
-
-def _checkpoint(log: RunLog, out: Path, state: State) -> None:
-    """The log of every checkpointed iteration is on disk before the checkpoint is."""
-    log.sync()
-    save_checkpoint(out, state)
 
 
 def prepare_resume(config, out: Path) -> tuple[Setup, bool]:

@@ -1,0 +1,118 @@
+"""Many simulated runs as one program: each iteration's episodes of every run that shares a world and W_l in one
+kernel call (riskplan.engine.step.batched_rollouts), then each run's own step, rows, checkpoints and files exactly
+as it would have them alone (riskplan.run.training.Driver).
+
+A run's numbers do not depend on its batch: its episodes come from its own counter-based streams, and the kernel
+treats every policy of a call apart, so a run in a batch is bit for bit the same run alone. A run that fails (bad
+input, a non-finite estimate, a disk that refuses its files) is reported and leaves the batch; the others go on. A
+signal checkpoints every run at its iteration and stops them all (Interrupted), and each resumes to the numbers of
+an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from riskplan.engine.step import Setup, batched_rollouts
+from riskplan.run.training import Driver, iterate, load_kernels
+from riskplan.util.interrupt import StopSignals
+from riskplan.util.lock import hold
+
+
+@dataclass
+class BatchRun:
+    """One run of a batch: what to train and where, then what became of it."""
+
+    setup: Setup
+    out: Path
+    resume: bool = False
+    summary: dict | None = None  # once finished
+    error: BaseException | None = None  # why it stopped alone
+    driver: Driver | None = field(default=None, repr=False)
+
+
+def train_batch(runs: list[BatchRun], progress: Callable[[int, int], None] | None = None) -> list[BatchRun]:
+    """Train `runs` (simulated backend, one world and sample schedule: riskplan.engine.step.batch_key) together,
+    each under its directory's lock; returns them with their summary or error. `progress(done, total)` is called
+    as iterations finish, over all runs. Interrupted (after every run's checkpoint) when a signal stops the batch."""
+    total = sum(run.setup.params.train.iterations for run in runs)
+    with contextlib.ExitStack() as stack, StopSignals() as stop:
+        active = [run for run in runs if _open(run, stack)]
+        if active:
+            load_kernels(active[0].setup, active[0].driver.state)
+        walls = {id(run): 0.0 for run in active}
+        done = sum(run.driver.state.iteration for run in active) + sum(
+            run.setup.params.train.iterations for run in runs if run.driver is None
+        )
+        while active := [run for run in active if run.error is None and not run.driver.trained]:
+            for group in _by_iteration(active):
+                tic = time.perf_counter()
+                episodes = batched_rollouts(
+                    [run.setup for run in group],
+                    group[0].driver.state.iteration,
+                    [run.driver.state.thetas for run in group],
+                )
+                shared = (time.perf_counter() - tic) / len(group)  # the kernel call's time, shared out
+                for run, batch in zip(group, episodes):
+                    started = time.perf_counter()
+                    _isolated(run, lambda run=run, batch=batch: _advance(run, batch, stop))
+                    walls[id(run)] += shared + time.perf_counter() - started
+                done += len(group)
+                if progress:
+                    progress(done, total)
+            if stop.received:  # every run keeps its last finished iteration, whenever in the round the signal came
+                for run in active:
+                    _isolated(run, run.driver.checkpoint)
+                stop.check(min(run.driver.state.iteration for run in active))
+        for run in runs:
+            if run.driver is not None and run.error is None:
+                _isolated(run, lambda run=run: _finish(run, walls[id(run)], stop))
+    return runs
+
+
+def _advance(run: BatchRun, batch, stop: StopSignals) -> None:
+    """One iteration of one run, on its episodes of the batch's kernel call."""
+    run.driver.record(*iterate(run.setup, run.driver.state, batch), stop)
+
+
+def _open(run: BatchRun, stack: contextlib.ExitStack) -> bool:
+    """Lock the run's directory and open its log (fresh or at its checkpoint); False, with its error, if it cannot."""
+    try:
+        run.out.mkdir(parents=True, exist_ok=True)
+        stack.enter_context(hold(run.out))
+        run.driver = Driver(run.setup, run.out, run.resume)
+        stack.enter_context(run.driver.log)
+    except Exception as err:  # this run alone: bad input, an unreadable checkpoint, a directory another holds
+        run.error, run.driver = err, None
+        return False
+    return True
+
+
+def _by_iteration(runs: list[BatchRun]) -> list[list[BatchRun]]:
+    """The runs at the same iteration (one kernel call each); resumed runs of one batch usually are."""
+    groups: dict[int, list[BatchRun]] = {}
+    for run in runs:
+        groups.setdefault(run.driver.state.iteration, []).append(run)
+    return [groups[l] for l in sorted(groups)]
+
+
+def _isolated(run: BatchRun, work: Callable[[], None]) -> None:
+    """Do `work` for one run; an error stops that run alone (its log is closed when the batch ends). A signal
+    (Interrupted, a BaseException) stops the batch."""
+    try:
+        work()
+    except Exception as err:
+        run.error = err
+
+
+def _finish(run: BatchRun, train_seconds: float, stop: StopSignals) -> None:
+    """Evaluate a trained run and write its files (run.mcap closes first, as for a run alone)."""
+    run.driver.evaluate(train_seconds)
+    stop.check(run.driver.state.iteration)
+    run.driver.log_results()
+    run.driver.log.close()  # before the files, as a run alone closes it; the batch's exit closes it again, idly
+    run.summary = run.driver.finish()

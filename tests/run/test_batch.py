@@ -1,0 +1,101 @@
+"""Runs trained as one batch (riskplan.run.batch): each run's files are bit for bit those of the same run alone,
+a run that fails leaves the batch alone, and a batch stopped by a signal resumes to the same numbers."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import numpy as np
+import pytest
+from support import CHECKPOINTED, TINY, assert_same_outputs
+
+from riskplan.engine.step import batch_key, batched_rollouts, rollouts
+from riskplan.run.batch import BatchRun, train_batch
+from riskplan.run.build import build_setup
+from riskplan.run.compose import compose
+from riskplan.run.training import train_summary
+from riskplan.util.interrupt import Interrupted
+
+# Different seeds, measures, levels, step sizes, theta_0, team sizes and graphs: one world, one sample schedule.
+RUNS = {
+    "cvar": ["seed=0"],
+    "neutral": ["seed=1", "risk=neutral", "train.step_size.initial=0.05"],
+    "beta": ["seed=2", "risk.beta=0.3", "train.theta0=[10,30]"],
+    "team": ["seed=3", "experiment=paper_team", "team.delay.max=1", "team.drop=0.1"],
+    "ring": ["seed=4", "experiment=paper_team", "team.robots=4", "team.graph=ring", "risk=wang"],
+}
+
+
+def setups(base, names=RUNS):
+    return {name: build_setup(compose([*base, *RUNS[name]])) for name in names}
+
+
+def alone(tmp_path, built):
+    for name, setup in built.items():
+        train_summary(setup, tmp_path / "alone" / name)
+    return tmp_path / "alone"
+
+
+def test_the_runs_share_a_batch_key_and_their_episodes_are_their_own():
+    built = setups(TINY)
+    assert len({batch_key(s.params) for s in built.values()}) == 1
+    assert batch_key(build_setup(compose([*TINY, "world.horizon=21"])).params) != batch_key(built["cvar"].params)
+    for l in (0, 2):
+        thetas = [np.tile(s.theta0, (s.robots, 1)) + 0.5 * i for i, s in enumerate(built.values())]
+        together = batched_rollouts(list(built.values()), l, thetas)
+        for (z, scores), setup, theta in zip(together, built.values(), thetas):
+            want_z, want_scores = rollouts(setup, l, theta)
+            np.testing.assert_array_equal(z, want_z)
+            np.testing.assert_array_equal(scores, want_scores)
+
+
+def test_every_run_of_a_batch_is_the_same_run_alone(tmp_path):
+    built = setups(TINY)
+    reference = alone(tmp_path, built)
+    seen = []
+    runs = train_batch(
+        [BatchRun(setups(TINY, [name])[name], tmp_path / "batch" / name) for name in RUNS],
+        progress=lambda done, total: seen.append((done, total)),
+    )
+    assert all(run.error is None and run.summary is not None for run in runs)
+    for name in RUNS:
+        assert_same_outputs(tmp_path / "batch" / name, reference / name)
+    assert seen[-1] == (5 * 3, 5 * 3) and [d for d, _ in seen] == sorted(d for d, _ in seen)
+
+
+def test_a_run_that_fails_leaves_the_batch_alone(tmp_path):
+    built = setups(TINY, ["cvar", "team"])
+    reference = alone(tmp_path, built)
+    (tmp_path / "batch" / "taken").mkdir(parents=True)
+    (tmp_path / "batch" / "taken" / "summary.json").write_text("{}")  # another run's directory: bad input
+    runs = [
+        BatchRun(setups(TINY, ["cvar"])["cvar"], tmp_path / "batch" / "cvar"),
+        BatchRun(build_setup(compose([*TINY, "train.step_size.initial=1e308"])), tmp_path / "batch" / "diverges"),
+        BatchRun(setups(TINY, ["team"])["team"], tmp_path / "batch" / "team"),
+        BatchRun(setups(TINY, ["cvar"])["cvar"], tmp_path / "batch" / "taken"),
+    ]
+    train_batch(runs)
+    assert "theta or its gradient is not finite" in str(runs[1].error) and runs[1].summary is None
+    assert "already holds a run" in str(runs[3].error)
+    for name in ("cvar", "team"):
+        assert_same_outputs(tmp_path / "batch" / name, reference / name)
+    assert not (tmp_path / "batch" / "diverges" / "summary.json").exists()
+
+
+def test_a_batch_stopped_by_a_signal_resumes_to_the_same_numbers(tmp_path):
+    names = ["cvar", "team", "ring"]
+    built = setups(CHECKPOINTED, names)
+    reference = alone(tmp_path, built)
+
+    def interrupt(done, total):
+        if done == 3 * 7:  # mid-run, between two checkpoints (every 5 iterations)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    first = [BatchRun(setups(CHECKPOINTED, [n])[n], tmp_path / "batch" / n) for n in names]
+    with pytest.raises(Interrupted):
+        train_batch(first, progress=interrupt)
+    again = [BatchRun(setups(CHECKPOINTED, [n])[n], tmp_path / "batch" / n, resume=True) for n in names]
+    train_batch(again)
+    for name in names:
+        assert_same_outputs(tmp_path / "batch" / name, reference / name)
