@@ -123,7 +123,7 @@ def test_with_the_extras_installed_the_same_commands_pass_the_check(in_tmp):
 def test_the_overrides_are_read_as_a_sweep_gives_them(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)
     for given in ("team.backend=ray", "team.backend=simulated,ray", "team.backend=choice(simulated,ray)"):
-        with pytest.raises(MissingExtra, match="^team.backend=ray: needs Ray"):
+        with pytest.raises(MissingExtra, match=r"^team\.backend=ray: needs Ray"):
             check_extras(["seed=0,1", given])
     # what needs no extra, a glob over a config group, a malformed override (the command's own checks name it)
     check_extras(["team.backend=simulated", "risk=glob(*)", "hydra/launcher=glob(*)", "~team.backend", "risk.beta=="])
