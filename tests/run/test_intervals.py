@@ -8,8 +8,9 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
+from riskplan.engine.rng import resample_counts
 from riskplan.risk import cvar, tail_count, value_at_risk
-from riskplan.run.intervals import REPORT_BETAS, _bootstrap, _resample_counts, bootstrap_intervals
+from riskplan.run.intervals import REPORT_BETAS, _bootstrap, bootstrap_intervals
 
 STD = NormalDist()
 
@@ -74,7 +75,7 @@ def test_each_resample_row_is_the_statistics_of_its_own_draws(resamples, beta):
     seed = 7
     rows = resample_stats(z, resamples, seed=seed, beta=beta)
     for b, row in enumerate(rows):
-        counts = _resample_counts(np.uint64(seed), b, z.size)
+        counts = resample_counts(np.uint64(seed), b, z.size)
         assert counts.sum() == z.size
         drawn = np.repeat(z, counts)
         total = 0.0
