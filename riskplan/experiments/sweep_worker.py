@@ -42,6 +42,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
 
@@ -230,14 +231,35 @@ def _lock_folder(stack: contextlib.ExitStack, out: Path) -> bool:
     return True
 
 
-def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | None:
+@dataclass
+class JobStart:
+    """A sweep job in its locked folder: finished already (with its CVaR), or about to train, fresh or resuming
+    its checkpoint; `base` is what its status.json records from the start."""
+
+    out: Path
+    finished: bool = False
+    value: float | None = None
+    resume: bool = False
+    base: dict = field(default_factory=dict)
+
+    @property
+    def opening(self) -> str:
+        """job.log's first line for this start."""
+        b = self.base
+        return (
+            f"=== riskplan sweep job {'resumed' if self.resume else 'started'} at {time.ctime(b['started'])} "
+            f"on {b['host']} ({b['threads']} numba threads, pid {b['pid']}"
+        )
+
+
+def begin_job(cfg: DictConfig, out: Path) -> JobStart:
+    """Where the job in `out` (whose lock the caller holds) stands: finished with this config, or a checkpoint to
+    resume (it was killed, or stopped by a signal), or a fresh start with the stale files of an older config
+    removed; then status.json says running."""
     sha = config_sha(cfg)
     prior = read_status(out)
     if is_finished(out, sha, prior):
-        return prior.get("cvar")
-    threads = job_threads()
-    if threads:
-        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+        return JobStart(out, finished=True, value=prior.get("cvar"))
     resume = (
         prior is not None
         and prior.get("status") in ("running", "interrupted")  # killed, or stopped by a signal (preempted)
@@ -247,33 +269,64 @@ def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | No
     if not resume:
         for name in STALE:
             (out / name).unlink(missing_ok=True)
-    started = time.time()
     base = {
         "config_sha": sha,
-        "started": started,
+        "started": time.time(),
         "host": socket.gethostname(),
         "pid": os.getpid(),
         "threads": numba_threads(),
     }
     write_status(out, {"status": "running", "error": None, **base})
+    return JobStart(out, resume=resume, base=base)
+
+
+def end_job(start: JobStart, record: dict) -> float | None:
+    """A trained (or failed) job's final status.json; its CVaR for the sweeper."""
+    finished = time.time()
+    seconds = finished - start.base["started"]
+    write_status(start.out, {**record, **start.base, "finished": finished, "seconds": seconds, "resumed": start.resume})
+    return record.get("cvar")
+
+
+def interrupt_job(start: JobStart, stop: Interrupted) -> None:
+    """A job a signal stopped after its checkpoint: no result, so that a requeued or re-run job resumes it."""
+    write_status(start.out, {"status": "interrupted", "error": str(stop), **start.base, "resumed": start.resume})
+
+
+def outcome(summary: dict) -> dict:
+    """A finished job's status record."""
+    return {"status": "done", "error": None, "cvar": summary["cvar"]["value"]}
+
+
+def failure(err: BaseException) -> dict:
+    """A failed job's status record: bad input and numerical trouble in one line, anything else with its trace."""
+    if isinstance(err, (BadInput, NumericalTrouble)):
+        return {"status": "failed", "error": str(err)}
+    trace = "".join(traceback.format_exception(err))
+    return {"status": "failed", "error": f"{type(err).__name__}: {err}", "traceback": trace}
+
+
+def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | None:
+    threads = job_threads()
+    if threads:
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    start = begin_job(cfg, out)
+    if start.finished:
+        return start.value
     with job_output(out / JOB_LOG):
         print(
-            f"=== riskplan sweep job {'resumed' if resume else 'started'} at {time.ctime(started)} "
-            f"on {base['host']} ({base['threads']} numba threads, pid {base['pid']}"
-            + (f", ends with the sweep process {_watching[0]})" if watched and _watching else ")"),
+            start.opening + (f", ends with the sweep process {_watching[0]})" if watched and _watching else ")"),
             flush=True,
         )
         try:
-            record = _train(cfg, out, resume)
+            record = _train(cfg, out, start.resume)
         except Interrupted as stop:  # checkpointed: the job ends by the signal, leaving no result behind, so a
             # scheduler that requeues it (preemption, submitit's checkpoint) runs it again and it resumes
             print(f"=== {stop}", flush=True)
-            write_status(out, {"status": "interrupted", "error": str(stop), **base, "resumed": resume})
+            interrupt_job(start, stop)
             raise SystemExit(stop.exit_code) from None
         print(f"=== {record['status']}" + (f": {record['error']}" if record["error"] else ""), flush=True)
-    finished = time.time()
-    write_status(out, {**record, **base, "finished": finished, "seconds": finished - started, "resumed": resume})
-    return record.get("cvar")
+    return end_job(start, record)
 
 
 _watching: list[int] = []  # the driver pid this process watches, once started
@@ -387,13 +440,12 @@ def _train(cfg: DictConfig, out: Path, resume: bool) -> dict:
                 summary = train_summary(cfg, out)
         else:
             summary = train_summary(cfg, out)
-    except (BadInput, NumericalTrouble) as err:
-        return {"status": "failed", "error": str(err)}
     except Exception as err:  # a job that raises fails alone; the sweep goes on
-        trace = traceback.format_exc()
-        print(trace, file=sys.stderr, flush=True)
-        return {"status": "failed", "error": f"{type(err).__name__}: {err}", "traceback": trace}
-    return {"status": "done", "error": None, "cvar": summary["cvar"]["value"]}
+        record = failure(err)
+        if "traceback" in record:
+            print(record["traceback"], file=sys.stderr, flush=True)
+        return record
+    return outcome(summary)
 
 
 @contextlib.contextmanager

@@ -1,0 +1,1 @@
+"""riskplan's batch launcher for Hydra (`riskplan sweep --batch`): see batch_launcher."""

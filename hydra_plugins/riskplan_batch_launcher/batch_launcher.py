@@ -1,0 +1,41 @@
+"""`hydra/launcher=riskplan_batch`: a sweep's jobs trained as batches in this process (`riskplan sweep --batch`).
+
+Hydra finds launchers only in the `hydra_plugins` package, so this module is the plugin's face: its config and a
+Launcher that hands the jobs to riskplan.experiments.sweeping.batched. Hydra imports every plugin module whenever
+it starts, so this one imports nothing heavy. (No `from __future__ import annotations`: Hydra's scan executes the
+module before it is in sys.modules, where dataclasses would look string annotations up.)
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from hydra.core.config_store import ConfigStore
+from hydra.plugins.launcher import Launcher
+
+
+@dataclass
+class RiskplanBatchLauncherConf:
+    _target_: str = "hydra_plugins.riskplan_batch_launcher.batch_launcher.RiskplanBatchLauncher"
+    memory_gb: float | None = None  # the memory a batch may use (default: riskplan's memory budget)
+
+
+ConfigStore.instance().store(
+    group="hydra/launcher", name="riskplan_batch", node=RiskplanBatchLauncherConf, provider="riskplan"
+)
+
+
+class RiskplanBatchLauncher(Launcher):
+    """Jobs that share a world and a sample schedule train together, one kernel call per iteration over all their
+    robots; each job keeps its folder, files and status as under any other launcher."""
+
+    def __init__(self, memory_gb: float | None = None) -> None:
+        self.memory_gb = memory_gb
+        self.config = self.hydra_context = self.task_function = None
+
+    def setup(self, *, hydra_context, task_function, config) -> None:
+        self.config, self.hydra_context, self.task_function = config, hydra_context, task_function
+
+    def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int):
+        from riskplan.experiments.sweeping.batched import launch_batches  # lazy: the whole training stack
+
+        return launch_batches(self, job_overrides, initial_job_idx)
