@@ -30,6 +30,13 @@ def register(app: typer.Typer) -> None:
             show_default=False,
             help="Jobs at once: joblib workers (default: the number of cores), or submitit's array_parallelism.",
         ),
+        batch: bool = typer.Option(
+            False,
+            "--batch",
+            help="Train the jobs that share a world and sample schedule as one program in this process, one "
+            "kernel call per iteration over all their robots (every core); the same folders and files, bit for "
+            "bit the same numbers. Seeds, risk levels and parameters, step sizes, theta0 and graphs may differ.",
+        ),
     ) -> None:
         """Run a grid of experiments (a Hydra multirun) into outputs/sweeps/<timestamp>/, one folder per job."""
         from riskplan.experiments.sweeping import report_outcome, run_sweep  # here: `riskplan train` starts without it
@@ -37,5 +44,5 @@ def register(app: typer.Typer) -> None:
 
         args = with_config_dirs(list(overrides or []))
         check_extras(args)  # a launcher, sweeper or team.backend whose extra is missing: before any folder
-        outcome = run_sweep(args, jobs)
+        outcome = run_sweep(args, jobs, batch=batch)
         raise typer.Exit(report_outcome(outcome))

@@ -65,6 +65,13 @@ def config_steps(params, width: int, height: int, sources: int, robots: int) -> 
     return sum(amount for amount, _, _ in budget.estimate(sizes)[1])
 
 
+def run_bytes(setup) -> float:
+    """The memory a built run needs (riskplan.run.budget's estimate): what a batch of runs adds up."""
+    world = setup.world
+    sizes = budget.sizes_of(setup.params, world.width, world.height, world.sources, setup.robots)
+    return sum(amount for amount, _, _ in budget.estimate(sizes)[0])
+
+
 def cache_file() -> Path:
     """This host's calibration file."""
     root = os.environ.get(CACHE_ENV, "").strip()

@@ -9,7 +9,8 @@ from pathlib import Path
 import typer
 
 from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, is_finished
-from riskplan.experiments.sweeping.jobs import SUMMARY, Outcome, Plan, locate
+from riskplan.experiments.sweeping.batched import PROGRESS, plan_chunks
+from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, SUMMARY, Outcome, Plan, locate
 from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.experiments.sweeping.search import run_optimiser
@@ -17,10 +18,15 @@ from riskplan.experiments.sweeping.summary import summarize, write_summary
 from riskplan.experiments.sweeping.view import SweepView
 from riskplan.run import cost
 from riskplan.util import lock
-from riskplan.util.interrupt import DriverSignals
-from riskplan.util.limits import cpu_count
+from riskplan.util.interrupt import DriverSignals, Interrupted
+from riskplan.util.limits import cpu_count, memory_budget, size
 
-LOCAL = ("joblib", "submitit_local", "basic")  # launchers whose jobs run below the driver, and stop with it
+LOCAL = (
+    "joblib",
+    "submitit_local",
+    "basic",
+    "riskplan_batch",
+)  # launchers whose jobs run below the driver, and stop with it
 
 
 def run_sweep(
@@ -31,12 +37,14 @@ def run_sweep(
     out=None,
     before_launch=None,
     expected: frozenset[str] = frozenset(),
+    batch: bool = False,
 ) -> Outcome:
     """Plan, launch through Hydra, show progress, write summary.parquet. BadInput before anything runs.
 
     `before_launch`: called between planning and launching (reproduce waits there for its warmed-up workers).
-    `expected`: warnings the caller chose on purpose (reproduce's own studies), not repeated."""
-    plan = plan_sweep(args, jobs, sweep_dir)
+    `expected`: warnings the caller chose on purpose (reproduce's own studies), not repeated. `batch`: the jobs
+    that share a world train as one program (riskplan.experiments.sweeping.batched)."""
+    plan = plan_sweep(args, jobs, sweep_dir, batch)
     plan.warnings = [note for note in plan.warnings if note not in expected]
     with lock.hold(plan.sweep_dir, "sweep directory"):  # one driver per sweep directory, for the whole launch
         return _run_plan(plan, args, jobs, title, out, before_launch)
@@ -63,7 +71,10 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         f"finished ({where})"
     )
     if todo:
-        echo(estimate_line([job for i, job in enumerate(plan.jobs) if i not in finished], plan))
+        waiting = [job for i, job in enumerate(plan.jobs) if i not in finished]
+        if plan.launcher == BATCH_LAUNCHER:
+            echo(batch_line(waiting))
+        echo(estimate_line(waiting, plan))
     launcher_error, interrupted = None, None
     if todo:
         if plan.launcher == "joblib" and plan.workers:
@@ -73,10 +84,20 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
             before_launch()
         # Ctrl-C reaches local workers too, and they checkpoint and stop; the driver waits for that (see
         # DriverSignals), then reports the interruption.
-        with SweepView(plan.sweep_dir, plan.jobs, finished, title), DriverSignals(plan.launcher not in LOCAL) as stop:
+        progress = plan.sweep_dir / PROGRESS if plan.launcher == BATCH_LAUNCHER else None
+        with (
+            SweepView(plan.sweep_dir, plan.jobs, finished, title, batch_progress=progress),
+            DriverSignals(plan.launcher not in LOCAL) as stop,
+        ):
             skip = frozenset(tuple(plan.jobs[i].overrides) for i in finished)
-            launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log", skip)
-        interrupted = stop.received
+            try:
+                launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log", skip)
+            except Interrupted as batch_stop:  # a batch trains here: it checkpointed and marked its jobs
+                interrupted = batch_stop.signum
+            finally:
+                if progress is not None:
+                    progress.unlink(missing_ok=True)
+        interrupted = interrupted or stop.received
     for job in plan.jobs:  # a job found under another name (an older naming) ran in its own folder now
         if (
             job.folder is not None
@@ -110,8 +131,33 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
 
 
 def estimate_seconds(jobs: list, plan: Plan) -> float:
-    """The wall seconds these jobs of the plan should take on this machine (riskplan.run.cost)."""
-    return cost.model().sweep_seconds([job.steps for job in jobs], plan.workers or 1)
+    """The wall seconds these jobs of the plan should take on this machine (riskplan.run.cost): a batch pays one
+    run's overhead per chunk, not per job."""
+    model = cost.model()
+    if plan.launcher == BATCH_LAUNCHER:
+        chunks = batch_chunks(jobs)
+        return cost.LAUNCH + sum(job.steps for job in jobs) / model.rate + len(chunks) * model.overhead
+    return model.sweep_seconds([job.steps for job in jobs], plan.workers or 1)
+
+
+def batch_chunks(jobs: list) -> list[list]:
+    """The batches these jobs will train in: grouped by what they share, cut to the memory budget."""
+    batchable = [job for job in jobs if job.batch]
+    return plan_chunks(batchable, memory_budget()[0], key=lambda job: job.batch, size=lambda job: job.memory)
+
+
+def batch_line(jobs: list) -> str:
+    """A batched sweep's plan: its groups and chunks, and the memory they stay within."""
+    chunks = batch_chunks(jobs)
+    groups = len({job.batch for job in jobs if job.batch})
+    alone = sum(1 for job in jobs if not job.batch)
+    budget, source = memory_budget()
+    largest = max((sum(job.memory for job in chunk) for chunk in chunks), default=0.0)
+    return (
+        f"batched: {len(jobs) - alone} runs in {groups} group{'s' if groups != 1 else ''} of a shared world, "
+        f"trained as {len(chunks)} batch{'es' if len(chunks) != 1 else ''} (the largest needs about {size(largest)}, "
+        f"within the {size(budget)} memory budget: {source})" + (f"; {alone} jobs alone" if alone else "")
+    )
 
 
 def estimate_line(jobs: list, plan: Plan) -> str:

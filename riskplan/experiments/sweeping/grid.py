@@ -28,12 +28,13 @@ from riskplan.config import schema
 from riskplan.config.hydra_safety import check_hydra_node
 from riskplan.config.typed import choice_problem
 from riskplan.config.validate import check_extra
+from riskplan.engine.step import batch_key
 from riskplan.experiments.sweep_worker import config_sha, folder_name
 from riskplan.experiments.sweeping.jobs import SWEEPS_ROOT, Job
 from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, explain, parse_overrides
 from riskplan.run.compose import compose as riskplan_compose
-from riskplan.run.cost import setup_steps
+from riskplan.run.cost import run_bytes, setup_steps
 from riskplan.util.errors import BadInput, MissingExtra
 from riskplan.util.limits import check_jobs
 from riskplan.util.paths import claim_dir, hydra_quote
@@ -309,16 +310,17 @@ def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job]
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     try:
-                        steps = setup_steps(build_setup(cfg))
-                        invalid = None
+                        setup = build_setup(cfg)
+                        steps, invalid = setup_steps(setup), None
+                        shape = {"batch": batch_key(setup.params), "memory": run_bytes(setup)}
                     except MissingExtra:  # a missing package fails the whole sweep, not only this job
                         raise
                     except BadInput as err:
-                        steps, invalid = 0.0, str(err)
+                        steps, invalid, shape = 0.0, str(err), {}
                 for w in caught:
                     if str(w.message) not in notes:
                         notes.append(str(w.message))
-                jobs.append(Job(list(combo), config_sha(cfg), invalid, steps=steps))
+                jobs.append(Job(list(combo), config_sha(cfg), invalid, steps=steps, **shape))
     finally:
         GlobalHydra.instance().clear()
     return jobs, notes

@@ -19,6 +19,7 @@ SUMMARY = "summary.parquet"
 
 
 DEFAULT_LAUNCHER = "joblib"
+BATCH_LAUNCHER = "riskplan_batch"  # riskplan sweep --batch (hydra_plugins.riskplan_batch_launcher)
 
 
 @dataclass
@@ -33,6 +34,8 @@ class Job:
     folder: str | None = None  # the folder name Hydra will give it (None when the user set hydra.sweep.subdir)
     trial: int = -1  # under an optimising sweeper: its trial number (hydra.job.num)
     steps: float = 0.0  # its estimated cost in trajectory-step equivalents (riskplan.run.cost)
+    batch: str = ""  # what it must share with the jobs of its batch (riskplan.engine.step.batch_key)
+    memory: float = 0.0  # the bytes it needs in a batch (riskplan.experiments.sweeping.batched.run_bytes)
 
     @property
     def key(self) -> tuple[str, ...]:

@@ -20,7 +20,7 @@ from riskplan.experiments.sweeping.grid import (
     target_dir,
     validate,
 )
-from riskplan.experiments.sweeping.jobs import DEFAULT_LAUNCHER, Plan
+from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, DEFAULT_LAUNCHER, Plan
 from riskplan.experiments.sweeping.search import plan_optimiser
 from riskplan.run.compose import expand_shorthands, parse_overrides
 from riskplan.util.errors import BadInput
@@ -30,8 +30,9 @@ from riskplan.util.paths import check_output_dir, hydra_quote
 REQUEUES = 3  # submitit_slurm: times a job that reaches its time limit is requeued (it resumes from its checkpoint)
 
 
-def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None) -> Plan:
-    """Parse, expand and validate a sweep; claim its directory last, so bad input leaves nothing behind."""
+def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None, batch: bool = False) -> Plan:
+    """Parse, expand and validate a sweep; claim its directory last, so bad input leaves nothing behind. `batch`:
+    the jobs train in batches in this process (hydra/launcher=riskplan_batch)."""
     for arg in args:
         if arg.startswith("-"):
             raise BadInput(
@@ -53,6 +54,13 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
             )
     hydra_keys = {o.key_or_group: o for o in hydra_ovs}
     launcher = str(hydra_keys["hydra/launcher"].value()) if "hydra/launcher" in hydra_keys else DEFAULT_LAUNCHER
+    if batch:
+        if "hydra/launcher" in hydra_keys or "hydra/sweeper" in hydra_keys:
+            given = (hydra_keys.get("hydra/launcher") or hydra_keys["hydra/sweeper"]).input_line
+            raise BadInput("--batch", f"trains in this process; drop '{given}' (a cluster launches jobs one by one)")
+        if jobs is not None:
+            raise BadInput("--jobs", "applies to parallel launchers; --batch trains one program on every core")
+        launcher = BATCH_LAUNCHER
     explicit_dir = None
     if "hydra.sweep.dir" in hydra_keys:
         raw = hydra_keys["hydra.sweep.dir"].value()
@@ -110,7 +118,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         argv.append(f"hydra.launcher.max_num_timeout={REQUEUES}")  # a job at its time limit is requeued, resumes
     argv += ray_init_overrides(launcher, hydra_keys)
     if "hydra/launcher" not in hydra_keys:
-        argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
+        argv.append(f"hydra/launcher={launcher}")
     if not task_ovs and "hydra.sweep.subdir" not in hydra_keys:
         argv.append("hydra.sweep.subdir=defaults")  # one job without overrides: still a folder of its own
     elif "hydra.sweep.subdir" not in hydra_keys:

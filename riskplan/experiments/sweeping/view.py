@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
+import json
 import os
 import sys
 import threading
@@ -33,11 +34,13 @@ class SweepView:
         every: float = 0.5,
         total: int | None = None,
         discover=None,
+        batch_progress: Path | None = None,
     ):
         self.sweep_dir, self.jobs, self.finished, self.title, self.every = sweep_dir, jobs, finished, title, every
         self.todo = [i for i in range(len(jobs)) if i not in finished]
         self.discover = discover  # an optimiser's trials: found as the sweeper launches them (discover(since))
         self.total = total
+        self.batch_progress = batch_progress  # a batched sweep's {"done", "total"} iterations (sweeping.batched)
         self.reported: set[int] = set()
         self.stop = threading.Event()
 
@@ -92,18 +95,31 @@ class SweepView:
                     self._finished_line(i, state, status)
             ended = counts["done"] + counts["failed"]
             elapsed = time.time() - self.since
-            eta = (
-                f"ETA {dt.timedelta(seconds=round(elapsed / ended * (self._total() - ended)))}"
-                if 0 < ended < self._total()
-                else ""
-            )
+            done, total = self._iterations()
+            if total:  # a batch: its runs end together, so its iterations measure progress
+                completed = self._total() * done / total
+            else:
+                completed, done, total = ended, ended, self._total()
+            eta = f"ETA {dt.timedelta(seconds=round(elapsed / done * (total - done)))}" if 0 < done < total else ""
             state = f"running {counts['running']} · failed {counts['failed']}" + (
                 f" · skipped {len(self.finished)} finished before" if self.finished else ""
             )
             if self.bar is not None:
-                self.bar.update(self.task, completed=ended, total=self._total(), state=state, eta=eta)
+                self.bar.update(self.task, completed=completed, total=self._total(), state=state, eta=eta)
         except Exception:
             pass
+
+    def _iterations(self) -> tuple[int, int]:
+        """A batched sweep's iterations done and in all (0, 0 otherwise, or before its first report)."""
+        if self.batch_progress is None:
+            return 0, 0
+        try:
+            if self.batch_progress.stat().st_mtime < self.since - 2:
+                return 0, 0
+            record = json.loads(self.batch_progress.read_text())
+            return int(record["done"]), int(record["total"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return 0, 0
 
     def _finished_line(self, i: int, state: str, status: dict | None) -> None:
         job = self.jobs[i]

@@ -1,0 +1,104 @@
+"""`riskplan sweep --batch` (riskplan.experiments.sweeping.batched): the same folders and files as the sweep
+without it, bit for bit the same numbers, a bad job failing alone, a killed batch resuming to the same numbers,
+and batches cut to the memory budget."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import pandas as pd
+import pytest
+from support import FAST, assert_same_outputs, riskplan_cli
+from test_sweep_command import job_dirs, sweep_dir_of
+
+from riskplan.experiments.sweeping.batched import plan_chunks
+
+GRID = ["risk.beta=0.1,0.3", "seed=range(0,2)", "experiment=paper_single,paper_team", *FAST]
+
+
+def files_of(job) -> set[str]:
+    return {str(p.relative_to(job)) for p in job.rglob("*") if p.is_file()}
+
+
+@pytest.mark.slow
+def test_a_batched_sweep_leaves_the_same_folders_files_and_numbers(tmp_path):
+    plain = riskplan_cli(tmp_path, "sweep", *GRID, "hydra.sweep.dir=plain")
+    batched = riskplan_cli(tmp_path, "sweep", *GRID, "hydra.sweep.dir=batched", "--batch")
+    assert plain.returncode == 0 and batched.returncode == 0, plain.stderr + batched.stderr
+    assert "batched: 8 runs in 1 group of a shared world, trained as 1 batch" in batched.stdout
+    assert "estimated time:" in batched.stdout and "memory budget" in batched.stdout
+    want, got = job_dirs(tmp_path / "plain"), job_dirs(tmp_path / "batched")
+    assert [d.name for d in got] == [d.name for d in want] and len(got) == 8
+    for a, b in zip(got, want):
+        assert files_of(a) == files_of(b)
+        assert_same_outputs(a, b)
+        assert (a / ".hydra" / "config.yaml").read_text() == (b / ".hydra" / "config.yaml").read_text()
+        assert (
+            json.loads((a / "status.json").read_text())["config_sha"]
+            == json.loads((b / "status.json").read_text())["config_sha"]
+        )
+    summaries = [pd.read_parquet(tmp_path / d / "summary.parquet") for d in ("batched", "plain")]
+    columns = ["job", "status", "mean", "cvar", "value_at_risk"]
+    pd.testing.assert_frame_equal(summaries[0][columns], summaries[1][columns])
+    assert not (tmp_path / "batched" / ".batch_progress.json").exists()
+    # run again: every job is finished and skipped
+    again = riskplan_cli(tmp_path, "sweep", *GRID, "hydra.sweep.dir=batched", "--batch")
+    assert again.returncode == 0 and "8 jobs: 0 to run, 8 already finished" in again.stdout
+
+
+@pytest.mark.slow
+def test_a_bad_job_in_a_batch_fails_alone(tmp_path):
+    result = riskplan_cli(
+        tmp_path, "sweep", "seed=0,1", "train.step_size.initial=0.1,1e308", "world.start=[0,0],[40,0]", *FAST, "--batch"
+    )
+    assert result.returncode == 1
+    summary = pd.read_parquet(sweep_dir_of(result, tmp_path) / "summary.parquet")
+    done = summary[summary.status == "done"]
+    assert len(summary) == 8 and len(done) == 2
+    assert set(done["train.step_size.initial"]) == {0.1} and set(done["world.start"].astype(str)) == {"[0, 0]"}
+    errors = " ".join(summary.error.dropna())
+    assert "theta or its gradient is not finite" in errors and "world.start" in errors
+
+
+@pytest.mark.slow
+def test_a_killed_batched_sweep_resumes_to_the_same_numbers(tmp_path):
+    args = ["sweep", "seed=0,1", "risk.beta=0.1,0.2", *FAST, "train.iterations=6", "train.checkpoint_every=2"]
+    reference = riskplan_cli(tmp_path, *args, "hydra.sweep.dir=plain")
+    assert reference.returncode == 0, reference.stderr
+    killed = riskplan_cli(
+        tmp_path, *args, "hydra.sweep.dir=s", "--batch", env={"RISKPLAN_TEST_KILL_IN_CHECKPOINT": "4"}
+    )
+    assert killed.returncode != 0
+    assert not any((d / "summary.json").exists() for d in (tmp_path / "s").iterdir() if d.is_dir())
+    resumed = riskplan_cli(tmp_path, *args, "hydra.sweep.dir=s", "--batch")
+    assert resumed.returncode == 0, resumed.stderr
+    for a, b in zip(job_dirs(tmp_path / "s"), job_dirs(tmp_path / "plain")):
+        assert json.loads((a / "status.json").read_text())["resumed"]  # from its checkpoint at iteration 2
+        assert_same_outputs(a, b)
+
+
+def test_batch_and_a_launcher_or_jobs_are_bad_input(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from riskplan.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    for extra in (["hydra/launcher=basic"], ["--jobs", "2"], ["hydra/sweeper=basic"]):
+        result = CliRunner().invoke(app, ["sweep", "seed=0,1", *FAST, "--batch", *extra])
+        assert result.exit_code == 2, result.output
+        assert len(result.stderr.strip().splitlines()) == 1 and result.stderr.startswith("error: ")
+    assert not (tmp_path / "outputs").exists()
+
+
+def test_batches_are_the_groups_cut_to_the_memory_budget():
+    jobs = [
+        SimpleNamespace(batch=key, memory=memory) for key, memory in [("a", 4), ("a", 4), ("b", 1), ("a", 4), ("a", 9)]
+    ]
+    chunks = plan_chunks(jobs, 10, key=lambda j: j.batch, size=lambda j: j.memory)
+    assert [[(j.batch, j.memory) for j in chunk] for chunk in chunks] == [
+        [("a", 4), ("a", 4)],
+        [("a", 4)],
+        [("a", 9)],  # larger than the rest of the budget: a batch of its own
+        [("b", 1)],
+    ]
