@@ -42,7 +42,13 @@ def register(app: typer.Typer) -> None:
             help=f"Seeds per condition (default {SEEDS}, {QUICK_SEEDS} with --quick).",
         ),
         jobs: int | None = typer.Option(
-            None, "--jobs", "-j", min=1, show_default=False, help="Parallel jobs (default: the number of cores)."
+            None,
+            "--jobs",
+            "-j",
+            min=1,
+            show_default=False,
+            help="Run each sweep's jobs as this many parallel processes (joblib) instead of as one batch on every "
+            "core (the default: the same numbers, quicker).",
         ),
         formats: str = typer.Option("png,pdf", "--format", help="Figure files of the report: any of png,pdf,svg."),
         paper_only: bool = typer.Option(

@@ -197,7 +197,8 @@ def reproduce(
         raise BadInput("--seeds", f"got {seeds}; expected at least 1")
     experiments = chosen(paper_only)
     jobs_total = check_seeds(seeds, experiments)
-    warmed = _warm_workers(jobs, seeds, experiments)  # the workers start while the checks run
+    # each sweep trains as one batch in this process unless --jobs asks for parallel worker processes
+    warmed = _warm_workers(jobs, seeds, experiments) if jobs is not None else None  # they start while checks run
     try:
         extra, configs, own = _check_overrides(list(overrides or []), quick)
         check_work(seeds, jobs_total, configs, list(overrides or []), experiments)
@@ -295,8 +296,9 @@ def schedule_of(seeds: int, configs: dict, experiments: tuple, jobs: int | None,
     workers = _workers(jobs, seeds, experiments)
     stages = []
     for (folder, _, experiment, _), count in zip(experiments, experiment_jobs(seeds, experiments)):
-        steps = job_steps(configs[setup_of(experiment)])
-        stages.append(Stage(folder, model.sweep_seconds([steps] * count, min(workers, count)), count))
+        steps = [job_steps(configs[setup_of(experiment)])] * count
+        seconds = model.batch_seconds(steps) if jobs is None else model.sweep_seconds(steps, min(workers, count))
+        stages.append(Stage(folder, seconds, count))
     if len(experiments) == len(EXPERIMENTS):
         grid = QUICK_LANDSCAPE if quick else LANDSCAPE
         horizon = int(next(iter(configs.values())).world.horizon)
@@ -327,7 +329,9 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
     quick, seeds, overrides = options.quick, options.seeds, options.overrides
     what = ("quick" if quick else "full") + (", Section V only" if options.paper_only else "")
     typer.echo(f"reproduction directory: {target} ({what}, {seeds} seeds)")
-    typer.echo(plan_line(schedule, _workers(options.jobs, seeds, options.experiments)))
+    typer.echo(
+        plan_line(schedule, None if options.jobs is None else _workers(options.jobs, seeds, options.experiments))
+    )
     record = {
         "quick": quick,
         "paper_only": options.paper_only,
@@ -350,6 +354,7 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
             title=folder,
             before_launch=wait_for_workers,
             expected=options.own_warnings.get(setup_of(experiment), frozenset()),
+            batch=options.jobs is None,
         )
         toc = time.time()
         schedule.finished(folder, toc - tic)

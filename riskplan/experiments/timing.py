@@ -61,11 +61,14 @@ class Schedule:
         self.taken[name] = seconds
 
 
-def plan_line(schedule: Schedule, workers: int) -> str:
-    """The estimate said before anything runs."""
+def plan_line(schedule: Schedule, workers: int | None) -> str:
+    """The estimate said before anything runs (`workers`: parallel job processes, None for batches)."""
     jobs = sum(stage.jobs for stage in schedule.stages)
+    how = (
+        "each sweep one batch on every core" if workers is None else f"on {workers} worker{'s' if workers != 1 else ''}"
+    )
     return (
-        f"plan: {len(schedule.stages)} stages, {jobs} jobs on {workers} worker{'s' if workers != 1 else ''}; "
+        f"plan: {len(schedule.stages)} stages, {jobs} jobs, {how}; "
         f"estimated time {cost.say(schedule.total)} ({cost.model().describe()}; finished jobs are skipped)"
     )
 

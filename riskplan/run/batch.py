@@ -19,6 +19,7 @@ from pathlib import Path
 
 from riskplan.engine.step import Setup, batched_rollouts
 from riskplan.run.training import Driver, iterate, load_kernels
+from riskplan.util.collector import resume_collection
 from riskplan.util.interrupt import StopSignals
 from riskplan.util.lock import hold
 
@@ -44,6 +45,7 @@ def train_batch(runs: list[BatchRun], progress: Callable[[int, int], None] | Non
         active = [run for run in runs if _open(run, stack)]
         if active:
             load_kernels(active[0].setup, active[0].driver.state)
+        resume_collection()  # the start-up is over (riskplan.util.collector), as for a run alone
         walls = {id(run): 0.0 for run in active}
         done = sum(run.driver.state.iteration for run in active) + sum(
             run.setup.params.train.iterations for run in runs if run.driver is None
@@ -110,9 +112,11 @@ def _isolated(run: BatchRun, work: Callable[[], None]) -> None:
 
 
 def _finish(run: BatchRun, train_seconds: float, stop: StopSignals) -> None:
-    """Evaluate a trained run and write its files (run.mcap closes first, as for a run alone)."""
+    """Evaluate a trained run and write its files (run.mcap closes first, as for a run alone); its calibration
+    record is its part of the batch's time."""
+    started = time.perf_counter()
     run.driver.evaluate(train_seconds)
     stop.check(run.driver.state.iteration)
     run.driver.log_results()
     run.driver.log.close()  # before the files, as a run alone closes it; the batch's exit closes it again, idly
-    run.summary = run.driver.finish()
+    run.summary = run.driver.finish(train_seconds + time.perf_counter() - started)

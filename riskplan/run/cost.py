@@ -47,6 +47,12 @@ class Model:
             return 0.0
         return LAUNCH + sum(steps) / self.rate + len(steps) * self.overhead / max(workers, 1)
 
+    def batch_seconds(self, steps: list[float], batches: int = 1) -> float:
+        """A batched sweep's wall seconds: its steps on the whole machine, one run's overhead per batch."""
+        if not steps:
+            return 0.0
+        return LAUNCH + sum(steps) / self.rate + batches * self.overhead
+
     def describe(self) -> str:
         if self.runs:
             return f"calibrated on {self.runs} run{'s' if self.runs != 1 else ''} finished on this machine"

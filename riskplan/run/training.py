@@ -159,14 +159,16 @@ class Driver:
         self.log.evaluation(evaluation)
         self.log.summary(summary)
 
-    def finish(self) -> dict:
+    def finish(self, seconds: float | None = None, share: float | None = None) -> dict:
         """The finished run's files (after run.mcap closed), summary.json last; returns the summary. A whole run
-        calibrates the time estimates of sweeps and reproductions on this machine (riskplan.run.cost)."""
+        calibrates the time estimates of sweeps and reproductions on this machine (riskplan.run.cost) with its wall
+        seconds since it opened (a batch gives each run its part of the batch's time, on all cores)."""
         metrics, evaluation, trajectories, summary = self.results
         write_finished(self.out, self.setup, metrics, evaluation, trajectories, summary)
         if not self.resumed_at:
-            share = numba.get_num_threads() / cpu_count()
-            cost.record(cost.setup_steps(self.setup), time.perf_counter() - self.entered, share)
+            seconds = time.perf_counter() - self.entered if seconds is None else seconds
+            share = numba.get_num_threads() / cpu_count() if share is None else share
+            cost.record(cost.setup_steps(self.setup), seconds, share)
         return summary
 
 

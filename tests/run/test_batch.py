@@ -99,3 +99,19 @@ def test_a_batch_stopped_by_a_signal_resumes_to_the_same_numbers(tmp_path):
     train_batch(again)
     for name in names:
         assert_same_outputs(tmp_path / "batch" / name, reference / name)
+
+
+def test_each_run_of_a_batch_calibrates_with_its_part_of_the_batchs_time(tmp_path, monkeypatch):
+    import json
+    import time
+
+    from riskplan.run import cost
+
+    monkeypatch.setenv(cost.CACHE_ENV, str(tmp_path / "cache"))
+    names = ["cvar", "team", "ring"]
+    tic = time.perf_counter()
+    train_batch([BatchRun(setups(TINY, [n])[n], tmp_path / n) for n in names])
+    whole = time.perf_counter() - tic
+    records = json.loads(cost.cache_file().read_text())["runs"]
+    assert [steps for steps, _ in records] == [cost.setup_steps(setups(TINY, [n])[n]) for n in names]
+    assert sum(seconds for _, seconds in records) <= whole  # parts of the batch, not the batch once per run

@@ -135,8 +135,7 @@ def estimate_seconds(jobs: list, plan: Plan) -> float:
     run's overhead per chunk, not per job."""
     model = cost.model()
     if plan.launcher == BATCH_LAUNCHER:
-        chunks = batch_chunks(jobs)
-        return cost.LAUNCH + sum(job.steps for job in jobs) / model.rate + len(chunks) * model.overhead
+        return model.batch_seconds([job.steps for job in jobs], len(batch_chunks(jobs)))
     return model.sweep_seconds([job.steps for job in jobs], plan.workers or 1)
 
 
