@@ -45,7 +45,7 @@ from riskplan.run.ray_team import (
     out_neighbours,
     tracking_balance,
 )
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, MissingExtra
 
 HAVE_RAY = importlib.util.find_spec("ray") is not None
 needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="ray is not installed here (pip install 'riskplan[distributed]')")
@@ -256,11 +256,12 @@ def test_checkpoints_are_checked_against_the_team(tmp_path):
 
 def test_without_ray_the_backend_is_one_line(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` raises ImportError
-    with pytest.raises(BadInput) as err:
+    with pytest.raises(MissingExtra) as err:  # bad input, before the run directory is made
         riskplan.train(riskplan.compose(["experiment=paper_team", "team.backend=ray", *SMALL]), tmp_path / "r")
-    assert err.value.where == "team.backend" and "riskplan[distributed]" in str(err.value)
+    assert err.value.where == "team.backend=ray"
+    assert str(err.value).endswith("pip install 'riskplan[distributed]'"), str(err.value)
     assert "\n" not in str(err.value)
-    assert not (tmp_path / "r" / "run.mcap").exists()
+    assert not (tmp_path / "r").exists()
 
 
 # ------------------------------------------------------------------------------------------------ a local Ray
@@ -569,7 +570,7 @@ def test_an_unreachable_cluster_is_one_line(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_finished_run_extends_and_one_killed_in_its_evaluation_finishes_without_ray(local_ray, tmp_path, monkeypatch):
+def test_a_finished_run_extends_and_one_killed_in_its_evaluation_finishes(local_ray, tmp_path, monkeypatch):
     out = tmp_path / "r"
     train_ray(out, "train.iterations=6")
     longer = riskplan.compose(["experiment=paper_team", "team.backend=ray", *SMALL, "train.iterations=10"])
@@ -579,6 +580,13 @@ def test_a_finished_run_extends_and_one_killed_in_its_evaluation_finishes_withou
     assert_complete_run(out, 10, 3, 2)
     for name in ("summary.json", "metrics.parquet"):  # as if killed while it evaluated
         (out / name).unlink()
-    monkeypatch.setitem(sys.modules, "ray", None)  # every robot is at train.iterations: no Ray needed
-    training.train(longer, out, resume=True)
+    files = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    with monkeypatch.context() as without_ray:  # team.backend=ray without Ray is bad input, even on resume
+        without_ray.setitem(sys.modules, "ray", None)
+        with pytest.raises(MissingExtra) as err:
+            training.train(longer, out, resume=True)
+    assert err.value.where == "team.backend=ray" and "\n" not in str(err.value)
+    assert str(err.value).endswith("pip install 'riskplan[distributed]'"), str(err.value)
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files  # nothing touched
+    training.train(longer, out, resume=True)  # every robot is at train.iterations: it only evaluates
     assert_complete_run(out, 10, 3, 2)
