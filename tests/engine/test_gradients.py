@@ -1,4 +1,4 @@
-"""run.gradients: the training loop's estimates are riskplan.risk's objective and gradient bit for bit, also where
+"""engine.gradients: the training loop's estimates are riskplan.risk's objective and gradient bit for bit, also where
 mean-CVaR reuses the iteration's statistics (its VaR, mean and CVaR) instead of computing them again."""
 
 from __future__ import annotations
