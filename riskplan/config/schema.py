@@ -134,6 +134,13 @@ class Order(Choice):
     gradient_tracking = "gradient_tracking"
 
 
+class Device(Choice):
+    """engine.device: where a run's episodes run; the numbers are the same on both (riskplan.engine.cuda_rollout)."""
+
+    cpu = "cpu"  # the numba kernel on every core
+    cuda = "cuda"  # an NVIDIA GPU through numba-cuda (pip install 'riskplan[cuda]')
+
+
 class Frozen:
     """Instances cannot change once built. Not `dataclass(frozen=True)`: OmegaConf turns those into read-only nodes,
     which Hydra cannot merge the YAML and the overrides into."""
@@ -305,6 +312,14 @@ class TeamConf(Frozen):
 
 
 @dataclass
+class EngineConf(Frozen):
+    """How the engine computes, never what: the same config and seed give the same numbers whatever these are, so
+    they enter neither a run's identity (riskplan.experiments.sweep_worker.run_identity) nor a sweep's folders."""
+
+    device: Device = Device.cpu
+
+
+@dataclass
 class RiskplanConf(Frozen):
     """The whole experiment."""
 
@@ -315,6 +330,7 @@ class RiskplanConf(Frozen):
     train: TrainConf = field(default_factory=TrainConf)
     world: WorldConf = field(default_factory=WorldConf)
     team: TeamConf = field(default_factory=TeamConf)
+    engine: EngineConf = field(default_factory=EngineConf)
 
 
 def structured() -> DictConfig:

@@ -47,6 +47,7 @@ EXTRAS = {
         for name in ("ray", "ray_cluster")
     },
     ("hydra/sweeper", "optuna"): ("hydra_plugins.hydra_optuna_sweeper", "Hydra's Optuna sweeper", "optuna", ""),
+    ("engine.device", "cuda"): ("numba_cuda", "numba-cuda", "cuda", ""),  # and a GPU: riskplan.run.build checks it
 }
 
 
@@ -65,6 +66,7 @@ def validate(params: RiskplanConf) -> None:
     check_train(params.train)
     check_world(params.world)
     check_team(params.team)
+    check_extra("engine.device", params.engine.device)  # numba-cuda, before the run: not a failed run directory
     seed = params.seed if abs(params.seed) < 10**30 else f"about 2^{params.seed.bit_length()}"
     require(
         0 <= params.seed < SEED_LIMIT,

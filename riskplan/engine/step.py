@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from riskplan.config.schema import Order, RiskConf, RiskplanConf
+from riskplan.config.schema import Device, Order, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
 from riskplan.engine import rng
 from riskplan.engine.gradients import gradients
@@ -136,8 +136,18 @@ def rollouts(setup: Setup, l: int, thetas: np.ndarray, robots=None) -> tuple[np.
     else:
         keys = np.array([rng.stream_key(setup.params.seed, rng.TRAIN, l, int(i)) for i in robots], dtype=np.uint64)
         cells = np.asarray(starts(setup)[np.asarray(robots)])
-    batch = simulate(setup.world, setup.kernel, thetas, cells, keys, episodes)
+    batch = simulator(setup)(setup.world, setup.kernel, thetas, cells, keys, episodes)
     return batch.total_reward.reshape(n, episodes), batch.score.reshape(n, episodes, -1)
+
+
+def simulator(setup: Setup):
+    """The episode kernel of a setup: riskplan.engine.rollout.simulate, or with engine.device=cuda its GPU port
+    (riskplan.engine.cuda_rollout.simulate: the same arguments and numbers)."""
+    if setup.params.engine.device == Device.cuda:
+        from riskplan.engine import cuda_rollout  # optional: numba-cuda, imported for engine.device=cuda alone
+
+        return cuda_rollout.simulate
+    return simulate
 
 
 def batched_rollouts(setups: list[Setup], l: int, thetas: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -148,7 +158,7 @@ def batched_rollouts(setups: list[Setup], l: int, thetas: list[np.ndarray]) -> l
     episodes = samples_at(l, first.params.train)
     keys = np.concatenate([rng.robot_keys(s.params.seed, rng.TRAIN, l, s.robots) for s in setups])
     cells = np.concatenate([starts(s) for s in setups])
-    batch = simulate(first.world, first.kernel, np.vstack(thetas), cells, keys, episodes)
+    batch = simulator(first)(first.world, first.kernel, np.vstack(thetas), cells, keys, episodes)
     z = batch.total_reward.reshape(len(keys), episodes)
     scores = batch.score.reshape(len(keys), episodes, -1)
     bounds = np.cumsum([0] + [s.robots for s in setups])

@@ -83,17 +83,19 @@ STALE = (
 
 
 OUTPUT_KEYS = ("hydra",)  # where a run was written (hydra.run.dir, hydra.sweep.dir and subdir, ...), never what ran
+HOW_KEYS = ("engine",)  # how a run computed (engine.device), never what: the same numbers on every device
 
 
 def run_identity(config: DictConfig | dict) -> str:
     """What makes two runs one sample: a fingerprint of the resolved config, its seed included and its output paths
-    (the hydra node) left out. Two runs with the same identity draw the same numbers, wherever they were written.
+    (the hydra node) and how it computed (the engine node: the device) left out. Two runs with the same identity draw
+    the same numbers, wherever and on whatever device they ran.
 
     The one rule for it: a sweep job records it in status.json as `config_sha` (a re-run skips the finished job),
     and the report, the export and the sweep summary count each identity once (`distinct`)."""
     if isinstance(config, DictConfig):
         config = OmegaConf.to_container(config, resolve=True)
-    config = {k: v for k, v in config.items() if k not in OUTPUT_KEYS}
+    config = {k: v for k, v in config.items() if k not in OUTPUT_KEYS and k not in HOW_KEYS}
     text = json.dumps(config, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

@@ -8,7 +8,7 @@ import re
 import numpy as np
 from omegaconf import DictConfig
 
-from riskplan.config.schema import RiskplanConf
+from riskplan.config.schema import Device, RiskplanConf
 from riskplan.config.typed import as_dict, typed
 from riskplan.config.validate import validate
 from riskplan.engine.measures.registry import check_risk_nodes
@@ -28,6 +28,7 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
     params = typed(cfg)  # types, unknown keys, Choices, interpolations: the frozen config everything below reads
     validate(params)  # every range, once
     check_risk_nodes(params)  # each risk node's measure (built in or a package's) and its parameters
+    check_device(params)  # engine.device=cuda: a GPU numba-cuda can use
     # Sizes first: nothing big is allocated before the memory and time estimates pass (a map's from its header).
     found = maps.read_map(params.world)
     width, height = grid_size(params.world.size) if found is None else found.cells
@@ -50,6 +51,22 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
         policy=policy,
         theta_names=policy.names,
     )
+
+
+def check_device(params: RiskplanConf) -> None:
+    """engine.device=cuda needs a GPU that numba-cuda can use (the package itself is checked with the extras, in
+    validate): BadInput naming engine.device=cuda, when the run is built, so check and sweep refuse it too."""
+    if params.engine.device != Device.cuda:
+        return
+    try:
+        from riskplan.engine.cuda_rollout import check_gpu  # optional: numba-cuda, for engine.device=cuda alone
+    except Exception as err:  # a numba-cuda that fails at import (0.30.4 with numpy 2.5, which lacks np.row_stack)
+        raise BadInput(
+            "engine.device=cuda",
+            f"numba-cuda fails to import ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}); "
+            f"pip install 'riskplan[cuda]', which pins a numpy it supports",
+        ) from None
+    check_gpu()
 
 
 def check_sizes(params: RiskplanConf, found: maps.MapFile | None, width: int, height: int) -> None:

@@ -13,7 +13,7 @@ from riskplan.engine import rng
 from riskplan.engine.measures.registry import risk_spec
 from riskplan.engine.risk_measures import objective, summary_stats
 from riskplan.engine.rollout import simulate
-from riskplan.engine.step import Setup, check_finite, starts
+from riskplan.engine.step import Setup, check_finite, simulator, starts
 from riskplan.run.budget import EVAL_BATCH
 from riskplan.run.checkpoint import State
 from riskplan.run.columns import Columns, concat, rows_where
@@ -56,13 +56,14 @@ def evaluate(setup: Setup, thetas: np.ndarray) -> Columns:
     ids, evaluated, cells = policies(setup, thetas)
     healthy = np.append(final_health(setup), True)  # the network average is the healthy robots'
     frames = []
+    run = simulator(setup)  # rollout.simulate, or its GPU port (engine.device=cuda)
     for p, robot in enumerate(ids):
         parts = []
         for first in range(0, count, EVAL_BATCH):
             key = np.array([rng.stream_key(setup.params.seed, rng.EVAL, p, first)], dtype=np.uint64)
             size = min(EVAL_BATCH, count - first)
             parts.append(
-                simulate(setup.world, setup.kernel, evaluated[p : p + 1], cells[p : p + 1], key, size, scores=False)
+                run(setup.world, setup.kernel, evaluated[p : p + 1], cells[p : p + 1], key, size, scores=False)
             )
         frames.append(
             {
@@ -192,7 +193,7 @@ def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: Columns, head
         for first in range(0, count, EVAL_BATCH):
             key = np.array([rng.stream_key(params.seed, rng.EVAL, setup.robots + 1 + q, first)], dtype=np.uint64)
             size = min(EVAL_BATCH, count - first)
-            batch = simulate(setup.world, setup.kernel, average, np.array([cell]), key, size, scores=False)
+            batch = simulator(setup)(setup.world, setup.kernel, average, np.array([cell]), key, size, scores=False)
             parts.append(batch.total_reward)
         returns[cell] = np.concatenate(parts)
     with_intervals = len(pairs) <= ROBOT_INTERVALS

@@ -18,8 +18,7 @@ import numba
 import numpy as np
 
 from riskplan.config.schema import Backend
-from riskplan.engine.rollout import simulate
-from riskplan.engine.step import Setup, TrainState, initial_state, starts, step
+from riskplan.engine.step import Setup, TrainState, initial_state, simulator, starts, step
 from riskplan.engine.team.kernels import Links, mix_linked
 from riskplan.run import cost
 from riskplan.run.build import build_setup
@@ -177,7 +176,7 @@ def load_kernels(setup: Setup, state: State) -> None:
     by running them on one episode with throwaway keys, and the synchronous team's mixing kernel on a copy of
     theta: no state changes and no number drawn here is used."""
     cells = starts(setup)[:1]
-    simulate(setup.world, setup.kernel, state.thetas[:1], cells, np.zeros(1, dtype=np.uint64), 1)
+    simulator(setup)(setup.world, setup.kernel, state.thetas[:1], cells, np.zeros(1, dtype=np.uint64), 1)
     if setup.team and state.thetas.shape[1] > 1:
         mix_linked(setup.network, Links(setup.network), state.thetas.copy(), state.thetas.copy())
 

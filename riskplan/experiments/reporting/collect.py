@@ -29,7 +29,7 @@ from riskplan.config.schema import ScheduleConf
 from riskplan.config.typed import check_schema
 from riskplan.engine.measures.registry import MEASURES, label, parameter_keys
 from riskplan.experiments.landscape import is_landscape_dir, load_landscape
-from riskplan.experiments.sweep_worker import distinct
+from riskplan.experiments.sweep_worker import HOW_KEYS, distinct
 from riskplan.run.results import TABLES, Run, find_runs, load_run
 from riskplan.util.errors import BadInput
 
@@ -365,7 +365,9 @@ def collect(paths: list[Path]) -> Collection:
 
 def as_compared(config: dict) -> dict:
     """The config as the report compares runs, for their groups and for repeats: risk.schedule's defaults filled in
-    (runs from before risk.schedule existed ran without one)."""
+    (runs from before risk.schedule existed ran without one), and the engine node (the device) left out, as
+    run_identity leaves it: a run on the GPU is a seed of its condition on the CPU."""
+    config = {k: v for k, v in config.items() if k not in HOW_KEYS}
     risk = config.get("risk")
     if not isinstance(risk, dict):
         return config

@@ -29,7 +29,7 @@ from riskplan.config.hydra_safety import check_hydra_node
 from riskplan.config.typed import choice_problem
 from riskplan.config.validate import check_extra
 from riskplan.engine.step import batch_key
-from riskplan.experiments.sweep_worker import config_sha, folder_name
+from riskplan.experiments.sweep_worker import HOW_KEYS, config_sha, folder_name
 from riskplan.experiments.sweeping.jobs import SWEEPS_ROOT, Job
 from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, explain, parse_overrides
@@ -268,15 +268,23 @@ def check_hydra(hydra_args: list[str], first_job: list[str], sweeper: bool = Fal
 
 
 def constant_keys(combos: list[list[str]], swept: set[str] = frozenset()) -> list[str]:
-    """The override keys left out of job folder names: those with one value in every job that were not typed as a
-    sweep (`seed=range(0,1)` keeps its key), as long as some key remains."""
+    """The override keys left out of job folder names: the engine's (engine.device: how a run computes, never what),
+    and those with one value in every job that were not typed as a sweep (`seed=range(0,1)` keeps its key), as
+    long as some key remains."""
     parser = OverridesParser.create()
     values: dict[str, set[str]] = {}
     for combo in combos:
         for o in parser.parse_overrides(combo):
             values.setdefault(o.key_or_group, set()).add(o.input_line)
-    constant = [k for k, v in values.items() if len(v) == 1 and k not in swept]
-    return constant if len(constant) < len(values) else []
+    unnamed = [k for k in values if unnamed_key(k)]
+    named = {k: v for k, v in values.items() if k not in unnamed}
+    constant = [k for k, v in named.items() if len(v) == 1 and k not in swept]
+    return unnamed + (constant if len(constant) < len(named) else [])
+
+
+def unnamed_key(key: str) -> bool:
+    """Whether an override's key never names a job folder: a key of the engine node (sweep_worker.HOW_KEYS)."""
+    return key.lstrip("+~").split(".", 1)[0] in HOW_KEYS
 
 
 def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job], list[str]]:

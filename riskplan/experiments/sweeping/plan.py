@@ -18,6 +18,7 @@ from riskplan.experiments.sweeping.grid import (
     ray_init_overrides,
     split_bad,
     target_dir,
+    unnamed_key,
     validate,
 )
 from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, DEFAULT_LAUNCHER, Plan
@@ -119,7 +120,8 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     argv += ray_init_overrides(launcher, hydra_keys)
     if "hydra/launcher" not in hydra_keys:
         argv.append(f"hydra/launcher={launcher}")
-    if not task_ovs and "hydra.sweep.subdir" not in hydra_keys:
+    named = [o for o in task_ovs if not unnamed_key(o.key_or_group)]  # engine.device names no folder
+    if not named and "hydra.sweep.subdir" not in hydra_keys:
         argv.append("hydra.sweep.subdir=defaults")  # one job without overrides: still a folder of its own
     elif "hydra.sweep.subdir" not in hydra_keys:
         # folder names that stay one path component, whatever the values hold ('/', '..', '%', NUL)
@@ -131,7 +133,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     add_naming_and_logging(argv, hydra_keys, constant)
 
     naming = check_hydra(argv[1 + len(args) :] + [o.input_line for o in hydra_ovs], combos[0])
-    if task_ovs and "hydra.sweep.subdir" not in hydra_keys:
+    if named and "hydra.sweep.subdir" not in hydra_keys:
         name_folders(job_list, naming, task_ovs)
 
     target = target_dir(sweep_dir, explicit_dir, argv)
