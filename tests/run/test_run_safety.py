@@ -23,6 +23,7 @@ import pytest
 from support import TINY, assert_same_outputs, child_env, files, riskplan_command, run_cli, train_cli
 from typer.testing import CliRunner
 
+import riskplan.engine.step as engine_step
 import riskplan.run.training as training
 from riskplan import compose, load_run
 from riskplan.cli import app
@@ -220,14 +221,14 @@ def test_a_log_whose_rows_do_not_match_the_checkpoint_is_bad_input(finished, tmp
 
 # ------------------------------------------------------------------------------------ never a non-finite result
 def test_a_non_finite_reward_stops_the_run_with_one_line_and_writes_no_result(tmp_path, monkeypatch):
-    real = training.simulate
+    real = engine_step.simulate  # the episode kernel the engine's step runs
 
     def overflowing(*args, **kwargs):
         batch = real(*args, **kwargs)
         batch.total_reward[0] = np.inf  # what a reward program that overflows would give
         return batch
 
-    monkeypatch.setattr(training, "simulate", overflowing)
+    monkeypatch.setattr(engine_step, "simulate", overflowing)
     monkeypatch.chdir(tmp_path)
     result = runner.invoke(app, ["train", *RUN, f"hydra.run.dir={tmp_path / 'run'}"])
     assert result.exit_code == 1
@@ -243,4 +244,4 @@ def test_summary_json_holds_no_nan_or_infinity(finished):
     summary = strict_json((finished / "summary.json").read_text())
     assert summary["throughput_episodes_per_s"] > 0
     with pytest.raises(NumericalTrouble):
-        training.check_finite("x", np.array([1.0, np.nan]))
+        engine_step.check_finite("x", np.array([1.0, np.nan]))
