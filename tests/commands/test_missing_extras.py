@@ -64,6 +64,7 @@ def test_the_table_covers_check_train_sweep_and_export_and_every_extra():
         "hydra_plugins.hydra_optuna_sweeper",
         "mlflow",
         "tensorboard",
+        "numba_cuda",
     }
 
 
