@@ -93,38 +93,51 @@ def simulate(
     arguments, the same Batch, the same numbers."""
     if not ported(kernel, record, reference):
         return cpu_simulate(world, kernel, thetas, starts, keys, episodes, record, reference, scores)
-    thetas = np.ascontiguousarray(thetas, dtype=np.float64)
-    policies, size = thetas.shape
-    cells = reach(kernel, starts)
-    cum, score = tables(world, thetas, kernel.features, cells)
-    bins = move_bins(cum, cells)
-    total = policies * episodes
-    if total == 0:
-        return Batch(np.empty(0), np.empty((0, size)), *(np.empty(0, dtype=np.int64) for _ in range(3)))
-    world_arrays = _on_device(kernel)
-    out = (
-        cuda.device_array(total),
-        cuda.device_array((total, size)),
-        cuda.device_array(total, dtype=np.int64),
-        cuda.device_array(total, dtype=np.int64),
-        cuda.device_array(total, dtype=np.int64),
-    )
-    blocks = (total + THREADS - 1) // THREADS
-    _episode_kernel(size)[blocks, THREADS](
-        cuda.to_device(bins),
-        cuda.to_device(np.ascontiguousarray(score)),
-        cuda.to_device(np.ascontiguousarray(starts, dtype=np.int64)),
-        cuda.to_device(np.ascontiguousarray(keys, dtype=np.uint64)),
-        np.int64(episodes),
-        *world_arrays,
-        kernel.affine,
-        kernel.draw_uniform,
-        kernel.draw_normal,
-        np.int64(kernel.horizon),
-        kernel.stop_at_source,
-        *out,
-    )
-    return Batch(*(array.copy_to_host() for array in out))
+    return Launch(world, kernel, thetas, starts, keys, episodes).run().batch()
+
+
+class Launch:
+    """One kernel call, its inputs on the device: `run()` launches it (again, for a benchmark), `batch()` copies
+    the outputs back. The policy tables and move bins are the CPU kernel's (`rollout.simulate` computes the same)."""
+
+    def __init__(self, world: World, kernel: Kernel, thetas, starts, keys, episodes: int):
+        thetas = np.ascontiguousarray(thetas, dtype=np.float64)
+        policies, self.size = thetas.shape
+        cells = reach(kernel, starts)
+        cum, score = tables(world, thetas, kernel.features, cells)
+        self.total = policies * episodes
+        self.inputs = (
+            cuda.to_device(move_bins(cum, cells)),
+            cuda.to_device(np.ascontiguousarray(score)),
+            cuda.to_device(np.ascontiguousarray(starts, dtype=np.int64)),
+            cuda.to_device(np.ascontiguousarray(keys, dtype=np.uint64)),
+            np.int64(episodes),
+            *_on_device(kernel),
+            kernel.affine,
+            kernel.draw_uniform,
+            kernel.draw_normal,
+            np.int64(kernel.horizon),
+            kernel.stop_at_source,
+        )
+        total = max(self.total, 1)  # a launch of no episodes still gets arrays (of one row it never writes)
+        self.outputs = (
+            cuda.device_array(total),
+            cuda.device_array((total, self.size)),
+            cuda.device_array(total, dtype=np.int64),
+            cuda.device_array(total, dtype=np.int64),
+            cuda.device_array(total, dtype=np.int64),
+        )
+
+    def run(self) -> Launch:
+        """Launch the kernel (asynchronous: `batch()` or cuda.synchronize() waits for it)."""
+        if self.total:
+            blocks = (self.total + THREADS - 1) // THREADS
+            _episode_kernel(self.size)[blocks, THREADS](*self.inputs, *self.outputs)
+        return self
+
+    def batch(self) -> Batch:
+        """The outputs, copied to the host as the CPU kernel's Batch."""
+        return Batch(*(array.copy_to_host()[: self.total] for array in self.outputs))
 
 
 _DEVICE_MEMO: dict[int, tuple[Kernel, tuple]] = {}  # id(kernel) -> (kernel, its world arrays on the device)
