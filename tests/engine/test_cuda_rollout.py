@@ -132,3 +132,21 @@ def test_a_run_on_the_gpu_is_the_run_on_the_cpu(tmp_path):
     timed = ("wall_time", "throughput_episodes_per_s", "provenance")
     assert {k: v for k, v in gpu.items() if k not in timed} == {k: v for k, v in cpu.items() if k not in timed}
     assert gpu["theta_final"] == cpu["theta_final"] and cpu["theta_final"] != [[20.0, 20.0]]
+
+
+CPU_RUN = """
+import sys
+from typer.testing import CliRunner
+from riskplan.cli import app
+result = CliRunner().invoke(app, ["train", *sys.argv[2:], "engine.device=cpu", f"hydra.run.dir={sys.argv[1]}"])
+assert result.exit_code == 0, result.output
+print(sorted(m for m in sys.modules if m.startswith(("numba.cuda", "numba_cuda", "riskplan.engine.cuda"))))
+"""
+
+
+def test_a_run_on_the_cpu_never_imports_numba_cuda(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-c", CPU_RUN, str(tmp_path / "run"), *TRAIN], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.splitlines()[-1] == "[]"
