@@ -34,6 +34,7 @@ def register(app: typer.Typer) -> None:
         import numba
         from rich.console import Console
 
+        from riskplan.experiments.bench_gpu import Skipped, bench_gpu
         from riskplan.experiments.benchmarks import (
             bench_checkpoints,
             bench_jit,
@@ -55,8 +56,18 @@ def register(app: typer.Typer) -> None:
             _scaling(console, quick, json_out, plot, csv_out)
             return
         rows: list[dict] = []
+
+        def gpu_rows() -> list[dict]:
+            """The GPU rows where a GPU is present; elsewhere one line saying why they were skipped."""
+            try:
+                return bench_gpu(quick)
+            except Skipped as why:
+                console.print(f"[bold]GPU rollout kernel[/bold]: skipped; {why}")
+                return []
+
         for section in (
             lambda: bench_rollout(quick),
+            gpu_rows,
             lambda: bench_training(quick),
             lambda: bench_measures(quick),
             lambda: bench_checkpoints(quick),

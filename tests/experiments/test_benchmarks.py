@@ -132,9 +132,17 @@ def test_bench_counts_the_targets_met_and_says_when_the_machine_is_busy(monkeypa
     ):
         monkeypatch.setattr(bench, name, lambda quick, name=name: [{**_row(name, name != "bench_team"), "note": ""}])
     monkeypatch.setattr(bench, "bench_jit", lambda: [{**_row("jit", True), "note": ""}])
+    monkeypatch.setattr("riskplan.experiments.bench_gpu.bench_gpu", no_gpu)  # a GPU machine would measure it
     load = per_core * (os.cpu_count() or 1)
     monkeypatch.setattr("os.getloadavg", lambda: (load, load, load))
     result = CliRunner().invoke(app, ["bench"])
     assert result.exit_code == 0, result.output
     assert "6 of 7 targets met" in result.output and f"load average {load:.2f}" in result.output
     assert ("the machine is busy" in result.output) == busy
+    assert "GPU rollout kernel: skipped; no GPU here" in result.output  # a line, not a target
+
+
+def no_gpu(quick):
+    from riskplan.experiments.bench_gpu import Skipped
+
+    raise Skipped("no GPU here")
