@@ -115,7 +115,7 @@ def main(out: str) -> None:
     from riskplan.engine import cuda_rollout
     from riskplan.engine.step import batched_rollouts, simulator
 
-    assert cuda_rollout.SIMULATOR, "run with NUMBA_ENABLE_CUDASIM=1"
+    assert cuda_rollout.gpu_problem() is None, "run with NUMBA_ENABLE_CUDASIM=1, or on a machine with a GPU"
     saved = {}
     for name in CASES:
         setup, thetas, cells, keys, episodes = case_inputs(name, "cuda")

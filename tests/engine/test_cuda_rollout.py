@@ -37,6 +37,10 @@ pytestmark = [
 
 
 def simulator_env() -> dict[str, str]:
+    """The GPU side's environment: numba-cuda's simulator, or with RISKPLAN_CUDA_TESTS=gpu the machine's real GPU
+    (the same comparisons, for a session with a GPU: `RISKPLAN_CUDA_TESTS=gpu pytest tests/engine/test_cuda_rollout.py`)."""
+    if os.environ.get("RISKPLAN_CUDA_TESTS") == "gpu":
+        return {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
     return {**os.environ, "NUMBA_ENABLE_CUDASIM": "1"}
 
 
