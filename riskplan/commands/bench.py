@@ -29,6 +29,12 @@ def register(app: typer.Typer) -> None:
         ),
         plot: Path = typer.Option(SCALING_PLOT, "--plot", metavar="PNG", help="With --scaling: the plot's file."),
         csv_out: Path | None = typer.Option(None, "--csv", help="With --scaling: also write the rows as CSV."),
+        sweep: bool = typer.Option(
+            False,
+            "--sweep",
+            help="Instead: a 64-run beta x seed sweep of the paper world (200 iterations, W = 6000), batched "
+            "against unbatched in the same run (several minutes; 16 runs of 50 iterations with --quick).",
+        ),
     ) -> None:
         """Speed, memory, JIT, start-up and team-scaling targets, each with a baseline measured in the same run."""
         import numba
@@ -65,16 +71,22 @@ def register(app: typer.Typer) -> None:
                 console.print(f"[bold]GPU rollout kernel[/bold]: skipped; {why}")
                 return []
 
-        for section in (
-            lambda: bench_rollout(quick),
-            gpu_rows,
-            lambda: bench_training(quick),
-            lambda: bench_measures(quick),
-            lambda: bench_checkpoints(quick),
-            bench_jit,
-            lambda: bench_startup(quick),
-            lambda: bench_team(quick),
-        ):
+        if sweep:
+            from riskplan.experiments.bench_sweep import bench_sweep
+
+            sections = (lambda: bench_sweep(quick),)
+        else:
+            sections = (
+                lambda: bench_rollout(quick),
+                gpu_rows,
+                lambda: bench_training(quick),
+                lambda: bench_measures(quick),
+                lambda: bench_checkpoints(quick),
+                bench_jit,
+                lambda: bench_startup(quick),
+                lambda: bench_team(quick),
+            )
+        for section in sections:
             for row in section():  # printed as each section ends: the whole benchmark takes ~20 s
                 mark = "met" if row["ok"] else "NOT MET"
                 console.print(

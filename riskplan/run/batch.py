@@ -36,13 +36,16 @@ class BatchRun:
     driver: Driver | None = field(default=None, repr=False)
 
 
-def train_batch(runs: list[BatchRun], progress: Callable[[int, int], None] | None = None) -> list[BatchRun]:
+def train_batch(
+    runs: list[BatchRun], progress: Callable[[int, int], None] | None = None, locked: bool = False
+) -> list[BatchRun]:
     """Train `runs` (simulated backend, one world and sample schedule: riskplan.engine.step.batch_key) together,
-    each under its directory's lock; returns them with their summary or error. `progress(done, total)` is called
-    as iterations finish, over all runs. Interrupted (after every run's checkpoint) when a signal stops the batch."""
+    each under its directory's lock (`locked`: the caller's process holds them); returns them with their summary
+    or error. `progress(done, total)` is called as iterations finish, over all runs. Interrupted (after every
+    run's checkpoint) when a signal stops the batch."""
     total = sum(run.setup.params.train.iterations for run in runs)
     with contextlib.ExitStack() as stack, StopSignals() as stop:
-        active = [run for run in runs if _open(run, stack)]
+        active = [run for run in runs if _open(run, stack, locked)]
         if active:
             load_kernels(active[0].setup, active[0].driver.state)
         resume_collection()  # the start-up is over (riskplan.util.collector), as for a run alone
@@ -81,11 +84,13 @@ def _advance(run: BatchRun, batch, stop: StopSignals) -> None:
     run.driver.record(*iterate(run.setup, run.driver.state, batch), stop)
 
 
-def _open(run: BatchRun, stack: contextlib.ExitStack) -> bool:
-    """Lock the run's directory and open its log (fresh or at its checkpoint); False, with its error, if it cannot."""
+def _open(run: BatchRun, stack: contextlib.ExitStack, locked: bool = False) -> bool:
+    """Lock the run's directory (unless the caller holds it) and open its log (fresh or at its checkpoint); False,
+    with its error, if it cannot."""
     try:
         run.out.mkdir(parents=True, exist_ok=True)
-        stack.enter_context(hold(run.out))
+        if not locked:
+            stack.enter_context(hold(run.out))
         run.driver = Driver(run.setup, run.out, run.resume)
         stack.enter_context(run.driver.log)
     except Exception as err:  # this run alone: bad input, an unreadable checkpoint, a directory another holds

@@ -20,6 +20,7 @@ from pathlib import Path
 import numba
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.utils import JobReturn, JobStatus, configure_log, run_job, setup_globals
+from joblib import Parallel, delayed
 from omegaconf import DictConfig, open_dict
 
 from riskplan.config.schema import Backend
@@ -34,6 +35,7 @@ from riskplan.experiments.sweep_worker import (
     outcome,
     sweep_job,
 )
+from riskplan.experiments.sweeping.grid import JobConfigs
 from riskplan.run.batch import BatchRun, train_batch
 from riskplan.run.build import build_setup
 from riskplan.run.cost import run_bytes
@@ -43,7 +45,8 @@ from riskplan.util.interrupt import Interrupted
 from riskplan.util.limits import cpu_count, memory_budget
 from riskplan.util.paths import write_atomic
 
-PROGRESS = ".batch_progress.json"  # in the sweep directory: iterations done of all, for the sweep's live view
+PROGRESS = ".batch_progress"  # <sweep>/.batch_progress.<chunk>.<part>.json: {"done", "total"} iterations, summed
+# over the files by the sweep's live view; the sweep removes them when the launch ends
 
 
 @dataclass
@@ -53,6 +56,7 @@ class Prepared:
     out: Path
     start: JobStart | None = None  # None: another process holds its folder
     setup: Setup | None = None
+    config: dict | None = None  # its resolved config, for a worker process to build the run from
     value: float | None = None  # its CVaR once done (or the finished job's)
 
 
@@ -70,8 +74,9 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
         def prepare(cfg: DictConfig) -> Prepared:
             return _prepare(cfg, Path(HydraConfig.get().runtime.output_dir), held)
 
+        configs = JobConfigs(context.config_loader, config)  # each job's config as Hydra makes it, quicker
         for idx, overrides in enumerate(job_overrides, start=initial_job_idx):
-            sweep_config = context.config_loader.load_sweep_config(config, list(overrides))
+            sweep_config = configs(list(overrides))
             with open_dict(sweep_config):
                 sweep_config.hydra.job.id = idx
                 sweep_config.hydra.job.num = idx
@@ -88,10 +93,8 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
         limit = launcher.memory_gb * 1e9 if launcher.memory_gb else memory_budget()[0]
         chunks = plan_chunks(waiting, limit)
         total = sum(p.setup.params.train.iterations for p in waiting)
-        done_before = 0
-        for chunk in chunks:
-            _train_chunk(chunk, sweep_dir, done_before, total)
-            done_before += sum(p.setup.params.train.iterations for p in chunk)
+        for number, chunk in enumerate(chunks):
+            _train_chunk(chunk, sweep_dir / f"{PROGRESS}.{number}", total)
     for done, prepared in returns:
         if prepared is not None:
             done.return_value = prepared.value
@@ -114,7 +117,7 @@ def _prepare(cfg: DictConfig, out: Path, held: contextlib.ExitStack) -> Prepared
     except Exception as err:  # bad input for this combination: it fails alone
         _log(out, start.opening + ")")
         return Prepared(out, start, value=_record(start, failure(err)))
-    return Prepared(out, start, setup)
+    return Prepared(out, start, setup, setup.config)
 
 
 def plan_chunks(jobs: list, limit: float, key=lambda job: batch_key(job.setup.params), size=None) -> list[list]:
@@ -138,31 +141,72 @@ def plan_chunks(jobs: list, limit: float, key=lambda job: batch_key(job.setup.pa
     return chunks
 
 
-def _train_chunk(chunk: list[Prepared], sweep_dir: Path, done_before: int, total: int) -> None:
-    """Train one chunk as a batch and record each of its jobs (a signal: each is interrupted, resumable)."""
+def _train_chunk(chunk: list[Prepared], progress: Path, total: int) -> None:
+    """Train one chunk as a batch on every core and record each of its jobs (a signal: each is interrupted,
+    resumable). With several cores, the chunk's runs are split into a part per core, each trained as a batch in
+    a worker process (so the runs' own steps and files go on in parallel too); with one, in this process."""
     for job in chunk:
         _log(job.out, job.start.opening + f", in a batch of {len(chunk)})")
-    runs = [BatchRun(job.setup, job.out, job.start.resume) for job in chunk]
+    workers = min(cpu_count(), len(chunk))
+    parts = [chunk[i::workers] for i in range(workers)]
+    work = [
+        delayed(train_part)(
+            [job.config for job in part],
+            [job.out for job in part],
+            [job.start.resume for job in part],
+            max(1, cpu_count() // workers),
+            progress.with_name(f"{progress.name}.{i}.json"),
+            total,
+        )
+        for i, part in enumerate(parts)
+    ]
+    if workers == 1:
+        results = [call(*args, **kwargs) for call, args, kwargs in work]
+    else:
+        results = Parallel(n_jobs=workers, backend="loky")(work)
+    stopped = None
+    for part, records in zip(parts, results):
+        for job, record in zip(part, records):
+            if record["status"] == "interrupted":
+                stopped = record["signal"]
+                _log(job.out, f"=== {record['error']}")
+                interrupt_job(job.start, Interrupted(record["signal"], record["finished"]))
+            else:
+                job.value = _record(job.start, record)
+    if stopped is not None:
+        raise Interrupted(stopped, min(r.get("finished", 0) for records in results for r in records))
+
+
+def train_part(configs, outs, resumes, threads: int, progress_file: Path, total: int) -> list[dict]:
+    """A part of a batch in a worker process (or this one): its runs trained together under their folders' locks,
+    which the driver holds; one status record per run ("interrupted" with the signal when one stopped them). Its
+    iterations done go to `progress_file` (of `total` over the whole launch)."""
+    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    runs = [BatchRun(build_setup(cfg), Path(out), resume) for cfg, out, resume in zip(configs, outs, resumes)]
     shown = {"at": 0.0}
 
-    def progress(done: int, _: int) -> None:
+    def progress(done: int, own: int) -> None:
         now = time.time()
-        if now - shown["at"] >= 0.5 or done_before + done == total:
+        if now - shown["at"] >= 0.5 or done == own:
             shown["at"] = now
             with contextlib.suppress(OSError):
-                write_atomic(sweep_dir / PROGRESS, json.dumps({"done": done_before + done, "total": total}))
+                write_atomic(progress_file, json.dumps({"done": done, "total": total}))
 
     try:
-        train_batch(runs, progress)
+        train_batch(runs, progress, locked=True)
     except Interrupted as stop:
-        for job, run in zip(chunk, runs):
-            if run.summary is None and run.error is None:
-                _log(job.out, f"=== {stop}")
-                interrupt_job(job.start, stop)
-        raise
-    for job, run in zip(chunk, runs):
-        record = outcome(run.summary) if run.error is None else failure(run.error)
-        job.value = _record(job.start, record)
+        return [
+            outcome(run.summary)
+            if run.summary is not None
+            else (failure(run.error) if run.error is not None else _interrupted(stop, run))
+            for run in runs
+        ]
+    return [outcome(run.summary) if run.error is None else failure(run.error) for run in runs]
+
+
+def _interrupted(stop: Interrupted, run: BatchRun) -> dict:
+    finished = run.driver.state.iteration if run.driver is not None else 0
+    return {"status": "interrupted", "error": str(stop), "signal": stop.signum, "finished": finished}
 
 
 def _record(start: JobStart, record: dict) -> float | None:

@@ -84,9 +84,9 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
             before_launch()
         # Ctrl-C reaches local workers too, and they checkpoint and stop; the driver waits for that (see
         # DriverSignals), then reports the interruption.
-        progress = plan.sweep_dir / PROGRESS if plan.launcher == BATCH_LAUNCHER else None
+        batched = plan.launcher == BATCH_LAUNCHER
         with (
-            SweepView(plan.sweep_dir, plan.jobs, finished, title, batch_progress=progress),
+            SweepView(plan.sweep_dir, plan.jobs, finished, title, batch_progress=PROGRESS if batched else None),
             DriverSignals(plan.launcher not in LOCAL) as stop,
         ):
             skip = frozenset(tuple(plan.jobs[i].overrides) for i in finished)
@@ -95,8 +95,8 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
             except Interrupted as batch_stop:  # a batch trains here: it checkpointed and marked its jobs
                 interrupted = batch_stop.signum
             finally:
-                if progress is not None:
-                    progress.unlink(missing_ok=True)
+                for part in plan.sweep_dir.glob(f"{PROGRESS}.*.json"):
+                    part.unlink(missing_ok=True)
         interrupted = interrupted or stop.received
     for job in plan.jobs:  # a job found under another name (an older naming) ran in its own folder now
         if (

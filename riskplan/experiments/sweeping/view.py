@@ -34,13 +34,13 @@ class SweepView:
         every: float = 0.5,
         total: int | None = None,
         discover=None,
-        batch_progress: Path | None = None,
+        batch_progress: str | None = None,
     ):
         self.sweep_dir, self.jobs, self.finished, self.title, self.every = sweep_dir, jobs, finished, title, every
         self.todo = [i for i in range(len(jobs)) if i not in finished]
         self.discover = discover  # an optimiser's trials: found as the sweeper launches them (discover(since))
         self.total = total
-        self.batch_progress = batch_progress  # a batched sweep's {"done", "total"} iterations (sweeping.batched)
+        self.batch_progress = batch_progress  # a batched sweep's progress files' prefix (sweeping.batched.PROGRESS)
         self.reported: set[int] = set()
         self.stop = threading.Event()
 
@@ -110,16 +110,19 @@ class SweepView:
             pass
 
     def _iterations(self) -> tuple[int, int]:
-        """A batched sweep's iterations done and in all (0, 0 otherwise, or before its first report)."""
+        """A batched sweep's iterations done and in all, summed over its parts' files (0, 0 otherwise)."""
         if self.batch_progress is None:
             return 0, 0
-        try:
-            if self.batch_progress.stat().st_mtime < self.since - 2:
-                return 0, 0
-            record = json.loads(self.batch_progress.read_text())
-            return int(record["done"]), int(record["total"])
-        except (OSError, ValueError, KeyError, TypeError):
-            return 0, 0
+        done, total = 0, 0
+        for part in self.sweep_dir.glob(f"{self.batch_progress}.*.json"):
+            try:
+                if part.stat().st_mtime < self.since - 2:
+                    continue
+                record = json.loads(part.read_text())
+                done, total = done + int(record["done"]), max(total, int(record["total"]))
+            except (OSError, ValueError, KeyError, TypeError):
+                continue
+        return done, total
 
     def _finished_line(self, i: int, state: str, status: dict | None) -> None:
         job = self.jobs[i]
