@@ -137,9 +137,8 @@ def check_new_run_dir(out: Path, key: str) -> None:
 
 def _resume(run_dir: Path, args: list[str]) -> None:
     """`train --resume RUN_DIR [train.iterations=N]`."""
-    from riskplan.run.checkpoint import CHECKPOINT
     from riskplan.run.compose import parse_overrides
-    from riskplan.run.run_files import is_run_dir
+    from riskplan.run.run_files import CHECKPOINT, CONFIG, is_run_dir
 
     if not run_dir.is_dir() or not is_run_dir(run_dir):
         raise BadInput(str(run_dir), "holds no run; give the directory of a riskplan train run to --resume")
@@ -152,10 +151,8 @@ def _resume(run_dir: Path, args: list[str]) -> None:
     with hold(run_dir):  # before anything is read: another process may be writing it
         if not (run_dir / CHECKPOINT).is_file():
             raise BadInput(str(run_dir), "has no checkpoint yet (killed before the first one); start it again")
-        if not (run_dir / ".hydra" / "config.yaml").is_file():
-            raise BadInput(
-                str(run_dir / ".hydra" / "config.yaml"), "is missing; a run cannot be resumed without its config"
-            )
+        if not (run_dir / CONFIG).is_file():
+            raise BadInput(str(run_dir / CONFIG), "is missing; a run cannot be resumed without its config")
         _resume_locked(run_dir, args)
 
 
@@ -166,27 +163,28 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
     from omegaconf.errors import OmegaConfBaseException
 
     from riskplan.engine.step import NumericalTrouble
-    from riskplan.experiments.hydra_app import write_status
+    from riskplan.experiments.hydra_app import write_run_status
+    from riskplan.run.run_files import CONFIG, SUMMARY
     from riskplan.run.training import prepare_resume
     from riskplan.run.training import train as train_run
     from riskplan.util.progress import TrainingBar
 
     try:
-        cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
+        cfg = OmegaConf.load(run_dir / CONFIG)
         cfg.merge_with(OmegaConf.from_dotlist(args))
     except (OmegaConfBaseException, ValueError, OSError, RecursionError, yaml.YAMLError) as err:
         raise BadInput(
-            str(run_dir / ".hydra" / "config.yaml"),
+            str(run_dir / CONFIG),
             f"cannot be read as a config ({type(err).__name__}); it was not written by riskplan: start the run again",
         ) from None
     setup, finished = prepare_resume(cfg, run_dir)  # every check of config and checkpoint, before any write
     if finished:  # nothing to do: a finished run is left exactly as it is
         typer.echo(f"already finished: {run_dir}")
-        typer.echo(summary_line(json.loads((run_dir / "summary.json").read_text()), run_dir))
+        typer.echo(summary_line(json.loads((run_dir / SUMMARY).read_text()), run_dir))
         return
     typer.echo(f"resuming: {run_dir}")
     try:
-        write_status(run_dir, "running", None)
+        write_run_status(run_dir, "running", None)
         with TrainingBar() as progress:
             train_run(setup, run_dir, resume=True, progress=progress)
     except Interrupted as stop:
@@ -197,7 +195,7 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
         _try_status(run_dir, message)
         typer.echo(f"error: {message}", err=True)
         raise typer.Exit(1) from None
-    write_status(run_dir, "done", None)
+    write_run_status(run_dir, "done", None)
     _finish(run_dir)
 
 
@@ -209,7 +207,8 @@ def _stopped(stop: Interrupted, out: Path) -> None:
 
 def _finish(out: Path) -> None:
     """Print the one-line summary of a finished run, or why it stopped with its exit code (1, 130 or 143)."""
-    from riskplan.experiments.hydra_app import STATUS, last_failure, last_interruption
+    from riskplan.experiments.hydra_app import last_failure, last_interruption
+    from riskplan.run.run_files import STATUS, SUMMARY
 
     if last_interruption() is not None:
         _stopped(last_interruption(), out)
@@ -222,7 +221,7 @@ def _finish(out: Path) -> None:
     if status.get("status") != "done":
         typer.echo(f"error: run failed: {status.get('error')} (see {out})", err=True)
         raise typer.Exit(1)
-    typer.echo(summary_line(json.loads((out / "summary.json").read_text()), out))
+    typer.echo(summary_line(json.loads((out / SUMMARY).read_text()), out))
 
 
 def _os_error(err: OSError, out: Path) -> str:
@@ -236,10 +235,10 @@ def _os_error(err: OSError, out: Path) -> str:
 
 def _try_status(out: Path, message: str, status: str = "failed") -> None:
     """Record a failure in status.json if the disk still takes it (it may be the full disk that failed)."""
-    from riskplan.experiments.hydra_app import write_status
+    from riskplan.experiments.hydra_app import write_run_status
 
     try:
-        write_status(out, status, message)
+        write_run_status(out, status, message)
     except OSError:
         pass
 

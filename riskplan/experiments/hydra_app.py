@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import json
 import logging
 import re
 import sys
@@ -27,15 +26,13 @@ from omegaconf import DictConfig, open_dict
 
 from riskplan.config import schema
 from riskplan.engine.step import NumericalTrouble
-from riskplan.experiments.sweep_worker import sweep_job
+from riskplan.experiments.sweep_worker import sweep_job, write_status
 from riskplan.run.training import train_summary
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
-from riskplan.util.paths import write_atomic
 from riskplan.util.progress import TrainingBar, silent
 
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")  # absolute: riskplan/conf is a symlinked data dir
-STATUS = "status.json"  # written in every job directory: {"status": "done" | "failed", "error": ...}
 _failure: list[str] = []  # the last single run's failure, for when status.json cannot be written (a full disk)
 _interrupted: list[Interrupted] = []  # the last single run's stop by a signal
 _task_stderr: list = []  # the terminal's stderr, handed back to the task while Hydra's own output is captured
@@ -52,13 +49,13 @@ def _task(cfg: DictConfig) -> float | None:
     stderr = _task_stderr[-1] if _task_stderr else sys.stderr
     with contextlib.redirect_stderr(stderr):
         try:
-            write_status(out, "running", None)
+            write_run_status(out, "running", None)
             with _progress(single) as progress:
                 summary = train_summary(cfg, out, progress=progress)
         except Interrupted as stop:  # checkpointed: status interrupted, and the CLI exits 130 or 143
             _interrupted.append(stop)
             with contextlib.suppress(OSError):
-                write_status(out, "interrupted", str(stop))
+                write_run_status(out, "interrupted", str(stop))
             return None
         except (BadInput, NumericalTrouble) as err:
             return _failed(out, str(err))
@@ -69,7 +66,7 @@ def _task(cfg: DictConfig) -> float | None:
             )
         except Exception as err:  # a job that raises fails alone; its status records why, the others go on
             return _failed(out, f"{type(err).__name__}: {err}", traceback.format_exc())
-        write_status(out, "done", None)
+        write_run_status(out, "done", None)
     return summary["cvar"]["value"]
 
 
@@ -80,7 +77,7 @@ def _failed(out: Path, error: str, trace: str | None = None) -> None:
     """Record a single run's failure: in status.json if the disk takes it, and for the CLI in any case."""
     _failure.append(error)
     with contextlib.suppress(OSError):
-        write_status(out, "failed", error, trace)
+        write_run_status(out, "failed", error, trace)
     return None
 
 
@@ -232,12 +229,12 @@ def _last_error(text: str) -> str:
     return errors[-1] if errors else (lines[-1] if lines else "Hydra stopped without a message")
 
 
-def write_status(out: Path, status: str, error: str | None, trace: str | None = None) -> None:
-    """Write the run's status file atomically (never a zero-byte or half file)."""
+def write_run_status(out: Path, status: str, error: str | None, trace: str | None = None) -> None:
+    """A single run's status.json (riskplan train): its state and error, and the traceback of an unexpected one."""
     record = {"status": status, "error": error}
     if trace:
         record["traceback"] = trace
-    write_atomic(Path(out) / STATUS, json.dumps(record, indent=2))
+    write_status(out, record)
 
 
 def _progress(enabled: bool):

@@ -52,6 +52,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from riskplan.engine.step import NumericalTrouble
 from riskplan.run.compose import compose
+from riskplan.run.run_files import CHECKPOINT, JOB_LOG, STATUS, has_finished, remove_stale
 from riskplan.run.training import train_summary
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
@@ -59,8 +60,6 @@ from riskplan.util.interrupt import Interrupted
 from riskplan.util.paths import write_atomic
 
 T = TypeVar("T")
-STATUS = "status.json"
-JOB_LOG = "job.log"  # everything the job prints (Python and native), one file per job folder
 THREADS_ENV = "RISKPLAN_JOB_THREADS"  # numba threads per job, set by `riskplan sweep` for parallel local jobs
 DRIVER_ENV = "RISKPLAN_SWEEP_DRIVER_PID"  # the `riskplan sweep` process: its local workers die with it
 RESOLVER = "riskplan.folder"  # ${riskplan.folder:${hydra.job.override_dirname}}: a safe job folder name
@@ -69,17 +68,6 @@ TRIAL_RESOLVER = "riskplan.trial"  # the same for the trials of an optimising sw
 TRIAL_SUBDIR = "${" + TRIAL_RESOLVER + ":${hydra.job.num},${hydra.job.override_dirname}}"
 SAFE = frozenset(string.ascii_letters + string.digits + "._=,+-")  # kept as they are in folder names
 NAME_MAX = 255  # bytes in a file name (ext4, xfs, NFS)
-OUTPUTS = ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet", "run.mcap")
-STALE = (
-    "checkpoint",
-    "checkpoint.tmp",
-    "run.mcap",
-    "run.mcap.resume",
-    "summary.json",
-    "metrics.parquet",
-    "eval.parquet",
-    "trajectories.parquet",
-)
 
 
 OUTPUT_KEYS = ("hydra",)  # where a run was written (hydra.run.dir, hydra.sweep.dir and subdir, ...), never what ran
@@ -185,7 +173,7 @@ def is_finished(out: Path, sha: str, status: dict | None = None) -> bool:
         status is not None
         and status.get("status") == "done"
         and status.get("config_sha") == sha
-        and all((Path(out) / name).is_file() for name in OUTPUTS)
+        and has_finished(Path(out))
     )
 
 
@@ -266,11 +254,10 @@ def begin_job(cfg: DictConfig, out: Path) -> JobStart:
         prior is not None
         and prior.get("status") in ("running", "interrupted")  # killed, or stopped by a signal (preempted)
         and prior.get("config_sha") == sha
-        and (out / "checkpoint").is_file()
+        and (out / CHECKPOINT).is_file()
     )
     if not resume:
-        for name in STALE:
-            (out / name).unlink(missing_ok=True)
+        remove_stale(out)
     base = {
         "config_sha": sha,
         "started": time.time(),
@@ -437,8 +424,7 @@ def _train(cfg: DictConfig, out: Path, resume: bool) -> dict:
             except Exception:  # an unreadable checkpoint or log: start this job again from scratch
                 traceback.print_exc()
                 print("=== resume failed; training from scratch", flush=True)
-                for name in STALE:
-                    (out / name).unlink(missing_ok=True)
+                remove_stale(out)
                 summary = train_summary(cfg, out)
         else:
             summary = train_summary(cfg, out)

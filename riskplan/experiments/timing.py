@@ -18,6 +18,7 @@ import pandas as pd
 import typer
 
 from riskplan.run import cost
+from riskplan.run.run_files import STATUS, SUMMARY, table_file
 
 REPORT_SECONDS = (3.0, 0.1)  # the report: a fixed part and a part per run (figures, tables, page)
 
@@ -103,8 +104,8 @@ def sweep_timing(outcome, tic: float, toc: float) -> dict:
     jobs = []
     for path in outcome.summary.get("path", pd.Series(dtype=object)).dropna():
         try:
-            status = json.loads((Path(path) / "status.json").read_text())
-            summary = json.loads((Path(path) / "summary.json").read_text())
+            status = json.loads((Path(path) / STATUS).read_text())
+            summary = json.loads((Path(path) / SUMMARY).read_text())
         except (OSError, ValueError):
             continue
         if (
@@ -141,7 +142,7 @@ def sweep_timing(outcome, tic: float, toc: float) -> dict:
         own = sorted((j for j in jobs if j["pid"] == pid), key=lambda j: j["started"])
         load = None
         try:
-            seconds = pd.read_parquet(Path(own[0]["path"]) / "metrics.parquet", columns=["iteration", "seconds"])
+            seconds = pd.read_parquet(Path(own[0]["path"]) / table_file("metrics"), columns=["iteration", "seconds"])
             per = seconds.groupby("iteration").seconds.first()
             if len(per) > 1:
                 load = max(0.0, float(per.iloc[0] - per.iloc[1:].median()))

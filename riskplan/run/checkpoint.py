@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from riskplan.engine.step import Setup, logit_bound
+from riskplan.run.run_files import CHECKPOINT, CHECKPOINT_TMP
 from riskplan.util.errors import BadInput
 
-CHECKPOINT = "checkpoint"
 CRASH_ENV = "RISKPLAN_TEST_KILL_IN_CHECKPOINT"  # fault injection for the crash-safety tests
 
 
@@ -32,7 +32,7 @@ class State:
 def _write_durably(out: Path, payload: dict) -> None:
     """The checkpoint file replaced atomically: temp file, fsync, rename, fsync the directory (CRASH_ENV: SIGKILL
     before the rename at that iteration, for the tests)."""
-    tmp = out / f"{CHECKPOINT}.tmp"
+    tmp = out / CHECKPOINT_TMP
     with open(tmp, "w") as handle:
         json.dump(payload, handle)
         handle.flush()

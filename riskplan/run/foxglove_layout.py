@@ -21,9 +21,9 @@ from pathlib import Path
 
 from riskplan.run import record
 from riskplan.run.foxglove_scene import FRAME
+from riskplan.run.run_files import LAYOUT as LAYOUT_FILE
 from riskplan.util.paths import write_atomic
 
-LAYOUT_FILE = "foxglove_layout.json"
 TEAM_FRAME = "team"
 MAX_ROBOT_SERIES = 8  # more lines than this make a plot unreadable: the team average stands for the rest
 # Okabe-Ito (as the report): one colour per series

@@ -50,6 +50,7 @@ from mcap.writer import CompressionType, Writer
 
 from riskplan.engine.step import Statistics
 from riskplan.run import foxglove_scene as fx
+from riskplan.run.run_files import RESUMING
 from riskplan.util.errors import BadInput
 from riskplan.version import __version__
 
@@ -711,7 +712,7 @@ def resume_log(src: Path | str, dst: Path | str, last_iteration: int) -> RunLog:
                 keep[id(raw)] = obj
 
     dst = Path(dst)
-    tmp = dst.with_name(dst.name + ".resume-tmp")
+    tmp = dst.with_name(dst.name + RESUMING)
     log = RunLog.__new__(RunLog)
     log.path = dst
     log._setup(open(tmp, "wb"))

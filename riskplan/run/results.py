@@ -14,7 +14,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from riskplan.run.log_reader import read_log
-from riskplan.run.run_files import TABLES, is_run_dir
+from riskplan.run.run_files import CONFIG, RUN_LOG, SUMMARY, TABLES, is_run_dir, table_file
 from riskplan.util.errors import BadInput
 
 SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's when PyYAML has it: 10x faster, as safe
@@ -83,7 +83,7 @@ def find_runs(paths: list[Path]) -> list[Path]:
         if not root.exists():
             raise BadInput(str(root), "does not exist; give a run, sweep or reproduce directory")
         here = sorted(
-            {p.parent for p in root.rglob("run.mcap")} | {p.parent.parent for p in root.rglob(".hydra/config.yaml")}
+            {p.parent for p in root.rglob(RUN_LOG)} | {p.parent.parent for p in root.rglob(CONFIG)}  # .hydra/'s
         )
         if not here:
             raise BadInput(
@@ -101,15 +101,15 @@ def load_run(path: str | Path) -> Run:
     if not path.is_dir() or not is_run_dir(path):
         raise BadInput(str(path), "holds no run (no run.mcap or .hydra/config.yaml); give a run directory")
     config = _config(path)
-    summary_file = path / "summary.json"
-    if all((path / f"{name}.parquet").is_file() for name in TABLES) and summary_file.is_file():
+    summary_file = path / SUMMARY
+    if all((path / table_file(name)).is_file() for name in TABLES) and summary_file.is_file():
         try:
             return finished_run(path, config, json.loads(summary_file.read_text()))
         except (OSError, ValueError) as err:  # a damaged table: fall back to the log of record
             damaged = f"unreadable tables ({err}); rebuilt from run.mcap"
     else:
         damaged = None
-    if not (path / "run.mcap").is_file():
+    if not (path / RUN_LOG).is_file():
         return Run(
             path,
             config,
@@ -120,7 +120,7 @@ def load_run(path: str | Path) -> Run:
             False,
             "no run.mcap and no tables: the run never started or its files were removed",
         )
-    log = read_log(path / "run.mcap")
+    log = read_log(path / RUN_LOG)
     problem = log.problem or damaged
     return Run(
         path,
@@ -136,7 +136,7 @@ def load_run(path: str | Path) -> Run:
 
 def finished_run(path: Path, config: dict, summary: dict) -> Run:
     """The Run of a finished run directory: its config and summary as given, its tables from the parquet files."""
-    tables = {name: pd.read_parquet(path / f"{name}.parquet") for name in TABLES}
+    tables = {name: pd.read_parquet(path / table_file(name)) for name in TABLES}
     return Run(path, config, tables["metrics"], tables["eval"], tables["trajectories"], summary, True)
 
 
@@ -146,7 +146,7 @@ def _config(path: Path) -> dict:
     BadInput naming the file when it cannot be a config: unreadable, not valid YAML, not a mapping of keys, too
     large, or with an interpolation that does not resolve (${oc.env:UNSET}, a missing key, a self-reference).
     """
-    file = path / ".hydra" / "config.yaml"
+    file = path / CONFIG
     if not file.is_file():
         return {}
     try:

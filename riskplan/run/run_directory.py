@@ -5,7 +5,6 @@ whether the run has finished."""
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 from omegaconf import OmegaConf
@@ -14,20 +13,19 @@ from riskplan.config.typed import as_dict, typed
 from riskplan.engine.step import Setup, starts
 from riskplan.engine.team.network import network_metadata
 from riskplan.engine.world import world_map
-from riskplan.run.checkpoint import CHECKPOINT
 from riskplan.run.columns import Columns, write_parquet
 from riskplan.run.foxglove_layout import write_layout
 from riskplan.run.provenance import provenance
 from riskplan.run.record import RunLog, resume_log
-from riskplan.run.run_files import FINISHED
+from riskplan.run.run_files import CONFIG, ENDS, RECORDS, RUN_LOG, SUMMARY, TABLES, table_file
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import atomic_path, write_atomic
 
 
 def refuse_existing_run(out: Path, setup: Setup) -> None:
     """A fresh run never writes over another run's files: BadInput naming --resume instead."""
-    if any((out / name).exists() for name in (*FINISHED, CHECKPOINT, "run.mcap")) or (
-        (out / ".hydra" / "config.yaml").is_file() and _config_changed(out, setup.config)
+    if any((out / name).exists() for name in RECORDS) or (
+        (out / CONFIG).is_file() and _config_changed(out, setup.config)
     ):
         raise BadInput(
             str(out), f"already holds a run; resume it with riskplan train --resume {out}, or give a new directory"
@@ -39,7 +37,7 @@ def start_log(out: Path, setup: Setup) -> RunLog:
     file; refuses a directory that holds another run."""
     refuse_existing_run(out, setup)
     _write_config(out, setup.config)
-    log = RunLog(out / "run.mcap")
+    log = RunLog(out / RUN_LOG)
     log.metadata("config", setup.config)
     log.metadata("provenance", provenance())
     log.metadata("policy", {"kind": str(setup.policy.kind), "theta_names": list(setup.theta_names)})
@@ -52,12 +50,12 @@ def reopen_log(out: Path, setup: Setup, iteration: int) -> tuple[RunLog, list[di
     """run.mcap cut back to a checkpoint at `iteration`, and its metrics rows before it. An extended run
     (`--resume ... train.iterations=N`) gets its new config written and logged, and is not finished until it
     finishes again."""
-    log = resume_log(out / "run.mcap", out / "run.mcap", iteration - 1)
-    rows = logged_rows(out / "run.mcap", iteration, setup.robots)
+    log = resume_log(out / RUN_LOG, out / RUN_LOG, iteration - 1)
+    rows = logged_rows(out / RUN_LOG, iteration, setup.robots)
     if _config_changed(out, setup.config):
         _write_config(out, setup.config, replace=True)
         log.metadata("config", setup.config)
-    for name in FINISHED:
+    for name in ENDS:
         (out / name).unlink(missing_ok=True)
     return log, rows
 
@@ -87,26 +85,24 @@ def write_finished(
     out: Path, setup: Setup, metrics: Columns, evaluation: Columns, trajectories: Columns, summary: dict
 ) -> None:
     """A finished run's files, each written atomically, summary.json last (it marks the run done)."""
-    for name, table in (("metrics", metrics), ("eval", evaluation), ("trajectories", trajectories)):
-        with atomic_path(out / f"{name}.parquet") as tmp:
+    for name, table in zip(TABLES, (metrics, evaluation, trajectories), strict=True):
+        with atomic_path(out / table_file(name)) as tmp:
             write_parquet(table, tmp)
     write_layout(out, setup.robots, (setup.world.width, setup.world.height))
-    write_atomic(out / "summary.json", json.dumps(summary, indent=2, allow_nan=False))
+    write_atomic(out / SUMMARY, json.dumps(summary, indent=2, allow_nan=False))
 
 
 def _write_config(out: Path, config: dict, replace: bool = False) -> None:
     """.hydra/config.yaml for runs started from the Python API (Hydra writes it for the CLI), or `replace` it."""
-    path = out / ".hydra" / "config.yaml"
+    path = out / CONFIG
     if replace or not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
-        os.replace(tmp, path)
+        write_atomic(path, OmegaConf.to_yaml(OmegaConf.create(config)))
 
 
 def _config_changed(out: Path, config: dict) -> bool:
     """Whether the run's .hydra/config.yaml differs from `config` (after `--resume ... train.iterations=N`)."""
-    written = OmegaConf.load(out / ".hydra" / "config.yaml")
+    written = OmegaConf.load(out / CONFIG)
     if OmegaConf.to_container(written) == config:  # as typed already (Hydra wrote this run's own config)
         return False
     return as_dict(typed(written)) != config

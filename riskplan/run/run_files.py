@@ -1,19 +1,106 @@
-"""The files that make a run directory: what marks a directory as a run's, and the tables and summary a finished
-run has (no pandas: `riskplan train` checks its directory with these before it starts)."""
+"""The files of a run directory, named in one place: the manifest `FILES`, one `RunFile` each.
+
+Every part that writes, reads, checks or removes a run's files takes the names and the lists from here: the writer
+(`run_directory`, `checkpoint`, `record`, `foxglove_layout`), the reader (`results.load_run`), the finish check
+(`has_finished`: resume, and a sweep's skip of a finished job) and a sweep job's fresh start, which removes the
+`STALE` files an older config left. A new per-run file is one `RunFile` here, and its writer.
+
+No pandas here: `riskplan train` checks its directory with these before it starts.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
-TABLES = ("metrics", "eval", "trajectories")  # <name>.parquet
-FINISHED = ("summary.json", *(f"{name}.parquet" for name in TABLES))  # written when a run ends
+from riskplan.util.lock import LOCK
+from riskplan.util.paths import temp_name
+
+
+@dataclass(frozen=True)
+class RunFile:
+    """One file of a run directory, as its path there, and what the run does with it."""
+
+    name: str
+    what: str
+    output: bool = False  # the run leaves it in its directory (riskplan.train / train_summary)
+    finished: bool = False  # a finished run has it: the finish check wants it
+    ends: bool = False  # written as the run ends (summary.json last); a resume removes it until it ends again
+    stale: bool = False  # a fresh start of a sweep job removes it: an older config's, never to be mixed with this one's
+    table: bool = False  # one of the run's tables, <table>.parquet
+
+    @property
+    def stem(self) -> str:
+        """A table's name: metrics for metrics.parquet."""
+        return Path(self.name).stem
+
+
+CONFIG = ".hydra/config.yaml"
+RUN_LOG = "run.mcap"
+RESUMING = ".resume-tmp"  # run.mcap cut back to a checkpoint is written beside it under this suffix, then renamed
+CHECKPOINT = "checkpoint"
+CHECKPOINT_TMP = f"{CHECKPOINT}.tmp"  # the next checkpoint until it is whole and renamed over the last one
+SUMMARY = "summary.json"
+LAYOUT = "foxglove_layout.json"
+STATUS = "status.json"
+JOB_LOG = "job.log"
+
+FILES = (  # a fresh start removes the checkpoint first: a job cut short there never resumes half a run
+    RunFile(CONFIG, "the run's config (Hydra writes it for the CLI, the run for the Python API)", output=True),
+    RunFile(LOCK, "the file one writer locks (riskplan.util.lock), left behind", output=True),
+    RunFile(CHECKPOINT, "what resume needs: the next iteration, the thetas, the consensus", output=True, stale=True),
+    RunFile(CHECKPOINT_TMP, "the next checkpoint, before it is whole", stale=True),
+    RunFile(RUN_LOG, "the log of record: header, iterations, evaluation", output=True, finished=True, stale=True),
+    RunFile(RUN_LOG + RESUMING, "run.mcap cut back to a checkpoint, before it replaces the log", stale=True),
+    *(
+        RunFile(f"{table}.parquet", what, output=True, finished=True, ends=True, stale=True, table=True)
+        for table, what in (
+            ("metrics", "one row per iteration and robot (and the team average)"),
+            ("eval", "the final policies on fresh episodes"),
+            ("trajectories", "sampled paths"),
+        )
+    ),
+    RunFile(LAYOUT, "a Foxglove layout for run.mcap (older runs may lack it)", output=True, ends=True, stale=True),
+    RunFile(
+        SUMMARY,
+        "the headline figures, written last: the run is done",
+        output=True,
+        finished=True,
+        ends=True,
+        stale=True,
+    ),
+    RunFile(STATUS, "a job's state (riskplan train, a sweep job): running, done, failed or interrupted"),
+    RunFile(JOB_LOG, "everything a sweep job prints, every attempt's"),
+)
+
+TABLES = tuple(f.stem for f in FILES if f.table)  # <name>.parquet, in the order a run writes them
+FINISHED = tuple(f.name for f in FILES if f.finished)  # what a finished run has
+ENDS = tuple(f.name for f in FILES if f.ends)  # written as a run ends: removed when it resumes
+OUTPUTS = tuple(f.name for f in FILES if f.output)  # what a run leaves in its directory
+STALE = tuple(f.name for f in FILES if f.stale)  # what a fresh start removes (all of a run's own, and no more)
+RECORDS = tuple(f.name for f in FILES if f.output and f.stale)  # a run's own: a fresh run never writes over them
+
+
+def table_file(name: str) -> str:
+    """A table's file: metrics.parquet for metrics."""
+    return f"{name}.parquet"
 
 
 def is_run_dir(path: Path) -> bool:
     """A run directory holds a run.mcap or a .hydra/config.yaml."""
-    return (path / "run.mcap").is_file() or (path / ".hydra" / "config.yaml").is_file()
+    return (path / RUN_LOG).is_file() or (path / CONFIG).is_file()
 
 
 def has_finished(out: Path) -> bool:
-    """Whether the run's final tables and summary are all there."""
+    """Whether the run's log, final tables and summary are all there."""
     return all((out / name).is_file() for name in FINISHED)
+
+
+def remove_stale(out: Path) -> None:
+    """Remove every file of a run from `out`, and what a killed atomic write of one left, so that a fresh start
+    mixes nothing of an older config's (the config, the lock, status.json and job.log stay: they are the job's, and
+    rewritten or appended to)."""
+    for name in STALE:
+        (out / name).unlink(missing_ok=True)
+        for left in out.glob(temp_name(name, "*")):
+            left.unlink(missing_ok=True)

@@ -65,6 +65,11 @@ def _read_only(path: Path) -> bool:
         return False
 
 
+def temp_name(name: str, pid: int | str) -> str:
+    """The temp file atomic_path writes `name` through in process `pid`: only a killed writer leaves it behind."""
+    return f".{name}.{pid}.tmp"
+
+
 @contextlib.contextmanager
 def atomic_path(path: Path | str):
     """Yield a temp path beside `path`; rename it over `path` when the block succeeds, else remove it.
@@ -72,7 +77,7 @@ def atomic_path(path: Path | str):
     Readers see the old file or the new one, never half of one; a failed write (a full disk) leaves no temp file.
     """
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = path.with_name(temp_name(path.name, os.getpid()))
     try:
         yield tmp
         with open(tmp, "rb+") as handle:

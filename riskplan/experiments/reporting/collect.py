@@ -30,7 +30,8 @@ from riskplan.config.typed import check_schema
 from riskplan.engine.measures.registry import MEASURES, label, parameter_keys
 from riskplan.experiments.landscape import is_landscape_dir, load_landscape
 from riskplan.experiments.sweep_worker import HOW_KEYS, distinct
-from riskplan.run.results import TABLES, Run, find_runs, load_run
+from riskplan.run.results import Run, find_runs, load_run
+from riskplan.run.run_files import STATUS, TABLES, table_file
 from riskplan.util.errors import BadInput
 
 # Keys that never define a condition: the seeds of one condition are pooled.
@@ -421,7 +422,7 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
     problem = config_problem(run.config)
     if problem:
         return None, problem
-    rebuilt = not all((path / f"{name}.parquet").is_file() for name in TABLES) or bool(
+    rebuilt = not all((path / table_file(name)).is_file() for name in TABLES) or bool(
         run.problem and "rebuilt" in run.problem
     )
     flat = {k: v for k, v in flatten(as_compared(run.config)).items() if k not in IGNORED_KEYS}
@@ -437,7 +438,7 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
 
 def _failed_status(path: Path) -> str:
     """The error recorded in status.json by a failed job, or ''."""
-    file = path / "status.json"
+    file = path / STATUS
     if not file.is_file():
         return ""
     try:

@@ -17,6 +17,7 @@ from rich.table import Table
 
 from riskplan.experiments.sweep_worker import is_finished, read_status, repeats_line
 from riskplan.experiments.sweeping.jobs import SUMMARY, Job, Outcome
+from riskplan.run.run_files import SUMMARY as RUN_SUMMARY
 from riskplan.util import lock
 from riskplan.util.paths import atomic_path
 
@@ -55,7 +56,7 @@ def summarize(jobs: list[Job]):
         elif status.get("status") == "done" and is_finished(job.path, job.sha, status):
             state, error = "done", None
             try:
-                summary = json.loads((job.path / "summary.json").read_text())
+                summary = json.loads((job.path / RUN_SUMMARY).read_text())
             except (OSError, ValueError) as err:
                 state, error = "failed", f"unreadable summary.json: {err}"
         elif status.get("status") == "done":
