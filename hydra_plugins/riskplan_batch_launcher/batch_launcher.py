@@ -17,6 +17,7 @@ from hydra.plugins.launcher import Launcher
 class RiskplanBatchLauncherConf:
     _target_: str = "hydra_plugins.riskplan_batch_launcher.batch_launcher.RiskplanBatchLauncher"
     memory_gb: float | None = None  # the memory a batch may use (default: riskplan's memory budget)
+    workers: int | None = None  # processes a batch is split over (default: one per core when its work is large)
 
 
 ConfigStore.instance().store(
@@ -28,8 +29,8 @@ class RiskplanBatchLauncher(Launcher):
     """Jobs that share a world and a sample schedule train together, one kernel call per iteration over all their
     robots; each job keeps its folder, files and status as under any other launcher."""
 
-    def __init__(self, memory_gb: float | None = None) -> None:
-        self.memory_gb = memory_gb
+    def __init__(self, memory_gb: float | None = None, workers: int | None = None) -> None:
+        self.memory_gb, self.workers = memory_gb, workers
         self.config = self.hydra_context = self.task_function = None
 
     def setup(self, *, hydra_context, task_function, config) -> None:

@@ -36,6 +36,7 @@ from riskplan.experiments.sweep_worker import (
     sweep_job,
 )
 from riskplan.experiments.sweeping.grid import JobConfigs
+from riskplan.run import cost
 from riskplan.run.batch import BatchRun, train_batch
 from riskplan.run.build import build_setup
 from riskplan.run.cost import run_bytes
@@ -45,6 +46,7 @@ from riskplan.util.interrupt import Interrupted
 from riskplan.util.limits import cpu_count, memory_budget
 from riskplan.util.paths import write_atomic
 
+PARALLEL_SECONDS = 20.0  # a batch's estimated work from which splitting it over worker processes pays
 PROGRESS = ".batch_progress"  # <sweep>/.batch_progress.<chunk>.<part>.json: {"done", "total"} iterations, summed
 # over the files by the sweep's live view; the sweep removes them when the launch ends
 
@@ -94,7 +96,8 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
         chunks = plan_chunks(waiting, limit)
         total = sum(p.setup.params.train.iterations for p in waiting)
         for number, chunk in enumerate(chunks):
-            _train_chunk(chunk, sweep_dir / f"{PROGRESS}.{number}", total)
+            workers = launcher.workers or workers_for(chunk)
+            _train_chunk(chunk, sweep_dir / f"{PROGRESS}.{number}", total, workers)
     for done, prepared in returns:
         if prepared is not None:
             done.return_value = prepared.value
@@ -141,13 +144,20 @@ def plan_chunks(jobs: list, limit: float, key=lambda job: batch_key(job.setup.pa
     return chunks
 
 
-def _train_chunk(chunk: list[Prepared], progress: Path, total: int) -> None:
-    """Train one chunk as a batch on every core and record each of its jobs (a signal: each is interrupted,
-    resumable). With several cores, the chunk's runs are split into a part per core, each trained as a batch in
-    a worker process (so the runs' own steps and files go on in parallel too); with one, in this process."""
+def workers_for(chunk: list[Prepared]) -> int:
+    """Processes to split a batch over: one per core when its work is large enough to pay for starting them
+    (PARALLEL_SECONDS by riskplan.run.cost's model of this machine), else this process alone."""
+    seconds = sum(cost.model().run_seconds(cost.setup_steps(job.setup)) for job in chunk)
+    return min(cpu_count(), len(chunk)) if seconds >= PARALLEL_SECONDS else 1
+
+
+def _train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int) -> None:
+    """Train one chunk as a batch and record each of its jobs (a signal: each is interrupted, resumable). With
+    several `workers`, the chunk's runs are split into a part per worker, each trained as a batch in a worker
+    process (the runs' own steps and files then go on in parallel too); with one, in this process."""
     for job in chunk:
         _log(job.out, job.start.opening + f", in a batch of {len(chunk)})")
-    workers = min(cpu_count(), len(chunk))
+    workers = max(1, min(workers, len(chunk)))
     parts = [chunk[i::workers] for i in range(workers)]
     work = [
         delayed(train_part)(
