@@ -35,7 +35,7 @@ from riskplan.engine.schedules import step_size
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import CHECKPOINT, load_team_checkpoint, save_team_checkpoint
 from riskplan.run.log_reader import read_log
-from riskplan.run.ray_team import (
+from riskplan.run.ray_robot import (
     STATE_KEYS,
     RobotCore,
     Step,
