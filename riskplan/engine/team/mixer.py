@@ -1,6 +1,28 @@
 """The consensus rounds of paper eq. (14) under delays, drops and switching links (Assumption 5 (3)-(4)), faulty
 robots (team.faults) and resilient aggregation (team.aggregate), and gradient tracking: the Mixer and its typed state.
 
+Timing: a call ``mix(thetas, l, r)`` is slot (l, r). Every robot j sends thetas[j] on each outgoing link
+that is up; the message is dropped with probability ``team.drop`` and otherwise arrives in slot (l + D, r),
+D uniform on 0..B0 (``team.delay.max``). Assumption 5 (3) is enforced on the sending side: if a link has
+had no delivered (undropped) send for B = ``team.max_gap`` iterations, the current send is forced through
+(even over a switched-off link), so deliveries are at most B iterations apart and arrivals at most B + B0.
+Switching (``team.switching``): each link is up with probability ``up`` per iteration (both directions of
+an undirected link together), and is forced up when it has been down for ``window`` iterations, so every
+link, hence a strongly connected graph, is up within any ``window`` consecutive iterations.
+
+Faults (``team.faults``, `riskplan.engine.team.faulty`) change only what robots send: from iteration `from` on a
+crashed robot's links deliver nothing (and are never forced), a stuck robot sends the theta it sent first at or
+after `from` (kept in the Buffers), a byzantine one sends `value` or its theta plus seeded noise. `Mixer.healthy(l)`
+says which robots have not failed by iteration l. Aggregation (``team.aggregate``,
+`riskplan.engine.team.resilience`): mean is eq. (14); trimmed_mean, median and wmsr aggregate, per robot and
+coordinate, its own value and the values its links would mix under the rules above, dropped links' weights
+going to the robot itself.
+
+Synchronous teams (no delays, drops or switching; not gradient tracking; no faults; aggregate=mean): every
+message arrives in its own slot, so `Mixer._sync_round` mixes sum_j a^{ij} theta^j directly and defers what the rounds
+did to the Buffers; the store writes it in when something reads them. Faults and the resilient aggregates always
+take the general rules.
+
 Every random draw comes from a generator keyed by (seed, stream, iteration[, round]), so a resumed run redraws
 exactly what an uninterrupted one would have drawn.
 """
@@ -10,32 +32,22 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
 from riskplan.config.faults import Fault, check_value_size, faults_of
-from riskplan.config.schema import Aggregate, FaultKind, Order, Stale, TeamConf
+from riskplan.config.schema import Aggregate, FaultKind, Order, Stale, SwitchingConf, TeamConf
 from riskplan.engine.team import faulty, kernels, resilience
+from riskplan.engine.team import tracking as gradient_tracking
 from riskplan.engine.team.network import Network
+from riskplan.engine.team.tracking import Tracking
 from riskplan.util.errors import BadInput
 
 MIX_STREAM = 7919  # delays and drops: default_rng([seed, 7919, iteration, round])
 SWITCH_STREAM = 7927  # switching links: default_rng([seed, 7927, iteration])
 MASK = (1 << 64) - 1
 INT64_MAX = (1 << 63) - 1
-
-
-@dataclass
-class Tracking:
-    """Gradient tracking's part of the state: trackers y and push-sum weights v ride in the same messages as theta,
-    as running sums; the last axis of each holds [y (M), v (M)]."""
-
-    pending_sums: np.ndarray  # (B0+1, R, N, N, 2M): the sender's running sums in each message in flight
-    sums: np.ndarray  # (R, N, 2M): S^j, the sum of all [y, v] robot j has sent in round r
-    seen_sums: np.ndarray  # (R, N, N, 2M): rho^{ij}, the newest S^j robot i has taken in
-    seen_sent: np.ndarray  # (R, N, N): its send iteration, -1 = none yet
-    tracker: np.ndarray  # (N, 2M): [z^i_{l-1}, v^i_l], robot i's mixed tracker and push-sum weight
-    gradient: np.ndarray  # (N, M): Delta^i_{l-1}, the gradient last added to the tracker
 
 
 @dataclass
@@ -85,16 +97,7 @@ class Buffers:
             delivered=np.zeros((n, n), dtype=bool),
             forced=np.zeros((n, n), dtype=bool),
             used_sent=np.full((n, n), -1, dtype=np.int64),
-            tracking=Tracking(
-                pending_sums=np.zeros((slots, rounds, n, n, 2 * m)),
-                sums=np.zeros((rounds, n, 2 * m)),
-                seen_sums=np.zeros((rounds, n, n, 2 * m)),
-                seen_sent=np.full((rounds, n, n), -1, dtype=np.int64),
-                tracker=np.concatenate([np.zeros((n, m)), np.ones((n, m))], axis=1),
-                gradient=np.zeros((n, m)),
-            )
-            if tracking
-            else None,
+            tracking=Tracking.empty(slots, rounds, n, m) if tracking else None,
             stuck=Stuck(np.zeros((n, m)), np.full(n, -1, dtype=np.int64)) if stuck else None,
         )
 
@@ -155,6 +158,31 @@ class Deferred:
 
 
 Apply = Callable[[Buffers, Deferred], None]
+
+
+def write_deferred(b: Buffers, deferred: Deferred, *, adjacency: np.ndarray, rounds: int, latest_rule: bool) -> None:
+    """Write into `b` (changed in place) what the synchronous rounds in `deferred` did: exactly what `Mixer._send`
+    and `Mixer._received` would have written, every link sending and hearing every slot (`adjacency` its links,
+    `rounds` per iteration, `latest_rule`: team.stale=latest)."""
+    receiver, sender = np.nonzero(adjacency)
+    if deferred.first is not None:  # the rounds started the Mixer (see _round)
+        b.last_delivered[:] = deferred.first - 1
+        b.last_up[:] = deferred.first - 1
+        b.started = True
+    b.last_delivered[receiver, sender] = deferred.last
+    b.delivered = adjacency.copy()
+    b.forced = np.zeros_like(adjacency)
+    for round_index, (iteration, sent) in deferred.sent.items():  # slot 0: with B0 = 0 a message is due at once
+        b.pending[0, round_index, receiver, sender, :] = sent[sender]
+        b.pending_sent[0, round_index, receiver, sender] = iteration
+        b.pending_due[0, round_index, receiver, sender] = -1  # consumed on arrival
+    stamp, latest = deferred.latest
+    b.latest[receiver, sender, :] = latest[sender]
+    b.latest_stamp[receiver, sender] = stamp
+    if latest_rule:
+        b.used_sent = np.where(b.latest_stamp >= 0, b.latest_stamp // rounds, -1)
+    else:
+        b.used_sent = np.where(adjacency, deferred.last, -1)
 
 
 class MixerState(Mapping):
@@ -222,31 +250,28 @@ class _Store:
         self._buffers, self.deferred, self._shared, self.latest = buffers, None, False, None
 
 
+def links_up_at(b: Buffers, network: Network, switching: SwitchingConf, seed: int, iteration: int) -> np.ndarray:
+    """Links up at `iteration` under team.switching, drawn once per iteration and kept in `b` so that every round
+    sees the same graph."""
+    adjacency = network.adjacency
+    if not switching.enabled:
+        return adjacency
+    if b.up_iteration != iteration:
+        rng = np.random.default_rng([seed, SWITCH_STREAM, iteration & MASK])
+        draw = rng.random(adjacency.shape) < switching.up
+        if not network.directed:
+            draw = np.triu(draw, 1) | np.triu(draw, 1).T  # an undirected link is up both ways or not at all
+        overdue = iteration - b.last_up >= switching.window
+        b.up = adjacency & (draw | overdue)
+        b.last_up = np.where(b.up, iteration, b.last_up)
+        b.up_iteration = iteration
+    return b.up
+
+
 class Mixer:
-    """Consensus rounds of eq. (14) (without the gradient term) under delays, drops and switching links.
-
-    Timing: a call ``mix(thetas, l, r)`` is slot (l, r). Every robot j sends thetas[j] on each outgoing link
-    that is up; the message is dropped with probability ``team.drop`` and otherwise arrives in slot (l + D, r),
-    D uniform on 0..B0 (``team.delay.max``). Assumption 5 (3) is enforced on the sending side: if a link has
-    had no delivered (undropped) send for B = ``team.max_gap`` iterations, the current send is forced through
-    (even over a switched-off link), so deliveries are at most B iterations apart and arrivals at most B + B0.
-    Switching (``team.switching``): each link is up with probability ``up`` per iteration (both directions of
-    an undirected link together), and is forced up when it has been down for ``window`` iterations, so every
-    link, hence a strongly connected graph, is up within any ``window`` consecutive iterations.
-
-    Faults (``team.faults``, `riskplan.engine.team.faulty`) change only what robots send: from iteration `from` on a
-    crashed robot's links deliver nothing (and are never forced), a stuck robot sends the theta it sent first at or
-    after `from` (kept in the Buffers), a byzantine one sends `value` or its theta plus seeded noise. `healthy(l)`
-    says which robots have not failed by iteration l. Aggregation (``team.aggregate``,
-    `riskplan.engine.team.resilience`): mean is eq. (14); trimmed_mean, median and wmsr aggregate, per robot and
-    coordinate, its own value and the values its links would mix under the rules above, dropped links' weights
-    going to the robot itself.
-
-    Synchronous teams (no delays, drops or switching; not gradient tracking; no faults; aggregate=mean): every
-    message arrives in its own slot, so `_sync_round` mixes sum_j a^{ij} theta^j directly and defers what the rounds
-    did to the Buffers; the store writes it in when something reads them. Faults and the resilient aggregates always
-    take the general rules.
-    """
+    """Consensus rounds of eq. (14) (without the gradient term) under delays, drops and switching links, faults and
+    resilient aggregation, by the rules of the module docstring; `track` adds gradient tracking
+    (`engine.team.tracking`)."""
 
     def __init__(self, network: Network, team: TeamConf, seed: int, faults: tuple[Fault, ...] | None = None):
         """A Mixer of `network` with the validated settings of `team` (riskplan.config.validate); `faults` the
@@ -274,7 +299,10 @@ class Mixer:
         slots = self.max_delay + 1
         stuck = any(f.kind == FaultKind.stuck for f in self.faults)
         self._sizes = (network.robots, network.n_params, slots, self.rounds, self.tracking, stuck)
-        self._store = _Store(Buffers.empty(*self._sizes), self._apply_deferred)
+        self._apply = partial(
+            write_deferred, adjacency=network.adjacency, rounds=self.rounds, latest_rule=self.latest_rule
+        )
+        self._store = _Store(Buffers.empty(*self._sizes), self._apply)
         self._sync = not self.tracking and self.max_delay == 0 and self.drop == 0.0 and not self.switching.enabled
         self._sync = self._sync and not self.faults and self.aggregate == Aggregate.mean
         self._links: kernels.Links | None = None  # built by the first synchronous round
@@ -310,7 +338,7 @@ class Mixer:
 
     def fresh(self) -> MixerState:
         """The state of this team's Mixer before it has mixed anything (a run's iteration 0)."""
-        return MixerState(Buffers.empty(*self._sizes), None, self._apply_deferred)
+        return MixerState(Buffers.empty(*self._sizes), None, self._apply)
 
     def at(self, state: Mapping[str, np.ndarray]) -> Mixer:
         """This Mixer in `state`: restored from it, unless `state` is the snapshot of the state it is in already
@@ -322,49 +350,11 @@ class Mixer:
         self._store.replace(self._store.current(writing=False).from_arrays(state))
         return self
 
-    def _apply_deferred(self, b: Buffers, deferred: Deferred) -> None:
-        """Write into `b` (changed in place) what the synchronous rounds in `deferred` did: exactly what `_send`
-        and `_received` would have written, every link sending and hearing every slot."""
-        adjacency = self.network.adjacency
-        receiver, sender = np.nonzero(adjacency)
-        if deferred.first is not None:  # the rounds started the Mixer (see _round)
-            b.last_delivered[:] = deferred.first - 1
-            b.last_up[:] = deferred.first - 1
-            b.started = True
-        b.last_delivered[receiver, sender] = deferred.last
-        b.delivered = adjacency.copy()
-        b.forced = np.zeros_like(adjacency)
-        for round_index, (iteration, sent) in deferred.sent.items():  # slot 0: with B0 = 0 a message is due at once
-            b.pending[0, round_index, receiver, sender, :] = sent[sender]
-            b.pending_sent[0, round_index, receiver, sender] = iteration
-            b.pending_due[0, round_index, receiver, sender] = -1  # consumed on arrival
-        stamp, latest = deferred.latest
-        b.latest[receiver, sender, :] = latest[sender]
-        b.latest_stamp[receiver, sender] = stamp
-        if self.latest_rule:
-            b.used_sent = np.where(b.latest_stamp >= 0, b.latest_stamp // self.rounds, -1)
-        else:
-            b.used_sent = np.where(adjacency, deferred.last, -1)
-
     def links_up(self, iteration: int) -> np.ndarray:
         """(N, N) bool links up at `iteration` (all links unless switching is enabled)."""
-        return np.array(self._links_up(self._store.current(), iteration), copy=True)
-
-    def _links_up(self, b: Buffers, iteration: int) -> np.ndarray:
-        """Links up at `iteration`, drawn once per iteration and kept so every round sees the same graph."""
-        adjacency = self.network.adjacency
-        if not self.switching.enabled:
-            return adjacency
-        if b.up_iteration != iteration:
-            rng = np.random.default_rng([self.seed, SWITCH_STREAM, iteration & MASK])
-            draw = rng.random(adjacency.shape) < self.switching.up
-            if not self.network.directed:
-                draw = np.triu(draw, 1) | np.triu(draw, 1).T  # an undirected link is up both ways or not at all
-            overdue = iteration - b.last_up >= self.switching.window
-            b.up = adjacency & (draw | overdue)
-            b.last_up = np.where(b.up, iteration, b.last_up)
-            b.up_iteration = iteration
-        return b.up
+        return np.array(
+            links_up_at(self._store.current(), self.network, self.switching, self.seed, iteration), copy=True
+        )
 
     def mix(self, thetas: np.ndarray, iteration: int, round_index: int = 0) -> np.ndarray:
         """One consensus round of eq. (14) at slot (iteration, round_index): (N, M) in, (N, M) out.
@@ -374,18 +364,9 @@ class Mixer:
         return self._round(thetas, np.zeros_like(thetas) if self.tracking else None, iteration, round_index)[0]
 
     def track(self, thetas: np.ndarray, grads: np.ndarray, iteration: int) -> tuple[np.ndarray, np.ndarray]:
-        """Gradient tracking (team.order=gradient_tracking: DIGing, MD-PGT without momentum) at iteration l.
-
-        y^i_l = z^i_{l-1} + Delta^i_l - Delta^i_{l-1}, with z_{-1} = Delta_{-1} = 0 so that y_0 = Delta_0. Every robot
-        sends (theta^i_l, y^i_l, v^i_l) in one message per round (one delay and drop draw for all). Returns
-        (A theta_l, y_l / v_l) and keeps z_l = A y_l and A v_l for the next call; the caller steps
-        theta_{l+1} = A theta_l + eps_l y_l / v_l. The trackers y and the push-sum weights v (v_0 = 1) are mixed as
-        running sums (`_mix_sums`), so sum_i y^i_l plus the tracker mass still in flight (`in_flight`) equals
-        sum_i Delta^i_l under any delays, drops and switching, as long as A is doubly stochastic (checked when the
-        network is built). Without delays and drops v stays 1 and this is DIGing's y_{l+1} = A y_l + Delta_{l+1} -
-        Delta_l exactly; with them, dividing by v undoes the bursts of late mass (a link that delivers three
-        iterations of tracker at once delivers three iterations of weight too), the push-sum correction.
-        """
+        """Gradient tracking at iteration l (`engine.team.tracking`): every robot sends (theta^i_l, y^i_l, v^i_l) in
+        one message per round (one delay and drop draw for all). Returns (A theta_l, y_l / v_l) and keeps z_l = A y_l
+        and A v_l for the next call; the caller steps theta_{l+1} = A theta_l + eps_l y_l / v_l."""
         if not self.tracking:
             raise ValueError("track needs a Mixer of a team with team.order=gradient_tracking")
         thetas, grads = np.asarray(thetas, dtype=float), np.asarray(grads, dtype=float)
@@ -393,10 +374,7 @@ class Mixer:
             raise ValueError(f"expected gradients of shape {thetas.shape}, got {grads.shape}")
         if self.network.robots == 1:
             return thetas.copy(), grads.copy()  # no one to track with: eq. (11), bit for bit
-        m = self.network.n_params
-        state = self._store.current().tracking
-        tracker = state.tracker[:, :m] + (grads - state.gradient)
-        mass = state.tracker[:, m:]
+        tracker, mass = gradient_tracking.carried(self._store.current().tracking, grads)
         mixed, carried = thetas, np.concatenate([tracker, mass], axis=1)
         for round_index in range(self.rounds):
             mixed, carried = self._round(mixed, carried, iteration, round_index)
@@ -409,10 +387,8 @@ class Mixer:
         rounds and links of a^{ij} (S^j - rho^{ij})."""
         if not self.tracking:
             return np.zeros(2 * self.network.n_params)
-        state, w = self._store.current(writing=False).tracking, self.network.weights
-        owed = state.sums[:, None, :, :] - state.seen_sums  # (R, N, N, 2M): [r, i, j] what j sent that i lacks
-        links = self.network.adjacency[None, :, :, None]
-        return (np.where(links, owed, 0.0) * np.concatenate([w, w], axis=2)[None]).sum(axis=(0, 1, 2))
+        state = self._store.current(writing=False).tracking
+        return gradient_tracking.in_flight(state, self.network.weights, self.network.adjacency)
 
     def _round(
         self, thetas: np.ndarray, carried: np.ndarray | None, iteration: int, round_index: int
@@ -438,7 +414,13 @@ class Mixer:
             b.started = True
         self._send(b, thetas, carried, iteration, round_index)
         mixed, arrived = self._received(b, thetas, iteration, round_index)
-        return mixed, None if carried is None else self._mix_sums(b, carried, arrived, iteration, round_index)
+        if carried is None:
+            return mixed, None
+        slot = iteration % (self.max_delay + 1)
+        sent = b.pending_sent[slot, round_index]
+        return mixed, gradient_tracking.mix_sums(
+            b.tracking, self.network.weights, slot, round_index, sent, arrived, carried
+        )
 
     def _sync_round(self, thetas: np.ndarray, iteration: int, round_index: int) -> np.ndarray | None:
         """A round of a synchronous team (no delays, drops or switching): every link delivers in the slot it sends,
@@ -464,30 +446,6 @@ class Mixer:
             self._links = kernels.Links(self.network)
         return kernels.mix_linked(self.network, self._links, thetas, neighbour)
 
-    def _mix_sums(
-        self, b: Buffers, carried: np.ndarray, arrived: np.ndarray, iteration: int, round_index: int
-    ) -> np.ndarray:
-        """Trackers after one round, mixed as running sums: robot i takes a^{ij} (S^j - rho^{ij}) from each link.
-
-        S^j is the sum of every tracker robot j has sent in this round slot, and rho^{ij} the newest S^j that robot
-        i has taken in. A message newer than rho^{ij} hands over all the mass sent on the link since then, so a
-        dropped or delayed tracker is late, never lost or counted twice, and an older message arriving after a
-        newer one is ignored. With no delays or drops the increment is a^{ij} y^j: the plain A y of DIGing.
-        """
-        state, slot = b.tracking, iteration % (self.max_delay + 1)
-        sent = b.pending_sent[slot, round_index]
-        fresh = arrived & (sent > state.seen_sent[round_index])
-        sums = state.pending_sums[slot, round_index]
-        seen = state.seen_sums[round_index]
-        increment = np.where(fresh[:, :, None], sums - seen, 0.0)
-        seen[fresh] = sums[fresh]
-        state.seen_sent[round_index] = np.where(fresh, sent, state.seen_sent[round_index])
-        w = np.concatenate([self.network.weights] * (carried.shape[1] // self.network.n_params), axis=2)
-        diagonal = np.arange(len(w))
-        off = w.copy()
-        off[diagonal, diagonal, :] = 0.0
-        return w[diagonal, diagonal, :] * carried + np.einsum("ijm,ijm->im", off, increment)
-
     def _send(self, b: Buffers, thetas: np.ndarray, carried: np.ndarray | None, iteration: int, round_index: int):
         """Put this slot's messages in flight: delay, drop, forced delivery (Assumption 5 (3)-(4))."""
         # A fresh generator per slot: no random state crosses iterations, so resume is bit-identical. With B0 = 0
@@ -501,7 +459,7 @@ class Mixer:
             b.tracking.sums[round_index] += carried
             sums, pending_sums = b.tracking.sums[round_index], b.tracking.pending_sums
         max_gap = min(self.max_gap, INT64_MAX)  # a gap of an int64 iteration never exceeds it: same as any larger B
-        adjacency, up = self.network.adjacency, self._links_up(b, iteration)
+        adjacency, up = self.network.adjacency, links_up_at(b, self.network, self.switching, self.seed, iteration)
         if self.faults:  # what faulty robots send; a crashed robot's links send nothing and are never forced
             stuck = (None, None) if b.stuck is None else (b.stuck.stuck_theta, b.stuck.stuck_since)
             thetas, silent = faulty.sent_values(self.faults, thetas, self.seed, iteration, round_index, *stuck)
