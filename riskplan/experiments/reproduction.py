@@ -19,6 +19,7 @@
         faults/      sweep: 7 robots, complete graph, robot 6 Byzantine from iteration 0,
                      team.aggregate=mean,trimmed_mean team.trim=1                         (resilient consensus)
         faults_free/ sweep: the same team without the fault                               (its reference)
+        floor_plan/  sweep: experiment=floor_plan risk=neutral,cvar (a map from ROS map files)  (maps)
         landscape/   mean and CVaR on a grid of theta for the paper world
         report/      report.html, figures, report.csv
         reproduce.json   what ran, with which options, and how long each part took
@@ -59,7 +60,7 @@ from riskplan.experiments.timing import (
     sweep_timing,
     time_breakdown,
 )
-from riskplan.run import cost
+from riskplan.run import cost, maps
 from riskplan.run.compose import compose, parse_overrides
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
@@ -157,6 +158,12 @@ EXPERIMENTS = (
         "faults_free",
         "Beyond the paper: the same 7 robots without the fault (the reference)",
         FAULT_TEAM,
+        STUDY_SEEDS,
+    ),
+    (
+        "floor_plan",
+        "Beyond the paper: a floor plan from ROS map files, a corridor watched by an adversary: risk-neutral vs CVaR",
+        ["experiment=floor_plan", "risk=neutral,cvar"],
         STUDY_SEEDS,
     ),
 )
@@ -274,8 +281,10 @@ def check_seeds(seeds: int, experiments: tuple = EXPERIMENTS) -> int:
 
 
 def job_steps(cfg) -> float:
-    """Trajectory-step equivalents one job of a composed config takes (riskplan.run.cost)."""
-    width, height = (int(v) for v in cfg.world.size)
+    """Trajectory-step equivalents one job of a composed config takes (riskplan.run.cost); a map's grid is the
+    map's (its header, riskplan.run.maps), not world.size."""
+    found = maps.read_map(cfg.world)
+    width, height = (int(v) for v in cfg.world.size) if found is None else found.cells
     return cost.config_steps(cfg, width, height, len(cfg.world.sources), int(cfg.team.robots))
 
 
@@ -528,6 +537,7 @@ def _print_comparison(outcomes) -> None:
             "hetero_central": "8 robots from 8 starts, complete graph (centralized)",
             "faults": "7 robots, complete graph, robot 6 Byzantine",
             "faults_free": "7 robots, complete graph, fault-free",
+            "floor_plan": "1 robot on the floor plan",
         }.get(sweep, "1 robot (centralized)")
         table.add_row(
             setup + (f", {condition}" if condition else ""),

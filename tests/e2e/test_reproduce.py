@@ -28,7 +28,7 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "robots: 3" in config and "iterations: 5" in config  # the user's overrides beat --quick's
     assert (root / "single" / "multirun.yaml").is_file()
     record = json.loads((root / "reproduce.json").read_text())
-    studies = {"measures", "policies", "tabular", "hetero_team", "hetero_central", "faults", "faults_free"}
+    studies = {"measures", "policies", "tabular", "hetero_team", "hetero_central", "faults", "faults_free", "floor_plan"}
     assert (
         record["seeds"] == 1
         and record["quick"]
@@ -36,8 +36,8 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
         == {"single", "team", "wander", "soft_risk", "frontier", "landscape", "comparison", "report"} | studies
     )
     # said up front: the plan with its estimate, then each stage out of the total with the overall ETA
-    assert re.search(r"plan: 14 stages, 23 jobs on \d+ workers?; estimated time ", result.stdout)
-    assert "[stage 1 of 14: single]" in result.stdout and "[stage 14 of 14: report]" in result.stdout
+    assert re.search(r"plan: 15 stages, 25 jobs, each sweep one batch on every core; estimated time ", result.stdout)
+    assert "[stage 1 of 15: single]" in result.stdout and "[stage 15 of 15: report]" in result.stdout
     assert set(record["estimate"]) == set(record["parts"]) - {"comparison"}
     assert "Assumption 6" not in result.stderr  # hetero_team's constant step is the study's own choice
     # where the time went: measured from the jobs' own records (no timed assertion, only the structure)
@@ -46,16 +46,15 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     went = float(re.search(r"where the time went \(([0-9.]+) s", result.stdout).group(1))
     assert re.search(rf"reproduced in {went:.0f} s ", result.stdout)
     breakdown = record["breakdown"]
-    # 2 + 1 + 1 + 1 + 4 jobs of the paper's set-ups, 5 + 2 + 1 + 2 + 1 + 2 + 1 of the studies beyond it
-    assert breakdown["jobs"]["jobs"] == 9 + 14 and breakdown["jobs"]["workers"] >= 1
+    # 2 + 1 + 1 + 1 + 4 jobs of the paper's set-ups, 5 + 2 + 1 + 2 + 1 + 2 + 1 + 2 of the studies beyond it
+    assert breakdown["jobs"]["jobs"] == 9 + 16 and breakdown["jobs"]["workers"] >= 1
     assert all(v is None or v >= 0 for v in breakdown["wall"].values())
     assert breakdown["wall"]["report (figures, tables, page)"] > 0 and breakdown["total"] > 0
     assert breakdown["jobs"]["training loop (summary wall_time)"] >= 0
-    # one sweep worker was warmed up while reproduce planned, and the sweeps ran their jobs on it
-    warm = record["warm_up"]
-    assert warm["workers"] == 1 and len(warm["seconds"]) == 1 and warm["seconds"][0] > 0
+    # each sweep trained as one batch in the reproduction's own process (no worker processes to warm up)
+    assert "warm_up" not in record
     job_pids = {json.loads(p.read_text())["pid"] for p in root.glob("*/*/status.json")}
-    assert warm["pids"][0] in job_pids
+    assert len(job_pids) == 1
     for folder, jobs in (("single", 2), ("team", 1), ("frontier", 4)):
         timing = record["parts"][folder]["timing"]
         assert timing["jobs"] == jobs and timing["planning"] >= 0 and timing["running"] >= 0

@@ -10,22 +10,22 @@ from riskplan.experiments.reproduction import EXPERIMENTS, check_seeds, experime
 from riskplan.util.errors import BadInput
 
 PAPER = ["single", "team", "wander", "soft_risk", "frontier"]
-STUDIES = ["measures", "policies", "tabular", "hetero_team", "hetero_central", "faults", "faults_free"]
+STUDIES = ["measures", "policies", "tabular", "hetero_team", "hetero_central", "faults", "faults_free", "floor_plan"]
 
 
 def test_each_sweep_holds_its_conditions_times_its_seeds():
     assert [folder for folder, *_ in EXPERIMENTS] == PAPER + STUDIES
     # risk=neutral,cvar; one team; wander and soft risk at most 2 seeds; four betas of the frontier at most 2 seeds;
     # then the studies beyond the paper, at most 5 seeds: five measures, two feature sets, tabular, two orders,
-    # the centralized team, two aggregations, the fault-free team
-    assert experiment_jobs(1) == [2, 1, 1, 1, 4] + [5, 2, 1, 2, 1, 2, 1]
-    assert experiment_jobs(10) == [20, 10, 2, 2, 8] + [25, 10, 5, 10, 5, 10, 5]
-    assert check_seeds(1) == 9 + 14
+    # the centralized team, two aggregations, the fault-free team, the floor plan's two measures
+    assert experiment_jobs(1) == [2, 1, 1, 1, 4] + [5, 2, 1, 2, 1, 2, 1, 2]
+    assert experiment_jobs(10) == [20, 10, 2, 2, 8] + [25, 10, 5, 10, 5, 10, 5, 10]
+    assert check_seeds(1) == 9 + 16
 
 
 def test_more_jobs_than_the_limit_is_bad_input(monkeypatch):
-    monkeypatch.setenv("RISKPLAN_MAX_JOBS", "46")
-    assert check_seeds(2) == 18 + 28
+    monkeypatch.setenv("RISKPLAN_MAX_JOBS", "50")
+    assert check_seeds(2) == 18 + 32
     with pytest.raises(BadInput) as err:
         check_seeds(3)
-    assert err.value.where == "--seeds" and "63 jobs, more than the 46 allowed" in err.value.problem
+    assert err.value.where == "--seeds" and "69 jobs, more than the 50 allowed" in err.value.problem

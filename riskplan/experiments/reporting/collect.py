@@ -57,6 +57,7 @@ STUDIES = {
     "policies": ("Policies that see more", ("policies", "tabular")),
     "hetero_team": ("A heterogeneous team", ("hetero_team", "hetero_central")),
     "faults": ("A Byzantine robot and resilient consensus", ("faults", "faults_free")),
+    "floor_plan": ("A floor plan with a watched corridor", ("floor_plan",)),
 }
 # The measures' order in the studies' tables: the built-in ones (riskplan.engine.measures), then any other by name
 MEASURE_ORDER = MEASURES

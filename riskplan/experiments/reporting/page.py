@@ -252,6 +252,13 @@ STUDY_TEXT = {  # the question each study of riskplan reproduce answers, above i
         "distance between two robots' θ averaged over that quarter (sampling noise averages out, a systematic "
         "floor does not); the gap and the distance are to the centralized run of the same seed.",
     ),
+    "floor_plan": (
+        "A floor plan with a watched corridor",
+        "One robot on a map read from ROS map files (<code>experiment=floor_plan</code>): a hallway leads to the safe "
+        "source, a shorter corridor an adversary watches (a risky region drawn as an image mask) to the risky one. "
+        "Which way does each policy learn to go? Export the runs with <code>riskplan export DIR --to ros2</code> to "
+        "play them in Foxglove or RViz.",
+    ),
     "faults": (
         "A Byzantine robot and resilient consensus",
         "One robot sends a fixed θ from the first iteration. With the plain mean (eq. 14) every healthy robot "
@@ -421,7 +428,27 @@ def _faults_html(table: pd.DataFrame) -> str:
     return _table(head, rows, numeric=set(range(1, len(head) - 1)))
 
 
+def _floor_plan_html(table: pd.DataFrame) -> str:
+    reached = _reached(table)
+    head = ["policy", "seeds", "mean", "CVaR<sub>β</sub>", "P(risky)"] + [
+        f"P(reach {_esc(c[len('reached_') :])})" for c in reached
+    ]
+    rows = [
+        [
+            _esc(r["name"]),
+            _esc(r["seeds"]),
+            _interval(r, "mean"),
+            _interval(r, "cvar") + f" (β={r['beta']:g})",
+            _interval(r, "risky_fraction", True),
+        ]
+        + [_interval(r, c, True) for c in reached]
+        for _, r in table.iterrows()
+    ]
+    return _table(head, rows, numeric=set(range(2, len(head))))
+
+
 STUDY_TABLES = {
+    "floor_plan": _floor_plan_html,
     "measures": _measures_html,
     "policies": _policies_html,
     "hetero_team": _hetero_html,

@@ -726,4 +726,13 @@ def study_tables(coll: Collection) -> dict[str, pd.DataFrame]:
         "policies": policies_table(coll),
         "hetero_team": hetero_table(coll),
         "faults": faults_table(coll),
+        "floor_plan": floor_plan_table(coll),
     }
+
+
+def floor_plan_table(coll: Collection) -> pd.DataFrame:
+    """floor_plan.csv: per policy trained on a map (world.map), its mean, CVaR, P(risky) and the shares of episodes
+    reaching each source (report.csv's figures and intervals)."""
+    groups = [g for g in coll.groups if (g.config.get("world") or {}).get("map")]
+    rows = [{**group_row(g), "name": measure_name(g), **seeds_reaching(g)} for g in groups]
+    return pd.DataFrame(rows)

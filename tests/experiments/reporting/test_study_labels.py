@@ -158,8 +158,8 @@ def test_reproduce_runs_every_study_folder_the_report_knows():
     studied = [f for _, names in STUDIES.values() for f in names]
     assert folders[5:] == studied  # after the paper's five sweeps, in the report's order
     assert all(most == STUDY_SEEDS == 5 for folder, _, _, most in EXPERIMENTS if folder in studied)
-    assert experiment_jobs(10)[5:] == [25, 10, 5, 10, 5, 10, 5]  # full: 5 seeds of each condition
-    assert experiment_jobs(2)[5:] == [10, 4, 2, 4, 2, 4, 2]  # --quick: 2 seeds
+    assert experiment_jobs(10)[5:] == [25, 10, 5, 10, 5, 10, 5, 10]  # full: 5 seeds of each condition
+    assert experiment_jobs(2)[5:] == [10, 4, 2, 4, 2, 4, 2, 4]  # --quick: 2 seeds
 
 
 # ------------------------------------------------------------------------------------------------ known answers

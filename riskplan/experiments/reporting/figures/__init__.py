@@ -40,6 +40,17 @@ BUILDERS = (
 )
 
 
+def fig_floor_plan(coll: Collection) -> FigureSpec | str:
+    """The floor-plan study of riskplan reproduce: each policy's sampled paths on the map (Fig. 1's drawing)."""
+    spec = fig_paths(coll)
+    if isinstance(spec, FigureSpec):
+        spec.name, spec.title = "floor_plan_paths", "A floor plan with a watched corridor: sampled paths"
+    return spec
+
+
+STUDY_FIGURES = {**STUDY_BUILDERS, "floor_plan": ("floor_plan_paths", fig_floor_plan)}  # a study -> its figure
+
+
 def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
     """Every figure the runs support, and for the others why not (name -> reason). Never raises."""
     specs: list[FigureSpec] = []
@@ -63,7 +74,7 @@ def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
             else:
                 skipped[name] = result
         for study in coll.studies:  # reproduce's studies, each from its own runs
-            name, build = STUDY_BUILDERS[study.name]
+            name, build = STUDY_FIGURES[study.name]
             try:
                 result = build(study.collection)
             except Exception as err:
