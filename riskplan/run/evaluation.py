@@ -18,8 +18,8 @@ from riskplan.run.budget import EVAL_BATCH
 from riskplan.run.checkpoint import State
 from riskplan.run.columns import Columns, concat, rows_where
 from riskplan.run.intervals import bootstrap_intervals, objective_interval
+from riskplan.run.metrics_rows import AVERAGE
 from riskplan.run.provenance import provenance
-from riskplan.run.record import AVERAGE
 
 SCHEMA_VERSION = 2  # of summary.json: 2 adds objective, team_objective, theta_names and robots (a list)
 ROBOT_INTERVALS = 32  # distinct (start, risk) pairs up to which each robot's objective gets a bootstrap interval

@@ -10,7 +10,7 @@ The layout (Foxglove's layout JSON: `configById` panel configs and a `layout` tr
   average; at most `MAX_ROBOT_SERIES` robots are drawn one by one) and, for a team, `/consensus_error`,
 - a raw message panel on `/summary`.
 
-Every topic it names is one `riskplan.run.record` writes into every run's log (`topics(layout)` lists them).
+Every topic it names is one `riskplan.run.record` writes (`riskplan.run.log_format` names them) into every run's log (`topics(layout)` lists them).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import json
 import re
 from pathlib import Path
 
-from riskplan.run import record
+from riskplan.run import log_format
 from riskplan.run.foxglove_scene import FRAME
 from riskplan.run.run_files import LAYOUT as LAYOUT_FILE
 from riskplan.util.paths import write_atomic
@@ -50,7 +50,7 @@ def _plot(title: str, field: str, robots: int) -> dict:
         label = "team average" if r == -1 else f"robot {r}"
         paths.append(
             {
-                "value": f"{record.METRICS}{{robot=={r}}}.{field}",
+                "value": f"{log_format.METRICS}{{robot=={r}}}.{field}",
                 "enabled": True,
                 "timestampMethod": "receiveTime",
                 "label": label,
@@ -118,7 +118,7 @@ def layout(robots: int = 1, size: tuple[int, int] = (12, 12)) -> dict:
         "world, sources and sampled paths",
         FRAME,
         {
-            record.WORLD_MAP: {
+            log_format.WORLD_MAP: {
                 "colorField": "cell",
                 "colorMode": "colormap",
                 "colorMap": "turbo",
@@ -126,13 +126,13 @@ def layout(robots: int = 1, size: tuple[int, int] = (12, 12)) -> dict:
                 "maxValue": 2,
                 "frameLocked": True,
             },
-            record.WORLD_MARKERS: {},
-            record.PATHS: {},
+            log_format.WORLD_MARKERS: {},
+            log_format.PATHS: {},
         },
         (width / 2, height / 2),
         1.6 * max(width, height, 1),
     )
-    team = _scene("communication graph", TEAM_FRAME, {record.NETWORK_SCENE: {}}, (5.0, 5.0), 16.0)
+    team = _scene("communication graph", TEAM_FRAME, {log_format.NETWORK_SCENE: {}}, (5.0, 5.0), 16.0)
     config = {
         GRID_PANEL: grid,
         TEAM_PANEL: team,
@@ -140,7 +140,7 @@ def layout(robots: int = 1, size: tuple[int, int] = (12, 12)) -> dict:
         MEAN_PANEL: _plot("mean of the training batch per iteration", "mean", robots),
         SUMMARY_PANEL: {
             "title": "summary.json",
-            "topicPath": record.SUMMARY,
+            "topicPath": log_format.SUMMARY,
             "diffEnabled": False,
             "diffMethod": "custom",
             "diffTopicPath": "",
@@ -154,7 +154,7 @@ def layout(robots: int = 1, size: tuple[int, int] = (12, 12)) -> dict:
             **_plot("consensus error max ||θ_i − θ_j||", "consensus_error", 1),
             "paths": [
                 {
-                    "value": f"{record.CONSENSUS}.consensus_error",
+                    "value": f"{log_format.CONSENSUS}.consensus_error",
                     "enabled": True,
                     "timestampMethod": "receiveTime",
                     "label": "consensus error",

@@ -12,14 +12,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from riskplan.run.log_format import EVAL, EVAL_COLUMNS, METRICS, METRICS_BASE, SUMMARY, TRAJECTORIES, TRAJECTORY_COLUMNS
 from riskplan.run.record import (
-    EVAL,
-    EVAL_COLUMNS,
-    METRICS,
-    METRICS_BASE,
-    SUMMARY,
-    TRAJECTORIES,
-    TRAJECTORY_COLUMNS,
     _decode_metadata,
     _iteration_messages,
     _read_bytes,

@@ -49,7 +49,7 @@ from riskplan.engine.schedules import step_size
 from riskplan.engine.step import Setup, check_step, estimate, rollouts, starts
 from riskplan.engine.team import faulty, resilience
 from riskplan.run.evaluation import robot_risks
-from riskplan.run.record import metrics_row
+from riskplan.run.metrics_rows import metrics_row
 
 STATE_KEYS = (  # robot i's state: the checkpoint's arrays, in this order
     "iteration",  # () int: the next iteration it runs

@@ -56,9 +56,10 @@ from riskplan.engine.team.convergence import consensus_error
 from riskplan.run.checkpoint import State, TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
 from riskplan.run.columns import Columns, from_rows, sorted_by
 from riskplan.run.evaluation import evaluate, sample_paths, summarize
+from riskplan.run.metrics_rows import AVERAGE, average_row
 from riskplan.run.ray_actor import RobotActor, first_line, placements, ray_runtime
 from riskplan.run.ray_robot import consistent_cut, in_neighbours, initial_state, out_neighbours, tracking_balance
-from riskplan.run.record import AVERAGE, RunLog, average_row
+from riskplan.run.record import RunLog
 from riskplan.run.run_directory import logged_rows, reopen_log, start_log, write_finished
 from riskplan.run.run_files import RUN_LOG, has_finished
 from riskplan.util.errors import BadInput

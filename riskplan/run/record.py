@@ -48,179 +48,32 @@ from mcap.records import Channel, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from riskplan.engine.step import Statistics
 from riskplan.run import foxglove_scene as fx
+from riskplan.run.log_format import (
+    CONSENSUS,
+    EVAL,
+    ITERATION_TOPICS,
+    METRICS,
+    NETWORK,
+    NETWORK_SCENE,
+    PATHS,
+    SUMMARY,
+    THETA,
+    TOPIC_SCHEMA,
+    TRAJECTORIES,
+    WORLD_MAP,
+    WORLD_MARKERS,
+    WORLD_TOPICS,
+    schema_bytes,
+)
 from riskplan.run.run_files import RESUMING
 from riskplan.util.errors import BadInput
 from riskplan.version import __version__
-
-AVERAGE = -1  # the `robot` id of the network average in team tables
 
 MAGIC = b"\x89MCAP0\r\n"
 BATCH_ROWS = 20_000
 CHUNK_SIZE = 8 * 1024 * 1024  # larger than any iteration, so each iteration is one chunk (flushed explicitly)
 STEP_SECONDS = 0.25  # playback time between two steps on /paths
-
-METRICS = "/metrics"
-THETA = "/theta"
-CONSENSUS = "/consensus_error"
-TRAJECTORIES = "/trajectories"
-EVAL = "/eval"
-SUMMARY = "/summary"
-WORLD_MAP = "/world/map"
-WORLD_MARKERS = "/world/markers"
-PATHS = "/paths"
-NETWORK = "/team/network"
-NETWORK_SCENE = "/team/graph"
-
-ITERATION_TOPICS = (METRICS, THETA, CONSENSUS)
-WORLD_TOPICS = (WORLD_MAP, WORLD_MARKERS, NETWORK, NETWORK_SCENE)  # written once, copied on resume
-
-METRICS_BASE = {
-    "iteration": "int64",
-    "robot": "int64",
-    "mean": "float64",
-    "cvar": "float64",
-    "value_at_risk": "float64",
-    "std": "float64",
-    "grad_norm": "float64",
-    "step_size": "float64",
-    "beta_l": "float64",
-    "consensus_error": "float64",
-    "samples": "int64",
-    "seconds": "float64",
-}
-EVAL_COLUMNS = {
-    "episode": "int64",
-    "robot": "int64",
-    "healthy": "bool",
-    "total_reward": "float64",
-    "risky_steps": "int64",
-    "source_reached": "int64",
-    "steps": "int64",
-}
-TRAJECTORY_COLUMNS = {
-    "policy": "str",
-    "episode": "int64",
-    "robot": "int64",
-    "step": "int64",
-    "x": "int64",
-    "y": "int64",
-    "reward": "float64",
-}
-
-# --------------------------------------------------------------------------------------- riskplan's schemas
-_FLOAT = {
-    "description": "a float; NaN is null, infinities are the strings Infinity / -Infinity",
-    "oneOf": [{"type": "number"}, {"type": "null"}, {"enum": ["Infinity", "-Infinity"]}],
-}
-_INT = {"type": "integer"}
-
-OWN_SCHEMAS: dict[str, dict] = {
-    "riskplan.Metrics": {
-        "title": "riskplan.Metrics",
-        "description": "One metrics.parquet row: one (iteration, robot); robot -1 is the network average.",
-        "type": "object",
-        "properties": {
-            "iteration": _INT,
-            "robot": _INT,
-            "healthy": {"type": "boolean", "description": "false once the robot's fault (team.faults) started"},
-            "mean": _FLOAT,
-            "cvar": _FLOAT,
-            "value_at_risk": _FLOAT,
-            "std": _FLOAT,
-            "objective": {
-                **_FLOAT,
-                "description": "the robot's own risk measure (risk, or team.risk.<robot>) on its samples; on the "
-                "robot -1 row, the team objective: the sum over the robots",
-            },
-            "grad_norm": _FLOAT,
-            "step_size": _FLOAT,
-            "beta_l": {
-                **_FLOAT,
-                "description": "beta_l, the CVaR level of the iteration's gradient (risk.schedule; "
-                "1 for the mean gradient); cvar and value_at_risk are at risk.beta",
-            },
-            "consensus_error": _FLOAT,
-            "samples": _INT,
-            "seconds": _FLOAT,
-        },
-        "patternProperties": {"^theta_[0-9]+$": _FLOAT},
-        "required": ["iteration", "robot"],
-    },
-    "riskplan.Theta": {
-        "title": "riskplan.Theta",
-        "description": "Policy parameters of one robot after an iteration (robot -1: network average).",
-        "type": "object",
-        "properties": {"iteration": _INT, "robot": _INT, "theta": {"type": "array", "items": _FLOAT}},
-        "required": ["iteration", "robot", "theta"],
-    },
-    "riskplan.ConsensusError": {
-        "title": "riskplan.ConsensusError",
-        "description": "max ||theta_i - theta_j|| of an iteration (null when there is one robot); marks it complete.",
-        "type": "object",
-        "properties": {"iteration": _INT, "consensus_error": _FLOAT},
-        "required": ["iteration", "consensus_error"],
-    },
-    "riskplan.TableBatch": {
-        "title": "riskplan.TableBatch",
-        "description": "Rows offset..offset+rows-1 of a table, column by column, with the pandas dtype of each.",
-        "type": "object",
-        "properties": {
-            "table": {"type": "string"},
-            "offset": {"type": "integer", "minimum": 0},
-            "rows": {"type": "integer", "minimum": 0},
-            "dtypes": {"type": "object", "additionalProperties": {"type": "string"}},
-            "columns": {
-                "type": "object",
-                "additionalProperties": {
-                    "type": "array",
-                    "items": {"type": ["number", "string", "boolean", "null"]},
-                },
-            },
-        },
-        "required": ["table", "offset", "rows", "dtypes", "columns"],
-    },
-    "riskplan.Network": {
-        "title": "riskplan.Network",
-        "description": "The team's communication graph and mixing weights (weights[i][j][m] = a^{ij}_m of eq. 14).",
-        "type": "object",
-        "properties": {
-            "robots": _INT,
-            "graph": {"type": "string"},
-            "edges": {"type": "array"},
-            "weights": {"type": "array"},
-            "gamma": _FLOAT,
-            "slem": _FLOAT,
-        },
-        "required": ["robots", "graph", "edges", "weights"],
-    },
-    "riskplan.Summary": {
-        "title": "riskplan.Summary",
-        "description": "summary.json of the run (free-form object).",
-        "type": "object",
-    },
-}
-
-TOPIC_SCHEMA = {
-    METRICS: "riskplan.Metrics",
-    THETA: "riskplan.Theta",
-    CONSENSUS: "riskplan.ConsensusError",
-    TRAJECTORIES: "riskplan.TableBatch",
-    EVAL: "riskplan.TableBatch",
-    SUMMARY: "riskplan.Summary",
-    NETWORK: "riskplan.Network",
-    NETWORK_SCENE: fx.SCENE_UPDATE,
-    WORLD_MAP: fx.GRID,
-    WORLD_MARKERS: fx.SCENE_UPDATE,
-    PATHS: fx.SCENE_UPDATE,
-}
-
-
-def schema_bytes(name: str) -> bytes:
-    if name in OWN_SCHEMAS:
-        return json.dumps(OWN_SCHEMAS[name], separators=(",", ":")).encode()
-    return fx.schema_bytes(name)
 
 
 # --------------------------------------------------------------------------------------- JSON values
@@ -228,110 +81,6 @@ def _nonfinite(f: float) -> Any:
     if f != f:
         return None
     return "Infinity" if f > 0 else "-Infinity"
-
-
-def statistics_rows(statistics: Statistics, seconds: float) -> list[dict]:
-    """An iteration's metrics rows from riskplan.engine.step's Statistics: one per robot, then a team's network
-    average (robot AVERAGE: its statistics on the healthy robots' pooled episodes, their mean theta and gradient).
-    `seconds`: the iteration's time, on every row."""
-    l, thetas, e = statistics.iteration, statistics.thetas, statistics.estimates
-    eps, error, healthy = statistics.step_size, statistics.consensus_error, statistics.healthy
-    rows = _robot_rows(l, e.stats, thetas, e.grads, eps, error, e.episodes, seconds, e.levels, healthy)
-    if statistics.team is not None:
-        rows.append(
-            average_row(l, statistics.team, thetas, e.grads, e.levels, healthy, eps, error, e.episodes, seconds)
-        )
-    return rows
-
-
-def average_row(l, team, thetas, grads, levels, healthy, eps, error, samples, seconds, **extra) -> dict:
-    """A team's network-average row (robot AVERAGE): `team`, its statistics on the healthy robots' pooled episodes
-    (riskplan.engine.step.team_statistics), their mean theta and gradient, their episodes (`samples` per robot), and
-    beta_l where every robot shares it; then `extra` columns."""
-    ok = slice(None) if np.all(healthy) else np.asarray(healthy, dtype=bool)
-    level = levels[0] if np.all(levels == levels[0]) else math.nan
-    count = samples * int(np.sum(healthy))
-    return metrics_row(
-        l,
-        AVERAGE,
-        team,
-        thetas[ok].mean(axis=0),
-        grads[ok].mean(axis=0),
-        eps,
-        error,
-        count,
-        seconds,
-        level,
-        True,
-        **extra,
-    )
-
-
-def _robot_rows(l, stats, thetas, grads, eps, error, samples, seconds, levels, healthy) -> list[dict]:
-    """`metrics_row` of every robot i (stats[k][i], thetas[i], grads[i], levels[i], healthy[i]): the same dicts,
-    copies of one template with the values every robot shares, filled in column by column."""
-    n, m = thetas.shape
-    if n <= 4:  # a centralized run or a small team: one metrics_row each is quicker
-        return [
-            metrics_row(
-                l,
-                i,
-                {k: v[i] for k, v in stats.items()},
-                thetas[i],
-                grads[i],
-                eps,
-                error,
-                samples,
-                seconds,
-                levels[i],
-                healthy[i],
-            )
-            for i in range(n)
-        ]
-    template = metrics_row(
-        l, 0, {k: 0.0 for k in stats}, np.zeros(m), np.zeros(1), eps, error, samples, seconds, levels[0], True
-    )
-    columns = {
-        "robot": range(n),
-        "healthy": np.asarray(healthy, dtype=bool).tolist(),
-        **{k: np.asarray(v, dtype=float).tolist() for k, v in stats.items()},
-        **{f"theta_{j}": column for j, column in enumerate(np.asarray(thetas, dtype=float).T.tolist())},
-        "grad_norm": _norms(grads),
-        "beta_l": np.asarray(levels, dtype=float).tolist(),
-    }
-    rows = [template.copy() for _ in range(n)]
-    for key, column in columns.items():  # existing keys: the template's order stays
-        for row, value in zip(rows, column):
-            row[key] = value
-    return rows
-
-
-def _norms(vectors: np.ndarray) -> list[float]:
-    """np.linalg.norm of each row, bit for bit: that is sqrt(x.dot(x)), and numpy's vecdot (numpy >= 2) takes each
-    row's dot product by the very function x.dot(x) calls (the dtype's dot, a BLAS ddot)."""
-    if hasattr(np, "vecdot"):
-        return np.sqrt(np.vecdot(vectors, vectors)).tolist()
-    return [math.sqrt(x.dot(x)) for x in vectors]
-
-
-def metrics_row(l, robot, stats, theta, grad, eps, error, samples, seconds, level, healthy, **extra) -> dict:
-    """One metrics.parquet row, its columns in their order (`level`: beta_l, the CVaR level of the iteration's
-    gradient; stats are at beta; `healthy`: false once the robot's fault of team.faults has started), then `extra`
-    columns (the ray backend's `staleness`)."""
-    return {
-        "iteration": int(l),
-        "robot": int(robot),
-        "healthy": bool(healthy),
-        **{k: float(v) for k, v in stats.items()},
-        **{f"theta_{j}": float(t) for j, t in enumerate(theta)},
-        "grad_norm": float(np.linalg.norm(grad)),
-        "step_size": eps,
-        "beta_l": float(level),
-        "consensus_error": error,
-        "samples": int(samples),
-        "seconds": seconds,
-        **extra,
-    }
 
 
 def _scalar(v: Any) -> Any:

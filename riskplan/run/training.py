@@ -25,8 +25,8 @@ from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import State, load_checkpoint, save_checkpoint
 from riskplan.run.columns import from_rows, sorted_by
 from riskplan.run.evaluation import evaluate, sample_paths, summarize
+from riskplan.run.metrics_rows import statistics_rows
 from riskplan.run.ray_team import prepare_ray_resume, train_ray
-from riskplan.run.record import statistics_rows
 from riskplan.run.run_directory import logged_rows, reopen_log, start_log, write_finished
 from riskplan.run.run_files import has_finished
 from riskplan.util.collector import resume_collection

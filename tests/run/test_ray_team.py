@@ -29,7 +29,7 @@ import pytest
 
 import riskplan
 import riskplan.engine.step as engine_step
-import riskplan.run.record as record
+import riskplan.run.metrics_rows as metrics_rows
 import riskplan.run.training as training
 from riskplan.engine.schedules import step_size
 from riskplan.run.build import build_setup
@@ -221,7 +221,7 @@ def test_a_robots_row_has_the_simulated_columns_then_staleness():
     value, carried, eps = core.begin(step)
     row = core.finish(step, value, carried, eps, 2.0, 0.01)
     stats = {k: np.array([v]) for k, v in step.stats.items()}
-    (simulated,) = record._robot_rows(
+    (simulated,) = metrics_rows._robot_rows(
         0, stats, np.array([core.theta]), np.array([step.grad]), eps, math.nan, 1, 0.01, [0.1], [True]
     )
     assert list(row) == [*simulated, "staleness"] and row["staleness"] == 2.0

@@ -17,7 +17,7 @@ from riskplan.engine.step import NumericalTrouble
 from riskplan.risk import summary_stats
 from riskplan.run.checkpoint import CHECKPOINT
 from riskplan.run.log_reader import read_log
-from riskplan.run.record import _robot_rows, metrics_row
+from riskplan.run.metrics_rows import _robot_rows, metrics_row
 
 # ---------------------------------------------------------------------------------------------- rows
 
@@ -45,7 +45,7 @@ def test_robot_rows_are_the_per_robot_rows(n):
 
 @pytest.mark.parametrize("m", [1, 2, 3, 40])
 def test_row_norms_are_numpy_norms_bit_for_bit(m):
-    from riskplan.run.record import _norms
+    from riskplan.run.metrics_rows import _norms
 
     g = np.random.default_rng(m)
     vectors = g.normal(size=(2000, m)) * 10.0 ** g.integers(-150, 150, size=(2000, m))

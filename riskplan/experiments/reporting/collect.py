@@ -30,6 +30,7 @@ from riskplan.config.typed import check_schema
 from riskplan.engine.measures.registry import MEASURES, label, parameter_keys
 from riskplan.experiments.landscape import is_landscape_dir, load_landscape
 from riskplan.experiments.sweep_worker import HOW_KEYS, distinct
+from riskplan.run.metrics_rows import AVERAGE
 from riskplan.run.results import Run, find_runs, load_run
 from riskplan.run.run_files import STATUS, TABLES, table_file
 from riskplan.util.errors import BadInput
@@ -63,7 +64,6 @@ STUDIES = {
 MEASURE_ORDER = MEASURES
 # Okabe-Ito palette (colour-blind safe); the paper's pair is blue (risk-neutral) and black (risk-averse).
 PALETTE = ("#0072B2", "#000000", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#E69F00", "#999999")
-AVERAGE = -1  # robot id of a team's network average
 SCHEDULE_DEFAULTS = {f"risk.schedule.{k}": v for k, v in dataclasses.asdict(ScheduleConf()).items()}
 
 
