@@ -58,7 +58,7 @@ def episode_state(key, episode):
     return mix(key ^ mix(np.uint64(episode) + np.uint64(GOLDEN)))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def resample_counts(key, b, n):
     """How often bootstrap resample b (its own stream of `key`) draws each of n indices: one 64-bit draw gives two
     indices, floor(u * n / 2^32) of its 32-bit halves u (Lemire's multiply-shift): half the draws, and each index's

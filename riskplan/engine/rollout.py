@@ -7,7 +7,8 @@ its own counter-based stream (riskplan.engine.rng), so numbers do not depend on 
 Fast paths (about 2x the interpreter-only kernel): a move is picked by integer compares of a draw's bits
 (`_bins`); a region reward of the form clip(c + w U + s N) is drawn from per-cell coefficients without the program
 interpreter or a branch on the region (`affine_form`), normals by the ziggurat (riskplan.engine.rng.next_normal); static
-worlds without recording run `_simulate_affine`, a loop without the other cases. `simulate(..., reference=True)`
+worlds of a features policy run `_simulate_affine`, a loop without the other cases (and the only episode kernel a
+paper run compiles: its sampled paths too). `simulate(..., reference=True)`
 runs the interpreter and the inverse-CDF normals everywhere: the same laws from other numbers, the tests' reference.
 
 Policies (riskplan.engine.policy.Policy, packed by `make_kernel`): a features policy's moves come from per-policy
@@ -199,7 +200,11 @@ def simulate(
     out_risky = np.empty(total, dtype=np.int64)
     out_reached = np.empty(total, dtype=np.int64)
     out_steps = np.empty(total, dtype=np.int64)
-    if kernel.affine and not (kernel.mobile or record or reference or kernel.tabular):
+    width = kernel.horizon + 1 if record else 0
+    path_cells = np.full((total if record else 0, width), -1, dtype=np.int64)
+    path_rewards = np.zeros((total if record else 0, width))
+    paths = (path_cells, path_rewards) if record else (None, None)
+    if kernel.affine and not (kernel.mobile or reference or kernel.tabular):
         _simulate_affine(
             bins,
             score,
@@ -220,11 +225,11 @@ def simulate(
             out_risky,
             out_reached,
             out_steps,
+            record,
+            path_cells,
+            path_rewards,
         )
-        return Batch(out_z, out_score, out_risky, out_reached, out_steps)
-    width = kernel.horizon + 1 if record else 0
-    path_cells = np.full((total if record else 0, width), -1, dtype=np.int64)
-    path_rewards = np.zeros((total if record else 0, width))
+        return Batch(out_z, out_score, out_risky, out_reached, out_steps, *paths)
     _simulate(
         bins,
         score,
@@ -267,15 +272,7 @@ def simulate(
         path_cells,
         path_rewards,
     )
-    return Batch(
-        out_z,
-        out_score,
-        out_risky,
-        out_reached,
-        out_steps,
-        path_cells if record else None,
-        path_rewards if record else None,
-    )
+    return Batch(out_z, out_score, out_risky, out_reached, out_steps, *paths)
 
 
 @njit(cache=True, inline="always")
@@ -294,12 +291,16 @@ def _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state):
     return reward, state
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _draw(ops, params, first, last, stack, state, inverse_normal=False):
     """Run one postfix reward program (riskplan.engine.distributions) and return (value, state).
 
     Normal draws come from the ziggurat (riskplan.engine.rng.next_normal), or with `inverse_normal` from the inverse CDF
     of one uniform (the slower sampler used before; kept as the tests' reference).
+
+    A call, not inlined into the kernels: inlined twice into `_simulate` it tripled the kernel's compile time (the
+    first run after an install), and a source's reward is drawn once per episode. Every kernel passes
+    `inverse_normal`, so one specialisation serves them all.
     """
     top = 0
     for i in range(first, last):
@@ -394,31 +395,20 @@ def reach(kernel: Kernel, starts: np.ndarray) -> np.ndarray:
 REACH_MEMO = 64  # start sets remembered per kernel (a team's, an environment's resets)
 
 
-@njit(cache=True)
-def _reach(next_cell, starts, moves):
-    """Cells within `moves` moves of any start (breadth first over next_cell), sorted."""
-    seen = np.zeros(next_cell.shape[0], dtype=np.bool_)
-    order = np.empty(next_cell.shape[0], dtype=np.int64)
-    count = 0
-    for start in starts:
-        if not seen[start]:
-            seen[start] = True
-            order[count] = start
-            count += 1
-    begin = 0
+def _reach(next_cell: np.ndarray, starts: np.ndarray, moves: int) -> np.ndarray:
+    """Cells within `moves` moves of any start (breadth first over next_cell, a level at a time), sorted. In numpy:
+    once per start set, and no kernel for a first run to compile."""
+    seen = np.zeros(next_cell.shape[0], dtype=bool)
+    seen[starts] = True
+    frontier = np.unique(starts)
     for _ in range(moves):
-        end = count
-        for i in range(begin, end):
-            for a in range(next_cell.shape[1]):
-                nxt = next_cell[order[i], a]
-                if not seen[nxt]:
-                    seen[nxt] = True
-                    order[count] = nxt
-                    count += 1
-        if count == end:
+        ahead = next_cell[frontier].ravel()
+        ahead = np.unique(ahead[~seen[ahead]])
+        if ahead.size == 0:
             break
-        begin = end
-    return np.sort(order[:count])
+        seen[ahead] = True
+        frontier = ahead
+    return np.flatnonzero(seen).astype(np.int64)
 
 
 @njit(cache=True)
@@ -573,10 +563,15 @@ def _simulate_affine(
     out_risky,
     out_reached,
     out_steps,
+    record,
+    path_cells,
+    path_rewards,
 ):
-    """`_simulate` for static sources, affine region rewards and no recording (training's and evaluation's case):
-    the same draws in the same order, hence the same numbers, from a loop without the other cases' branches
-    (about 20% faster: tests/test_kernel_speed_paths.py checks the two agree)."""
+    """`_simulate` for static sources, affine region rewards and a features policy (training's, evaluation's and
+    the sampled paths' case): the same draws in the same order, hence the same numbers, from a loop without the
+    other cases' branches (about 20% faster: tests/test_kernel_fast_paths.py checks the two agree). With `record`
+    it fills path_cells and path_rewards as `_simulate` does, so the paths of a paper run need no second kernel
+    (`_simulate` took three times this kernel's compile time)."""
     policies = bins.shape[0]
     sources = score.shape[3]
     total = policies * episodes
@@ -593,7 +588,9 @@ def _simulate_affine(
             reached = -1
             steps = 0
             acc[:] = 0.0
-            for _ in range(horizon):
+            if record:
+                path_cells[e, 0] = cell
+            for k in range(horizon):
                 state, m = next_bits(state)
                 a = _pick_bits(bins[p, cell], np.int64(m))
                 for j in range(sources):
@@ -604,11 +601,14 @@ def _simulate_affine(
                 risky += cell_risky[cell]
                 hit = source_at[cell]
                 if hit >= 0:
-                    value, state = _draw(src_ops, src_par, src_off[hit], src_off[hit + 1], stack, state)
+                    value, state = _draw(src_ops, src_par, src_off[hit], src_off[hit + 1], stack, state, False)
                     reward += value
                     if reached < 0:
                         reached = hit
                 z += reward
+                if record:
+                    path_cells[e, k + 1] = cell
+                    path_rewards[e, k + 1] = reward
                 if hit >= 0 and stop_at_source:
                     break
             out_z[e] = z
