@@ -298,9 +298,8 @@ def _draw(ops, params, first, last, stack, state, inverse_normal=False):
     Normal draws come from the ziggurat (riskplan.engine.rng.next_normal), or with `inverse_normal` from the inverse CDF
     of one uniform (the slower sampler used before; kept as the tests' reference).
 
-    A call, not inlined into the kernels: inlined twice into `_simulate` it tripled the kernel's compile time (the
-    first run after an install), and a source's reward is drawn once per episode. Every kernel passes
-    `inverse_normal`, so one specialisation serves them all.
+    A call for a source's reward (once per episode): inlined there too, it tripled `_simulate`'s compile time (the
+    first run after an install). Every kernel passes `inverse_normal`, so one specialisation serves them all.
     """
     top = 0
     for i in range(first, last):
@@ -351,6 +350,11 @@ def _draw(ops, params, first, last, stack, state, inverse_normal=False):
             stack[top] = value
             top += 1
     return stack[0 if top == 0 else top - 1], state
+
+
+# `_draw` inlined, for `_simulate`'s region reward of a non-affine world, drawn at every step: a call there halves
+# the kernel's speed. Not cached itself: its code is compiled into the kernel's.
+_draw_inline = njit(inline="always")(_draw.py_func)
 
 
 @njit(cache=True, inline="always")
@@ -742,7 +746,7 @@ def _simulate(
                 else:
                     region = region_of[cell]
                     if region >= 0:
-                        reward, state = _draw(
+                        reward, state = _draw_inline(
                             reg_ops, reg_par, reg_off[region], reg_off[region + 1], stack, state, reference
                         )
                         risky += region_risky[region]
