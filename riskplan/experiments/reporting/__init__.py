@@ -23,13 +23,13 @@ from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.figures import figure_files, make_figures
 from riskplan.experiments.reporting.page import render
 from riskplan.experiments.reporting.parallel import shared_map
+from riskplan.experiments.reporting.study_tables import study_tables
 from riskplan.experiments.reporting.tables import (
     comparison_table,
     csv_text,
     landscape_table,
     runs_table,
     soft_risk_table,
-    study_tables,
 )
 from riskplan.experiments.sweep_worker import repeats_line
 from riskplan.run.results import find_runs

@@ -27,8 +27,9 @@ import pandas as pd
 
 from riskplan.config.schema import ScheduleConf
 from riskplan.config.typed import check_schema
-from riskplan.engine.measures.registry import MEASURES, label, parameter_keys
+from riskplan.engine.measures.registry import MEASURES
 from riskplan.experiments.landscape import is_landscape_dir, load_landscape
+from riskplan.experiments.reporting.labels import MISSING, hashable, label_groups
 from riskplan.experiments.sweep_worker import HOW_KEYS, distinct
 from riskplan.run.metrics_rows import AVERAGE
 from riskplan.run.results import Run, find_runs, load_run
@@ -37,21 +38,6 @@ from riskplan.util.errors import BadInput
 
 # Keys that never define a condition: the seeds of one condition are pooled.
 IGNORED_KEYS = ("seed",)
-# Keys tried first when labelling groups (in this order); the rest follow alphabetically.
-LABEL_PRIORITY = (
-    "risk.measure",
-    "risk.beta",
-    "risk.schedule.kind",
-    "team.robots",
-    "team.graph",
-    "team.weights",
-    "team.delay.max",
-    "team.drop",
-    "team.consensus_rounds",
-    "train.samples",
-    "train.theta0",
-    "experiment",
-)
 # The studies of riskplan reproduce beyond the paper: name -> (title, the folders of a reproduction holding its runs)
 STUDIES = {
     "measures": ("Risk measures", ("measures",)),
@@ -214,12 +200,6 @@ class Group:
     def seeds(self) -> list[int]:
         return [r.seed for r in self.runs]
 
-    @property
-    def slug(self) -> str:
-        """A file-name-safe name."""
-        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in self.label)
-        return "_".join(filter(None, safe.split("_")))[:60] or "group"
-
 
 @dataclass
 class Collection:
@@ -233,10 +213,6 @@ class Collection:
     differing: list[str]  # config keys that differ between groups
     studies: list[Study] = field(default_factory=list)  # the runs of reproduce's study folders, apart
     duplicates: list[Duplicate] = field(default_factory=list)  # runs repeating another's config and seed: unused
-
-    def every_run(self) -> list[RunInfo]:
-        """The runs of this collection and of its studies."""
-        return self.runs + [r for study in self.studies for r in study.collection.runs]
 
     def paper_pair(self) -> tuple[Group | None, Group | None]:
         """The risk-neutral and risk-averse groups of Figs. 1-2: centralized if any, differing least."""
@@ -495,158 +471,28 @@ def config_problem(config: dict) -> str:
 
 def _distance(a: dict, b: dict) -> int:
     """Number of keys on which two flat configs differ."""
-    return sum(1 for k in set(a) | set(b) if a.get(k, _MISSING) != b.get(k, _MISSING))
-
-
-class _Missing:
-    def __repr__(self) -> str:
-        return "(absent)"
-
-
-_MISSING = _Missing()
+    return sum(1 for k in set(a) | set(b) if a.get(k, MISSING) != b.get(k, MISSING))
 
 
 def group_runs(runs: list[RunInfo]) -> tuple[list[Group], list[str]]:
     """Group runs by every config key but the seed; label and colour the groups."""
     keys = sorted({k for r in runs for k in r.flat})
-    differing = [k for k in keys if len({_hashable(r.flat.get(k, _MISSING)) for r in runs}) > 1]
+    differing = [k for k in keys if len({hashable(r.flat.get(k, MISSING)) for r in runs}) > 1]
     by_key: dict[tuple, list[RunInfo]] = {}
     for r in runs:
-        key = tuple(_hashable(r.flat.get(k, _MISSING)) for k in differing)
+        key = tuple(hashable(r.flat.get(k, MISSING)) for k in differing)
         by_key.setdefault(key, []).append(r)
     groups = []
     for key, members in by_key.items():
         members.sort(key=lambda r: (r.seed, str(r.path)))
-        group = Group(key, members, settings={k: members[0].flat.get(k, _MISSING) for k in differing})
+        group = Group(key, members, settings={k: members[0].flat.get(k, MISSING) for k in differing})
         for r in members:
             r.group = group
         groups.append(group)
     groups.sort(key=lambda g: (g.robots, g.measure != "neutral", g.beta, str(g.key)))
-    _label(groups, differing)
+    label_groups(groups, differing)
     _colour(groups)
     return groups, differing
-
-
-def _hashable(v: Any) -> Any:
-    if isinstance(v, float) and math.isnan(v):
-        return "nan"
-    return v
-
-
-def _label(groups: list[Group], differing: list[str]) -> None:
-    """Label each group by the fewest differing keys (in priority order) that tell the groups apart."""
-    if len(groups) == 1:
-        groups[0].label = _describe(groups[0], ["risk.measure", "team.robots"], single=True)
-        return
-    order = [k for k in LABEL_PRIORITY if k in differing] + [k for k in differing if k not in LABEL_PRIORITY]
-    chosen: list[str] = []
-    distinct = 1
-    for k in order:
-        trial = chosen + [k]
-        count = len({tuple(_hashable(g.settings.get(c, _MISSING)) for c in trial) for g in groups})
-        if count > distinct:
-            chosen, distinct = trial, count
-        if distinct == len(groups):
-            break
-    for g in groups:
-        g.label = _describe(g, chosen)
-    # any residual duplicates (should not happen) get a suffix
-    seen: dict[str, int] = {}
-    for g in groups:
-        if g.label in seen:
-            seen[g.label] += 1
-            g.label = f"{g.label} #{seen[g.label]}"
-        else:
-            seen[g.label] = 1
-
-
-def _describe(group: Group, keys: list[str], single: bool = False) -> str:
-    """Human label from the chosen keys, e.g. 'risk-averse (CVaR β=0.1), distributed N=3', 'Wang (η=0.5)'."""
-    parts = []
-    keys = list(keys)
-    handled = {"risk.measure", "risk.beta", "team.robots"}
-    risk = _risk(group)
-    if {"risk.measure", "risk.beta"} & set(keys) or single or (parameter_keys(risk) - {"risk.beta"}) & set(keys):
-        # the measure's own label (riskplan.engine.measures), with the CVaR level where it tells groups apart
-        beta = group.beta if "risk.beta" in keys and "risk.measure" not in keys else None
-        parts.append(label(risk, short=not ("risk.beta" in keys or single), beta=beta))
-        handled |= {"risk.eta", "risk.weight"} | {k for k in keys if k.startswith("risk.params.")}
-    if "team.robots" in keys or single:
-        parts.append(f"distributed N={group.robots}" if group.team else "centralized")
-    if {"policy.kind", "policy.features"} & set(keys):
-        parts.append(policy_name(group))
-        handled |= {"policy.kind", "policy.features"}
-    if {"team.faults", "team.aggregate", "team.trim"} & set(keys):
-        parts.append(fault_name(group))
-        handled |= {"team.faults", "team.aggregate", "team.trim"}
-    for k in keys:
-        if k in handled:
-            continue
-        if k == "team.starts":
-            starts = group.team_conf.get("starts")
-            parts.append(f"{len(starts)} start cells" if starts else "one start cell")
-            continue
-        name = (
-            "schedule"
-            if k == "risk.schedule.kind"
-            else k.split(".", 1)[1]
-            if k.startswith(("team.", "train.", "risk.schedule."))
-            else k
-        )
-        parts.append(f"{name}={_short(group.settings.get(k))}")
-    return ", ".join(parts) or "runs"
-
-
-def measure_name(group: Group, beta: bool = True) -> str:
-    """The measure a group trains, by name and parameters (the measure's label): 'risk-neutral', 'risk-averse
-    (CVaR β=0.1)', 'Wang (η=0.5)', 'mean-CVaR (λ=0.5, β=0.1)', 'entropic (η=0.001)', 'power (gamma=0.5)'."""
-    return label(_risk(group), short=not beta)
-
-
-def _risk(group: Group) -> dict:
-    """The group's risk node (its measure cvar when the config names none)."""
-    return {"measure": group.measure, **group.config.get("risk", {})}
-
-
-def policy_name(group: Group) -> str:
-    """'tabular policy', or the features a features policy sees: 'features=[signals, risky]'."""
-    if group.policy_kind == "tabular":
-        return "tabular policy"
-    return f"features=[{', '.join(group.features)}]"
-
-
-def fault_name(group: Group) -> str:
-    """The team's faults and how its robots aggregate: 'fault-free, mean', 'robot 6 byzantine, trimmed_mean F=1'."""
-    faults = group.faults
-    what = (
-        ", ".join(
-            f"robot {f.get('robot')} {f.get('kind')}" + (f" from {f.get('from')}" if f.get("from") else "")
-            for f in faults
-            if isinstance(f, dict)
-        )
-        if faults
-        else "fault-free"
-    )
-    aggregate = str(group.team_conf.get("aggregate", "mean"))
-    if aggregate in ("trimmed_mean", "wmsr"):
-        aggregate += f" F={group.team_conf.get('trim', 0)}"
-    return f"{what}, {aggregate}"
-
-
-def _short(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:g}"
-    if isinstance(v, _Missing):
-        return "(absent)"
-    text = str(v)
-    if text.startswith("["):
-        try:
-            values = json.loads(text)
-            if all(isinstance(x, (int, float)) for x in values):
-                text = "[" + ", ".join(f"{x:g}" for x in values) + "]"
-        except (ValueError, TypeError):
-            pass
-    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _colour(groups: list[Group]) -> None:

@@ -512,7 +512,7 @@ def render(
     soft_risk: pd.DataFrame | None = None,
     studies: dict[str, pd.DataFrame] | None = None,
 ) -> str:
-    """The whole page (`studies`: the tables of the studies beyond the paper, tables.study_tables)."""
+    """The whole page (`studies`: the tables of the studies beyond the paper, study_tables.study_tables)."""
     now = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     inputs = ", ".join(f"<code>{_esc(p)}</code>" for p in coll.inputs)
     counts = (

@@ -18,21 +18,21 @@ from riskplan.experiments.reporting.collect import (
     RunInfo,
     flatten,
     group_runs,
-    measure_name,
     paper_pair,
     study_folders,
     study_of,
 )
 from riskplan.experiments.reporting.figures import risk_name
-from riskplan.experiments.reporting.tables import (
+from riskplan.experiments.reporting.labels import measure_name
+from riskplan.experiments.reporting.study_tables import (
     consensus_floor,
     fault_groups,
     hetero_groups,
     measure_groups,
     policy_groups,
     theta_disagreement,
-    theta_text,
 )
+from riskplan.experiments.reporting.tables import theta_text
 from riskplan.experiments.reproduction import EXPERIMENTS, STUDY_SEEDS, experiment_jobs
 
 

@@ -20,7 +20,7 @@ from riskplan.experiments.reporting import write_report
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.figures import make_figures
 from riskplan.experiments.reporting.stats import seed_interval
-from riskplan.experiments.reporting.tables import faults_table, hetero_table, measures_table, policies_table
+from riskplan.experiments.reporting.study_tables import faults_table, hetero_table, measures_table, policies_table
 from riskplan.risk import cvar, objective
 
 pytestmark = pytest.mark.slow  # about 35 tiny runs, a small landscape and three reports

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
 
-from riskplan.experiments.reporting.collect import PALETTE, Collection, Group, fault_name, measure_name
+from riskplan.experiments.reporting.collect import PALETTE, Collection, Group
+from riskplan.experiments.reporting.labels import fault_name, measure_name
 
 MAX_CURVES = 8  # groups drawn in one panel; more make small multiples
 MAX_PANELS = 20  # panels of small multiples; past them the figure says how many it left out

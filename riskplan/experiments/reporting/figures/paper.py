@@ -16,7 +16,7 @@ from matplotlib.patches import Patch
 
 from riskplan.engine.step import starts
 from riskplan.engine.world import world_map
-from riskplan.experiments.reporting.collect import PALETTE, Collection, Group, measure_name
+from riskplan.experiments.reporting.collect import PALETTE, Collection, Group
 from riskplan.experiments.reporting.figures.drawing import (
     CENTRAL_COLOUR,
     SOURCE_COLOUR,
@@ -41,6 +41,7 @@ from riskplan.experiments.reporting.figures.naming import (
     layout,
     names,
 )
+from riskplan.experiments.reporting.labels import measure_name
 from riskplan.run.build import build_setup
 
 MAX_PATHS = 5  # sampled paths per policy in Fig. 1

@@ -1,5 +1,5 @@
 """The figures of the studies beyond the paper (riskplan reproduce's measures, policies, heterogeneous team and
-faults); each picks its groups as its table does (riskplan.experiments.reporting.tables) and says why it is not
+faults); each picks its groups as its table does (riskplan.experiments.reporting.study_tables) and says why it is not
 drawn when a collection holds no such comparison."""
 
 from __future__ import annotations
@@ -11,14 +11,7 @@ import pandas as pd
 from matplotlib.ticker import MaxNLocator
 
 from riskplan.engine.risk_measures import cvar
-from riskplan.experiments.reporting.collect import (
-    Collection,
-    Group,
-    fault_name,
-    measure_name,
-    policy_name,
-    theta_columns,
-)
+from riskplan.experiments.reporting.collect import Collection, Group, theta_columns
 from riskplan.experiments.reporting.figures.beyond import ORDER_COLOURS
 from riskplan.experiments.reporting.figures.drawing import (
     FigureSpec,
@@ -31,20 +24,20 @@ from riskplan.experiments.reporting.figures.drawing import (
     pooled_rewards,
     seeds_text,
 )
+from riskplan.experiments.reporting.labels import fault_name, measure_name, policy_name
 from riskplan.experiments.reporting.stats import seed_interval
-from riskplan.experiments.reporting.tables import (
+from riskplan.experiments.reporting.study_tables import (
     _common_beta,
     _is_central,
     _paired,
     fault_groups,
-    group_row,
     hetero_groups,
     landscape_for,
     measure_groups,
     policy_groups,
-    run_values,
     team_objective,
 )
+from riskplan.experiments.reporting.tables import group_row, run_values
 
 
 def fig_measures(coll: Collection) -> FigureSpec | str:

@@ -1,0 +1,160 @@
+"""What the report calls a group of runs: its label, made of the fewest config keys (in priority order) that tell
+the groups apart, and the names of its measure, its policy and its team's faults (`riskplan.experiments.reporting.
+collect` groups the runs and labels them here)."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import TYPE_CHECKING, Any
+
+from riskplan.engine.measures.registry import label, parameter_keys
+
+if TYPE_CHECKING:
+    from riskplan.experiments.reporting.collect import Group
+
+# Keys tried first when labelling groups (in this order); the rest follow alphabetically.
+LABEL_PRIORITY = (
+    "risk.measure",
+    "risk.beta",
+    "risk.schedule.kind",
+    "team.robots",
+    "team.graph",
+    "team.weights",
+    "team.delay.max",
+    "team.drop",
+    "team.consensus_rounds",
+    "train.samples",
+    "train.theta0",
+    "experiment",
+)
+
+
+class Missing:
+    def __repr__(self) -> str:
+        return "(absent)"
+
+
+MISSING = Missing()
+
+
+def hashable(v: Any) -> Any:
+    if isinstance(v, float) and math.isnan(v):
+        return "nan"
+    return v
+
+
+def label_groups(groups: list[Group], differing: list[str]) -> None:
+    """Label each group by the fewest differing keys (in priority order) that tell the groups apart."""
+    if len(groups) == 1:
+        groups[0].label = _describe(groups[0], ["risk.measure", "team.robots"], single=True)
+        return
+    order = [k for k in LABEL_PRIORITY if k in differing] + [k for k in differing if k not in LABEL_PRIORITY]
+    chosen: list[str] = []
+    distinct = 1
+    for k in order:
+        trial = chosen + [k]
+        count = len({tuple(hashable(g.settings.get(c, MISSING)) for c in trial) for g in groups})
+        if count > distinct:
+            chosen, distinct = trial, count
+        if distinct == len(groups):
+            break
+    for g in groups:
+        g.label = _describe(g, chosen)
+    # any residual duplicates (should not happen) get a suffix
+    seen: dict[str, int] = {}
+    for g in groups:
+        if g.label in seen:
+            seen[g.label] += 1
+            g.label = f"{g.label} #{seen[g.label]}"
+        else:
+            seen[g.label] = 1
+
+
+def _describe(group: Group, keys: list[str], single: bool = False) -> str:
+    """Human label from the chosen keys, e.g. 'risk-averse (CVaR β=0.1), distributed N=3', 'Wang (η=0.5)'."""
+    parts = []
+    keys = list(keys)
+    handled = {"risk.measure", "risk.beta", "team.robots"}
+    risk = _risk(group)
+    if {"risk.measure", "risk.beta"} & set(keys) or single or (parameter_keys(risk) - {"risk.beta"}) & set(keys):
+        # the measure's own label (riskplan.engine.measures), with the CVaR level where it tells groups apart
+        beta = group.beta if "risk.beta" in keys and "risk.measure" not in keys else None
+        parts.append(label(risk, short=not ("risk.beta" in keys or single), beta=beta))
+        handled |= {"risk.eta", "risk.weight"} | {k for k in keys if k.startswith("risk.params.")}
+    if "team.robots" in keys or single:
+        parts.append(f"distributed N={group.robots}" if group.team else "centralized")
+    if {"policy.kind", "policy.features"} & set(keys):
+        parts.append(policy_name(group))
+        handled |= {"policy.kind", "policy.features"}
+    if {"team.faults", "team.aggregate", "team.trim"} & set(keys):
+        parts.append(fault_name(group))
+        handled |= {"team.faults", "team.aggregate", "team.trim"}
+    for k in keys:
+        if k in handled:
+            continue
+        if k == "team.starts":
+            starts = group.team_conf.get("starts")
+            parts.append(f"{len(starts)} start cells" if starts else "one start cell")
+            continue
+        name = (
+            "schedule"
+            if k == "risk.schedule.kind"
+            else k.split(".", 1)[1]
+            if k.startswith(("team.", "train.", "risk.schedule."))
+            else k
+        )
+        parts.append(f"{name}={_short(group.settings.get(k))}")
+    return ", ".join(parts) or "runs"
+
+
+def measure_name(group: Group, beta: bool = True) -> str:
+    """The measure a group trains, by name and parameters (the measure's label): 'risk-neutral', 'risk-averse
+    (CVaR β=0.1)', 'Wang (η=0.5)', 'mean-CVaR (λ=0.5, β=0.1)', 'entropic (η=0.001)', 'power (gamma=0.5)'."""
+    return label(_risk(group), short=not beta)
+
+
+def _risk(group: Group) -> dict:
+    """The group's risk node (its measure cvar when the config names none)."""
+    return {"measure": group.measure, **group.config.get("risk", {})}
+
+
+def policy_name(group: Group) -> str:
+    """'tabular policy', or the features a features policy sees: 'features=[signals, risky]'."""
+    if group.policy_kind == "tabular":
+        return "tabular policy"
+    return f"features=[{', '.join(group.features)}]"
+
+
+def fault_name(group: Group) -> str:
+    """The team's faults and how its robots aggregate: 'fault-free, mean', 'robot 6 byzantine, trimmed_mean F=1'."""
+    faults = group.faults
+    what = (
+        ", ".join(
+            f"robot {f.get('robot')} {f.get('kind')}" + (f" from {f.get('from')}" if f.get("from") else "")
+            for f in faults
+            if isinstance(f, dict)
+        )
+        if faults
+        else "fault-free"
+    )
+    aggregate = str(group.team_conf.get("aggregate", "mean"))
+    if aggregate in ("trimmed_mean", "wmsr"):
+        aggregate += f" F={group.team_conf.get('trim', 0)}"
+    return f"{what}, {aggregate}"
+
+
+def _short(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, Missing):
+        return "(absent)"
+    text = str(v)
+    if text.startswith("["):
+        try:
+            values = json.loads(text)
+            if all(isinstance(x, (int, float)) for x in values):
+                text = "[" + ", ".join(f"{x:g}" for x in values) + "]"
+        except (ValueError, TypeError):
+            pass
+    return text if len(text) <= 40 else text[:37] + "..."
