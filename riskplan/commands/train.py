@@ -26,10 +26,10 @@ from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote
 
 def register(app: typer.Typer) -> None:
     """Add `train` to the riskplan app."""
-    app.command(context_settings=PASS_THROUGH)(bad_input_exits(train))
+    app.command("train", context_settings=PASS_THROUGH)(bad_input_exits(train_command))
 
 
-def train(
+def train_command(
     overrides: list[str] | None = typer.Argument(None, help=TRAIN_OVERRIDES_HELP + CONFIG_DIR_HELP, show_default=False),
     resume: Path | None = typer.Option(
         None,
@@ -42,12 +42,12 @@ def train(
     """Train one experiment (default: experiment=paper_single) into outputs/runs/<timestamp>_<experiment>/."""
     pause_collection()  # the start-up only allocates; the training loop resumes it (riskplan.util.collector)
     try:
-        _train(list(overrides or []), resume)
+        _train_or_resume(list(overrides or []), resume)
     finally:
         resume_collection()
 
 
-def _train(overrides: list[str], resume: Path | None) -> None:
+def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
     """The train command, for its overrides and --resume."""
     from omegaconf import open_dict
 

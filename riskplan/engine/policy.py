@@ -283,7 +283,7 @@ def _fill_tables(features, thetas, cum, score, first, last):
     """`probabilities` (cumulated) and `scores` for policies first..last-1 and every cell, in one pass.
 
     The same maths as the numpy functions above, as loops: every iteration of a 100-robot team builds 100 tables,
-    and this is ~6x faster than the numpy composition (tests/test_policy.py checks they agree).
+    and loops avoid the numpy composition's temporaries (tests/engine/test_policy.py checks they agree).
     """
     mu = np.empty(5)
     for p in range(first, last):

@@ -120,7 +120,7 @@ ZIG_R = float(ZIG_X[1])
 
 @njit(inline="always")
 def next_normal(state):
-    """Advance a stream: (new state, a standard normal draw), by the ziggurat (exact; tests/test_kernel_speed_paths).
+    """Advance a stream: (new state, a standard normal draw), by the ziggurat (exact; tests/engine/test_kernel_fast_paths.py).
 
     One 64-bit word gives the strip (low 8 bits) and a signed uniform (top 52 bits); 99% of draws are accepted at
     once, the rest (`_normal_edge`: wedges and the tail beyond r) take more words of the same stream. |draw| < 14.
@@ -185,7 +185,7 @@ def normal_quantile(p):
     """Inverse standard-normal CDF (Acklam's rational approximation, relative error < 1.2e-9).
 
     The kernel's normal sampler before the ziggurat (`simulate(..., reference=True)`): the reference that
-    tests/test_kernel_speed_paths.py compares the ziggurat and the kernel's return distributions against.
+    tests/engine/test_kernel_fast_paths.py compares the ziggurat and the kernel's return distributions against.
     """
     if p < 0.02425:
         return _quantile_tail(math.sqrt(-2.0 * math.log(p)))

@@ -1,6 +1,7 @@
 """A stable argsort of float64 rows by LSD radix: the spectral measures' L-statistics sort every sample of every
-iteration, and a comparison sort of W = 6000 fresh returns mispredicts its way to ~0.5 ms (numba's quicksort);
-six counting passes take ~0.08 ms. Any correct sort gives the same sorted values, so the numbers do not change."""
+iteration, and a comparison sort of W = 6000 fresh returns (numba's quicksort) mispredicts its branches, where six
+counting passes do not branch on the data. Any correct sort gives the same sorted values, so the numbers do not
+change."""
 
 from __future__ import annotations
 

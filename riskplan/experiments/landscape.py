@@ -27,7 +27,6 @@ from riskplan.engine.risk_measures import tail_count
 from riskplan.engine.rollout import simulate
 from riskplan.experiments.output_manifest import Output, claim
 from riskplan.run.build import build_setup
-from riskplan.run.compose import compose
 from riskplan.run.provenance import provenance
 from riskplan.run.results import _config
 from riskplan.util.errors import BadInput
@@ -186,22 +185,6 @@ def evaluate_grid(setup, thetas: np.ndarray, episodes: int, beta: float, seed: i
         part["reached_none"] = (reached < 0).mean(axis=1)
         parts.append(pd.DataFrame(part))
     return pd.concat(parts, ignore_index=True)
-
-
-def run_landscape(
-    overrides: list[str],
-    out_dir: Path,
-    *,
-    points: int = DEFAULT_POINTS,
-    episodes: int = DEFAULT_EPISODES,
-    ranges: tuple[tuple[float, float], ...] | None = None,
-    axes: tuple[int, int] = (0, 1),
-) -> Path:
-    """Compose the config from overrides, evaluate the landscape and write it to out_dir (returned)."""
-    cfg = compose(list(overrides))
-    return compute_landscape(
-        cfg, out_dir, points=points, episodes=episodes, ranges=ranges, axes=axes, overrides=list(overrides)
-    )
 
 
 def check_grid(setup, points: int, episodes: int, ranges, axes) -> tuple[tuple, tuple[int, int]]:

@@ -308,7 +308,7 @@ def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | No
             flush=True,
         )
         try:
-            record = _train(cfg, out, start.resume)
+            record = _train_job(cfg, out, start.resume)
         except Interrupted as stop:  # checkpointed: the job ends by the signal, leaving no result behind, so a
             # scheduler that requeues it (preemption, submitit's checkpoint) runs it again and it resumes
             print(f"=== {stop}", flush=True)
@@ -413,8 +413,8 @@ def job_threads() -> int | None:
     return min(limits) if limits else None
 
 
-def _train(cfg: DictConfig, out: Path, resume: bool) -> dict:
-    """Train (or resume); any error fails this job alone and is returned in its record."""
+def _train_job(cfg: DictConfig, out: Path, resume: bool) -> dict:
+    """Train (or resume) the job; any error fails this job alone and is returned in its record."""
     try:
         if resume:
             try:

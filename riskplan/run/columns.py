@@ -45,7 +45,7 @@ def write_parquet(table: Mapping[str, np.ndarray], path: Path) -> None:
 
 def _arrow(values: np.ndarray) -> pa.Array:
     """An arrow array of a column, built from its buffers: pa.array() imports pandas to ask whether its argument
-    is a pandas object, a quarter of a second that `riskplan train` does not spend."""
+    is a pandas object, an import `riskplan train` does not pay for (a test checks it never imports pandas)."""
     n = len(values)
     if values.dtype.kind == "O" and n == 0:  # pandas cannot tell an empty column's type: arrow's null type
         return pa.nulls(0)

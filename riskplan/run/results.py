@@ -17,7 +17,7 @@ from riskplan.run.log_reader import read_log
 from riskplan.run.run_files import CONFIG, RUN_LOG, SUMMARY, TABLES, is_run_dir, table_file
 from riskplan.util.errors import BadInput
 
-SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's when PyYAML has it: 10x faster, as safe
+SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's when PyYAML has it: in C, as safe
 
 
 @dataclass

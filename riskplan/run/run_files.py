@@ -3,7 +3,8 @@
 Every part that writes, reads, checks or removes a run's files takes the names and the lists from here: the writer
 (`run_directory`, `checkpoint`, `record`, `foxglove_layout`), the reader (`results.load_run`), the finish check
 (`has_finished`: resume, and a sweep's skip of a finished job) and a sweep job's fresh start, which removes the
-`STALE` files an older config left. A new per-run file is one `RunFile` here, and its writer.
+`STALE` files an older config left. A new per-run file is one `RunFile` here, and its writer. Hydra's own files
+beside the config (.hydra/hydra.yaml and overrides.yaml, app.log under `riskplan train`) are Hydra's, not listed.
 
 No pandas here: `riskplan train` checks its directory with these before it starts.
 """

@@ -10,7 +10,7 @@
     probability `prob`, staying put at the grid's edge;
   * after K moves the episode ends (truncated).
 Draws come from a numpy Generator, not the kernel's counter-based streams: the numbers differ, the distributions
-are the same (tests/test_envs.py checks that against `riskplan.engine.rollout.simulate`).
+are the same (tests/experiments/test_environments.py checks that against `riskplan.engine.rollout.simulate`).
 """
 
 from __future__ import annotations
