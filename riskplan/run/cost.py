@@ -27,7 +27,7 @@ CACHE_ENV = "RISKPLAN_CACHE_DIR"
 KEEP = 64  # records kept: the latest runs say most about the machine as it is now
 DEFAULT_OVERHEAD = 1.0  # seconds a run takes beyond its steps (imports, set-up, files) before calibration
 LAUNCH = 3.0  # seconds a local sweep takes to start its workers and finish (Hydra, joblib, the summary)
-BATCH_LAUNCH = 1.0  # the same for a batched sweep, which starts no workers (measured: 0.5-1 s a sweep)
+BATCH_LAUNCH = 1.0  # the same for a batched sweep, which starts no workers
 
 
 @dataclass(frozen=True)
