@@ -35,6 +35,12 @@ def register(app: typer.Typer) -> None:
             help="Instead: a 64-run beta x seed sweep of the paper world (200 iterations, W = 6000), batched "
             "against unbatched in the same run (several minutes; 16 runs of 50 iterations with --quick).",
         ),
+        threads: bool = typer.Option(
+            False,
+            "--threads",
+            help="Instead: the rollout kernel and the training iteration at 1, 2, 4, ... threads up to the cores "
+            "(numba.set_num_threads), at W = 6000 and W = 600,000, each against 1 thread (about 20 s on 2 cores).",
+        ),
     ) -> None:
         """Speed, memory, JIT, start-up and team-scaling targets, each with a baseline measured in the same run."""
         import numba
@@ -75,7 +81,13 @@ def register(app: typer.Typer) -> None:
             from riskplan.experiments.bench_sweep import bench_sweep
 
             sections = (lambda: bench_sweep(quick),)
+        elif threads:
+            from riskplan.experiments.bench_threads import bench_threads
+
+            sections = (lambda: bench_threads(quick),)
         else:
+            from riskplan.experiments.bench_first_run import bench_first_run
+
             sections = (
                 lambda: bench_rollout(quick),
                 gpu_rows,
@@ -83,6 +95,7 @@ def register(app: typer.Typer) -> None:
                 lambda: bench_measures(quick),
                 lambda: bench_checkpoints(quick),
                 bench_jit,
+                lambda: bench_first_run(quick),
                 lambda: bench_startup(quick),
                 lambda: bench_team(quick),
             )

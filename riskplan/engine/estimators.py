@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from riskplan.engine import reductions
 from riskplan.engine.sorting import argsort_into, workspace
 
 
@@ -48,26 +49,45 @@ def cvar(z: np.ndarray, beta: float) -> np.ndarray | float:
     return v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1])
 
 
-def cvar_gradient(z: np.ndarray, scores: np.ndarray, beta: float, var=None) -> np.ndarray:
+def cvar_gradient(z: np.ndarray, scores: np.ndarray, beta: float, var=None, *, parallel: bool = False) -> np.ndarray:
     """Eq. (9): (1 / (beta W)) sum_i score_i (z_i - v) 1{z_i <= v}; z (..., W), scores (..., W, M) -> (..., M).
 
-    `var`: value_at_risk(z, beta) when the caller has it already (it costs a partition of z).
+    `var`: value_at_risk(z, beta) when the caller has it already (it costs a partition of z). `parallel`: z and
+    scores are finite (a training step's), and a large sample may take the parallel kernels
+    (riskplan.engine.reductions): the same numbers.
     """
     z = np.asarray(z, dtype=float)
+    scores = np.asarray(scores, dtype=float)
+    if parallel and _large(z, scores):
+        rows, table = _rows(z, scores)
+        v = _row_values(z, var) if var is not None else reductions.value_at_risk(rows, tail_count(beta, z.shape[-1]))
+        grads = reductions.tail_products(rows, table, v)
+        return grads.reshape(scores.shape[:-2] + scores.shape[-1:]) / (beta * z.shape[-1])
     weights = _tail_weights(z, value_at_risk(z, beta) if var is None else var)
-    return np.einsum("...w,...wm->...m", weights, np.asarray(scores, dtype=float)) / (beta * z.shape[-1])
+    return np.einsum("...w,...wm->...m", weights, scores) / (beta * z.shape[-1])
 
 
-def mean_gradient(z: np.ndarray, scores: np.ndarray, baseline: bool = True) -> np.ndarray:
-    """REINFORCE estimate of grad E[Z] (eq. 4): mean of score_i (z_i - b), b = mean(z) by default, else 0."""
+def mean_gradient(z: np.ndarray, scores: np.ndarray, baseline: bool = True, *, parallel: bool = False) -> np.ndarray:
+    """REINFORCE estimate of grad E[Z] (eq. 4): mean of score_i (z_i - b), b = mean(z) by default, else 0.
+    `parallel`: as `cvar_gradient`'s."""
     z = np.asarray(z, dtype=float)
+    scores = np.asarray(scores, dtype=float)
+    if parallel and _large(z, scores):
+        rows, table = _rows(z, scores)
+        centre = reductions.row_sums(rows) / z.shape[-1] if baseline else np.zeros(len(rows))
+        grads = reductions.centred_products(rows, table, centre)
+        return grads.reshape(scores.shape[:-2] + scores.shape[-1:]) / z.shape[-1]
     centred = z - z.mean(axis=-1, keepdims=True) if baseline else z
-    return np.einsum("...w,...wm->...m", centred, np.asarray(scores, dtype=float)) / z.shape[-1]
+    return np.einsum("...w,...wm->...m", centred, scores) / z.shape[-1]
 
 
-def summary_stats(z: np.ndarray, beta: float) -> dict[str, np.ndarray | float]:
-    """mean, cvar, value_at_risk at beta and std along the last axis, with one partition."""
+def summary_stats(z: np.ndarray, beta: float, *, parallel: bool = False) -> dict[str, np.ndarray | float]:
+    """mean, cvar, value_at_risk at beta and std along the last axis, with one partition. `parallel`: z is finite
+    (a training step's), and a large sample may take the parallel kernels (riskplan.engine.reductions): the same
+    numbers."""
     z = np.asarray(z, dtype=float)
+    if parallel and z.ndim >= 1 and z.shape[-1] >= reductions.PARALLEL_SAMPLES:
+        return _summary_rows(z, beta)
     v = value_at_risk(z, beta)
     return {
         "mean": z.mean(axis=-1),
@@ -75,6 +95,44 @@ def summary_stats(z: np.ndarray, beta: float) -> dict[str, np.ndarray | float]:
         "value_at_risk": v,
         "std": z.std(axis=-1),
     }
+
+
+def _summary_rows(z: np.ndarray, beta: float) -> dict[str, np.ndarray | float]:
+    """`summary_stats` of a large finite sample by the parallel kernels: numpy's sums in numpy's order, and the
+    element numpy's partition selects."""
+    n = z.shape[-1]
+    rows = kernel_input(z.reshape(-1, n))
+    mean = reductions.row_sums(rows) / n
+    v = reductions.value_at_risk(rows, tail_count(beta, n))
+    stats = {
+        "mean": mean,
+        "cvar": v + reductions.row_sums(rows, reductions.TAIL, v) / (beta * n),
+        "value_at_risk": v,
+        "std": np.sqrt(reductions.row_sums(rows, reductions.SQUARES, mean) / n),
+    }
+    return {name: values.reshape(z.shape[:-1])[()] for name, values in stats.items()}
+
+
+def _large(z: np.ndarray, scores: np.ndarray) -> bool:
+    """Whether a gradient of z (..., W) and scores (..., W, M) takes the parallel kernels: W >= PARALLEL_SAMPLES
+    and M >= 2 (numpy's einsum sums M = 1 in SIMD lanes, an order the kernels do not keep)."""
+    return (
+        z.ndim >= 1
+        and z.shape[-1] >= reductions.PARALLEL_SAMPLES
+        and scores.shape[-1] >= 2
+        and scores.shape[:-1] == z.shape
+    )
+
+
+def _rows(z: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """z as rows (R, W) and scores as (R, W, M), the kernels' layout."""
+    n = z.shape[-1]
+    return kernel_input(z.reshape(-1, n)), kernel_input(scores.reshape(-1, n, scores.shape[-1]))
+
+
+def _row_values(z: np.ndarray, values) -> np.ndarray:
+    """One value per row of z (..., W): `values` (z.shape[:-1]) as a (R,) array."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(values, dtype=float), z.shape[:-1]).reshape(-1))
 
 
 def _tail_weights(z: np.ndarray, v: np.ndarray | float) -> np.ndarray:

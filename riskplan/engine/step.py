@@ -179,7 +179,7 @@ def team_statistics(setup: Setup, l: int, z: np.ndarray, objectives: np.ndarray)
     and the team objective, the sum of their objectives."""
     healthy = setup.mixer.healthy(l)
     ok = slice(None) if healthy.all() else healthy
-    return summary_stats(z[ok].ravel(), setup.params.risk.beta) | {"objective": objectives[ok].sum()}
+    return summary_stats(z[ok].ravel(), setup.params.risk.beta, parallel=True) | {"objective": objectives[ok].sum()}
 
 
 def estimate(setup: Setup, l: int, z: np.ndarray, scores: np.ndarray, robots=None, where: str = "") -> Estimates:
@@ -190,7 +190,7 @@ def estimate(setup: Setup, l: int, z: np.ndarray, scores: np.ndarray, robots=Non
     where = f"iteration {l}" + (f": {where}" if where else "")
     check_finite(f"{where}: an episode's total reward", z)
     with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are caught just below, in one line
-        stats = summary_stats(z, beta)
+        stats = summary_stats(z, beta, parallel=True)  # z is finite: a large W's statistics on every core
         check_finite(f"{where}: the statistics of the total reward", *stats.values())
         grads, levels, stats["objective"] = np.empty((len(z), scores.shape[-1])), np.empty(len(z)), np.empty(len(z))
         for risk, members in risk_groups(params, robots):  # one group of all, unless team.risk gives robots their own

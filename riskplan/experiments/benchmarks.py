@@ -265,10 +265,11 @@ def user_env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 
 
-def wall(argv: list[str], cwd: Path, marker: str | None = None) -> float:
-    """Seconds from starting `argv` to its end, or to the wall-clock time it prints after `marker`."""
+def wall(argv: list[str], cwd: Path, marker: str | None = None, env: dict[str, str] | None = None) -> float:
+    """Seconds from starting `argv` to its end, or to the wall-clock time it prints after `marker`; `env`: variables
+    set on top of the user's environment."""
     start = time.time()
-    done = subprocess.run(argv, cwd=cwd, capture_output=True, text=True, check=True, env=user_env())
+    done = subprocess.run(argv, cwd=cwd, capture_output=True, text=True, check=True, env={**user_env(), **(env or {})})
     end = time.time()
     if marker is None:
         return end - start

@@ -4,7 +4,9 @@ ratio would mean nothing), and the scaling table measures every dimension agains
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
+import numba
 import numpy as np
 import pytest
 
@@ -132,12 +134,15 @@ def test_bench_counts_the_targets_met_and_says_when_the_machine_is_busy(monkeypa
     ):
         monkeypatch.setattr(bench, name, lambda quick, name=name: [{**_row(name, name != "bench_team"), "note": ""}])
     monkeypatch.setattr(bench, "bench_jit", lambda: [{**_row("jit", True), "note": ""}])
+    monkeypatch.setattr(
+        "riskplan.experiments.bench_first_run.bench_first_run", lambda quick: [{**_row("first", True), "note": ""}]
+    )
     monkeypatch.setattr("riskplan.experiments.bench_gpu.bench_gpu", no_gpu)  # a GPU machine would measure it
     load = per_core * (os.cpu_count() or 1)
     monkeypatch.setattr("os.getloadavg", lambda: (load, load, load))
     result = CliRunner().invoke(app, ["bench"])
     assert result.exit_code == 0, result.output
-    assert "6 of 7 targets met" in result.output and f"load average {load:.2f}" in result.output
+    assert "7 of 8 targets met" in result.output and f"load average {load:.2f}" in result.output
     assert ("the machine is busy" in result.output) == busy
     assert "GPU rollout kernel: skipped; no GPU here" in result.output  # a line, not a target
 
@@ -146,3 +151,72 @@ def no_gpu(quick):
     from riskplan.experiments.bench_gpu import Skipped
 
     raise Skipped("no GPU here")
+
+
+def test_the_first_run_rows_compare_each_cold_command_with_one_kernel(monkeypatch):
+    """Structure only: every command in a new process with an empty cache of its own, the best of its rounds, each
+    paper set-up against the training kernel alone, and the plain kernel in the note."""
+    from riskplan.experiments import bench_first_run as first
+
+    seconds = {"kernel": 4.0, "plain": 2.5, "paper_single": 5.0, "paper_team": 7.0}
+    caches = []
+
+    def fake_wall(argv, cwd, marker=None, env=None):
+        caches.append(env["NUMBA_CACHE_DIR"])
+        assert not any(Path(env["NUMBA_CACHE_DIR"]).iterdir())  # empty: every kernel compiled
+        name = "kernel" if "-c" in argv else "plain" if argv[-1].endswith("one_kernel.py") else None
+        if name is None:
+            name = "paper_team" if "experiment=paper_team" in argv else "paper_single"
+            assert argv[-1].startswith("hydra.run.dir=")
+        return seconds[name] + 0.1 * len(caches)  # later rounds slower: the best is the first
+
+    monkeypatch.setattr(first, "wall", fake_wall)
+    rows = first.bench_first_run(quick=False)
+    assert len(caches) == 8 and len(set(caches)) == 8  # 4 commands x 2 rounds, a fresh cache each
+    assert [r["measure"].split(", ")[1] for r in rows] == ["paper_single", "paper_team"]
+    for row, value in zip(rows, (5.3, 7.4)):  # the first round: kernel +0.1, plain +0.2, single +0.3, team +0.4
+        assert row["value"] == pytest.approx(value) and row["baseline"] == pytest.approx(4.1)
+        assert row["ratio"] == pytest.approx(value / 4.1) and row["ok"] == (value <= 1.5 * 4.1)
+        assert "2.70 s" in row["note"]  # the plain kernel's best
+
+
+@pytest.mark.slow  # compiles the two baselines in new processes: a few seconds with a warm cache
+def test_the_first_run_baselines_run_as_they_are():
+    """The training kernel's child code calls the kernel with its current arguments, and the plain kernel runs."""
+    import subprocess
+    import sys
+
+    from riskplan.experiments import bench_first_run as first
+
+    subprocess.run([sys.executable, "-c", first.TRAINING_KERNEL], check=True, capture_output=True)
+    plain = Path(first.__file__).with_name("one_kernel.py")
+    subprocess.run([sys.executable, str(plain)], check=True, capture_output=True)
+
+
+def test_thread_counts_double_up_to_the_cores():
+    from riskplan.experiments.bench_threads import thread_counts
+
+    assert thread_counts(1) == [1]
+    assert thread_counts(2) == [1, 2]
+    assert thread_counts(6) == [1, 2, 4, 6]
+    assert thread_counts(16) == [1, 2, 4, 8, 16]
+
+
+@pytest.mark.slow  # builds and times two small set-ups: a few seconds
+def test_thread_scaling_rows_are_each_measure_against_one_thread(monkeypatch):
+    """Structure only (no timed assertion): a kernel and an iteration row per sample size and thread count above
+    1, each against the same measure at 1 thread; the thread count is restored."""
+    from riskplan.experiments import bench_threads
+
+    monkeypatch.setattr(bench_threads, "ROUND_SECONDS", 0.001)
+    before = numba.get_num_threads()
+    rows = bench_threads.bench_threads(quick=True, samples=(300, 2000), counts=[1, 2])
+    assert numba.get_num_threads() == before
+    assert [r["measure"] for r in rows] == [
+        f"{name}, W={w:,}, 2 threads (trajectory-steps/s)" for w in (300, 2000) for name in ("kernel", "iteration")
+    ]
+    for row in rows:
+        assert row["value"] > 0 and row["baseline"] > 0
+        assert row["ratio"] == pytest.approx(row["value"] / row["baseline"])
+    kernel, iteration = rows[0], rows[1]
+    assert iteration["ok"] == (iteration["ratio"] >= bench_threads.EFFICIENCY * kernel["ratio"])

@@ -50,7 +50,7 @@ class CVaR(Spectral):
         statistics' CVaR as the objective when the run reports CVaR at this beta."""
         beta = params.beta
         shared = level == stats.beta and beta == stats.beta
-        grads = cvar_gradient(z, scores, level, var=stats.value_at_risk if shared else None)
+        grads = cvar_gradient(z, scores, level, var=stats.value_at_risk if shared else None, parallel=True)
         return grads, stats.cvar if beta == stats.beta else self.objective(z, params)
 
     def of_normal(self, mu: float, sigma: float, params: Params) -> float:

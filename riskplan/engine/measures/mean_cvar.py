@@ -69,8 +69,8 @@ class MeanCVaR(Spectral):
         """CVaR's part at beta_l as `CVaR.training` takes it, the mean's by REINFORCE; the statistics reused."""
         weight, beta = params.weight, params.beta
         shared = level == stats.beta and beta == stats.beta
-        cvar_part = cvar_gradient(z, scores, level, var=stats.value_at_risk if shared else None)
-        grads = mean_cvar_mix(mean_gradient(z, scores, baseline), cvar_part, weight)
+        cvar_part = cvar_gradient(z, scores, level, var=stats.value_at_risk if shared else None, parallel=True)
+        grads = mean_cvar_mix(mean_gradient(z, scores, baseline, parallel=True), cvar_part, weight)
         if beta == stats.beta:
             return grads, mean_cvar_mix(stats.mean, stats.cvar, weight)
         return grads, self.objective(z, params)

@@ -40,7 +40,7 @@ class Neutral(Spectral):
     def training(
         self, z: np.ndarray, scores: np.ndarray, params: Params, level: float | None, stats: Statistics, baseline: bool
     ) -> tuple[np.ndarray, np.ndarray]:
-        return mean_gradient(z, scores, baseline), stats.mean
+        return mean_gradient(z, scores, baseline, parallel=True), stats.mean
 
     def of_normal(self, mu: float, sigma: float, params: Params) -> float:
         return mu
