@@ -5,15 +5,17 @@ A floating-point sum depends on its order, so these kernels keep numpy's:
     accumulators): the tree's top levels are cut into LEAVES subtrees, summed in parallel, then added up the tree
     as numpy adds them. The mean, the standard deviation and CVaR's tail sum are numpy's.
   * VaR is the ceil(beta W)-th smallest value, one element of the row: a parallel histogram of the row's values
-    in BUCKETS intervals (a monotone map, so the element lies in the bucket where the counts reach its rank), then
-    numpy's partition of that bucket's few values; the same element, so the same number.
+    in BUCKETS intervals over a strided sample's range (a monotone map, so the element lies in the bucket where
+    the counts reach its rank), then numpy's partition of that bucket's few values; the same element, so the same
+    number. With one thread numpy's partition is the quicker, and runs instead.
   * numpy's einsum of a gradient, sum_i w_i S_im, adds the products in index order for each m (M >= 2): the
     kernels take the (robot, m) sums in parallel, each in index order. CVaR's weights vanish outside the tail
     (z_i >= v), and adding 0 leaves a sum unchanged, so its gradient adds the tail's products alone.
 
-Used for W >= PARALLEL_SAMPLES, where it pays (riskplan bench --threads measures it); the callers pass finite
-samples and scores (the training step checks z, and its scores are finite by construction). Smaller samples,
-M = 1 (einsum then sums in SIMD lanes) and non-finite inputs take numpy itself (riskplan.engine.estimators).
+Used for W >= PARALLEL_SAMPLES, where it pays (riskplan bench --threads measures it), by callers that pass
+finite samples and scores (`parallel=True` in riskplan.engine.estimators: the training step checks z, and its
+scores are finite by construction). Smaller samples and M = 1 (einsum then sums in SIMD lanes) take numpy itself,
+and with one thread so do the plain sum and VaR, where numpy's own loops are the quicker.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ LEAVES = 64  # numpy's pairwise tree cut at depth 6: every leaf holds > 128 valu
 BLOCK = 128  # numpy's PW_BLOCKSIZE: a block summed by 8 accumulators
 BUCKETS = 256  # intervals of VaR's histogram
 REFINE = 4096  # a VaR bucket with more values than this is split again before numpy partitions it
+PROBE = 4096  # values of the strided sample whose range VaR's buckets span
 COLUMNS = 8  # gradient columns m summed side by side by one task (a cache line of scores per sample)
 SUM, TAIL, SQUARES = 0, 1, 2  # what `_pairwise` sums: x, min(x - shift, 0) (CVaR's tail), (x - shift)^2 (std)
 
@@ -68,44 +71,40 @@ def row_sums(z: np.ndarray, mode: int = SUM, shift: np.ndarray | None = None) ->
 
 def value_at_risk(z: np.ndarray, m: int) -> np.ndarray:
     """np.partition(z, m - 1, axis=-1)[:, m - 1] of finite z (R, W): each row's m-th smallest element."""
-    rows, n = z.shape
     if numba.get_num_threads() == 1:  # one thread: numpy's introselect is the quicker
         return np.partition(z, m - 1, axis=-1)[:, m - 1]
-    bounds = np.linspace(0, n, LEAVES + 1).astype(np.int64)  # a row's chunks
-    low, high = np.empty((rows, LEAVES)), np.empty((rows, LEAVES))
-    negative_zero = np.empty((rows, LEAVES), dtype=np.int64)
-    _extremes(z, bounds, low, high, negative_zero)
-    out = np.empty(rows)
-    for r in range(rows):
-        if negative_zero[r].any():  # -0.0 and 0.0 tie: which one numpy returns is its own affair
-            out[r] = np.partition(z[r], m - 1)[m - 1]
-        else:
-            out[r] = _select(z[r], bounds, m - 1, low[r].min(), high[r].max())
-    return out
+    bounds = np.linspace(0, z.shape[1], LEAVES + 1).astype(np.int64)  # a row's chunks
+    return np.array([_select(row, bounds, m - 1) for row in z])
 
 
-def _select(row: np.ndarray, bounds: np.ndarray, k: int, low: float, high: float) -> float:
-    """The k-th smallest (from 0) of `row`, whose values lie in [low, high]: the bucket where the counts pass k,
-    split again while it holds more than REFINE values, then numpy's partition of its values."""
+def _select(row: np.ndarray, bounds: np.ndarray, k: int) -> float:
+    """The k-th smallest (from 0) of `row`: the bucket where the counts pass k, split again while it holds more
+    than REFINE values, then numpy's partition of its values. The buckets span a strided sample's range (values
+    outside it fall in the end buckets: the map stays monotone)."""
+    probe = row[:: max(1, row.size // PROBE)]
+    low, high = probe.min(), probe.max()
     while True:
-        if high == low:  # every value is `low`
-            return low
         with np.errstate(over="ignore", divide="ignore"):
             scale = BUCKETS / (high - low)
-        if not np.isfinite(scale) or scale == 0.0:  # a span too wide or too narrow to bucket
+        if not (np.isfinite(scale) and scale > 0.0):  # a span of one value, or too wide to bucket
             return np.partition(row, k)[k]
         counts = np.zeros((len(bounds) - 1, BUCKETS), dtype=np.int64)
-        _bucket_counts(row, bounds, low, scale, counts)
+        negative_zero = np.zeros(len(bounds) - 1, dtype=np.int64)
+        _bucket_counts(row, bounds, low, scale, counts, negative_zero)
+        if negative_zero.any():  # -0.0 and 0.0 tie: which one numpy returns is its own affair
+            return np.partition(row, k)[k]
         below = np.cumsum(counts.sum(axis=0))  # values in buckets 0..b
         bucket = int(np.searchsorted(below, k, side="right"))  # the first bucket with more than k values up to it
         k -= int(below[bucket - 1]) if bucket else 0
         offsets = np.concatenate([[0], np.cumsum(counts[:, bucket])])
         values = np.empty(int(offsets[-1]))
         _gather_bucket(row, bounds, low, scale, bucket, offsets, values)
+        low, high = values.min(), values.max()
+        if low == high:  # every value of the bucket is the k-th
+            return low
         if values.size <= REFINE:
             return np.partition(values, k)[k]
-        row, low, high = values, values.min(), values.max()
-        bounds = np.linspace(0, values.size, LEAVES + 1).astype(np.int64)
+        row, bounds = values, np.linspace(0, values.size, len(bounds)).astype(np.int64)
 
 
 def tail_products(z: np.ndarray, scores: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -189,34 +188,24 @@ def _leaf_sums(z, first, count, mode, shifts, out):
         out[r, j] = _pairwise(z[r], first[j], count[j], mode, shifts[r])
 
 
-@njit(parallel=True, cache=True)
-def _extremes(z, bounds, low, high, negative_zero):
-    """The smallest and largest value and the count of -0.0 of each (row, chunk), in parallel."""
-    chunks = bounds.shape[0] - 1
-    for task in prange(z.shape[0] * chunks):
-        r, c = task // chunks, task % chunks
-        lo, hi, zeros = np.inf, -np.inf, 0
-        for i in range(bounds[c], bounds[c + 1]):
-            x = z[r, i]
-            lo = min(lo, x)
-            hi = max(hi, x)
-            if x == 0.0 and math.copysign(1.0, x) < 0.0:
-                zeros += 1
-        low[r, c], high[r, c], negative_zero[r, c] = lo, hi, zeros
-
-
 @njit(cache=True, inline="always")
 def _bucket(x, low, scale):
-    """The histogram bucket of x: monotone in x (x <= y gives bucket(x) <= bucket(y))."""
-    return min(np.int64((x - low) * scale), BUCKETS - 1)
+    """The histogram bucket of x, the end buckets taking what lies beyond [low, low + BUCKETS / scale]: monotone
+    in x (x <= y gives bucket(x) <= bucket(y))."""
+    return np.int64(min(max((x - low) * scale, 0.0), BUCKETS - 1.0))
 
 
 @njit(parallel=True, cache=True)
-def _bucket_counts(row, bounds, low, scale, counts):
-    """counts[c, b]: the values of chunk c in bucket b."""
+def _bucket_counts(row, bounds, low, scale, counts, negative_zero):
+    """counts[c, b]: the values of chunk c in bucket b; negative_zero[c]: its values -0.0."""
     for c in prange(bounds.shape[0] - 1):
+        zeros = 0
         for i in range(bounds[c], bounds[c + 1]):
-            counts[c, _bucket(row[i], low, scale)] += 1
+            x = row[i]
+            counts[c, _bucket(x, low, scale)] += 1
+            if x == 0.0 and math.copysign(1.0, x) < 0.0:
+                zeros += 1
+        negative_zero[c] = zeros
 
 
 @njit(parallel=True, cache=True)
