@@ -220,3 +220,15 @@ def test_thread_scaling_rows_are_each_measure_against_one_thread(monkeypatch):
         assert row["ratio"] == pytest.approx(row["value"] / row["baseline"])
     kernel, iteration = rows[0], rows[1]
     assert iteration["ok"] == (iteration["ratio"] >= bench_threads.EFFICIENCY * kernel["ratio"])
+
+
+def test_bench_threads_prints_the_thread_scaling_rows_alone(monkeypatch):
+    from typer.testing import CliRunner
+
+    from riskplan.cli import app
+
+    row = {**_row("iteration, W=600,000, 2 threads", True), "note": "against 1 thread"}
+    monkeypatch.setattr("riskplan.experiments.bench_threads.bench_threads", lambda quick: [row])
+    result = CliRunner().invoke(app, ["bench", "--threads", "--quick"])
+    assert result.exit_code == 0, result.output
+    assert "iteration, W=600,000, 2 threads" in result.output and "1 of 1 targets met" in result.output
