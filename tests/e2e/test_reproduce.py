@@ -28,7 +28,16 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "robots: 3" in config and "iterations: 5" in config  # the user's overrides beat --quick's
     assert (root / "single" / "multirun.yaml").is_file()
     record = json.loads((root / "reproduce.json").read_text())
-    studies = {"measures", "policies", "tabular", "hetero_team", "hetero_central", "faults", "faults_free", "floor_plan"}
+    studies = {
+        "measures",
+        "policies",
+        "tabular",
+        "hetero_team",
+        "hetero_central",
+        "faults",
+        "faults_free",
+        "floor_plan",
+    }
     assert (
         record["seeds"] == 1
         and record["quick"]
