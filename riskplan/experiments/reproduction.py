@@ -344,6 +344,7 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
     record = {
         "quick": quick,
         "paper_only": options.paper_only,
+        "batched": options.jobs is None,
         "seeds": seeds,
         "overrides": list(overrides),
         "started": dt.datetime.now().isoformat(timespec="seconds"),

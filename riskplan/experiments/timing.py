@@ -48,7 +48,7 @@ class Schedule:
         done = [stage for stage in self.stages if stage.name in self.taken]
         expected = sum(stage.estimate for stage in done)
         scale = (sum(self.taken[stage.name] for stage in done) / expected) if expected > 0 else 1.0
-        scale = min(max(scale, 0.25), 4.0)  # one odd stage (all its jobs skipped, a cold cache) says little
+        scale = min(max(scale, 0.1), 10.0)  # one odd stage (all its jobs skipped, a cold cache) says little
         return scale * sum(stage.estimate for stage in self.stages if stage.name not in self.taken)
 
     def header(self, name: str) -> str:
@@ -215,6 +215,7 @@ def time_breakdown(record: dict, clock: dict, started: float, folders: list[str]
         "numba cache load (iteration 0's extra, first job of each worker)"
     ]
     return {
+        "batched": bool(record.get("batched")),
         "total": round(total, 2),
         "wall": {k: None if v is None else round(v, 2) for k, v in wall.items()},
         "jobs": {k: round(v, 2) if isinstance(v, float) else v for k, v in jobs.items()},
@@ -227,6 +228,9 @@ def print_breakdown(breakdown: dict) -> None:
     for name, seconds in breakdown["wall"].items():
         typer.echo(f"  {'?' if seconds is None else f'{seconds:6.1f}'} s  {name}")
     jobs = breakdown["jobs"]
+    if breakdown.get("batched"):  # a batch's jobs share their time: summing it per job says nothing
+        typer.echo(f"{jobs['jobs']} jobs ran, each sweep as one batch")
+        return
     typer.echo(
         f"inside the {jobs['jobs']} jobs that ran, on {jobs['workers']} worker processes (seconds summed over "
         f"jobs; they run in parallel):"

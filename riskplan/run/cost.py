@@ -25,6 +25,9 @@ from riskplan.util.paths import write_atomic
 
 CACHE_ENV = "RISKPLAN_CACHE_DIR"
 KEEP = 64  # records kept: the latest runs say most about the machine as it is now
+# A bootstrap resample-episode is an addition, not a trajectory step: 1000 resamples of 100,000 episodes take
+# about what 8M steps do. The budget counts it as a step to bound the time limit from above.
+BOOTSTRAP_WEIGHT = 0.08
 DEFAULT_OVERHEAD = 1.0  # seconds a run takes beyond its steps (imports, set-up, files) before calibration
 LAUNCH = 3.0  # seconds a local sweep takes to start its workers and finish (Hydra, joblib, the summary)
 BATCH_LAUNCH = 1.0  # the same for a batched sweep, which starts no workers
@@ -67,9 +70,13 @@ def setup_steps(setup) -> float:
 
 
 def config_steps(params, width: int, height: int, sources: int, robots: int) -> float:
-    """A typed config's estimated cost in trajectory-step equivalents, given its grid and team sizes."""
+    """A typed config's estimated cost in trajectory-step equivalents, given its grid and team sizes: the budget's
+    parts (riskplan.run.budget, an upper bound for the time limit) with the bootstrap at its real weight."""
     sizes = budget.sizes_of(params, width, height, sources, robots)
-    return sum(amount for amount, _, _ in budget.estimate(sizes)[1])
+    return sum(
+        amount * (BOOTSTRAP_WEIGHT if what.startswith("its bootstrap") else 1.0)
+        for amount, what, _ in budget.estimate(sizes)[1]
+    )
 
 
 def run_bytes(setup) -> float:
