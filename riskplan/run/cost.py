@@ -24,6 +24,7 @@ from riskplan.util.limits import STEPS_PER_SECOND, duration
 from riskplan.util.paths import write_atomic
 
 CACHE_ENV = "RISKPLAN_CACHE_DIR"
+VERSION = 2  # of how steps are counted: records counted another way are left behind
 KEEP = 64  # records kept: the latest runs say most about the machine as it is now
 # A bootstrap resample-episode is an addition, not a trajectory step: 1000 resamples of 100,000 episodes take
 # about what 8M steps do. The budget counts it as a step to bound the time limit from above.
@@ -93,7 +94,7 @@ def cache_file() -> Path:
         base = os.environ.get("XDG_CACHE_HOME", "").strip() or str(Path.home() / ".cache")
         root = str(Path(base) / "riskplan")
     host = re.sub(r"[^A-Za-z0-9._-]", "_", platform.node() or "host")[:64]
-    return Path(root) / f"cost-{host}-{os.cpu_count() or 1}cpu.json"
+    return Path(root) / f"cost-v{VERSION}-{host}-{os.cpu_count() or 1}cpu.json"
 
 
 def _records() -> list[tuple[float, float]]:
