@@ -273,11 +273,21 @@ def gen_reproduce_time() -> str:
     job_keys = [
         k for k in dict.fromkeys(k for _, m in parts for k in m["breakdown"]["jobs"]) if k not in ("jobs", "workers")
     ]
+
+    def batched(meta: dict) -> bool:
+        return bool(meta.get("batched") or meta["breakdown"].get("batched"))
+
     rows.append(
         ["*inside the jobs, summed over jobs*"]
-        + [f"*{m['breakdown']['jobs']['jobs']} jobs on {m['breakdown']['jobs']['workers']} workers*" for _, m in parts]
+        + [
+            f"*{m['breakdown']['jobs']['jobs']} jobs, each sweep one batch*"
+            if batched(m)
+            else f"*{m['breakdown']['jobs']['jobs']} jobs on {m['breakdown']['jobs']['workers']} workers*"
+            for _, m in parts
+        ]
     )
-    rows += [[k] + [num(m["breakdown"]["jobs"].get(k), 1) for _, m in parts] for k in job_keys]
+    # a batch's jobs share its time: per-job sums say nothing there
+    rows += [[k] + ["n/a" if batched(m) else num(m["breakdown"]["jobs"].get(k), 1) for _, m in parts] for k in job_keys]
     return table(header, rows) + f"\n{measured_on('reproduction')}; warm numba cache.\n"
 
 
