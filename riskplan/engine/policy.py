@@ -218,31 +218,18 @@ def tables(
     cum = np.empty(thetas.shape[:1] + features.shape[:2])
     score = np.empty(thetas.shape[:1] + features.shape)
     thetas = np.ascontiguousarray(thetas, dtype=np.float64)
-    if cells is not None:
-        cells = np.ascontiguousarray(cells, dtype=np.int64)
-        if len(thetas) >= PARALLEL_POLICIES:
-            _fill_tables_at_parallel(features, thetas, cum, score, cells)
-        else:
-            _fill_tables_at(features, thetas, cum, score, 0, len(thetas), cells)
-    elif len(thetas) >= PARALLEL_POLICIES:
-        _fill_tables_parallel(features, thetas, cum, score)
+    cells = np.arange(features.shape[0]) if cells is None else np.ascontiguousarray(cells, dtype=np.int64)
+    if len(thetas) >= PARALLEL_POLICIES:
+        _fill_tables_at_parallel(features, thetas, cum, score, cells)
     else:
-        _fill_tables(features, thetas, cum, score, 0, len(thetas))
+        _fill_tables_at(features, thetas, cum, score, 0, len(thetas), cells)
     return cum, score
 
 
 @njit(parallel=True, cache=True)
-def _fill_tables_parallel(features, thetas, cum, score):
-    """`_fill_tables` of all policies, CHUNK at a time in parallel: each policy's numbers are one thread's, the
-    same whatever the thread count."""
-    chunks = (thetas.shape[0] + CHUNK - 1) // CHUNK
-    for chunk in prange(chunks):
-        _fill_tables(features, thetas, cum, score, chunk * CHUNK, min(thetas.shape[0], (chunk + 1) * CHUNK))
-
-
-@njit(parallel=True, cache=True)
 def _fill_tables_at_parallel(features, thetas, cum, score, cells):
-    """`_fill_tables_at` of all policies, CHUNK at a time in parallel, as `_fill_tables_parallel`."""
+    """`_fill_tables_at` of all policies, CHUNK at a time in parallel: each policy's numbers are one thread's, the
+    same whatever the thread count."""
     chunks = (thetas.shape[0] + CHUNK - 1) // CHUNK
     for chunk in prange(chunks):
         _fill_tables_at(features, thetas, cum, score, chunk * CHUNK, min(thetas.shape[0], (chunk + 1) * CHUNK), cells)
@@ -250,7 +237,11 @@ def _fill_tables_at_parallel(features, thetas, cum, score, cells):
 
 @njit(cache=True)
 def _fill_tables_at(features, thetas, cum, score, first, last, cells):
-    """`_fill_tables` for the listed cells only: the same loop body, so each row holds the same numbers."""
+    """`probabilities` (cumulated) and `scores` for policies first..last-1 at the listed cells, in one pass.
+
+    The same maths as the numpy functions above, as loops: every iteration of a 100-robot team builds 100 tables,
+    and loops avoid the numpy composition's temporaries (tests/engine/test_policy.py checks they agree).
+    """
     mu = np.empty(5)
     for p in range(first, last):
         for c in cells:
@@ -279,42 +270,8 @@ def _fill_tables_at(features, thetas, cum, score, first, last, cells):
 
 
 @njit(cache=True)
-def _fill_tables(features, thetas, cum, score, first, last):
-    """`probabilities` (cumulated) and `scores` for policies first..last-1 and every cell, in one pass.
-
-    The same maths as the numpy functions above, as loops: every iteration of a 100-robot team builds 100 tables,
-    and loops avoid the numpy composition's temporaries (tests/engine/test_policy.py checks they agree).
-    """
-    mu = np.empty(5)
-    for p in range(first, last):
-        for c in range(features.shape[0]):
-            best = -np.inf
-            for a in range(5):
-                mu[a] = 0.0
-                for j in range(thetas.shape[1]):
-                    mu[a] += thetas[p, j] * features[c, a, j]
-                best = max(best, mu[a])
-            total = 0.0
-            for a in range(5):
-                mu[a] = math.exp(mu[a] - best)  # max-shift: no overflow for large theta
-                total += mu[a]
-            running = 0.0
-            for a in range(5):
-                mu[a] /= total
-                running += mu[a]
-                cum[p, c, a] = running
-            cum[p, c, 4] = 1.0  # guard the last bin against round-off so a uniform draw always lands
-            for j in range(thetas.shape[1]):
-                expected = 0.0
-                for a in range(5):
-                    expected += mu[a] * features[c, a, j]
-                for a in range(5):
-                    score[p, c, a, j] = features[c, a, j] - expected
-
-
-@njit(cache=True)
 def feature_logits(features, theta):
-    """theta . f(c, a) of every (cell, move), (C, 5), summed in the order `_fill_tables` sums it."""
+    """theta . f(c, a) of every (cell, move), (C, 5), summed in the order `_fill_tables_at` sums it."""
     out = np.empty(features.shape[:2])
     for c in range(features.shape[0]):
         for a in range(5):
@@ -346,7 +303,7 @@ def tabular_tables(thetas: np.ndarray, cells: int) -> tuple[np.ndarray, np.ndarr
 
 @njit(cache=True)
 def _fill_tabular(logits, cum, probs):
-    """The softmax of every cell's five logits, with `_fill_tables`' arithmetic (same logits: same numbers)."""
+    """The softmax of every cell's five logits, with `_fill_tables_at`'s arithmetic (same logits: same numbers)."""
     mu = np.empty(5)
     for p in range(logits.shape[0]):
         for c in range(logits.shape[1]):

@@ -37,7 +37,6 @@ import json
 import math
 import os
 import re
-import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,12 +52,11 @@ from riskplan.experiments.sweep_worker import config_sha
 from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
 from riskplan.util.checks import require_installed
 from riskplan.util.errors import BadInput
-from riskplan.util.paths import check_output_dir, write_atomic
+from riskplan.util.paths import check_output_dir, is_marked, replace_marked_dir, write_atomic
 
 TARGETS = ("mlflow", "tensorboard", "foxglove", "ros2")
 DEFAULT_URI = {"mlflow": Path("outputs") / "mlruns", "tensorboard": Path("outputs") / "tensorboard"}
 EXPERIMENT = "riskplan"
-MARKER = "riskplan-export.json"
 EXPORT_VERSION = 1  # part of the fingerprint: a change of what an export writes replaces older exports
 EXTRA = {
     "mlflow": ("mlflow", "mlflow-skinny"),
@@ -403,32 +401,12 @@ class TensorboardTarget:
             "group": rec.group,
             "version": EXPORT_VERSION,
         }
-        existed = target.exists()
-        if existed:
-            try:
-                old = json.loads((target / MARKER).read_text())
-            except (OSError, ValueError):
-                raise Skip(f"{target} exists and was not written by riskplan export; move it away") from None
-            if old == marker:
-                return Exported(rec.path, "unchanged", str(target))
-        self.logdir.mkdir(parents=True, exist_ok=True)
-        tmp = self.logdir / f".{name}.tmp-{os.getpid()}"
-        trash = self.logdir / f".{name}.old-{os.getpid()}"
-        try:
-            shutil.rmtree(tmp, ignore_errors=True)
-            tmp.mkdir()
-            self._events(tmp, name, rec)
-            write_atomic(tmp / MARKER, json.dumps(marker, indent=2) + "\n")
-            if existed:
-                os.replace(target, trash)
-            os.replace(tmp, target)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            if trash.exists() and not target.exists():
-                os.replace(trash, target)  # the previous export stays
-            raise
-        shutil.rmtree(trash, ignore_errors=True)
-        return Exported(rec.path, "replaced" if existed else "exported", str(target))
+        if is_marked(
+            target, marker, lambda: Skip(f"{target} exists and was not written by riskplan export; move it away")
+        ):
+            return Exported(rec.path, "unchanged", str(target))
+        status = replace_marked_dir(target, marker, lambda tmp: self._events(tmp, name, rec))
+        return Exported(rec.path, status, str(target))
 
     @staticmethod
     def _events(directory: Path, name: str, rec: Record) -> None:

@@ -25,11 +25,8 @@ run's fingerprint: exporting it again leaves an unchanged bag alone and replaces
 from __future__ import annotations
 
 import hashlib
-import json
 import math
-import os
 import re
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -40,10 +37,10 @@ from mcap.writer import CompressionType, Writer
 from riskplan.run.build import build_setup
 from riskplan.run.maps import geometry
 from riskplan.util.errors import BadInput
-from riskplan.util.paths import write_atomic
+from riskplan.util.paths import is_marked, replace_marked_dir, write_atomic
 
 BAG = "rosbag2"  # the bag's directory inside a run directory when no --out is given
-MARKER = "riskplan-export.json"
+FOREIGN = "exists and was not written by riskplan export; move it away or give another --out"
 FRAME = "map"
 STEP_NS = 500_000_000  # one move of an episode: half a second of the bag's time
 OCCUPIED, FREE = 100, 0
@@ -136,35 +133,11 @@ def write_run(
     be rebuilt from its config (a map file moved), before anything is written."""
     target = bag_dir(run_dir, out_dir)
     marker = {"run_dir": str(run_dir), "fingerprint": fingerprint, "format": "rosbag2 mcap", "version": 1}
-    existed = target.exists()
-    if existed:
-        try:
-            old = json.loads((target / MARKER).read_text())
-        except (OSError, ValueError):
-            raise BadInput(
-                str(target), "exists and was not written by riskplan export; move it away or give another --out"
-            ) from None
-        if old == marker:
-            return "unchanged", target
+    if is_marked(target, marker, lambda: BadInput(str(target), FOREIGN)):
+        return "unchanged", target
     messages = run_messages(run_dir, config, round(start * 1e9))
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.parent / f".{target.name}.tmp-{os.getpid()}"
-    trash = target.parent / f".{target.name}.old-{os.getpid()}"
-    try:
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir()
-        write_bag(tmp, target.name, messages)
-        write_atomic(tmp / MARKER, json.dumps(marker, indent=2) + "\n")
-        if existed:
-            os.replace(target, trash)
-        os.replace(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if trash.exists() and not target.exists():
-            os.replace(trash, target)  # the previous export stays
-        raise
-    shutil.rmtree(trash, ignore_errors=True)
-    return ("replaced" if existed else "exported"), target
+    status = replace_marked_dir(target, marker, lambda tmp: write_bag(tmp, target.name, messages))
+    return status, target
 
 
 Message = tuple[str, str, int, dict]  # (topic, type, log time in ns, the message as a dict)

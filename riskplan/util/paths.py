@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import json
 import os
+import shutil
 from pathlib import Path
 
 from riskplan.util.errors import BadInput
@@ -101,3 +103,42 @@ def write_atomic(path: Path | str, data: str | bytes) -> None:
 def hydra_quote(value: Path | str) -> str:
     """A path (or key) as a quoted Hydra override value."""
     return "'" + str(value).replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+
+MARKER = "riskplan-export.json"  # what riskplan writes into a directory it exports, to know it again
+
+
+def is_marked(target: Path, marker: dict, foreign) -> bool:
+    """Whether `target` holds riskplan's MARKER with `marker` (an export that is already there, unchanged). A
+    directory there without riskplan's marker is someone else's: `foreign()` is the error raised."""
+    if not target.exists():
+        return False
+    try:
+        return json.loads((target / MARKER).read_text()) == marker
+    except (OSError, ValueError):
+        raise foreign() from None
+
+
+def replace_marked_dir(target: Path, marker: dict, fill) -> str:
+    """A directory written whole or not at all: `fill(tmp)` writes a temporary sibling, marked with `marker`, that
+    then takes target's place; "exported", or "replaced" (the old one is removed only after). If `fill` fails, the
+    previous directory stays as it was."""
+    existed = target.exists()
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.parent / f".{target.name}.tmp-{os.getpid()}"
+    trash = target.parent / f".{target.name}.old-{os.getpid()}"
+    try:
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir()
+        fill(tmp)
+        write_atomic(tmp / MARKER, json.dumps(marker, indent=2) + "\n")
+        if existed:
+            os.replace(target, trash)
+        os.replace(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if trash.exists() and not target.exists():
+            os.replace(trash, target)  # the previous export stays
+        raise
+    shutil.rmtree(trash, ignore_errors=True)
+    return "replaced" if existed else "exported"
