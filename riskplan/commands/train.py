@@ -52,7 +52,7 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
     from omegaconf import open_dict
 
     from riskplan.experiments.hydra_app import RunFailed, run_composed, run_hydra
-    from riskplan.run.compose import check_hydra_args, compose, parse_overrides
+    from riskplan.run.compose import check_hydra_args, compose_run, parse_overrides
 
     args = with_config_dirs(overrides)
     multirun = sorted(MULTIRUN_FLAGS & set(args))
@@ -69,7 +69,7 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
         check_hydra_args(args)
         run_hydra(args)
         return
-    cfg = compose(args, with_hydra=True)  # checked, and run as it is: Hydra does not compose it again
+    cfg, setup = compose_run(args)  # checked and built once, and run as it is: Hydra composes nothing again
     explicit = run_dir_override(parse_overrides(args))
     if explicit is None:
         out, made = claim_dir(Path("outputs") / "runs", f"_{cfg.experiment}"), True
@@ -85,11 +85,11 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
             check_new_run_dir(out, "hydra.run.dir")  # again under the lock: another process may have won the race
             typer.echo(f"run directory: {out}")
             try:
-                run_composed(cfg)
+                run = run_composed(cfg, setup)
             except RunFailed as err:
                 typer.echo(f"error: run failed: {err} (see {out})", err=True)
                 raise typer.Exit(1) from None
-            _finish(out)
+            _finish(out, run.failure, run.interrupted)
     except BadInput:
         if made:
             shutil.rmtree(out, ignore_errors=True)
@@ -205,19 +205,18 @@ def _stopped(stop: Interrupted, out: Path) -> None:
     raise typer.Exit(stop.exit_code)
 
 
-def _finish(out: Path) -> None:
+def _finish(out: Path, failure: str | None = None, interrupted: Interrupted | None = None) -> None:
     """Print the one-line summary of a finished run, or why it stopped with its exit code (1, 130 or 143)."""
-    from riskplan.experiments.hydra_app import last_failure, last_interruption
     from riskplan.run.run_files import STATUS, SUMMARY
 
-    if last_interruption() is not None:
-        _stopped(last_interruption(), out)
+    if interrupted is not None:
+        _stopped(interrupted, out)
     try:
         status = json.loads((out / STATUS).read_text())
     except (OSError, ValueError):
         status = {"status": "failed", "error": "no status written"}
-    if last_failure():  # status.json may still say running: the disk that failed refused the failure too
-        status = {"status": "failed", "error": last_failure()}
+    if failure:  # status.json may still say running: the disk that failed refused the failure too
+        status = {"status": "failed", "error": failure}
     if status.get("status") != "done":
         typer.echo(f"error: run failed: {status.get('error')} (see {out})", err=True)
         raise typer.Exit(1)

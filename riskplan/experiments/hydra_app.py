@@ -12,6 +12,7 @@ import logging
 import re
 import sys
 import traceback
+from dataclasses import dataclass
 from pathlib import Path
 
 import hydra
@@ -30,33 +31,40 @@ from riskplan.experiments.sweep_worker import sweep_job, write_status
 from riskplan.run.training import train_summary
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
-from riskplan.util.progress import TrainingBar, silent
+from riskplan.util.progress import TrainingBar
 
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")  # absolute: riskplan/conf is a symlinked data dir
-_failure: list[str] = []  # the last single run's failure, for when status.json cannot be written (a full disk)
-_interrupted: list[Interrupted] = []  # the last single run's stop by a signal
-_task_stderr: list = []  # the terminal's stderr, handed back to the task while Hydra's own output is captured
 
 
 def _task(cfg: DictConfig) -> float | None:
-    """Train one job in Hydra's output directory; record success or failure in status.json."""
-    out = Path(HydraConfig.get().runtime.output_dir)
-    single = HydraConfig.get().mode == RunMode.RUN
-    if not single:  # a sweep job: skips itself when finished, resumes when killed, logs to its own folder
-        return sweep_job(cfg, out)
-    _failure.clear()
-    _interrupted.clear()
-    stderr = _task_stderr[-1] if _task_stderr else sys.stderr
+    """A sweep's job in Hydra's output directory: it skips itself when finished, resumes when killed, and logs to
+    its own folder (riskplan.experiments.sweep_worker). A single run goes through `run_composed`."""
+    return sweep_job(cfg, Path(HydraConfig.get().runtime.output_dir))
+
+
+task = hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")(_task)
+
+
+@dataclass
+class SingleRun:
+    """How a single run (`run_composed`) ended, for the CLI: its CVaR when it finished, else why not."""
+
+    value: float | None = None
+    failure: str | None = None  # the error, also when status.json could not take it (a full disk)
+    interrupted: Interrupted | None = None  # the signal that stopped it, checkpointed
+
+
+def single_run(out: Path, setup, stderr) -> SingleRun:
+    """Train the run into `out` (Hydra's output directory) from its built Setup; record it in status.json."""
     with contextlib.redirect_stderr(stderr):
         try:
             write_run_status(out, "running", None)
-            with _progress(single) as progress:
-                summary = train_summary(cfg, out, progress=progress)
+            with TrainingBar() as progress:
+                summary = train_summary(setup, out, progress=progress)
         except Interrupted as stop:  # checkpointed: status interrupted, and the CLI exits 130 or 143
-            _interrupted.append(stop)
             with contextlib.suppress(OSError):
                 write_run_status(out, "interrupted", str(stop))
-            return None
+            return SingleRun(interrupted=stop)
         except (BadInput, NumericalTrouble) as err:
             return _failed(out, str(err))
         except OSError as err:  # a full disk, a directory removed under the run
@@ -64,31 +72,17 @@ def _task(cfg: DictConfig) -> float | None:
             return _failed(
                 out, f"cannot write{where}: {err.strerror or err}; free space, then riskplan train --resume {out}"
             )
-        except Exception as err:  # a job that raises fails alone; its status records why, the others go on
+        except Exception as err:  # any other error: its status records why
             return _failed(out, f"{type(err).__name__}: {err}", traceback.format_exc())
         write_run_status(out, "done", None)
-    return summary["cvar"]["value"]
+    return SingleRun(value=summary["cvar"]["value"])
 
 
-task = hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")(_task)
-
-
-def _failed(out: Path, error: str, trace: str | None = None) -> None:
-    """Record a single run's failure: in status.json if the disk takes it, and for the CLI in any case."""
-    _failure.append(error)
+def _failed(out: Path, error: str, trace: str | None = None) -> SingleRun:
+    """A single run's failure: in status.json if the disk takes it, and for the CLI in any case."""
     with contextlib.suppress(OSError):
         write_run_status(out, "failed", error, trace)
-    return None
-
-
-def last_interruption() -> Interrupted | None:
-    """The signal that stopped the last single run in this process, if one did."""
-    return _interrupted[-1] if _interrupted else None
-
-
-def last_failure() -> str | None:
-    """The error of the last single run in this process that failed, if any."""
-    return _failure[-1] if _failure else None
+    return SingleRun(failure=error)
 
 
 def run_hydra(args: list[str], capture: bool = False, skip: frozenset = frozenset(), launched: list | None = None):
@@ -100,14 +94,13 @@ def run_hydra(args: list[str], capture: bool = False, skip: frozenset = frozense
 
     With `capture`, what Hydra itself prints on stderr (it prints a traceback for an error outside the task, e.g.
     a full disk while it writes .hydra/) is held back, and a failure becomes one line (RunFailed); the task gets
-    the real stderr back for its progress bar.
+    Hydra's own flags (--cfg job, --info, ...) run no task.
     """
     schema.register()
     GlobalHydra.instance().clear()
     argv = sys.argv
     sys.argv = ["riskplan", *args]
     held = io.StringIO()
-    _task_stderr.append(sys.stderr)
     logs = _logging_state()
     try:
         with (
@@ -120,7 +113,6 @@ def run_hydra(args: list[str], capture: bool = False, skip: frozenset = frozense
             raise
         raise RunFailed(_last_error(held.getvalue())) from None
     finally:
-        _task_stderr.pop()
         sys.argv = argv
         GlobalHydra.instance().clear()
         _restore_logging(logs)
@@ -128,14 +120,19 @@ def run_hydra(args: list[str], capture: bool = False, skip: frozenset = frozense
             sys.stderr.write(held.getvalue())
 
 
-def run_composed(config: DictConfig) -> None:
-    """Hydra's single run of a config riskplan composed and checked already, with its hydra node (config.compose
-    with_hydra=True): what `Hydra.run` does after composing, so the config is not composed a second time (0.1 s of
-    `riskplan train`'s start). The run's directory is hydra.run.dir; `.hydra/`, logging and callbacks are Hydra's.
-    A failure outside the task (Hydra cannot write `.hydra/`: a full disk) is RunFailed, one line."""
+def run_composed(config: DictConfig, setup) -> SingleRun:
+    """Hydra's single run of a config riskplan composed and checked already, with its hydra node, and the Setup
+    built from it (riskplan.run.compose.compose_run): what `Hydra.run` does after composing, so the config is
+    neither composed nor built a second time. The run's directory is hydra.run.dir; `.hydra/`, logging and
+    callbacks are Hydra's. A failure outside the task (Hydra cannot write `.hydra/`: a full disk) is RunFailed,
+    one line."""
     with open_dict(config.hydra):
         config.hydra.mode = RunMode.RUN
-    _task_stderr.append(sys.stderr)
+    stderr = sys.stderr  # the terminal's, for the progress bar, whatever Hydra does with its own output
+
+    def train_task(_cfg: DictConfig) -> SingleRun:
+        return single_run(Path(HydraConfig.get().runtime.output_dir), setup, stderr)
+
     logs = _logging_state()
     try:
         configure_log(config.hydra.hydra_logging, config.hydra.verbose)
@@ -143,17 +140,16 @@ def run_composed(config: DictConfig) -> None:
         callbacks.on_run_start(config=config, config_name="config")
         done = run_job(
             hydra_context=HydraContext(config_loader=None, callbacks=callbacks),
-            task_function=task.__wrapped__,
+            task_function=train_task,
             config=config,
             job_dir_key="hydra.run.dir",
             job_subdir_key=None,
         )
         callbacks.on_run_end(config=config, config_name="config", job_return=done)
-        done.return_value  # noqa: B018 - raises what the task raised (it records its own failures)
+        return done.return_value  # raises what the task raised (it records its own failures)
     except Exception as err:
         raise RunFailed(f"{type(err).__name__}: {err}") from None
     finally:
-        _task_stderr.pop()
         _restore_logging(logs)
 
 
@@ -235,8 +231,3 @@ def write_run_status(out: Path, status: str, error: str | None, trace: str | Non
     if trace:
         record["traceback"] = trace
     write_status(out, record)
-
-
-def _progress(enabled: bool):
-    """A rich progress bar for a single run; silent inside sweeps (the sweep shows its own view)."""
-    return TrainingBar() if enabled else silent()

@@ -17,6 +17,7 @@ from riskplan.config.hydra_safety import check_hydra_node
 from riskplan.config.schema import CONF_DIR
 from riskplan.config.typed import explain, typed
 from riskplan.config.validate import EXTRAS, check_extra
+from riskplan.engine.step import Setup
 from riskplan.run.build import build_setup
 from riskplan.util.errors import BadInput
 
@@ -160,8 +161,18 @@ def compose(
 ) -> DictConfig:
     """Compose conf/ with overrides, check the schema, then (optionally) the model's own constraints.
 
-    With `with_hydra`, the config checked is returned with its hydra node (what Hydra would run: `riskplan train`
-    hands it to riskplan.experiments.hydra_app.run_composed instead of letting Hydra compose it again)."""
+    With `with_hydra`, the config checked is returned with its hydra node (what Hydra would run)."""
+    return _compose(overrides, validate, with_hydra)[0]
+
+
+def compose_run(overrides: list[str] | tuple[str, ...] = ()) -> tuple[DictConfig, Setup]:
+    """`riskplan train`'s one route: the config composed and typed once, with its hydra node, and the Setup built
+    from it once; riskplan.experiments.hydra_app.run_composed runs both as they are."""
+    return _compose(overrides, True, True)
+
+
+def _compose(overrides, validate: bool, with_hydra: bool) -> tuple[DictConfig, Setup | None]:
+    """compose(), and the Setup it built to validate (None without `validate`)."""
     overrides = list(overrides)
     parsed = parse_overrides(overrides)
     check_groups(parsed)
@@ -190,10 +201,12 @@ def compose(
     full = copy.deepcopy(cfg) if with_hydra else None
     with open_dict(cfg):
         del cfg["hydra"]
-    typed(cfg)  # the schema check, remembered: build_setup below types the same config
-    if validate:
-        build_setup(cfg)
-    return cfg if full is None else full
+    if validate:  # the schema's checks, then the model's, as the Setup is built
+        setup = build_setup(cfg)
+    else:
+        typed(cfg)  # the schema's checks alone
+        setup = None
+    return (cfg if full is None else full), setup
 
 
 def check_hydra_args(args: list[str]) -> None:
