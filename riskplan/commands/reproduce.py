@@ -47,10 +47,15 @@ def register(app: typer.Typer) -> None:
             "-j",
             min=1,
             show_default=False,
-            help="Run each sweep's jobs as this many parallel processes (joblib) instead of as one batch on every "
-            "core (the default: the same numbers, quicker).",
+            help="Parallel jobs (default: the number of cores).",
         ),
         formats: str = typer.Option("png,pdf", "--format", help="Figure files of the report: any of png,pdf,svg."),
+        batch: bool = typer.Option(
+            False,
+            "--batch",
+            help="Train each sweep as one batch (riskplan sweep --batch): the same numbers; on a few cores job by "
+            "job is about as quick (docs/sweeps.md).",
+        ),
         paper_only: bool = typer.Option(
             False,
             "--paper-only",
@@ -74,5 +79,6 @@ def register(app: typer.Typer) -> None:
                 list(overrides or []),
                 since=process_started(),
                 paper_only=paper_only,
+                batch=batch,
             )
         )

@@ -192,20 +192,25 @@ def reproduce(
     *,
     since: float | None = None,
     paper_only: bool = False,
+    batch: bool = False,
 ) -> int:
     """Run Section V (and, unless `paper_only`, the studies beyond it and the landscape), then the report,
     `seeds` seeds per condition; return the exit code (1 when a job or the report failed).
 
     `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000. `since`: when the
     command started (epoch seconds; the CLI gives its process's start), so the time breakdown includes start-up.
+    `batch`: each sweep trains as one batch (riskplan.experiments.sweeping.batched) instead of job by job.
     """
     entered = time.time()
     if seeds < 1:
         raise BadInput("--seeds", f"got {seeds}; expected at least 1")
     experiments = chosen(paper_only)
     jobs_total = check_seeds(seeds, experiments)
-    # each sweep trains as one batch in this process unless --jobs asks for parallel worker processes
-    warmed = _warm_workers(jobs, seeds, experiments) if jobs is not None else None  # they start while checks run
+    if batch and jobs is not None:
+        raise BadInput(
+            "--jobs", "sets the workers of a job-by-job reproduction; --batch trains each sweep as one batch"
+        )
+    warmed = None if batch else _warm_workers(jobs, seeds, experiments)  # the workers start while the checks run
     try:
         extra, configs, own = _check_overrides(list(overrides or []), quick)
         check_work(seeds, jobs_total, configs, list(overrides or []), experiments)
@@ -222,8 +227,8 @@ def reproduce(
     with lock.hold(target, "reproduction directory"):
         return _reproduce(
             target,
-            Options(quick, seeds, jobs, fmts, list(overrides or []), extra, experiments, own),
-            schedule_of(seeds, configs, experiments, jobs, quick),
+            Options(quick, seeds, jobs, fmts, list(overrides or []), extra, experiments, own, batch),
+            schedule_of(seeds, configs, experiments, jobs, quick, batch),
             {"since": since, "entered": entered, "checked": checked},
             warmed,
         )
@@ -241,6 +246,7 @@ class Options:
     extra: list[str]  # --quick's and the user's: what every sweep gets
     experiments: tuple
     own_warnings: dict  # set-up -> the warnings it raises of its own (see _check_overrides)
+    batch: bool = False  # each sweep as one batch
 
     @property
     def paper_only(self) -> bool:
@@ -299,14 +305,16 @@ def check_work(
     check_time("--seeds and overrides" if overrides else "--seeds", steps / STEPS_PER_SECOND, what)
 
 
-def schedule_of(seeds: int, configs: dict, experiments: tuple, jobs: int | None, quick: bool) -> Schedule:
+def schedule_of(
+    seeds: int, configs: dict, experiments: tuple, jobs: int | None, quick: bool, batch: bool = False
+) -> Schedule:
     """The stages and their estimated seconds on this machine: each sweep, the landscape, the report."""
     model = cost.model()
     workers = _workers(jobs, seeds, experiments)
     stages = []
     for (folder, _, experiment, _), count in zip(experiments, experiment_jobs(seeds, experiments)):
         steps = [job_steps(configs[setup_of(experiment)])] * count
-        seconds = model.batch_seconds(steps) if jobs is None else model.sweep_seconds(steps, min(workers, count))
+        seconds = model.batch_seconds(steps) if batch else model.sweep_seconds(steps, min(workers, count))
         stages.append(Stage(folder, seconds, count))
     if len(experiments) == len(EXPERIMENTS):
         grid = QUICK_LANDSCAPE if quick else LANDSCAPE
@@ -338,13 +346,11 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
     quick, seeds, overrides = options.quick, options.seeds, options.overrides
     what = ("quick" if quick else "full") + (", Section V only" if options.paper_only else "")
     typer.echo(f"reproduction directory: {target} ({what}, {seeds} seeds)")
-    typer.echo(
-        plan_line(schedule, None if options.jobs is None else _workers(options.jobs, seeds, options.experiments))
-    )
+    typer.echo(plan_line(schedule, None if options.batch else _workers(options.jobs, seeds, options.experiments)))
     record = {
         "quick": quick,
         "paper_only": options.paper_only,
-        "batched": options.jobs is None,
+        "batched": options.batch,
         "seeds": seeds,
         "overrides": list(overrides),
         "started": dt.datetime.now().isoformat(timespec="seconds"),
@@ -364,7 +370,7 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
             title=folder,
             before_launch=wait_for_workers,
             expected=options.own_warnings.get(setup_of(experiment), frozenset()),
-            batch=options.jobs is None,
+            batch=options.batch,
         )
         toc = time.time()
         schedule.finished(folder, toc - tic)

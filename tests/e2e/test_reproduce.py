@@ -45,7 +45,7 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
         == {"single", "team", "wander", "soft_risk", "frontier", "landscape", "comparison", "report"} | studies
     )
     # said up front: the plan with its estimate, then each stage out of the total with the overall ETA
-    assert re.search(r"plan: 15 stages, 25 jobs, each sweep one batch on every core; estimated time ", result.stdout)
+    assert re.search(r"plan: 15 stages, 25 jobs, on \d+ workers?; estimated time ", result.stdout)
     assert "[stage 1 of 15: single]" in result.stdout and "[stage 15 of 15: report]" in result.stdout
     assert set(record["estimate"]) == set(record["parts"]) - {"comparison"}
     assert "Assumption 6" not in result.stderr  # hetero_team's constant step is the study's own choice
@@ -60,10 +60,11 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert all(v is None or v >= 0 for v in breakdown["wall"].values())
     assert breakdown["wall"]["report (figures, tables, page)"] > 0 and breakdown["total"] > 0
     assert breakdown["jobs"]["training loop (summary wall_time)"] >= 0
-    # each sweep trained as one batch in the reproduction's own process (no worker processes to warm up)
-    assert "warm_up" not in record
+    # one sweep worker was warmed up while reproduce planned, and the sweeps ran their jobs on it
+    warm = record["warm_up"]
+    assert warm["workers"] == 1 and len(warm["seconds"]) == 1 and warm["seconds"][0] > 0
     job_pids = {json.loads(p.read_text())["pid"] for p in root.glob("*/*/status.json")}
-    assert len(job_pids) == 1
+    assert warm["pids"][0] in job_pids
     for folder, jobs in (("single", 2), ("team", 1), ("frontier", 4)):
         timing = record["parts"][folder]["timing"]
         assert timing["jobs"] == jobs and timing["planning"] >= 0 and timing["running"] >= 0
@@ -115,13 +116,17 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
 
 
 def test_reproduce_paper_only_runs_section_v_alone(tmp_path):
-    result = riskplan_cli(tmp_path, "reproduce", "--quick", "--paper-only", "--seeds", "1", "--format", "png", *FAST)
+    result = riskplan_cli(
+        tmp_path, "reproduce", "--quick", "--paper-only", "--batch", "--seeds", "1", "--format", "png", *FAST
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     (root,) = (tmp_path / "outputs" / "reproduce").iterdir()
     assert sorted(p.name for p in root.iterdir() if p.is_dir()) == ["report", "single", "team"]
     record = json.loads((root / "reproduce.json").read_text())
     assert record["paper_only"] and set(record["parts"]) == {"single", "team", "comparison", "report"}
-    assert "plan: 3 stages, 3 jobs" in result.stdout and "[stage 3 of 3: report]" in result.stdout
+    assert "plan: 3 stages, 3 jobs, each sweep one batch" in result.stdout and "[stage 3 of 3: report]" in result.stdout
+    # each sweep one batch, in the reproduction's own process
+    assert record["batched"] and len({json.loads(p.read_text())["pid"] for p in root.glob("*/*/status.json")}) == 1
     assert (root / "report" / "fig1_paths.png").is_file() and (root / "report" / "fig3_team.png").is_file()
 
 
