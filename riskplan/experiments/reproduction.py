@@ -423,7 +423,7 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
         typer.echo(f"(no time breakdown: {type(err).__name__}: {err})", err=True)
     write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
     estimated = schedule.total
-    typer.echo(f"reproduced in {total:.0f} s (estimated {cost.say(estimated).removeprefix('about ')}): {target}")
+    typer.echo(f"reproduced in {total:.1f} s (estimated {cost.say(estimated).removeprefix('about ')}): {target}")
     if code:
         again = [
             "--out",

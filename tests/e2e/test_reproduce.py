@@ -53,7 +53,7 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert "where the time went" in result.stdout
     # the closing totals are one number
     went = float(re.search(r"where the time went \(([0-9.]+) s", result.stdout).group(1))
-    assert re.search(rf"reproduced in {went:.0f} s ", result.stdout)
+    assert f"reproduced in {went:.1f} s " in result.stdout
     breakdown = record["breakdown"]
     # 2 + 1 + 1 + 1 + 4 jobs of the paper's set-ups, 5 + 2 + 1 + 2 + 1 + 2 + 1 + 2 of the studies beyond it
     assert breakdown["jobs"]["jobs"] == 9 + 16 and breakdown["jobs"]["workers"] >= 1
