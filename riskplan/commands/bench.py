@@ -1,4 +1,5 @@
-"""`riskplan bench`: the speed and memory targets, each printed with its baseline (the measures are riskplan.experiments.benchmarks's)."""
+"""`riskplan bench`: the speed and memory targets, each printed with its baseline (the measures are the
+riskplan.experiments.bench_* modules')."""
 
 from __future__ import annotations
 
@@ -47,15 +48,9 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
 
         from riskplan.experiments.bench_gpu import Skipped, bench_gpu
-        from riskplan.experiments.benchmarks import (
-            bench_checkpoints,
-            bench_jit,
-            bench_measures,
-            bench_rollout,
-            bench_startup,
-            bench_team,
-            bench_training,
-        )
+        from riskplan.experiments.bench_rollout import bench_rollout
+        from riskplan.experiments.bench_startup import bench_jit, bench_startup
+        from riskplan.experiments.bench_training import bench_checkpoints, bench_measures, bench_team, bench_training
 
         console = Console(soft_wrap=True)  # one line per figure, also in a log file
         console.print(
@@ -140,7 +135,13 @@ def _busy() -> str:
 
 def _scaling(console, quick: bool, json_out: Path | None, plot: Path, csv_out: Path | None) -> None:
     """`riskplan bench --scaling`: the table, the slopes beyond the cache, the plot and the files."""
-    from riskplan.experiments.benchmarks import bench_scaling, cache_bytes, plot_scaling, scaling_slopes, scaling_table
+    from riskplan.experiments.bench_scaling import (
+        bench_scaling,
+        cache_bytes,
+        plot_scaling,
+        scaling_slopes,
+        scaling_table,
+    )
 
     console.print("building every world, then timing each once per round (the best round is kept) ...")
     rows = bench_scaling(quick)

@@ -8,7 +8,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from riskplan.experiments.benchmarks import wall
+from riskplan.experiments.bench_meters import wall
 
 # the baseline of bench_first_run: a process that imports numba and compiles riskplan's training kernel alone
 # (rollout._simulate_affine, the one episode kernel a paper run compiles), on the paper world's 12 x 12 arrays

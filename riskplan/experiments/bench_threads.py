@@ -15,7 +15,7 @@ from riskplan.engine.reductions import PARALLEL_SAMPLES
 from riskplan.engine.rollout import simulate
 from riskplan.engine.schedules import samples_at
 from riskplan.engine.step import starts
-from riskplan.experiments.benchmarks import best_time
+from riskplan.experiments.bench_meters import best_time
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import State
 from riskplan.run.compose import compose

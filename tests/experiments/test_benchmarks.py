@@ -1,5 +1,5 @@
-"""riskplan bench (riskplan.experiments.benchmarks): the plain-Python baseline has the kernel's semantics (else its
-ratio would mean nothing), and the scaling table measures every dimension against its baseline row."""
+"""riskplan bench (the riskplan.experiments.bench_* modules): the plain-Python baseline has the kernel's semantics
+(else its ratio would mean nothing), and the scaling table measures every dimension against its baseline row."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ import pytest
 
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
-from riskplan.experiments.benchmarks import bench_measures, python_rollouts
+from riskplan.experiments.bench_rollout import python_rollouts
+from riskplan.experiments.bench_training import bench_measures
 from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 
@@ -41,7 +42,7 @@ def test_scaling_measures_every_dimension_against_the_baseline_row(tmp_path, mon
     import json
     import math
 
-    from riskplan.experiments import benchmarks as bench
+    from riskplan.experiments import bench_scaling as bench
 
     monkeypatch.setattr(bench, "ROUND_SECONDS", 0.001)  # structure only: no timed assertion
     small = ["train.samples=200"]
@@ -87,7 +88,7 @@ def test_scaling_measures_every_dimension_against_the_baseline_row(tmp_path, mon
 
 @pytest.mark.slow  # builds a 64-source world: about a second
 def test_the_scaling_dimensions_span_their_ranges_and_many_sources_compose():
-    from riskplan.experiments import benchmarks as bench
+    from riskplan.experiments import bench_scaling as bench
 
     dims = bench.scaling_dimensions()
     values = {name: [v for v, _ in points] for name, points in dims.items()}
@@ -122,18 +123,20 @@ def test_bench_counts_the_targets_met_and_says_when_the_machine_is_busy(monkeypa
     from typer.testing import CliRunner
 
     from riskplan.cli import app
-    from riskplan.experiments import benchmarks as bench
 
-    for name in (
-        "bench_rollout",
-        "bench_training",
-        "bench_measures",
-        "bench_checkpoints",
-        "bench_startup",
-        "bench_team",
+    for module, name in (
+        ("bench_rollout", "bench_rollout"),
+        ("bench_training", "bench_training"),
+        ("bench_training", "bench_measures"),
+        ("bench_training", "bench_checkpoints"),
+        ("bench_startup", "bench_startup"),
+        ("bench_training", "bench_team"),
     ):
-        monkeypatch.setattr(bench, name, lambda quick, name=name: [{**_row(name, name != "bench_team"), "note": ""}])
-    monkeypatch.setattr(bench, "bench_jit", lambda: [{**_row("jit", True), "note": ""}])
+        monkeypatch.setattr(
+            f"riskplan.experiments.{module}.{name}",
+            lambda quick, name=name: [{**_row(name, name != "bench_team"), "note": ""}],
+        )
+    monkeypatch.setattr("riskplan.experiments.bench_startup.bench_jit", lambda: [{**_row("jit", True), "note": ""}])
     monkeypatch.setattr(
         "riskplan.experiments.bench_first_run.bench_first_run", lambda quick: [{**_row("first", True), "note": ""}]
     )
