@@ -12,18 +12,17 @@ import logging
 import re
 import sys
 import traceback
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import hydra
-from hydra._internal.callbacks import Callbacks
-from hydra._internal.core_plugins import basic_sweeper
-from hydra._internal.hydra import Hydra
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.utils import configure_log, run_job
 from hydra.types import HydraContext, RunMode
-from omegaconf import DictConfig, open_dict
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from riskplan.config import schema
 from riskplan.engine.step import NumericalTrouble
@@ -85,12 +84,8 @@ def _failed(out: Path, error: str, trace: str | None = None) -> SingleRun:
     return SingleRun(failure=error)
 
 
-def run_hydra(args: list[str], capture: bool = False, skip: frozenset = frozenset(), launched: list | None = None):
-    """Call the Hydra app as if `riskplan <args>` were its command line.
-
-    In a multirun, the basic sweeper's jobs whose overrides are in `skip` (finished ones) are not handed to the
-    launcher, so a re-run sweep submits only the jobs that need to run; `launched` receives those it hands over,
-    in order (a launcher's task k is launched[k]).
+def run_hydra(args: list[str], capture: bool = False):
+    """Call the Hydra app as if `riskplan <args>` were its command line (a sweep's multirun, or Hydra's own flags).
 
     With `capture`, what Hydra itself prints on stderr (it prints a traceback for an error outside the task, e.g.
     a full disk while it writes .hydra/) is held back, and a failure becomes one line (RunFailed); the task gets
@@ -103,10 +98,7 @@ def run_hydra(args: list[str], capture: bool = False, skip: frozenset = frozense
     held = io.StringIO()
     logs = _logging_state()
     try:
-        with (
-            contextlib.redirect_stderr(held) if capture else contextlib.nullcontext(),
-            _without_repeat_compositions("-m" in args or "--multirun" in args, skip, launched),
-        ):
+        with contextlib.redirect_stderr(held) if capture else contextlib.nullcontext():
             task()
     except SystemExit as stop:
         if not capture or stop.code in (0, None):
@@ -153,45 +145,34 @@ def run_composed(config: DictConfig, setup) -> SingleRun:
         _restore_logging(logs)
 
 
-@contextlib.contextmanager
-def _without_repeat_compositions(multirun: bool, skip: frozenset = frozenset(), launched: list | None = None):
-    """Skip two compositions Hydra repeats that riskplan has already done: `Hydra.get_mode` composes the config
-    only to read hydra.mode (riskplan's commands fix the mode: train runs, sweep multiruns), and the basic sweeper
-    composes every job once more to validate it (`plan_sweep` composed and validated each one, and Hydra's own
-    comment there calls it slow for large sweeps). Each takes 0.07-0.1 s: per job, in a sweep's driver.
+class Callbacks:
+    """The run's Hydra callbacks (hydra.callbacks), told of its start and end as Hydra's own run tells them: the
+    config's callback objects, each called in turn (in reverse at the end), a failing one a warning."""
 
-    The basic sweeper's batches also leave out the jobs in `skip` (`get_job_batch`), and note the rest in
-    `launched`.
+    def __init__(self, config: DictConfig) -> None:
+        found = OmegaConf.select(config, "hydra.callbacks")
+        self.callbacks = [instantiate(params) for params in found.values()] if found else []
 
-    All are Hydra internals (hydra-core is pinned to 1.3.x): if they move, nothing is skipped. Optimising
-    sweepers (optuna) choose their own jobs, so they still validate them."""
-    mode = RunMode.MULTIRUN if multirun else RunMode.RUN
-    # the class as it is now: Hydra's plugin scan executes its module again, defining a new BasicSweeper
-    BasicSweeper = basic_sweeper.BasicSweeper
-    own_batch = BasicSweeper.get_job_batch
+    def _notify(self, event: str, reverse: bool = False, **kwargs) -> None:
+        for callback in reversed(self.callbacks) if reverse else self.callbacks:
+            try:
+                getattr(callback, event)(**kwargs)
+            except Exception as err:
+                warnings.warn(
+                    f"Callback {type(callback).__name__}.{event} raised {type(err).__name__}: {err}", stacklevel=2
+                )
 
-    def job_batch(sweeper) -> list:
-        batch = [job for job in own_batch(sweeper) if tuple(job) not in skip]
-        if launched is not None:
-            launched.extend(tuple(job) for job in batch)
-        return batch
+    def on_run_start(self, config: DictConfig, **kwargs) -> None:
+        self._notify("on_run_start", config=config, **kwargs)
 
-    replacements = {
-        (Hydra, "get_mode"): lambda *args, **kwargs: mode,
-        (BasicSweeper, "validate_batch_is_legal"): lambda *args, **kwargs: None,
-        (BasicSweeper, "get_job_batch"): job_batch,
-    }
-    originals = {key: key[0].__dict__.get(key[1]) for key in replacements if hasattr(*key)}
-    try:
-        for owner, name in originals:
-            setattr(owner, name, replacements[owner, name])
-        yield
-    finally:
-        for (owner, name), own in originals.items():
-            if own is None:  # inherited (Sweeper's): uncover it again
-                delattr(owner, name)
-            else:
-                setattr(owner, name, own)
+    def on_run_end(self, config: DictConfig, **kwargs) -> None:
+        self._notify("on_run_end", reverse=True, config=config, **kwargs)
+
+    def on_job_start(self, config: DictConfig, **kwargs) -> None:
+        self._notify("on_job_start", config=config, **kwargs)
+
+    def on_job_end(self, config: DictConfig, **kwargs) -> None:
+        self._notify("on_job_end", reverse=True, config=config, **kwargs)
 
 
 def _logging_state() -> dict:

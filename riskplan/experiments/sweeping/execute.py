@@ -70,8 +70,8 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         f"{len(plan.jobs)} job{'s' if len(plan.jobs) != 1 else ''}: {todo} to run, {len(finished)} already "
         f"finished ({where})"
     )
+    waiting = [job for i, job in enumerate(plan.jobs) if i not in finished]
     if todo:
-        waiting = [job for i, job in enumerate(plan.jobs) if i not in finished]
         if plan.launcher == BATCH_LAUNCHER:
             echo(batch_line(waiting))
         echo(estimate_line(waiting, plan))
@@ -89,9 +89,8 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
             SweepView(plan.sweep_dir, plan.jobs, finished, title, batch_progress=PROGRESS if batched else None),
             DriverSignals(plan.launcher not in LOCAL) as stop,
         ):
-            skip = frozenset(tuple(plan.jobs[i].overrides) for i in finished)
             try:
-                launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log", skip)
+                launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log", [job.overrides for job in waiting])
             except Interrupted as batch_stop:  # a batch trains here: it checkpointed and marked its jobs
                 interrupted = batch_stop.signum
             finally:

@@ -20,6 +20,7 @@ SUMMARY = "summary.parquet"
 
 DEFAULT_LAUNCHER = "joblib"
 BATCH_LAUNCHER = "riskplan_batch"  # riskplan sweep --batch (hydra_plugins.riskplan_batch_launcher)
+GRID_SWEEPER = "riskplan"  # launches the planned grid's jobs still to run (hydra_plugins.riskplan_sweeper)
 
 
 @dataclass

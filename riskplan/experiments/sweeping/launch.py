@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import os
 import re
 import threading
@@ -17,31 +18,43 @@ from joblib import Parallel, delayed
 from riskplan.experiments.hydra_app import run_hydra
 from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, warm_up
 from riskplan.util.limits import cpu_count
+from riskplan.util.paths import hydra_quote, write_atomic
+
+JOB_LIST = ".jobs.json"  # a grid's jobs to launch, beside sweep.log while the launch lasts (hydra/sweeper=riskplan)
 
 
-def launch(argv: list[str], log_file: Path, skip: frozenset = frozenset()) -> str | None:
-    """Run Hydra's multirun, its printed output going to sweep.log, leaving out the jobs whose overrides are in
-    `skip` (finished ones: a re-run sweep submits only what needs to run); return the launcher's error, if any."""
-    launched: list[tuple[str, ...]] = []
-    with open(log_file, "a", buffering=1) as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
-        try:
-            run_hydra(argv, skip=skip, launched=launched)
-        except SystemExit as stop:  # Hydra prints an exception in the launcher, then exits 1
-            if stop.code not in (0, None):
-                return _launcher_error(log_file, launched)
-        except KeyboardInterrupt:
-            return "interrupted (Ctrl-C)"
-        except Exception as err:
-            traceback.print_exc()
-            return f"the launcher stopped: {type(err).__name__}: {err} (see {log_file})"
-    return None
+def launch(argv: list[str], log_file: Path, jobs: list[list[str]] | None = None) -> str | None:
+    """Run Hydra's multirun, its printed output going to sweep.log; return the launcher's error, if any.
+
+    `jobs`: a grid's jobs still to run, in order, for riskplan's sweeper (hydra_plugins.riskplan_sweeper), which
+    launches exactly these (a re-run sweep submits only what needs to run). An optimising sweeper chooses its own."""
+    if jobs is not None:
+        listed = (log_file.parent / JOB_LIST).resolve()
+        write_atomic(listed, json.dumps(jobs))
+        argv = [*argv, f"hydra.sweeper.jobs={hydra_quote(listed)}"]
+    try:
+        with open(log_file, "a", buffering=1) as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+            try:
+                run_hydra(argv)
+            except SystemExit as stop:  # Hydra prints an exception in the launcher, then exits 1
+                if stop.code not in (0, None):
+                    return _launcher_error(log_file, jobs or [])
+            except KeyboardInterrupt:
+                return "interrupted (Ctrl-C)"
+            except Exception as err:
+                traceback.print_exc()
+                return f"the launcher stopped: {type(err).__name__}: {err} (see {log_file})"
+        return None
+    finally:
+        if jobs is not None:
+            listed.unlink(missing_ok=True)
 
 
 # submitit's word for a SLURM job that ended without a result: its id, its task index and the state SLURM gave it
 UNCOMPLETED = re.compile(r"UncompletedJobError: Job (\S+) \(task: \d+\).*?\(state: ([A-Z_]+)", re.DOTALL)
 
 
-def _launcher_error(log_file: Path, launched: list[tuple[str, ...]]) -> str:
+def _launcher_error(log_file: Path, launched: list[list[str]]) -> str:
     """The cause of the error Hydra printed into sweep.log: for a SLURM job that ended without a result (cancelled,
     preempted, out of time or memory), which job and the state SLURM gave it; else the last error line."""
     try:
@@ -73,8 +86,8 @@ def warm_workers(workers: int):
     (imports and numba's cache: riskplan.experiments.sweep_worker.warm_up), on a background thread. Returns a function that waits
     for them and gives [(pid, seconds)], or [] when the warm-up failed (the sweeps then start workers of their own).
 
-    Measured with `reproduce --quick` on 2 cores, alternating: 13.5-14.4 s with one worker warmed against
-    15.1-15.6 s with none; with both warmed, 17.3-17.7 s against 15.8-16.0 s (they slowed the planning down).
+    One warmed worker shortens `reproduce`; warming every worker lengthened it, since they compete with the
+    planning for the cores (docs/benchmarks.md has the figures).
 
     joblib reuses a loky executor made with the same arguments, so the call uses the joblib launcher's own
     settings, and the environment `_run_plan` gives a sweep's workers is set before they are spawned."""

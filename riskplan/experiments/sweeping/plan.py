@@ -21,7 +21,7 @@ from riskplan.experiments.sweeping.grid import (
     unnamed_key,
     validate,
 )
-from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, DEFAULT_LAUNCHER, Plan
+from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, DEFAULT_LAUNCHER, GRID_SWEEPER, Plan
 from riskplan.experiments.sweeping.search import plan_optimiser
 from riskplan.run.compose import expand_shorthands, parse_overrides
 from riskplan.util.errors import BadInput
@@ -100,6 +100,10 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         raise BadInput(*split_bad(first, len(job_list)))
 
     argv = ["-m", *args]
+    if "hydra/sweeper" in hydra_keys:  # hydra/sweeper=basic, typed: riskplan's sweeper launches the planned grid
+        argv[1 + parsed.index(hydra_keys["hydra/sweeper"])] = f"hydra/sweeper={GRID_SWEEPER}"
+    else:
+        argv.append(f"hydra/sweeper={GRID_SWEEPER}")
     workers = None
     workers_arg = None
     if launcher == "joblib":

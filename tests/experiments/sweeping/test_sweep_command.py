@@ -54,6 +54,7 @@ def test_grid_runs_once_then_skips_then_reruns_only_what_was_deleted(tmp_path):
         ):
             assert (d / name).is_file(), name
     assert (sweep / "multirun.yaml").is_file() and (sweep / "sweep.log").is_file()
+    assert not (sweep / ".jobs.json").exists()  # the launch's job list lasts as long as the launch
 
     summary = pd.read_parquet(sweep / "summary.parquet")
     assert len(summary) == 4

@@ -1,0 +1,1 @@
+"""riskplan's sweeper for Hydra (`riskplan sweep` on a grid): see plan_sweeper."""
