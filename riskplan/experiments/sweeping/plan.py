@@ -88,6 +88,13 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
                 "lists, range(...), choice(...) or glob(...)",
             )
 
+    for o in hydra_ovs:
+        if o.key_or_group.startswith("hydra.sweeper."):
+            raise BadInput(
+                f"override '{o.input_line}'",
+                "a grid sweep takes no sweeper settings (riskplan launches the planned jobs itself); hydra.sweeper.* "
+                "configures an optimising sweeper, e.g. hydra/sweeper=optuna",
+            )
     check_size(task_ovs)
     if "hydra.sweep.subdir" in hydra_keys:
         check_subdir(hydra_keys["hydra.sweep.subdir"].value(), len(task_ovs) > 0)

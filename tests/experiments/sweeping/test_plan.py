@@ -28,6 +28,15 @@ def test_a_grid_is_planned_job_by_job_before_anything_runs(in_tmp):
     assert plan.jobs[2].invalid.startswith("risk.beta: got 1.5")
     assert len({job.sha for job in plan.jobs}) == 4 and all(job.path is None for job in plan.jobs)
     assert "hydra/launcher=joblib" in plan.argv and "hydra.launcher.n_jobs=2" in plan.argv
+    assert "hydra/sweeper=riskplan" in plan.argv  # riskplan's sweeper launches the planned jobs
+
+
+def test_a_typed_basic_sweeper_becomes_riskplans_and_sweeper_settings_are_refused(in_tmp):
+    plan = plan_sweep(["seed=0,1", "hydra/sweeper=basic", *TINY])
+    assert [a for a in plan.argv if a.startswith("hydra/sweeper")] == ["hydra/sweeper=riskplan"]
+    for setting in ("hydra.sweeper.max_batch_size=1", "hydra.sweeper.jobs=/etc/passwd"):
+        with pytest.raises(BadInput, match="a grid sweep takes no sweeper settings"):
+            plan_sweep(["seed=0,1", setting, *TINY])
 
 
 @pytest.mark.parametrize(
