@@ -95,7 +95,7 @@ def register(app: typer.Typer) -> None:
                 lambda: bench_team(quick),
             )
         for section in sections:
-            for row in section():  # printed as each section ends: the whole benchmark takes ~20 s
+            for row in section():  # printed as each section ends, not all at the end of a long benchmark
                 mark = "met" if row["ok"] else "NOT MET"
                 console.print(
                     f"[bold]{row['measure']}[/bold]: {row['value']:.4g} {row['unit']}  (target {row['target']}: {mark})"

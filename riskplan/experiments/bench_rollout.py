@@ -71,7 +71,7 @@ def bench_rollout(quick: bool) -> list[dict]:
     theta = setup.theta0[None, :]
     keys = rng.robot_keys(0, rng.TRAIN, 0, 1)
     batch = simulate(setup.world, setup.kernel, theta, setup.world.starts, keys, 6000)  # warm (JIT cache)
-    # the same 5 x 40 calls (~0.4 s) with --quick: fewer gave readings 30% low on this noisy VM
+    # the same 5 x 40 calls with --quick: fewer gave readings that were too low on a noisy machine
     seconds = best_time(lambda: simulate(setup.world, setup.kernel, theta, setup.world.starts, keys, 6000), 5, 40)
     kernel_rate = batch.steps.sum() / seconds
     episodes = 50 if quick else 300

@@ -94,7 +94,8 @@ def bench_threads(quick: bool, samples: tuple[int, ...] = SAMPLES, counts: list[
 
 
 def rounds(samples: int, quick: bool) -> int:
-    """Rounds of every thread count: fewer at W = 600,000, where a call at 1 thread takes about 0.1-0.2 s."""
+    """Rounds of every thread count: fewer at W = 600,000, where a call does a hundred times the work of one at
+    W = 6000."""
     if quick:
         return 3
     return 5 if samples > 100_000 else 9

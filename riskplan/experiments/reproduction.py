@@ -563,7 +563,8 @@ CONDITION_KEYS = ("policy.features", "policy.kind", "team.order", "team.aggregat
 
 def stop_workers() -> None:
     """End the sweeps' idle joblib (loky) worker processes now. Every job has finished and written its files;
-    left alone, they are shut down gracefully at interpreter exit, which took 2-4 s after the last line here."""
+    left alone, they are shut down gracefully at interpreter exit, which kept the command waiting after the last line
+    here."""
     if "joblib.externals.loky.reusable_executor" not in sys.modules:  # no sweep ran in worker processes
         return
     executor = getattr(sys.modules["joblib.externals.loky.reusable_executor"], "_executor", None)

@@ -1,9 +1,9 @@
 """Python's cyclic garbage collector in a process that is the `riskplan` command line.
 
 Importing numba, Hydra and pandas, composing the config and loading numba's kernels create about a million
-objects that live until the process ends. Every full collection traverses all of them: about 0.1 s over the
-start-up of `riskplan train`, and 0.3-0.5 s in the interpreter's last collections at exit, after the command's work
-is done (`riskplan bench`, docs/benchmarks.md). Objects are still freed by reference counting throughout; only the
+objects that live until the process ends. Every full collection traverses all of them: during the start-up of
+`riskplan train`, and again in the interpreter's last collections at exit, after the command's work is done
+(docs/benchmarks.md has what they cost). Objects are still freed by reference counting throughout; only the
 traversals are skipped. Only a process that `main` started is tuned: a notebook or a test that calls riskplan's
 functions keeps its collector as it is.
 """

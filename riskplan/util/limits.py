@@ -16,7 +16,7 @@ HOURS_ENV = "RISKPLAN_MAX_HOURS"
 JOBS_ENV = "RISKPLAN_MAX_JOBS"
 DEFAULT_HOURS = 24.0
 DEFAULT_JOBS = 10_000
-STEPS_PER_SECOND = 20e6  # conservative trajectory-steps/s of the kernel on 2 cores (bench measures 60-90M)
+STEPS_PER_SECOND = 20e6  # conservative trajectory-steps/s of the kernel on 2 cores, below riskplan bench's rollout row
 
 
 def _env_number(name: str, default: float) -> float:
