@@ -109,9 +109,7 @@ def test_no_two_modules_share_a_name():
 MODULE_LINES = 600  # the most lines a module of riskplan/ may have
 CLASS_LINES = 250  # the most lines a class may span
 # Modules over the limit, each with why: the test fails once one is back under it, so this list only shrinks.
-OVER_THE_LIMIT = {
-    "engine/rollout.py": "the episode kernel; another change (the CUDA dispatch) was under way when the limit came",
-}
+OVER_THE_LIMIT: dict[str, str] = {}
 
 
 def sizes() -> tuple[dict[str, int], dict[str, int]]:

@@ -3,10 +3,10 @@
 episodes are the CPU run's.
 
 Ported: static sources and a features policy without recording (training's and evaluation's case, the paper's
-worlds): the loop of `rollout._simulate_affine` for affine region rewards, and the program interpreter
-(`rollout._draw`) for any other region reward, with source rewards always through the interpreter. Everything else
-runs on the CPU kernel, unchanged: a tabular policy, mobile sources, recorded paths (`record=True`) and the
-reference sampler (`reference=True`). The policy tables and move bins (riskplan.engine.policy.tables,
+worlds): the loop of `rollout_kernels._simulate_affine` for affine region rewards, and the program interpreter
+(`rollout_kernels._draw`) for any other region reward, with source rewards always through the interpreter.
+Everything else runs on the CPU kernel, unchanged: a tabular policy, mobile sources, recorded paths (`record=True`)
+and the reference sampler (`reference=True`). The policy tables and move bins (riskplan.engine.policy.tables,
 rollout.move_bins) are computed on the CPU and copied over; the outputs come back as the `rollout.Batch` the CPU
 kernel returns.
 
@@ -35,6 +35,7 @@ from riskplan.engine.policy import tables
 from riskplan.engine.rng import GOLDEN, ZIG_R, ZIG_RATIO, ZIG_X
 from riskplan.engine.rollout import Batch, Kernel, move_bins, reach
 from riskplan.engine.rollout import simulate as cpu_simulate
+from riskplan.engine.rollout_kernels import Tables
 from riskplan.engine.world import MAX_STACK, World
 from riskplan.util.errors import BadInput
 
@@ -107,17 +108,12 @@ class Launch:
         cum, score = tables(world, thetas, kernel.features, cells)
         self.total = policies * episodes
         self.inputs = (
+            _on_device(kernel),
             cuda.to_device(move_bins(cum, cells)),
             cuda.to_device(np.ascontiguousarray(score)),
             cuda.to_device(np.ascontiguousarray(starts, dtype=np.int64)),
             cuda.to_device(np.ascontiguousarray(keys, dtype=np.uint64)),
             np.int64(episodes),
-            *_on_device(kernel),
-            kernel.affine,
-            kernel.draw_uniform,
-            kernel.draw_normal,
-            np.int64(kernel.horizon),
-            kernel.stop_at_source,
         )
         total = max(self.total, 1)  # a launch of no episodes still gets arrays (of one row it never writes)
         self.outputs = (
@@ -140,33 +136,26 @@ class Launch:
         return Batch(*(array.copy_to_host()[: self.total] for array in self.outputs))
 
 
-_DEVICE_MEMO: dict[int, tuple[Kernel, tuple]] = {}  # id(kernel) -> (kernel, its world arrays on the device)
+_DEVICE_MEMO: dict[int, tuple[Kernel, Tables]] = {}  # id(kernel) -> (kernel, its tables on the device)
 
 
-def _on_device(kernel: Kernel) -> tuple:
-    """The kernel's world arrays on the GPU, copied once per Kernel (a run's, a batch's)."""
+def _on_device(kernel: Kernel) -> Tables:
+    """The kernel's Tables with their arrays on the GPU (the constants as they are), copied once per Kernel (a
+    run's, a batch's): the one argument the episode kernel takes them as, as the CPU kernels do."""
     held = _DEVICE_MEMO.get(id(kernel))
     if held is not None and held[0] is kernel:
         return held[1]
     if len(_DEVICE_MEMO) >= 8:
         _DEVICE_MEMO.clear()
-    host = (
-        kernel.next_cell,
-        kernel.cell_affine,
-        kernel.cell_risky,
-        kernel.region_of,
-        kernel.region_risky,
-        *kernel.region_programs,
-        *kernel.source_programs,
-        kernel.source_at,
+    on_device = Tables(
+        *(cuda.to_device(np.ascontiguousarray(v)) if isinstance(v, np.ndarray) else v for v in kernel.tables)
     )
-    arrays = tuple(cuda.to_device(np.ascontiguousarray(a)) for a in host)
-    _DEVICE_MEMO[id(kernel)] = (kernel, arrays)
-    return arrays
+    _DEVICE_MEMO[id(kernel)] = (kernel, on_device)
+    return on_device
 
 
 # ------------------------------------------------------------------------------------------ device functions
-# Each mirrors its CPU namesake in riskplan.engine.rng or riskplan.engine.rollout, operation for operation.
+# Each mirrors its CPU namesake in riskplan.engine.rng or riskplan.engine.rollout_kernels, operation for operation.
 
 if SIMULATOR:  # the simulator runs device functions as Python, where libdevice's stubs return nothing
 
@@ -248,7 +237,7 @@ def _normal_edge(state, i, u):
 
 @cuda.jit(device=True)
 def _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state):
-    """rollout._affine_reward: clip(c + w U + s N, lo, hi) from the entered cell's coefficients."""
+    """rollout_kernels._affine_reward: clip(c + w U + s N, lo, hi) from the entered cell's coefficients."""
     u = 0.0
     g = 0.0
     if draw_uniform:
@@ -264,7 +253,7 @@ def _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state):
 
 @cuda.jit(device=True)
 def _draw(ops, params, first, last, stack, state):
-    """rollout._draw (ziggurat normals): one postfix reward program, (value, state)."""
+    """rollout_kernels._draw (ziggurat normals): one postfix reward program, (value, state)."""
     top = 0
     for i in range(first, last):
         op = ops[i, 0]
@@ -314,7 +303,7 @@ def _draw(ops, params, first, last, stack, state):
 
 @cuda.jit(device=True)
 def _pick_bits(bins, p, cell, m):
-    """rollout._pick_bits: the move whose integer bin holds the draw's bits m (counted, as integers)."""
+    """rollout_kernels._pick_bits: the move whose integer bin holds the draw's bits m (counted, as integers)."""
     a = 0
     for b in range(4):
         if m >= bins[p, cell, b]:
@@ -328,36 +317,27 @@ def _episode_kernel(size: int):
 
     @cuda.jit
     def episodes_kernel(
-        bins,
-        score,
-        starts,
-        keys,
-        episodes,
-        next_cell,
-        cell_affine,
-        cell_risky,
-        region_of,
-        region_risky,
-        reg_off,
-        reg_ops,
-        reg_par,
-        src_off,
-        src_ops,
-        src_par,
-        source_at,
-        affine,
-        draw_uniform,
-        draw_normal,
-        horizon,
-        stop_at_source,
-        out_z,
-        out_score,
-        out_risky,
-        out_reached,
-        out_steps,
+        tables, bins, score, starts, keys, episodes, out_z, out_score, out_risky, out_reached, out_steps
     ):
-        """rollout._simulate_affine (affine) or the static features case of rollout._simulate (the interpreter):
-        episode e of policy p = e // episodes, one per thread."""
+        """rollout_kernels._simulate_affine (affine) or the static features case of rollout_kernels._simulate (the
+        interpreter): episode e of policy p = e // episodes, one per thread. `tables` is the Kernel's, on the device."""
+        next_cell = tables.next_cell
+        cell_affine = tables.cell_affine
+        cell_risky = tables.cell_risky
+        region_of = tables.region_of
+        region_risky = tables.region_risky
+        reg_off = tables.reg_off
+        reg_ops = tables.reg_ops
+        reg_par = tables.reg_par
+        src_off = tables.src_off
+        src_ops = tables.src_ops
+        src_par = tables.src_par
+        source_at = tables.source_at
+        affine = tables.affine
+        draw_uniform = tables.draw_uniform
+        draw_normal = tables.draw_normal
+        horizon = tables.horizon
+        stop_at_source = tables.stop_at_source
         e = cuda.grid(1)
         if e >= out_z.shape[0]:
             return

@@ -1,23 +1,20 @@
 """Batched Monte Carlo rollouts: many policies x many episodes in one numba kernel.
 
-numba (parallel, cached on disk) runs the whole episode loop in machine code: policy lookup, move sampling,
-reward draws from the compiled distribution programs and score accumulation (eq. 10). Each episode draws from
-its own counter-based stream (riskplan.engine.rng), so numbers do not depend on threads or chunking.
+This module is the Python side: `make_kernel` packs a World and its Policy once per run (`Kernel`, whose `tables`
+the kernels take as one argument), `simulate` computes each call's policy tables and move bins and runs the episode
+kernel of riskplan.engine.rollout_kernels on them, and returns the outcomes as a `Batch`.
 
-Fast paths (about 2x the interpreter-only kernel): a move is picked by integer compares of a draw's bits
-(`_bins`); a region reward of the form clip(c + w U + s N) is drawn from per-cell coefficients without the program
-interpreter or a branch on the region (`affine_form`), normals by the ziggurat (riskplan.engine.rng.next_normal); static
-worlds of a features policy run `_simulate_affine`, a loop without the other cases (and the only episode kernel a
-paper run compiles: its sampled paths too). `simulate(..., reference=True)`
-runs the interpreter and the inverse-CDF normals everywhere: the same laws from other numbers, the tests' reference.
+Each episode draws from its own counter-based stream (riskplan.engine.rng), so numbers do not depend on threads or
+chunking. Static worlds of a features policy with affine region rewards (`affine_form`) run
+`rollout_kernels._simulate_affine` (the only episode kernel a paper run compiles: its sampled paths too); the rest
+(a tabular policy, mobile sources, other rewards, `reference=True`) run `rollout_kernels._simulate`, the general loop.
 
 Policies (riskplan.engine.policy.Policy, packed by `make_kernel`): a features policy's moves come from per-policy
 tables of (cell, move) for static sources, whatever its features, filled only for the cells its episodes can reach
-(`reach`: a 256 x 256 map costs what the few hundred cells within the horizon cost); with mobile sources `_mobile_policy` computes the
-signals at each step and adds the static extra features (risky, stay). A tabular policy's moves come from its table
-in every case (it ignores where the sources are, so mobile sources need nothing else), and its score, a (C * 5,)
-vector per episode, is accumulated step by step as e_(c, a) - mu(. | c) straight into the batch's scores, in
-`_simulate` (the general loop).
+(`reach`: a 256 x 256 map costs what the few hundred cells within the horizon cost); with mobile sources the kernel
+computes the signals at each step. A tabular policy's moves come from its table in every case (it ignores where the
+sources are, so mobile sources need nothing else), and its score, a (C * 5,) vector per episode, is accumulated by
+the kernel straight into the batch's scores.
 """
 
 from __future__ import annotations
@@ -26,14 +23,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit, prange
 
 from riskplan.engine import distributions as D
 from riskplan.engine.policy import Policy, make_policy, tables, tabular_tables
-from riskplan.engine.rng import bits_uniform, episode_state, next_bits, next_normal, next_uniform, normal_quantile
-from riskplan.engine.world import MAX_STACK, World
-
-CHUNK = 64  # episodes per parallel work item: amortises the per-item scratch allocations
+from riskplan.engine.rollout_kernels import Tables, _bins, _bins_at, _simulate, _simulate_affine
+from riskplan.engine.world import World
 
 
 @dataclass(frozen=True)
@@ -79,6 +73,43 @@ class Kernel:
     extra_at: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (E,) theta index per extra
     extras: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 0)))  # (C, 5, E): the extra features
     reached: dict = field(default_factory=dict, compare=False, repr=False)  # `reach` by start cells, remembered
+    tables: Tables = field(init=False, compare=False, repr=False)  # the fields above as the kernels take them
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self,
+            "tables",
+            Tables(
+                next_cell=self.next_cell,
+                region_of=self.region_of,
+                region_risky=self.region_risky,
+                reg_off=self.region_programs[0],
+                reg_ops=self.region_programs[1],
+                reg_par=self.region_programs[2],
+                src_off=self.source_programs[0],
+                src_ops=self.source_programs[1],
+                src_par=self.source_programs[2],
+                source_at=self.source_at,
+                source_cells=self.source_cells,
+                source_motion=self.source_motion,
+                source_amplitude=self.source_amplitude,
+                source_precision=self.source_precision,
+                cell_affine=self.cell_affine,
+                cell_risky=self.cell_risky,
+                extra_at=self.extra_at,
+                extras=self.extras,
+                height=int(self.height),
+                width=int(self.width),
+                horizon=int(self.horizon),
+                stop_at_source=bool(self.stop_at_source),
+                mobile=bool(self.mobile),
+                affine=bool(self.affine),
+                draw_uniform=bool(self.draw_uniform),
+                draw_normal=bool(self.draw_normal),
+                tabular=bool(self.tabular),
+                signal_at=int(self.signal_at),
+            ),
+        )
 
 
 def affine_form(dist: D.Dist) -> tuple[float, float, float, float, float] | None:
@@ -204,167 +235,28 @@ def simulate(
     path_cells = np.full((total if record else 0, width), -1, dtype=np.int64)
     path_rewards = np.zeros((total if record else 0, width))
     paths = (path_cells, path_rewards) if record else (None, None)
+    starts = np.asarray(starts, np.int64)
+    keys = np.asarray(keys, np.uint64)
+    outputs = (out_z, out_score, out_risky, out_reached, out_steps)
     if kernel.affine and not (kernel.mobile or reference or kernel.tabular):
-        _simulate_affine(
+        _simulate_affine(kernel.tables, bins, score, starts, keys, episodes, record, *outputs, path_cells, path_rewards)
+    else:
+        _simulate(
+            kernel.tables,
             bins,
             score,
-            np.asarray(starts, np.int64),
-            np.asarray(keys, np.uint64),
+            probs,
+            thetas,
+            starts,
+            keys,
             episodes,
-            kernel.next_cell,
-            kernel.cell_affine,
-            kernel.cell_risky,
-            kernel.draw_uniform,
-            kernel.draw_normal,
-            *kernel.source_programs,
-            kernel.source_at,
-            kernel.horizon,
-            kernel.stop_at_source,
-            out_z,
-            out_score,
-            out_risky,
-            out_reached,
-            out_steps,
             record,
+            reference,
+            *outputs,
             path_cells,
             path_rewards,
         )
-        return Batch(out_z, out_score, out_risky, out_reached, out_steps, *paths)
-    _simulate(
-        bins,
-        score,
-        probs,
-        kernel.tabular,
-        thetas,
-        kernel.signal_at,
-        kernel.extra_at,
-        kernel.extras,
-        np.asarray(starts, np.int64),
-        np.asarray(keys, np.uint64),
-        episodes,
-        kernel.next_cell,
-        kernel.region_of,
-        kernel.region_risky,
-        *kernel.region_programs,
-        *kernel.source_programs,
-        kernel.source_at,
-        kernel.source_cells,
-        kernel.source_motion,
-        kernel.source_amplitude,
-        kernel.source_precision,
-        kernel.height,
-        kernel.width,
-        kernel.horizon,
-        kernel.stop_at_source,
-        kernel.mobile,
-        record,
-        reference,
-        kernel.affine and not reference,
-        kernel.cell_affine,
-        kernel.cell_risky,
-        kernel.draw_uniform,
-        kernel.draw_normal,
-        out_z,
-        out_score,
-        out_risky,
-        out_reached,
-        out_steps,
-        path_cells,
-        path_rewards,
-    )
     return Batch(out_z, out_score, out_risky, out_reached, out_steps, *paths)
-
-
-@njit(cache=True, inline="always")
-def _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state):
-    """The entered cell's reward clip(c + w U + s N, lo, hi) from its coefficients; (reward, new state)."""
-    u = 0.0
-    g = 0.0
-    if draw_uniform:
-        state, u = next_uniform(state)
-    if draw_normal:
-        state, g = next_normal(state)
-    reward = min(
-        max(cell_affine[cell, 0] + cell_affine[cell, 1] * u + cell_affine[cell, 2] * g, cell_affine[cell, 3]),
-        cell_affine[cell, 4],
-    )
-    return reward, state
-
-
-@njit(cache=True)
-def _draw(ops, params, first, last, stack, state, inverse_normal=False):
-    """Run one postfix reward program (riskplan.engine.distributions) and return (value, state).
-
-    Normal draws come from the ziggurat (riskplan.engine.rng.next_normal), or with `inverse_normal` from the inverse CDF
-    of one uniform (the slower sampler used before; kept as the tests' reference).
-
-    A call for a source's reward (once per episode): inlined there too, it tripled `_simulate`'s compile time (the
-    first run after an install). Every kernel passes `inverse_normal`, so one specialisation serves them all.
-    """
-    top = 0
-    for i in range(first, last):
-        op = ops[i, 0]
-        if op == D.OP_CONST:
-            stack[top] = params[i, 0]
-            top += 1
-        elif op == D.OP_UNIFORM:
-            state, u = next_uniform(state)
-            stack[top] = params[i, 0] + (params[i, 1] - params[i, 0]) * u
-            top += 1
-        elif op == D.OP_NORMAL:
-            if inverse_normal:
-                state, u = next_uniform(state)
-                g = normal_quantile(u)
-            else:
-                state, g = next_normal(state)
-            stack[top] = params[i, 0] + params[i, 1] * g
-            top += 1
-        elif op == D.OP_BERNOULLI:
-            state, u = next_uniform(state)
-            stack[top] = 1.0 if u < params[i, 0] else 0.0
-            top += 1
-        elif op == D.OP_SCALE:
-            stack[top - 1] *= params[i, 0]
-        elif op == D.OP_CLIP:
-            stack[top - 1] = min(max(stack[top - 1], params[i, 0]), params[i, 1])
-        elif op == D.OP_SUM:
-            n = ops[i, 1]
-            acc = 0.0
-            for k in range(n):
-                acc += stack[top - 1 - k]
-            top -= n
-            stack[top] = acc
-            top += 1
-        else:  # OP_MIXTURE: n values, then their n normalised weights, on the stack
-            n = ops[i, 1]
-            state, u = next_uniform(state)
-            pick = n - 1
-            acc = 0.0
-            for k in range(n):
-                acc += stack[top - n + k]
-                if u < acc:
-                    pick = k
-                    break
-            value = stack[top - 2 * n + pick]
-            top -= 2 * n
-            stack[top] = value
-            top += 1
-    return stack[0 if top == 0 else top - 1], state
-
-
-# `_draw` inlined, for `_simulate`'s region reward of a non-affine world, drawn at every step: a call there halves
-# the kernel's speed. Not cached itself: its code is compiled into the kernel's.
-_draw_inline = njit(inline="always")(_draw.py_func)
-
-
-@njit(cache=True, inline="always")
-def _pick(cum, u):
-    """The move whose bin of the cumulative probabilities (cum[4] = 1) holds u: counted without branches.
-
-    Counting the bins below u gives the index a linear search would, but a random move is no longer a branch the
-    CPU mispredicts: ~20% faster rollouts.
-    """
-    return (u > cum[0]) + (u > cum[1]) + (u > cum[2]) + (u > cum[3])
 
 
 def move_bins(cum: np.ndarray, cells: np.ndarray | None = None) -> np.ndarray:
@@ -413,366 +305,3 @@ def _reach(next_cell: np.ndarray, starts: np.ndarray, moves: int) -> np.ndarray:
         seen[ahead] = True
         frontier = ahead
     return np.flatnonzero(seen).astype(np.int64)
-
-
-@njit(cache=True)
-def _bins(cum, bins):
-    """Cumulative move probabilities as integer bounds on a draw's 53 bits m: bits_uniform(m) > cum[a] exactly
-    when m >= bins[a], so `_pick_bits` picks the move `_pick` would, by integer compares (a shorter dependency
-    chain from one cell to the next than converting and comparing floats).
-
-    The least such m in closed form, without branches (a search mispredicted half its steps: 10x slower at a
-    1000-robot team's 576,000 bounds). With X = c 2^53 (exact): below 2^52, m + 0.5 is exact, so m = floor(X -
-    0.5) + 1; from 2^52 on, X is whole and m + 0.5 rounds to the even neighbour, so m = X | 1; capped at 2^53.
-    tests/test_kernel_speed_paths.py checks it against the search on random and edge probabilities."""
-    top = np.int64(9007199254740992)  # 2^53: one past the largest m
-    for p in range(cum.shape[0]):
-        for c in range(cum.shape[1]):
-            for a in range(4):
-                scaled = cum[p, c, a] * 9007199254740992.0
-                below = np.int64(math.floor(scaled - 0.5)) + 1
-                above = np.int64(min(scaled, 9007199254740992.0)) | 1
-                bins[p, c, a] = min(max(below if scaled < 4503599627370496.0 else above, 0), top)
-
-
-@njit(cache=True)
-def _bins_at(cum, bins, cells):
-    """`_bins` for the listed cells only: the same arithmetic, row by row."""
-    top = np.int64(9007199254740992)  # 2^53: one past the largest m
-    for p in range(cum.shape[0]):
-        for c in cells:
-            for a in range(4):
-                scaled = cum[p, c, a] * 9007199254740992.0
-                below = np.int64(math.floor(scaled - 0.5)) + 1
-                above = np.int64(min(scaled, 9007199254740992.0)) | 1
-                bins[p, c, a] = min(max(below if scaled < 4503599627370496.0 else above, 0), top)
-
-
-@njit(cache=True, inline="always")
-def _pick_bits(bins, m):
-    """`_pick` on the integer bounds of `_bins`."""
-    return (m >= bins[0]) + (m >= bins[1]) + (m >= bins[2]) + (m >= bins[3])
-
-
-@njit(cache=True)
-def _mobile_signals(cell, theta, src, next_cell, amplitude, precision, height, cum, feats):
-    """`_mobile_policy` of the paper's policy (theta weights the signals alone): its loop without the extras' cases
-    (the mobile kernel's speed as before them; the same numbers as `_mobile_policy`)."""
-    best = -np.inf
-    for a in range(5):
-        nc = next_cell[cell, a]
-        x, y = nc // height, nc % height
-        logit = 0.0
-        for j in range(len(src)):
-            dx = x - src[j] // height
-            dy = y - src[j] % height
-            q = precision[j, 0] * dx * dx + 2.0 * precision[j, 1] * dx * dy + precision[j, 2] * dy * dy
-            feats[a, j] = amplitude[j] * math.exp(-0.5 * q)
-            logit += theta[j] * feats[a, j]
-        cum[a] = logit
-        best = max(best, logit)
-    total = 0.0
-    for a in range(5):
-        cum[a] = math.exp(cum[a] - best)
-        total += cum[a]
-    acc = 0.0
-    for a in range(5):
-        acc += cum[a] / total
-        cum[a] = acc
-    cum[4] = 1.0
-
-
-@njit(cache=True)
-def _mobile_policy(cell, theta, src, next_cell, amplitude, precision, height, signal_at, extra_at, extras, cum, feats):
-    """Move probabilities (cumulative) and features (5, len(theta)) at `cell` for sources at `src` (mobile sources).
-
-    The signals (when signal_at >= 0) fill theta's columns signal_at.., the static extras (C, 5, E) columns extra_at
-    (ascending); the logit sums theta_i f_i in theta's order, each term as its feature is computed (the paper's
-    policy: the signals' terms alone, in the order and arithmetic of the kernel before the extras).
-    """
-    extra = len(extra_at)
-    before = 0  # the extras that come before the signals in theta
-    while before < extra and signal_at >= 0 and extra_at[before] < signal_at:
-        before += 1
-    if signal_at < 0:
-        before = extra
-    best = -np.inf
-    for a in range(5):
-        nc = next_cell[cell, a]
-        x, y = nc // height, nc % height
-        logit = 0.0
-        for e in range(before):
-            feats[a, extra_at[e]] = extras[cell, a, e]
-            logit += theta[extra_at[e]] * feats[a, extra_at[e]]
-        if signal_at >= 0:
-            for j in range(len(src)):
-                dx = x - src[j] // height
-                dy = y - src[j] % height
-                q = precision[j, 0] * dx * dx + 2.0 * precision[j, 1] * dx * dy + precision[j, 2] * dy * dy
-                feats[a, signal_at + j] = amplitude[j] * math.exp(-0.5 * q)
-                logit += theta[signal_at + j] * feats[a, signal_at + j]
-        for e in range(before, extra):
-            feats[a, extra_at[e]] = extras[cell, a, e]
-            logit += theta[extra_at[e]] * feats[a, extra_at[e]]
-        cum[a] = logit
-        best = max(best, logit)
-    total = 0.0
-    for a in range(5):
-        cum[a] = math.exp(cum[a] - best)
-        total += cum[a]
-    acc = 0.0
-    for a in range(5):
-        acc += cum[a] / total
-        cum[a] = acc
-    cum[4] = 1.0
-
-
-@njit(cache=True)
-def _walk(src, motion, height, width, state):
-    """One random-walk step of each mobile source (stays on the grid); returns the stream state."""
-    for j in range(len(src)):
-        if motion[j] > 0.0:
-            state, u = next_uniform(state)
-            if u < motion[j]:
-                state, v = next_uniform(state)
-                a = min(int(v * 4.0), 3)
-                move = (0, 1, 3, 4)[a]  # E, W, N, S (never Stay)
-                x = src[j] // height + (1, -1, 0, 0, 0)[move]
-                y = src[j] % height + (0, 0, 0, 1, -1)[move]
-                if 0 <= x < width and 0 <= y < height:
-                    src[j] = x * height + y
-    return state
-
-
-@njit(parallel=True, cache=True, error_model="numpy")
-def _simulate_affine(
-    bins,
-    score,
-    starts,
-    keys,
-    episodes,
-    next_cell,
-    cell_affine,
-    cell_risky,
-    draw_uniform,
-    draw_normal,
-    src_off,
-    src_ops,
-    src_par,
-    source_at,
-    horizon,
-    stop_at_source,
-    out_z,
-    out_score,
-    out_risky,
-    out_reached,
-    out_steps,
-    record,
-    path_cells,
-    path_rewards,
-):
-    """`_simulate` for static sources, affine region rewards and a features policy (training's, evaluation's and
-    the sampled paths' case): the same draws in the same order, hence the same numbers, from a loop without the
-    other cases' branches (about 20% faster: tests/test_kernel_fast_paths.py checks the two agree). With `record`
-    it fills path_cells and path_rewards as `_simulate` does, so the paths of a paper run need no second kernel
-    (`_simulate` took three times this kernel's compile time)."""
-    policies = bins.shape[0]
-    sources = score.shape[3]
-    total = policies * episodes
-    chunks = (total + CHUNK - 1) // CHUNK
-    for chunk in prange(chunks):
-        stack = np.empty(MAX_STACK)
-        acc = np.empty(sources)
-        for e in range(chunk * CHUNK, min(total, (chunk + 1) * CHUNK)):
-            p = e // episodes
-            state = episode_state(keys[p], e - p * episodes)
-            cell = starts[p]
-            z = 0.0
-            risky = 0
-            reached = -1
-            steps = 0
-            acc[:] = 0.0
-            if record:
-                path_cells[e, 0] = cell
-            for k in range(horizon):
-                state, m = next_bits(state)
-                a = _pick_bits(bins[p, cell], np.int64(m))
-                for j in range(sources):
-                    acc[j] += score[p, cell, a, j]
-                cell = next_cell[cell, a]
-                steps += 1
-                reward, state = _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state)
-                risky += cell_risky[cell]
-                hit = source_at[cell]
-                if hit >= 0:
-                    value, state = _draw(src_ops, src_par, src_off[hit], src_off[hit + 1], stack, state, False)
-                    reward += value
-                    if reached < 0:
-                        reached = hit
-                z += reward
-                if record:
-                    path_cells[e, k + 1] = cell
-                    path_rewards[e, k + 1] = reward
-                if hit >= 0 and stop_at_source:
-                    break
-            out_z[e] = z
-            out_score[e, :] = acc
-            out_risky[e] = risky
-            out_reached[e] = reached
-            out_steps[e] = steps
-
-
-@njit(parallel=True, cache=True, error_model="numpy")
-def _simulate(
-    bins,
-    score,
-    probs,
-    tabular,
-    thetas,
-    signal_at,
-    extra_at,
-    extras,
-    starts,
-    keys,
-    episodes,
-    next_cell,
-    region_of,
-    region_risky,
-    reg_off,
-    reg_ops,
-    reg_par,
-    src_off,
-    src_ops,
-    src_par,
-    source_at,
-    source_cells,
-    motion,
-    amplitude,
-    precision,
-    height,
-    width,
-    horizon,
-    stop_at_source,
-    mobile,
-    record,
-    reference,
-    affine,
-    cell_affine,
-    cell_risky,
-    draw_uniform,
-    draw_normal,
-    out_z,
-    out_score,
-    out_risky,
-    out_reached,
-    out_steps,
-    path_cells,
-    path_rewards,
-):
-    """Episode loop; see `simulate`. A tabular policy's score goes straight into out_score (zeros on entry)."""
-    policies = bins.shape[0]
-    sources = source_cells.shape[0]
-    size = 0 if tabular else thetas.shape[1]  # the score kept in `acc` (a tabular policy's is written in place)
-    signals_only = signal_at == 0 and extra_at.shape[0] == 0  # the paper's policy: `_mobile_signals`
-    total = policies * episodes
-    chunks = (total + CHUNK - 1) // CHUNK
-    for chunk in prange(chunks):
-        stack = np.empty(MAX_STACK)
-        src = np.empty(sources, dtype=np.int64)
-        local_cum = np.empty(5)
-        feats = np.empty((5, size))
-        expect = np.empty(size)
-        acc = np.empty(size)  # the episode's score, kept local: one store per episode, not per step
-        for e in range(chunk * CHUNK, min(total, (chunk + 1) * CHUNK)):
-            p = e // episodes
-            state = episode_state(keys[p], e - p * episodes)
-            cell = starts[p]
-            z = 0.0
-            risky = 0
-            reached = -1
-            steps = 0
-            for j in range(size):
-                acc[j] = 0.0
-            for j in range(sources):
-                src[j] = source_cells[j]
-            if record:
-                path_cells[e, 0] = cell
-            for k in range(horizon):
-                state, m = next_bits(state)
-                if tabular:  # the table, wherever the sources are; score e_(cell, a) - mu(. | cell)
-                    a = _pick_bits(bins[p, cell], np.int64(m))
-                    if out_score.shape[1] > 0:
-                        for b in range(5):
-                            out_score[e, cell * 5 + b] -= probs[p, cell, b]
-                        out_score[e, cell * 5 + a] += 1.0
-                elif mobile:
-                    u = bits_uniform(m)
-                    if signals_only:
-                        _mobile_signals(cell, thetas[p], src, next_cell, amplitude, precision, height, local_cum, feats)
-                    else:
-                        _mobile_policy(
-                            cell,
-                            thetas[p],
-                            src,
-                            next_cell,
-                            amplitude,
-                            precision,
-                            height,
-                            signal_at,
-                            extra_at,
-                            extras,
-                            local_cum,
-                            feats,
-                        )
-                    a = _pick(local_cum, u)
-                    expect[:] = 0.0
-                    prev = 0.0
-                    for b in range(5):
-                        for j in range(size):
-                            expect[j] += (local_cum[b] - prev) * feats[b, j]
-                        prev = local_cum[b]
-                    for j in range(size):
-                        acc[j] += feats[a, j] - expect[j]
-                else:
-                    a = _pick_bits(bins[p, cell], np.int64(m))
-                    for j in range(size):
-                        acc[j] += score[p, cell, a, j]
-                cell = next_cell[cell, a]
-                steps += 1
-                reward = 0.0
-                if affine:  # no branch on the region: both draws every step, the cell's coefficients pick the law
-                    reward, state = _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state)
-                    risky += cell_risky[cell]
-                else:
-                    region = region_of[cell]
-                    if region >= 0:
-                        reward, state = _draw_inline(
-                            reg_ops, reg_par, reg_off[region], reg_off[region + 1], stack, state, reference
-                        )
-                        risky += region_risky[region]
-                hit = -1
-                if mobile:
-                    for j in range(sources):
-                        if src[j] == cell:
-                            hit = j
-                            break
-                    state = _walk(src, motion, height, width, state)
-                else:
-                    hit = source_at[cell]
-                if hit >= 0:
-                    value, state = _draw(src_ops, src_par, src_off[hit], src_off[hit + 1], stack, state, reference)
-                    reward += value
-                    if reached < 0:
-                        reached = hit
-                z += reward
-                if record:
-                    path_cells[e, k + 1] = cell
-                    path_rewards[e, k + 1] = reward
-                if hit >= 0 and stop_at_source:
-                    break
-            out_z[e] = z
-            if not tabular:
-                out_score[e, :] = acc
-            out_risky[e] = risky
-            out_reached[e] = reached
-            out_steps[e] = steps

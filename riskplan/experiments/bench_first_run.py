@@ -11,11 +11,11 @@ from pathlib import Path
 from riskplan.experiments.bench_meters import wall
 
 # the baseline of bench_first_run: a process that imports numba and compiles riskplan's training kernel alone
-# (rollout._simulate_affine, the one episode kernel a paper run compiles), on the paper world's 12 x 12 arrays
+# (rollout_kernels._simulate_affine, the one episode kernel a paper run compiles), on the paper world's 12 x 12 arrays
 TRAINING_KERNEL = """
 import numpy as np
 from riskplan.engine.distributions import pack_programs, parse
-from riskplan.engine.rollout import _simulate_affine
+from riskplan.engine.rollout_kernels import Tables, _simulate_affine
 side, episodes = 12, 100
 cells = side * side
 x, y = np.divmod(np.arange(cells), side)
@@ -27,11 +27,19 @@ affine = np.tile([0.0, 100.0, 0.0, -np.inf, np.inf], (cells, 1))
 affine[y > x] = [0.0, 200.0, 100.0, -1e4, 1e4]
 source_at = np.full(cells, -1)
 source_at[9 * side + 3], source_at[3 * side + 9] = 0, 1
-programs = pack_programs([parse(1000.0), parse({"normal": [2000.0, 2000.0]})])
+region, sources = pack_programs([parse(0.0)]), pack_programs([parse(1000.0), parse({"normal": [2000.0, 2000.0]})])
+tables = Tables(
+    next_cell=next_cell, region_of=(y > x).astype(np.int64), region_risky=np.ones(1, np.int64), reg_off=region[0],
+    reg_ops=region[1], reg_par=region[2], src_off=sources[0], src_ops=sources[1], src_par=sources[2],
+    source_at=source_at, source_cells=np.array([9 * side + 3, 3 * side + 9]), source_motion=np.zeros(2),
+    source_amplitude=np.ones(2), source_precision=np.ones((2, 3)), cell_affine=affine,
+    cell_risky=(y > x).astype(np.int64), extra_at=np.zeros(0, np.int64), extras=np.zeros((cells, 5, 0)), height=side,
+    width=side, horizon=20, stop_at_source=True, mobile=False, affine=True, draw_uniform=True, draw_normal=True,
+    tabular=False, signal_at=0,
+)
 out = (np.empty(episodes), np.empty((episodes, 2)), *(np.empty(episodes, np.int64) for _ in range(3)))
-_simulate_affine(bins, np.zeros((1, cells, 5, 2)), np.zeros(1, np.int64), np.array([7], np.uint64), episodes,
-                 next_cell, affine, (y > x).astype(np.int64), True, True, *programs, source_at, 20, True, *out,
-                 False, np.zeros((0, 0), np.int64), np.zeros((0, 0)))
+_simulate_affine(tables, bins, np.zeros((1, cells, 5, 2)), np.zeros(1, np.int64), np.array([7], np.uint64), episodes,
+                 False, *out, np.zeros((0, 0), np.int64), np.zeros((0, 0)))
 """
 
 

@@ -208,7 +208,7 @@ def test_the_kernel_tables_with_extra_features_are_the_numpy_policy():
 
 
 # "mobile": a source that almost never walks (1e-12 per step), so the distribution is the static world's, but the
-# mobile kernel computes the features on the fly (`rollout._mobile_policy`, with the extras).
+# mobile kernel computes the features on the fly (`rollout_kernels._mobile_policy`, with the extras).
 @pytest.fixture(scope="module", params=["static", "mobile"])
 def tiny(request):
     data = OmegaConf.to_container(OmegaConf.create(WORLD_3X3))
@@ -266,7 +266,7 @@ def test_make_policy_rejects_what_validation_would():
 def test_the_mobile_kernels_general_policy_is_its_signals_loop_without_extras():
     """`_mobile_policy` (any features) with the signals alone gives `_mobile_signals`' numbers (the paper's path)
     bit for bit, at every cell, for sources anywhere; with extras, the extras' columns and terms."""
-    from riskplan.engine.rollout import _mobile_policy, _mobile_signals
+    from riskplan.engine.rollout_kernels import _mobile_policy, _mobile_signals
 
     setup = build_setup(compose(["world.sources.0.motion.kind=random_walk", "world.sources.0.motion.prob=0.3"]))
     world, theta = setup.world, np.array([3.0, -1.5])

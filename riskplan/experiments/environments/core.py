@@ -1,6 +1,6 @@
 """The world of riskplan in numpy, for the Gymnasium and PettingZoo environments: many robots stepped at once.
 
-`Worlds` follows the numba kernel's episode (riskplan.engine.rollout._simulate) step for step:
+`Worlds` follows the numba kernel's episode (riskplan.engine.rollout_kernels._simulate) step for step:
   * a move is one of E, W, Stay, N, S (riskplan.engine.world.MOVES, in that order); a blocked move stays;
   * the cell entered at each step 1..K is paid its region's reward (first matching region; no region pays 0;
     the start cell is not paid), drawn with riskplan.engine.distributions.sample; a risky region counts a risky step;
