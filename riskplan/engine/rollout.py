@@ -209,7 +209,7 @@ def simulate(
 
     `reference` runs every region reward through the program interpreter and normals by the inverse CDF of one
     uniform (no fast path). The same distributions from other numbers, slower; kept as the
-    reference of tests/test_kernel_speed_paths.py.
+    reference of tests/engine/test_kernel_fast_paths.py.
     """
     thetas = np.ascontiguousarray(thetas, dtype=np.float64)
     policies, size = thetas.shape

@@ -5,7 +5,7 @@ numba (parallel, cached on disk) runs the whole episode loop in machine code: po
 reward draws from the compiled distribution programs and score accumulation (eq. 10). Each episode draws from
 its own counter-based stream (riskplan.engine.rng), so numbers do not depend on threads or chunking.
 
-Fast paths (about 2x the interpreter-only kernel): a move is picked by integer compares of a draw's bits
+Fast paths (docs/benchmarks.md, "What makes the kernel fast"): a move is picked by integer compares of a draw's bits
 (`_bins`); a region reward of the form clip(c + w U + s N) is drawn from per-cell coefficients without the program
 interpreter or a branch on the region (rollout.affine_form), normals by the ziggurat (riskplan.engine.rng.next_normal);
 static worlds of a features policy run `_simulate_affine`, a loop without the other cases (and the only episode
@@ -93,8 +93,8 @@ def _draw(ops, params, first, last, stack, state, inverse_normal=False):
     Normal draws come from the ziggurat (riskplan.engine.rng.next_normal), or with `inverse_normal` from the inverse CDF
     of one uniform (the slower sampler used before; kept as the tests' reference).
 
-    A call for a source's reward (once per episode): inlined there too, it tripled `_simulate`'s compile time (the
-    first run after an install). Every kernel passes `inverse_normal`, so one specialisation serves them all.
+    A call for a source's reward (once per episode): inlined there too, it would multiply `_simulate`'s compile
+    time (the first run after an install). Every kernel passes `inverse_normal`, so one specialisation serves all.
     """
     top = 0
     for i in range(first, last):
@@ -157,7 +157,7 @@ def _pick(cum, u):
     """The move whose bin of the cumulative probabilities (cum[4] = 1) holds u: counted without branches.
 
     Counting the bins below u gives the index a linear search would, but a random move is no longer a branch the
-    CPU mispredicts: ~20% faster rollouts.
+    CPU mispredicts.
     """
     return (u > cum[0]) + (u > cum[1]) + (u > cum[2]) + (u > cum[3])
 
@@ -168,10 +168,10 @@ def _bins(cum, bins):
     when m >= bins[a], so `_pick_bits` picks the move `_pick` would, by integer compares (a shorter dependency
     chain from one cell to the next than converting and comparing floats).
 
-    The least such m in closed form, without branches (a search mispredicted half its steps: 10x slower at a
-    1000-robot team's 576,000 bounds). With X = c 2^53 (exact): below 2^52, m + 0.5 is exact, so m = floor(X -
-    0.5) + 1; from 2^52 on, X is whole and m + 0.5 rounds to the even neighbour, so m = X | 1; capped at 2^53.
-    tests/test_kernel_speed_paths.py checks it against the search on random and edge probabilities."""
+    The least such m in closed form, without branches (a search mispredicts half its steps, and a 1000-robot
+    team has 576,000 bounds). With X = c 2^53 (exact): below 2^52, m + 0.5 is exact, so m = floor(X - 0.5) + 1;
+    from 2^52 on, X is whole and m + 0.5 rounds to the even neighbour, so m = X | 1; capped at 2^53.
+    tests/engine/test_kernel_fast_paths.py checks it against the search on random and edge probabilities."""
     top = np.int64(9007199254740992)  # 2^53: one past the largest m
     for p in range(cum.shape[0]):
         for c in range(cum.shape[1]):
@@ -310,9 +310,9 @@ def _simulate_affine(
 ):
     """`_simulate` for static sources, affine region rewards and a features policy (training's, evaluation's and
     the sampled paths' case): the same draws in the same order, hence the same numbers, from a loop without the
-    other cases' branches (about 20% faster: tests/test_kernel_fast_paths.py checks the two agree). With `record`
+    other cases' branches (tests/engine/test_kernel_fast_paths.py checks the two agree). With `record`
     it fills path_cells and path_rewards as `_simulate` does, so the paths of a paper run need no second kernel
-    (`_simulate` took three times this kernel's compile time)."""
+    (`_simulate` takes much longer to compile)."""
     next_cell = tables.next_cell
     cell_affine = tables.cell_affine
     cell_risky = tables.cell_risky
