@@ -18,7 +18,7 @@ from riskplan.engine.rollout import simulate
 from riskplan.engine.schedules import samples_at
 from riskplan.engine.step import starts
 from riskplan.experiments.bench_meters import best_time
-from riskplan.experiments.bench_training import TEAM_SAMPLES
+from riskplan.experiments.bench_training import ITERATIONS_ONLY, TEAM_SAMPLES
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import State
 from riskplan.run.compose import compose
@@ -93,7 +93,7 @@ class Point:
 
     def __init__(self, dimension: str, value: float, overrides: list[str]):
         self.dimension, self.value, self.overrides = dimension, value, list(overrides)
-        setup = build_setup(compose(self.overrides))
+        setup = build_setup(compose([*self.overrides, ITERATIONS_ONLY]))  # kernel calls and iterations only
         first = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
         episodes = samples_at(0, setup.params.train)
         keys = rng.robot_keys(setup.params.seed, rng.TRAIN, 0, setup.robots)

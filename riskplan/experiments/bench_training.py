@@ -89,6 +89,9 @@ def bench_checkpoints(quick: bool) -> list[dict]:
 
 
 TEAM_SAMPLES = 100_000  # total samples per iteration of the team benchmarks and the scaling study's robots (N * W_i)
+# The team and scaling rows time iterations only: a small evaluation keeps the run's memory check to what they use (1000
+# robots' default evaluation, 100,000 episodes for each of 1001 policies, would need about 16 GB).
+ITERATIONS_ONLY = "train.eval_episodes=1000"
 
 
 def iteration_time(overrides: list[str], quick: bool) -> float:
@@ -148,7 +151,13 @@ def bench_team(quick: bool) -> list[dict]:
     rows = []
     for robots in (100, 1000):
         team = iteration_time(
-            [f"team.robots={robots}", "team.graph=random_geometric", f"train.samples={TEAM_SAMPLES // robots}"], quick
+            [
+                f"team.robots={robots}",
+                "team.graph=random_geometric",
+                f"train.samples={TEAM_SAMPLES // robots}",
+                ITERATIONS_ONLY,
+            ],
+            quick,
         )
         rows.append(
             {
@@ -166,7 +175,9 @@ def bench_team(quick: bool) -> list[dict]:
     growth = []
     for robots, samples in sizes[:3] if quick else sizes:
         setup = build_setup(
-            compose([f"team.robots={robots}", "team.graph=random_geometric", f"train.samples={samples}"])
+            compose(
+                [f"team.robots={robots}", "team.graph=random_geometric", f"train.samples={samples}", ITERATIONS_ONLY]
+            )
         )
         state = State(0, np.tile(setup.theta0, (robots, 1)), setup.mixer.state(), [])
         tracemalloc.start()  # numpy reports its buffers to tracemalloc: exact peak bytes of one iteration
