@@ -19,6 +19,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from numba.core import event
+
 from riskplan.run import budget
 from riskplan.util.limits import STEPS_PER_SECOND, duration
 from riskplan.util.paths import write_atomic
@@ -110,6 +112,29 @@ def _records() -> list[tuple[float, float]]:
         and len(r) == 2
         and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in r)
     ][-KEEP:]
+
+
+class CompileCounter(event.Listener):
+    """Counts numba's compilations in this process (a kernel loaded from the disk cache is not one)."""
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def on_start(self, event) -> None:
+        self.count += 1
+
+    def on_end(self, event) -> None:
+        pass
+
+
+_COMPILES = CompileCounter()
+event.register("numba:compile", _COMPILES)
+
+
+def compiles() -> int:
+    """numba's compilations in this process so far: a run during which this grew spent its time mostly compiling
+    (the first run after an install, or in a new checkout), and says little about the machine's speed."""
+    return _COMPILES.count
 
 
 def record(steps: float, seconds: float, share: float = 1.0) -> None:

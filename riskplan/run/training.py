@@ -105,6 +105,7 @@ class Driver:
     def __init__(self, setup: Setup, out: Path, resume: bool, progress=None):
         self.setup, self.out, self.progress = setup, out, progress
         self.entered = time.perf_counter()
+        self.compiles = cost.compiles()
         if resume:
             state = load_checkpoint(out, setup)
             self.log, rows = reopen_log(out, setup, state.iteration)
@@ -161,10 +162,11 @@ class Driver:
     def finish(self, seconds: float | None = None, share: float | None = None) -> dict:
         """The finished run's files (after run.mcap closed), summary.json last; returns the summary. A whole run
         calibrates the time estimates of sweeps and reproductions on this machine (riskplan.run.cost) with its wall
-        seconds since it opened (a batch gives each run its part of the batch's time, on all cores)."""
+        seconds since it opened (a batch gives each run its part of the batch's time, on all cores), unless numba
+        compiled a kernel meanwhile: then its seconds are mostly the compiler's."""
         metrics, evaluation, trajectories, summary = self.results
         write_finished(self.out, self.setup, metrics, evaluation, trajectories, summary)
-        if not self.resumed_at:
+        if not self.resumed_at and cost.compiles() == self.compiles:
             seconds = time.perf_counter() - self.entered if seconds is None else seconds
             share = numba.get_num_threads() / cpu_count() if share is None else share
             cost.record(cost.setup_steps(self.setup), seconds, share)

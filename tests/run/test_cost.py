@@ -90,10 +90,32 @@ def test_a_cache_path_that_is_a_file_costs_only_the_calibration(tmp_path, monkey
 
 def test_a_finished_run_records_its_estimated_steps(cache, tmp_path):
     config = compose(TINY)
+    train_summary(config, tmp_path / "warm")  # numba's kernels compiled or loaded: the next run compiles nothing
+    cost.cache_file().unlink(missing_ok=True)
     train_summary(config, tmp_path / "run")
     (record,) = json.loads(cost.cache_file().read_text())["runs"]
     width, height = (int(v) for v in config.world.size)
     assert record[0] == cost.config_steps(config, width, height, len(config.world.sources), 1) and record[1] > 0
+
+
+def test_compiles_counts_numbas_compilations_not_its_calls():
+    from numba import njit
+
+    @njit
+    def twice(x):
+        return 2 * x
+
+    before = cost.compiles()
+    assert twice(3) == 6 and cost.compiles() == before + 1
+    assert twice(4) == 8 and cost.compiles() == before + 1  # compiled once for ints
+    assert twice(1.5) == 3.0 and cost.compiles() == before + 2  # and once for floats
+
+
+def test_a_run_during_which_numba_compiled_does_not_calibrate(cache, tmp_path, monkeypatch):
+    counts = iter(range(100))
+    monkeypatch.setattr(cost, "compiles", lambda: next(counts))  # a compile between the run's start and end
+    train_summary(compose(TINY), tmp_path / "run")
+    assert not cost.cache_file().exists() and cost.model().runs == 0
 
 
 def test_say_rounds_as_an_estimate():
