@@ -59,14 +59,18 @@ def check_extra(key: str, value: object) -> None:
         require_installed(module, f"{key}={value}", what, extra, note)
 
 
-def validate(params: RiskplanConf) -> None:
-    """BadInput naming the first key outside its range; a warning where only a theorem's assumption breaks."""
+def validate(params: RiskplanConf, needs_ray: bool = True) -> None:
+    """BadInput naming the first key outside its range; a warning where only a theorem's assumption breaks; and
+    MissingExtra for a value whose optional package is not installed, before the run: not a failed run directory.
+    `needs_ray=False`: a resumed Ray run, which needs Ray only if a robot has iterations left (run.ray_team)."""
     check_risk(params.risk)
     check_policy(params.policy)
     check_train(params.train)
     check_world(params.world)
     check_team(params.team)
-    check_extra("engine.device", params.engine.device)  # numba-cuda, before the run: not a failed run directory
+    if needs_ray:
+        check_extra("team.backend", params.team.backend)
+    check_extra("engine.device", params.engine.device)
     seed = params.seed if abs(params.seed) < 10**30 else f"about 2^{params.seed.bit_length()}"
     require(
         0 <= params.seed < SEED_LIMIT,
@@ -238,7 +242,6 @@ def check_backend(team: TeamConf) -> None:
     )
     if team.backend != Backend.ray:
         return
-    check_extra("team.backend", team.backend)  # Ray, before the run: not a failed run directory
     simulated = [
         (key, value)
         for key, value in (

@@ -23,10 +23,11 @@ from riskplan.util.checks import require
 from riskplan.util.errors import BadInput
 
 
-def build_setup(cfg: DictConfig | dict | RiskplanConf) -> Setup:
-    """Type and validate the config once, then build the run's objects; raises BadInput on the first problem."""
+def build_setup(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool = True) -> Setup:
+    """Type and validate the config once, then build the run's objects; raises BadInput on the first problem
+    (`needs_ray`: see config.validate.validate)."""
     params = typed(cfg)  # types, unknown keys, Choices, interpolations: the frozen config everything below reads
-    validate(params)  # every range, once
+    validate(params, needs_ray)  # every range, once
     check_risk_nodes(params)  # each risk node's measure (built in or a package's) and its parameters
     check_device(params)  # engine.device=cuda: a GPU numba-cuda can use
     # Sizes first: nothing big is allocated before the memory and time estimates pass (a map's from its header).

@@ -51,6 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from riskplan.config.schema import Order
+from riskplan.config.validate import check_extra
 from riskplan.engine.step import NumericalTrouble, Setup, team_statistics
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.run.checkpoint import State, TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
@@ -328,6 +329,8 @@ def train_ray(setup: Setup, out: Path, resume: bool, progress) -> dict:
     checkpoint = load_team_checkpoint(out, setup, expected) if resume else None
     with contextlib.ExitStack() as ray_up:
         idle = checkpoint is not None and checkpoint.iteration >= total  # every robot is done: evaluation only
+        if not idle:
+            check_extra("team.backend", setup.params.team.backend)  # bad input before anything is written
         # First Ray (an unreachable cluster writes nothing), unless no robot has an iteration left to run
         ray = ray_up.enter_context(contextlib.nullcontext() if idle else ray_runtime(setup.params.team))
         if checkpoint is not None:
@@ -433,6 +436,8 @@ def prepare_ray_resume(setup: Setup, out: Path) -> bool:
     expected = [initial_state(setup, i) for i in range(setup.robots)]
     checkpoint = load_team_checkpoint(out, setup, expected)
     logged_rows(out / RUN_LOG, checkpoint.iteration, setup.robots)
+    if min(checkpoint.iterations) < setup.params.train.iterations:  # robots to run: Ray (else evaluation only)
+        check_extra("team.backend", setup.params.team.backend)
     return min(checkpoint.iterations) == setup.params.train.iterations and has_finished(out)
 
 

@@ -59,7 +59,7 @@ def train(
     `config` is a composed config (or a Setup built from one). The directory is locked for the whole run: a second
     process writing it gets BadInput naming this one's pid. A fresh run refuses a directory that holds another run.
     """
-    setup = config if isinstance(config, Setup) else build_setup(config)
+    setup = config if isinstance(config, Setup) else build_setup(config, needs_ray=not resume)
     summary = train_summary(setup, out_dir, resume=resume, progress=progress)
     from riskplan.run.results import finished_run  # lazy: pandas, for the Run's tables; train_summary needs none
 
@@ -71,7 +71,7 @@ def train_summary(
 ) -> dict:
     """`train`, returning summary.json's dict instead of the Run: what `riskplan train` and sweep jobs need, and
     without pandas."""
-    setup = config if isinstance(config, Setup) else build_setup(config)
+    setup = config if isinstance(config, Setup) else build_setup(config, needs_ray=not resume)
     out = Path(out_dir)
     check_output_dir(out, str(out))
     out.mkdir(parents=True, exist_ok=True)
@@ -186,8 +186,8 @@ def load_kernels(setup: Setup, state: State) -> None:
 def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
     """The Setup of a run to resume, after every check of its config, checkpoint and log (nothing is written), and
     whether the run is finished already (its checkpoint is at train.iterations and its tables are there)."""
-    setup = build_setup(config)
-    if setup.params.team.backend == Backend.ray:
+    setup = build_setup(config, needs_ray=False)
+    if setup.params.team.backend == Backend.ray:  # Ray only if a robot has iterations left (prepare_ray_resume)
         return setup, prepare_ray_resume(setup, out)
     state = load_checkpoint(out, setup)
     logged_rows(out / "run.mcap", state.iteration, setup.robots)

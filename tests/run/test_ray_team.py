@@ -576,17 +576,22 @@ def test_a_finished_run_extends_and_one_killed_in_its_evaluation_finishes(local_
     longer = riskplan.compose(["experiment=paper_team", "team.backend=ray", *SMALL, "train.iterations=10"])
     _, done = training.prepare_resume(longer, out)
     assert not done
+    files = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    with monkeypatch.context() as without_ray:  # robots with iterations left need Ray: bad input, nothing touched
+        without_ray.setitem(sys.modules, "ray", None)
+        for resume in (lambda: training.prepare_resume(longer, out), lambda: training.train(longer, out, resume=True)):
+            with pytest.raises(MissingExtra) as err:
+                resume()
+            assert err.value.where == "team.backend=ray" and "\n" not in str(err.value)
+            assert str(err.value).endswith("pip install 'riskplan[distributed]'"), str(err.value)
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files
     training.train(longer, out, resume=True)
     assert_complete_run(out, 10, 3, 2)
     for name in ("summary.json", "metrics.parquet"):  # as if killed while it evaluated
         (out / name).unlink()
-    files = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
-    with monkeypatch.context() as without_ray:  # team.backend=ray without Ray is bad input, even on resume
+    with monkeypatch.context() as without_ray:  # every robot is at train.iterations: it only evaluates, without Ray
         without_ray.setitem(sys.modules, "ray", None)
-        with pytest.raises(MissingExtra) as err:
-            training.train(longer, out, resume=True)
-    assert err.value.where == "team.backend=ray" and "\n" not in str(err.value)
-    assert str(err.value).endswith("pip install 'riskplan[distributed]'"), str(err.value)
-    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files  # nothing touched
-    training.train(longer, out, resume=True)  # every robot is at train.iterations: it only evaluates
+        _, done = training.prepare_resume(longer, out)
+        assert not done
+        training.train(longer, out, resume=True)
     assert_complete_run(out, 10, 3, 2)
