@@ -76,7 +76,7 @@ def check_gpu() -> None:
 
 def ported(kernel: Kernel, record: bool = False, reference: bool = False) -> bool:
     """Whether `simulate` runs these episodes on the GPU (else on the CPU kernel, as `rollout.simulate`)."""
-    return not (kernel.tabular or kernel.mobile or record or reference)
+    return not (kernel.tables.tabular or kernel.tables.mobile or record or reference)
 
 
 def simulate(

@@ -45,71 +45,12 @@ class Batch:
 
 @dataclass(frozen=True)
 class Kernel:
-    """World arrays in the layout the kernel takes, built once per run."""
+    """A run's world and policy packed once: the arrays the episode kernels take (`tables`), and what the policy's
+    per-iteration tables read (`features`)."""
 
-    next_cell: np.ndarray
-    region_of: np.ndarray
-    region_risky: np.ndarray
-    region_programs: tuple[np.ndarray, np.ndarray, np.ndarray]
-    source_programs: tuple[np.ndarray, np.ndarray, np.ndarray]
-    source_at: np.ndarray
-    source_cells: np.ndarray
-    source_motion: np.ndarray
-    source_amplitude: np.ndarray
-    source_precision: np.ndarray
-    height: int
-    width: int
-    horizon: int
-    stop_at_source: bool
-    mobile: bool
-    cell_affine: np.ndarray  # (C, 5): the entered cell's reward as clip(c + w U + s N, lo, hi), rows (c, w, s, lo, hi)
-    cell_risky: np.ndarray  # (C,) int64: 1 if entering the cell counts a risky step
-    affine: bool  # every region's reward has that form: the kernel draws it without the program interpreter
-    draw_uniform: bool  # some region's form has w != 0
-    draw_normal: bool  # some region's form has s != 0
+    tables: Tables  # the world's and policy's arrays and flags, as the numba (and CUDA) kernels take them
     features: np.ndarray  # (C, 5, F): the policy's move features (a tabular policy's: its seed's), for policy.tables
-    tabular: bool = False  # theta is a (C * 5,) table of logits (policy.kind=tabular)
-    signal_at: int = 0  # index in theta of the first signal weight, -1 for none (features policies)
-    extra_at: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (E,) theta index per extra
-    extras: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 0)))  # (C, 5, E): the extra features
     reached: dict = field(default_factory=dict, compare=False, repr=False)  # `reach` by start cells, remembered
-    tables: Tables = field(init=False, compare=False, repr=False)  # the fields above as the kernels take them
-
-    def __post_init__(self) -> None:
-        object.__setattr__(
-            self,
-            "tables",
-            Tables(
-                next_cell=self.next_cell,
-                region_of=self.region_of,
-                region_risky=self.region_risky,
-                reg_off=self.region_programs[0],
-                reg_ops=self.region_programs[1],
-                reg_par=self.region_programs[2],
-                src_off=self.source_programs[0],
-                src_ops=self.source_programs[1],
-                src_par=self.source_programs[2],
-                source_at=self.source_at,
-                source_cells=self.source_cells,
-                source_motion=self.source_motion,
-                source_amplitude=self.source_amplitude,
-                source_precision=self.source_precision,
-                cell_affine=self.cell_affine,
-                cell_risky=self.cell_risky,
-                extra_at=self.extra_at,
-                extras=self.extras,
-                height=int(self.height),
-                width=int(self.width),
-                horizon=int(self.horizon),
-                stop_at_source=bool(self.stop_at_source),
-                mobile=bool(self.mobile),
-                affine=bool(self.affine),
-                draw_uniform=bool(self.draw_uniform),
-                draw_normal=bool(self.draw_normal),
-                tabular=bool(self.tabular),
-                signal_at=int(self.signal_at),
-            ),
-        )
 
 
 def affine_form(dist: D.Dist) -> tuple[float, float, float, float, float] | None:
@@ -161,33 +102,39 @@ def make_kernel(world: World, policy: Policy | None = None) -> Kernel:
             cell_risky[cell] = world.region_risky[region]
             if affine:
                 cell_affine[cell] = forms[region]
-    return Kernel(
+    region_off, region_ops, region_par = D.pack_programs(list(world.region_rewards))
+    source_off, source_ops, source_par = D.pack_programs(list(world.source_rewards))
+    tables = Tables(
         next_cell=world.next_cell,
         region_of=world.region_of,
         region_risky=world.region_risky,
-        region_programs=D.pack_programs(list(world.region_rewards)),
-        source_programs=D.pack_programs(list(world.source_rewards)),
+        reg_off=region_off,
+        reg_ops=region_ops,
+        reg_par=region_par,
+        src_off=source_off,
+        src_ops=source_ops,
+        src_par=source_par,
         source_at=source_at,
         source_cells=world.source_cells,
         source_motion=world.source_motion,
         source_amplitude=world.source_amplitude,
         source_precision=world.source_precision,
-        height=world.height,
-        width=world.width,
-        horizon=world.horizon,
-        stop_at_source=world.stop_at_source,
-        mobile=world.mobile,
         cell_affine=cell_affine,
         cell_risky=cell_risky,
-        affine=affine,
-        draw_uniform=affine and bool(np.any(cell_affine[:, 1] != 0.0)),
-        draw_normal=affine and bool(np.any(cell_affine[:, 2] != 0.0)),
-        features=policy.move_features(world),
-        tabular=policy.tabular,
-        signal_at=policy.signal_at,
         extra_at=policy.extra_at,
         extras=np.ascontiguousarray(policy.extras, dtype=np.float64),
+        height=int(world.height),
+        width=int(world.width),
+        horizon=int(world.horizon),
+        stop_at_source=bool(world.stop_at_source),
+        mobile=bool(world.mobile),
+        affine=bool(affine),
+        draw_uniform=affine and bool(np.any(cell_affine[:, 1] != 0.0)),
+        draw_normal=affine and bool(np.any(cell_affine[:, 2] != 0.0)),
+        tabular=bool(policy.tabular),
+        signal_at=int(policy.signal_at),
     )
+    return Kernel(tables=tables, features=policy.move_features(world))
 
 
 def simulate(
@@ -213,7 +160,7 @@ def simulate(
     """
     thetas = np.ascontiguousarray(thetas, dtype=np.float64)
     policies, size = thetas.shape
-    if kernel.tabular:
+    if kernel.tables.tabular:
         cum, probs = tabular_tables(thetas, world.cells)
         score = np.empty((0, 0, 0, 0))
         bins = move_bins(cum)
@@ -224,21 +171,21 @@ def simulate(
         bins = move_bins(cum, cells)
     total = policies * episodes
     out_z = np.empty(total)
-    if kernel.tabular:  # accumulated in place by the kernel, from zeros
+    if kernel.tables.tabular:  # accumulated in place by the kernel, from zeros
         out_score = np.zeros((total, size if scores else 0))
     else:
         out_score = np.empty((total, size))
     out_risky = np.empty(total, dtype=np.int64)
     out_reached = np.empty(total, dtype=np.int64)
     out_steps = np.empty(total, dtype=np.int64)
-    width = kernel.horizon + 1 if record else 0
+    width = kernel.tables.horizon + 1 if record else 0
     path_cells = np.full((total if record else 0, width), -1, dtype=np.int64)
     path_rewards = np.zeros((total if record else 0, width))
     paths = (path_cells, path_rewards) if record else (None, None)
     starts = np.asarray(starts, np.int64)
     keys = np.asarray(keys, np.uint64)
     outputs = (out_z, out_score, out_risky, out_reached, out_steps)
-    if kernel.affine and not (kernel.mobile or reference or kernel.tabular):
+    if kernel.tables.affine and not (kernel.tables.mobile or reference or kernel.tables.tabular):
         _simulate_affine(kernel.tables, bins, score, starts, keys, episodes, record, *outputs, path_cells, path_rewards)
     else:
         _simulate(
@@ -275,12 +222,12 @@ def reach(kernel: Kernel, starts: np.ndarray) -> np.ndarray:
     start through next_cell. The kernel reads the policy tables at these cells only, so `simulate` fills only
     theirs (a 256 x 256 map whose episodes see a few hundred cells costs what those cost). Empty with mobile
     sources, whose moves the kernel computes at each step. Remembered per start cells."""
-    if kernel.mobile:
+    if kernel.tables.mobile:
         return np.zeros(0, dtype=np.int64)
     key = np.unique(np.asarray(starts, dtype=np.int64)).tobytes()
     found = kernel.reached.get(key)
     if found is None:
-        found = _reach(kernel.next_cell, np.frombuffer(key, dtype=np.int64), kernel.horizon - 1)
+        found = _reach(kernel.tables.next_cell, np.frombuffer(key, dtype=np.int64), kernel.tables.horizon - 1)
         found.flags.writeable = False
         if len(kernel.reached) >= REACH_MEMO:
             kernel.reached.clear()

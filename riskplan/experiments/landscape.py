@@ -203,7 +203,7 @@ def check_grid(setup, points: int, episodes: int, ranges, axes) -> tuple[tuple, 
     if len(ranges) != 2 or any(not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) for lo, hi in ranges):
         text = ",".join(f"{v:g}" for r in ranges for v in r)
         raise BadInput("--range", f"got {text}; expected LO,HI (both axes) or LO,HI,LO,HI, finite, with LO < HI")
-    check_size(points, episodes, sources, setup.kernel.horizon)
+    check_size(points, episodes, sources, setup.kernel.tables.horizon)
     return ranges, (a, b)
 
 

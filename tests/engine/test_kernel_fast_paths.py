@@ -118,7 +118,7 @@ def test_affine_form_of_linear_programs(data, form):
 def test_programs_without_an_affine_form_use_the_interpreter(data):
     assert affine_form(D.parse(data)) is None
     setup = build_setup(compose([f"world.regions.1.reward={_yaml(data)}"]))
-    assert not setup.kernel.affine
+    assert not setup.kernel.tables.affine
     batch = simulate(
         setup.world, setup.kernel, setup.theta0[None, :], setup.world.starts, rng.robot_keys(0, rng.TRAIN, 0, 1), 500
     )
@@ -179,7 +179,7 @@ STATISTICS = {
 @pytest.mark.parametrize("theta", [[20.0, 20.0], [46.6, -0.8], [-7.3, 34.6], [-21.0, 9.0]])
 def test_new_kernel_gives_the_old_kernels_distribution_on_the_paper_world(paper, theta):
     """Returns, their quantiles and CVaR, steps, risky steps, sources reached and scores: within 4 standard errors."""
-    assert paper.kernel.affine  # the paper world takes the fast path
+    assert paper.kernel.tables.affine  # the paper world takes the fast path
     episodes = 200_000
     keys = rng.robot_keys(3, rng.EVAL, 0, 1)
     new = simulate(paper.world, paper.kernel, np.array([theta]), paper.world.starts, keys, episodes)

@@ -85,9 +85,9 @@ def test_the_kernel_packs_the_policy_columns():
     setup = built(LAYOUT, with_policy(["risky", "signals", "stay"]))
     expected = move_features(setup.world, features=["risky", "signals", "stay"])
     np.testing.assert_array_equal(setup.kernel.features, expected)
-    assert setup.kernel.signal_at == 1 and setup.kernel.extra_at.tolist() == [0, 3]
-    np.testing.assert_array_equal(setup.kernel.extras, expected[..., [0, 3]])
-    assert not setup.kernel.tabular
+    assert setup.kernel.tables.signal_at == 1 and setup.kernel.tables.extra_at.tolist() == [0, 3]
+    np.testing.assert_array_equal(setup.kernel.tables.extras, expected[..., [0, 3]])
+    assert not setup.kernel.tables.tabular
 
 
 def test_the_default_policy_is_the_papers():
@@ -95,7 +95,11 @@ def test_the_default_policy_is_the_papers():
     np.testing.assert_array_equal(setup.kernel.features, setup.world.signals()[setup.world.next_cell])
     assert setup.theta_names == ("safe", "risky") == setup.world.source_names
     assert setup.theta0.tolist() == [20.0, 20.0]
-    assert setup.kernel.signal_at == 0 and setup.kernel.extra_at.size == 0 and setup.kernel.extras.shape[-1] == 0
+    assert (
+        setup.kernel.tables.signal_at == 0
+        and setup.kernel.tables.extra_at.size == 0
+        and setup.kernel.tables.extras.shape[-1] == 0
+    )
     assert setup.network.n_params == 2
 
 
@@ -270,16 +274,16 @@ def test_the_mobile_kernels_general_policy_is_its_signals_loop_without_extras():
 
     setup = build_setup(compose(["world.sources.0.motion.kind=random_walk", "world.sources.0.motion.prob=0.3"]))
     world, theta = setup.world, np.array([3.0, -1.5])
-    extras = setup.kernel.extras
+    extras = setup.kernel.tables.extras
     src = np.array([5, 100], dtype=np.int64)
     cum_a, feats_a, cum_b, feats_b = np.empty(5), np.empty((5, 2)), np.empty(5), np.empty((5, 2))
     for cell in range(world.cells):
         args = (cell, theta, src, world.next_cell, world.source_amplitude, world.source_precision, world.height)
         _mobile_signals(*args, cum_a, feats_a)
-        _mobile_policy(*args, 0, setup.kernel.extra_at, extras, cum_b, feats_b)
+        _mobile_policy(*args, 0, setup.kernel.tables.extra_at, extras, cum_b, feats_b)
         assert np.array_equal(cum_a, cum_b) and np.array_equal(feats_a, feats_b)
     ordered = build_setup(compose(["policy.features=[stay,signals,risky]"]))
-    k, theta = ordered.kernel, np.array([0.7, 3.0, -1.5, -2.0])
+    k, theta = ordered.kernel.tables, np.array([0.7, 3.0, -1.5, -2.0])
     feats = np.empty((5, 4))
     columns = move_features(world, signals=world.signals(src), features=["stay", "signals", "risky"])
     for cell in range(world.cells):

@@ -55,7 +55,7 @@ def test_the_table_starts_from_the_features_policys_logits():
     paper = build_setup(compose([]))
     table = build_setup(compose(["policy.kind=tabular"]))
     world = table.world
-    assert table.theta0.shape == (world.cells * 5,) and table.policy.tabular and table.kernel.tabular
+    assert table.theta0.shape == (world.cells * 5,) and table.policy.tabular and table.kernel.tables.tabular
     logits = np.einsum("caj,j->ca", move_features(world), paper.theta0)
     np.testing.assert_allclose(table.theta0.reshape(world.cells, 5), logits, rtol=1e-15, atol=0)
     # the same move probabilities as the paper's initial policy, bit for bit (the kernel's tables)
