@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import itertools
 import json
 import math
 import posixpath
@@ -15,7 +16,6 @@ from pathlib import Path
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
 from hydra._internal.config_loader_impl import ConfigLoaderImpl, get_overrides_dirname
-from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra._internal.utils import create_config_search_path
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -228,17 +228,30 @@ def add_naming_and_logging(argv: list[str], hydra_keys: dict, constant: list[str
 
 
 def expand(task_ovs: list, args: list[str]) -> list[list[str]]:
-    """Every combination, as Hydra's basic sweeper makes it (the same grammar, the same job overrides)."""
+    """Every combination, in the order and with the job overrides Hydra's basic sweeper gives (the same grammar)."""
     parser = override_parser()
     try:
-        reparsed = parser.parse_overrides([o.input_line for o in task_ovs])
-        batches = BasicSweeper.split_arguments(reparsed, None)
+        combos = combinations(parser.parse_overrides([o.input_line for o in task_ovs]))
     except (HydraException, ValueError, TypeError, ArithmeticError) as err:
         raise BadInput("sweep", f"{first_line(err)}; use comma lists, range(...), choice(...) or glob(...)") from None
-    combos = [list(job) for batch in batches for job in batch]
     if not combos or (task_ovs and any(not job for job in combos)):
         raise BadInput("sweep", f"'{' '.join(args)}' expands to no job; check empty range(...) values")
     return combos
+
+
+def combinations(overrides: list) -> list[list[str]]:
+    """The cartesian product of the overrides' values, the first key varying slowest: a sweep gives one `key=value`
+    per value, any other override its one; a key given twice keeps its last values in its first place."""
+    values: dict[str, list[str]] = {}
+    for override in overrides:
+        key = override.get_key_element()
+        if override.is_sweep_override():
+            if not override.is_discrete_sweep():
+                raise ValueError(f"a grid does not take {override.input_line} (a search space for an optimiser)")
+            values[key] = [f"{key}={value}" for value in override.sweep_string_iterator()]
+        else:
+            values[key] = [f"{key}={override.get_value_element_as_str()}"]
+    return [list(job) for job in itertools.product(*values.values())]
 
 
 def check_hydra(hydra_args: list[str], first_job: list[str], sweeper: bool = False):

@@ -24,6 +24,27 @@ def test_expansion_is_hydras_and_folders_name_what_varies():
 
 
 @pytest.mark.parametrize(
+    "args",
+    [
+        ["risk.beta=0.05,0.1", "seed=range(0,3)", "team.graph=line"],
+        ["seed=0", "seed=4,5", "risk=cvar,neutral"],  # a key given twice keeps its first place, its last values
+        ["+extra=1", "~seed", "risk.beta=choice(0.1,0.2)", "train.theta0=[1,2]"],
+        ["world.sources.0.reward={normal:[1,2]}", "seed=range(3,0,-1)", "risk.measure=cvar"],
+        ["experiment=glob(paper_*)", "seed=1"],
+        [],
+    ],
+)
+def test_the_grid_is_the_one_hydras_basic_sweeper_makes(args):
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper  # the reference riskplan's sweeper replaces
+
+    from riskplan.experiments.sweeping.grid import combinations, override_parser
+
+    parsed = override_parser().parse_overrides(args)
+    (hydras,) = BasicSweeper.split_arguments(parsed, None)
+    assert combinations(parsed) == [list(job) for job in hydras]
+
+
+@pytest.mark.parametrize(
     "args, count",
     [
         (["seed=range(0,100000000)"], 100_000_000),
