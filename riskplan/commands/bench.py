@@ -18,7 +18,9 @@ def register(app: typer.Typer) -> None:
 
     @app.command()
     def bench(
-        quick: bool = typer.Option(False, "--quick", help="Fewer repeats and a shorter training run (about 30 s on 2 idle cores)."),
+        quick: bool = typer.Option(
+            False, "--quick", help="Fewer repeats and a shorter training run (about 30 s on 2 idle cores)."
+        ),
         json_out: Path | None = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
         scaling: bool = typer.Option(
             False,
