@@ -5,7 +5,7 @@ Every run that finishes records (its estimated steps, its whole-machine seconds)
 (RISKPLAN_CACHE_DIR, else $XDG_CACHE_HOME/riskplan or ~/.cache/riskplan). A run that had only some of the cores
 (a sweep job with fewer numba threads) counts its seconds times its share of the cores, so sweeps and single runs
 calibrate one number. The model is seconds = overhead + steps / rate, fitted to the latest records; before any
-run has finished here it assumes limits.STEPS_PER_SECOND and a one-second overhead, and says so. The file is a
+run has finished here it assumes DEFAULT_RATE and half a second of overhead, and says so. The file is a
 hint: a missing, unreadable, read-only or corrupt one never stops a run.
 """
 
@@ -22,7 +22,7 @@ from pathlib import Path
 from numba.core import event
 
 from riskplan.run import budget
-from riskplan.util.limits import STEPS_PER_SECOND, duration
+from riskplan.util.limits import duration
 from riskplan.util.paths import write_atomic
 
 CACHE_ENV = "RISKPLAN_CACHE_DIR"
@@ -31,7 +31,10 @@ KEEP = 64  # records kept: the latest runs say most about the machine as it is n
 # A bootstrap resample-episode is an addition, not a trajectory step: 1000 resamples of 100,000 episodes take
 # about what 8M steps do. The budget counts it as a step to bound the time limit from above.
 BOOTSTRAP_WEIGHT = 0.08
-DEFAULT_OVERHEAD = 1.0  # seconds a run takes beyond its steps (imports, set-up, files) before calibration
+# Before calibration: about half the rate, and the overhead rounded up, that full reproductions on a 2-core VM
+# fitted (the time limit's limits.STEPS_PER_SECOND is far more cautious: it bounds, where this estimates)
+DEFAULT_RATE = 80e6  # trajectory-step equivalents per second
+DEFAULT_OVERHEAD = 0.5  # seconds a run takes beyond its steps (imports, set-up, files)
 LAUNCH = 3.0  # seconds a local sweep takes to start its workers and finish (Hydra, joblib, the summary)
 BATCH_LAUNCH = 1.0  # the same for a batched sweep, which starts no workers
 
@@ -63,7 +66,7 @@ class Model:
     def describe(self) -> str:
         if self.runs:
             return f"calibrated on {self.runs} run{'s' if self.runs != 1 else ''} finished on this machine"
-        return f"not yet calibrated on this machine: {STEPS_PER_SECOND / 1e6:.0f}M steps/s assumed"
+        return f"not yet calibrated on this machine: {DEFAULT_RATE / 1e6:.0f}M steps/s assumed"
 
 
 def setup_steps(setup) -> float:
@@ -153,10 +156,11 @@ def record(steps: float, seconds: float, share: float = 1.0) -> None:
 
 def model() -> Model:
     """The model fitted to this machine's records: least squares of seconds on steps when the runs' sizes differ
-    enough to tell overhead from rate, else the default overhead and the median rate."""
+    enough to tell overhead from rate, else the default overhead and the median rate of the runs long enough to
+    say it (over twice that overhead: a tiny run's seconds are its overhead, such as a sweep worker's warm-up)."""
     runs = _records()
     if not runs:
-        return Model(STEPS_PER_SECOND, DEFAULT_OVERHEAD, 0)
+        return Model(DEFAULT_RATE, DEFAULT_OVERHEAD, 0)
     steps = [s for s, _ in runs]
     seconds = [t for _, t in runs]
     if len(runs) >= 3 and max(steps) > 1.5 * min(steps):
@@ -166,8 +170,10 @@ def model() -> Model:
         overhead = mean_t - slope * mean_s
         if slope > 0 and overhead >= 0:
             return Model(1.0 / slope, overhead, len(runs))
-    rates = sorted(s / max(t - DEFAULT_OVERHEAD, 0.1 * t) for s, t in runs)
-    return Model(rates[len(rates) // 2], DEFAULT_OVERHEAD, len(runs))
+    rates = sorted(s / (t - DEFAULT_OVERHEAD) for s, t in runs if t > 2 * DEFAULT_OVERHEAD)
+    if not rates:
+        return Model(DEFAULT_RATE, DEFAULT_OVERHEAD, 0)
+    return Model(rates[len(rates) // 2], DEFAULT_OVERHEAD, len(rates))
 
 
 def say(seconds: float) -> str:

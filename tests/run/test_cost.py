@@ -12,7 +12,6 @@ from support import TINY
 from riskplan.run import cost
 from riskplan.run.compose import compose
 from riskplan.run.training import train_summary
-from riskplan.util.limits import STEPS_PER_SECOND
 
 
 @pytest.fixture
@@ -23,8 +22,8 @@ def cache(tmp_path, monkeypatch):
 
 def test_without_records_the_model_assumes_the_default_speed_and_says_so(cache):
     model = cost.model()
-    assert (model.rate, model.overhead, model.runs) == (STEPS_PER_SECOND, cost.DEFAULT_OVERHEAD, 0)
-    assert "not yet calibrated" in model.describe()
+    assert (model.rate, model.overhead, model.runs) == (cost.DEFAULT_RATE, cost.DEFAULT_OVERHEAD, 0)
+    assert "not yet calibrated on this machine: 80M steps/s assumed" in model.describe()
 
 
 def test_the_model_recovers_overhead_and_rate_from_runs_of_different_sizes(cache):
@@ -43,7 +42,15 @@ def test_runs_of_one_size_give_the_median_rate(cache):
     for seconds in (3.0, 5.0, 100.0):  # one run on a loaded machine does not move the median
         cost.record(1e8, seconds)
     model = cost.model()
-    assert model.overhead == cost.DEFAULT_OVERHEAD and model.rate == pytest.approx(1e8 / 4.0)
+    assert model.overhead == cost.DEFAULT_OVERHEAD and model.rate == pytest.approx(1e8 / (5.0 - cost.DEFAULT_OVERHEAD))
+
+
+def test_runs_too_short_to_tell_the_rate_leave_the_default(cache):
+    cost.record(1e4, 0.3)  # a sweep worker's warm-up: its seconds are overhead
+    assert cost.model() == cost.Model(cost.DEFAULT_RATE, cost.DEFAULT_OVERHEAD, 0)
+    cost.record(1e8, 3.0)
+    model = cost.model()
+    assert model.runs == 1 and model.rate == pytest.approx(1e8 / (3.0 - cost.DEFAULT_OVERHEAD))
 
 
 def test_a_run_with_part_of_the_cores_counts_its_share(cache):
