@@ -10,7 +10,7 @@ import typer
 
 from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, is_finished
 from riskplan.experiments.sweeping.batched import PROGRESS, plan_chunks
-from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, SUMMARY, Outcome, Plan, locate
+from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, GRID_SWEEPER, SUMMARY, Outcome, Plan, locate
 from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.experiments.sweeping.search import run_optimiser
@@ -54,7 +54,7 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
     echo = out or (lambda text: typer.echo(text))
     for note in plan.warnings:
         typer.echo(f"warning: {note}", err=True)
-    if plan.sweeper != "basic":
+    if plan.sweeper != GRID_SWEEPER:
         return run_optimiser(plan, args, jobs, title, echo)
     started = time.time()
     locate(plan.sweep_dir, plan.jobs)

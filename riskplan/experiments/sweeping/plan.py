@@ -76,8 +76,8 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         explicit_dir = Path(value)
     if sweep_dir is not None and explicit_dir is not None:
         raise BadInput("hydra.sweep.dir", "is chosen by this command; do not give it")
-    sweeper = str(hydra_keys["hydra/sweeper"].value()) if "hydra/sweeper" in hydra_keys else "basic"
-    if sweeper != "basic":  # an optimiser: it chooses the jobs as it goes
+    sweeper = str(hydra_keys["hydra/sweeper"].value()) if "hydra/sweeper" in hydra_keys else GRID_SWEEPER
+    if sweeper not in ("basic", GRID_SWEEPER):  # an optimiser: it chooses the jobs as it goes
         return plan_optimiser(args, task_ovs, hydra_ovs, launcher, sweeper, jobs, sweep_dir, explicit_dir)
     for o in task_ovs:
         if o.is_interval_sweep():
@@ -107,7 +107,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         raise BadInput(*split_bad(first, len(job_list)))
 
     argv = ["-m", *args]
-    if "hydra/sweeper" in hydra_keys:  # hydra/sweeper=basic, typed: riskplan's sweeper launches the planned grid
+    if "hydra/sweeper" in hydra_keys:  # basic or riskplan, typed: riskplan's sweeper launches the planned grid
         argv[1 + parsed.index(hydra_keys["hydra/sweeper"])] = f"hydra/sweeper={GRID_SWEEPER}"
     else:
         argv.append(f"hydra/sweeper={GRID_SWEEPER}")

@@ -109,7 +109,7 @@ def plan_optimiser(
     workers = None
     workers_arg = None
     if launcher == "joblib":
-        workers = min(jobs or cpu_count(), *(n for n in (batch, trials) if n))
+        workers = min([jobs or cpu_count(), *(n for n in (batch, trials) if n)])  # a sweeper may give neither
         if "hydra.launcher.n_jobs" not in hydra_keys:
             workers_arg = len(argv)
             argv.append(f"hydra.launcher.n_jobs={workers}")

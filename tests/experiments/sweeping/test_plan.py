@@ -16,7 +16,7 @@ from riskplan.util.errors import BadInput
 def test_a_grid_is_planned_job_by_job_before_anything_runs(in_tmp):
     plan = plan_sweep(["risk.beta=0.2,1.5", "seed=0,1", *TINY], jobs=2)
     assert plan.sweep_dir.parent == Path("outputs") / "sweeps" and list(plan.sweep_dir.iterdir()) == []  # claimed
-    assert (plan.launcher, plan.workers, plan.sweeper) == ("joblib", 2, "basic")
+    assert (plan.launcher, plan.workers, plan.sweeper) == ("joblib", 2, "riskplan")
     assert [job.folder for job in plan.jobs] == [
         "risk.beta=0.2,seed=0",
         "risk.beta=0.2,seed=1",
@@ -31,9 +31,11 @@ def test_a_grid_is_planned_job_by_job_before_anything_runs(in_tmp):
     assert "hydra/sweeper=riskplan" in plan.argv  # riskplan's sweeper launches the planned jobs
 
 
-def test_a_typed_basic_sweeper_becomes_riskplans_and_sweeper_settings_are_refused(in_tmp):
-    plan = plan_sweep(["seed=0,1", "hydra/sweeper=basic", *TINY])
+@pytest.mark.parametrize("typed", ["basic", "riskplan"])
+def test_a_typed_grid_sweeper_is_riskplans_and_sweeper_settings_are_refused(in_tmp, typed):
+    plan = plan_sweep(["seed=0,1", f"hydra/sweeper={typed}", *TINY])
     assert [a for a in plan.argv if a.startswith("hydra/sweeper")] == ["hydra/sweeper=riskplan"]
+    assert plan.sweeper == "riskplan" and len(plan.jobs) == 2
     for setting in ("hydra.sweeper.max_batch_size=1", "hydra.sweeper.jobs=/etc/passwd"):
         with pytest.raises(BadInput, match="a grid sweep takes no sweeper settings"):
             plan_sweep(["seed=0,1", setting, *TINY])

@@ -40,3 +40,23 @@ def test_search_spaces_that_cannot_be_drawn_from_are_bad_input(override, problem
     with pytest.raises(BadInput) as err:
         search_samples(parse_overrides([override])[0], "optuna")
     assert err.value.where == f"override '{override}'" and problem in err.value.problem
+
+
+def test_a_sweeper_without_trial_settings_is_planned_with_a_worker_per_core(in_tmp):
+    """Another Hydra sweeper (neither optuna nor a grid) names no trial count or batch: the plan gives the joblib
+    launcher a worker per core rather than failing."""
+    from dataclasses import dataclass
+
+    from hydra.core.config_store import ConfigStore
+
+    from riskplan.experiments.sweeping.plan import plan_sweep
+    from riskplan.util.limits import cpu_count
+
+    @dataclass
+    class OtherSweeperConf:
+        _target_: str = "hydra_plugins.riskplan_sweeper.plan_sweeper.RiskplanSweeper"
+        jobs: str = ""
+
+    ConfigStore.instance().store(group="hydra/sweeper", name="other_test_sweeper", node=OtherSweeperConf)
+    plan = plan_sweep(["hydra/sweeper=other_test_sweeper", "seed=0,1", "train.iterations=2"])
+    assert plan.sweeper == "other_test_sweeper" and plan.workers == cpu_count()
