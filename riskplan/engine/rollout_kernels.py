@@ -201,6 +201,20 @@ def _pick_bits(bins, m):
     return (m >= bins[0]) + (m >= bins[1]) + (m >= bins[2]) + (m >= bins[3])
 
 
+@njit(cache=True, inline="always")
+def _cumulative_softmax(cum, best):
+    """The five logits in `cum` (their largest `best`) made cumulative move probabilities in place, cum[4] = 1."""
+    total = 0.0
+    for a in range(5):
+        cum[a] = math.exp(cum[a] - best)
+        total += cum[a]
+    acc = 0.0
+    for a in range(5):
+        acc += cum[a] / total
+        cum[a] = acc
+    cum[4] = 1.0
+
+
 @njit(cache=True)
 def _mobile_signals(cell, theta, src, next_cell, amplitude, precision, height, cum, feats):
     """`_mobile_policy` of the paper's policy (theta weights the signals alone): its loop without the extras' cases
@@ -218,15 +232,7 @@ def _mobile_signals(cell, theta, src, next_cell, amplitude, precision, height, c
             logit += theta[j] * feats[a, j]
         cum[a] = logit
         best = max(best, logit)
-    total = 0.0
-    for a in range(5):
-        cum[a] = math.exp(cum[a] - best)
-        total += cum[a]
-    acc = 0.0
-    for a in range(5):
-        acc += cum[a] / total
-        cum[a] = acc
-    cum[4] = 1.0
+    _cumulative_softmax(cum, best)
 
 
 @njit(cache=True)
@@ -263,15 +269,7 @@ def _mobile_policy(cell, theta, src, next_cell, amplitude, precision, height, si
             logit += theta[extra_at[e]] * feats[a, extra_at[e]]
         cum[a] = logit
         best = max(best, logit)
-    total = 0.0
-    for a in range(5):
-        cum[a] = math.exp(cum[a] - best)
-        total += cum[a]
-    acc = 0.0
-    for a in range(5):
-        acc += cum[a] / total
-        cum[a] = acc
-    cum[4] = 1.0
+    _cumulative_softmax(cum, best)
 
 
 @njit(cache=True)
