@@ -31,7 +31,7 @@ from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import CHECKPOINT, CRASH_ENV
 from riskplan.run.compose import compose
 from riskplan.run.log_reader import read_log
-from riskplan.run.training import STOP_ENV
+from riskplan.run.recorder import STOP_ENV
 from riskplan.util.errors import BadInput
 
 # ------------------------------------------------------------------------------------------------ run configs

@@ -109,11 +109,17 @@ def initial_state(setup: Setup) -> TrainState:
 
 def step(setup: Setup, state: TrainState, batch: tuple[np.ndarray, np.ndarray] | None = None):
     """Iteration `state.iteration` of the team: (the next state, its Statistics). NumericalTrouble when an
-    estimate or the new theta is not finite. `batch`: the (z, scores) of this iteration's episodes when a driver
-    ran them already (a batched sweep's one kernel call); else the step runs them."""
+    estimate or the new theta is not finite. `batch`: the (z, scores) of this iteration's episodes when a caller
+    ran them already; else the step runs them. (riskplan.engine.loop runs many iterations of many runs.)"""
+    l = state.iteration
+    z, scores = rollouts(setup, l, state.thetas) if batch is None else batch
+    return advance(setup, state, estimate(setup, l, z, scores))
+
+
+def advance(setup: Setup, state: TrainState, estimates: Estimates) -> tuple[TrainState, Statistics]:
+    """Steps 4-5 of iteration `state.iteration` from its estimates: eps_l, the consensus step, the checks, the
+    team's agreement and network average."""
     l, thetas = state.iteration, state.thetas
-    z, scores = rollouts(setup, l, thetas) if batch is None else batch
-    estimates = estimate(setup, l, z, scores)
     eps = step_size(l, setup.params.train.step_size)
     mixer = setup.mixer.at(state.mixer)
     with np.errstate(over="ignore", invalid="ignore"):  # a theta that overflows is caught by check_step, in one line
@@ -151,9 +157,17 @@ def simulator(setup: Setup):
 
 
 def batched_rollouts(setups: list[Setup], l: int, thetas: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Step 1 for many runs at once (`batch_episodes`), split into each run's (z, scores): bit for bit those
+    `rollouts` gives it alone."""
+    z, scores, bounds = batch_episodes(setups, l, thetas)
+    return [(z[a:b], scores[a:b]) for a, b in itertools.pairwise(bounds)]
+
+
+def batch_episodes(setups: list[Setup], l: int, thetas: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Step 1 for many runs at once: one kernel call over every run's robots, each run's episodes from its own
-    streams (its seed) and start cells, so each run's (z, scores) are bit for bit those `rollouts` gives it alone.
-    The runs must share a world, a policy and W_l (batch_key)."""
+    streams (its seed) and start cells. Returns the block z (T, W_l) and scores (T, W_l, P) of every robot of
+    every run, and the bounds of each run's rows in it (R + 1,). The runs must share a world, a policy and W_l
+    (batch_key)."""
     first = setups[0]
     episodes = samples_at(l, first.params.train)
     keys = np.concatenate([rng.robot_keys(s.params.seed, rng.TRAIN, l, s.robots) for s in setups])
@@ -161,8 +175,7 @@ def batched_rollouts(setups: list[Setup], l: int, thetas: list[np.ndarray]) -> l
     batch = simulator(first)(first.world, first.kernel, np.vstack(thetas), cells, keys, episodes)
     z = batch.total_reward.reshape(len(keys), episodes)
     scores = batch.score.reshape(len(keys), episodes, -1)
-    bounds = np.cumsum([0] + [s.robots for s in setups])
-    return [(z[a:b], scores[a:b]) for a, b in itertools.pairwise(bounds)]
+    return z, scores, np.cumsum([0] + [s.robots for s in setups])
 
 
 def batch_key(params: RiskplanConf) -> str:

@@ -16,13 +16,11 @@ from matplotlib.ticker import NullLocator
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
 from riskplan.engine.schedules import samples_at
-from riskplan.engine.step import starts
+from riskplan.engine.step import initial_state, starts, step
 from riskplan.experiments.bench_meters import best_time
 from riskplan.experiments.bench_training import ITERATIONS_ONLY, TEAM_SAMPLES
 from riskplan.run.build import build_setup
-from riskplan.run.checkpoint import State
 from riskplan.run.compose import compose
-from riskplan.run.training import iterate
 
 PAPER_SOURCES = (
     "{name:safe,position:[9,3],covariance:[[16.0,0.0],[0.0,16.0]],scale:null,reward:1000.0}",
@@ -94,13 +92,13 @@ class Point:
     def __init__(self, dimension: str, value: float, overrides: list[str]):
         self.dimension, self.value, self.overrides = dimension, value, list(overrides)
         setup = build_setup(compose([*self.overrides, ITERATIONS_ONLY]))  # kernel calls and iterations only
-        first = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
+        first = initial_state(setup)
         episodes = samples_at(0, setup.params.train)
         keys = rng.robot_keys(setup.params.seed, rng.TRAIN, 0, setup.robots)
         cells = starts(setup)
-        # the iteration's own batch: the kernel call (with its policy tables) that iterate() makes first
+        # the iteration's own batch: the kernel call (with its policy tables) that step() makes first
         self.kernel = lambda: simulate(setup.world, setup.kernel, first.thetas, cells, keys, episodes)
-        self.iteration = lambda: iterate(setup, first)  # always from the first state: the same work every call
+        self.iteration = lambda: step(setup, first)  # always from the first state: the same work every call
         self.steps = int(self.kernel().steps.sum())
         self.samples = setup.robots * episodes
         self.cells = setup.world.cells

@@ -7,19 +7,16 @@ from __future__ import annotations
 import math
 
 import numba
-import numpy as np
 
 from riskplan.engine import rng
 from riskplan.engine.estimators import cvar_gradient, summary_stats
 from riskplan.engine.reductions import PARALLEL_SAMPLES
 from riskplan.engine.rollout import simulate
 from riskplan.engine.schedules import samples_at
-from riskplan.engine.step import starts
+from riskplan.engine.step import initial_state, starts, step
 from riskplan.experiments.bench_meters import best_time
 from riskplan.run.build import build_setup
-from riskplan.run.checkpoint import State
 from riskplan.run.compose import compose
-from riskplan.run.training import iterate
 
 SAMPLES = (6000, 600_000)  # W: the paper's, and a large run's
 ROUND_SECONDS = 0.05  # each round times each measure for about this long (one call when a call takes longer)
@@ -40,13 +37,13 @@ class Sample:
 
     def __init__(self, samples: int, overrides: list[str] | None = None):
         setup = build_setup(compose([f"train.samples={samples}", *(overrides or [])]))
-        first = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
+        first = initial_state(setup)
         episodes = samples_at(0, setup.params.train)
         keys = rng.robot_keys(setup.params.seed, rng.TRAIN, 0, setup.robots)
         cells = starts(setup)
         self.samples = samples
         self.kernel = lambda: simulate(setup.world, setup.kernel, first.thetas, cells, keys, episodes)
-        self.iteration = lambda: iterate(setup, first)  # always from the first state: the same work every call
+        self.iteration = lambda: step(setup, first)  # always from the first state: the same work every call
         batch = self.kernel()
         self.steps = int(batch.steps.sum())
         z, scores = batch.total_reward.reshape(setup.robots, -1), batch.score.reshape(setup.robots, episodes, -1)

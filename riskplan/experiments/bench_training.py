@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
+from riskplan.engine.step import initial_state, step
 from riskplan.experiments.bench_meters import best_time, reset_peak, rss_mb
 from riskplan.run.build import build_setup
-from riskplan.run.checkpoint import State
 from riskplan.run.compose import compose
-from riskplan.run.training import iterate, train
+from riskplan.run.training import train
 
 
 def bench_training(quick: bool) -> list[dict]:
@@ -95,18 +95,16 @@ ITERATIONS_ONLY = "train.eval_episodes=1000"
 
 
 def iteration_time(overrides: list[str], quick: bool) -> float:
-    """Seconds of one training iteration (`training.iterate`: rollouts, gradients, consensus, step) of the set-up
+    """Seconds of one training iteration (`engine.step.step`: rollouts, gradients, consensus, checks) of the set-up
     that overrides give, the best of several after a warm-up iteration."""
     setup = build_setup(compose(overrides))
-    state = State(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.state(), [])
-    state, _ = iterate(setup, state)  # warm
+    state, _ = step(setup, initial_state(setup))  # warm
 
-    def step():
+    def one():
         nonlocal state
-        state, _ = iterate(setup, state)
-        state.rows.clear()
+        state, _ = step(setup, state)
 
-    return best_time(step, 3, 3 if quick else 10)
+    return best_time(one, 3, 3 if quick else 10)
 
 
 def bench_measures(quick: bool) -> list[dict]:
@@ -115,12 +113,12 @@ def bench_measures(quick: bool) -> list[dict]:
     keeps the median of its iterations."""
     measures = ("cvar", "wang", "mean_cvar", "entropic")
     setups = {m: build_setup(compose([f"risk={m}"])) for m in measures}
-    firsts = {m: State(0, np.tile(setup.theta0, (1, 1)), setup.mixer.state(), []) for m, setup in setups.items()}
+    firsts = {m: initial_state(setup) for m, setup in setups.items()}
     seconds: dict[str, list[float]] = {m: [] for m in measures}
     for turn in range(60 if quick else 300):
         for measure in measures:
             started = time.perf_counter()
-            iterate(setups[measure], firsts[measure])
+            step(setups[measure], firsts[measure])
             if turn:  # the first turn warms every measure up
                 seconds[measure].append(time.perf_counter() - started)
     best = {m: float(np.median(times)) for m, times in seconds.items()}
@@ -179,9 +177,9 @@ def bench_team(quick: bool) -> list[dict]:
                 [f"team.robots={robots}", "team.graph=random_geometric", f"train.samples={samples}", ITERATIONS_ONLY]
             )
         )
-        state = State(0, np.tile(setup.theta0, (robots, 1)), setup.mixer.state(), [])
+        state = initial_state(setup)
         tracemalloc.start()  # numpy reports its buffers to tracemalloc: exact peak bytes of one iteration
-        iterate(setup, state)
+        step(setup, state)
         growth.append((robots * samples, tracemalloc.get_traced_memory()[1] / 2**20))
         tracemalloc.stop()
     n, mb = np.array(growth, dtype=float).T

@@ -1,12 +1,13 @@
-"""Many simulated runs as one program: each iteration's episodes of every run that shares a world and W_l in one
-kernel call (riskplan.engine.step.batched_rollouts), then each run's own step, rows, checkpoints and files exactly
-as it would have them alone (riskplan.run.training.Driver).
+"""Many simulated runs as one program: the engine's loop over the batch (riskplan.engine.loop.make_train: one
+kernel call, one statistics call per beta and one gradient call per risk node each iteration, for every run that
+shares a world and W_l), with each run's rows, checkpoints and files through the recorder exactly as it would have
+them alone (riskplan.run.recorder).
 
-A run's numbers do not depend on its batch: its episodes come from its own counter-based streams, and the kernel
-treats every policy of a call apart, so a run in a batch is bit for bit the same run alone. A run that fails (bad
-input, a non-finite estimate, a disk that refuses its files) is reported and leaves the batch; the others go on. A
-signal checkpoints every run at its iteration and stops them all (Interrupted), and each resumes to the numbers of
-an uninterrupted run.
+A run's numbers do not depend on its batch: its episodes come from its own counter-based streams, the kernel
+treats every policy of a call apart, and the statistics and gradients are computed row by row, so a run in a batch
+is bit for bit the same run alone. A run that fails (bad input, a non-finite estimate, a disk that refuses its
+files) is reported and leaves the batch; the others go on. A signal checkpoints every run at its iteration and
+stops them all (Interrupted), and each resumes to the numbers of an uninterrupted run.
 """
 
 from __future__ import annotations
@@ -17,8 +18,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from riskplan.engine.step import Setup, batched_rollouts
-from riskplan.run.training import Driver, iterate, load_kernels
+from riskplan.engine.loop import make_train
+from riskplan.engine.step import Setup
+from riskplan.run.recorder import Driver, Recorder
+from riskplan.run.training import load_kernels
 from riskplan.util.collector import resume_collection
 from riskplan.util.interrupt import StopSignals
 from riskplan.util.lock import hold
@@ -41,47 +44,22 @@ def train_batch(
 ) -> list[BatchRun]:
     """Train `runs` (simulated backend, one world and sample schedule: riskplan.engine.step.batch_key) together,
     each under its directory's lock (`locked`: the caller's process holds them); returns them with their summary
-    or error. `progress(done, total)` is called as iterations finish, over all runs. Interrupted (after every
-    run's checkpoint) when a signal stops the batch."""
-    total = sum(run.setup.params.train.iterations for run in runs)
+    or error. `progress(done, total)` is called as iterations finish, over all runs (one that could not open
+    counts as done). Interrupted (after every run's checkpoint) when a signal stops the batch."""
     with contextlib.ExitStack() as stack, StopSignals() as stop:
         active = [run for run in runs if _open(run, stack, locked)]
         if active:
             load_kernels(active[0].setup, active[0].driver.state)
         resume_collection()  # the start-up is over (riskplan.util.collector), as for a run alone
-        walls = {id(run): 0.0 for run in active}
-        done = sum(run.driver.state.iteration for run in active) + sum(
-            run.setup.params.train.iterations for run in runs if run.driver is None
-        )
-        while active := [run for run in active if run.error is None and not run.driver.trained]:
-            for group in _by_iteration(active):
-                tic = time.perf_counter()
-                episodes = batched_rollouts(
-                    [run.setup for run in group],
-                    group[0].driver.state.iteration,
-                    [run.driver.state.thetas for run in group],
-                )
-                shared = (time.perf_counter() - tic) / len(group)  # the kernel call's time, shared out
-                for run, batch in zip(group, episodes):
-                    started = time.perf_counter()
-                    _isolated(run, lambda run=run, batch=batch: _advance(run, batch, stop))
-                    walls[id(run)] += shared + time.perf_counter() - started
-                done += len(group)
-                if progress:
-                    progress(done, total)
-            if stop.received:  # every run keeps its last finished iteration, whenever in the round the signal came
-                for run in active:
-                    _isolated(run, run.driver.checkpoint)
-                stop.check(min(run.driver.state.iteration for run in active))
-        for run in runs:
-            if run.driver is not None and run.error is None:
-                _isolated(run, lambda run=run: _finish(run, walls[id(run)], stop))
+        recorder = Recorder([run.driver for run in active], stop, isolate=True, progress=progress)
+        unopened = sum(run.setup.params.train.iterations for run in runs if run.driver is None)
+        recorder.done, recorder.total = recorder.done + unopened, recorder.total + unopened
+        make_train([run.setup for run in active])([run.driver.state for run in active], recorder)
+        for run, error, seconds in zip(active, recorder.errors, recorder.seconds):
+            run.error = error
+            if error is None:
+                _isolated(run, lambda run=run, seconds=seconds: _finish(run, seconds, stop))
     return runs
-
-
-def _advance(run: BatchRun, batch, stop: StopSignals) -> None:
-    """One iteration of one run, on its episodes of the batch's kernel call."""
-    run.driver.record(*iterate(run.setup, run.driver.state, batch), stop)
 
 
 def _open(run: BatchRun, stack: contextlib.ExitStack, locked: bool = False) -> bool:
@@ -97,14 +75,6 @@ def _open(run: BatchRun, stack: contextlib.ExitStack, locked: bool = False) -> b
         run.error, run.driver = err, None
         return False
     return True
-
-
-def _by_iteration(runs: list[BatchRun]) -> list[list[BatchRun]]:
-    """The runs at the same iteration (one kernel call each); resumed runs of one batch usually are."""
-    groups: dict[int, list[BatchRun]] = {}
-    for run in runs:
-        groups.setdefault(run.driver.state.iteration, []).append(run)
-    return [groups[l] for l in sorted(groups)]
 
 
 def _isolated(run: BatchRun, work: Callable[[], None]) -> None:

@@ -12,21 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from riskplan.engine.step import Setup, logit_bound
+from riskplan.engine.step import Setup, TrainState, logit_bound
 from riskplan.run.run_files import CHECKPOINT, CHECKPOINT_TMP
 from riskplan.util.errors import BadInput
 
 CRASH_ENV = "RISKPLAN_TEST_KILL_IN_CHECKPOINT"  # fault injection for the crash-safety tests
-
-
-@dataclass
-class State:
-    """What a checkpoint holds: the next iteration, every robot's theta, the mixer's buffers, the rows so far."""
-
-    iteration: int
-    thetas: np.ndarray  # (N, M)
-    mixer: dict
-    rows: list[dict]
 
 
 def _write_durably(out: Path, payload: dict) -> None:
@@ -47,7 +37,7 @@ def _write_durably(out: Path, payload: dict) -> None:
         os.close(directory)
 
 
-def save_checkpoint(out: Path, state: State) -> None:
+def save_checkpoint(out: Path, state: TrainState) -> None:
     """Write the checkpoint atomically: temp file, fsync, rename, fsync the directory."""
     payload = {
         "iteration": state.iteration,
@@ -58,7 +48,7 @@ def save_checkpoint(out: Path, state: State) -> None:
     _write_durably(out, payload)
 
 
-def load_checkpoint(out: Path, setup: Setup) -> State:
+def load_checkpoint(out: Path, setup: Setup) -> TrainState:
     """The last good checkpoint of a run directory (a half-written temp file is ignored), checked against the
     config: a checkpoint that cannot be this run's is bad input, never a run that continues."""
     path = out / CHECKPOINT
@@ -108,7 +98,7 @@ def load_checkpoint(out: Path, setup: Setup) -> State:
             f"at iteration {iteration}; a resumed run can only be extended: give "
             f"train.iterations >= {iteration}",
         )
-    return State(iteration, thetas, mixer, [])
+    return TrainState(iteration, thetas, mixer)
 
 
 # --- team.backend=ray: one checkpoint per robot, each at its own iteration (riskplan.run.ray_team) ---------------

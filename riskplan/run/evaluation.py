@@ -13,9 +13,8 @@ from riskplan.engine import rng
 from riskplan.engine.measures.registry import risk_spec
 from riskplan.engine.risk_measures import objective, summary_stats
 from riskplan.engine.rollout import simulate
-from riskplan.engine.step import Setup, check_finite, simulator, starts
+from riskplan.engine.step import Setup, TrainState, check_finite, simulator, starts
 from riskplan.run.budget import EVAL_BATCH
-from riskplan.run.checkpoint import State
 from riskplan.run.columns import Columns, concat, rows_where
 from riskplan.run.intervals import bootstrap_intervals, objective_interval
 from riskplan.run.metrics_rows import AVERAGE
@@ -104,7 +103,7 @@ def sample_paths(setup: Setup, thetas: np.ndarray) -> Columns:
     return concat(frames)
 
 
-def summarize(setup: Setup, state: State, evaluation: Columns, metrics: Columns, train_seconds: float) -> dict:
+def summarize(setup: Setup, state: TrainState, evaluation: Columns, metrics: Columns, train_seconds: float) -> dict:
     """summary.json: headline policy's figures with intervals, per-policy basics, timing, provenance."""
     params = setup.params
     headline = AVERAGE if setup.team else 0

@@ -52,9 +52,9 @@ import numpy as np
 
 from riskplan.config.schema import Order
 from riskplan.config.validate import check_extra
-from riskplan.engine.step import NumericalTrouble, Setup, team_statistics
+from riskplan.engine.step import NumericalTrouble, Setup, TrainState, team_statistics
 from riskplan.engine.team.convergence import consensus_error
-from riskplan.run.checkpoint import State, TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
+from riskplan.run.checkpoint import TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
 from riskplan.run.columns import Columns, from_rows, sorted_by
 from riskplan.run.evaluation import evaluate, sample_paths, summarize
 from riskplan.run.metrics_rows import AVERAGE, average_row
@@ -350,7 +350,7 @@ def train_ray(setup: Setup, out: Path, resume: bool, progress) -> dict:
             metrics = _metrics_table(team.rows)
             evaluation = evaluate(setup, thetas)
             trajectories = sample_paths(setup, thetas)
-            summary = summarize(setup, State(total, thetas, {}, []), evaluation, metrics, train_seconds)
+            summary = summarize(setup, TrainState(total, thetas, {}), evaluation, metrics, train_seconds)
             stop.check(total)  # before the final files: a resumed run evaluates again
             log.trajectories(trajectories)
             log.evaluation(evaluation)

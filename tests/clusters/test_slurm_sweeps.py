@@ -43,7 +43,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from riskplan.run.training import STOP_ENV
+from riskplan.run.recorder import STOP_ENV
 
 from .common import (
     alive,

@@ -14,7 +14,7 @@ import pytest
 from support import CHECKPOINTED, TIMEOUT, assert_same_outputs, child_env, resume_cli, riskplan_command, train_cli
 
 from riskplan.run.checkpoint import CHECKPOINT
-from riskplan.run.training import STOP_ENV
+from riskplan.run.recorder import STOP_ENV
 from riskplan.util.interrupt import Interrupted, StopSignals
 
 

@@ -30,7 +30,8 @@ from riskplan.cli import app
 from riskplan.engine.step import NumericalTrouble
 from riskplan.run.checkpoint import CHECKPOINT
 from riskplan.run.record import RunLog
-from riskplan.run.training import STOP_ENV, prepare_resume
+from riskplan.run.recorder import STOP_ENV
+from riskplan.run.training import prepare_resume
 from riskplan.util.errors import BadInput
 from riskplan.util.lock import LOCK, holder
 
@@ -188,7 +189,7 @@ def test_a_checkpoint_costs_the_same_at_every_iteration(tmp_path):
         real_replace(src, dst)
 
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(training.os, "replace", record)
+        patch.setattr(os, "replace", record)
         training.train(
             compose(
                 [

@@ -1,0 +1,154 @@
+"""The engine loop's effects (riskplan.engine.loop.Recorder): each run's rows into its run.mcap, its checkpoints
+when due, progress, and the signals, for a run alone and for every run of a batch alike.
+
+A `Driver` is one run's files around the loop: run.mcap opened fresh or at its checkpoint, the rows, the
+checkpoints, then the evaluation and the finished files. The `Recorder` hands each iteration to its run's Driver,
+keeps each run's share of the loop's time, and between rounds checkpoints every live run and stops when a signal
+came. A run alone lets its failure stop the command; a batch (`isolate`) keeps each failure with its run.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numba
+
+from riskplan.engine.step import Setup, Statistics, TrainState, initial_state
+from riskplan.run import cost
+from riskplan.run.checkpoint import load_checkpoint, save_checkpoint
+from riskplan.run.columns import from_rows, sorted_by
+from riskplan.run.evaluation import evaluate, sample_paths, summarize
+from riskplan.run.metrics_rows import statistics_rows
+from riskplan.run.run_directory import reopen_log, start_log, write_finished
+from riskplan.util.interrupt import StopSignals
+from riskplan.util.limits import cpu_count
+
+STOP_ENV = "RISKPLAN_TEST_STOP_AFTER_ITERATION"  # SIGSTOP after logging this iteration, so a test can SIGKILL there
+
+
+class Driver:
+    """One simulated run's files around the engine's loop: run.mcap opened fresh or at its checkpoint, each
+    iteration's rows, checkpoints and progress, then the evaluation and the finished files. The caller holds the
+    directory's lock."""
+
+    def __init__(self, setup: Setup, out: Path, resume: bool, progress=None):
+        self.setup, self.out, self.progress = setup, out, progress
+        self.entered = time.perf_counter()
+        self.compiles = cost.compiles()
+        if resume:
+            self.state = load_checkpoint(out, setup)
+            self.log, self.rows = reopen_log(out, setup, self.state.iteration)
+        else:
+            self.log, self.rows = start_log(out, setup), []
+            self.state = initial_state(setup)
+        self.saved = self.resumed_at = self.state.iteration
+        self.total = setup.params.train.iterations
+        self.results: tuple | None = None  # (metrics, evaluation, trajectories, summary) once evaluated
+
+    @property
+    def trained(self) -> bool:
+        return self.state.iteration >= self.total
+
+    def record(self, state: TrainState, rows: list[dict]) -> None:
+        """An iteration done: its rows into run.mcap (durable before the next), a checkpoint when one is due, and
+        progress."""
+        self.state = state
+        self.rows.extend(rows)
+        self.log.iteration(rows)
+        if state.iteration % self.setup.params.train.checkpoint_every == 0 or state.iteration == self.total:
+            self.checkpoint()
+        if self.progress:
+            self.progress(state.iteration, self.total, rows[-1])
+        if os.environ.get(STOP_ENV) == str(state.iteration - 1):
+            os.kill(os.getpid(), signal.SIGSTOP)
+
+    def checkpoint(self) -> None:
+        """The log of every checkpointed iteration is on disk before the checkpoint is."""
+        self.log.sync()
+        save_checkpoint(self.out, self.state)
+        self.saved = self.state.iteration
+
+    def evaluate(self, train_seconds: float) -> dict:
+        """The final policies on fresh episodes, the sampled paths and summary.json's figures."""
+        setup, state = self.setup, self.state
+        metrics = sorted_by(from_rows(self.rows), "iteration", "robot")
+        evaluation = evaluate(setup, state.thetas)
+        trajectories = sample_paths(setup, state.thetas)
+        summary = summarize(setup, state, evaluation, metrics, train_seconds)
+        if self.resumed_at:  # wall_time is this process's part of the loop; the run line says so
+            summary["resumed_at"] = self.resumed_at
+        self.results = (metrics, evaluation, trajectories, summary)
+        return summary
+
+    def log_results(self) -> None:
+        """The evaluation's records into run.mcap (before it closes)."""
+        _, evaluation, trajectories, summary = self.results
+        self.log.trajectories(trajectories)
+        self.log.evaluation(evaluation)
+        self.log.summary(summary)
+
+    def finish(self, seconds: float | None = None, share: float | None = None) -> dict:
+        """The finished run's files (after run.mcap closed), summary.json last; returns the summary. A whole run
+        calibrates the time estimates of sweeps and reproductions on this machine (riskplan.run.cost) with its wall
+        seconds since it opened (a batch gives each run its part of the batch's time, on all cores), unless numba
+        compiled a kernel meanwhile: then its seconds are mostly the compiler's."""
+        metrics, evaluation, trajectories, summary = self.results
+        write_finished(self.out, self.setup, metrics, evaluation, trajectories, summary)
+        if not self.resumed_at and cost.compiles() == self.compiles:
+            seconds = time.perf_counter() - self.entered if seconds is None else seconds
+            share = numba.get_num_threads() / cpu_count() if share is None else share
+            cost.record(cost.setup_steps(self.setup), seconds, share)
+        return summary
+
+
+class Recorder:
+    """The loop's one way out for a set of runs (riskplan.engine.loop.Recorder): run r's iterations go to
+    drivers[r]; `seconds[r]` is its share of the loop's time; `errors[r]` what stopped it (with `isolate`; a run
+    alone re-raises it). `progress(done, total)` counts iterations over all runs."""
+
+    def __init__(
+        self,
+        drivers: Sequence[Driver],
+        stop: StopSignals,
+        *,
+        isolate: bool = False,
+        progress: Callable[[int, int], None] | None = None,
+    ):
+        self.drivers, self.stop, self.isolate, self.progress = list(drivers), stop, isolate, progress
+        self.seconds = [0.0] * len(self.drivers)
+        self.errors: list[BaseException | None] = [None] * len(self.drivers)
+        self.done = sum(driver.state.iteration for driver in self.drivers)
+        self.total = sum(driver.total for driver in self.drivers)
+
+    def iteration(self, run: int, state: TrainState, statistics: Statistics, seconds: float) -> None:
+        self.seconds[run] += seconds
+        self.drivers[run].record(state, statistics_rows(statistics, seconds))
+        self.done += 1
+        if self.progress:
+            self.progress(self.done, self.total)
+
+    def failed(self, run: int, error: Exception) -> None:
+        if not self.isolate:
+            raise error
+        self.errors[run] = error
+
+    def round_done(self, runs: Sequence[int], states: Sequence[TrainState]) -> None:
+        """On a signal, every live run keeps its last finished iteration (a checkpoint unless it has one there),
+        then Interrupted stops them all."""
+        if self.stop.received is None:
+            return
+        for r in runs:
+            if self.drivers[r].saved != self.drivers[r].state.iteration:
+                self._isolated(r, self.drivers[r].checkpoint)
+        self.stop.check(min((states[r].iteration for r in runs), default=0))
+
+    def _isolated(self, run: int, work: Callable[[], None]) -> None:
+        """work() for one run; its error stops that run alone (or the command, for a run alone)."""
+        try:
+            work()
+        except Exception as err:
+            self.failed(run, err)
