@@ -122,7 +122,7 @@ def test_a_run_that_overflows_leaves_the_batch_and_the_others_go_on():
 
 def test_a_run_alone_raises_its_failure():
     setup = setup_of("train.step_size.initial=1e308")
-    with pytest.raises(NumericalTrouble, match="lower train.step_size.initial"):
+    with pytest.raises(NumericalTrouble, match=r"lower train\.step_size\.initial"):
         make_train([setup])([initial_state(setup)], Memory(1, isolate=False))
 
 
