@@ -73,7 +73,7 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
     waiting = [job for i, job in enumerate(plan.jobs) if i not in finished]
     if todo:
         if plan.launcher == BATCH_LAUNCHER:
-            echo(batch_line(waiting))
+            echo(batch_line(waiting, plan))
         echo(estimate_line(waiting, plan))
     launcher_error, interrupted = None, None
     if todo:
@@ -134,22 +134,24 @@ def estimate_seconds(jobs: list, plan: Plan) -> float:
     run's overhead per chunk, not per job."""
     model = cost.model()
     if plan.launcher == BATCH_LAUNCHER:
-        return model.batch_seconds([job.steps for job in jobs], len(batch_chunks(jobs)))
+        return model.batch_seconds([job.steps for job in jobs], len(batch_chunks(jobs, plan)))
     return model.sweep_seconds([job.steps for job in jobs], plan.workers or 1)
 
 
-def batch_chunks(jobs: list) -> list[list]:
-    """The batches these jobs will train in: grouped by what they share, cut to the memory budget."""
+def batch_chunks(jobs: list, plan: Plan) -> list[list]:
+    """The batches these jobs will train in: grouped by what they share, cut to the memory a batch may use (as the
+    batch launcher cuts them: riskplan.experiments.sweeping.batched)."""
     batchable = [job for job in jobs if job.batch]
-    return plan_chunks(batchable, memory_budget()[0], key=lambda job: job.batch, size=lambda job: job.memory)
+    limit = (plan.memory or memory_budget())[0]
+    return plan_chunks(batchable, limit, key=lambda job: job.batch, size=lambda job: job.memory)
 
 
-def batch_line(jobs: list) -> str:
+def batch_line(jobs: list, plan: Plan) -> str:
     """A batched sweep's plan: its groups and chunks, and the memory they stay within."""
-    chunks = batch_chunks(jobs)
+    chunks = batch_chunks(jobs, plan)
     groups = len({job.batch for job in jobs if job.batch})
     alone = sum(1 for job in jobs if not job.batch)
-    budget, source = memory_budget()
+    budget, source = plan.memory or memory_budget()
     largest = max((sum(job.memory for job in chunk) for chunk in chunks), default=0.0)
     return (
         f"batched: {len(jobs) - alone} runs in {groups} group{'s' if groups != 1 else ''} of a shared world, "

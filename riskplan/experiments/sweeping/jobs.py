@@ -66,6 +66,7 @@ class Plan:
     sweeper: str = GRID_SWEEPER  # an optimiser (optuna) chooses the jobs as it goes: `jobs` is empty until they ran
     trials: int | None = None  # how many jobs such a sweeper runs, when known
     search: list[str] = field(default_factory=list)  # the keys it searches
+    memory: tuple[float, str] | None = None  # a batched sweep's hydra.launcher.memory_gb: (bytes, where it was set)
 
 
 @dataclass

@@ -3,6 +3,7 @@ so bad input leaves nothing behind."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from riskplan.experiments.sweep_worker import SUBDIR
@@ -62,6 +63,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         if jobs is not None:
             raise BadInput("--jobs", "applies to parallel launchers; --batch trains one program on every core")
         launcher = BATCH_LAUNCHER
+    memory = batch_memory(hydra_keys) if launcher == BATCH_LAUNCHER else None
     explicit_dir = None
     if "hydra.sweep.dir" in hydra_keys:
         raw = hydra_keys["hydra.sweep.dir"].value()
@@ -148,4 +150,24 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         name_folders(job_list, naming, task_ovs)
 
     target = target_dir(sweep_dir, explicit_dir, argv)
-    return Plan(target, argv, job_list, launcher, workers, notes, workers_arg)
+    plan = Plan(target, argv, job_list, launcher, workers, notes, workers_arg)
+    plan.memory = memory
+    return plan
+
+
+def batch_memory(hydra_keys: dict) -> tuple[float, str] | None:
+    """hydra.launcher.memory_gb, the memory a batch may use, as (bytes, its source); None when not given (the
+    memory budget holds then). Bad input unless it is a positive, finite number of GB."""
+    if MEMORY_KEY not in hydra_keys:
+        return None
+    value = hydra_keys[MEMORY_KEY].value()
+    try:
+        gb = float(value)
+    except (TypeError, ValueError):
+        gb = math.nan
+    if isinstance(value, bool) or not (math.isfinite(gb) and gb > 0):
+        raise BadInput(MEMORY_KEY, f"got {value!r}; expected a positive number of GB that a batch may use, e.g. 4")
+    return gb * 1e9, MEMORY_KEY
+
+
+MEMORY_KEY = "hydra.launcher.memory_gb"

@@ -104,3 +104,46 @@ def test_batches_are_the_groups_cut_to_the_memory_budget():
         [("a", 9)],  # larger than the rest of the budget: a batch of its own
         [("b", 1)],
     ]
+
+
+@pytest.mark.slow
+def test_hydra_launcher_memory_gb_cuts_the_batches_the_plan_says(tmp_path):
+    """The plan's batches and the launcher's are the same, cut to hydra.launcher.memory_gb when it is given."""
+    from riskplan.run.build import build_setup
+    from riskplan.run.compose import compose
+    from riskplan.run.cost import run_bytes
+
+    need = run_bytes(build_setup(compose([*FAST, "train.iterations=2"])))
+    limit_gb = 2.5 * need / 1e9  # room for two runs a batch
+    result = riskplan_cli(
+        tmp_path,
+        "sweep",
+        "seed=range(0,5)",
+        *FAST,
+        "train.iterations=2",
+        "--batch",
+        f"hydra.launcher.memory_gb={limit_gb}",
+    )
+    assert result.returncode == 0, result.stderr
+    assert "trained as 3 batches" in result.stdout and "hydra.launcher.memory_gb" in result.stdout
+    sizes = sorted(
+        int(line.rsplit("in a batch of ", 1)[1].rstrip(")\n"))
+        for job in job_dirs(sweep_dir_of(result, tmp_path))
+        for line in (job / "job.log").read_text().splitlines()
+        if "in a batch of" in line
+    )
+    assert sizes == [1, 2, 2, 2, 2]
+
+
+@pytest.mark.parametrize("value", ["-1", "0", "nan", "inf", "lots", "true"])
+def test_a_memory_limit_that_is_not_a_positive_number_is_bad_input(tmp_path, monkeypatch, value):
+    from typer.testing import CliRunner
+
+    from riskplan.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["sweep", "seed=0,1", *FAST, "--batch", f"hydra.launcher.memory_gb={value}"])
+    assert result.exit_code == 2, result.output
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith("error: hydra.launcher.memory_gb: got ") and "positive number of GB" in line
+    assert not (tmp_path / "outputs").exists()
