@@ -35,8 +35,9 @@ def register(app: typer.Typer) -> None:
         sweep: bool = typer.Option(
             False,
             "--sweep",
-            help="Instead: a 64-run beta x seed sweep of the paper world (200 iterations, W = 6000), batched "
-            "against unbatched in the same run (several minutes; 16 runs of 50 iterations with --quick).",
+            help="Instead: beta x seed sweeps of the paper world (200 iterations, W = 6000): 24 runs batched against "
+            "--jobs (a worker per job), and 64 runs batched against the bare loops of their trainings, in the same "
+            "run (a few minutes; 12 and 16 runs of 50 iterations with --quick).",
         ),
         threads: bool = typer.Option(
             False,
@@ -50,6 +51,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
 
         from riskplan.experiments.bench_gpu import Skipped, bench_gpu
+        from riskplan.experiments.bench_loop import bench_loop
         from riskplan.experiments.bench_rollout import bench_rollout
         from riskplan.experiments.bench_startup import bench_jit, bench_startup
         from riskplan.experiments.bench_training import bench_checkpoints, bench_measures, bench_team, bench_training
@@ -89,6 +91,7 @@ def register(app: typer.Typer) -> None:
                 lambda: bench_rollout(quick),
                 gpu_rows,
                 lambda: bench_training(quick),
+                lambda: bench_loop(quick),
                 lambda: bench_measures(quick),
                 lambda: bench_checkpoints(quick),
                 bench_jit,

@@ -128,6 +128,7 @@ def test_bench_counts_the_targets_met_and_says_when_the_machine_is_busy(monkeypa
         ("bench_rollout", "bench_rollout"),
         ("bench_training", "bench_training"),
         ("bench_training", "bench_measures"),
+        ("bench_loop", "bench_loop"),
         ("bench_training", "bench_checkpoints"),
         ("bench_startup", "bench_startup"),
         ("bench_training", "bench_team"),
@@ -145,7 +146,7 @@ def test_bench_counts_the_targets_met_and_says_when_the_machine_is_busy(monkeypa
     monkeypatch.setattr("os.getloadavg", lambda: (load, load, load))
     result = CliRunner().invoke(app, ["bench"])
     assert result.exit_code == 0, result.output
-    assert "7 of 8 targets met" in result.output and f"load average {load:.2f}" in result.output
+    assert "8 of 9 targets met" in result.output and f"load average {load:.2f}" in result.output
     assert ("the machine is busy" in result.output) == busy
     assert "GPU rollout kernel: skipped; no GPU here" in result.output  # a line, not a target
 
@@ -235,3 +236,25 @@ def test_bench_threads_prints_the_thread_scaling_rows_alone(monkeypatch):
     result = CliRunner().invoke(app, ["bench", "--threads", "--quick"])
     assert result.exit_code == 0, result.output
     assert "iteration, W=600,000, 2 threads" in result.output and "1 of 1 targets met" in result.output
+
+
+def test_the_plain_loops_policy_and_gradient_are_riskplans():
+    """The loop row's baseline computes what riskplan computes: the softmax policy's move probabilities and scores
+    (eqs. 2-3) and the CVaR gradient of eq. (9)."""
+    from riskplan.engine.estimators import cvar_gradient, tail_count
+    from riskplan.engine.policy import probabilities, scores
+    from riskplan.experiments import plain_loop
+    from riskplan.experiments.bench_loop import plain_world
+
+    setup = build_setup(compose([]))
+    features = plain_world(setup)["features"]
+    theta = np.array([12.0, -3.0])
+    bins, score = plain_loop.policy_tables(features, theta)
+    probs = probabilities(features, theta)
+    np.testing.assert_allclose(np.diff(bins[0], prepend=0, axis=1) / plain_loop.BITS, probs[:, :4], atol=1e-12)
+    np.testing.assert_allclose(score[0], scores(features, probs), atol=1e-12)
+
+    z, s = np.random.default_rng(3).normal(size=(2, 997)), np.random.default_rng(4).normal(size=(997, 2))
+    for beta in (0.05, 0.1, 0.5):
+        got = plain_loop.cvar_gradient(z[0], s, tail_count(beta, z[0].size), beta)
+        np.testing.assert_allclose(got, cvar_gradient(z[0], s, beta), rtol=1e-12)
