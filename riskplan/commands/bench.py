@@ -49,6 +49,7 @@ def register(app: typer.Typer) -> None:
         """Speed, memory, JIT, start-up and team-scaling targets, each with a baseline measured in the same run."""
         import numba
         from rich.console import Console
+        from rich.markup import escape
 
         from riskplan.experiments.bench_gpu import Skipped, bench_gpu
         from riskplan.experiments.bench_loop import bench_loop
@@ -73,6 +74,7 @@ def register(app: typer.Typer) -> None:
             try:
                 return bench_gpu(quick)
             except Skipped as why:
+                why = escape(str(why))  # its pip install names [cuda], which is no style tag
                 console.print(f"[bold]GPU rollout kernel[/bold]: skipped; {why}")
                 return []
 
@@ -105,7 +107,9 @@ def register(app: typer.Typer) -> None:
                 console.print(
                     f"[bold]{row['measure']}[/bold]: {row['value']:.4g} {row['unit']}  (target {row['target']}: {mark})"
                 )
-                console.print(f"    baseline {row['baseline']:.4g}, ratio {row['ratio']:.3g}; {row['note']}")
+                console.print(
+                    f"    baseline {row['baseline']:.4g}, ratio {row['ratio']:.3g}; {row['note']}", markup=False
+                )
                 rows.append(row)
         met = sum(bool(row["ok"]) for row in rows)
         console.print(

@@ -70,9 +70,9 @@ def bad_input_exits(command):
 
 
 CONFIG_DIR_FLAGS = ("--config-dir", "-cd")
-CONFIG_DIR_HELP = (
+CONFIG_DIR_HELP = (  # "\\[": rich markup would take [file://DIR] for a style tag and drop it
     " --config-dir DIR (-cd DIR) adds DIR to the config search path, after riskplan's own conf/: your own "
-    "experiment=mine then loads DIR/experiment/mine.yaml (the same as hydra.searchpath=[file://DIR])."
+    "experiment=mine then loads DIR/experiment/mine.yaml (the same as hydra.searchpath=\\[file://DIR])."
 )
 
 

@@ -6,12 +6,13 @@ import typer
 
 from riskplan.commands.common import CONFIG_DIR_HELP, PASS_THROUGH, bad_input_exits, with_config_dirs
 
+# help texts are rich markup: "\\[" keeps a bracket that rich would take for a style tag ([optuna], [file://DIR])
 SWEEP_HELP = (
     "Hydra overrides; comma lists and range(...) sweep, e.g. risk.beta=0.05,0.1,0.2 'seed=range(0,5)' "
     "team.graph=line,ring. hydra/launcher=submitit_slurm|submitit_local|ray selects a cluster launcher "
     "(default: joblib on local cores); hydra.sweep.dir=DIR re-runs a sweep into DIR, skipping the jobs "
     "that finished. hydra/sweeper=optuna 'risk.beta=interval(0.05,1)' hydra.sweeper.n_trials=12 runs "
-    "an Optuna study instead of a grid (pip install 'riskplan[optuna]'); its trials return their CVaR."
+    "an Optuna study instead of a grid (pip install 'riskplan\\[optuna]'); its trials return their CVaR."
 )
 
 
