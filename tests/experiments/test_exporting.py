@@ -362,3 +362,19 @@ def test_params_figures_prefixes_and_names_known_answers():
     assert re.fullmatch(r"a_b_c-[0-9a-f]{8}", name)
     assert tensorboard_name(Path("/elsewhere/a b:c")) != name  # the same name in another place: another directory
     assert tensorboard_name(Path("/data/..")).startswith("run-")
+
+
+def test_every_targets_default_destination_is_under_outputs_or_in_each_run(tmp_path, monkeypatch):
+    """Without --uri or --out an export writes under outputs/, which .gitignore leaves out (the trackers' stores),
+    or into each run directory (the Foxglove layout, the ROS 2 bags): from a repository's root it adds nothing
+    that git would list."""
+    from riskplan.experiments.exporting import TARGETS, check_uri
+
+    monkeypatch.chdir(tmp_path)
+    stores = {
+        "mlflow": (tmp_path / "outputs" / "mlruns").as_uri(),
+        "tensorboard": str(tmp_path / "outputs/tensorboard"),
+    }
+    assert {to: check_uri(to, None) for to in TARGETS} == {**stores, "foxglove": "", "ros2": ""}
+    ignored = (Path(__file__).resolve().parents[2] / ".gitignore").read_text().splitlines()
+    assert "/outputs/*" in ignored
