@@ -35,6 +35,7 @@ class BatchRun:
     out: Path
     resume: bool = False
     summary: dict | None = None  # once finished
+    seconds: float | None = None  # once finished: its own time, its share of the loop and its own evaluation and files
     error: BaseException | None = None  # why it stopped alone
     driver: Driver | None = field(default=None, repr=False)
 
@@ -95,3 +96,4 @@ def _finish(run: BatchRun, train_seconds: float, stop: StopSignals) -> None:
     run.driver.log_results()
     run.driver.log.close()  # before the files, as a run alone closes it; the batch's exit closes it again, idly
     run.summary = run.driver.finish(train_seconds + time.perf_counter() - started)
+    run.seconds = train_seconds + time.perf_counter() - started
