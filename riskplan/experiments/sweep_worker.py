@@ -270,9 +270,10 @@ def begin_job(cfg: DictConfig, out: Path) -> JobStart:
 
 
 def end_job(start: JobStart, record: dict) -> float | None:
-    """A trained (or failed) job's final status.json; its CVaR for the sweeper."""
+    """A trained (or failed) job's final status.json; its CVaR for the sweeper. `seconds` is the job's time since
+    it began, or the record's own (a batched job's share of its batch: riskplan.experiments.sweeping.batched)."""
     finished = time.time()
-    seconds = finished - start.base["started"]
+    seconds = record.get("seconds", finished - start.base["started"])
     write_status(start.out, {**record, **start.base, "finished": finished, "seconds": seconds, "resumed": start.resume})
     return record.get("cvar")
 

@@ -60,6 +60,7 @@ class Prepared:
     setup: Setup | None = None
     config: dict | None = None  # its resolved config, for a worker process to build the run from
     value: float | None = None  # its CVaR once done (or the finished job's)
+    seconds: float = 0.0  # its set-up through Hydra, the first part of its own time
 
 
 def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobReturn]:
@@ -78,6 +79,7 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
 
         configs = JobConfigs(context.config_loader, config)  # each job's config as Hydra makes it, quicker
         for idx, overrides in enumerate(job_overrides, start=initial_job_idx):
+            tic = time.perf_counter()
             sweep_config = configs(list(overrides))
             with open_dict(sweep_config):
                 sweep_config.hydra.job.id = idx
@@ -89,7 +91,10 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
                 job_dir_key="hydra.sweep.dir",
                 job_subdir_key="hydra.sweep.subdir",
             )
-            returns.append((done, done.return_value if done.status == JobStatus.COMPLETED else None))
+            prepared = done.return_value if done.status == JobStatus.COMPLETED else None
+            if prepared is not None:
+                prepared.seconds = time.perf_counter() - tic
+            returns.append((done, prepared))
             configure_log(config.hydra.hydra_logging, config.hydra.verbose)
         waiting = [p for _, p in returns if p is not None and p.setup is not None]
         limit = launcher.memory_gb * 1e9 if launcher.memory_gb else memory_budget()[0]
@@ -182,7 +187,7 @@ def _train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int
                 _log(job.out, f"=== {record['error']}")
                 interrupt_job(job.start, Interrupted(record["signal"], record["finished"]))
             else:
-                job.value = _record(job.start, record)
+                job.value = _record(job.start, {**record, "seconds": job.seconds + record.get("seconds", 0.0)})
     if stopped is not None:
         raise Interrupted(stopped, min(r.get("finished", 0) for records in results for r in records))
 
@@ -190,7 +195,9 @@ def _train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int
 def train_part(configs, outs, resumes, threads: int, progress_file: Path, total: int) -> list[dict]:
     """A part of a batch in a worker process (or this one): its runs trained together under their folders' locks,
     which the driver holds; one status record per run ("interrupted" with the signal when one stopped them). Its
-    iterations done go to `progress_file` (of `total` over the whole launch)."""
+    iterations done go to `progress_file` (of `total` over the whole launch). A finished run's record holds its
+    own `seconds` of the part (`own_seconds`)."""
+    started = time.perf_counter()
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     runs = [BatchRun(build_setup(cfg), Path(out), resume) for cfg, out, resume in zip(configs, outs, resumes)]
     shown = {"at": 0.0}
@@ -211,7 +218,18 @@ def train_part(configs, outs, resumes, threads: int, progress_file: Path, total:
             else (failure(run.error) if run.error is not None else _interrupted(stop, run))
             for run in runs
         ]
-    return [outcome(run.summary) if run.error is None else failure(run.error) for run in runs]
+    own = own_seconds(runs, time.perf_counter() - started)
+    return [
+        outcome(run.summary) | {"seconds": s} if run.error is None else failure(run.error) for run, s in zip(runs, own)
+    ]
+
+
+def own_seconds(runs: list[BatchRun], seconds: float) -> list[float]:
+    """Each run's own time of a part that took `seconds`: its share of the loop and its own evaluation and files
+    (BatchRun.seconds; none for a run that failed), plus an equal share of the rest, what no run had alone
+    (building the set-ups, loading the kernels, opening the logs). They add up to `seconds`."""
+    rest = max(0.0, seconds - sum(run.seconds or 0.0 for run in runs)) / max(len(runs), 1)
+    return [(run.seconds or 0.0) + rest for run in runs]
 
 
 def _interrupted(stop: Interrupted, run: BatchRun) -> dict:

@@ -5,6 +5,7 @@ and batches cut to the memory budget."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import pandas as pd
@@ -12,7 +13,8 @@ import pytest
 from support import FAST, assert_same_outputs, riskplan_cli
 from test_sweep_command import job_dirs, sweep_dir_of
 
-from riskplan.experiments.sweeping.batched import plan_chunks
+from riskplan.experiments.sweeping.batched import own_seconds, plan_chunks
+from riskplan.run.batch import BatchRun
 
 GRID = ["risk.beta=0.1,0.3", "seed=range(0,2)", "experiment=paper_single,paper_team", *FAST]
 
@@ -133,6 +135,13 @@ def test_hydra_launcher_memory_gb_cuts_the_batches_the_plan_says(tmp_path):
         if "in a batch of" in line
     )
     assert sizes == [1, 2, 2, 2, 2]
+    # each job's wall time is its own share of its batch, not its batch's (or the launch's) whole time: the three
+    # batches train one after another in this process, so the shares add up to less than the sweep took
+    seconds = [
+        json.loads((job / "status.json").read_text())["seconds"] for job in job_dirs(sweep_dir_of(result, tmp_path))
+    ]
+    took = float(result.stdout.rsplit(" skipped, ", 1)[1].split(" s)", 1)[0])
+    assert sum(seconds) < took
 
 
 @pytest.mark.parametrize("value", ["-1", "0", "nan", "inf", "lots", "true"])
@@ -147,3 +156,12 @@ def test_a_memory_limit_that_is_not_a_positive_number_is_bad_input(tmp_path, mon
     (line,) = result.stderr.strip().splitlines()
     assert line.startswith("error: hydra.launcher.memory_gb: got ") and "positive number of GB" in line
     assert not (tmp_path / "outputs").exists()
+
+
+def test_a_batched_job_gets_its_own_share_of_its_part():
+    """A finished run's own seconds, plus an equal share of what the part spent on no run alone; a failed run
+    (no own seconds) gets only that share; together they are the part's time."""
+    runs = [BatchRun(None, Path(name)) for name in "abc"]
+    runs[0].seconds, runs[1].seconds = 1.0, 3.0  # runs[2] failed
+    assert own_seconds(runs, 7.0) == [2.0, 4.0, 1.0]
+    assert sum(own_seconds(runs, 7.0)) == 7.0
