@@ -18,7 +18,7 @@ from omegaconf.errors import OmegaConfBaseException
 from riskplan.config import schema
 from riskplan.config.hydra_safety import interpolation_reason
 from riskplan.config.schema import CONF_DIR
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, did_you_mean
 
 
 def typed(cfg: DictConfig | dict | schema.RiskplanConf) -> schema.RiskplanConf:
@@ -122,9 +122,11 @@ def _unknown_keys(data: typing.Any, node: typing.Any, path: str) -> None:
         for key, value in data.items():
             here = f"{path}.{key}" if path else str(key)
             if key not in hints:
-                valid = ", ".join(f.name for f in dataclasses.fields(node))
+                valid = [f.name for f in dataclasses.fields(node)]
                 raise BadInput(
-                    f"key '{here}'", f"unknown key '{key}'; valid keys under '{path or 'top level'}': {valid}"
+                    f"key '{here}'",
+                    f"unknown key '{key}'; valid keys under '{path or 'top level'}': {', '.join(valid)}"
+                    + did_you_mean(key, valid),
                 )
             _unknown_keys(value, hints[key], here)
     elif typing.get_origin(node) in (list, list) and isinstance(data, list) and typing.get_args(node):
@@ -143,7 +145,8 @@ def choice_problem(err: Exception) -> tuple[str, str] | None:
     lines = str(cause).strip().splitlines()
     choice = re.match(r"Invalid value '(.*)', expected one of \[(.*)\]$", lines[0]) if lines else None
     if choice and key:
-        return _dotted(key), f"got '{choice.group(1)}'; expected one of {choice.group(2)}"
+        got, valid = choice.groups()
+        return _dotted(key), f"got '{got}'; expected one of {valid}" + did_you_mean(got, valid.split(", "))
     return None
 
 
@@ -186,11 +189,16 @@ def explain(err: Exception) -> tuple[str, str]:
     if "not in struct" in message or (" not in '" in message and key):
         parent, _, name = _dotted(key).rpartition(".")
         valid = valid_keys(parent)
+        entry, override = getattr(cause, "object_type", None), re.match(r"Could not override '(.+?)'", str(err))
+        if not parent and override and dataclasses.is_dataclass(entry) and entry is not schema.RiskplanConf:
+            # a mapping in a list (world.regions=[{nme: a}]): OmegaConf names its key without the list's path
+            parent, valid = override.group(1), [f.name for f in dataclasses.fields(entry)]
         if valid is None:
             return f"key '{_dotted(key)}'", "unknown key; this node takes no new keys"
         return (
-            f"key '{_dotted(key)}'",
-            f"unknown key '{name}'; valid keys under '{parent or 'top level'}': {', '.join(valid)}",
+            f"key '{parent + '.' if parent else ''}{name}'",
+            f"unknown key '{name}'; valid keys under '{parent or 'top level'}': {', '.join(valid)}"
+            + did_you_mean(name, valid),
         )
     missing = re.search(r"Could not find '([\w/]+)/([^']+)'", message)
     if missing:
@@ -199,7 +207,8 @@ def explain(err: Exception) -> tuple[str, str]:
         options = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))  # riskplan's own (not the schema's)
         if group.startswith("hydra/") and listed:  # Hydra's and its plugins' groups (with riskplan's additions)
             options = [o.strip() for o in listed.group(1).splitlines() if o.strip()]
-        return f"key '{group}'", f"no option '{option}'; available: {', '.join(options) or 'none'}"
+        available = f"available: {', '.join(options) or 'none'}{did_you_mean(option, options)}"
+        return f"key '{group}'", f"no option '{option}'; {available}"
     if "Could not override" in message:
         return f"key '{message.split(chr(39))[1]}'", "unknown key; run `riskplan check` to list the config's keys"
     return (f"key '{_dotted(key)}'" if key else "config"), message

@@ -51,7 +51,7 @@ from riskplan.experiments.reporting.collect import Broken, Duplicate, RunInfo, c
 from riskplan.experiments.sweep_worker import config_sha
 from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
 from riskplan.util.checks import require_installed
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, did_you_mean
 from riskplan.util.paths import check_output_dir, is_marked, replace_marked_dir, write_atomic
 
 TARGETS = ("mlflow", "tensorboard", "foxglove", "ros2")
@@ -246,7 +246,7 @@ def check_target(to: str | None) -> str:
         raise BadInput("--to", f"missing; expected one of {', '.join(TARGETS)}, e.g. --to mlflow")
     name = str(to).strip().lower()
     if name not in TARGETS:
-        raise BadInput("--to", f"got '{to}'; expected one of {', '.join(TARGETS)}")
+        raise BadInput("--to", f"got '{to}'; expected one of {', '.join(TARGETS)}{did_you_mean(to, TARGETS)}")
     return name
 
 

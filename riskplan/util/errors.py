@@ -1,4 +1,8 @@
-"""The one exception type for bad user input (CLI exit code 2, one plain line), and its kind for a missing extra."""
+"""The one exception type for bad user input (CLI exit code 2, one plain line), its kind for a missing extra, and
+the closest valid option its line suggests for a mistyped one."""
+
+import difflib
+from collections.abc import Iterable
 
 
 class BadInput(ValueError):
@@ -14,3 +18,10 @@ class BadInput(ValueError):
 class MissingExtra(BadInput):
     """An optional package that a chosen value needs (team.backend=ray: Ray) is not installed: bad input, whose line
     ends with the one `pip install` that fixes it. A sweep refuses it as a whole, before any job or folder."""
+
+
+def did_you_mean(value: object, options: Iterable[object]) -> str:
+    """ "; did you mean 'paper_single'?" for the option closest to a mistyped value, or "" when none is close (a
+    cutoff above difflib's 0.6, which would offer 'none' for 'cosine')."""
+    close = difflib.get_close_matches(str(value), [str(option) for option in options], n=1, cutoff=0.7)
+    return f"; did you mean '{close[0]}'?" if close else ""
