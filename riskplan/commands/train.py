@@ -180,7 +180,7 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
     setup, finished = prepare_resume(cfg, run_dir)  # every check of config and checkpoint, before any write
     if finished:  # nothing to do: a finished run is left exactly as it is
         typer.echo(f"already finished: {run_dir}")
-        typer.echo(summary_line(json.loads((run_dir / SUMMARY).read_text()), run_dir))
+        _closing_lines(json.loads((run_dir / SUMMARY).read_text()), run_dir)
         return
     typer.echo(f"resuming: {run_dir}")
     try:
@@ -220,7 +220,17 @@ def _finish(out: Path, failure: str | None = None, interrupted: Interrupted | No
     if status.get("status") != "done":
         typer.echo(f"error: run failed: {status.get('error')} (see {out})", err=True)
         raise typer.Exit(1)
-    typer.echo(summary_line(json.loads((out / SUMMARY).read_text()), out))
+    _closing_lines(json.loads((out / SUMMARY).read_text()), out)
+
+
+def _closing_lines(summary: dict, out: Path) -> None:
+    """The run's one-line summary, then a warning line for each degenerate finding of its diagnosis (what the
+    run learned and the likely cause), so that the last line says so."""
+    from riskplan.run.evaluation import degenerate_findings
+
+    typer.echo(summary_line(summary, out))
+    for finding in degenerate_findings(summary):
+        typer.echo(f"warning: degenerate run: {finding['message']}", err=True)
 
 
 def _os_error(err: OSError, out: Path) -> str:

@@ -22,6 +22,7 @@ from riskplan.run.provenance import provenance
 
 SCHEMA_VERSION = 2  # of summary.json: 2 adds objective, team_objective, theta_names and robots (a list)
 ROBOT_INTERVALS = 32  # distinct (start, risk) pairs up to which each robot's objective gets a bootstrap interval
+INITIAL_EPISODES = 10_000  # theta0's episodes for the diagnosis: a tenth of the default evaluation's cost
 
 
 def robot_risks(params: RiskplanConf) -> list[RiskConf]:
@@ -126,6 +127,7 @@ def summarize(setup: Setup, state: TrainState, evaluation: Columns, metrics: Col
         }
     _, final_thetas, _ = policies(setup, state.thetas)
     objective_figure = _objective(params.risk, z, figures, params)
+    reached_none = per_policy[str(headline)]["source_reached"]["none"]
     robots, team_objective = robot_objectives(setup, state.thetas, evaluation, objective_figure)
     return {
         "schema_version": SCHEMA_VERSION,
@@ -143,6 +145,7 @@ def summarize(setup: Setup, state: TrainState, evaluation: Columns, metrics: Col
         "theta_final": final_thetas[-1].tolist() if setup.team else final_thetas[0].tolist(),
         "robots": robots,
         "policies": per_policy,
+        "diagnosis": diagnose(setup, objective_figure, reached_none),
         "iterations": state.iteration,
         "eval_episodes": params.train.eval_episodes,
         "wall_time": train_seconds,
@@ -150,6 +153,72 @@ def summarize(setup: Setup, state: TrainState, evaluation: Columns, metrics: Col
         "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else None,
         "provenance": provenance(),
     }
+
+
+def initial_objective(setup: Setup) -> dict:
+    """The initial policy theta0 on the first INITIAL_EPISODES streams of the headline policy's evaluation (the same
+    episodes' random numbers; its own call, so no evaluated number changes): the trained measure with its 95%
+    bootstrap interval, `episodes`, and `reached_none`, the share of them that reached no source."""
+    params = setup.params
+    count = min(params.train.eval_episodes, INITIAL_EPISODES)  # <= EVAL_BATCH: one call, as evaluate's first
+    headline = setup.robots if setup.team else 0  # its index among `policies`, which `evaluate` keys by
+    key = np.array([rng.stream_key(params.seed, rng.EVAL, headline, 0)], dtype=np.uint64)
+    run = simulator(setup)
+    batch = run(setup.world, setup.kernel, setup.theta0[None, :], starts(setup)[:1], key, count, scores=False)
+    check_finite("the initial policy's total reward", batch.total_reward)
+    figure, _ = objective_interval(batch.total_reward, params.risk, params.train.bootstrap, params.seed)
+    return {**figure, "episodes": count, "reached_none": float((batch.source_reached < 0).mean())}
+
+
+def diagnose(setup: Setup, objective_figure: dict, reached_none: float) -> dict:
+    """summary.json's `diagnosis`: whether the run learned something degenerate, each finding with its likely
+    cause, and theta0's objective it is judged against. Findings: `reached_no_source`, the headline policy's
+    evaluation reached no source at all; `below_initial`, its objective's 95% interval lies wholly below theta0's
+    (apart, not merely lower: noise alone rarely parts two 95% intervals)."""
+    params = setup.params
+    initial = initial_objective(setup)
+    findings = []
+    if reached_none == 1.0:
+        findings.append({"check": "reached_no_source", "message": _no_source(params, initial)})
+    if objective_figure["high"] < initial["low"]:
+        findings.append({"check": "below_initial", "message": _below_initial(params, objective_figure, initial)})
+    return {"degenerate": bool(findings), "findings": findings, "initial_objective": initial}
+
+
+def degenerate_findings(summary: dict) -> list[dict]:
+    """A summary.json's degenerate findings ({"check", "message"}); none for one written before runs were
+    diagnosed."""
+    return (summary.get("diagnosis") or {}).get("findings", [])
+
+
+def _figure(f: dict) -> str:
+    return f"{f['value']:.1f} [{f['low']:.1f}, {f['high']:.1f}]"
+
+
+def _no_source(params: RiskplanConf, initial: dict) -> str:
+    """What reaching no source says, and its likely cause: the world when theta0 reached none either, else the
+    training."""
+    episodes = f"reached no source in its {params.train.eval_episodes} evaluation episodes"
+    if initial["reached_none"] == 1.0:
+        return (
+            f"{episodes}, nor did the initial policy in {initial['episodes']}: the sources are likely out of "
+            f"reach within world.horizon={params.world.horizon} moves of the start, or their signals too narrow to "
+            f"lead there (riskplan check prints each source's distance); move the start or the sources, widen the "
+            f"signals' covariance, lengthen the horizon or change train.theta0"
+        )
+    return (
+        f"{episodes}, where the initial policy reached one in {1 - initial['reached_none']:.1%}: it learned to go "
+        f"nowhere, likely a risk-averse measure that found the regions' rewards safer than any source's, or too "
+        f"large a step size (train.step_size)"
+    )
+
+
+def _below_initial(params: RiskplanConf, final: dict, initial: dict) -> str:
+    return (
+        f"its objective ({final['measure']}) ended below the initial policy's: {_figure(final)} against "
+        f"{_figure(initial)} (95% intervals apart): training made it worse, likely too large a step size "
+        f"(train.step_size) or too few samples for a steady gradient (train.samples={params.train.samples})"
+    )
 
 
 def _objective(risk, z: np.ndarray, figures: dict, params) -> dict:
