@@ -20,6 +20,7 @@ no files, clocks of its own beyond the iteration's time, or signals: the recorde
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable, Sequence
 from typing import NamedTuple, Protocol
@@ -29,14 +30,17 @@ import numpy as np
 from riskplan.config.typed import as_dict
 from riskplan.engine.gradients import gradients
 from riskplan.engine.risk_measures import summary_stats
+from riskplan.engine.schedules import step_size
 from riskplan.engine.step import (
     Estimates,
+    NumericalTrouble,
     Setup,
     Statistics,
     TrainState,
     advance,
     batch_episodes,
     check_finite,
+    check_step,
     risk_groups,
     step,
 )
@@ -67,6 +71,7 @@ def make_train(setups: Sequence[Setup]) -> Callable[[Sequence[TrainState], Recor
     """The training function of a batch of runs that share a world, a policy and W_l (step.batch_key)."""
     setups = tuple(setups)
     totals = [setup.params.train.iterations for setup in setups]
+    solo = [not setup.team and not setup.params.team.faults for setup in setups]  # advance_solo steps them together
     nodes = [_risk_nodes(setup) for setup in setups]  # the gradient calls each run's robots join, read once
 
     def train(states: Sequence[TrainState], recorder: Recorder) -> list[TrainState]:
@@ -76,7 +81,7 @@ def make_train(setups: Sequence[Setup]) -> Callable[[Sequence[TrainState], Recor
             failed: set[int] = set()
             for runs in _by_iteration(live, states):
                 started = time.perf_counter()
-                outcomes = iterate(setups, nodes, runs, states)
+                outcomes = iterate(setups, nodes, solo, runs, states)
                 seconds = (time.perf_counter() - started) / len(runs)  # the batch's calls, shared out
                 for r, outcome in zip(runs, outcomes):
                     try:
@@ -96,7 +101,7 @@ def make_train(setups: Sequence[Setup]) -> Callable[[Sequence[TrainState], Recor
 
 
 def iterate(
-    setups, nodes, runs: list[int], states: list[TrainState]
+    setups, nodes, solo: list[bool], runs: list[int], states: list[TrainState]
 ) -> list[tuple[TrainState, Statistics] | Exception]:
     """One iteration of the runs `runs` (all at the same iteration): each run's (next state, Statistics), or the
     exception that stopped it."""
@@ -108,10 +113,44 @@ def iterate(
     z, scores, bounds = batch_episodes(group, l, [states[r].thetas for r in runs])
     rows = [_Rows(a, b, nodes[r]) for r, a, b in zip(runs, bounds[:-1], bounds[1:])]
     outcomes = batch_estimates(group, l, z, scores, rows)
+    lone = [k for k, r in enumerate(runs) if solo[r] and not isinstance(outcomes[k], Exception)]
+    if lone:
+        stepped = advance_solo(
+            [setups[runs[k]] for k in lone], [states[runs[k]] for k in lone], [outcomes[k] for k in lone]
+        )
+        for k, outcome in zip(lone, stepped):
+            outcomes[k] = outcome
     return [
-        outcome if isinstance(outcome, Exception) else _attempt(lambda r=r, e=outcome: advance(setups[r], states[r], e))
+        _attempt(lambda r=r, e=outcome: advance(setups[r], states[r], e)) if isinstance(outcome, Estimates) else outcome
         for r, outcome in zip(runs, outcomes)
     ]
+
+
+def advance_solo(setups, states: list[TrainState], estimates: list[Estimates]) -> list:
+    """step.advance for runs of one robot each and no faults, as one array step: theta_l + eps_l Delta (eq. 11)
+    for all of them, the checks over the block, each run's Statistics. The Mixer of such a run never holds a
+    message, so its state passes through. A run whose step is not finite gets check_step's NumericalTrouble."""
+    l = states[0].iteration
+    thetas = np.concatenate([state.thetas for state in states])
+    grads = np.concatenate([e.grads for e in estimates])
+    eps = [step_size(l, setup.params.train.step_size) for setup in setups]
+    with np.errstate(over="ignore", invalid="ignore"):  # a theta that overflows is caught just below, run by run
+        new = thetas + np.array(eps)[:, None] * grads
+    fine = np.isfinite(grads).all(axis=1) & np.isfinite(new).all(axis=1)
+    if not (fine.all() and math.isfinite(setups[0].policy.logit_bound(new))):  # the runs share their policy
+        fine[:] = False  # rare: each run's own check finds the culprit and says it in its words
+    outcomes = []
+    for k, (setup, state, e) in enumerate(zip(setups, states, estimates)):
+        own = new[k : k + 1]
+        if not fine[k]:
+            try:
+                check_step(setup, l, state.thetas, e.grads, own)
+            except NumericalTrouble as trouble:
+                outcomes.append(trouble)
+                continue
+        statistics = Statistics(l, state.thetas, e, eps[k], math.nan, setup.mixer.healthy(l), None)
+        outcomes.append((TrainState(l + 1, own, state.mixer), statistics))
+    return outcomes
 
 
 def batch_estimates(setups, l: int, z: np.ndarray, scores: np.ndarray, rows: list[_Rows]) -> list:
