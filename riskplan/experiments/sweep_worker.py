@@ -12,10 +12,10 @@ A job that was killed while "running" resumes from its checkpoint when its confi
 One writer per job folder: a job holds the folder's lock (`riskplan.util.lock`) before it reads, deletes or writes
 anything there; a job whose folder is held by another process fails alone and leaves the folder as it was.
 
-A local worker (a joblib/loky worker, the driver's child, or a submitit_local job, its grandchild) watches its
-parents and SIGKILLs itself when the `riskplan sweep` driver is gone, so a killed sweep leaves no training
+A local worker (joblib's, submitit_local's, a local Ray instance's) ends with the `riskplan sweep` driver, however
+it died, and writes nothing after it (`riskplan.experiments.driver_watch`), so a killed sweep leaves no training
 behind; the checkpoints make the next run of the sweep resume those jobs. SLURM jobs and jobs on a Ray cluster
-started apart from the driver are not its descendants and outlive it, as they should.
+started apart from the driver outlive it, as they should.
 
 Job folders are named by `folder_name` (registered as the OmegaConf resolver `riskplan.folder`, which
 `riskplan sweep` puts in `hydra.sweep.subdir`): Hydra's `override_dirname` with every character outside
@@ -33,12 +33,10 @@ import hashlib
 import json
 import math
 import os
-import signal
 import socket
 import string
 import sys
 import tempfile
-import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable
@@ -51,6 +49,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from riskplan.engine.step import NumericalTrouble
+from riskplan.experiments.driver_watch import arrive, exit_if_orphaned
 from riskplan.run.compose import compose
 from riskplan.run.run_files import CHECKPOINT, JOB_LOG, STATUS, has_finished, remove_stale
 from riskplan.run.training import train_summary
@@ -61,7 +60,6 @@ from riskplan.util.paths import write_atomic
 
 T = TypeVar("T")
 THREADS_ENV = "RISKPLAN_JOB_THREADS"  # numba threads per job, set by `riskplan sweep` for parallel local jobs
-DRIVER_ENV = "RISKPLAN_SWEEP_DRIVER_PID"  # the `riskplan sweep` process: its local workers die with it
 RESOLVER = "riskplan.folder"  # ${riskplan.folder:${hydra.job.override_dirname}}: a safe job folder name
 SUBDIR = "${" + RESOLVER + ":${hydra.job.override_dirname}}"
 TRIAL_RESOLVER = "riskplan.trial"  # the same for the trials of an optimising sweeper, numbered
@@ -155,7 +153,17 @@ OmegaConf.register_new_resolver(TRIAL_RESOLVER, trial_folder, replace=True)
 class FolderNames(Callback):
     """A Hydra callback that does nothing but travel: the launcher pickles it with every job, so unpickling it
     imports this module in the job's process (joblib, submitit, ray) and registers the `riskplan.folder` resolver
-    before Hydra resolves hydra.sweep.subdir there."""
+    before Hydra resolves hydra.sweep.subdir there; and, before Hydra writes the job's folder, it makes a local
+    worker end with its driver (`driver_watch.arrive`)."""
+
+    def __reduce__(self):
+        return _arrived, ()
+
+
+def _arrived() -> FolderNames:
+    """A FolderNames unpickled in a job's process: the job has arrived."""
+    arrive()
+    return FolderNames()
 
 
 def read_status(out: Path) -> dict | None:
@@ -194,7 +202,9 @@ def _finite(value):
 
 
 def write_status(out: Path, record: dict) -> None:
-    """Write status.json atomically (a reader never sees half a file, a full disk leaves no temp file)."""
+    """Write status.json atomically (a reader never sees half a file, a full disk leaves no temp file); never from a
+    worker whose sweep driver is gone."""
+    exit_if_orphaned()
     write_atomic(Path(out) / STATUS, json.dumps(_finite(record), indent=2, allow_nan=False))
 
 
@@ -205,7 +215,7 @@ def sweep_job(cfg: DictConfig, out: Path) -> float | None:
     touches nothing in the folder (the sweep's summary reports it as running in that process).
     """
     out = Path(out)
-    watched = watch_driver()
+    watched = arrive()
     with contextlib.ExitStack() as stack:
         if not _lock_folder(stack, out):
             return None
@@ -296,7 +306,7 @@ def failure(err: BaseException) -> dict:
     return {"status": "failed", "error": f"{type(err).__name__}: {err}", "traceback": trace}
 
 
-def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | None:
+def _locked_job(cfg: DictConfig, out: Path, watched: str | None = None) -> float | None:
     threads = job_threads()
     if threads:
         numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
@@ -305,7 +315,7 @@ def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | No
         return start.value
     with job_output(out / JOB_LOG):
         print(
-            start.opening + (f", ends with the sweep process {_watching[0]})" if watched and _watching else ")"),
+            start.opening + (f", ends with the sweep process {watched.split(':')[0]})" if watched else ")"),
             flush=True,
         )
         try:
@@ -319,59 +329,6 @@ def _locked_job(cfg: DictConfig, out: Path, watched: bool = False) -> float | No
     return end_job(start, record)
 
 
-_watching: list[int] = []  # the driver pid this process watches, once started
-
-
-def _parent_of(pid: int) -> int | None:
-    """The parent pid of `pid` (from /proc), or None."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-        return int(stat.rsplit(")", 1)[1].split()[1])
-    except (OSError, ValueError, IndexError):
-        return None
-
-
-def _ancestry(depth: int) -> list[int]:
-    """This process's parent, grandparent, ... (at most `depth` of them)."""
-    chain = [os.getppid()]
-    while len(chain) < depth:
-        parent = _parent_of(chain[-1])
-        if parent is None or parent <= 1:
-            break
-        chain.append(parent)
-    return chain
-
-
-def watch_driver(every: float = 0.2) -> bool:
-    """In a local worker of `riskplan sweep` (a child of the driver named by RISKPLAN_SWEEP_DRIVER_PID, as joblib's
-    workers are, or a grandchild, as submitit_local's jobs are), start a daemon thread that SIGKILLs this process
-    once that line of parents has changed: the driver died, even by SIGKILL.
-
-    Not in the driver itself (the basic launcher, joblib with one job), nor in SLURM jobs or jobs on a Ray cluster
-    started apart from the driver, which are not its descendants: those must outlive it. Returns whether this
-    process is watched.
-    """
-    if _watching:
-        return True
-    driver = os.environ.get(DRIVER_ENV, "")
-    if not driver.isdigit() or int(driver) == os.getpid():
-        return False
-    chain = _ancestry(2)
-    if int(driver) not in chain:
-        return False
-    line = chain[: chain.index(int(driver)) + 1]
-    _watching.append(int(driver))
-
-    def watch() -> None:
-        while True:
-            if _ancestry(len(line)) != line:
-                os.kill(os.getpid(), signal.SIGKILL)
-            time.sleep(every)
-
-    threading.Thread(target=watch, name="riskplan-watch-driver", daemon=True).start()
-    return True
-
-
 WARM_UP = (["experiment=paper_single"],)  # loads the kernels every job runs (a team's own few load in its job)
 WARM_UP_SIZE = ["train.iterations=2", "train.samples=8", "train.eval_episodes=8", "train.bootstrap=2", "train.paths=1"]
 
@@ -381,7 +338,7 @@ def warm_up() -> tuple[int, float]:
     directory: `riskplan reproduce` runs this on its sweep workers while it checks and plans, so that its first
     jobs start at once. Returns (this worker's pid, seconds taken)."""
     started = time.time()
-    watch_driver()
+    arrive()
     with tempfile.TemporaryDirectory(prefix="riskplan-warm-up-") as scratch:
         for number, experiment in enumerate(WARM_UP):
             train_summary(compose([*experiment, *WARM_UP_SIZE]), Path(scratch) / str(number), progress=False)

@@ -25,6 +25,7 @@ from omegaconf import DictConfig, open_dict
 
 from riskplan.config.schema import Backend
 from riskplan.engine.step import Setup, batch_key
+from riskplan.experiments.driver_watch import arrive
 from riskplan.experiments.sweep_worker import (
     JOB_LOG,
     JobStart,
@@ -197,6 +198,7 @@ def train_part(configs, outs, resumes, threads: int, progress_file: Path, total:
     which the driver holds; one status record per run ("interrupted" with the signal when one stopped them). Its
     iterations done go to `progress_file` (of `total` over the whole launch). A finished run's record holds its
     own `seconds` of the part (`own_seconds`)."""
+    arrive()  # in a worker process: it ends with the driver
     started = time.perf_counter()
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     runs = [BatchRun(build_setup(cfg), Path(out), resume) for cfg, out, resume in zip(configs, outs, resumes)]

@@ -8,9 +8,10 @@ from pathlib import Path
 
 import typer
 
-from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, is_finished
+from riskplan.experiments.driver_watch import end_leftovers, name_driver
+from riskplan.experiments.sweep_worker import THREADS_ENV, is_finished
 from riskplan.experiments.sweeping.batched import PROGRESS, plan_chunks
-from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, GRID_SWEEPER, SUMMARY, Outcome, Plan, locate
+from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, GRID_SWEEPER, LOCAL, SUMMARY, Outcome, Plan, locate
 from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.experiments.sweeping.search import run_optimiser
@@ -20,13 +21,6 @@ from riskplan.run import cost
 from riskplan.util import lock
 from riskplan.util.interrupt import DriverSignals, Interrupted
 from riskplan.util.limits import cpu_count, memory_budget, size
-
-LOCAL = (
-    "joblib",
-    "submitit_local",
-    "basic",
-    "riskplan_batch",
-)  # launchers whose jobs run below the driver, and stop with it
 
 
 def run_sweep(
@@ -54,6 +48,9 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
     echo = out or (lambda text: typer.echo(text))
     for note in plan.warnings:
         typer.echo(f"warning: {note}", err=True)
+    ended = end_leftovers(plan.sweep_dir)  # a killed driver's workers, before this launch needs their folders
+    if ended:
+        echo(ended)
     if plan.sweeper != GRID_SWEEPER:
         return run_optimiser(plan, args, jobs, title, echo)
     started = time.time()
@@ -79,7 +76,7 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
     if todo:
         if plan.launcher == "joblib" and plan.workers:
             os.environ[THREADS_ENV] = str(max(1, cpu_count() // plan.workers))
-        os.environ[DRIVER_ENV] = str(os.getpid())  # local workers SIGKILL themselves when this process is gone
+        name_driver(plan.local)  # its local workers end with this process
         if before_launch is not None:
             before_launch()
         # Ctrl-C reaches local workers too, and they checkpoint and stop; the driver waits for that (see

@@ -30,7 +30,7 @@ from riskplan.config.typed import choice_problem
 from riskplan.config.validate import check_extra
 from riskplan.engine.step import batch_key
 from riskplan.experiments.sweep_worker import HOW_KEYS, config_sha, folder_name
-from riskplan.experiments.sweeping.jobs import SWEEPS_ROOT, Job
+from riskplan.experiments.sweeping.jobs import LOCAL, SWEEPS_ROOT, Job
 from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, explain, parse_overrides
 from riskplan.run.compose import compose as riskplan_compose
@@ -390,6 +390,20 @@ RAY_CONNECT_REFUSES = (
 )
 
 
+def ray_connects(launcher: str, hydra_keys: dict) -> bool:
+    """Whether a Ray launcher connects to an existing cluster (init.address set: auto or host:port) rather than
+    starting a Ray instance of its own."""
+    address = hydra_keys.get(RAY_INIT + "address")
+    if address is not None and not address.is_delete():
+        return address.value() is not None
+    return launcher == "ray_cluster"
+
+
+def runs_here(launcher: str, hydra_keys: dict) -> bool:
+    """Whether the launcher's jobs run on this machine below the driver, and so end with it (driver_watch)."""
+    return launcher in LOCAL or (launcher == "ray" and not ray_connects(launcher, hydra_keys))
+
+
 def ray_init_overrides(launcher: str, hydra_keys: dict) -> list[str]:
     """Only the ray.init arguments that fit the case. hydra-ray-launcher 1.2 adds object_store_memory (75 MiB)
     before ray.init(**init): right for a local instance, refused by ray.init when it connects to an existing
@@ -403,9 +417,7 @@ def ray_init_overrides(launcher: str, hydra_keys: dict) -> list[str]:
         override = hydra_keys.get(RAY_INIT + key)
         return override if override is not None and not override.is_delete() else None
 
-    address = given("address")
-    connecting = address.value() is not None if address is not None else launcher == "ray_cluster"
-    if not connecting:
+    if not ray_connects(launcher, hydra_keys):
         return []
     for key in RAY_CONNECT_REFUSES:
         override = given(key)

@@ -20,6 +20,9 @@ SUMMARY = "summary.parquet"
 
 DEFAULT_LAUNCHER = "joblib"
 BATCH_LAUNCHER = "riskplan_batch"  # riskplan sweep --batch (hydra_plugins.riskplan_batch_launcher)
+LOCAL = ("joblib", "submitit_local", "basic", BATCH_LAUNCHER)  # launchers whose jobs run below the driver
+# the callback that travels with every job: folder names, and a local worker that ends with its driver
+TRAVELS = "+hydra.callbacks.riskplan_folders._target_=riskplan.experiments.sweep_worker.FolderNames"
 GRID_SWEEPER = "riskplan"  # launches the planned grid's jobs still to run (hydra_plugins.riskplan_sweeper)
 
 
@@ -67,6 +70,7 @@ class Plan:
     trials: int | None = None  # how many jobs such a sweeper runs, when known
     search: list[str] = field(default_factory=list)  # the keys it searches
     memory: tuple[float, str] | None = None  # a batched sweep's hydra.launcher.memory_gb: (bytes, where it was set)
+    local: bool = False  # its jobs run on this machine below the driver (grid.runs_here), and end with it
 
 
 @dataclass

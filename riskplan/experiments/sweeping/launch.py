@@ -15,8 +15,9 @@ from pathlib import Path
 from hydra_plugins.hydra_joblib_launcher.config import JobLibLauncherConf
 from joblib import Parallel, delayed
 
+from riskplan.experiments.driver_watch import name_driver, recorded
 from riskplan.experiments.hydra_app import run_hydra
-from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, warm_up
+from riskplan.experiments.sweep_worker import THREADS_ENV, warm_up
 from riskplan.util.limits import cpu_count
 from riskplan.util.paths import hydra_quote, write_atomic
 
@@ -33,7 +34,12 @@ def launch(argv: list[str], log_file: Path, jobs: list[list[str]] | None = None)
         write_atomic(listed, json.dumps(jobs))
         argv = [*argv, f"hydra.sweeper.jobs={hydra_quote(listed)}"]
     try:
-        with open(log_file, "a", buffering=1) as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+        with (
+            recorded(log_file.parent),
+            open(log_file, "a", buffering=1) as log,
+            contextlib.redirect_stdout(log),
+            contextlib.redirect_stderr(log),
+        ):
             try:
                 run_hydra(argv)
             except SystemExit as stop:  # Hydra prints an exception in the launcher, then exits 1
@@ -92,14 +98,20 @@ def warm_workers(workers: int):
     joblib reuses a loky executor made with the same arguments, so the call uses the joblib launcher's own
     settings, and the environment `_run_plan` gives a sweep's workers is set before they are spawned."""
     os.environ[THREADS_ENV] = str(max(1, cpu_count() // workers))
-    os.environ[DRIVER_ENV] = str(os.getpid())
+    name_driver(True)
     settings = {key: value for key, value in dataclasses.asdict(JobLibLauncherConf()).items() if key != "_target_"}
     settings.update(n_jobs=workers, backend="loky")
     warmed: list[tuple[int, float]] = []
+    # Spawned here, not on the thread below: a worker dies with the thread that spawned it (driver_watch), and
+    # that thread ends with the warm-up. The generator dispatches the first tasks, and so spawns, in this call.
+    try:
+        results = Parallel(**settings, return_as="generator")(delayed(warm_up)() for _ in range(WARMED))
+    except Exception:
+        results = iter(())
 
     def run() -> None:
         try:
-            warmed.extend(Parallel(**settings)(delayed(warm_up)() for _ in range(WARMED)))
+            warmed.extend(results)
         except Exception:
             warmed.clear()
 

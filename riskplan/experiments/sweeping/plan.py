@@ -17,12 +17,13 @@ from riskplan.experiments.sweeping.grid import (
     expand,
     name_folders,
     ray_init_overrides,
+    runs_here,
     split_bad,
     target_dir,
     unnamed_key,
     validate,
 )
-from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, DEFAULT_LAUNCHER, GRID_SWEEPER, Plan
+from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, DEFAULT_LAUNCHER, GRID_SWEEPER, TRAVELS, Plan
 from riskplan.experiments.sweeping.search import plan_optimiser
 from riskplan.run.compose import expand_shorthands, parse_overrides
 from riskplan.util.errors import BadInput
@@ -139,7 +140,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     elif "hydra.sweep.subdir" not in hydra_keys:
         # folder names that stay one path component, whatever the values hold ('/', '..', '%', NUL)
         argv.append(f"hydra.sweep.subdir={hydra_quote(SUBDIR)}")
-        argv.append("+hydra.callbacks.riskplan_folders._target_=riskplan.experiments.sweep_worker.FolderNames")
+    argv.append(TRAVELS)
     constant = constant_keys(combos, {o.key_or_group for o in task_ovs if o.is_sweep_override()})
     for job in job_list:
         job.label = ",".join(sorted(o for o in job.overrides if o.split("=", 1)[0].lstrip("+~") not in constant))
@@ -152,6 +153,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     target = target_dir(sweep_dir, explicit_dir, argv)
     plan = Plan(target, argv, job_list, launcher, workers, notes, workers_arg)
     plan.memory = memory
+    plan.local = runs_here(launcher, hydra_keys)
     return plan
 
 

@@ -11,18 +11,21 @@ from pathlib import Path
 import yaml
 from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, RangeSweep
 
-from riskplan.experiments.sweep_worker import DRIVER_ENV, THREADS_ENV, TRIAL_SUBDIR, read_status
+from riskplan.experiments.driver_watch import name_driver
+from riskplan.experiments.sweep_worker import THREADS_ENV, TRIAL_SUBDIR, read_status
 from riskplan.experiments.sweeping.grid import (
     add_naming_and_logging,
     check_hydra,
     check_subdir,
     ray_init_overrides,
+    runs_here,
     target_dir,
     validate,
 )
 from riskplan.experiments.sweeping.jobs import (
     DEFAULT_LAUNCHER,
     SUMMARY,
+    TRAVELS,
     Job,
     Outcome,
     Plan,
@@ -100,7 +103,7 @@ def plan_optimiser(
         check_subdir(hydra_keys["hydra.sweep.subdir"].value(), True)
     else:  # trial_007,risk.beta=0.31: numbered, so two trials that drew the same values never share a folder
         argv.append(f"hydra.sweep.subdir={hydra_quote(TRIAL_SUBDIR)}")
-        argv.append("+hydra.callbacks.riskplan_folders._target_=riskplan.experiments.sweep_worker.FolderNames")
+    argv.append(TRAVELS)
     constant = [o.key_or_group for o in fixed] if search else []
     add_naming_and_logging(argv, hydra_keys, constant)
     _, settings = check_hydra(argv[1 + len(args) :] + [o.input_line for o in hydra_ovs], base, sweeper=True)
@@ -123,7 +126,17 @@ def plan_optimiser(
             )
     target = target_dir(sweep_dir, explicit_dir, argv)
     return Plan(
-        target, argv, [], launcher, workers, notes, workers_arg, sweeper=sweeper, trials=trials, search=sorted(searched)
+        target,
+        argv,
+        [],
+        launcher,
+        workers,
+        notes,
+        workers_arg,
+        sweeper=sweeper,
+        trials=trials,
+        search=sorted(searched),
+        local=runs_here(launcher, hydra_keys),
     )
 
 
@@ -215,7 +228,7 @@ def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, ech
     )
     if plan.launcher == "joblib" and plan.workers:
         os.environ[THREADS_ENV] = str(max(1, cpu_count() // plan.workers))
-    os.environ[DRIVER_ENV] = str(os.getpid())
+    name_driver(plan.local)  # its local workers end with this process
     if plan.sweeper == "optuna":  # optuna's messages go where Hydra's go (sweep.log), not to the terminal
         try:
             import optuna  # optional: the optuna extra (hydra/sweeper=optuna installs it)

@@ -5,16 +5,20 @@ test_grid.py and tests/experiments/test_sweep_worker.py."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pandas as pd
 import pytest
 from support import CLI, TINY, alive, files, riskplan_cli
 
+from riskplan.experiments import driver_watch
 from riskplan.experiments.sweep_worker import NAME_MAX
 from riskplan.util import lock
 
@@ -84,6 +88,74 @@ def test_a_killed_driver_leaves_no_workers_behind_and_the_sweep_resumes(tmp_path
     assert (summary.status == "done").all() and len(summary) == 2
     for job in ("seed=0", "seed=1"):
         assert len(pd.read_parquet(sweep / job / "metrics.parquet")) == 800
+
+
+def descendants(pid: int) -> set[int]:
+    """The processes below `pid` now (children of any of its threads, theirs, ...)."""
+    found, todo = set(), [pid]
+    while todo:
+        for task in Path(f"/proc/{todo.pop()}/task").glob("*"):
+            try:
+                children = {int(c) for c in (task / "children").read_text().split()}
+            except OSError:
+                continue
+            todo += children - found
+            found |= children
+    return found
+
+
+@pytest.mark.parametrize("loaded", [False, True], ids=["idle", "loaded"])
+def test_kill_9_of_a_driver_as_its_workers_start_leaves_no_process_of_it_and_nothing_written_after(tmp_path, loaded):
+    # the workers that a driver killed as they started outlived it before they ran a job (they were watched from
+    # their first job on); a busy-loop process on each core makes it the loaded case
+    hogs = [
+        subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() if loaded else 0)
+    ]
+    driver = subprocess.Popen(
+        [*CLI, "sweep", "seed=range(0,8)", *TINY, "train.iterations=50", "--jobs", "2", "hydra.sweep.dir=s"],
+        cwd=tmp_path,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    seen: set[int] = set()
+    try:
+        deadline = time.time() + 120
+        while (
+            sum("LokyProcess" in cmdline(pid) for pid in seen) < 2 and time.time() < deadline and driver.poll() is None
+        ):
+            seen |= descendants(driver.pid)
+            time.sleep(0.02)
+        assert sum("LokyProcess" in cmdline(pid) for pid in seen) == 2, (
+            f"no workers started (driver exit {driver.poll()})"
+        )
+        name = driver_watch.identity(driver.pid)
+        seen |= descendants(driver.pid)
+        os.kill(driver.pid, signal.SIGKILL)
+        driver.wait()
+        written = files(tmp_path / "s")
+
+        def left() -> set[int]:
+            return {pid for pid in seen if alive(pid)} | set(driver_watch.leftovers(name))
+
+        deadline = time.monotonic() + 5
+        while left() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not left(), [cmdline(pid) for pid in left()]
+        assert files(tmp_path / "s") == written
+    finally:
+        for pid in [driver.pid, *seen, *(hog.pid for hog in hogs)]:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+        for proc in [driver, *hogs]:
+            proc.wait()
+
+
+def cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")
+    except OSError:
+        return ""
 
 
 # ------------------------------------------------------------------------------------------------ locks
