@@ -17,6 +17,7 @@ from rich.table import Table
 
 from riskplan.experiments.sweep_worker import is_finished, read_status, repeats_line
 from riskplan.experiments.sweeping.jobs import SUMMARY, Job, Outcome
+from riskplan.run.evaluation import degenerate_findings
 from riskplan.run.run_files import SUMMARY as RUN_SUMMARY
 from riskplan.util import lock
 from riskplan.util.paths import atomic_path
@@ -28,8 +29,9 @@ EXTRA_CVARS = ("cvar_0.05", "cvar_0.1", "cvar_0.2")
 
 
 def summarize(jobs: list[Job]):
-    """One row per job: its overrides as columns, final figures with 95% intervals, wall time, status, error, and
-    `duplicate_of`: for a finished job whose config and seed repeat an earlier finished job's (the same
+    """One row per job: its overrides as columns, final figures with 95% intervals, wall time, status, error,
+    `degenerate` (the run's degenerate findings, riskplan.run.evaluation.diagnose, as "check: message" lines, or
+    None), and `duplicate_of`: for a finished job whose config and seed repeat an earlier finished job's (the same
     `run_identity`, as two trials of an optimiser that drew the same values), that job's name (one sample), else
     None."""
     rows = []
@@ -87,6 +89,9 @@ def summarize(jobs: list[Job]):
         row["train_time"] = (summary or {}).get("wall_time", float("nan"))
         row["status"] = state
         row["error"] = error
+        row["degenerate"] = (
+            "\n".join(f"{f['check']}: {f['message']}" for f in degenerate_findings(summary or {})) or None
+        )
         row["duplicate_of"] = None
         if state == "done" and job.sha:
             first = first_done.setdefault(job.sha, job.name)
@@ -132,6 +137,7 @@ def varying_columns(frame) -> list[str]:
         "trial",
         "status",
         "error",
+        "degenerate",
         "duplicate_of",
         "path",
         "beta",
@@ -166,6 +172,8 @@ def print_table(frame, title: str, limit: int = 40) -> None:
             cells.append(f"[red]{status}[/red]")
         elif isinstance(values.get("duplicate_of"), str):  # the same sample as an earlier job: counted once
             cells.append("[yellow]duplicate[/yellow]")
+        elif isinstance(values.get("degenerate"), str):  # it learned something degenerate: the lines below say what
+            cells.append("[yellow]degenerate[/yellow]")
         else:
             cells.append(status)
         for name in ("mean", "cvar"):
@@ -195,6 +203,12 @@ def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) ->
             f"warning: {repeats_line(int(repeats), f'{SUMMARY} names the {what} each repeats in duplicate_of', what)}",
             err=True,
         )
+    degenerate = outcome.summary.dropna(subset=["degenerate"]) if "degenerate" in outcome.summary else ()
+    if len(degenerate):
+        typer.echo(f"warning: {len(degenerate)} of {len(outcome.summary)} runs learned something degenerate:", err=True)
+        for job, lines in zip(degenerate["job"], degenerate["degenerate"]):
+            for line in lines.splitlines():
+                typer.echo(f"  {job}: {line}", err=True)
     typer.echo(
         f"summary: {outcome.sweep_dir / SUMMARY} ({outcome.ran} launched, {outcome.skipped} skipped, "
         f"{outcome.seconds:.1f} s)"

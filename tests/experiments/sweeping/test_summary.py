@@ -5,6 +5,8 @@ test_sweep_command.py."""
 from __future__ import annotations
 
 import pandas as pd
+import pytest
+from support import TINY, riskplan_cli
 
 from riskplan.experiments.sweep_worker import write_status
 from riskplan.experiments.sweeping.jobs import Job
@@ -57,3 +59,20 @@ def test_the_table_shows_the_overrides_that_vary():
     )
     assert varying_columns(frame) == ["seed"]
     assert varying_columns(frame.iloc[:1]) == ["seed", "risk.beta", "train.iterations"]  # none varies: the first 3
+
+
+@pytest.mark.slow  # a sweep through the CLI
+def test_a_degenerate_job_is_marked_in_the_table_named_after_it_and_kept_in_its_row(tmp_path):
+    """From [0, 0] both sources lie 12 moves away, the horizon: a policy pushed away from the signals reaches
+    neither; from [8, 3], beside the safe source, it does."""
+    start = ["world.start=[0,0],[8,3]", "world.horizon=12", "train.theta0=[-20.0,-20.0]", "hydra.sweep.dir=s"]
+    result = riskplan_cli(tmp_path, "sweep", *TINY, *start)
+    assert result.returncode == 0, result.stderr
+    rows = [line for line in result.stdout.splitlines() if line.startswith("[")]
+    assert "degenerate" in next(r for r in rows if r.startswith("[0, 0]")) and "done" in rows[-1]
+    warning = result.stderr.splitlines()
+    at = warning.index("warning: 1 of 2 runs learned something degenerate:")
+    assert warning[at + 1].startswith("  world.start=%5B0,0%5D: reached_no_source: reached no source in its 200")
+    frame = pd.read_parquet(tmp_path / "s" / "summary.parquet")
+    assert frame.status.tolist() == ["done", "done"]
+    assert frame.degenerate[0].startswith("reached_no_source: ") and pd.isna(frame.degenerate[1])
