@@ -26,6 +26,7 @@ import numpy as np
 
 from riskplan.engine import distributions as D
 from riskplan.engine.policy import Policy, make_policy, tables, tabular_tables
+from riskplan.engine.reachability import distances
 from riskplan.engine.rollout_kernels import Tables, _bins, _bins_at, _simulate, _simulate_affine
 from riskplan.engine.world import World
 
@@ -227,7 +228,8 @@ def reach(kernel: Kernel, starts: np.ndarray) -> np.ndarray:
     key = np.unique(np.asarray(starts, dtype=np.int64)).tobytes()
     found = kernel.reached.get(key)
     if found is None:
-        found = _reach(kernel.tables.next_cell, np.frombuffer(key, dtype=np.int64), kernel.tables.horizon - 1)
+        within = distances(kernel.tables.next_cell, np.frombuffer(key, dtype=np.int64), kernel.tables.horizon - 1)
+        found = np.flatnonzero(within >= 0).astype(np.int64)
         found.flags.writeable = False
         if len(kernel.reached) >= REACH_MEMO:
             kernel.reached.clear()
@@ -236,19 +238,3 @@ def reach(kernel: Kernel, starts: np.ndarray) -> np.ndarray:
 
 
 REACH_MEMO = 64  # start sets remembered per kernel (a team's, an environment's resets)
-
-
-def _reach(next_cell: np.ndarray, starts: np.ndarray, moves: int) -> np.ndarray:
-    """Cells within `moves` moves of any start (breadth first over next_cell, a level at a time), sorted. In numpy:
-    once per start set, and no kernel for a first run to compile."""
-    seen = np.zeros(next_cell.shape[0], dtype=bool)
-    seen[starts] = True
-    frontier = np.unique(starts)
-    for _ in range(moves):
-        ahead = next_cell[frontier].ravel()
-        ahead = np.unique(ahead[~seen[ahead]])
-        if ahead.size == 0:
-            break
-        seen[ahead] = True
-        frontier = ahead
-    return np.flatnonzero(seen).astype(np.int64)
