@@ -68,9 +68,10 @@ def plan_line(schedule: Schedule, workers: int | None) -> str:
     how = (
         "each sweep one batch on every core" if workers is None else f"on {workers} worker{'s' if workers != 1 else ''}"
     )
+    model = cost.model()
     return (
         f"plan: {len(schedule.stages)} stages, {jobs} jobs, {how}; "
-        f"estimated time {cost.say(schedule.total)} ({cost.model().describe()}; finished jobs are skipped)"
+        f"estimated time {cost.say(schedule.total, model)} ({model.describe()}; finished jobs are skipped)"
     )
 
 

@@ -5,8 +5,9 @@ Every run that finishes records (its estimated steps, its whole-machine seconds)
 (RISKPLAN_CACHE_DIR, else $XDG_CACHE_HOME/riskplan or ~/.cache/riskplan). A run that had only some of the cores
 (a sweep job with fewer numba threads) counts its seconds times its share of the cores, so sweeps and single runs
 calibrate one number. The model is seconds = overhead + steps / rate, fitted to the latest records; before any
-run has finished here it assumes DEFAULT_RATE and half a second of overhead, and says so. The file is a
-hint: a missing, unreadable, read-only or corrupt one never stops a run.
+run has finished here it assumes DEFAULT_RATE and half a second of overhead, and says so, with its estimate as a
+range. A sweep adds what no run's own seconds hold: its start and finish, and each job's set-up by Hydra. The file
+is a hint: a missing, unreadable, read-only or corrupt one never stops a run.
 """
 
 from __future__ import annotations
@@ -34,9 +35,16 @@ BOOTSTRAP_WEIGHT = 0.08
 # Before calibration: about half the rate, and the overhead rounded up, that full reproductions on a 2-core VM
 # fitted (the time limit's limits.STEPS_PER_SECOND is far more cautious: it bounds, where this estimates)
 DEFAULT_RATE = 80e6  # trajectory-step equivalents per second
-DEFAULT_OVERHEAD = 0.5  # seconds a run takes beyond its steps (imports, set-up, files)
-LAUNCH = 3.0  # seconds a local sweep takes to start its workers and finish (Hydra, joblib, the summary)
+DEFAULT_OVERHEAD = 0.5  # seconds a run takes beyond its steps (its log opened, evaluation set up, files written)
+# What a sweep takes beyond its runs' own seconds (the calibration never sees it), measured on a 2-core VM: 12
+# small jobs that each ran 1 s took 17 s, where these constants were missing and the estimate said under 10 s.
+LAUNCH = 5.0  # a local sweep's start and finish: Hydra's multirun, each worker's Python, riskplan and cached
+# kernels loaded (in parallel), the summary and the workers' shutdown
+SWEEP_JOB = 0.7  # each job of a local sweep before its run starts: Hydra composes it again, writes .hydra/, logs
 BATCH_LAUNCH = 1.0  # the same for a batched sweep, which starts no workers
+# Before calibration the defaults may be this far off either way (the runs of a loaded 2-core VM took twice the
+# default model's seconds), so an uncalibrated estimate is said as the range they span.
+UNCALIBRATED = (0.7, 2.0)
 
 
 @dataclass(frozen=True)
@@ -52,21 +60,25 @@ class Model:
 
     def sweep_seconds(self, steps: list[float], workers: int) -> float:
         """A sweep's wall seconds: its steps share the machine's cores whatever the workers, while each worker
-        pays the per-run overhead of its own jobs."""
+        pays its own jobs' set-up by Hydra and their runs' overhead, one job after another."""
         if not steps:
             return 0.0
-        return LAUNCH + sum(steps) / self.rate + len(steps) * self.overhead / max(workers, 1)
+        return LAUNCH + sum(steps) / self.rate + len(steps) * (SWEEP_JOB + self.overhead) / max(workers, 1)
 
     def batch_seconds(self, steps: list[float], batches: int = 1) -> float:
-        """A batched sweep's wall seconds: its steps on the whole machine, one run's overhead per batch."""
+        """A batched sweep's wall seconds: its steps on the whole machine, a run's overhead for each batch's set-up
+        and for each job's own evaluation and files, which follow one another."""
         if not steps:
             return 0.0
-        return BATCH_LAUNCH + sum(steps) / self.rate + batches * self.overhead
+        return BATCH_LAUNCH + sum(steps) / self.rate + (batches + len(steps)) * self.overhead
 
     def describe(self) -> str:
         if self.runs:
             return f"calibrated on {self.runs} run{'s' if self.runs != 1 else ''} finished on this machine"
-        return f"not yet calibrated on this machine: {DEFAULT_RATE / 1e6:.0f}M steps/s assumed"
+        return (
+            f"not yet calibrated on this machine: {DEFAULT_RATE / 1e6:.0f}M steps/s and {DEFAULT_OVERHEAD:g} s per "
+            f"run assumed"
+        )
 
 
 def setup_steps(setup) -> float:
@@ -176,6 +188,10 @@ def model() -> Model:
     return Model(rates[len(rates) // 2], DEFAULT_OVERHEAD, len(rates))
 
 
-def say(seconds: float) -> str:
-    """An estimate, rounded as an estimate should be."""
+def say(seconds: float, model: Model | None = None) -> str:
+    """An estimate, rounded as an estimate should be; one of a model not yet calibrated (`model.runs` 0) as the
+    range its defaults may be off by."""
+    if model is not None and not model.runs:
+        low, high = (seconds * factor for factor in UNCALIBRATED)
+        return f"roughly {duration(low)} to {duration(high)}"
     return "under 10 s" if seconds < 10 else f"about {duration(seconds)}"

@@ -23,7 +23,7 @@ def cache(tmp_path, monkeypatch):
 def test_without_records_the_model_assumes_the_default_speed_and_says_so(cache):
     model = cost.model()
     assert (model.rate, model.overhead, model.runs) == (cost.DEFAULT_RATE, cost.DEFAULT_OVERHEAD, 0)
-    assert "not yet calibrated on this machine: 80M steps/s assumed" in model.describe()
+    assert "not yet calibrated on this machine: 80M steps/s and 0.5 s per run assumed" in model.describe()
 
 
 def test_the_model_recovers_overhead_and_rate_from_runs_of_different_sizes(cache):
@@ -33,8 +33,8 @@ def test_the_model_recovers_overhead_and_rate_from_runs_of_different_sizes(cache
     assert model.runs == 4 and "calibrated on 4 runs" in model.describe()
     assert model.overhead == pytest.approx(2.0) and model.rate == pytest.approx(4e7)
     assert model.run_seconds(8e7) == pytest.approx(4.0)
-    # a sweep: its steps share the machine, each worker pays its jobs' overheads, plus the launch
-    assert model.sweep_seconds([8e7] * 4, workers=2) == pytest.approx(cost.LAUNCH + 8.0 + 4 * 2.0 / 2)
+    # a sweep: its steps share the machine, each worker pays its jobs' set-up and overheads, plus the launch
+    assert model.sweep_seconds([8e7] * 4, workers=2) == pytest.approx(cost.LAUNCH + 8.0 + 4 * (cost.SWEEP_JOB + 2) / 2)
     assert model.sweep_seconds([], workers=2) == 0.0
 
 
@@ -127,3 +127,28 @@ def test_a_run_during_which_numba_compiled_does_not_calibrate(cache, tmp_path, m
 
 def test_say_rounds_as_an_estimate():
     assert cost.say(3.0) == "under 10 s" and cost.say(59.0) == "about 59 s" and cost.say(600.0) == "about 10 min"
+    calibrated = cost.Model(4e7, 2.0, 5)
+    assert cost.say(59.0, calibrated) == "about 59 s"
+
+
+def test_an_uncalibrated_estimate_is_said_as_the_range_its_defaults_span():
+    default = cost.Model(cost.DEFAULT_RATE, cost.DEFAULT_OVERHEAD, 0)
+    assert cost.UNCALIBRATED == (0.7, 2.0)
+    assert cost.say(20.0, default) == "roughly 14 s to 40 s"
+    assert cost.say(3.0, default) == "roughly 2 s to 6 s"  # not "under 10 s": the range says how unsure it is
+    assert cost.say(600.0, default) == "roughly 7 min to 20 min"
+
+
+def test_a_small_sweeps_estimate_counts_each_jobs_set_up_and_the_workers_start():
+    """12 jobs of 11.5M steps on 2 workers (the sweep that took 17 s on a loaded 2-core VM where the estimate said
+    under 10 s): the launch, the steps on the whole machine, and per job its Hydra set-up and its run's overhead."""
+    default = cost.Model(cost.DEFAULT_RATE, cost.DEFAULT_OVERHEAD, 0)
+    parts = {"launch": 5.0, "steps": 12 * 11.5e6 / 80e6, "jobs": 12 * (0.7 + 0.5) / 2}
+    assert (cost.LAUNCH, cost.SWEEP_JOB, cost.DEFAULT_OVERHEAD) == (5.0, 0.7, 0.5)
+    seconds = default.sweep_seconds([11.5e6] * 12, workers=2)
+    assert seconds == pytest.approx(sum(parts.values())) == pytest.approx(13.925)
+    assert cost.say(seconds, default) == "roughly 10 s to 28 s"
+    # one batch: no workers to start, no Hydra set-up per job, but each job's evaluation and files in turn
+    batch = default.batch_seconds([11.5e6] * 12, batches=1)
+    assert batch == pytest.approx(cost.BATCH_LAUNCH + parts["steps"] + (1 + 12) * 0.5)
+    assert default.batch_seconds([], batches=1) == 0.0

@@ -118,11 +118,15 @@ def comparison_section(table: pd.DataFrame) -> str:
     head = ["group", "policy", "β", "seeds", "mean", "CVaR<sub>β</sub>", "VaR<sub>β</sub>", "P(risky)"] + [
         f"P(reach {_esc(c[len('reached_') :])})" for c in reached
     ]
-    rows = []
+    rows, degenerate = [], []
     for _, row in table.iterrows():
+        flagged = not _missing(row.get("degenerate"))
+        if flagged:  # it learned something degenerate: marked, and said why below the table
+            degenerate.append(f"<li><b>{_esc(row['group'])}</b>: {_esc(row['degenerate'])}</li>")
         rows.append(
             [
-                _esc(row["group"]),
+                _esc(row["group"])
+                + (' <b class="skipped" title="degenerate: see below">⚠ degenerate</b>' if flagged else ""),
                 _esc(row["policy"]),
                 f"{row['beta']:g}",
                 _esc(row["seeds"]),
@@ -139,6 +143,11 @@ def comparison_section(table: pd.DataFrame) -> str:
         f"Brackets: {'; '.join(_esc(m) for m in methods)}. P(risky): share of episodes with at least one step "
         f"in a risky region. The same numbers, unrounded, are in <code>report.csv</code>.</p>"
     )
+    if degenerate:
+        note += (
+            f'<p class="skipped"><b>{len(degenerate)} group(s) learned something degenerate</b> (report.csv\'s '
+            f"<code>degenerate</code>):</p><ul>{''.join(degenerate)}</ul>"
+        )
     return _table(head, rows, numeric=set(range(2, len(head)))) + note
 
 

@@ -4,7 +4,8 @@
   risk.beta, P(risky) and P(source j reached), each with a 95% interval. With one seed the interval is a
   percentile bootstrap over the evaluation episodes (the run's seed and train.bootstrap, as in summary.json) and
   a Wilson interval for proportions; with several seeds the point is the across-seed mean and the interval a
-  Student-t interval over the seeds. This is report.csv.
+  Student-t interval over the seeds. Its `degenerate` column marks a group that learned something degenerate
+  (`degenerate_notes`). This is report.csv.
 - `runs_table`: every run found, used, duplicate (its config and seed repeat a used run's) or skipped (with
   the reason).
 - `landscape_table`: per landscape, its optima and how far each group's trained theta ended from them.
@@ -19,16 +20,19 @@ import math
 import numpy as np
 import pandas as pd
 
-from riskplan.engine.risk_measures import cvar, value_at_risk
+from riskplan.engine.risk_measures import cvar, objective, value_at_risk
 from riskplan.experiments.reporting.collect import (
     Collection,
     Group,
     RunInfo,
+    _distance,
     flatten,
     schedule_pairs,
 )
+from riskplan.experiments.reporting.labels import measure_name
 from riskplan.experiments.reporting.stats import seed_interval, wilson
-from riskplan.run.intervals import bootstrap_intervals
+from riskplan.run.evaluation import degenerate_findings
+from riskplan.run.intervals import bootstrap_intervals, objective_interval
 
 FIGURES = ("mean", "cvar", "value_at_risk")
 MAX_BOOTSTRAP = 1000
@@ -106,7 +110,8 @@ def group_row(group: Group, beta: float | None = None) -> dict:
 
 def comparison_table(coll: Collection) -> pd.DataFrame:
     """report.csv: one row per group."""
-    rows = [group_row(g) for g in coll.groups]
+    notes = degenerate_notes(coll.groups)
+    rows = [group_row(g) | {"degenerate": "; ".join(notes.get(g.label, [])) or None} for g in coll.groups]
     if not rows:
         return pd.DataFrame(
             columns=[
@@ -124,9 +129,67 @@ def comparison_table(coll: Collection) -> pd.DataFrame:
         )
     table = pd.DataFrame(rows)
     front = ["group", "measure", "beta", "robots", "policy", "seeds", "seed_list", "eval_episodes", "interval"]
+    front += ["degenerate"]
     figures = [c for c in table.columns if c not in front and not c.startswith("config.")]
     config = [c for c in table.columns if c.startswith("config.")]
     return table[front + figures + config]
+
+
+def degenerate_notes(groups: list[Group]) -> dict[str, list[str]]:
+    """Each group that learned something degenerate, by label: its runs' findings (summary.json's diagnosis: no
+    source reached, below the initial policy), and for a risk-averse group, whether it ended below the risk-neutral
+    group of its world on its own objective (`below_neutral`)."""
+    notes: dict[str, list[str]] = {}
+    for group in groups:
+        found: dict[str, list] = {}  # check -> [(seed, message)]
+        for run in group.runs:
+            for finding in degenerate_findings(run.run.summary or {}):
+                found.setdefault(finding["check"], []).append((run.seed, finding["message"]))
+        for check, seen in found.items():
+            seeds = ", ".join(str(seed) for seed, _ in seen)
+            notes.setdefault(group.label, []).append(f"{check} (seed {seeds}): {seen[0][1]}")
+        below = below_neutral(group, groups)
+        if below:
+            notes.setdefault(group.label, []).append(f"below_neutral: {below}")
+    return notes
+
+
+def below_neutral(group: Group, groups: list[Group]) -> str | None:
+    """Why a risk-averse group ended below the risk-neutral group of its world (the same world.* keys and team
+    size, the nearest such group) on its own objective, with 95% intervals apart; None when it did not, or when
+    there is no such group."""
+    neutral = [
+        g
+        for g in groups
+        if g.measure == "neutral" and g.robots == group.robots and flat_world(g.config) == flat_world(group.config)
+    ]
+    if group.measure == "neutral" or not neutral:
+        return None
+    other = min(neutral, key=lambda g: _distance(g.first.flat, group.first.flat))
+    risk = {"measure": group.measure, **group.config.get("risk", {})}
+    own, theirs = objective_figure(group, risk), objective_figure(other, risk)
+    if not own[2] < theirs[1]:
+        return None
+    return (
+        f"on its own objective ({measure_name(group)}) it ended below the risk-neutral group '{other.label}': "
+        f"{own[0]:.1f} [{own[1]:.1f}, {own[2]:.1f}] against {theirs[0]:.1f} [{theirs[1]:.1f}, {theirs[2]:.1f}] "
+        f"(95% intervals apart): its training likely stalled in a poor local optimum (one that goes nowhere when "
+        f"few episodes reach a source); try another train.theta0, a smaller train.step_size or a soft-risk "
+        f"risk.schedule"
+    )
+
+
+def objective_figure(group: Group, risk: dict) -> tuple[float, float, float]:
+    """(value, low, high): the measure `risk` of the group's headline policies, with a 95% interval as
+    group_row's: over the evaluation episodes for one seed (the bootstrap of summary.json's objective), else
+    Student-t over the seeds."""
+    returns = [r.eval_of().total_reward.to_numpy(dtype=float) for r in group.runs]
+    if len(returns) > 1:
+        return seed_interval([objective(z, risk) for z in returns])
+    run = group.runs[0]
+    resamples = int(run.config.get("train", {}).get("bootstrap", MAX_BOOTSTRAP))
+    figure, _ = objective_interval(returns[0], risk, max(1, min(resamples, MAX_BOOTSTRAP)), run.seed)
+    return figure["value"], figure["low"], figure["high"]
 
 
 def used_row(r, group: str) -> dict:

@@ -161,6 +161,6 @@ def estimate_line(jobs: list, plan: Plan) -> str:
     """What the jobs still to run should take: wall time for a local launcher, compute for a cluster's."""
     model = cost.model()
     if plan.launcher in LOCAL:
-        return f"estimated time: {cost.say(estimate_seconds(jobs, plan))} ({model.describe()})"
+        return f"estimated time: {cost.say(estimate_seconds(jobs, plan), model)} ({model.describe()})"
     compute = sum(model.run_seconds(job.steps) for job in jobs)
-    return f"estimated compute: {cost.say(compute)} of this machine's time ({model.describe()})"
+    return f"estimated compute: {cost.say(compute, model)} of this machine's time ({model.describe()})"

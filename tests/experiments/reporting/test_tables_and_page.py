@@ -14,7 +14,7 @@ from support import TINY
 from riskplan import compose, train
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.page import comparison_section
-from riskplan.experiments.reporting.tables import comparison_table, csv_text, runs_table
+from riskplan.experiments.reporting.tables import comparison_table, csv_text, degenerate_notes, runs_table
 from riskplan.risk import cvar
 
 
@@ -44,6 +44,28 @@ def test_a_group_of_two_seeds_is_their_mean_with_a_t_interval(runs):
     html = comparison_section(table)
     assert f"{row['cvar']:,.1f} [{row['cvar_low']:,.1f}, {row['cvar_high']:,.1f}]" in html
     assert "95% Student-t over 2 seeds" in html
+    assert pd.isna(row["degenerate"]) and "degenerate" not in html  # a CVaR run alone: nothing to flag
+
+
+def test_a_risk_averse_group_below_its_worlds_risk_neutral_group_is_marked(tmp_path):
+    """The CVaR run is pushed away from the sources (θ0 negative) and reaches none, nor did its θ0; the
+    risk-neutral run heads for the safe source: on CVaR itself, the CVaR run ends far below it."""
+    train(compose([*TINY, "risk=neutral", "train.theta0=[60.0,-20.0]"]), tmp_path / "neutral")
+    train(compose([*TINY, "train.theta0=[-20.0,-20.0]"]), tmp_path / "cvar")
+    coll = collect([tmp_path])
+    table = comparison_table(coll).set_index("measure")
+    assert pd.isna(table.loc["neutral", "degenerate"])
+    notes = degenerate_notes(coll.groups)
+    averse = table.loc["cvar", "group"]
+    assert [note.split(" ", 1)[0] for note in notes[averse]] == ["reached_no_source", "below_neutral:"]
+    z = {k: pd.read_parquet(tmp_path / k / "eval.parquet").total_reward.to_numpy() for k in ("neutral", "cvar")}
+    below = notes[averse][1]
+    assert f"{cvar(z['cvar'], 0.1):.1f} [" in below and f"against {cvar(z['neutral'], 0.1):.1f} [" in below
+    assert "risk-averse (CVaR β=0.1)" in below and "train.theta0" in below
+    assert table.loc["cvar", "degenerate"] == "; ".join(notes[averse])
+    html = comparison_section(comparison_table(coll))
+    assert html.count("⚠ degenerate") == 1 and "1 group(s) learned something degenerate" in html
+    assert "below the risk-neutral group" in html
 
 
 def test_missing_and_infinite_values_are_empty_cells():
