@@ -36,6 +36,7 @@ from riskplan.experiments.reporting.tables import (
 )
 from riskplan.run.metrics_rows import AVERAGE
 
+FLOOR_PLAN = "floor_plan"  # the floor-plan study's experiment (conf/experiment/floor_plan.yaml)
 LATE = 0.25  # the last quarter of the iterations: where a constant step's floor is measured
 
 
@@ -395,8 +396,9 @@ def study_tables(coll: Collection) -> dict[str, pd.DataFrame]:
 
 
 def floor_plan_table(coll: Collection) -> pd.DataFrame:
-    """floor_plan.csv: per policy trained on a map (world.map), its mean, CVaR, P(risky) and the shares of episodes
-    reaching each source (report.csv's figures and intervals)."""
-    groups = [g for g in coll.groups if (g.config.get("world") or {}).get("map")]
+    """floor_plan.csv: per policy of the floor-plan study (experiment=floor_plan, the shipped map), its mean, CVaR,
+    P(risky) and the shares of episodes reaching each source (report.csv's figures and intervals). Runs on a map of
+    another experiment are no part of it: report.csv has them."""
+    groups = [g for g in coll.groups if g.config.get("experiment") == FLOOR_PLAN]
     rows = [{**group_row(g), "name": measure_name(g), **seeds_reaching(g)} for g in groups]
     return pd.DataFrame(rows)

@@ -14,6 +14,7 @@ from support import TINY
 from riskplan import compose, train
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.page import comparison_section
+from riskplan.experiments.reporting.study_tables import study_tables
 from riskplan.experiments.reporting.tables import comparison_table, csv_text, degenerate_notes, runs_table
 from riskplan.risk import cvar
 
@@ -71,3 +72,17 @@ def test_a_risk_averse_group_below_its_worlds_risk_neutral_group_is_marked(tmp_p
 def test_missing_and_infinite_values_are_empty_cells():
     table = pd.DataFrame({"x": [1.5, np.nan, np.inf], "label": ["a", float("-inf"), None]})
     assert csv_text(table) == "x,label\n1.5,a\n,\n,\n"
+
+
+def test_the_floor_plan_table_holds_the_floor_plan_study_alone(tmp_path):
+    """A user's own map experiment (here the shipped map under another experiment's name) is in report.csv, not in
+    floor_plan.csv, the study's table."""
+    train(compose([*TINY, "experiment=floor_plan"]), tmp_path / "study")  # not reproduce's floor_plan/ folder
+    depot = compose([*TINY, "experiment=floor_plan", "seed=1"])  # another sample: not a duplicate of the study's
+    depot.experiment = "depot"
+    train(depot, tmp_path / "depot")
+    alone = collect([tmp_path / "depot"])
+    assert len(comparison_table(alone)) == 1 and study_tables(alone)["floor_plan"].empty
+    both = collect([tmp_path])
+    (row,) = study_tables(both)["floor_plan"].to_dict("records")
+    assert row["config.experiment"] == "floor_plan" and len(comparison_table(both)) == 2
