@@ -5,6 +5,9 @@
     python docs/generate.py --collect --reproduction DIR [--quick-reproduction DIR] [--bench FILE]
                             [--scaling FILE] [--study NAME=DIR ...] [--ray DIR]
                                       refresh docs/data/ from new measurements, then write docs/generated/
+    python docs/generate.py --collect-outputs [NAME ...]
+                                      run the commands the pages show (TRANSCRIPTS) and write what they print
+                                      to docs/data/outputs/NAME.txt, which the pages include
 
 The inputs are what riskplan writes: `riskplan bench --json FILE`, `riskplan bench --scaling --json FILE`, a
 `riskplan reproduce --out DIR` (its sweeps' summary.parquet, report/*.csv, reproduce.json, the landscape) and,
@@ -20,12 +23,16 @@ The pages include the generated files with pymdownx.snippets: `--8<-- "docs/gene
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import json
 import math
+import re
 import shutil
 import sys
+import tempfile
 from pathlib import Path
+from typing import NamedTuple
 
 import pandas as pd
 
@@ -1218,6 +1225,121 @@ def gen_ray_target() -> str:
     )
 
 
+# ----------------------------------------------------------------------------------------------- command outputs
+
+OUTPUTS = DATA / "outputs"
+
+
+class Transcript(NamedTuple):
+    """Commands a page shows with what they print: `$ COMMAND`, then its lines on stderr when it fails (a bad
+    input's one line), else its last line on stdout (a run's closing line). `power`: run with the example
+    package of docs/extending.md installed; `slow`: a training run, which only --collect-outputs and a slow test
+    run (the quick ones, bad input, are rerun by tests/test_docs.py on every push)."""
+
+    commands: tuple[str, ...]
+    power: bool = False
+    slow: bool = False
+
+
+# docs/data/outputs/NAME.txt, each included by a page inside a code block: --8<-- "docs/data/outputs/NAME.txt"
+TRANSCRIPTS = {
+    "cli_bad_input": Transcript(
+        (
+            "riskplan train risk.beta=1.5",
+            "riskplan train risk.bta=0.1",
+            "riskplan train 'world.sources.0.position=[20,3]'",
+        )
+    ),
+    "extending_bad_input": Transcript(
+        (
+            "riskplan train risk.measure=power risk.params.gamma=1.5",
+            "riskplan train risk.measure=power risk.params.gamma=0.5 risk.params.delta=1",
+            "riskplan train risk.measure=powr",
+        ),
+        power=True,
+    ),
+    "extending_train": Transcript(("riskplan train risk.measure=power risk.params.gamma=0.5",), power=True, slow=True),
+}
+TIMESTAMP = re.compile(r"\d{4}-\d\d-\d\d_\d\d-\d\d-\d\d")  # a run folder's: it names no run of the reader's
+SECONDS = re.compile(r"\b\d+(\.\d+)? s\b")  # what a run took, which differs from one run to the next
+INSTALLED = re.compile(r"\(installed: [^)]*\)")  # the measures' packages installed here: power, and any of yours
+
+
+@contextlib.contextmanager
+def power_installed():
+    """The example package of docs/extending.md on sys.path, as tests/measure_cases.py installs it (a module and
+    its dist-info with the entry point), and gone again after, with the measure it loaded."""
+    sys.path.insert(0, str(DOCS.parent / "tests"))
+    try:
+        from measure_cases import install_package
+    finally:
+        sys.path.pop(0)
+    from riskplan.engine.measures import registry
+
+    with tempfile.TemporaryDirectory() as root:
+        site = str(install_package(Path(root)))
+        sys.path.insert(0, site)
+        try:
+            yield
+        finally:
+            sys.path.remove(site)
+            registry._FROM_PACKAGES.pop("power", None)
+            sys.modules.pop("riskplan_power", None)
+
+
+def transcript(name: str) -> str:
+    """What the commands of TRANSCRIPTS[name] print now, run through riskplan's CLI in an empty scratch folder."""
+    import os
+    import shlex
+
+    from typer.testing import CliRunner
+
+    from riskplan.cli import app
+
+    spec = TRANSCRIPTS[name]
+    lines = []
+    here = Path.cwd()
+    with tempfile.TemporaryDirectory() as scratch, power_installed() if spec.power else contextlib.nullcontext():
+        os.chdir(scratch)
+        try:
+            for command in spec.commands:
+                result = CliRunner().invoke(app, shlex.split(command)[1:])
+                shown = result.stderr.splitlines() if result.exit_code else result.stdout.splitlines()[-1:]
+                lines += [f"$ {command}", *shown]
+        finally:
+            os.chdir(here)
+    return TIMESTAMP.sub("<timestamp>", "\n".join(lines) + "\n")
+
+
+def comparable(text: str) -> str:
+    """A transcript with what differs between two runs of its commands, or two machines, masked: the seconds a
+    run took, and the measures installed besides the example's."""
+    return INSTALLED.sub("(installed: ...)", SECONDS.sub("<seconds> s", text))
+
+
+def collect_outputs(names: list[str]) -> None:
+    """Run the named transcripts' commands (all of them without names) and write what they print."""
+    unknown = sorted(set(names) - set(TRANSCRIPTS))
+    if unknown:
+        raise SystemExit(f"--collect-outputs {' '.join(unknown)}: unknown; expected any of {', '.join(TRANSCRIPTS)}")
+    OUTPUTS.mkdir(exist_ok=True)
+    for name in names or TRANSCRIPTS:
+        (OUTPUTS / f"{name}.txt").write_text(transcript(name), encoding="utf-8")
+        print(f"wrote {(OUTPUTS / f'{name}.txt').relative_to(DOCS.parent)}")
+
+
+def check_outputs() -> list[str]:
+    """The transcripts not collected, and the collected files no transcript names any more."""
+    present = {p.stem for p in OUTPUTS.glob("*.txt")} if OUTPUTS.is_dir() else set()
+    return sorted(
+        [
+            f"outputs/{name}.txt (run python docs/generate.py --collect-outputs {name})"
+            for name in set(TRANSCRIPTS) - present
+        ]
+        + [f"outputs/{name}.txt (no transcript any more)" for name in present - set(TRANSCRIPTS)]
+    )
+
+
 # ----------------------------------------------------------------------------------------------- driver
 
 
@@ -1277,6 +1399,9 @@ def check() -> int:
     wrong += sorted(f"{name} (not generated any more)" for name in present - set(texts))
     if wrong:
         print("docs/generated/ is out of date (run python docs/generate.py): " + ", ".join(wrong), file=sys.stderr)
+        return 1
+    if check_outputs():
+        print("docs/data/ is out of date: " + ", ".join(check_outputs()), file=sys.stderr)
         return 1
     print(f"docs/generated/ is up to date ({len(texts)} files)")
     return 0
@@ -1479,9 +1604,19 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=DIR",
         help=f"a sweep directory for one of the studies: {', '.join(STUDIES)}",
     )
+    parser.add_argument(
+        "--collect-outputs",
+        nargs="*",
+        metavar="NAME",
+        help=f"run the commands the pages show and write what they print to docs/data/outputs/NAME.txt (all without "
+        f"names: {', '.join(TRANSCRIPTS)})",
+    )
     args = parser.parse_args(argv)
     if args.check:
         return check()
+    if args.collect_outputs is not None:
+        collect_outputs(args.collect_outputs)
+        return 0
     if args.collect:
         collect(args)
     elif any((args.reproduction, args.quick_reproduction, args.bench, args.scaling, args.study, args.ray)):

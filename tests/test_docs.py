@@ -76,6 +76,41 @@ def load_generate(data: Path):
     return module
 
 
+GENERATE = load_generate(ROOT / "docs" / "data")
+QUICK = [name for name, spec in GENERATE.TRANSCRIPTS.items() if not spec.slow]
+
+
+@pytest.mark.parametrize("name", QUICK)
+def test_the_bad_input_lines_a_page_shows_are_what_the_commands_print(name):
+    """The page's transcript (docs/data/outputs/NAME.txt) is what its commands print now: a message that changes
+    changes the page, through python docs/generate.py --collect-outputs NAME."""
+    shown = (GENERATE.OUTPUTS / f"{name}.txt").read_text(encoding="utf-8")
+    assert shown.startswith("$ riskplan ") and "\nerror: " in shown
+    assert GENERATE.comparable(GENERATE.transcript(name)) == GENERATE.comparable(shown)
+
+
+@pytest.mark.slow  # a run of the paper's world with the example measure: about 10 s
+def test_the_training_line_extending_shows_is_what_the_run_prints():
+    shown = (GENERATE.OUTPUTS / "extending_train.txt").read_text(encoding="utf-8")
+    assert "power 1910.6 [1896.2, 1927.8]" in shown  # the figures docs/extending.md once had wrong
+    assert GENERATE.comparable(GENERATE.transcript("extending_train")) == GENERATE.comparable(shown)
+
+
+def test_every_transcript_is_shown_by_a_page_and_pages_show_no_other_riskplan_output():
+    """Each docs/data/outputs/NAME.txt is included by a page, and no page types a command's output by hand
+    (`$ riskplan ...` followed by what it printed) where it could include one."""
+    pages = {page.name: page.read_text(encoding="utf-8") for page in (ROOT / "docs").glob("*.md")}
+    for name in GENERATE.TRANSCRIPTS:
+        assert any(f'--8<-- "docs/data/outputs/{name}.txt"' in text for text in pages.values()), name
+    typed = [
+        f"{page}: {line}"
+        for page, text in pages.items()
+        for line, after in zip(text.splitlines(), text.splitlines()[1:])
+        if line.startswith("$ riskplan ") and after.startswith("error: ")
+    ]
+    assert typed == []
+
+
 def test_the_ray_tables_show_bench_ray_backend_json(tmp_path):
     """Known bench/ray_backend.py JSON files give known rows, with the load average as each measurement ended."""
     import json
