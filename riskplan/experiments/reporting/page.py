@@ -11,7 +11,7 @@ from pathlib import Path
 import pandas as pd
 
 from riskplan.experiments.reporting.collect import Collection
-from riskplan.experiments.reporting.figures import STUDY_BUILDERS, FigureSpec
+from riskplan.experiments.reporting.figures import FIGURES, FigureSpec
 from riskplan.version import __version__
 
 CSS = """
@@ -531,7 +531,7 @@ def render(
     if coll.studies:
         studied = sum(len(s.collection.runs) for s in coll.studies)
         counts += f" · {studied} run(s) in {len(coll.studies)} stud{'y' if len(coll.studies) == 1 else 'ies'} beyond the paper"
-    studied = {name: figure for name, (figure, _) in STUDY_BUILDERS.items()}
+    studied = {figure.study: figure.name for figure in FIGURES if figure.study}  # a section each
     of_study = {
         name: [f for f in figures if f[0].study == name or (not f[0].study and f[0].name.startswith(stem))]
         for name, stem in studied.items()

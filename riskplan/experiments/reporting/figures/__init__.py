@@ -2,6 +2,7 @@
 
 Every builder returns a `FigureSpec` (or the reason it is not drawn) holding a matplotlib `Figure`:
 
+- `figure_registry`: every figure by name (FIGURES), the one list the report, its page, the docs and the tests read;
 - `paper`: Figs. 1-4 of Section V (the paper's pair and titles only for a reproduction's runs);
 - `beyond`: consensus by order, the reward distribution, the risk frontier, the team's θ, soft risk, the landscape;
 - `studies`: the studies of riskplan reproduce beyond the paper;
@@ -23,32 +24,8 @@ from riskplan.experiments.reporting.figures.beyond import (
     fig_thetas,
 )
 from riskplan.experiments.reporting.figures.drawing import STYLE, FigureSpec, figure_files
+from riskplan.experiments.reporting.figures.figure_registry import FIGURES, LANDSCAPE, Figure, study_figure
 from riskplan.experiments.reporting.figures.paper import fig_consensus, fig_cvar, fig_paths, fig_team, risk_name
-from riskplan.experiments.reporting.figures.studies import STUDY_BUILDERS
-
-BUILDERS = (
-    ("fig1_paths", fig_paths),
-    ("fig2_cvar", fig_cvar),
-    ("fig3_team", fig_team),
-    ("fig4_consensus", fig_consensus),
-    ("consensus_orders", fig_orders),
-    ("reward_distribution", fig_distribution),
-    ("risk_frontier", fig_frontier),
-    ("team_thetas", fig_thetas),
-    ("soft_risk", fig_soft_risk),
-    *STUDY_BUILDERS.values(),
-)
-
-
-def fig_floor_plan(coll: Collection) -> FigureSpec | str:
-    """The floor-plan study of riskplan reproduce: each policy's sampled paths on the map (Fig. 1's drawing)."""
-    spec = fig_paths(coll)
-    if isinstance(spec, FigureSpec):
-        spec.name, spec.title = "floor_plan_paths", "A floor plan with a watched corridor: sampled paths"
-    return spec
-
-
-STUDY_FIGURES = {**STUDY_BUILDERS, "floor_plan": ("floor_plan_paths", fig_floor_plan)}  # a study -> its figure
 
 
 def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
@@ -56,12 +33,13 @@ def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
     specs: list[FigureSpec] = []
     skipped: dict[str, str] = {}
     with matplotlib.rc_context(STYLE):
-        jobs = list(BUILDERS) + [
-            (f"landscape{'' if i == 0 else f'_{i + 1}'}", (lambda c, land=land, i=i: fig_landscape(c, land, i)))
+        jobs = [(figure.name, figure.build) for figure in FIGURES if figure.main]
+        landscapes = [
+            (f"{LANDSCAPE}{'' if i == 0 else f'_{i + 1}'}", (lambda c, land=land, i=i: fig_landscape(c, land, i)))
             for i, land in enumerate(coll.landscapes)
         ]
-        for name, build in jobs:
-            if not coll.runs and not name.startswith("landscape"):
+        for name, build in jobs + landscapes:
+            if not coll.runs and not name.startswith(LANDSCAPE):
                 skipped[name] = "no usable runs"
                 continue
             try:
@@ -74,9 +52,9 @@ def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
             else:
                 skipped[name] = result
         for study in coll.studies:  # reproduce's studies, each from its own runs
-            name, build = STUDY_FIGURES[study.name]
+            name = study_figure(study.name).name
             try:
-                result = build(study.collection)
+                result = study_figure(study.name).build(study.collection)
             except Exception as err:
                 result = f"failed: {type(err).__name__}: {err}"
             if isinstance(result, FigureSpec):
@@ -92,8 +70,9 @@ def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
 
 
 __all__ = [
-    "BUILDERS",
-    "STUDY_BUILDERS",
+    "FIGURES",
+    "LANDSCAPE",
+    "Figure",
     "FigureSpec",
     "fig_consensus",
     "fig_cvar",

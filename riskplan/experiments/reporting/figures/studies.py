@@ -306,11 +306,3 @@ def fig_faults(coll: Collection) -> FigureSpec | str:
         + (" (b) The healthy robots' network average θ̄ per iteration, every seed." if two else ""),
         fig,
     )
-
-
-STUDY_BUILDERS = {  # study (riskplan.experiments.reporting.collect.STUDIES) -> its figure
-    "measures": ("risk_measures", fig_measures),
-    "policies": ("richer_policies", fig_policies),
-    "hetero_team": ("hetero_team", fig_hetero),
-    "faults": ("faults", fig_faults),
-}
