@@ -1232,13 +1232,15 @@ OUTPUTS = DATA / "outputs"
 
 class Transcript(NamedTuple):
     """Commands a page shows with what they print: `$ COMMAND`, then its lines on stderr when it fails (a bad
-    input's one line), else its last line on stdout (a run's closing line). `power`: run with the example
-    package of docs/extending.md installed; `slow`: a training run, which only --collect-outputs and a slow test
-    run (the quick ones, bad input, are rerun by tests/test_docs.py on every push)."""
+        input's one line), else its last line on stdout (a run's closing line) or its first `head` lines. Each runs
+    as on a machine where no run has finished yet (calibration in the scratch folder). `power`: run with the example
+        package of docs/extending.md installed; `slow`: a training run, which only --collect-outputs and a slow test
+        run (the quick ones, bad input, are rerun by tests/test_docs.py on every push)."""
 
     commands: tuple[str, ...]
     power: bool = False
     slow: bool = False
+    head: int = 0  # show the first `head` lines on stdout instead of the last (a sweep's plan)
 
 
 # docs/data/outputs/NAME.txt, each included by a page inside a code block: --8<-- "docs/data/outputs/NAME.txt"
@@ -1259,10 +1261,19 @@ TRANSCRIPTS = {
         power=True,
     ),
     "extending_train": Transcript(("riskplan train risk.measure=power risk.params.gamma=0.5",), power=True, slow=True),
+    "sweeps_plan": Transcript(
+        (
+            "riskplan sweep risk.beta=0.05,0.1,0.2,0.3 'seed=range(0,4)' train.iterations=50 "
+            "train.eval_episodes=10000 --batch",
+        ),
+        slow=True,
+        head=4,
+    ),
 }
 TIMESTAMP = re.compile(r"\d{4}-\d\d-\d\d_\d\d-\d\d-\d\d")  # a run folder's: it names no run of the reader's
 SECONDS = re.compile(r"\b\d+(\.\d+)? s\b")  # what a run took, which differs from one run to the next
 INSTALLED = re.compile(r"\(installed: [^)]*\)")  # the measures' packages installed here: power, and any of yours
+BUDGET = re.compile(r"within the [\d.]+ [KMGT]?B memory budget")  # a share of this machine's memory
 
 
 @contextlib.contextmanager
@@ -1303,8 +1314,9 @@ def transcript(name: str) -> str:
         os.chdir(scratch)
         try:
             for command in spec.commands:
-                result = CliRunner().invoke(app, shlex.split(command)[1:])
-                shown = result.stderr.splitlines() if result.exit_code else result.stdout.splitlines()[-1:]
+                result = CliRunner().invoke(app, shlex.split(command)[1:], env={"RISKPLAN_CACHE_DIR": "cache"})
+                shown = result.stdout.splitlines()
+                shown = result.stderr.splitlines() if result.exit_code else shown[: spec.head] or shown[-1:]
                 lines += [f"$ {command}", *shown]
         finally:
             os.chdir(here)
@@ -1313,8 +1325,9 @@ def transcript(name: str) -> str:
 
 def comparable(text: str) -> str:
     """A transcript with what differs between two runs of its commands, or two machines, masked: the seconds a
-    run took, and the measures installed besides the example's."""
-    return INSTALLED.sub("(installed: ...)", SECONDS.sub("<seconds> s", text))
+    run took, the measures installed besides the example's, and the memory budget."""
+    text = INSTALLED.sub("(installed: ...)", SECONDS.sub("<seconds> s", text))
+    return BUDGET.sub("within the ... memory budget", text)
 
 
 def collect_outputs(names: list[str]) -> None:
