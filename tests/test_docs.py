@@ -3,6 +3,7 @@ and a wheel that ships the configs and its type marker."""
 
 from __future__ import annotations
 
+import itertools
 import re
 import shutil
 import subprocess
@@ -99,18 +100,23 @@ def test_the_runs_a_page_shows_print_what_it_shows(name):
 
 
 def test_every_transcript_is_shown_by_a_page_and_pages_show_no_other_riskplan_output():
-    """Each docs/data/outputs/NAME.txt is included by a page, and no page types a command's output by hand
-    (`$ riskplan ...` followed by what it printed) where it could include one."""
+    """Each docs/data/outputs/NAME.txt is included by a page, no page types a command's output by hand (`$ riskplan
+    ...` followed by what it printed) where it could include one, and the README quotes transcripts verbatim."""
     pages = {page.name: page.read_text(encoding="utf-8") for page in (ROOT / "docs").glob("*.md")}
     for name in GENERATE.TRANSCRIPTS:
         assert any(f'--8<-- "docs/data/outputs/{name}.txt"' in text for text in pages.values()), name
     typed = [
         f"{page}: {line}"
         for page, text in pages.items()
-        for line, after in zip(text.splitlines(), text.splitlines()[1:])
+        for line, after in itertools.pairwise(text.splitlines())
         if line.startswith("$ riskplan ") and after.startswith("error: ")
     ]
     assert typed == []
+    # GitHub shows the README as it is, with no includes: what it shows must be a transcript's lines as they are
+    readme = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    collected = "".join(path.read_text(encoding="utf-8") for path in GENERATE.OUTPUTS.glob("*.txt"))
+    quoted = [(line, after) for line, after in itertools.pairwise(readme) if line.startswith("$ riskplan ")]
+    assert quoted and all(f"{line}\n{after}\n" in collected for line, after in quoted), quoted
 
 
 def test_the_ray_tables_show_bench_ray_backend_json(tmp_path):
