@@ -188,3 +188,25 @@ def test_fig3_shows_the_centralized_curves_beside_the_teams(root):
         assert (team.get_linestyle(), central.get_linestyle()) == ("-", "--") and central.get_marker() == "o"
         assert central.get_zorder() > team.get_zorder()  # drawn over the team's curve, which it would hide under
     assert difference.get_title() == "(c) difference" and len(difference.get_lines()) == 3  # mean, CVaR and zero
+
+
+WIDE = ["world.size=[48,12]", "world.regions.1.rect=[0,0,47,11]"]  # four times as wide as high
+
+
+@pytest.mark.parametrize("world", [[], WIDE], ids=["paper", "wide"])
+def test_fig1_fills_its_width_with_the_world_and_its_legend_sits_close(tmp_path, world):
+    """Fig. 1's world at its aspect fills the figure's width (a wide one uses the widest figure), and the legend
+    sits right below the axis labels: no empty band between them."""
+    for risk in ("neutral", "cvar"):
+        train(compose([*TINY, f"risk={risk}", *world]), tmp_path / risk)
+    figure = fig_paths(collect([tmp_path])).figure
+    figure.canvas.draw()
+    renderer = figure.canvas.get_renderer()
+    (ax,) = figure.axes
+    (legend,) = figure.legends
+    dpi = figure.dpi
+    box, key = ax.get_tightbbox(renderer), legend.get_window_extent(renderer)
+    assert (box.y0 - key.y1) / dpi < 0.2  # inches between the x label and the legend's frame
+    drawn = ax.get_window_extent(renderer)  # the cells' area, equal-aspect
+    assert drawn.width / drawn.height == pytest.approx(4.0 if world else 1.0, rel=0.02)
+    assert drawn.width / figure.bbox.width > (0.8 if world else 0.75)

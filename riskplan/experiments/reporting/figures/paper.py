@@ -8,6 +8,7 @@ named by what differs between them, under plain titles.
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 from matplotlib.colors import ListedColormap
@@ -20,6 +21,7 @@ from riskplan.experiments.reporting.collect import PALETTE, Collection, Group
 from riskplan.experiments.reporting.figures.drawing import (
     CENTRAL_COLOUR,
     SOURCE_COLOUR,
+    WIDEST,
     FigureSpec,
     curve_table,
     integer_iterations,
@@ -46,6 +48,9 @@ from riskplan.run.build import build_setup
 
 MAX_PATHS = 5  # sampled paths per policy in Fig. 1
 OVERLAID = 2  # Fig. 1 draws this many policies in one world; more get a panel each
+WORLD_SIDE = 3.7  # inches: the side of a square world's axes in Fig. 1; a world of another shape keeps its area
+TALLEST = 5.5  # inches: the most height a world's axes take, however tall the world
+MARGIN = 0.9  # inches beside the axes for the tick and axis labels
 FEW_TEAMS = 4  # Fig. 3 compares this many teams with the centralized run in one panel each of mean and CVaR
 
 
@@ -157,6 +162,15 @@ def _draw_paths(ax, g: Group, colour: str, name: str, shift: float = 0.0) -> Non
         )
 
 
+def world_axes(world: dict, side: float = WORLD_SIDE) -> tuple[float, float]:
+    """Inches (width, height) of a world's axes drawn at its aspect (equal cells): the area of a square world's
+    axes of `side`, within WIDEST less the labels' MARGIN and within TALLEST; a figure sized to them leaves no empty
+    band beside a wide or a tall world."""
+    ratio = world["width"] / world["height"]
+    width = min(side * math.sqrt(ratio), WIDEST - MARGIN, TALLEST * ratio)
+    return width, width / ratio
+
+
 def _world_key(config: dict) -> str:
     return json.dumps({k: config.get(k) for k in ("world", "team")}, sort_keys=True, default=str)
 
@@ -194,18 +208,23 @@ def fig_paths(coll: Collection) -> FigureSpec | str:
     if len(set(colours)) < len(colours):
         colours = [PALETTE[i % len(PALETTE)] for i in range(len(groups))]
     if len(groups) <= OVERLAID and len(worlds) == 1:
-        fig, axes = new_figure(4.6, 4.9)
+        world = next(iter(worlds.values()))
+        width, height = world_axes(world)
+        entries = len(groups) + len(MARKS)
+        ncols = 3 if width + MARGIN >= 6 else 2  # a wide world's figure: its legend in fewer rows
+        fig, axes = new_figure(max(width + MARGIN, 4.6), height + 0.55 + 0.24 * math.ceil(entries / ncols) + 0.1)
         ax = axes[0, 0]
-        draw_world(ax, next(iter(worlds.values())))
+        draw_world(ax, world)
         handles = []
         for gi, (g, name, colour) in enumerate(zip(groups, called, colours)):
             _draw_paths(ax, g, colour, name, shift=(gi - (len(groups) - 1) / 2) * 0.16)
             handles.append(Line2D([], [], color=colour, lw=1.6, label=f"{name}, seed {g.first.seed}"))
-        legend_below(fig, handles + MARKS, ncols=2)
+        legend_below(fig, handles + MARKS, ncols=ncols)
         panels = ""
     else:
         same = len({(w["width"], w["height"]) for w in worlds.values()}) == 1
-        fig, axes = panel_grid(len(groups), (3.1, 3.2), extra=0.3, sharex=same, sharey=same)
+        width, height = world_axes(next(iter(worlds.values())), side=2.7) if same else (2.7, 2.7)
+        fig, axes = panel_grid(len(groups), (width + 0.4, height + 0.5), extra=0.3, sharex=same, sharey=same)
         for ax, g, name, colour in zip(axes, groups, called, colours):
             draw_world(ax, worlds[_world_key(g.config)], labels=not same)
             _draw_paths(ax, g, colour, name)
