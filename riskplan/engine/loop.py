@@ -55,8 +55,9 @@ class Recorder(Protocol):
     def failed(self, run: int, error: Exception) -> None:
         """Run `run` stopped on `error` (it leaves the batch); may re-raise it to stop everything."""
 
-    def round_done(self, runs: Sequence[int], states: Sequence[TrainState]) -> None:
-        """Every live run did one more iteration (the place to checkpoint and stop on a signal)."""
+    def round_done(self, runs: Sequence[int], states: Sequence[TrainState]) -> Sequence[int]:
+        """Every live run did one more iteration (the place to checkpoint and stop on a signal); returns the runs
+        that failed meanwhile (they leave the batch)."""
 
 
 class _Rows(NamedTuple):
@@ -93,8 +94,8 @@ def make_train(setups: Sequence[Setup]) -> Callable[[Sequence[TrainState], Recor
                         failed.add(r)
                         recorder.failed(r, err)
             live = [r for r in live if r not in failed]
-            recorder.round_done(live, states)
-            live = [r for r in live if states[r].iteration < totals[r]]
+            failed.update(recorder.round_done(live, states))
+            live = [r for r in live if r not in failed and states[r].iteration < totals[r]]
         return states
 
     return train

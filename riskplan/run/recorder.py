@@ -13,6 +13,7 @@ import os
 import signal
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numba
@@ -54,16 +55,23 @@ class Driver:
         return self.state.iteration >= self.total
 
     def record(self, state: TrainState, rows: list[dict]) -> None:
-        """An iteration done: its rows into run.mcap (durable before the next), a checkpoint when one is due, and
-        progress."""
+        """An iteration done: its rows into run.mcap (durable before the next), and progress. The recorder takes
+        the checkpoint when one is due, at the end of the round."""
         self.state = state
         self.rows.extend(rows)
         self.log.iteration(rows)
-        if state.iteration % self.setup.params.train.checkpoint_every == 0 or state.iteration == self.total:
-            self.checkpoint()
         if self.progress:
             self.progress(state.iteration, self.total, rows[-1])
-        if os.environ.get(STOP_ENV) == str(state.iteration - 1):
+
+    @property
+    def due(self) -> bool:
+        """Whether the state is one to checkpoint: every train.checkpoint_every iterations, and the last."""
+        every, at = self.setup.params.train.checkpoint_every, self.state.iteration
+        return self.saved != at and (at % every == 0 or at == self.total)
+
+    def pause_for_tests(self) -> None:
+        """STOP_ENV: stop this process (SIGSTOP) once the iteration it names is logged and checkpointed if due."""
+        if os.environ.get(STOP_ENV) == str(self.state.iteration - 1):
             os.kill(os.getpid(), signal.SIGSTOP)
 
     def checkpoint(self) -> None:
@@ -136,19 +144,44 @@ class Recorder:
             raise error
         self.errors[run] = error
 
-    def round_done(self, runs: Sequence[int], states: Sequence[TrainState]) -> None:
-        """On a signal, every live run keeps its last finished iteration (a checkpoint unless it has one there),
-        then Interrupted stops them all."""
-        if self.stop.received is None:
-            return
+    def round_done(self, runs: Sequence[int], states: Sequence[TrainState]) -> list[int]:
+        """The round's due checkpoints; then, if a signal came, every live run's last finished iteration kept (a
+        checkpoint unless it has one there) and Interrupted. Returns the runs whose checkpoint failed: they leave
+        the batch."""
+        failed = self._checkpoint([r for r in runs if self.drivers[r].due])
         for r in runs:
-            if self.drivers[r].saved != self.drivers[r].state.iteration:
-                self._isolated(r, self.drivers[r].checkpoint)
-        self.stop.check(min((states[r].iteration for r in runs), default=0))
+            self.drivers[r].pause_for_tests()
+        if self.stop.received is not None:
+            failed += self._checkpoint([r for r in runs if r not in failed and not self._saved(r)])
+            self.stop.check(min((states[r].iteration for r in runs if r not in failed), default=0))
+        return failed
 
-    def _isolated(self, run: int, work: Callable[[], None]) -> None:
-        """work() for one run; its error stops that run alone (or the command, for a run alone)."""
-        try:
-            work()
-        except Exception as err:
-            self.failed(run, err)
+    def _checkpoint(self, runs: list[int]) -> list[int]:
+        """Checkpoint the runs; those that failed (each handed to `failed`)."""
+        errors = self._checkpoints(runs)
+        for r, error in zip(runs, errors):
+            if error is not None:
+                self.failed(r, error)
+        return [r for r, error in zip(runs, errors) if error is not None]
+
+    def _saved(self, run: int) -> bool:
+        return self.drivers[run].saved == self.drivers[run].state.iteration
+
+    def _checkpoints(self, runs: list[int]) -> list[Exception | None]:
+        """Checkpoint the runs, each after its log's fsync; a batch's together in threads (fsync leaves the GIL, so
+        their waits on the disk overlap). Each run's error, or None."""
+
+        def one(run: int) -> Exception | None:
+            try:
+                self.drivers[run].checkpoint()
+            except Exception as err:  # this run alone: a full or read-only disk
+                return err
+            return None
+
+        if len(runs) <= 1:
+            return [one(run) for run in runs]
+        with ThreadPoolExecutor(min(len(runs), CHECKPOINT_THREADS)) as pool:
+            return list(pool.map(one, runs))
+
+
+CHECKPOINT_THREADS = 8  # a batch's checkpoints written at once: enough to keep a disk's queue full

@@ -3,6 +3,7 @@ a run that fails leaves the batch alone, and a batch stopped by a signal resumes
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 
@@ -83,6 +84,31 @@ def test_a_run_that_fails_leaves_the_batch_alone(tmp_path):
     assert not (tmp_path / "batch" / "diverges" / "summary.json").exists()
 
 
+def test_a_run_whose_checkpoint_the_disk_refuses_leaves_the_batch_alone(tmp_path, monkeypatch):
+    """The round's checkpoints are written together; one that fails (a full disk) stops its run alone, with its
+    checkpoints so far kept and its log readable, and the others finish as they would alone."""
+    import riskplan.run.recorder as recorder
+    from riskplan.run.results import load_run
+
+    names = ["cvar", "team", "ring"]
+    built = setups(CHECKPOINTED, names)
+    reference = alone(tmp_path, built)
+    real = recorder.save_checkpoint
+
+    def full_disk(out, state):
+        if out.name == "team" and state.iteration == 15:
+            raise OSError(28, "No space left on device")
+        real(out, state)
+
+    monkeypatch.setattr(recorder, "save_checkpoint", full_disk)
+    runs = train_batch([BatchRun(built[n], tmp_path / "batch" / n) for n in names])
+    assert isinstance(runs[1].error, OSError) and runs[1].summary is None
+    assert json.loads((tmp_path / "batch" / "team" / "checkpoint").read_text())["iteration"] == 10
+    assert list(load_run(tmp_path / "batch" / "team").metrics.query("robot == 0").iteration) == list(range(15))
+    for name in ("cvar", "ring"):
+        assert_same_outputs(tmp_path / "batch" / name, reference / name)
+
+
 def test_a_batch_stopped_by_a_signal_resumes_to_the_same_numbers(tmp_path):
     names = ["cvar", "team", "ring"]
     built = setups(CHECKPOINTED, names)
@@ -102,7 +128,6 @@ def test_a_batch_stopped_by_a_signal_resumes_to_the_same_numbers(tmp_path):
 
 
 def test_each_run_of_a_batch_calibrates_with_its_part_of_the_batchs_time(tmp_path, monkeypatch):
-    import json
     import time
 
     from riskplan.run import cost
