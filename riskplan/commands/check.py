@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import typer
 
 from riskplan.commands.common import (
@@ -21,6 +23,13 @@ def register(app: typer.Typer) -> None:
 
 def check(
     overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP + CONFIG_DIR_HELP, show_default=False),
+    draw: Path | None = typer.Option(
+        None,
+        "--draw",
+        metavar="PATH",
+        help="Also draw the world to PATH (.png, .svg or .pdf): obstacles, unknown cells, regions, sources and their "
+        "signals, the starts, the cells reachable within the horizon, and a shortest path to each source.",
+    ),
 ) -> None:
     """Compose and validate a config without running it; print it, the world, the team and Assumptions 5-6."""
     from omegaconf import OmegaConf
@@ -31,6 +40,11 @@ def check(
 
     args = with_config_dirs(list(overrides or []))
     reject_hydra_flags(args, "check prints the composed config itself")
+    if draw is not None:  # matplotlib only when asked to draw: check stays fast without it
+        from riskplan.experiments.reporting.figures.world_picture import check_writable, draw_format
+
+        draw_format(draw)
+        check_writable(draw)
     cfg = compose(args, validate=False)
     setup = build_setup(cfg)
     typer.echo(OmegaConf.to_yaml(cfg).rstrip())
@@ -43,6 +57,11 @@ def check(
         f"(eps_l = {cfg.train.step_size.initial} / (1 + l/{cfg.train.step_size.decay})^{power})"
     )
     typer.echo(describe(setup.network, setup.params.team))
+    if draw is not None:
+        from riskplan.experiments.reporting.figures.world_picture import write_picture
+
+        write_picture(setup, draw)
+        typer.echo(f"world drawn: {draw}")
     typer.echo("config OK")
 
 

@@ -49,6 +49,8 @@ def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
                 continue
             if isinstance(result, FigureSpec):
                 specs.append(result)
+            elif isinstance(result, list):  # one figure of each of several things (world: each distinct world)
+                specs += result
             else:
                 skipped[name] = result
         for study in coll.studies:  # reproduce's studies, each from its own runs

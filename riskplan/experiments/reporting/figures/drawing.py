@@ -238,15 +238,16 @@ def figure_files(spec: FigureSpec, formats: list[str]) -> dict[str, bytes] | str
         with matplotlib.rc_context(STYLE):
             # in the order given: each draw re-runs the constrained layout from where the last one left it, so
             # the bytes of a format depend on what was drawn before
-            files = {fmt: _savefig(spec.figure, fmt) for fmt in formats}
-            png = files["png"] if "png" in files else _savefig(spec.figure, "png")
+            files = {fmt: figure_bytes(spec.figure, fmt) for fmt in formats}
+            png = files["png"] if "png" in files else figure_bytes(spec.figure, "png")
         files["page"] = _downscale(png, PAGE_DPI / STYLE["savefig.dpi"])
     except Exception as err:
         return f"failed: {type(err).__name__}: {err}"
     return files
 
 
-def _savefig(figure: Figure, fmt: str) -> bytes:
+def figure_bytes(figure: Figure, fmt: str) -> bytes:
+    """The figure as a file's bytes (png, svg or pdf), reproducibly (no dates); draw it inside STYLE's context."""
     buffer = io.BytesIO()
     figure.savefig(buffer, format=fmt, metadata=_metadata(fmt))
     return buffer.getvalue()

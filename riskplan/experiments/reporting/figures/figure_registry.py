@@ -23,6 +23,7 @@ from riskplan.experiments.reporting.figures.beyond import (
 from riskplan.experiments.reporting.figures.drawing import FigureSpec
 from riskplan.experiments.reporting.figures.paper import fig_consensus, fig_cvar, fig_paths, fig_team
 from riskplan.experiments.reporting.figures.studies import fig_faults, fig_hetero, fig_measures, fig_policies
+from riskplan.experiments.reporting.figures.world_picture import fig_world
 
 LANDSCAPE = "landscape"  # the landscapes' figures: landscape, landscape_2, ... (figures.beyond.fig_landscape)
 
@@ -32,7 +33,7 @@ class Figure:
     """A figure of the report: its files' name (<name>.png, .pdf, .svg), how it is drawn, and what it shows."""
 
     name: str
-    build: Callable[[Collection], FigureSpec | str]
+    build: Callable[[Collection], FigureSpec | list[FigureSpec] | str]  # a list: <name>, <name>_2, ...
     about: str  # what it shows, in a few words
     study: str = ""  # the study of reproduce (collect.STUDIES) whose own runs it is drawn from too, if any
     main: bool = True  # drawn from the runs given (False: from its study's runs only)
@@ -47,6 +48,7 @@ def fig_floor_plan(coll: Collection) -> FigureSpec | str:
 
 
 FIGURES = (
+    Figure("world", fig_world, "each distinct world of the runs, as riskplan check --draw draws it"),
     Figure("fig1_paths", fig_paths, "the paper's Fig. 1: sampled paths of each policy"),
     Figure("fig2_cvar", fig_cvar, "the paper's Fig. 2: CVaR and the mean over the iterations"),
     Figure("fig3_team", fig_team, "the paper's Fig. 3: the team's CVaR against the centralized run"),

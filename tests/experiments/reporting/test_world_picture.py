@@ -1,0 +1,231 @@
+"""The world's picture (figures.world_picture; riskplan check --draw): what it shows, checked on the drawn artists
+and the rendered pixels, on the paper's world, the shipped floor plan and a map the test makes; the bad --draw paths
+and the size of a warehouse-sized map's picture."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import pytest
+from matplotlib.collections import LineCollection
+from matplotlib.colors import to_rgb
+from matplotlib.patches import PathPatch
+from PIL import Image
+from support import setup_of
+from typer.testing import CliRunner
+
+from riskplan.cli import app
+from riskplan.experiments.reporting.figures import world_picture as wp
+from riskplan.experiments.reporting.figures.drawing import STYLE, figure_bytes
+
+runner = CliRunner()
+
+
+def beyond(colour: str) -> np.ndarray:
+    """A cell's colour greyed, beyond the horizon."""
+    return (1 - wp.BEYOND_SHARE) * np.array(to_rgb(colour)) + wp.BEYOND_SHARE * wp.BEYOND_GREY
+
+
+def drawn(*overrides: str):
+    """(picture, figure, its world axes) of TINY plus overrides."""
+    picture = wp.picture_of(setup_of(*overrides))
+    figure = wp.draw_picture(picture)
+    return picture, figure, figure.axes[0]
+
+
+def cell_colours(ax) -> np.ndarray:
+    """The drawn cells' colours, indexed [x, y] (the image artist's array, row 0 the bottom)."""
+    return np.asarray(ax.images[0].get_array()).transpose(1, 0, 2)
+
+
+def pixels_of_cell(figure, ax, x: int, y: int) -> np.ndarray:
+    """The rendered RGB pixels inside cell (x, y), a margin left out (the grid's lines)."""
+    figure.canvas.draw()
+    rgba = np.asarray(figure.canvas.buffer_rgba())[..., :3] / 255.0
+    (x0, y0), (x1, y1) = ax.transData.transform([(x - 0.3, y - 0.3), (x + 0.3, y + 0.3)])
+    top, bottom = rgba.shape[0] - int(y1), rgba.shape[0] - int(y0)
+    return rgba[top:bottom, int(x0) : int(x1)].reshape(-1, 3)
+
+
+def markers(ax, marker: str) -> list[tuple[float, float]]:
+    return [(float(x), float(y)) for line in ax.lines if line.get_marker() == marker for x, y in line.get_xydata()]
+
+
+def path_lines(ax) -> list[np.ndarray]:
+    """The drawn shortest paths: the lines of more than one point."""
+    return [line.get_xydata() for line in ax.lines if line.get_linestyle() == "-" and len(line.get_xydata()) > 1]
+
+
+def outline_length(ax) -> float:
+    (lines,) = [c for c in ax.collections if type(c) is LineCollection]
+    return float(sum(np.abs(np.diff(np.asarray(s), axis=0)).sum() for s in lines.get_segments()))
+
+
+def test_paper_world_obstacle_dark_reach_greyed_beyond_the_horizon_start_sources_and_paths():
+    picture, figure, ax = drawn("world.obstacles=[[6,2]]")
+    colours = cell_colours(ax)
+    # K = 20 from (0, 0): every cell but those more than 20 moves away, x + y > 20 (no wall in the way)
+    x, y = np.meshgrid(np.arange(12), np.arange(12), indexing="ij")
+    risky = y > x
+    expected = np.where(risky[..., None], to_rgb(wp.RISKY_REGIONS[0]), to_rgb(wp.SAFE_REGIONS[0]))
+    far = x + y > 20
+    expected[far] = np.where(risky[far][:, None], beyond(wp.RISKY_REGIONS[0]), beyond(wp.SAFE_REGIONS[0]))
+    expected[6, 2] = to_rgb(wp.OBSTACLE)
+    assert np.allclose(colours, expected)
+    # the reachable set's edge: the 12 x 12 square's 48 (the staircase corner's too), and 4 around the obstacle
+    assert outline_length(ax) == 52
+    # the obstacle renders dark; a free cell light
+    assert np.median(pixels_of_cell(figure, ax, 6, 2)) < 0.3
+    assert np.median(pixels_of_cell(figure, ax, 8, 1)) > 0.7
+    assert markers(ax, "o") == [(0.0, 0.0)]
+    assert markers(ax, "*") == [(9.0, 3.0), (3.0, 9.0)]
+    for path, source in zip(path_lines(ax), [(9, 3), (3, 9)]):
+        assert tuple(path[0]) == (0, 0) and tuple(path[-1]) == source
+        assert len(path) == 13 and (np.abs(np.diff(path, axis=0)).sum(axis=1) == 1).all()
+        assert (6, 2) not in {tuple(p) for p in path}
+    assert list(picture.moves) == [12, 12]
+    risky_patch = [p for p in ax.patches if isinstance(p, PathPatch)]
+    assert len(risky_patch) == 1 and risky_patch[0].get_hatch() == "////"
+    labels = [t.get_text() for t in figure.legends[0].get_texts()]
+    assert "region 'risky' (risky)" in labels and "obstacle" in labels
+    assert "1 'safe' (9, 3): 12 moves from (0, 0)" in labels
+    assert not ax.child_axes  # no metres without a map
+
+
+def test_shipped_floor_plan_walls_unknown_outside_start_sources_and_metres():
+    picture, figure, ax = drawn("experiment=floor_plan")
+    colours = cell_colours(ax)
+    classes = picture.cells.classes
+    assert tuple(colours[0, 0]) == pytest.approx(to_rgb(wp.UNKNOWN))  # the map's unknown space outside
+    layout = picture.setup.world.obstacle.reshape(30, 24)
+    walls = layout & (classes == len(picture.cells.colours) - 1)
+    assert walls.sum() > 100 and np.allclose(colours[walls], to_rgb(wp.OBSTACLE))
+    wall_x, wall_y = np.argwhere(walls)[0]
+    assert np.median(pixels_of_cell(figure, ax, int(wall_x), int(wall_y))) < 0.3
+    assert markers(ax, "o") == [(3.0, 3.0)]
+    assert markers(ax, "*") == [(3.0, 15.0), (15.0, 3.0)]
+    for path, source in zip(path_lines(ax), [(3, 15), (15, 3)]):
+        assert tuple(path[0]) == (3, 3) and tuple(path[-1]) == source and len(path) == 13
+        assert not layout[path[:, 0].astype(int), path[:, 1].astype(int)].any()
+    # metres: 0.25 m cells from the origin (0, 0): cell 0's centre at 0.125 m, cell 10's at 2.625 m
+    top, right = ax.child_axes
+    assert top.get_xlabel() == "x (m, map frame)" and right.get_ylabel() == "y (m, map frame)"
+    forward, _ = top._functions
+    assert forward(np.array([0.0, 10.0])) == pytest.approx([0.125, 2.625])
+
+
+@pytest.fixture
+def room_map(tmp_path) -> Path:
+    """A 40 x 32-pixel map at 0.5 m, origin (-3, 1.5): unknown space above row 8 from the top, a walled building
+    below it with an enclosed room (no door) in its right half, and a mask over the building's lower-left corner.
+    world.map_cell=2 makes it 20 x 16 cells of 1 m."""
+    image = np.full((32, 40), 254, np.uint8)
+    image[:8] = 205  # unknown: the top 8 pixel rows, cells y 12-15
+    image[8:10], image[-2:], image[8:, :2], image[8:, -2:] = 0, 0, 0, 0  # the building's walls
+    image[12:24, 24:36] = 0  # the enclosed room's walls: cells x 12-17, y 4-9 ...
+    image[14:22, 26:34] = 254  # ... around its free inside, cells x 13-16, y 5-8
+    mask = np.full((32, 40), 255, np.uint8)
+    mask[24:30, 2:12] = 0  # cells x 1-5, y 1-3
+    for name, pixels in (("room.pgm", image), ("watched.pgm", mask)):
+        (tmp_path / name).write_bytes(b"P5\n40 32\n255\n" + pixels.tobytes())
+    (tmp_path / "room.yaml").write_text(
+        "image: room.pgm\nresolution: 0.5\norigin: [-3.0, 1.5, 0.0]\nnegate: 0\noccupied_thresh: 0.65\n"
+        "free_thresh: 0.196\n"
+    )
+    return tmp_path / "room.yaml"
+
+
+ROOM = [
+    "world.map_cell=2",
+    "world.start=[2,6]",
+    "world.horizon=20",
+    "world.sources=[{name:near,position:[6,9],reward:1},{name:far,position:[18,2],reward:2}]",
+    "world.regions=[{name:watched,mask:watched.pgm,risky:true,reward:-1}]",
+]
+
+
+def test_a_made_map_enclosed_room_unknown_space_mask_and_metres(room_map):
+    picture, figure, ax = drawn(f"world.map={room_map}", *ROOM)
+    colours = cell_colours(ax)
+    assert colours.shape[:2] == (20, 16)
+    assert np.allclose(colours[:, 12:16], to_rgb(wp.UNKNOWN))  # unknown space, all of it
+    assert np.allclose(colours[12, 4:10], to_rgb(wp.OBSTACLE)) and np.allclose(colours[0, 0:12], to_rgb(wp.OBSTACLE))
+    # the room's free inside is out of reach however long the horizon; the cell beside the start is within
+    assert np.allclose(colours[13:17, 5:9], beyond(wp.FREE))
+    assert tuple(colours[3, 6]) == pytest.approx(to_rgb(wp.FREE))
+    # (18, 2) is 20 moves from (2, 6), below the room: within K = 20, and (18, 1) one more, beyond
+    assert list(picture.moves) == [7, 20] and picture.reachable[18, 2] and not picture.reachable[18, 1]
+    assert tuple(colours[18, 1]) == pytest.approx(tuple(beyond(wp.FREE)))
+    far = path_lines(ax)[1]
+    assert tuple(far[0]) == (2, 6) and tuple(far[-1]) == (18, 2) and len(far) == 21
+    # the mask's cells x 1-5, y 1-3 are the risky region: coloured, and hatched by exactly their rectangle
+    mask_cells = np.zeros((20, 16), bool)
+    mask_cells[1:6, 1:4] = True
+    assert np.allclose(colours[mask_cells], to_rgb(wp.RISKY_REGIONS[0]))
+    (hatch,) = [p for p in ax.patches if isinstance(p, PathPatch)]
+    assert hatch.get_path().get_extents().bounds == pytest.approx((0.5, 0.5, 5.0, 3.0))
+    # metres: 1 m cells from (-3, 1.5): cell 0's centre at -2.5 m, cell y 4's at 6 m
+    top, right = ax.child_axes
+    assert top._functions[0](np.array([0.0])) == pytest.approx([-2.5])
+    assert right._functions[0](np.array([4.0])) == pytest.approx([6.0])
+    labels = [t.get_text() for t in figure.legends[0].get_texts()]
+    assert "unknown (world.map_unknown=obstacle)" in labels and "region 'watched' (risky)" in labels
+
+
+@pytest.mark.slow
+def test_check_draws_each_format(in_tmp):
+    for name, head in (("world.png", b"\x89PNG"), ("world.svg", b"<?xml"), ("world.pdf", b"%PDF")):
+        result = runner.invoke(app, ["check", "--draw", name, "world.obstacles=[[5,5]]"])
+        assert result.exit_code == 0, result.output
+        assert f"world drawn: {name}" in result.output and "config OK" in result.output
+        assert (in_tmp / name).read_bytes().startswith(head)
+    assert sorted(p.name for p in in_tmp.iterdir()) == ["world.pdf", "world.png", "world.svg"]
+
+
+@pytest.mark.parametrize(
+    ("path", "problem"),
+    [
+        ("world.gif", "world.gif has suffix '.gif'; give a path ending .png, .svg or .pdf"),
+        ("world", "world has suffix ''; give a path ending .png, .svg or .pdf"),
+        ("notes.txt/world.png", "notes.txt/world.png cannot be written: notes.txt is a file, not a folder; give a"),
+        ("gone/world.png", "gone/world.png cannot be written: no folder gone; give a path in an existing folder"),
+        ("folder.png", "folder.png is a folder; give a file path ending .png, .svg or .pdf"),
+    ],
+)
+def test_bad_draw_paths_are_one_line_and_exit_2_leaving_nothing(in_tmp, path, problem):
+    (in_tmp / "notes.txt").write_text("a file, not a folder")
+    (in_tmp / "folder.png").mkdir()
+    before = sorted(p.name for p in in_tmp.rglob("*"))
+    result = runner.invoke(app, ["check", "--draw", path])
+    assert result.exit_code == 2
+    assert result.stderr.startswith(f"error: --draw: {problem}") and result.stderr.count("\n") == 1
+    assert sorted(p.name for p in in_tmp.rglob("*")) == before
+
+
+@pytest.mark.slow
+def test_a_warehouse_sized_map_is_drawn_in_blocks_within_2000_pixels(tmp_path):
+    """1006 x 1674 cells (a warehouse's map at one pixel a cell): blocks of 4 x 4 cells, a one-cell shelf still
+    dark, and the PNG within 2,000 px on its longer side."""
+    image = np.full((1674, 1006), 254, np.uint8)
+    image[:, 500] = 0  # a one-cell shelf from top to bottom, x = 500, with a gap at the bottom ...
+    image[-10:, 500] = 254  # ... cells y 0-9
+    (tmp_path / "big.pgm").write_bytes(b"P5\n1006 1674\n255\n" + image.tobytes())
+    (tmp_path / "big.yaml").write_text(
+        "image: big.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\nnegate: 0\noccupied_thresh: 0.65\n"
+        "free_thresh: 0.196\n"
+    )
+    sources = "world.sources=[{name:a,position:[900,1500],reward:1,covariance:[[900,0],[0,900]]}]"
+    where = [f"world.map={tmp_path / 'big.yaml'}", "world.start=[10,5]", "world.horizon=2400", "world.regions=[]"]
+    setup = setup_of(*where, sources, "train.theta0=[20.0]")
+    picture = wp.picture_of(setup)
+    figure = wp.draw_picture(picture)
+    colours = cell_colours(figure.axes[0])
+    assert colours.shape[:2] == (252, 419) and wp.block_of(1006, 1674) == 4
+    assert np.allclose(colours[125, 3:], to_rgb(wp.OBSTACLE))  # block x 125 holds x = 500: dark all along
+    assert picture.moves[0] == 890 + 1495  # Manhattan: the gap lets it through without a detour
+    with matplotlib.rc_context(STYLE):
+        png = Image.open(io.BytesIO(figure_bytes(figure, "png")))
+    assert max(png.size) <= 2000
