@@ -1,6 +1,6 @@
 """A mistyped choice or key: its one bad-input line lists the valid ones and, when one is close, ends with "did you
 mean '...'?" (difflib), for a config group's options, a key's choices (a schema Enum), an unknown key (also one
-inside a list's mapping), and export's --to; a value close to none of them gets no guess."""
+inside a list's mapping), a risk measure's name and export's --to; a value close to none of them gets no guess."""
 
 from __future__ import annotations
 
@@ -38,6 +38,7 @@ runner = CliRunner()
             r"key 'world\.regions\.nme': unknown key 'nme'; valid keys under 'world\.regions': name, .*",
             "name",
         ),
+        (["check", "risk.measure=cvr"], r"risk\.measure: got 'cvr'; expected a built-in measure \(cvar, .*\)", "cvar"),
         (
             ["export", "outputs", "--to", "mlfow"],
             r"--to: got 'mlfow'; expected one of mlflow, tensorboard, .*",

@@ -72,7 +72,8 @@ def test_a_config_selects_and_checks_a_packages_measure(installed):
         ),
         (  # power among the installed measures' names, whichever others the user has installed
             ["risk.measure=powr"],
-            r"^risk\.measure: got 'powr'; expected a built-in measure .*\(installed: ([\w, ]+, )?power(, [\w, ]+)?\)$",
+            r"^risk\.measure: got 'powr'; expected a built-in measure .*\(installed: ([\w, ]+, )?power(, [\w, ]+)?\); "
+            r"did you mean 'power'\?$",
         ),
     ):
         with pytest.raises(BadInput, match=message):

@@ -15,7 +15,7 @@ from riskplan.engine.measures.entropic import Entropic
 from riskplan.engine.measures.mean_cvar import MeanCVaR
 from riskplan.engine.measures.neutral import Neutral
 from riskplan.engine.measures.wang import Wang
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, did_you_mean
 
 GROUP = "riskplan.risk_measures"  # the entry-point group of users' measures
 BUILT_IN: dict[str, Measure] = {m.name: m for m in (CVaR(), Neutral(), Wang(), MeanCVaR(), Entropic())}
@@ -57,7 +57,7 @@ def _load(name: str, where: str) -> Measure:
         raise BadInput(
             where,
             f"got {name!r}; expected a built-in measure ({', '.join(MEASURES)}) or one an installed package "
-            f"registers in the entry-point group {GROUP} ({others})",
+            f"registers in the entry-point group {GROUP} ({others}){did_you_mean(name, [*MEASURES, *installed])}",
         )
     if len(found) > 1:
         raise BadInput(where, f"got {name!r}, which several entry points give ({', '.join(sorted(found))}); keep one")
