@@ -14,10 +14,12 @@ from matplotlib.collections import LineCollection
 from matplotlib.colors import to_rgb
 from matplotlib.patches import PathPatch
 from PIL import Image
-from support import setup_of
+from support import TINY, setup_of
 from typer.testing import CliRunner
 
 from riskplan.cli import app
+from riskplan.experiments.reporting.collect import collect
+from riskplan.experiments.reporting.figures import make_figures
 from riskplan.experiments.reporting.figures import world_picture as wp
 from riskplan.experiments.reporting.figures.drawing import STYLE, figure_bytes
 
@@ -229,3 +231,23 @@ def test_a_warehouse_sized_map_is_drawn_in_blocks_within_2000_pixels(tmp_path):
     with matplotlib.rc_context(STYLE):
         png = Image.open(io.BytesIO(figure_bytes(figure, "png")))
     assert max(png.size) <= 2000
+
+
+@pytest.mark.slow
+def test_the_report_draws_each_distinct_world_of_its_runs(tmp_path):
+    """Three tiny runs in two worlds (two measures on the paper's, one with a wall): the report's world and
+    world_2 figures, each the picture of its world, on the page."""
+    import riskplan
+
+    runs = {"neutral": ["risk=neutral"], "cvar": [], "walled": ["world.obstacles=[[1,1],[2,1]]"]}
+    for name, extra in runs.items():
+        riskplan.train(riskplan.compose([*TINY, *extra]), tmp_path / "runs" / name)
+    specs, _ = make_figures(collect([tmp_path / "runs"]))
+    worlds = {spec.name: spec for spec in specs if spec.name.startswith("world")}
+    assert sorted(worlds) == ["world", "world_2"]
+    dark = {name: cell_colours(w.figure.axes[0]).sum(axis=2) < 1 for name, w in worlds.items()}
+    assert sorted(map(tuple, np.argwhere(dark["world_2"]).tolist())) == [(1, 1), (2, 1)] and not dark["world"].any()
+    page = riskplan.report(tmp_path / "runs", tmp_path / "report", formats=["png"])
+    html = page.read_text()
+    assert '<figure id="world">' in html and '<figure id="world_2">' in html
+    assert (tmp_path / "report" / "world.png").read_bytes().startswith(b"\x89PNG")
