@@ -27,7 +27,9 @@ import contextlib
 import datetime as dt
 import json
 import math
+import os
 import re
+import shlex
 import shutil
 import sys
 import tempfile
@@ -1232,10 +1234,10 @@ OUTPUTS = DATA / "outputs"
 
 class Transcript(NamedTuple):
     """Commands a page shows with what they print: `$ COMMAND`, then its lines on stderr when it fails (a bad
-        input's one line), else its last line on stdout (a run's closing line) or its first `head` lines. Each runs
-    as on a machine where no run has finished yet (calibration in the scratch folder). `power`: run with the example
-        package of docs/extending.md installed; `slow`: a training run, which only --collect-outputs and a slow test
-        run (the quick ones, bad input, are rerun by tests/test_docs.py on every push)."""
+    input's one line), else its last line on stdout (a run's closing line) or its first `head` lines. Each runs as
+    on a machine where no run has finished yet (its calibration in the scratch folder). `power`: with the example
+    package of docs/extending.md installed; `slow`: a run or a sweep, which only --collect-outputs and a slow test
+    run (the quick ones, bad input, are rerun by tests/test_docs.py on every push)."""
 
     commands: tuple[str, ...]
     power: bool = False
@@ -1300,9 +1302,6 @@ def power_installed():
 
 def transcript(name: str) -> str:
     """What the commands of TRANSCRIPTS[name] print now, run through riskplan's CLI in an empty scratch folder."""
-    import os
-    import shlex
-
     from typer.testing import CliRunner
 
     from riskplan.cli import app
@@ -1509,7 +1508,6 @@ def load_before(path) -> str:
 
 
 def describe_host() -> str:
-    import os
     import platform
 
     return f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}"
