@@ -1,10 +1,10 @@
 """How long runs will take on this machine, said before they start: budget.estimate's cost of a run, in
 trajectory-step equivalents, turned into seconds by a model calibrated on the runs that finished here.
 
-Every run that finishes records (its estimated steps, its whole-machine seconds) in a small file of this host's
-(RISKPLAN_CACHE_DIR, else $XDG_CACHE_HOME/riskplan or ~/.cache/riskplan). A run that had only some of the cores
-(a sweep job with fewer numba threads) counts its seconds times its share of the cores, so sweeps and single runs
-calibrate one number. The model is seconds = overhead + steps / rate, fitted to the latest records; before any
+Every run that finishes records (its estimated steps at the whole machine's rate, its wall seconds) in a small
+file of this host's (RISKPLAN_CACHE_DIR, else $XDG_CACHE_HOME/riskplan or ~/.cache/riskplan). A run that had only
+some of the cores (a sweep job with fewer numba threads) counts its steps divided by its share of the cores, so
+sweeps and single runs calibrate one rate, while its overhead stays the wall seconds each sweep worker pays. The model is seconds = overhead + steps / rate, fitted to the latest records; before any
 run has finished here it assumes DEFAULT_RATE and half a second of overhead, and says so, with its estimate as a
 range. A sweep adds what no run's own seconds hold: its start and finish, and each job's set-up by Hydra. The file
 is a hint: a missing, unreadable, read-only or corrupt one never stops a run.
@@ -27,7 +27,7 @@ from riskplan.util.limits import duration
 from riskplan.util.paths import write_atomic
 
 CACHE_ENV = "RISKPLAN_CACHE_DIR"
-VERSION = 2  # of how steps are counted: records counted another way are left behind
+VERSION = 3  # of how steps are counted (3: a job's share divides its steps, not its seconds): others left behind
 KEEP = 64  # records kept: the latest runs say most about the machine as it is now
 # A bootstrap resample-episode is an addition, not a trajectory step: 1000 resamples of 100,000 episodes take
 # about what 8M steps do. The budget counts it as a step to bound the time limit from above.
@@ -153,11 +153,13 @@ def compiles() -> int:
 
 
 def record(steps: float, seconds: float, share: float = 1.0) -> None:
-    """Add a finished run: its estimated steps, its wall seconds, and the share of the cores it had."""
-    effective = seconds * min(max(share, 0.0), 1.0)
-    if not (math.isfinite(steps) and math.isfinite(effective) and steps > 0 and effective > 0):
+    """Add a finished run: its estimated steps, its wall seconds, and the share of the cores it had. Its steps
+    count as those the whole machine would have done in its time; its seconds, overhead included, stay as they
+    were (scaling them by the share instead made a sweep job's overhead look half as long on 2 cores)."""
+    share = min(share, 1.0)
+    if not (share > 0 and math.isfinite(steps) and math.isfinite(seconds) and steps > 0 and seconds > 0):
         return
-    runs = [*_records(), (steps, effective)][-KEEP:]
+    runs = [*_records(), (steps / share, seconds)][-KEEP:]
     try:
         path = cache_file()
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -54,8 +54,10 @@ def test_runs_too_short_to_tell_the_rate_leave_the_default(cache):
 
 
 def test_a_run_with_part_of_the_cores_counts_its_share(cache):
-    cost.record(1e8, 10.0, share=0.5)
-    assert json.loads(next(cache.iterdir()).read_text())["runs"] == [[1e8, 5.0]]
+    cost.record(1e8, 10.0, share=0.5)  # the whole machine would have done twice the steps in its 10 s
+    assert json.loads(next(cache.iterdir()).read_text())["runs"] == [[2e8, 10.0]]
+    cost.record(1e8, 10.0, share=0.0)  # no share of the cores says nothing of their speed
+    assert len(json.loads(next(cache.iterdir()).read_text())["runs"]) == 1
 
 
 def test_only_the_latest_records_are_kept(cache):
