@@ -7,9 +7,8 @@ of an interrupted atomic write). Anything else is refused (BadInput, before anyt
 overwrites files riskplan did not write. The manifest is written first, before any other file, so a run that is
 interrupted half-way still owns its directory and can be re-run into it.
 
-Directories written before manifests existed are recognised by their contents (a report: riskplan's report.html
-and only the report's own file names; a landscape: its summary.json with "kind": "landscape" and only the
-landscape's own files).
+A directory written before manifests existed is refused like any other that holds files: nothing in it is
+overwritten or removed, and the command writes into a new directory instead.
 
 Atomicity. Every file is written through riskplan.util.paths.atomic_path: a reader (or a full disk) sees the old file or
 the new one, never half of one, and a failed write leaves no temp file. A failed write raises WriteFailed, one line
@@ -31,12 +30,6 @@ from riskplan.version import __version__
 
 MANIFEST = ".riskplan-manifest.json"
 TEMP = re.compile(r"\..+\.\d+\.tmp")  # what paths.atomic_path leaves behind when the process is killed
-REPORT_FIGURES = re.compile(
-    r"(fig1_paths|fig2_cvar|fig3_team|fig4_consensus|reward_distribution|risk_frontier|"
-    r"team_thetas|landscape(_\d+)?)\.(png|pdf|svg)"
-)
-REPORT_TABLES = {"report.html", "report.csv", "runs.csv", "landscape.csv"}
-LANDSCAPE_FILES = {".hydra/config.yaml", ".hydra/overrides.yaml", "landscape.parquet", "summary.json", "status.json"}
 
 
 class WriteFailed(OSError):
@@ -80,36 +73,6 @@ def _is_temp(name: str) -> bool:
     return TEMP.fullmatch(Path(name).name) is not None
 
 
-def _legacy(kind: str, out: Path, files: list[str], dirs: list[str]) -> bool:
-    """A directory this command wrote before it wrote manifests."""
-    if kind == "report":
-        page = out / "report.html"
-        try:
-            with open(page, encoding="utf-8", errors="replace") as handle:
-                head = handle.read(2000)
-        except OSError:
-            return False
-        return (
-            not dirs
-            and not page.is_symlink()
-            and head.startswith("<!DOCTYPE html>")
-            and "<title>riskplan report</title>" in head
-            and all(f in REPORT_TABLES or REPORT_FIGURES.fullmatch(f) or _is_temp(f) for f in files)
-        )
-    if kind == "landscape":
-        try:
-            summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return False
-        return (
-            isinstance(summary, dict)
-            and summary.get("kind") == "landscape"
-            and set(dirs) <= {".hydra"}
-            and all(f in LANDSCAPE_FILES or _is_temp(f) for f in files)
-        )
-    return False
-
-
 def claim(out: Path | str, kind: str, key: str) -> list[str] | None:
     """Check that `riskplan <kind>` may write into `out`; BadInput naming `key` (e.g. --out) otherwise.
 
@@ -125,8 +88,6 @@ def claim(out: Path | str, kind: str, key: str) -> list[str] | None:
         return None
     manifest = read_manifest(out)
     if manifest is None:
-        if _legacy(kind, out, files, dirs):
-            return [f for f in files if not _is_temp(f)]
         foreign = [f for f in files if not _is_temp(f)] or dirs or files
         raise BadInput(
             key,

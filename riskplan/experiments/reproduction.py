@@ -47,6 +47,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from riskplan.config.keys import KEYS
 from riskplan.experiments.landscape import compute_landscape
 from riskplan.experiments.reporting import REPRODUCE_ROOT, build_report, check_formats
 from riskplan.experiments.reporting.parallel import workers as report_workers
@@ -558,7 +559,7 @@ def _print_comparison(outcomes) -> None:
     (Console() if sys.stdout.isatty() else Console(width=250)).print(table)
 
 
-CONDITION_KEYS = ("policy.features", "policy.kind", "team.order", "team.aggregate")  # swept by the studies
+CONDITION_KEYS = (KEYS.policy.features, KEYS.policy.kind, KEYS.team.order, KEYS.team.aggregate)  # swept by the studies
 
 
 def stop_workers() -> None:

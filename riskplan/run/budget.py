@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from riskplan.config.keys import KEYS
 from riskplan.config.schema import Graph, Order
 from riskplan.util import limits
 
@@ -35,18 +36,18 @@ EVAL_BATCH = 100_000  # episodes per kernel call during evaluation (training use
 ITERATION_STEPS = 10_000  # fixed cost of an iteration (gradient, logging, fsync-free bookkeeping)
 # The paper's defaults: the key named in a message is the one furthest above its default.
 DEFAULTS = {
-    "world.size": 144.0,
-    "team.robots": 1.0,
-    "train.samples": 6000.0,
-    "train.samples_growth": 1.0,
-    "train.iterations": 200.0,
-    "world.horizon": 20.0,
-    "train.eval_episodes": 100_000.0,
-    "train.bootstrap": 1000.0,
-    "train.paths": 20.0,
-    "team.delay.max": 1.0,
-    "team.consensus_rounds": 1.0,
-    "team.resample": 101.0,
+    KEYS.world.size: 144.0,
+    KEYS.team.robots: 1.0,
+    KEYS.train.samples: 6000.0,
+    KEYS.train.samples_growth: 1.0,
+    KEYS.train.iterations: 200.0,
+    KEYS.world.horizon: 20.0,
+    KEYS.train.eval_episodes: 100_000.0,
+    KEYS.train.bootstrap: 1000.0,
+    KEYS.train.paths: 20.0,
+    KEYS.team.delay.max: 1.0,
+    KEYS.team.consensus_rounds: 1.0,
+    KEYS.team.resample: 101.0,
 }
 
 
@@ -141,18 +142,18 @@ def estimate(s: Sizes) -> tuple[list[Part], list[Part]]:
     record = _prod(2.0, policies, s.paths, k + 1.0)
     tables = _f(s.iterations) * n + policies * (_f(s.eval_episodes) / EVAL_BATCH + 3.0)
 
-    size = ("world.size", f"[{show(s.width)}, {show(s.height)}]", cells / DEFAULTS["world.size"])
-    robots = ("team.robots", show(s.robots), n / DEFAULTS["team.robots"])
-    samples = ("train.samples", show(s.samples), _f(s.samples) / DEFAULTS["train.samples"])
-    growth = ("train.samples_growth", f"{s.growth:g}", w_last / max(_f(s.samples), 1.0))
-    iterations = ("train.iterations", show(s.iterations), _f(s.iterations) / DEFAULTS["train.iterations"])
-    horizon = ("world.horizon", show(s.horizon), k / DEFAULTS["world.horizon"])
-    evals = ("train.eval_episodes", show(s.eval_episodes), _f(s.eval_episodes) / DEFAULTS["train.eval_episodes"])
-    boot = ("train.bootstrap", show(s.bootstrap), _f(s.bootstrap) / DEFAULTS["train.bootstrap"])
-    paths = ("train.paths", show(s.paths), _f(s.paths) / DEFAULTS["train.paths"])
-    delay = ("team.delay.max", show(s.delay), _f(s.delay) + 1.0)
-    rounds = ("team.consensus_rounds", show(s.rounds), _f(s.rounds))
-    resample = ("team.resample", show(s.resample), (_f(s.resample) + 1.0) / DEFAULTS["team.resample"])
+    size = (KEYS.world.size, f"[{show(s.width)}, {show(s.height)}]", cells / DEFAULTS[KEYS.world.size])
+    robots = (KEYS.team.robots, show(s.robots), n / DEFAULTS[KEYS.team.robots])
+    samples = (KEYS.train.samples, show(s.samples), _f(s.samples) / DEFAULTS[KEYS.train.samples])
+    growth = (KEYS.train.samples_growth, f"{s.growth:g}", w_last / max(_f(s.samples), 1.0))
+    iterations = (KEYS.train.iterations, show(s.iterations), _f(s.iterations) / DEFAULTS[KEYS.train.iterations])
+    horizon = (KEYS.world.horizon, show(s.horizon), k / DEFAULTS[KEYS.world.horizon])
+    evals = (KEYS.train.eval_episodes, show(s.eval_episodes), _f(s.eval_episodes) / DEFAULTS[KEYS.train.eval_episodes])
+    boot = (KEYS.train.bootstrap, show(s.bootstrap), _f(s.bootstrap) / DEFAULTS[KEYS.train.bootstrap])
+    paths = (KEYS.train.paths, show(s.paths), _f(s.paths) / DEFAULTS[KEYS.train.paths])
+    delay = (KEYS.team.delay.max, show(s.delay), _f(s.delay) + 1.0)
+    rounds = (KEYS.team.consensus_rounds, show(s.rounds), _f(s.rounds))
+    resample = (KEYS.team.resample, show(s.resample), (_f(s.resample) + 1.0) / DEFAULTS[KEYS.team.resample])
 
     grid = f"the {show(s.width)} x {show(s.height)} grid"
     memory = [

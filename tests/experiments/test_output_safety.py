@@ -173,9 +173,11 @@ def test_report_reruns_into_its_own_output_and_drops_its_stale_files(done, tmp_p
     line = one_error_line(invoke("report", done, "--out", out, code=2))
     assert "holds a damaged .riskplan-manifest.json" in line
 
-    (out / MANIFEST).unlink()  # a report written before manifests existed is still recognised
-    invoke("report", done, "--out", out, "--format", "png", code=0)
-    assert json.loads((out / MANIFEST).read_text())["kind"] == "report"
+    (out / MANIFEST).unlink()  # a report written before manifests existed: refused, left as it is
+    before = snapshot(out)
+    line = one_error_line(invoke("report", done, "--out", out, "--format", "png", code=2))
+    assert line.startswith(f"error: --out: {out} holds files riskplan report did not write ("), line
+    assert snapshot(out) == before
 
 
 @pytest.mark.slow  # five landscapes and a report through the CLI
@@ -202,11 +204,15 @@ def test_landscape_out_ownership(done, tmp_path):
         assert line.startswith(expected), line
     assert snapshot(tmp_path) == before
 
-    (land / MANIFEST).unlink()  # a landscape written before manifests existed
-    invoke("landscape", *TINY, *LAND, "--out", land, code=0)
     (land / "extra.txt").write_text("x")
     line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", land, code=2))
     assert line.endswith("(extra.txt); give a new or empty directory, or remove them")
+    (land / "extra.txt").unlink()
+    (land / MANIFEST).unlink()  # a landscape written before manifests existed: refused, left as it is
+    before = snapshot(land)
+    line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", land, code=2))
+    assert line.startswith(f"error: --out: {land} holds files riskplan landscape did not write ("), line
+    assert snapshot(land) == before
 
 
 @pytest.mark.parametrize(

@@ -25,6 +25,7 @@ from typing import Any
 
 import pandas as pd
 
+from riskplan.config.keys import KEYS
 from riskplan.config.schema import ScheduleConf
 from riskplan.config.typed import check_schema
 from riskplan.engine.measures.registry import MEASURES
@@ -162,7 +163,7 @@ class Group:
     @property
     def schedule(self) -> str:
         """risk.schedule.kind: none (the paper), linear or exponential."""
-        return str(self.first.flat.get("risk.schedule.kind", "none"))
+        return str(self.first.flat.get(KEYS.risk.schedule.kind, "none"))
 
     @property
     def policy_kind(self) -> str:
@@ -251,7 +252,7 @@ def schedule_pairs(groups: list[Group]) -> list[tuple[Group, Group | None]]:
     risk.schedule.* (its paper-schedule comparator, e.g. reproduce's wander/ for soft_risk/), or None."""
 
     def rest(g: Group) -> dict:
-        return {k: v for k, v in g.first.flat.items() if not k.startswith("risk.schedule.")}
+        return {k: v for k, v in g.first.flat.items() if not k.startswith(f"{KEYS.risk.schedule}.")}
 
     pairs = []
     for g in groups:
@@ -456,9 +457,9 @@ def config_problem(config: dict) -> str:
         cfg = check_schema(config)
         risk, robots = cfg.risk, cfg.team.robots
         if not 0.0 < risk.beta <= 1.0:
-            raise BadInput("risk.beta", f"got {risk.beta}; expected 0 < beta <= 1")
+            raise BadInput(KEYS.risk.beta, f"got {risk.beta}; expected 0 < beta <= 1")
         if robots < 1:
-            raise BadInput("team.robots", f"got {robots}; expected a whole number >= 1")
+            raise BadInput(KEYS.team.robots, f"got {robots}; expected a whole number >= 1")
         problem = ""
     except BadInput as err:
         problem = f"config fails the schema: {err}"

@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from riskplan.config.keys import KEYS
 from riskplan.engine.risk_measures import objective
 from riskplan.experiments.reporting.collect import (
     MEASURE_ORDER,
@@ -217,7 +218,14 @@ def hetero_groups(coll: Collection) -> tuple[list[Group], Group | None]:
     """Heterogeneous teams (team.starts or team.risk) that differ in their order or graph: (the distributed groups,
     the centralized comparator or None)."""
     teams = [g for g in coll.groups if g.heterogeneous]
-    varying = ("team.order", "team.graph", "team.weights", "team.edges", "team.radius", "team.directed")
+    varying = (
+        KEYS.team.order,
+        KEYS.team.graph,
+        KEYS.team.weights,
+        KEYS.team.edges,
+        KEYS.team.radius,
+        KEYS.team.directed,
+    )
     family = _family(teams, varying, lambda g: (str(g.team_conf.get("order")), str(g.team_conf.get("graph"))), bool)
     central = [g for g in family if _is_central(g)]
     distributed = [g for g in family if not _is_central(g)]
@@ -333,7 +341,7 @@ def fault_groups(coll: Collection) -> tuple[list[Group], Group | None]:
     teams = [g for g in coll.groups if g.team]
     family = _family(
         teams,
-        ("team.faults", "team.aggregate", "team.trim"),
+        (KEYS.team.faults, KEYS.team.aggregate, KEYS.team.trim),
         lambda g: (json.dumps(g.faults, sort_keys=True), str(g.team_conf.get("aggregate"))),
         lambda gs: any(g.faults for g in gs),
     )

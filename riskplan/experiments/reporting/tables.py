@@ -20,6 +20,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from riskplan.config.keys import KEYS
 from riskplan.engine.risk_measures import cvar, objective, value_at_risk
 from riskplan.experiments.reporting.collect import (
     Collection,
@@ -286,8 +287,8 @@ def soft_risk_table(coll: Collection) -> pd.DataFrame:
                     {
                         "group": g.label,
                         "schedule": g.schedule,
-                        "schedule_start": r.flat.get("risk.schedule.start"),
-                        "schedule_iterations": r.flat.get("risk.schedule.iterations"),
+                        "schedule_start": r.flat.get(KEYS.risk.schedule.start),
+                        "schedule_iterations": r.flat.get(KEYS.risk.schedule.iterations),
                         "beta": g.beta,
                         "seed": r.seed,
                         "mean": values["mean"],

@@ -8,6 +8,7 @@ from matplotlib import patheffects
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 
+from riskplan.config.keys import KEYS
 from riskplan.engine.risk_measures import cvar, value_at_risk
 from riskplan.experiments.reporting.collect import Collection, Group, schedule_pairs, theta_columns
 from riskplan.experiments.reporting.figures.drawing import (
@@ -38,7 +39,7 @@ ORDER_COLOURS = dict(zip(("combine_then_adapt", "adapt_then_combine", "gradient_
 
 def fig_orders(coll: Collection) -> FigureSpec | str:
     """Consensus error vs iteration for each team.order, one panel per set-up (the groups' other settings)."""
-    order_key = "team.order"
+    order_key = KEYS.team.order
     teams = [g for g in coll.groups if g.team]
     orders = {str(g.config.get("team", {}).get("order", "combine_then_adapt")) for g in teams}
     if len(orders) < 2:
@@ -68,7 +69,7 @@ def fig_orders(coll: Collection) -> FigureSpec | str:
             + "".join(
                 f", {k.split('.', 1)[-1]}={v}"
                 for k, v in rest
-                if k in ("team.delay.max", "team.drop", "team.consensus_rounds")
+                if k in (KEYS.team.delay.max, KEYS.team.drop, KEYS.team.consensus_rounds)
             )
         )
     axes[0, 0].set_ylabel(r"consensus error $\max_{i,j}\,\|\theta^i-\theta^j\|$")
@@ -182,7 +183,7 @@ def _frontier_panel(ax, groups: list[Group], called: list[str], colours: list[st
     for g in groups:
         if g.measure == "neutral":
             continue
-        key = tuple(sorted((k, str(v)) for k, v in g.settings.items() if k != "risk.beta"))
+        key = tuple(sorted((k, str(v)) for k, v in g.settings.items() if k != KEYS.risk.beta))
         families.setdefault(key, []).append((g.beta, rows[id(g)]["mean"], rows[id(g)]["cvar"]))
     for members in families.values():
         if len(members) > 1:
