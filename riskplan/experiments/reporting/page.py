@@ -539,6 +539,8 @@ def render(
     taken = {id(f) for fs in of_study.values() for f in fs}
     paper = [f for f in figures if f[0].name.startswith("fig") and id(f) not in taken]
     extra = [f for f in figures if not f[0].name.startswith("fig") and id(f) not in taken]
+    worlds = [f for f in extra if f[0].name == "world" or f[0].name.startswith("world_")]  # first, a section
+    extra = [f for f in extra if f not in worlds]
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
@@ -553,6 +555,9 @@ def render(
         parts.append(
             f'<p class="skipped"><b>Skipped {len(coll.broken)} broken or partial run(s):</b></p><ul>{items}</ul>'
         )
+    if worlds:
+        parts.append(f"<h2>The world{'s' * (len(worlds) > 1)}</h2>")
+        parts += [figure_html(spec, files) for spec, files in worlds]
     parts += [
         "<h2>Configurations that differ</h2>",
         configs_section(coll),

@@ -177,6 +177,13 @@ def test_a_made_map_enclosed_room_unknown_space_mask_and_metres(room_map):
     assert "unknown (world.map_unknown=obstacle)" in labels and "region 'watched' (risky)" in labels
 
 
+def test_a_turned_map_has_no_metre_axes(room_map):
+    """With a yaw in the map's origin, the frame's x and y do not run along the cells: no metre axes, said so."""
+    room_map.write_text(room_map.read_text().replace("origin: [-3.0, 1.5, 0.0]", "origin: [-3.0, 1.5, 0.5]"))
+    _, _, ax = drawn(f"world.map={room_map}", *ROOM)
+    assert not ax.child_axes and "turned 0.5 rad (no metre axes)" in " ".join(ax.get_title().split())
+
+
 @pytest.mark.slow
 def test_check_draws_each_format(in_tmp):
     for name, head in (("world.png", b"\x89PNG"), ("world.svg", b"<?xml"), ("world.pdf", b"%PDF")):
@@ -250,4 +257,5 @@ def test_the_report_draws_each_distinct_world_of_its_runs(tmp_path):
     page = riskplan.report(tmp_path / "runs", tmp_path / "report", formats=["png"])
     html = page.read_text()
     assert '<figure id="world">' in html and '<figure id="world_2">' in html
+    assert html.index("<h2>The worlds</h2>") < html.index('<figure id="world">') < html.index("Configurations that")
     assert (tmp_path / "report" / "world.png").read_bytes().startswith(b"\x89PNG")

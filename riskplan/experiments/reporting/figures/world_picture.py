@@ -105,9 +105,10 @@ def picture_of(setup: Setup) -> Picture:
     size = f"{world.width} × {world.height} cells, horizon K = {world.horizon}"
     if found is None:
         metres, title = None, f"The world: {size}"
-    else:
-        metres = (found.cell_size, found.origin[0], found.origin[1])
-        title = f"{Path(found.shown).name}: {size}, {found.cell_size:g} m per cell"
+    else:  # a turned map (yaw) has no metre axes: its frame's x and y do not run along the cells'
+        metres = (found.cell_size, found.origin[0], found.origin[1]) if found.origin[2] == 0 else None
+        turned = "" if metres else f", turned {found.origin[2]:g} rad (no metre axes)"
+        title = f"{Path(found.shown).name}: {size}, {found.cell_size:g} m per cell{turned}"
     return Picture(
         setup=setup,
         cells=_cells(setup, unknown, conf.map_unknown),
