@@ -66,7 +66,10 @@ def check(
 
 
 def _describe_world(setup) -> str:
-    """A few lines on the world: grid, start, sources, regions."""
+    """A few lines on the world: grid, start, sources, regions, the cells of positions given in metres, and each
+    source's reach (a warning for one theta0 rarely reaches)."""
+    from riskplan.run.build import reach_lines
+
     world = setup.world
     lines = [
         f"world: {world.width}x{world.height} grid, horizon K={world.horizon}, "
@@ -79,4 +82,9 @@ def _describe_world(setup) -> str:
     for r, name in enumerate(world.region_names):
         count = int((world.region_of == r).sum())
         lines.append(f"  region {r} '{name}': {count} cells{', risky' if world.region_risky[r] else ''}")
+    for placed in world.placements:
+        metres = ", ".join(f"{v:g}" for v in placed.metres)
+        became = f"rect {list(placed.cells)}" if len(placed.cells) == 4 else f"cell {tuple(placed.cells)}"
+        lines.append(f"  {placed.key}: {{metres: [{metres}]}} -> {became}")
+    lines += [f"  {line}" for line in reach_lines(setup)]
     return "\n".join(lines)

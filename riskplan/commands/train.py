@@ -52,6 +52,7 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
     from omegaconf import open_dict
 
     from riskplan.experiments.hydra_app import RunFailed, run_composed, run_hydra
+    from riskplan.run.build import reach_lines
     from riskplan.run.compose import check_hydra_args, compose_run, parse_overrides
 
     args = with_config_dirs(overrides)
@@ -84,6 +85,7 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
         with hold(out):
             check_new_run_dir(out, "hydra.run.dir")  # again under the lock: another process may have won the race
             typer.echo(f"run directory: {out}")
+            typer.echo("\n".join(reach_lines(setup)))
             try:
                 run = run_composed(cfg, setup)
             except RunFailed as err:

@@ -227,7 +227,7 @@ class MotionConf(Frozen):
 class SourceConf(Frozen):
     """One source: Gaussian signal eq. (1) and a random reward paid on reaching it."""
 
-    position: list[int] = field(default_factory=lambda: [0, 0])
+    position: Any = None  # [x, y] in cells; on a map world also {metres: [x, y]} (None: a mapping can replace it)
     covariance: list[Any] = field(default_factory=lambda: [[16.0, 0.0], [0.0, 16.0]])  # [[a, b], [b, c]], SPD
     scale: float | None = None  # w; None means 2*pi*sqrt(det covariance), so the signal peaks at 1
     reward: Any = 0.0
@@ -242,7 +242,7 @@ class RegionConf(Frozen):
     name: str = ""
     reward: Any = 0.0
     risky: bool = False
-    rect: list[int] | None = None  # [x0, y0, x1, y1], inclusive corners
+    rect: Any = None  # [x0, y0, x1, y1], inclusive corners; on a map world also {metres: [x0, y0, x1, y1]}
     halfplane: list[float] | None = None  # [a, b, c]: the cells with a*x + b*y > c ("y > x" is [-1, 1, 0])
     cells: list[list[int]] | None = None  # [[x, y], ...]
     mask: str | None = None  # an image the map's size: its dark pixels (relative to world.map's folder)
@@ -253,7 +253,7 @@ class WorldConf(Frozen):
     """Grid world of paper Section II/V."""
 
     size: list[int] = field(default_factory=lambda: [12, 12])
-    start: list[int] = field(default_factory=lambda: [0, 0])
+    start: Any = field(default_factory=lambda: [0, 0])  # [x, y] in cells; on a map world also {metres: [x, y]}
     horizon: int = 20
     stop_at_source: bool = True
     obstacles: list[list[int]] = field(default_factory=list)
@@ -299,7 +299,7 @@ class TeamConf(Frozen):
     stale: Stale = Stale.arrival  # arrival (paper eq. 14) | latest (the newest value received from each neighbour)
     consensus_rounds: int = 1
     order: Order = Order.combine_then_adapt
-    starts: list[list[int]] | None = None  # per-robot start cells; default world.start for all
+    starts: list[Any] | None = None  # per-robot start cells ([x, y], or {metres: [x, y]}); default world.start for all
     risk: list[RiskConf] | None = None  # per-robot risk nodes; default the top-level risk for all
     faults: list[Any] = field(default_factory=list)  # [{robot, kind, from, value | scale}], see config.faults
     aggregate: Aggregate = Aggregate.mean

@@ -160,6 +160,8 @@ def explain(err: Exception) -> tuple[str, str]:
     choice = choice_problem(err)
     if choice:
         return choice
+    if "Cannot merge DictConfig with ListConfig" in text:
+        return _mapping_over_list(text, key)
     sweep = re.match(r"(?:Ambiguous value for argument|Sweep parameters) '(.+?)'", message)
     if sweep:
         return (
@@ -212,6 +214,29 @@ def explain(err: Exception) -> tuple[str, str]:
     if "Could not override" in message:
         return f"key '{message.split(chr(39))[1]}'", "unknown key; run `riskplan check` to list the config's keys"
     return (f"key '{_dotted(key)}'" if key else "config"), message
+
+
+METRES_HINT = "a position in metres over an [x, y] is written ${metres:X,Y}, which stands for {metres: [X, Y]}"
+
+
+def _mapping_over_list(text: str, key: str) -> tuple[str, str]:
+    """A mapping given where an earlier config has a list (world.start={metres: [x, y]} over [0, 0]): OmegaConf
+    merges the two and cannot; the line says so and how to write a position in metres instead."""
+    if key:
+        return f"key '{_dotted(key)}'", f"a mapping cannot replace the list an earlier config gives it; {METRES_HINT}"
+    source = re.match(r"In '([^']+)'", text)
+    where = f"In '{source.group(1)}': " if source else ""
+    return "config", f"{where}a mapping cannot replace a list an earlier config gives the same key; {METRES_HINT}"
+
+
+def metres(*point: float) -> dict:
+    """The resolver ${metres:X,Y} (or four numbers, a rect's corners): {metres: [X, Y]}, a position in metres of
+    world.map's frame. A string until resolved, it can replace a cell [x, y] that an earlier config gave, which a
+    mapping cannot (OmegaConf merges a mapping into a list, and refuses)."""
+    return {"metres": list(point)}
+
+
+OmegaConf.register_new_resolver("metres", metres, replace=True)
 
 
 def valid_keys(path: str) -> list[str] | None:

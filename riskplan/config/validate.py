@@ -10,10 +10,10 @@ from __future__ import annotations
 import math
 import warnings
 
+from riskplan.config.backends import BACKENDS, DEVICES
 from riskplan.config.faults import faults_of
 from riskplan.config.schema import (
     Aggregate,
-    Backend,
     Feature,
     MotionKind,
     Order,
@@ -32,7 +32,12 @@ SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias und
 # The values that need an optional extra: (key, value) -> (the module that provides it, what it is, the extra, a
 # note). A missing one is bad input (MissingExtra) in check, train and sweep, before anything is written.
 EXTRAS = {
-    ("team.backend", "ray"): ("ray", "Ray", "distributed", ""),
+    **{
+        (key, spec.name.value): (spec.needs.module, spec.needs.what, spec.needs.extra, spec.needs.note)
+        for key, specs in (("team.backend", BACKENDS), ("engine.device", DEVICES))
+        for spec in specs.values()
+        if spec.needs is not None
+    },  # a GPU too for engine.device=cuda: riskplan.run.build checks it
     **{
         ("hydra/launcher", name): ("hydra_plugins.hydra_submitit_launcher", "Hydra's Submitit launcher", "slurm", "")
         for name in ("submitit_slurm", "submitit_local")
@@ -47,7 +52,6 @@ EXTRAS = {
         for name in ("ray", "ray_cluster")
     },
     ("hydra/sweeper", "optuna"): ("hydra_plugins.hydra_optuna_sweeper", "Hydra's Optuna sweeper", "optuna", ""),
-    ("engine.device", "cuda"): ("numba_cuda", "numba-cuda", "cuda", ""),  # and a GPU: riskplan.run.build checks it
 }
 
 
@@ -240,7 +244,7 @@ def check_backend(team: TeamConf) -> None:
         "team.address",
         "is empty; give auto, host:port of a Ray cluster's head, or null for a local Ray instance",
     )
-    if team.backend != Backend.ray:
+    if BACKENDS[team.backend].simulated_network:
         return
     simulated = [
         (key, value)

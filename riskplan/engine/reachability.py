@@ -15,14 +15,19 @@ from riskplan.engine.world import World
 UNREACHABLE = -1
 
 
-def distances(next_cell: np.ndarray, starts: np.ndarray, limit: int | None = None) -> np.ndarray:
+def distances(
+    next_cell: np.ndarray, starts: np.ndarray, limit: int | None = None, targets: np.ndarray | None = None
+) -> np.ndarray:
     """Fewest moves from the nearest of `starts` to every cell, shape (C,) int64; -1 where no path of at most
-    `limit` moves (None: any length) gets there. Breadth first over next_cell, a level at a time, in numpy."""
+    `limit` moves (None: any length) gets there. Breadth first over next_cell, a level at a time, in numpy; with
+    `targets`, it stops once each of those cells has its distance (cells further away are left at -1)."""
     dist = np.full(next_cell.shape[0], UNREACHABLE, dtype=np.int64)
     frontier = np.unique(np.asarray(starts, dtype=np.int64))
     dist[frontier] = 0
     level = 0
     while frontier.size and (limit is None or level < limit):
+        if targets is not None and np.all(dist[targets] != UNREACHABLE):
+            break
         ahead = next_cell[frontier].ravel()
         ahead = np.unique(ahead[dist[ahead] == UNREACHABLE])
         level += 1
@@ -41,7 +46,7 @@ def shortest_path(world: World, start_cell: int, target_cell: int) -> np.ndarray
 
     Walked back from the target: each step takes the first neighbour, in the order of the moves, one move nearer
     the start."""
-    dist = distances(world.next_cell, np.array([start_cell]))
+    dist = distances(world.next_cell, np.array([start_cell]), targets=np.array([target_cell]))
     if dist[target_cell] == UNREACHABLE:
         return np.empty(0, dtype=np.int64)
     path = [int(target_cell)]
@@ -56,6 +61,6 @@ def shortest_path(world: World, start_cell: int, target_cell: int) -> np.ndarray
 def source_distances(world: World, starts: np.ndarray) -> np.ndarray:
     """Fewest moves from each start cell to each source's initial cell, shape (starts, sources) int64, -1 for no
     path. A mobile source is measured at its initial cell (where its random walk begins)."""
-    return np.array(
-        [move_distances(world, int(start))[world.source_cells] for start in np.asarray(starts)], dtype=np.int64
-    ).reshape(-1, world.sources)
+    cells = world.source_cells
+    rows = [distances(world.next_cell, np.array([start]), targets=cells)[cells] for start in np.asarray(starts)]
+    return np.array(rows, dtype=np.int64).reshape(-1, world.sources)

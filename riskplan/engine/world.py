@@ -6,6 +6,7 @@ Cells are numbered c = x * height + y, so an array of shape (width, height) rave
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,6 +23,46 @@ MOVE_NAMES = ("E", "W", "Stay", "N", "S")
 MAX_STACK = 64  # stack slots of the kernel's reward-program interpreter
 SIGNAL_LIMIT = 1e100  # largest peak |signal| w / (2 pi sqrt(det Sigma)): keeps logits and scores finite
 PRECISION_LIMIT = 1e150  # largest |entry| of Sigma^-1: the quadratic form stays finite on any allowed grid
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Where a map world's cells lie in the map frame: a cell is `cell` x `cell` of the map's `pixels`, each
+    `resolution` metres wide, counted from the lower-left pixel's corner `origin` (x, y) and turned by its yaw."""
+
+    resolution: float  # metres per pixel
+    cell: int  # world.map_cell: pixels per cell side
+    origin: tuple[float, float, float]  # (x, y, yaw)
+    pixels: tuple[int, int]  # (width, height) of the map's image
+
+    def pixel_of(self, x: float, y: float) -> tuple[int, int]:
+        """The pixel (column from the left, row from the bottom) under the map-frame point (x, y); off the image for
+        a point off the map."""
+        ox, oy, yaw = self.origin
+        cos, sin = math.cos(yaw), math.sin(yaw)
+        u = cos * (x - ox) + sin * (y - oy)
+        v = cos * (y - oy) - sin * (x - ox)
+        return math.floor(u / self.resolution), math.floor(v / self.resolution)
+
+    def on_map(self, pixel: tuple[int, int]) -> bool:
+        return 0 <= pixel[0] < self.pixels[0] and 0 <= pixel[1] < self.pixels[1]
+
+    def centre(self, x: int, y: int) -> tuple[float, float]:
+        """The map-frame point at the centre of cell (x, y)."""
+        size = self.resolution * self.cell
+        u, v = (x + 0.5) * size, (y + 0.5) * size
+        ox, oy, yaw = self.origin
+        cos, sin = math.cos(yaw), math.sin(yaw)
+        return ox + cos * u - sin * v, oy + sin * u + cos * v
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A position the config gave in metres ({metres: [x, y]}; a rect's two corners) and the cells it became."""
+
+    key: str  # world.start, team.starts.1, world.sources.0.position, world.regions.2.rect
+    metres: tuple[float, ...]  # (x, y), or a rect's (x0, y0, x1, y1)
+    cells: tuple[int, ...]  # (x, y), or the rect's [x0, y0, x1, y1] in cells
 
 
 @dataclass(frozen=True)
@@ -45,6 +86,7 @@ class World:
     source_amplitude: np.ndarray  # (M,) float64: w / (2 pi sqrt(det Sigma))
     source_precision: np.ndarray  # (M, 3) float64: (P_xx, P_xy, P_yy) of Sigma^-1
     starts: np.ndarray  # (N,) int64: start cell of each robot
+    placements: tuple[Placement, ...] = ()  # the positions given in metres, and the cells they became
 
     @property
     def cells(self) -> int:
@@ -86,6 +128,7 @@ class Layout:
     unknown: np.ndarray  # (W, H) bool: cells neither occupied nor free (world.map_unknown says what they become)
     masks: tuple[np.ndarray | None, ...]  # per world.regions entry: (W, H) bool of a `mask` region, None otherwise
     name: str = "world.map"  # how messages name the map
+    frame: Frame | None = None  # where the cells lie in the map frame: positions in metres need it
 
     @property
     def size(self) -> tuple[int, int]:
@@ -113,6 +156,7 @@ def build_world(world: WorldConf, starts: list | None = None, layout: Layout | N
         if world.map_unknown == MapUnknown.obstacle:
             obstacle |= layout.unknown
     obstacle = obstacle.ravel()
+    places = _Places(width, height, obstacle, None if layout is None else layout.frame, occupied)
 
     horizon = world.horizon
 
@@ -121,7 +165,7 @@ def build_world(world: WorldConf, starts: list | None = None, layout: Layout | N
     start_cells = []
     for i, start in enumerate(start_list):
         here = where if starts is None else f"{where}.{i}"
-        x, y = _cell(start, width, height, here)
+        x, y = places.cell(start, here)
         if obstacle[x * height + y]:
             raise BadInput(here, f"({x}, {y}) {occupied}; choose a free cell")
         start_cells.append(x * height + y)
@@ -131,7 +175,7 @@ def build_world(world: WorldConf, starts: list | None = None, layout: Layout | N
     names, src_cells, rewards, motion, amplitude, precision = [], [], [], [], [], []
     for j, source in enumerate(world.sources):
         here = f"world.sources.{j}"
-        x, y = _cell(source.position, width, height, f"{here}.position")
+        x, y = places.cell(source.position, f"{here}.position")
         if obstacle[x * height + y]:
             raise BadInput(f"{here}.position", f"({x}, {y}) {occupied}; move the source or the obstacle")
         if x * height + y in src_cells:
@@ -178,7 +222,7 @@ def build_world(world: WorldConf, starts: list | None = None, layout: Layout | N
     for r, region in enumerate(world.regions):
         here = f"world.regions.{r}"
         mask = None if layout is None or r >= len(layout.masks) else layout.masks[r]
-        member = _region_cells(region, width, height, here, mask)
+        member = _region_cells(region, places, here, mask)
         region_of[(region_of < 0) & member] = r
         region_names.append(region.name or f"region_{r}")
         region_risky.append(bool(region.risky))
@@ -209,6 +253,7 @@ def build_world(world: WorldConf, starts: list | None = None, layout: Layout | N
         source_amplitude=np.array(amplitude, dtype=np.float64),
         source_precision=np.array(precision, dtype=np.float64).reshape(-1, 3),
         starts=np.array(start_cells, dtype=np.int64),
+        placements=tuple(places.placed),
     )
 
 
@@ -353,9 +398,10 @@ def _unknown_region(
     rewards.insert(0, rewards[first])
 
 
-def _region_cells(region: Any, width: int, height: int, where: str, mask: np.ndarray | None = None) -> np.ndarray:
+def _region_cells(region: Any, places: _Places, where: str, mask: np.ndarray | None = None) -> np.ndarray:
     """Membership mask (C,) of a region given as exactly one of rect, halfplane, cells, mask (`mask`: its cells,
-    read from the image by riskplan.run.maps)."""
+    read from the image by riskplan.run.maps; a rect's corners may be in metres on a map world)."""
+    width, height = places.width, places.height
     given = [k for k in ("rect", "halfplane", "cells", "mask") if getattr(region, k, None) is not None]
     if len(given) != 1:
         raise BadInput(where, f"gives {given or 'no shape'}; give exactly one of rect, halfplane, cells, mask")
@@ -365,7 +411,7 @@ def _region_cells(region: Any, width: int, height: int, where: str, mask: np.nda
         return np.asarray(mask, dtype=bool).ravel()
     x, y = np.divmod(np.arange(width * height), height)
     if given[0] == "rect":
-        rect = list(region.rect)
+        rect = places.rect(region.rect, f"{where}.rect")
         if len(rect) != 4:
             raise BadInput(f"{where}.rect", f"got {rect}; expected [x0, y0, x1, y1] (inclusive corners)")
         x0, y0, x1, y1 = rect
@@ -388,6 +434,88 @@ def _region_cells(region: Any, width: int, height: int, where: str, mask: np.nda
     return member.ravel()
 
 
+class _Places:
+    """The cells a config gives: [x, y], or on a map world {metres: [x, y]}, a point of the map frame turned into the
+    cell under it (`Frame`). Each point given in metres is kept as a Placement, and one off the map, or (for a start
+    or a source) on an obstacle, is BadInput naming the point, its cell and the nearest free cell."""
+
+    def __init__(self, width: int, height: int, obstacle: np.ndarray, frame: Frame | None, occupied: str):
+        self.width, self.height, self.obstacle, self.frame, self.occupied = width, height, obstacle, frame, occupied
+        self.placed: list[Placement] = []
+
+    def cell(self, value: Any, where: str) -> tuple[int, int]:
+        """An on-grid (x, y); one given in metres is a free cell too (a start's, a source's)."""
+        metres = self._metres(value, where, "[x, y]")
+        if metres is None:
+            return _cell(value, self.width, self.height, where)
+        x, y = self._locate(metres, where, free=True)
+        self.placed.append(Placement(where, metres, (x, y)))
+        return x, y
+
+    def rect(self, value: Any, where: str) -> list:
+        """A rect's [x0, y0, x1, y1]: as given, or from two opposite corners in metres (each on the map)."""
+        metres = self._metres(value, where, "[x0, y0, x1, y1]")
+        if metres is None:
+            return list(value)
+        (ax, ay), (bx, by) = self._locate(metres[:2], where, free=False), self._locate(metres[2:], where, free=False)
+        cells = [min(ax, bx), min(ay, by), max(ax, bx), max(ay, by)]
+        self.placed.append(Placement(where, metres, tuple(cells)))
+        return cells
+
+    def _metres(self, value: Any, where: str, shape: str) -> tuple[float, ...] | None:
+        """The numbers of a {metres: [...]} value (None for any other value: cells)."""
+        if not isinstance(value, Mapping):
+            return None
+        numbers = value.get("metres") if set(value) == {"metres"} else None
+        count = shape.count(",") + 1
+        if not (
+            isinstance(numbers, (list, tuple))
+            and len(numbers) == count
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in numbers)
+        ):
+            raise BadInput(
+                where,
+                f"got {dict(value)}; expected {shape} in cells, or {{metres: {shape}}} of finite numbers (a point of "
+                f"the map frame)",
+            )
+        if self.frame is None:
+            raise BadInput(
+                where,
+                f"got {{metres: {list(numbers)}}}; a position in metres needs world.map (its origin and resolution "
+                f"place it on the grid); give {shape} in cells",
+            )
+        return tuple(float(v) for v in numbers)
+
+    def _locate(self, point: tuple[float, ...], where: str, free: bool) -> tuple[int, int]:
+        """The cell under a map-frame point, which must lie on the map (and on a free cell if `free`)."""
+        pixel = self.frame.pixel_of(*point)
+        x, y = pixel[0] // self.frame.cell, pixel[1] // self.frame.cell
+        shown = f"{{metres: [{_m(point[0])}, {_m(point[1])}]}}"
+        if not self.frame.on_map(pixel):
+            problem = f"{shown} is off the map: it falls in cell ({x}, {y}), off the {self.width}x{self.height} grid"
+        elif free and self.obstacle[x * self.height + y]:
+            problem = f"{shown} is cell ({x}, {y}), which {self.occupied}"
+        else:
+            return x, y
+        usable = ~self.obstacle if free else np.ones_like(self.obstacle)
+        if not usable.any():
+            raise BadInput(where, f"{problem}; the map has no free cell")
+        cx, cy = np.divmod(np.flatnonzero(usable), self.height)
+        best = int(np.argmin((cx - x) ** 2 + (cy - y) ** 2))
+        near_x, near_y = int(cx[best]), int(cy[best])
+        mx, my = self.frame.centre(near_x, near_y)
+        kind = "free cell" if free else "cell on the map"
+        raise BadInput(
+            where,
+            f"{problem}; the nearest {kind} is ({near_x}, {near_y}), {{metres: [{_m(mx)}, {_m(my)}]}} at its centre",
+        )
+
+
+def _m(value: float) -> str:
+    """Metres as a message shows them: to the millimetre, no trailing zeros."""
+    return f"{round(value, 3):g}"
+
+
 def grid_size(size: Any) -> tuple[int, int]:
     """Validated (width, height), before any array is built (riskplan.run.budget bounds width * height)."""
     values = list(size)
@@ -398,9 +526,9 @@ def grid_size(size: Any) -> tuple[int, int]:
 
 def _cell(cell: Any, width: int, height: int, where: str) -> tuple[int, int]:
     """A validated on-grid (x, y)."""
-    values = list(cell) if not isinstance(cell, (int, float, str)) else [cell]
-    if len(values) != 2 or any(not isinstance(v, int) for v in values):
-        raise BadInput(where, f"got {values}; expected [x, y] of whole numbers")
+    values = list(cell) if isinstance(cell, (list, tuple)) else [cell]
+    if len(values) != 2 or any(not isinstance(v, int) or isinstance(v, bool) for v in values):
+        raise BadInput(where, f"got {cell!r}; expected [x, y] of whole numbers")
     x, y = values
     if not (0 <= x < width and 0 <= y < height):
         raise BadInput(where, f"({x}, {y}) is off the {width}x{height} grid; need 0 <= x < {width}, 0 <= y < {height}")

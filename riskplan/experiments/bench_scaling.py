@@ -29,11 +29,13 @@ PAPER_SOURCES = (
 
 
 def source_overrides(count: int) -> list[str]:
-    """A world with `count` (at most 141) sources: the paper's two, then constant-reward sources spread over the
-    12 x 12 grid, one per cell (never the start), and theta0 (20, 20, 0, ...)."""
+    """A world with `count` (at most 138) sources: the paper's two, then constant-reward sources spread over the
+    12 x 12 grid, one per cell within the horizon's 20 moves of the start (never the start), and theta0 (20, 20, 0,
+    ...)."""
     items = list(PAPER_SOURCES[:count])
     cells = [((k * 67) % 144 % 12, (k * 67) % 144 // 12) for k in range(1, 144)]  # 67 is prime to 144: every cell
-    cells = [c for c in cells if c not in ((0, 0), (9, 3), (3, 9))]  # not the start, not the paper's sources
+    # not the start, not the paper's sources, none beyond the horizon (a source no episode reaches is bad input)
+    cells = [c for c in cells if c not in ((0, 0), (9, 3), (3, 9)) and c[0] + c[1] <= 20]
     for j, (x, y) in zip(range(2, count), cells):
         items.append(f"{{name:s{j},position:[{x},{y}],covariance:[[16.0,0.0],[0.0,16.0]],scale:null,reward:500.0}}")
     theta0 = [20.0, 20.0, *[0.0] * (count - 2)][:count]

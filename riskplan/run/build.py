@@ -4,17 +4,21 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 
 import numpy as np
 from omegaconf import DictConfig
 
-from riskplan.config.schema import Device, RiskplanConf
+from riskplan.config.backends import DEVICES, load
+from riskplan.config.schema import RiskplanConf
 from riskplan.config.typed import as_dict, typed
 from riskplan.config.validate import validate
+from riskplan.engine import rng
 from riskplan.engine.measures.registry import check_risk_nodes
 from riskplan.engine.policy import Policy, make_policy
+from riskplan.engine.reachability import source_distances
 from riskplan.engine.rollout import make_kernel
-from riskplan.engine.step import Setup
+from riskplan.engine.step import Setup, simulator, starts
 from riskplan.engine.team.mixer import Mixer
 from riskplan.engine.team.network import build_network
 from riskplan.engine.world import World, build_world, grid_size
@@ -35,8 +39,9 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool = True) -
     width, height = grid_size(params.world.size) if found is None else found.cells
     check_sizes(params, found, width, height)
     layout = None if found is None else maps.load_layout(params.world, found)
-    starts = None if params.team.starts is None else [list(s) for s in params.team.starts]
-    world = build_world(params.world, starts, layout)
+    given = None if params.team.starts is None else list(params.team.starts)
+    world = build_world(params.world, given, layout)
+    check_reach(world, source_distances(world, np.unique(world.starts)))
     policy = make_policy(world, params.policy.kind, params.policy.features)
     theta0 = initial_theta(world, policy, list(params.train.theta0))
     network = build_network(params.team, policy.size, params.seed)
@@ -55,19 +60,23 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool = True) -
 
 
 def check_device(params: RiskplanConf) -> None:
-    """engine.device=cuda needs a GPU that numba-cuda can use (the package itself is checked with the extras, in
-    validate): BadInput naming engine.device=cuda, when the run is built, so check and sweep refuse it too."""
-    if params.engine.device != Device.cuda:
+    """A device that needs hardware (engine.device=cuda: a GPU that numba-cuda can use; the package itself is
+    checked with the extras, in validate): BadInput naming it, when the run is built, so check and sweep refuse it
+    too."""
+    device = DEVICES[params.engine.device]
+    if device.check is None:
         return
     try:
-        from riskplan.engine.cuda_rollout import check_gpu  # optional: numba-cuda, for engine.device=cuda alone
+        check = load(device.check)  # imports the device's optional package, for a run that chose it alone
     except Exception as err:  # a numba-cuda that fails at import (0.30.4 with numpy 2.5, which lacks np.row_stack)
+        extra = device.needs.extra if device.needs else ""
         raise BadInput(
-            "engine.device=cuda",
-            f"numba-cuda fails to import ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}); "
-            f"pip install 'riskplan[cuda]', which pins a numpy it supports",
+            f"engine.device={device.name.value}",
+            f"{device.needs.what if device.needs else 'its package'} fails to import ({type(err).__name__}: "
+            f"{str(err).splitlines()[0] if str(err) else ''}); pip install 'riskplan[{extra}]', which pins a numpy "
+            f"it supports",
         ) from None
-    check_gpu()
+    check()
 
 
 def check_sizes(params: RiskplanConf, found: maps.MapFile | None, width: int, height: int) -> None:
@@ -116,3 +125,61 @@ def initial_theta(world: World, policy: Policy, given: list) -> np.ndarray:
         f"got {given}; the softmax logits theta . signal overflow to infinity; give smaller values",
     )
     return policy.initial(world, weights)
+
+
+REACH_EPISODES = 1000  # theta0's episodes per robot behind the reach warning: a 1% share is about 10 of them
+RARE = 0.01  # a source reached by fewer of theta0's episodes than this gets a warning
+
+
+def check_reach(world: World, moves: np.ndarray) -> None:
+    """BadInput for a static source that no start reaches within world.horizon moves (`moves`: (starts, sources)
+    fewest moves, -1 for no path). A random walk is measured from its start cell and not refused: it may walk nearer,
+    and the sampled episodes of `reach_lines` tell how often the policy meets it."""
+    for j, name in enumerate(world.source_names):
+        nearest = moves[:, j][moves[:, j] >= 0]
+        if world.source_motion[j] > 0 or (nearest.size and nearest.min() <= world.horizon):
+            continue
+        x, y = world.xy(world.source_cells[j])
+        far = f"is {int(nearest.min())} moves from the nearest start" if nearest.size else "has no path from any start"
+        raise BadInput(
+            f"world.sources.{j}.position",
+            f"'{name}' at ({x}, {y}) {far}, beyond world.horizon={world.horizon}: no episode can reach it; move it "
+            f"or the start nearer, or lengthen world.horizon",
+        )
+
+
+def reach_lines(setup: Setup) -> list[str]:
+    """One line per source: its fewest moves from each start beside the horizon, and the share of theta0's episodes
+    that reach it (REACH_EPISODES per robot, the first iteration's own streams). A share under RARE is also a
+    warning (`warnings.warn`: one `warning:` line from the CLI) saying what to change."""
+    world = setup.world
+    cells = np.unique(world.starts)
+    moves = source_distances(world, cells)
+    shares = initial_shares(setup)
+    here = ", ".join(f"({x}, {y})" for x, y in zip(*world.xy(cells)))
+    lines = [f"reach from the start{'s' * (len(cells) > 1)} {here} within horizon K={world.horizon}:"]
+    for j, name in enumerate(world.source_names):
+        walk = " (a random walk: from its start cell)" if world.source_motion[j] > 0 else ""
+        away = ", ".join("no path" if d < 0 else f"{d} moves" for d in moves[:, j].tolist())
+        lines.append(f"  source {j} '{name}': {away}{walk}; theta0's episodes reach it in {shares[j]:.1%}")
+        if shares[j] < RARE:
+            warnings.warn(
+                f"source {j} '{name}' is reached by {shares[j]:.1%} of the initial policy's episodes (under "
+                f"{RARE:.0%} of {REACH_EPISODES * setup.robots} sampled): training will rarely see it; raise its "
+                f"weight in train.theta0, widen its signal (world.sources.{j}.covariance) or lengthen world.horizon",
+                stacklevel=2,
+            )
+    return lines
+
+
+def initial_shares(setup: Setup) -> np.ndarray:
+    """(sources,) the share of theta0's episodes that reach each source: REACH_EPISODES per robot from its start,
+    on the streams of the first iteration's episodes (the same numbers training starts from)."""
+    robots = setup.robots
+    keys = rng.robot_keys(setup.params.seed, rng.TRAIN, 0, robots)
+    thetas = np.repeat(setup.theta0[None, :], robots, axis=0)
+    run = simulator(setup)
+    batch = run(setup.world, setup.kernel, thetas, starts(setup), keys, REACH_EPISODES, scores=False)
+    return np.bincount(batch.source_reached[batch.source_reached >= 0], minlength=setup.world.sources) / len(
+        batch.source_reached
+    )

@@ -7,7 +7,8 @@ import json
 
 import numpy as np
 
-from riskplan.config.schema import Backend, RiskConf, RiskplanConf
+from riskplan.config.backends import BACKENDS
+from riskplan.config.schema import RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
 from riskplan.engine import rng
 from riskplan.engine.measures.registry import risk_spec
@@ -149,7 +150,7 @@ def summarize(setup: Setup, state: TrainState, evaluation: Columns, metrics: Col
         "iterations": state.iteration,
         "eval_episodes": params.train.eval_episodes,
         "wall_time": train_seconds,
-        "deterministic": params.team.backend != Backend.ray,  # ray: the wall clock orders the messages
+        "deterministic": BACKENDS[params.team.backend].deterministic,  # ray: the wall clock orders the messages
         "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else None,
         "provenance": provenance(),
     }

@@ -39,7 +39,7 @@ import numpy as np
 import yaml
 
 from riskplan.config.schema import CONF_DIR, WorldConf
-from riskplan.engine.world import Layout
+from riskplan.engine.world import Frame, Layout
 from riskplan.util import limits
 from riskplan.util.errors import BadInput
 
@@ -210,7 +210,8 @@ def load_layout(world: WorldConf, found: MapFile) -> Layout:
         by_region[r] = _frozen(merge(to_cells(dark), found.cell))
     cell_occupied = merge(to_cells(occupied), found.cell)
     cell_unknown = merge(to_cells(unknown), found.cell) & ~cell_occupied
-    layout = Layout(_frozen(cell_occupied), _frozen(cell_unknown), tuple(by_region), f"world.map {found.shown}")
+    frame = Frame(found.resolution, found.cell, found.origin, found.pixels)
+    layout = Layout(_frozen(cell_occupied), _frozen(cell_unknown), tuple(by_region), f"world.map {found.shown}", frame)
     _LAYOUTS[key] = layout
     while len(_LAYOUTS) > MEMO:
         _LAYOUTS.popitem(last=False)

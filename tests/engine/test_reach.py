@@ -22,14 +22,15 @@ def cells_within(world, starts, moves: int) -> set[tuple[int, int]]:
 
 
 def test_the_reach_is_the_cells_within_horizon_minus_one_moves():
-    setup = setup_of("world.horizon=4", "world.obstacles=[[1,0],[1,1]]")
+    near = ["world.sources.0.position=[0,3]", "world.sources.1.position=[1,2]"]  # within the horizon's reach
+    setup = setup_of("world.horizon=4", "world.obstacles=[[1,0],[1,1]]", *near)
     got = rollout.reach(setup.kernel, setup.world.starts)
     cells = {tuple(int(v) for v in setup.world.xy(c)) for c in got}
     # from (0, 0) with (1, 0) and (1, 1) walled: up the column x = 0, and round the wall's top
     assert cells == {(0, 0), (0, 1), (0, 2), (0, 3), (1, 2)}
     assert cells == cells_within(setup.world, setup.world.starts, 3)
     assert list(got) == sorted(got)
-    one = setup_of("world.horizon=1")
+    one = setup_of("world.horizon=1", "world.sources.0.position=[1,0]", "world.sources.1.position=[0,1]")
     assert rollout.reach(one.kernel, one.world.starts).tolist() == [0]  # a move is picked at the start only
     mobile = setup_of("world.sources.0.motion.kind=random_walk", "world.sources.0.motion.prob=0.5")
     assert len(rollout.reach(mobile.kernel, mobile.world.starts)) == 0  # moves computed at each step

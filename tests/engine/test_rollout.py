@@ -105,12 +105,12 @@ def test_mobile_sources_follow_the_same_policy_as_static_ones():
 
 def test_moving_sources_move():
     """With a source that always steps, reaching it takes a different number of steps than if it stayed."""
-    still = build_setup(compose(["world.sources.0.position=[2,0]", "world.sources.1.position=[11,11]"]))
+    still = build_setup(compose(["world.sources.0.position=[2,0]", "world.sources.1.position=[10,10]"]))
     walking = build_setup(
         compose(
             [
                 "world.sources.0.position=[2,0]",
-                "world.sources.1.position=[11,11]",
+                "world.sources.1.position=[10,10]",
                 "world.sources.0.motion.kind=random_walk",
                 "world.sources.0.motion.prob=1.0",
             ]

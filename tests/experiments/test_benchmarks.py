@@ -49,7 +49,7 @@ def test_scaling_measures_every_dimension_against_the_baseline_row(tmp_path, mon
     dimensions = {
         "grid": [(12.0, small), (16.0, [*small, "world.size=[16,16]", "world.regions.1.rect=[0,0,15,15]"])],
         "horizon": [
-            (10.0, [*small, "world.horizon=10", "world.stop_at_source=false"]),
+            (12.0, [*small, "world.horizon=12", "world.stop_at_source=false"]),  # the sources are 12 moves away
             (30.0, [*small, "world.horizon=30", "world.stop_at_source=false"]),
         ],
         "sources": [(2.0, [*small, *bench.source_overrides(2)]), (5.0, [*small, *bench.source_overrides(5)])],

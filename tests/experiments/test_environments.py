@@ -195,10 +195,10 @@ def test_the_gym_env_passes_the_gymnasium_checker(overrides):
 
 
 def test_gymnasium_make_finds_the_env_by_module_path():
-    env = gymnasium.make(f"riskplan.envs:{ENV_ID}", config=["world.horizon=3"])
+    env = gymnasium.make(f"riskplan.envs:{ENV_ID}", config=["world.horizon=12"])  # the sources are 12 moves away
     obs, _ = env.reset(seed=0)
     assert env.observation_space.contains(obs)
-    assert env.unwrapped.world.horizon == 3
+    assert env.unwrapped.world.horizon == 12
 
 
 @pytest.mark.parametrize(
@@ -308,7 +308,7 @@ def test_team_robots_share_mobile_sources():
 
 
 def test_bad_actions_are_refused():
-    env = SensorPlanningEnv(["world.horizon=3"])
+    env = SensorPlanningEnv(["world.horizon=12"])
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"0\.\.4"):
         env.step(5)

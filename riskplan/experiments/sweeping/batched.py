@@ -23,6 +23,7 @@ from hydra.core.utils import JobReturn, JobStatus, configure_log, run_job, setup
 from joblib import Parallel, delayed
 from omegaconf import DictConfig, open_dict
 
+from riskplan.config.backends import BACKENDS
 from riskplan.config.schema import Backend
 from riskplan.engine.step import Setup, batch_key
 from riskplan.experiments.driver_watch import arrive
@@ -112,7 +113,7 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
 
 def _prepare(cfg: DictConfig, out: Path, held: contextlib.ExitStack) -> Prepared:
     """Take the job's folder and read where it stands; a ray-backend job trains now, as it would alone."""
-    if cfg.team.backend == Backend.ray:
+    if not BACKENDS[Backend(cfg.team.backend)].batched:
         return Prepared(out, value=sweep_job(cfg, out))
     try:
         held.enter_context(lock.hold(out, "sweep job folder"))
