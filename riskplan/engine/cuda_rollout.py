@@ -10,9 +10,13 @@ and the reference sampler (`reference=True`). The policy tables and move bins (r
 rollout.move_bins) are computed on the CPU and copied over; the outputs come back as the `rollout.Batch` the CPU
 kernel returns.
 
-Numbers. The stream is integer arithmetic, the same on both. Every product that a sum takes is rounded on its own
-(`_mul`: libdevice's dmul_rn, which the compiler never fuses into an FMA), so the float arithmetic is IEEE's, step
-for step, as numba's on the CPU. Under numba-cuda's simulator (NUMBA_ENABLE_CUDASIM=1, the tests) the kernels agree
+One source. The device functions are the CPU kernel's helpers compiled again from their own Python (`on_gpu`):
+the random stream and the ziggurat, the reward interpreter, the affine reward and the move pick. Only the episode
+loop is the GPU's own: one thread per episode, without the CPU kernel's chunks and scratch arrays.
+
+Numbers. The stream is integer arithmetic, the same on both. Every product that a sum takes is written `mul(a, b)`
+(riskplan.engine.rng.mul), bound here to libdevice's dmul_rn, which the compiler never fuses into an FMA, so the
+float arithmetic is IEEE's, step for step, as numba's on the CPU. Under numba-cuda's simulator (NUMBA_ENABLE_CUDASIM=1, the tests) the kernels agree
 with the CPU kernel bit for bit. On a GPU, `math.exp` and `math.log` are CUDA's (libdevice, within an ulp or two of
 the CPU's libm): they enter only the ziggurat's rare edges (`_normal_edge`: its tail, about 3 normal draws in
 10,000, and its wedges' accept test), so an episode that draws in the tail can differ from the CPU's in the last
@@ -24,15 +28,14 @@ This module imports numba.cuda at the top: only `engine.device=cuda` imports it 
 from __future__ import annotations
 
 import functools
-import math
+import types
 
 import numpy as np
 from numba import config as numba_config
 from numba import cuda, float64
 
-from riskplan.engine import distributions as D
+from riskplan.engine import rng, rollout_kernels
 from riskplan.engine.policy import tables
-from riskplan.engine.rng import GOLDEN, ZIG_R, ZIG_RATIO, ZIG_X
 from riskplan.engine.rollout import Batch, Kernel, move_bins, reach
 from riskplan.engine.rollout import simulate as cpu_simulate
 from riskplan.engine.rollout_kernels import Tables
@@ -41,10 +44,6 @@ from riskplan.util.errors import BadInput
 
 THREADS = 128  # threads per block
 SIMULATOR = bool(numba_config.ENABLE_CUDASIM)  # numba-cuda's simulator: Python threads, for the tests
-_X = np.ascontiguousarray(ZIG_X)
-_RATIO = np.ascontiguousarray(ZIG_RATIO)
-_MIX1, _MIX2 = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
-_GOLD = np.uint64(GOLDEN)
 
 
 def gpu_problem() -> str | None:
@@ -155,160 +154,51 @@ def _on_device(kernel: Kernel) -> Tables:
 
 
 # ------------------------------------------------------------------------------------------ device functions
-# Each mirrors its CPU namesake in riskplan.engine.rng or riskplan.engine.rollout_kernels, operation for operation.
+# The CPU kernel's helpers, compiled from their own source: the random stream and the ziggurat (riskplan.engine.rng),
+# the reward program interpreter, the affine reward and the move pick (riskplan.engine.rollout_kernels).
+SHARED = (
+    rng.mix,
+    rng.episode_state,
+    rng.next_bits,
+    rng.bits_uniform,
+    rng.next_uniform,
+    rng.next_normal,
+    rng._normal_edge,
+    rng.normal_quantile,
+    rng._quantile_tail,
+    rollout_kernels._affine_reward,
+    rollout_kernels._draw,
+    rollout_kernels._pick_bits,
+)
 
 if SIMULATOR:  # the simulator runs device functions as Python, where libdevice's stubs return nothing
-
-    @cuda.jit(device=True)
-    def _mul(a, b):
-        """a * b, rounded on its own (never fused into an FMA)."""
-        return a * b
-
+    _mul = cuda.jit(device=True)(rng.mul.py_func)
 else:
     from numba.cuda import libdevice
 
-    _mul = libdevice.dmul_rn
+    _mul = libdevice.dmul_rn  # a * b rounded on its own: the compiler never fuses it into an FMA
 
 
-@cuda.jit(device=True)
-def _mix(z):
-    """rng.mix: the splitmix64 finaliser."""
-    z = (z ^ (z >> np.uint64(30))) * _MIX1
-    z = (z ^ (z >> np.uint64(27))) * _MIX2
-    return z ^ (z >> np.uint64(31))
+def on_gpu(helpers=SHARED) -> dict[str, object]:
+    """Device functions of the CPU helpers, by name: each one's own Python source (numba's py_func) with its
+    module's globals, where the other helpers' names (and `mul`) are bound to their device functions. numba-cuda
+    cannot call an @njit function, but it compiles the same Python function as a device function."""
+    bound: dict[str, object] = {"mul": _mul}
+    namespaces = []
+    for helper in helpers:
+        source = helper.py_func
+        namespace = dict(source.__globals__)
+        namespaces.append(namespace)
+        twin = types.FunctionType(source.__code__, namespace, source.__name__, source.__defaults__)
+        bound[source.__name__] = cuda.jit(device=True)(twin)
+    for namespace in namespaces:  # bound after all are made: calls resolve when the kernel compiles
+        namespace.update(bound)
+    return bound
 
 
-@cuda.jit(device=True)
-def _episode_state(key, episode):
-    """rng.episode_state."""
-    return _mix(key ^ _mix(np.uint64(episode) + _GOLD))
-
-
-@cuda.jit(device=True)
-def _next_bits(state):
-    """rng.next_bits: (new state, 53 random bits)."""
-    state = state + _GOLD
-    return state, _mix(state) >> np.uint64(11)
-
-
-@cuda.jit(device=True)
-def _next_uniform(state):
-    """rng.next_uniform: (new state, (m + 0.5) / 2^53)."""
-    state, m = _next_bits(state)
-    return state, (m + 0.5) * (1.0 / 9007199254740992.0)
-
-
-@cuda.jit(device=True)
-def _next_normal(state):
-    """rng.next_normal: the ziggurat's fast path, `_normal_edge` for the rest."""
-    state = state + _GOLD
-    bits = _mix(state)
-    i = np.int64(bits & np.uint64(255))
-    u = _mul((bits >> np.uint64(12)) + 0.5, 1.0 / 2251799813685248.0) - 1.0
-    if abs(u) < _RATIO[i]:
-        return state, _mul(u, _X[i])
-    return _normal_edge(state, i, u)
-
-
-@cuda.jit(device=True)
-def _normal_edge(state, i, u):
-    """rng._normal_edge: the tail beyond r and the wedges (exp and log are CUDA's here)."""
-    while True:
-        if i == 0:
-            while True:
-                state, a = _next_uniform(state)
-                state, b = _next_uniform(state)
-                t = -math.log(a) / ZIG_R
-                if _mul(-2.0, math.log(b)) >= _mul(t, t):
-                    return state, ZIG_R + t if u > 0.0 else -(ZIG_R + t)
-        z = _mul(u, _X[i])
-        f0 = math.exp(_mul(-0.5, _mul(_X[i], _X[i]) - _mul(z, z)))
-        f1 = math.exp(_mul(-0.5, _mul(_X[i + 1], _X[i + 1]) - _mul(z, z)))
-        state, c = _next_uniform(state)
-        if f1 + _mul(c, f0 - f1) < 1.0:
-            return state, z
-        state = state + _GOLD
-        bits = _mix(state)
-        i = np.int64(bits & np.uint64(255))
-        u = _mul((bits >> np.uint64(12)) + 0.5, 1.0 / 2251799813685248.0) - 1.0
-        if abs(u) < _RATIO[i]:
-            return state, _mul(u, _X[i])
-
-
-@cuda.jit(device=True)
-def _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state):
-    """rollout_kernels._affine_reward: clip(c + w U + s N, lo, hi) from the entered cell's coefficients."""
-    u = 0.0
-    g = 0.0
-    if draw_uniform:
-        state, u = _next_uniform(state)
-    if draw_normal:
-        state, g = _next_normal(state)
-    reward = min(
-        max(cell_affine[cell, 0] + _mul(cell_affine[cell, 1], u) + _mul(cell_affine[cell, 2], g), cell_affine[cell, 3]),
-        cell_affine[cell, 4],
-    )
-    return reward, state
-
-
-@cuda.jit(device=True)
-def _draw(ops, params, first, last, stack, state):
-    """rollout_kernels._draw (ziggurat normals): one postfix reward program, (value, state)."""
-    top = 0
-    for i in range(first, last):
-        op = ops[i, 0]
-        if op == D.OP_CONST:
-            stack[top] = params[i, 0]
-            top += 1
-        elif op == D.OP_UNIFORM:
-            state, u = _next_uniform(state)
-            stack[top] = params[i, 0] + _mul(params[i, 1] - params[i, 0], u)
-            top += 1
-        elif op == D.OP_NORMAL:
-            state, g = _next_normal(state)
-            stack[top] = params[i, 0] + _mul(params[i, 1], g)
-            top += 1
-        elif op == D.OP_BERNOULLI:
-            state, u = _next_uniform(state)
-            stack[top] = 1.0 if u < params[i, 0] else 0.0
-            top += 1
-        elif op == D.OP_SCALE:
-            stack[top - 1] = _mul(stack[top - 1], params[i, 0])
-        elif op == D.OP_CLIP:
-            stack[top - 1] = min(max(stack[top - 1], params[i, 0]), params[i, 1])
-        elif op == D.OP_SUM:
-            n = ops[i, 1]
-            acc = 0.0
-            for k in range(n):
-                acc += stack[top - 1 - k]
-            top -= n
-            stack[top] = acc
-            top += 1
-        else:  # OP_MIXTURE
-            n = ops[i, 1]
-            state, u = _next_uniform(state)
-            pick = n - 1
-            acc = 0.0
-            for k in range(n):
-                acc += stack[top - n + k]
-                if u < acc:
-                    pick = k
-                    break
-            value = stack[top - 2 * n + pick]
-            top -= 2 * n
-            stack[top] = value
-            top += 1
-    return stack[0 if top == 0 else top - 1], state
-
-
-@cuda.jit(device=True)
-def _pick_bits(bins, p, cell, m):
-    """rollout_kernels._pick_bits: the move whose integer bin holds the draw's bits m (counted, as integers)."""
-    a = 0
-    for b in range(4):
-        if m >= bins[p, cell, b]:
-            a += 1
-    return a
+_GPU = on_gpu()
+_episode_state, _next_bits, _next_normal = _GPU["episode_state"], _GPU["next_bits"], _GPU["next_normal"]
+_affine_reward, _draw, _pick_bits = _GPU["_affine_reward"], _GPU["_draw"], _GPU["_pick_bits"]
 
 
 @functools.cache
@@ -354,7 +244,7 @@ def _episode_kernel(size: int):
             acc[j] = 0.0
         for _ in range(horizon):
             state, m = _next_bits(state)
-            a = _pick_bits(bins, p, cell, np.int64(m))
+            a = _pick_bits(bins[p, cell], np.int64(m))
             for j in range(size):
                 acc[j] += score[p, cell, a, j]
             cell = next_cell[cell, a]
@@ -366,11 +256,11 @@ def _episode_kernel(size: int):
             else:
                 region = region_of[cell]
                 if region >= 0:
-                    reward, state = _draw(reg_ops, reg_par, reg_off[region], reg_off[region + 1], stack, state)
+                    reward, state = _draw(reg_ops, reg_par, reg_off[region], reg_off[region + 1], stack, state, False)
                     risky += region_risky[region]
             hit = source_at[cell]
             if hit >= 0:
-                value, state = _draw(src_ops, src_par, src_off[hit], src_off[hit + 1], stack, state)
+                value, state = _draw(src_ops, src_par, src_off[hit], src_off[hit + 1], stack, state, False)
                 reward += value
                 if reached < 0:
                     reached = hit

@@ -45,6 +45,14 @@ def robot_keys(seed: int, purpose: int, iteration: int, robots: int) -> np.ndarr
 
 
 @njit(inline="always")
+def mul(a, b):
+    """a * b. The helpers below write a product that a sum takes as mul(a, b): riskplan.engine.cuda_rollout compiles
+    their own source for the GPU with `mul` bound to a product rounded on its own (never fused into an FMA), so both
+    devices round alike."""
+    return a * b
+
+
+@njit(inline="always")
 def mix(z):
     """splitmix64 finaliser."""
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -128,35 +136,36 @@ def next_normal(state):
     state = state + np.uint64(GOLDEN)
     bits = mix(state)
     i = np.int64(bits & np.uint64(255))
-    u = ((bits >> np.uint64(12)) + 0.5) * (1.0 / 2251799813685248.0) - 1.0  # (-1, 1), never 0, symmetric
+    u = mul((bits >> np.uint64(12)) + 0.5, 1.0 / 2251799813685248.0) - 1.0  # (-1, 1), never 0, symmetric
     if abs(u) < ZIG_RATIO[i]:
-        return state, u * ZIG_X[i]
+        return state, mul(u, ZIG_X[i])
     return _normal_edge(state, i, u)
 
 
 @njit
 def _normal_edge(state, i, u):
-    """The ziggurat's rare paths (1% of draws), out of line so the fast path stays small."""
+    """The ziggurat's rare paths (1% of draws), out of line so the fast path stays small. On a GPU, exp and log are
+    CUDA's (libdevice), so a draw on these paths can differ from the CPU's in its last bits (docs/gpu.md)."""
     while True:
         if i == 0:  # the tail beyond r (Marsaglia 1964)
             while True:
                 state, a = next_uniform(state)
                 state, b = next_uniform(state)
                 t = -math.log(a) / ZIG_R
-                if -2.0 * math.log(b) >= t * t:
+                if mul(-2.0, math.log(b)) >= mul(t, t):
                     return state, ZIG_R + t if u > 0.0 else -(ZIG_R + t)
-        z = u * ZIG_X[i]  # a wedge: accept under the curve
-        f0 = math.exp(-0.5 * (ZIG_X[i] * ZIG_X[i] - z * z))
-        f1 = math.exp(-0.5 * (ZIG_X[i + 1] * ZIG_X[i + 1] - z * z))
+        z = mul(u, ZIG_X[i])  # a wedge: accept under the curve
+        f0 = math.exp(mul(-0.5, mul(ZIG_X[i], ZIG_X[i]) - mul(z, z)))
+        f1 = math.exp(mul(-0.5, mul(ZIG_X[i + 1], ZIG_X[i + 1]) - mul(z, z)))
         state, c = next_uniform(state)
-        if f1 + c * (f0 - f1) < 1.0:
+        if f1 + mul(c, f0 - f1) < 1.0:
             return state, z
         state = state + np.uint64(GOLDEN)  # rejected: start again from the next word
         bits = mix(state)
         i = np.int64(bits & np.uint64(255))
-        u = ((bits >> np.uint64(12)) + 0.5) * (1.0 / 2251799813685248.0) - 1.0
+        u = mul((bits >> np.uint64(12)) + 0.5, 1.0 / 2251799813685248.0) - 1.0
         if abs(u) < ZIG_RATIO[i]:
-            return state, u * ZIG_X[i]
+            return state, mul(u, ZIG_X[i])
 
 
 @njit(inline="always")

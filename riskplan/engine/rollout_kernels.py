@@ -28,7 +28,15 @@ import numpy as np
 from numba import njit, prange
 
 from riskplan.engine import distributions as D
-from riskplan.engine.rng import bits_uniform, episode_state, next_bits, next_normal, next_uniform, normal_quantile
+from riskplan.engine.rng import (
+    bits_uniform,
+    episode_state,
+    mul,
+    next_bits,
+    next_normal,
+    next_uniform,
+    normal_quantile,
+)
 from riskplan.engine.world import MAX_STACK
 
 CHUNK = 64  # episodes per parallel work item: amortises the per-item scratch allocations
@@ -72,7 +80,8 @@ class Tables(NamedTuple):
 
 @njit(cache=True, inline="always")
 def _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state):
-    """The entered cell's reward clip(c + w U + s N, lo, hi) from its coefficients; (reward, new state)."""
+    """The entered cell's reward clip(c + w U + s N, lo, hi) from its coefficients; (reward, new state). The GPU
+    kernel's too (cuda_rollout compiles this source)."""
     u = 0.0
     g = 0.0
     if draw_uniform:
@@ -80,7 +89,7 @@ def _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state):
     if draw_normal:
         state, g = next_normal(state)
     reward = min(
-        max(cell_affine[cell, 0] + cell_affine[cell, 1] * u + cell_affine[cell, 2] * g, cell_affine[cell, 3]),
+        max(cell_affine[cell, 0] + mul(cell_affine[cell, 1], u) + mul(cell_affine[cell, 2], g), cell_affine[cell, 3]),
         cell_affine[cell, 4],
     )
     return reward, state
@@ -95,6 +104,7 @@ def _draw(ops, params, first, last, stack, state, inverse_normal=False):
 
     A call for a source's reward (once per episode): inlined there too, it would multiply `_simulate`'s compile
     time (the first run after an install). Every kernel passes `inverse_normal`, so one specialisation serves all.
+    The GPU kernel's too (cuda_rollout compiles this source; it never passes `inverse_normal`).
     """
     top = 0
     for i in range(first, last):
@@ -104,7 +114,7 @@ def _draw(ops, params, first, last, stack, state, inverse_normal=False):
             top += 1
         elif op == D.OP_UNIFORM:
             state, u = next_uniform(state)
-            stack[top] = params[i, 0] + (params[i, 1] - params[i, 0]) * u
+            stack[top] = params[i, 0] + mul(params[i, 1] - params[i, 0], u)
             top += 1
         elif op == D.OP_NORMAL:
             if inverse_normal:
@@ -112,14 +122,14 @@ def _draw(ops, params, first, last, stack, state, inverse_normal=False):
                 g = normal_quantile(u)
             else:
                 state, g = next_normal(state)
-            stack[top] = params[i, 0] + params[i, 1] * g
+            stack[top] = params[i, 0] + mul(params[i, 1], g)
             top += 1
         elif op == D.OP_BERNOULLI:
             state, u = next_uniform(state)
             stack[top] = 1.0 if u < params[i, 0] else 0.0
             top += 1
         elif op == D.OP_SCALE:
-            stack[top - 1] *= params[i, 0]
+            stack[top - 1] = mul(stack[top - 1], params[i, 0])
         elif op == D.OP_CLIP:
             stack[top - 1] = min(max(stack[top - 1], params[i, 0]), params[i, 1])
         elif op == D.OP_SUM:
@@ -197,8 +207,9 @@ def _bins_at(cum, bins, cells):
 
 @njit(cache=True, inline="always")
 def _pick_bits(bins, m):
-    """`_pick` on the integer bounds of `_bins`."""
-    return (m >= bins[0]) + (m >= bins[1]) + (m >= bins[2]) + (m >= bins[3])
+    """`_pick` on the integer bounds of `_bins` (the GPU kernel's too; int() as numpy's bools would add as `or`
+    under numba-cuda's simulator)."""
+    return int(m >= bins[0]) + int(m >= bins[1]) + int(m >= bins[2]) + int(m >= bins[3])
 
 
 @njit(cache=True, inline="always")
