@@ -46,11 +46,15 @@ def test_a_name_says_only_what_differs_in_a_few_words():
     teams = grouped(
         [{"team": {"robots": n, "graph": g, "delay": {"max": 0}}} for n, g in ((3, "line"), (5, "ring"), (5, "line"))]
     )
-    assert sorted(names(teams)) == ["N=3, graph=line", "N=5, graph=line", "N=5, graph=ring"]
+    assert sorted(names(teams)) == [
+        "distributed N=3, graph=line",
+        "distributed N=5, graph=line",
+        "distributed N=5, graph=ring",
+    ]
     pair = grouped([{"risk": {"measure": "neutral", "beta": 0.2}}, {"risk": {"measure": "cvar", "beta": 0.1}}])
-    assert sorted(names(pair)) == ["CVaR", "risk-neutral"]  # the measure tells them apart: β is not needed
+    assert sorted(names(pair)) == ["risk-averse (CVaR β=0.1)", "risk-neutral"]  # the measure's label, as a table's
     mixed = grouped([{"risk": {"measure": m, "beta": b}} for m, b in (("neutral", 0.1), ("cvar", 0.1), ("cvar", 0.2))])
-    assert sorted(names(mixed)) == ["CVaR β=0.1", "CVaR β=0.2", "risk-neutral"]
+    assert sorted(names(mixed)) == ["risk-averse (CVaR β=0.1)", "risk-averse (CVaR β=0.2)", "risk-neutral"]
     assert all(len(n) < 30 for n in names(betas) + names(teams) + names(mixed))
 
 
@@ -114,7 +118,7 @@ def test_a_beta_sweep_draws_a_curve_per_beta_named_by_beta_outside_the_axes(root
     box, frame = legend.get_window_extent(renderer), ax.get_window_extent(renderer)
     assert not box.overlaps(frame)  # beside the axes, never over the curves
     paths = fig_paths(coll)  # Fig. 1: a panel of paths per β
-    assert sorted(a.get_title() for a in paths.figure.axes) == [f"β={b:g} (seed 0)" for b in BETAS]
+    assert sorted(a.get_title() for a in paths.figure.axes) == [f"β={b:g}, seed 0" for b in BETAS]
 
 
 @pytest.mark.slow
@@ -167,7 +171,8 @@ def test_the_papers_titles_only_for_a_reproductions_runs(root):
         assert ("The paper's figures (Section V)" in page) is paper
         if paper:
             assert titles["fig1_paths"].startswith("Fig. 1") and titles["fig2_cvar"].startswith("Fig. 2")
-            assert [t.get_text() for t in specs[1].figure.legends[0].get_texts()] == [
+            fig2 = next(s for s in specs if s.name == "fig2_cvar")
+            assert [t.get_text() for t in fig2.figure.legends[0].get_texts()] == [
                 "risk-neutral",
                 "risk-averse (CVaR β=0.1)",
             ]
@@ -182,7 +187,7 @@ def test_fig3_shows_the_centralized_curves_beside_the_teams(root):
     mean, cvar, difference = spec.figure.axes
     for ax in (mean, cvar):
         team, central = (
-            next(ln for ln in labelled(ax) if ln.get_label() == n) for n in ("distributed (N=3)", "centralized")
+            next(ln for ln in labelled(ax) if ln.get_label() == n) for n in ("distributed N=3", "centralized")
         )
         assert team.get_color() != central.get_color()
         assert (team.get_linestyle(), central.get_linestyle()) == ("-", "--") and central.get_marker() == "o"

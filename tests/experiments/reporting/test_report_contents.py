@@ -45,7 +45,11 @@ CONDITIONS = {
     "team_s1": ["experiment=paper_team", "seed=1"],
 }
 NEUTRAL, AVERSE = "risk-neutral", "risk-averse (CVaR β=0.1)"  # the paper's pair, in a reproduction's figures
-USER_NAMES = {"neutral": "risk-neutral, N=1", "cvar": "CVaR, N=1", "team": "CVaR, N=3"}  # what differs, in a user's
+USER_NAMES = {  # what differs, in a user's runs: the measure and team as report.csv's groups say them
+    "neutral": "risk-neutral, centralized",
+    "cvar": "risk-averse (CVaR β=0.1), centralized",
+    "team": "risk-averse (CVaR β=0.1), distributed N=3",
+}
 runner = CliRunner()
 
 
@@ -176,10 +180,10 @@ def assert_paths(ax, colour: str, run: Path, robot: int) -> None:
 def test_fig1_of_a_users_runs_has_a_panel_per_group(figures, sweep):
     spec = figures["fig1_paths"]
     assert not spec.paper and "Fig." not in spec.title
-    panels = {ax.get_title(): ax for ax in spec.figure.axes}
-    assert set(panels) == {f"{name} (seed 0)" for name in USER_NAMES.values()}
+    panels = {ax.get_title().replace("\n", " "): ax for ax in spec.figure.axes}  # a long title wraps
+    assert set(panels) == {f"{name}, seed 0" for name in USER_NAMES.values()}
     for run, name in USER_NAMES.items():
-        ax = panels[f"{name} (seed 0)"]
+        ax = panels[f"{name}, seed 0"]
         colour = next(ln.get_color() for ln in ax.get_lines() if ln.get_linestyle() == "-")
         assert_paths(ax, colour, sweep / f"{run}_s0", robot=-1 if run == "team" else 0)
 
@@ -218,8 +222,8 @@ def test_fig3_centralized_and_team_both_seen_with_their_difference(figures, swee
     for ax, column in ((mean_ax, "mean"), (cvar_ax, "cvar")):
         assert ax.get_xlabel() == "iteration"
         lines = labelled(ax)
-        assert set(lines) == {"distributed (N=3)", "centralized"}
-        team, central = lines["distributed (N=3)"], lines["centralized"]
+        assert set(lines) == {"distributed N=3", "centralized"}
+        team, central = lines["distributed N=3"], lines["centralized"]
         np.testing.assert_allclose(
             team.get_ydata(), seed_mean(sweep, ["team_s0", "team_s1"], column, robot=-1), rtol=1e-12
         )

@@ -71,7 +71,7 @@ def test_the_new_measures_are_labelled_by_their_measure_and_parameters():
         ]
     )
     assert found == {
-        "cvar": "risk-averse (CVaR)",
+        "cvar": "risk-averse (CVaR β=0.1)",
         "neutral": "risk-neutral",
         "wang": "Wang (η=0.5)",
         "mean_cvar": "mean-CVaR (λ=0.25, β=0.1)",

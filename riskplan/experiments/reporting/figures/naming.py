@@ -1,7 +1,10 @@
 """What a figure calls its groups, and how it lays out many of them.
 
-A figure names only what differs between the groups it draws, in a few words ("β=0.05", "graph=ring, N=5"): the
-fewest config keys that tell those groups apart (not the whole collection's), each written short. Past MAX_CURVES
+A figure names only what differs between the groups it draws, in a few words ("β=0.05", "graph=ring,
+distributed N=5"): the fewest config keys that tell those groups apart (not the whole collection's), each written
+short. The measure and the team are said as the report's tables say them (riskplan.experiments.reporting.labels:
+"risk-averse (CVaR β=0.1)", "distributed N=3", "centralized"), so one policy has one name in every table, figure
+and report, a reproduction's or a user's; a path's seed follows it as ", seed 0" (`seeded`). Past MAX_CURVES
 groups a figure draws small multiples (`layout`): one panel per value of one of those keys, or one per group.
 
 The paper's figures are titled so only where the runs are a reproduction's (`is_reproduction`); a user's sweep gets
@@ -17,7 +20,7 @@ from itertools import combinations
 from pathlib import Path
 
 from riskplan.experiments.reporting.collect import PALETTE, Collection, Group
-from riskplan.experiments.reporting.labels import fault_name, measure_name
+from riskplan.experiments.reporting.labels import fault_name, measure_name, team_name
 
 MAX_CURVES = 8  # groups drawn in one panel; more make small multiples
 MAX_PANELS = 20  # panels of small multiples; past them the figure says how many it left out
@@ -52,16 +55,6 @@ SHORTEST = 24  # characters of a value in a name
 PAPER_FOLDERS = ("single", "team")  # riskplan reproduce's folders of Figs. 1-2 and 3-4
 
 
-def measure_text(g: Group) -> str:
-    """The measure in a word or two: 'risk-neutral', 'CVaR', else its label ('Wang (η=0.5)', 'power (gamma=0.5)')."""
-    return {"neutral": "risk-neutral", "cvar": "CVaR"}.get(g.measure) or measure_name(g)
-
-
-def uses_beta(g: Group) -> bool:
-    """Whether a name shows the group's β beside its measure (CVaR: mean-CVaR's label holds its own)."""
-    return g.measure == "cvar"
-
-
 def _value(value) -> str:
     if isinstance(value, bool):
         return str(value).lower()
@@ -86,11 +79,11 @@ def _key(key: str) -> str:
 def text(g: Group, key: str) -> str:
     """One key of a group, written short."""
     if key == MEASURE:
-        return measure_text(g)
+        return measure_name(g)
     if key == "risk.beta":
         return f"β={g.beta:g}"
     if key == "team.robots":
-        return f"N={g.robots}"
+        return team_name(g)
     if key == POLICY:
         return "tabular policy" if g.policy_kind == "tabular" else f"features=[{', '.join(g.features)}]"
     if key == FAULTS:
@@ -161,13 +154,19 @@ def naming_keys(groups: list[Group]) -> list[str]:
 
 
 def alone(g: Group) -> str:
-    """The name of a group drawn alone: its measure, β where it trains at one, the team's size."""
-    return measure_name(g) + (f", N={g.robots}" if g.team else "")
+    """The name of a group drawn alone, as the report's label of a lone group: its measure, then its team."""
+    return f"{measure_name(g)}, {team_name(g)}"
+
+
+def seeded(name: str, seed: int) -> str:
+    """A group's name for the paths of one of its seeds (Fig. 1's legend and panels)."""
+    return f"{name}, seed {seed}"
 
 
 def names(groups: list[Group], keys: list[str] | None = None, unique: bool = True) -> list[str]:
-    """Each group's name: the values of `keys` (default: naming_keys), the measure and its β as one ('CVaR β=0.1';
-    risk-neutral without one), joined by commas. Names that would still collide get '#2', '#3' when `unique`."""
+    """Each group's name: the values of `keys` (default: naming_keys) joined by commas, the measure by its label
+    (which holds CVaR's β: 'risk-averse (CVaR β=0.1)'; no β apart beside a measure). Names that would still collide
+    get '#2', '#3' when `unique`."""
     if len(groups) == 1 and keys is None:
         return [alone(groups[0])]
     keys = naming_keys(groups) if keys is None else keys
@@ -175,9 +174,7 @@ def names(groups: list[Group], keys: list[str] | None = None, unique: bool = Tru
     for g in groups:
         parts = [text(g, k) for k in keys]
         if MEASURE in keys and "risk.beta" in keys:
-            m, b = keys.index(MEASURE), keys.index("risk.beta")
-            parts[m] = parts[m] + (f" {parts[b]}" if uses_beta(g) else "")
-            parts[b] = ""
+            parts[keys.index("risk.beta")] = ""
         out.append(", ".join(p for p in parts if p) or "runs")
     if not unique:
         return out

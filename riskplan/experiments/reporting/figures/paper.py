@@ -42,8 +42,9 @@ from riskplan.experiments.reporting.figures.naming import (
     is_reproduction,
     layout,
     names,
+    seeded,
 )
-from riskplan.experiments.reporting.labels import measure_name
+from riskplan.experiments.reporting.labels import measure_name, team_name
 from riskplan.run.build import build_setup
 
 MAX_PATHS = 5  # sampled paths per policy in Fig. 1
@@ -218,7 +219,7 @@ def fig_paths(coll: Collection) -> FigureSpec | str:
         handles = []
         for gi, (g, name, colour) in enumerate(zip(groups, called, colours)):
             _draw_paths(ax, g, colour, name, shift=(gi - (len(groups) - 1) / 2) * 0.16)
-            handles.append(Line2D([], [], color=colour, lw=1.6, label=f"{name}, seed {g.first.seed}"))
+            handles.append(Line2D([], [], color=colour, lw=1.6, label=seeded(name, g.first.seed)))
         legend_below(fig, handles + MARKS, ncols=ncols)
         panels = ""
     else:
@@ -228,7 +229,7 @@ def fig_paths(coll: Collection) -> FigureSpec | str:
         for ax, g, name, colour in zip(axes, groups, called, colours):
             draw_world(ax, worlds[_world_key(g.config)], labels=not same)
             _draw_paths(ax, g, colour, name)
-            panel_title(ax, f"{name} (seed {g.first.seed})")
+            panel_title(ax, seeded(name, g.first.seed))
         if same:
             outer(axes, "x (cell)", "y (cell)")
         legend_below(fig, MARKS, ncols=4)
@@ -347,7 +348,7 @@ def fig_team(coll: Collection) -> FigureSpec | str:
     if not teams:
         return "no team (distributed) runs"
     paper = is_reproduction(coll)
-    called = names(teams) if len(teams) > 1 else [f"distributed (N={teams[0].robots})"]
+    called = names(teams) if len(teams) > 1 else [team_name(teams[0])]
     colours = _team_colours(teams)
     level = _level(teams)
     shown = "each group's β" if level == "\\beta" else level
@@ -448,7 +449,7 @@ def fig_consensus(coll: Collection) -> FigureSpec | str:
     paper = is_reproduction(coll)
     lay = layout(teams)
     if len(teams) == 1:
-        lay.panels[0].names = [f"distributed (N={teams[0].robots})"]
+        lay.panels[0].names = [team_name(teams[0])]
     fig, drawn = draw_curves(lay, "consensus_error", r"consensus error $\max_{i,j}\,\|\theta^i-\theta^j\|$", log=True)
     if not drawn:
         return "the team runs log no positive consensus error"
