@@ -6,27 +6,42 @@ from __future__ import annotations
 
 import json
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
+from riskplan.config.keys import KEYS
 from riskplan.engine.measures.registry import label, parameter_keys
 
-if TYPE_CHECKING:
-    from riskplan.experiments.reporting.collect import Group
+
+class Group(Protocol):
+    """What labelling reads of a group of runs (reporting.collect.Group, which imports this module, has it)."""
+
+    label: str
+    settings: dict[str, Any]  # its differing keys -> value
+    config: dict
+    measure: str
+    beta: float
+    robots: int
+    team: bool
+    team_conf: dict
+    policy_kind: str
+    features: list[str]
+    faults: list
+
 
 # Keys tried first when labelling groups (in this order); the rest follow alphabetically.
 LABEL_PRIORITY = (
-    "risk.measure",
-    "risk.beta",
-    "risk.schedule.kind",
-    "team.robots",
-    "team.graph",
-    "team.weights",
-    "team.delay.max",
-    "team.drop",
-    "team.consensus_rounds",
-    "train.samples",
+    KEYS.risk.measure,
+    KEYS.risk.beta,
+    KEYS.risk.schedule.kind,
+    KEYS.team.robots,
+    KEYS.team.graph,
+    KEYS.team.weights,
+    KEYS.team.delay.max,
+    KEYS.team.drop,
+    KEYS.team.consensus_rounds,
+    KEYS.train.samples,
     "train.theta0",
-    "experiment",
+    KEYS.experiment,
 )
 
 
@@ -47,7 +62,7 @@ def hashable(v: Any) -> Any:
 def label_groups(groups: list[Group], differing: list[str]) -> None:
     """Label each group by the fewest differing keys (in priority order) that tell the groups apart."""
     if len(groups) == 1:
-        groups[0].label = _describe(groups[0], ["risk.measure", "team.robots"], single=True)
+        groups[0].label = _describe(groups[0], [KEYS.risk.measure, KEYS.team.robots], single=True)
         return
     order = [k for k in LABEL_PRIORITY if k in differing] + [k for k in differing if k not in LABEL_PRIORITY]
     chosen: list[str] = []
@@ -75,33 +90,37 @@ def _describe(group: Group, keys: list[str], single: bool = False) -> str:
     """Human label from the chosen keys, e.g. 'risk-averse (CVaR β=0.1), distributed N=3', 'Wang (η=0.5)'."""
     parts = []
     keys = list(keys)
-    handled = {"risk.measure", "risk.beta", "team.robots"}
+    handled = {KEYS.risk.measure, KEYS.risk.beta, KEYS.team.robots}
     risk = _risk(group)
-    if {"risk.measure", "risk.beta"} & set(keys) or single or (parameter_keys(risk) - {"risk.beta"}) & set(keys):
+    if (
+        {KEYS.risk.measure, KEYS.risk.beta} & set(keys)
+        or single
+        or (parameter_keys(risk) - {KEYS.risk.beta}) & set(keys)
+    ):
         # the measure's own label (riskplan.engine.measures), with a reporting β where it tells groups apart
-        beta = group.beta if "risk.beta" in keys and "risk.measure" not in keys else None
+        beta = group.beta if KEYS.risk.beta in keys and KEYS.risk.measure not in keys else None
         parts.append(label(risk, beta=beta))  # CVaR's β always: one name in every report
-        handled |= {"risk.eta", "risk.weight"} | {k for k in keys if k.startswith("risk.params.")}
-    if "team.robots" in keys or single:
+        handled |= {KEYS.risk.eta, KEYS.risk.weight} | {k for k in keys if k.startswith(f"{KEYS.risk.params}.")}
+    if KEYS.team.robots in keys or single:
         parts.append(team_name(group))
-    if {"policy.kind", "policy.features"} & set(keys):
+    if {KEYS.policy.kind, KEYS.policy.features} & set(keys):
         parts.append(policy_name(group))
-        handled |= {"policy.kind", "policy.features"}
-    if {"team.faults", "team.aggregate", "team.trim"} & set(keys):
+        handled |= {KEYS.policy.kind, KEYS.policy.features}
+    if {KEYS.team.faults, KEYS.team.aggregate, KEYS.team.trim} & set(keys):
         parts.append(fault_name(group))
-        handled |= {"team.faults", "team.aggregate", "team.trim"}
+        handled |= {KEYS.team.faults, KEYS.team.aggregate, KEYS.team.trim}
     for k in keys:
         if k in handled:
             continue
-        if k == "team.starts":
+        if k == KEYS.team.starts:
             starts = group.team_conf.get("starts")
             parts.append(f"{len(starts)} start cells" if starts else "one start cell")
             continue
         name = (
             "schedule"
-            if k == "risk.schedule.kind"
+            if k == KEYS.risk.schedule.kind
             else k.split(".", 1)[1]
-            if k.startswith(("team.", "train.", "risk.schedule."))
+            if k.startswith(("team.", "train.", f"{KEYS.risk.schedule}."))
             else k
         )
         parts.append(f"{name}={_short(group.settings.get(k))}")
