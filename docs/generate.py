@@ -1262,6 +1262,12 @@ TRANSCRIPTS = {
         ),
         power=True,
     ),
+    "maps_check_bad_input": Transcript(
+        (
+            "riskplan check experiment=floor_plan world.horizon=10",
+            "riskplan check experiment=floor_plan --draw world.gif",
+        )
+    ),
     "extending_train": Transcript(("riskplan train risk.measure=power risk.params.gamma=0.5",), power=True, slow=True),
     "sweeps_plan": Transcript(
         (
