@@ -31,6 +31,7 @@ from riskplan.config.typed import check_schema
 from riskplan.engine.measures.registry import MEASURES
 from riskplan.experiments.landscape import is_landscape_dir, load_landscape
 from riskplan.experiments.reporting.labels import MISSING, hashable, label_groups
+from riskplan.experiments.study_registry import STUDIES
 from riskplan.experiments.sweep_worker import HOW_KEYS, distinct
 from riskplan.run.metrics_rows import AVERAGE
 from riskplan.run.results import Run, find_runs, load_run
@@ -39,14 +40,6 @@ from riskplan.util.errors import BadInput
 
 # Keys that never define a condition: the seeds of one condition are pooled.
 IGNORED_KEYS = ("seed",)
-# The studies of riskplan reproduce beyond the paper: name -> (title, the folders of a reproduction holding its runs)
-STUDIES = {
-    "measures": ("Risk measures", ("measures",)),
-    "policies": ("Policies that see more", ("policies", "tabular")),
-    "hetero_team": ("A heterogeneous team", ("hetero_team", "hetero_central")),
-    "faults": ("A Byzantine robot and resilient consensus", ("faults", "faults_free")),
-    "floor_plan": ("A floor plan with a watched corridor", ("floor_plan",)),
-}
 # The measures' order in the studies' tables: the built-in ones (riskplan.engine.measures), then any other by name
 MEASURE_ORDER = MEASURES
 # Okabe-Ito palette (colour-blind safe); the paper's pair is blue (risk-neutral) and black (risk-averse).

@@ -33,7 +33,8 @@ from riskplan.experiments.reporting.study_tables import (
     theta_disagreement,
 )
 from riskplan.experiments.reporting.tables import theta_text
-from riskplan.experiments.reproduction import EXPERIMENTS, STUDY_SEEDS, experiment_jobs
+from riskplan.experiments.reproduction import experiment_jobs
+from riskplan.experiments.study_registry import EXPERIMENTS, STUDY_SEEDS
 
 
 def fake_run(config: dict, seed: int = 0, metrics: pd.DataFrame | None = None) -> RunInfo:
