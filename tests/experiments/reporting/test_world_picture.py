@@ -5,7 +5,10 @@ and the size of a warehouse-sized map's picture."""
 from __future__ import annotations
 
 import io
+import subprocess
+import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import matplotlib
 import numpy as np
@@ -13,15 +16,18 @@ import pytest
 from matplotlib.collections import LineCollection
 from matplotlib.colors import to_rgb
 from matplotlib.patches import PathPatch
+from omegaconf import OmegaConf
 from PIL import Image
 from support import TINY, setup_of
 from typer.testing import CliRunner
 
+import riskplan
 from riskplan.cli import app
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.figures import make_figures
 from riskplan.experiments.reporting.figures import world_picture as wp
 from riskplan.experiments.reporting.figures.drawing import STYLE, figure_bytes
+from riskplan.run.compose import compose
 
 runner = CliRunner()
 
@@ -177,6 +183,13 @@ def test_a_made_map_enclosed_room_unknown_space_mask_and_metres(room_map):
     assert "unknown (world.map_unknown=obstacle)" in labels and "region 'watched' (risky)" in labels
 
 
+def test_a_wandering_source_is_drawn_where_its_walk_begins():
+    _, figure, ax = drawn("world.sources.1.motion={kind:random_walk,prob:0.5}")
+    assert markers(ax, "*") == [(9.0, 3.0), (3.0, 9.0)]
+    labels = [t.get_text() for t in figure.legends[0].get_texts()]
+    assert "2 'risky' (3, 9, a random walk from here): 12 moves from (0, 0)" in labels
+
+
 def test_a_turned_map_has_no_metre_axes(room_map):
     """With a yaw in the map's origin, the frame's x and y do not run along the cells: no metre axes, said so."""
     room_map.write_text(room_map.read_text().replace("origin: [-3.0, 1.5, 0.0]", "origin: [-3.0, 1.5, 0.5]"))
@@ -192,6 +205,19 @@ def test_check_draws_each_format(in_tmp):
         assert f"world drawn: {name}" in result.output and "config OK" in result.output
         assert (in_tmp / name).read_bytes().startswith(head)
     assert sorted(p.name for p in in_tmp.iterdir()) == ["world.pdf", "world.png", "world.svg"]
+
+
+@pytest.mark.slow
+def test_check_imports_matplotlib_only_to_draw(tmp_path):
+    """riskplan check stays as light as it was without --draw: matplotlib comes with --draw alone."""
+    code = (
+        "import sys; from typer.testing import CliRunner; from riskplan.cli import app; "
+        "runner = CliRunner(); before = runner.invoke(app, ['check']).exit_code, 'matplotlib' in sys.modules; "
+        "after = runner.invoke(app, ['check', '--draw', 'w.png']).exit_code, 'matplotlib' in sys.modules; "
+        "print(before, after)"
+    )
+    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "(0, False) (0, True)"
 
 
 @pytest.mark.parametrize(
@@ -244,8 +270,6 @@ def test_a_warehouse_sized_map_is_drawn_in_blocks_within_2000_pixels(tmp_path):
 def test_the_report_draws_each_distinct_world_of_its_runs(tmp_path):
     """Three tiny runs in two worlds (two measures on the paper's, one with a wall): the report's world and
     world_2 figures, each the picture of its world, on the page."""
-    import riskplan
-
     runs = {"neutral": ["risk=neutral"], "cvar": [], "walled": ["world.obstacles=[[1,1],[2,1]]"]}
     for name, extra in runs.items():
         riskplan.train(riskplan.compose([*TINY, *extra]), tmp_path / "runs" / name)
@@ -259,3 +283,16 @@ def test_the_report_draws_each_distinct_world_of_its_runs(tmp_path):
     assert '<figure id="world">' in html and '<figure id="world_2">' in html
     assert html.index("<h2>The worlds</h2>") < html.index('<figure id="world">') < html.index("Configurations that")
     assert (tmp_path / "report" / "world.png").read_bytes().startswith(b"\x89PNG")
+
+
+@pytest.mark.slow
+def test_the_report_draws_at_most_max_worlds_and_says_how_many_it_left_out():
+    """A sweep over world.horizon has a world per value: the first MAX_WORLDS are drawn, the last says the rest."""
+    groups = [
+        SimpleNamespace(label=f"K={k}", config=OmegaConf.to_container(compose([*TINY, f"world.horizon={k}"])))
+        for k in range(20, 20 + wp.MAX_WORLDS + 2)
+    ]
+    specs = wp.fig_world(SimpleNamespace(groups=groups))
+    assert [spec.name for spec in specs] == ["world"] + [f"world_{i}" for i in range(2, wp.MAX_WORLDS + 1)]
+    assert specs[-1].caption.endswith("The runs of K=27. 2 more worlds are not drawn.")
+    assert "K = 21" in specs[1].figure.axes[0].get_title()

@@ -59,6 +59,7 @@ RISKY_HATCH = "#8C2D04"
 REACH_COLOUR = "#1F4E99"  # the outline of what the start can reach
 LEGEND_BELOW = 1.6  # a world this many times wider than tall gets its legend below
 MAX_NAMED = 4  # groups a world's caption names
+MAX_WORLDS = 8  # worlds the report draws (a sweep over world.horizon has one per value)
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,7 @@ class Cells:
     importance: a block of cells shows its most important one (the largest class)."""
 
     classes: np.ndarray  # (W, H) int
+    open: int  # classes below this are ground a robot may stand on (free, regions), greyed beyond the horizon
     colours: tuple[str, ...]
     labels: tuple[str, ...]
     hatched: tuple[bool, ...]  # risky regions
@@ -141,6 +143,7 @@ def _cells(setup: Setup, unknown: np.ndarray | None, unknown_as: MapUnknown) -> 
             safe += 1
         labels.append(f"region '{world.region_names[r]}'" + (" (risky)" if is_risky else ""))
         hatched.append(is_risky)
+    open_classes = len(colours)
     if unknown is not None and unknown.any():
         classes[unknown] = len(colours)
         colours.append(UNKNOWN)
@@ -151,7 +154,7 @@ def _cells(setup: Setup, unknown: np.ndarray | None, unknown_as: MapUnknown) -> 
     colours.append(OBSTACLE)
     labels.append("obstacle")
     hatched.append(False)
-    return Cells(classes, tuple(colours), tuple(labels), tuple(hatched))
+    return Cells(classes, open_classes, tuple(colours), tuple(labels), tuple(hatched))
 
 
 def block_of(width: int, height: int) -> int:
@@ -178,8 +181,7 @@ def image_of(picture: Picture, k: int) -> np.ndarray:
     reachable = blocks(picture.reachable, k)
     palette = np.array([to_rgb(c) for c in cells.colours])
     rgb = palette[classes]
-    open_ground = np.array([c in (FREE,) + SAFE_REGIONS + RISKY_REGIONS for c in cells.colours])[classes]
-    beyond = open_ground & ~reachable
+    beyond = (classes < cells.open) & ~reachable
     rgb[beyond] = (1 - BEYOND_SHARE) * rgb[beyond] + BEYOND_SHARE * BEYOND_GREY
     return rgb.transpose(1, 0, 2)
 
@@ -290,7 +292,8 @@ def _draw_sources(ax, picture: Picture, k: int) -> list:
                     fontweight="bold", zorder=7)  # fmt: skip
         x0, y0 = world.xy(picture.nearest[j])
         reached = f"{picture.moves[j]} moves from ({x0}, {y0})" if picture.moves[j] >= 0 else "no path from a start"
-        label = f"{j + 1} '{name}' ({sx}, {sy}): {reached}"
+        walk = ", a random walk from here" if world.source_motion[j] > 0 else ""
+        label = f"{j + 1} '{name}' ({sx}, {sy}{walk}): {reached}"
         handles.append(Line2D([], [], color=colour, lw=2.0, marker="*", ms=11, mec="black", label=label))
     handles += [
         Line2D([], [], color="#555555", lw=0.9, ls=style, label=f"signal at {n:g}σ ({math.exp(-(n**2) / 2):.0%})")
@@ -390,7 +393,8 @@ def fig_world(coll: Collection) -> list[FigureSpec] | str:
     for g in coll.groups:
         worlds.setdefault(world_key(g.config), []).append(g)
     specs = []
-    for i, groups in enumerate(worlds.values()):
+    left_out = f" {len(worlds) - MAX_WORLDS} more worlds are not drawn." if len(worlds) > MAX_WORLDS else ""
+    for i, groups in enumerate(list(worlds.values())[:MAX_WORLDS]):
         try:
             setup = build_setup(groups[0].config)
         except Exception as err:
@@ -400,6 +404,7 @@ def fig_world(coll: Collection) -> list[FigureSpec] | str:
             "The world as riskplan check --draw shows it: obstacles dark, regions (risky ones hatched), the cells a "
             "start reaches within the horizon outlined (those beyond greyed), each source's signal at 1σ, 2σ and "
             f"3σ, and a shortest path from the nearest start to each source. The runs of {called}."
+            + (left_out if i == MAX_WORLDS - 1 else "")
         )
         name = "world" if i == 0 else f"world_{i + 1}"
         specs.append(FigureSpec(name=name, title="The world of the runs", caption=caption, figure=world_figure(setup)))
