@@ -151,6 +151,30 @@ def test_kill_9_of_a_driver_as_its_workers_start_leaves_no_process_of_it_and_not
             proc.wait()
 
 
+def test_a_rerun_ends_what_a_killed_driver_of_its_folder_left_and_says_so_in_one_line(tmp_path):
+    # a killed sweep whose guardian was killed too: its name in the folder, a process of it still running
+    gone = subprocess.Popen(["sleep", "60"])
+    name = driver_watch.identity(gone.pid)
+    gone.kill()
+    gone.wait()
+    leftover = subprocess.Popen(["sleep", "600"], env={**os.environ, driver_watch.ENV: name})
+    try:
+        (tmp_path / "s").mkdir()
+        (tmp_path / "s" / driver_watch.DRIVER_FILE).write_text(name)
+        result = riskplan_cli(tmp_path, "sweep", "seed=0", *TINY, "hydra.sweep.dir=s")
+        assert result.returncode == 0, result.stdout + result.stderr
+        ended = [line for line in result.stdout.splitlines() if line.startswith("ended ")]
+        assert ended == [
+            f"ended 1 process left running by this folder's earlier sweep (its driver, pid {gone.pid}, was killed): "
+            f"pid {leftover.pid}"
+        ]
+        assert leftover.wait(timeout=10) == -signal.SIGKILL
+        assert not (tmp_path / "s" / driver_watch.DRIVER_FILE).exists()  # this sweep's own name went as it ended
+    finally:
+        leftover.kill()
+        leftover.wait()
+
+
 def cmdline(pid: int) -> str:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")
