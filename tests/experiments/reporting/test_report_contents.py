@@ -363,9 +363,11 @@ def test_report_csv_equals_numbers_recomputed_from_the_run_tables(sweep, page):
                 pytest.approx(high, rel=1e-9, abs=1e-12),
             )
         assert row["seeds"] == 2 and "Student-t" in row["interval"]
+    assert table["degenerate"].isna().all()  # the paper's runs learned nothing degenerate
     html = page.read_text()
     for _, row in table.iterrows():
         assert row["group"] in html and f"{row['cvar']:,.1f}" in html
+    assert "degenerate" not in html
 
 
 def test_single_run_intervals_are_the_run_summaries_bootstrap(sweep, tmp_path):
