@@ -1268,6 +1268,12 @@ TRANSCRIPTS = {
             "riskplan check experiment=floor_plan --draw world.gif",
         )
     ),
+    "maps_metres_bad_input": Transcript(
+        (
+            "riskplan check experiment=floor_plan 'world.start=${metres:9,0.9}'",
+            "riskplan check experiment=floor_plan 'world.start=${metres:0.1,0.1}'",
+        )
+    ),
     "extending_train": Transcript(("riskplan train risk.measure=power risk.params.gamma=0.5",), power=True, slow=True),
     "sweeps_plan": Transcript(
         (

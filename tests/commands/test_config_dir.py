@@ -18,7 +18,7 @@ defaults:
   - override /risk: neutral
 experiment: mine
 world:
-  horizon: 7
+  horizon: 24
 train:
   iterations: 3
   samples: 200
@@ -52,7 +52,7 @@ def test_check_finds_an_experiment_in_the_users_folder(config_dir, flag):
     result = runner.invoke(app, ["check", flag, str(config_dir), "experiment=mine"])
     assert result.exit_code == 0, result.output
     assert "experiment: mine" in result.stdout and "measure: neutral" in result.stdout
-    assert "horizon K=7" in result.stdout
+    assert "horizon K=24" in result.stdout
 
 
 def test_train_runs_the_users_experiment(config_dir, tmp_path):

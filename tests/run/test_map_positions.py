@@ -93,11 +93,12 @@ def test_team_starts_and_a_rect_in_metres(room_map):
 
 
 def test_frame_follows_origin_resolution_map_cell_and_yaw():
-    frame = Frame(resolution=0.05, cell=10, origin=(-10.0, 5.0, 0.0), pixels=(604, 307))
-    assert frame.pixel_of(-9.97, 5.02) == (0, 0)
-    assert frame.pixel_of(-10.01, 5.02) == (-1, 0)  # west of the origin: off the map
-    assert frame.pixel_of(2.33, 8.77) == (246, 75)  # 12.33 / 0.05 = 246.6, 3.77 / 0.05 = 75.4
-    assert frame.centre(24, 7) == pytest.approx((-10.0 + 24.5 * 0.5, 5.0 + 7.5 * 0.5))
+    # docs/maps.md's example: a depot map of 0.05 m pixels at world.map_cell=10, its origin at (-10, -5)
+    frame = Frame(resolution=0.05, cell=10, origin=(-10.0, -5.0, 0.0), pixels=(604, 307))
+    assert frame.pixel_of(-9.97, -4.98) == (0, 0)
+    assert frame.pixel_of(-10.01, -4.98) == (-1, 0)  # west of the origin: off the map
+    assert frame.pixel_of(2.33, -1.23) == (246, 75)  # 12.33 / 0.05 = 246.6, 3.77 / 0.05 = 75.4: cell (24, 7)
+    assert frame.centre(24, 7) == pytest.approx((2.25, -1.25))
     # a quarter turn: the map's x axis points along the frame's y
     turned = Frame(resolution=0.5, cell=1, origin=(1.0, 2.0, math.pi / 2), pixels=(4, 4))
     assert turned.pixel_of(0.2, 3.3) == (2, 1)  # u = y - 2 = 1.3, v = -(x - 1) = 0.8
