@@ -15,7 +15,7 @@ SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63 (checked by ris
 GOLDEN = 0x9E3779B97F4A7C15
 
 # Stream purposes: independent streams for each use of randomness.
-TRAIN, EVAL, PATHS, BOOTSTRAP, LANDSCAPE = 1, 2, 3, 4, 5
+TRAIN, EVAL, PATHS, BOOTSTRAP, LANDSCAPE, ENVIRONMENT = 1, 2, 3, 4, 5, 6
 
 
 def _mix_int(z: int) -> int:
@@ -64,6 +64,15 @@ def mix(z):
 def episode_state(key, episode):
     """Initial state of one episode's stream."""
     return mix(key ^ mix(np.uint64(episode) + np.uint64(GOLDEN)))
+
+
+@njit(cache=True)
+def episode_states(key, count):
+    """The initial states of the streams of episodes 0..count-1 of `key` (uint64, (count,))."""
+    states = np.empty(count, dtype=np.uint64)
+    for e in range(count):
+        states[e] = episode_state(key, e)
+    return states
 
 
 @njit(cache=True)

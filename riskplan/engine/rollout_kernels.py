@@ -163,6 +163,22 @@ _draw_inline = njit(inline="always")(_draw.py_func)
 
 
 @njit(cache=True, inline="always")
+def _entered(tables, affine, cell, stack, state, reference):
+    """What entering `cell` pays and counts, in every kernel's step (`_simulate`'s, `step_robots`'): its region's reward
+    and whether the step is risky (no region: 0 and 0); (reward, risky, state). `affine`: the world's region rewards
+    from their coefficients (no branch on the region: both draws every step, the cell's coefficients pick the law)."""
+    if affine:
+        reward, state = _affine_reward(tables.cell_affine, cell, tables.draw_uniform, tables.draw_normal, state)
+        return reward, tables.cell_risky[cell], state
+    region = tables.region_of[cell]
+    if region < 0:
+        return 0.0, np.int64(0), state
+    ops, params, first, last = tables.reg_ops, tables.reg_par, tables.reg_off[region], tables.reg_off[region + 1]
+    reward, state = _draw_inline(ops, params, first, last, stack, state, reference)
+    return reward, tables.region_risky[region], state
+
+
+@njit(cache=True, inline="always")
 def _pick(cum, u):
     """The move whose bin of the cumulative probabilities (cum[4] = 1) holds u: counted without branches.
 
@@ -300,6 +316,38 @@ def _walk(src, motion, height, width, state):
     return state
 
 
+@njit(cache=True)
+def step_robots(tables, cells, moves, active, group, sources, states, walk_states, reward, risky, hit):
+    """One time step of B robots in G copies of the world, for the environments (riskplan.experiments.environments):
+    `_simulate`'s step once its move is chosen, each robot drawing from its own stream (`states`, (B,)) and each
+    copy's mobile sources from theirs (`walk_states`, (G,)). An active robot b moves by moves[b] from cells[b], is paid
+    the entered cell (`_entered`) and the first source of its copy group[b] on it; then the sources (G, S) of every
+    copy with an active robot walk once. Updates cells, sources and the states; writes reward, risky and hit (B,)."""
+    stack = np.empty(MAX_STACK)
+    moving = np.zeros(sources.shape[0], dtype=np.bool_)
+    for b in range(cells.shape[0]):
+        reward[b], risky[b], hit[b] = 0.0, 0, -1
+        if not active[b]:
+            continue
+        moving[group[b]] = True
+        cell = tables.next_cell[cells[b], moves[b]]
+        cells[b] = cell
+        paid, counted, state = _entered(tables, tables.affine, cell, stack, states[b], False)
+        src = sources[group[b]]
+        for j in range(src.shape[0]):
+            if src[j] == cell:
+                hit[b] = j
+                break
+        if hit[b] >= 0:
+            first, last = tables.src_off[hit[b]], tables.src_off[hit[b] + 1]
+            value, state = _draw(tables.src_ops, tables.src_par, first, last, stack, state, False)
+            paid += value
+        reward[b], risky[b], states[b] = paid, counted, state
+    for g in range(sources.shape[0]):
+        if moving[g]:
+            walk_states[g] = _walk(sources[g], tables.source_motion, tables.height, tables.width, walk_states[g])
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def _simulate_affine(
     tables,
@@ -406,11 +454,6 @@ def _simulate(
     extra_at = tables.extra_at
     extras = tables.extras
     next_cell = tables.next_cell
-    region_of = tables.region_of
-    region_risky = tables.region_risky
-    reg_off = tables.reg_off
-    reg_ops = tables.reg_ops
-    reg_par = tables.reg_par
     src_off = tables.src_off
     src_ops = tables.src_ops
     src_par = tables.src_par
@@ -425,10 +468,6 @@ def _simulate(
     stop_at_source = tables.stop_at_source
     mobile = tables.mobile
     affine = tables.affine and not reference
-    cell_affine = tables.cell_affine
-    cell_risky = tables.cell_risky
-    draw_uniform = tables.draw_uniform
-    draw_normal = tables.draw_normal
     policies = bins.shape[0]
     sources = source_cells.shape[0]
     size = 0 if tabular else thetas.shape[1]  # the score kept in `acc` (a tabular policy's is written in place)
@@ -498,17 +537,8 @@ def _simulate(
                         acc[j] += score[p, cell, a, j]
                 cell = next_cell[cell, a]
                 steps += 1
-                reward = 0.0
-                if affine:  # no branch on the region: both draws every step, the cell's coefficients pick the law
-                    reward, state = _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state)
-                    risky += cell_risky[cell]
-                else:
-                    region = region_of[cell]
-                    if region >= 0:
-                        reward, state = _draw_inline(
-                            reg_ops, reg_par, reg_off[region], reg_off[region + 1], stack, state, reference
-                        )
-                        risky += region_risky[region]
+                reward, counted, state = _entered(tables, affine, cell, stack, state, reference)
+                risky += counted
                 hit = -1
                 if mobile:
                     for j in range(sources):

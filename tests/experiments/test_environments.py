@@ -270,6 +270,26 @@ def test_the_horizon_truncates_and_without_stopping_a_source_pays_each_step():
     assert rewards == [1001.0] * 14 and info["source_reached"] == 0
 
 
+def test_a_step_draws_the_kernels_stream_and_law(paper):
+    """Worlds.step is the kernel's step: robot b's rewards come from episode b of the key (seed, ENVIRONMENT), by the
+    affine law of the paper world's regions (safe: 100 U; risky: clip(200 U + 100 N)), U then N at every step."""
+    worlds = Worlds(paper.world, np.zeros(2, dtype=np.int64), seed=7)
+    key = np.uint64(R.stream_key(7, R.ENVIRONMENT))
+    streams = [R.episode_state(key, b) for b in range(2)]
+    expected = [[], []]
+    for move, cells in [((E, N), (12, 1)), ((N, E), (13, 13))]:  # robot 0 into safe cells, robot 1 a risky one
+        reward, *_ = worlds.step(np.array(move))
+        for b in range(2):
+            streams[b], u = R.next_uniform(np.uint64(streams[b]))  # numba hands a uint64 back as a Python int
+            streams[b], g = R.next_normal(np.uint64(streams[b]))
+            risky = paper.world.region_risky[paper.world.region_of[cells[b]]]
+            expected[b].append(min(max(200.0 * u + 100.0 * g, -1e4), 1e4) if risky else 100.0 * u)
+        np.testing.assert_array_equal(reward, [expected[0][-1], expected[1][-1]])
+    assert worlds.cell.tolist() == [13, 13] and worlds.risky_steps.tolist() == [0, 1]
+    worlds.reset(seed=7)
+    np.testing.assert_array_equal(worlds.step(np.array([E, N]))[0], [expected[0][0], expected[1][0]])
+
+
 def test_observed_signals_are_the_policys_features(paper):
     env = SensorPlanningEnv(paper)
     obs, _ = env.reset(seed=1)
@@ -301,9 +321,8 @@ def test_team_robots_share_mobile_sources():
         seen.append(obs["robot_0"]["signals"].copy())
     assert any(not np.array_equal(seen[0], s) for s in seen[1:])  # the sources did walk
     separate = Worlds(env.world, np.zeros(2, dtype=np.int64))
-    rng = np.random.default_rng(0)
     for _ in range(10):
-        separate.step(np.full(2, STAY), rng)
+        separate.step(np.full(2, STAY))
     assert not np.array_equal(separate.sources[0], separate.sources[1])
 
 

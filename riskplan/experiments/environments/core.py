@@ -1,16 +1,18 @@
-"""The world of riskplan in numpy, for the Gymnasium and PettingZoo environments: many robots stepped at once.
+"""riskplan's world for the Gymnasium and PettingZoo environments: many robots stepped at once, by the engine's kernel.
 
-`Worlds` follows the numba kernel's episode (riskplan.engine.rollout_kernels._simulate) step for step:
+`Worlds.step` runs riskplan.engine.rollout_kernels.step_robots, the episode kernel's own step once a move is chosen
+(its `_entered`, `_draw` and `_walk`), on the tables the training kernel takes (riskplan.engine.rollout.make_kernel):
   * a move is one of E, W, Stay, N, S (riskplan.engine.world.MOVES, in that order); a blocked move stays;
   * the cell entered at each step 1..K is paid its region's reward (first matching region; no region pays 0;
-    the start cell is not paid), drawn with riskplan.engine.distributions.sample; a risky region counts a risky step;
+    the start cell is not paid); a risky region counts a risky step;
   * entering a source's cell also pays the source's reward (the first source listed on that cell); with
     world.stop_at_source the robot's episode then ends (terminated);
-  * mobile sources (random_walk) move after the robot's move has been paid, to a uniform E/W/N/S neighbour with
+  * mobile sources (random_walk) move after the robots' moves have been paid, to a uniform E/W/N/S neighbour with
     probability `prob`, staying put at the grid's edge;
   * after K moves the episode ends (truncated).
-Draws come from a numpy Generator, not the kernel's counter-based streams: the numbers differ, the distributions
-are the same (tests/experiments/test_environments.py checks that against `riskplan.engine.rollout.simulate`).
+Draws come from the kernel's counter-based streams (riskplan.engine.rng): each robot its own, each copy's sources
+theirs, keyed by the seed `reset` takes. The moves are the agent's, so the episodes are not the kernel's; their
+distribution is (tests/experiments/test_environments.py checks it against `riskplan.engine.rollout.simulate`).
 """
 
 from __future__ import annotations
@@ -21,14 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from riskplan.engine import distributions as D
 from riskplan.engine.policy import Policy, move_features, probabilities, tabular_probabilities
+from riskplan.engine.rng import ENVIRONMENT, SEED_LIMIT, episode_states, stream_key
+from riskplan.engine.rollout import make_kernel
+from riskplan.engine.rollout_kernels import step_robots
 from riskplan.engine.step import Setup
 from riskplan.engine.world import MOVE_NAMES, World
 from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
-
-WALK = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.int64)  # a source's random-walk steps: E, W, N, S
 
 
 def make_setup(config: Any = None) -> Setup:
@@ -59,6 +61,11 @@ def robot_starts(setup: Setup) -> np.ndarray:
     return np.repeat(cells, setup.robots) if len(cells) == 1 else cells.copy()
 
 
+def new_seed(generator: np.random.Generator) -> int:
+    """A seed for `Worlds.reset` from a numpy generator (an environment's `np_random`): reproducible from its seed."""
+    return int(generator.integers(SEED_LIMIT))
+
+
 def signal_bounds(world: World) -> tuple[np.ndarray, np.ndarray]:
     """Lowest and highest value of each source's signal (M,): between 0 and its peak (negative for scale < 0)."""
     return np.minimum(world.source_amplitude, 0.0), np.maximum(world.source_amplitude, 0.0)
@@ -70,10 +77,11 @@ class Worlds:
     Robot b lives in copy group[b] (default: each robot its own copy). Robots of one copy share its sources, which
     matters only for mobile sources: they walk once per time step, independently in each copy. Robots never block
     or pay each other, and every reward draw is independent. A robot whose episode has ended stays where it is and
-    is paid nothing; each copy's sources walk while any of its robots is still moving.
+    is paid nothing; each copy's sources walk while any of its robots is still moving. `seed`: the streams'
+    (`reset(seed)` starts new ones).
     """
 
-    def __init__(self, world: World, starts: np.ndarray, group: np.ndarray | None = None):
+    def __init__(self, world: World, starts: np.ndarray, group: np.ndarray | None = None, seed: int = 0):
         self.world = world
         self.starts = np.asarray(starts, dtype=np.int64).reshape(-1)
         self.group = np.arange(len(self.starts)) if group is None else np.asarray(group, dtype=np.int64)
@@ -82,17 +90,22 @@ class Worlds:
         self.groups = int(self.group.max()) + 1 if len(self.group) else 0
         self._mobile = world.mobile
         self._features = None if self._mobile else move_features(world)  # (C, 5, M) for static sources
-        self._region_risky = world.region_risky.astype(np.int64)
-        self.reset()
+        self._tables = make_kernel(world).tables
+        self.reset(seed)
 
     @property
     def robots(self) -> int:
         """Number of robots B."""
         return len(self.starts)
 
-    def reset(self) -> None:
-        """Every robot back at its start, every source at its initial cell, nothing paid."""
+    def reset(self, seed: int | None = None) -> None:
+        """Every robot back at its start, every source at its initial cell, nothing paid; with `seed` (a whole number
+        0 <= seed < 2^63), new streams: robot b's is episode b of the key (seed, ENVIRONMENT), copy g's sources' is
+        episode B + g. Without, the episodes go on drawing from the streams they had."""
         b = self.robots
+        if seed is not None:
+            states = episode_states(np.uint64(stream_key(seed, ENVIRONMENT)), b + self.groups)
+            self._states, self._walk_states = states[:b], states[b:]
         self.cell = self.starts.copy()
         self.sources = np.tile(self.world.source_cells, (self.groups, 1))  # (G, M) current source cells
         self.steps = np.zeros(b, dtype=np.int64)
@@ -114,13 +127,12 @@ class Worlds:
         quad = p[:, 0] * dx * dx + 2.0 * p[:, 1] * dx * dy + p[:, 2] * dy * dy
         return world.source_amplitude * np.exp(-0.5 * quad)
 
-    def step(self, actions: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Move every robot still in its episode by its action (0..4 = E, W, Stay, N, S; ignored for the others).
 
         Returns (reward, terminated, truncated), each of shape (B,); the flags are set only on the step that
         ends a robot's episode.
         """
-        world = self.world
         actions = np.asarray(actions).reshape(-1)
         if actions.shape != self.starts.shape:
             raise ValueError(f"expected {self.robots} actions, got {actions.shape[0]}")
@@ -128,56 +140,34 @@ class Worlds:
         moves = actions[active]
         if moves.dtype.kind not in "iu" or ((moves < 0) | (moves >= len(MOVE_NAMES))).any():
             raise ValueError(f"actions must be whole numbers 0..4 ({', '.join(MOVE_NAMES)}); got {moves.tolist()}")
-        self.cell[active] = world.next_cell[self.cell[active], moves]
+        reward, risky, hit = np.empty(self.robots), np.empty(self.robots, dtype=np.int64), np.empty_like(self.cell)
+        step_robots(
+            self._tables,
+            self.cell,
+            np.where(active, actions, 0).astype(np.int64),
+            active,
+            self.group,
+            self.sources,
+            self._states,
+            self._walk_states,
+            reward,
+            risky,
+            hit,
+        )
         self.steps[active] += 1
-        reward = np.zeros(len(self.starts))
-
-        region = np.where(active, world.region_of[self.cell], -1)
-        for r in _present(region):
-            paid = region == r
-            reward[paid] = D.sample(world.region_rewards[r], rng, int(paid.sum()))
-            self.risky_steps[paid] += self._region_risky[r]
-
-        match = self.sources[self.group] == self.cell[:, None]  # (B, M); the first source listed wins a shared cell
-        hit = np.where(active & match.any(axis=1), match.argmax(axis=1), -1)
-        for j in _present(hit):
-            paid = hit == j
-            reward[paid] += D.sample(world.source_rewards[j], rng, int(paid.sum()))
+        self.risky_steps += risky
         self.source_reached = np.where((self.source_reached < 0) & (hit >= 0), hit, self.source_reached)
-
-        if self._mobile:
-            moving = np.zeros(self.groups, dtype=bool)
-            moving[self.group[active]] = True
-            self._walk(moving, rng)
-
-        terminated = (hit >= 0) & world.stop_at_source
-        truncated = active & ~terminated & (self.steps >= world.horizon)
+        terminated = (hit >= 0) & self.world.stop_at_source
+        truncated = active & ~terminated & (self.steps >= self.world.horizon)
         self.done |= terminated | truncated
         self.total_reward += reward
         return reward, terminated, truncated
-
-    def _walk(self, moving: np.ndarray, rng: np.random.Generator) -> None:
-        """One random-walk step of each mobile source in the copies `moving` (G,), staying on the grid."""
-        world = self.world
-        steps = moving[:, None] & (rng.random(self.sources.shape) < world.source_motion)
-        way = WALK[rng.integers(0, 4, size=self.sources.shape)]  # (G, M, 2)
-        x, y = np.divmod(self.sources, world.height)
-        nx, ny = x + way[..., 0], y + way[..., 1]
-        inside = (nx >= 0) & (nx < world.width) & (ny >= 0) & (ny < world.height)
-        self.sources = np.where(steps & inside, nx * world.height + ny, self.sources)
 
     def positions(self) -> np.ndarray:
         """Each robot's cell as (x, y), shape (B, 2)."""
         out = np.empty((len(self.cell), 2), dtype=np.int64)
         out[:, 0], out[:, 1] = np.divmod(self.cell, self.world.height)
         return out
-
-
-def _present(index: np.ndarray) -> list[int]:
-    """The distinct values >= 0 of an index array (few: regions or sources)."""
-    if index.size == 1:
-        return [int(index[0])] if index[0] >= 0 else []
-    return [int(v) for v in np.unique(index[index >= 0])]
 
 
 class SoftmaxPolicy:
@@ -296,9 +286,9 @@ def run_episodes(
     """
     setup = make_setup(config)
     cell = robot_starts(setup)[0] if start is None else start
-    worlds = Worlds(setup.world, np.full(episodes, cell, dtype=np.int64))
+    worlds = Worlds(setup.world, np.full(episodes, cell, dtype=np.int64), seed=new_seed(rng))
     policy = SoftmaxPolicy(theta, setup)
     while not worlds.done.all():
         position = worlds.positions() if policy.needs_position else None
-        worlds.step(policy.act(worlds.signals(), rng, position), rng)
+        worlds.step(policy.act(worlds.signals(), rng, position))
     return Episodes(worlds.total_reward, worlds.risky_steps, worlds.source_reached, worlds.steps)

@@ -30,7 +30,7 @@ except ImportError as err:  # pragma: no cover - the optional extra is missing
     ) from err
 
 from riskplan.engine.world import MOVE_NAMES, World
-from riskplan.experiments.environments.core import Worlds, env_setup, signal_bounds
+from riskplan.experiments.environments.core import Worlds, env_setup, new_seed, signal_bounds
 
 ENV_ID = "riskplan/SensorPlanning-v0"
 
@@ -101,7 +101,7 @@ class SensorPlanningEnv(gymnasium.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        self._worlds.reset()
+        self._worlds.reset(new_seed(self.np_random))
         return observations(self._worlds)[0], infos(self._worlds)[0]
 
     def step(self, action):
@@ -109,7 +109,7 @@ class SensorPlanningEnv(gymnasium.Env):
             raise RuntimeError("the episode has ended; call reset()")
         if not self.action_space.contains(action):
             raise ValueError(f"action {action!r} is not one of 0..4 ({', '.join(MOVE_NAMES)})")
-        reward, terminated, truncated = self._worlds.step(np.array([int(action)]), self.np_random)
+        reward, terminated, truncated = self._worlds.step(np.array([int(action)]))
         obs, info = observations(self._worlds)[0], infos(self._worlds)[0]
         return obs, float(reward[0]), bool(terminated[0]), bool(truncated[0]), info
 

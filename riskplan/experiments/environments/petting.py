@@ -25,7 +25,7 @@ except ImportError as err:  # pragma: no cover - the optional extra is missing
     ) from err
 
 from riskplan.engine.world import MOVE_NAMES
-from riskplan.experiments.environments.core import Worlds, env_setup
+from riskplan.experiments.environments.core import Worlds, env_setup, new_seed
 from riskplan.experiments.environments.gym import infos, observation_space, observations, render_ansi
 
 
@@ -56,7 +56,7 @@ class SensorTeamEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None or self._rng is None:
             self._rng = np.random.default_rng(seed)
-        self._worlds.reset()
+        self._worlds.reset(new_seed(self._rng))
         self.agents = list(self.possible_agents)
         obs, info = observations(self._worlds), infos(self._worlds)
         return ({a: obs[i] for i, a in enumerate(self.agents)}, {a: info[i] for i, a in enumerate(self.agents)})
@@ -72,7 +72,7 @@ class SensorTeamEnv(ParallelEnv):
             if not self._action_space.contains(actions[agent]):
                 raise ValueError(f"action {actions[agent]!r} of {agent} is not one of 0..4 ({', '.join(MOVE_NAMES)})")
             moves[self._index[agent]] = int(actions[agent])
-        reward, terminated, truncated = self._worlds.step(moves, self._rng)
+        reward, terminated, truncated = self._worlds.step(moves)
         obs, info = observations(self._worlds), infos(self._worlds)
         live = [(a, self._index[a]) for a in self.agents]
         self.agents = [a for a, i in live if not (terminated[i] or truncated[i])]
