@@ -107,6 +107,13 @@ def write_report(
     if coll.duplicates:  # one line (the CLI shows warnings as `warning: ...`); runs.csv names each
         warnings.warn(repeats_line(len(coll.duplicates), "runs.csv lists them as duplicate"), stacklevel=3)
     comparison = comparison_table(coll)
+    degenerate = comparison["degenerate"].dropna() if "degenerate" in comparison else []
+    if len(degenerate):  # one line; report.csv and the page say what and why
+        warnings.warn(
+            f"{len(degenerate)} group(s) learned something degenerate ({', '.join(comparison.group[degenerate.index])}):"
+            " report.csv's degenerate column and the page say what and the likely cause",
+            stacklevel=3,
+        )
     runs = runs_table(coll)
     landscapes = landscape_table(coll)
     soft = soft_risk_table(coll)

@@ -12,6 +12,7 @@ import pytest
 from support import TINY
 
 from riskplan import compose, train
+from riskplan.experiments.reporting import write_report
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.page import comparison_section
 from riskplan.experiments.reporting.study_tables import study_tables
@@ -67,6 +68,8 @@ def test_a_risk_averse_group_below_its_worlds_risk_neutral_group_is_marked(tmp_p
     html = comparison_section(comparison_table(coll))
     assert html.count("⚠ degenerate") == 1 and "1 group(s) learned something degenerate" in html
     assert "below the risk-neutral group" in html
+    with pytest.warns(UserWarning, match=r"^1 group\(s\) learned something degenerate \(risk-averse \(CVaR β=0.1\)\)"):
+        write_report([tmp_path], tmp_path / "report", ["svg"])  # the command's one warning line
 
 
 def test_missing_and_infinite_values_are_empty_cells():
