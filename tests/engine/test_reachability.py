@@ -3,6 +3,8 @@ grid (Manhattan distance), a walled-off cell (-1, no path), a corridor (the way 
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from riskplan.config.schema import MotionConf, MotionKind, SourceConf, WorldConf
@@ -77,3 +79,25 @@ def test_a_limit_stops_the_search():
     world = world_of(5, 1)
     assert distances(world.next_cell, np.array([0]), limit=2).tolist() == [0, 1, 2, -1, -1]
     assert distances(world.next_cell, np.array([0, 4]), limit=1).tolist() == [0, 1, -1, 1, 0]
+
+
+def test_targets_stop_the_search_once_each_has_its_distance():
+    world = world_of(6, 1)
+    assert distances(world.next_cell, np.array([0]), targets=np.array([2])).tolist() == [0, 1, 2, -1, -1, -1]
+    assert distances(world.next_cell, np.array([0]), targets=np.array([0])).tolist() == [0, -1, -1, -1, -1, -1]
+
+
+def test_a_shortest_path_is_made_of_moves_and_as_long_as_the_distance():
+    # a 9 x 7 grid with obstacles at random (the start and its neighbours kept free): every step of the path is
+    # one of the kernel's moves, and it takes exactly the fewest moves
+    rng = np.random.default_rng(3)
+    blocked = [
+        (x, y) for x in range(9) for y in range(7) if rng.random() < 0.3 and (x, y) not in ((0, 0), (1, 0), (0, 1))
+    ]
+    world = world_of(9, 7, obstacles=blocked, sources=[(0, 0)])
+    dist = move_distances(world, 0)
+    for target in np.flatnonzero(dist > 0):
+        path = shortest_path(world, 0, int(target))
+        assert path[0] == 0 and path[-1] == target and len(path) - 1 == dist[target]
+        assert all(b in world.next_cell[a] and a != b for a, b in itertools.pairwise(path))
+    assert (dist > 0).sum() >= 20 and (dist[world.obstacle] == -1).all()
