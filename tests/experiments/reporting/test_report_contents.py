@@ -387,7 +387,8 @@ def test_single_run_intervals_are_the_run_summaries_bootstrap(sweep, tmp_path):
 def test_page_is_self_contained(page):
     html = page.read_text()
     sources = re.findall(r'<img[^>]*\ssrc="([^"]*)"', html)
-    assert len(sources) == 8 and all(s.startswith("data:image/png;base64,") for s in sources)
+    # eight figures, and the pictures of the two worlds (the single robot's, the team's)
+    assert len(sources) == 10 and all(s.startswith("data:image/png;base64,") for s in sources)
     assert not re.search(r"(src|href)=\"(https?:)?//", html) and "url(" not in html
     assert "<script" not in html and "<link" not in html
     assert "Configurations that differ" in html and "risk.measure" in html and "team.robots" in html
@@ -556,7 +557,7 @@ def test_a_figure_failing_in_a_worker_is_skipped_and_the_others_written(sweep, t
     made = write_report([sweep], tmp_path / "report", ["png", "pdf"])
     failed = {name for name, why in made.skipped.items() if why == "failed: RuntimeError: half-drawn"}
     assert failed and made.figures  # the worker's figures failed, this process drew the others
-    assert set(made.skipped) - failed <= OTHER_RUNS and len(failed) + len(made.figures) == 8
+    assert set(made.skipped) - failed <= OTHER_RUNS and len(failed) + len(made.figures) == 10  # 2 worlds too
     out = tmp_path / "report"
     manifest = set(json.loads((out / ".riskplan-manifest.json").read_text())["files"])
     drawn = {f"{name}.{fmt}" for name in made.figures for fmt in ("png", "pdf")}
@@ -571,7 +572,7 @@ def test_a_figure_failing_in_a_worker_is_skipped_and_the_others_written(sweep, t
 def test_page_images_are_the_figure_files_at_130_dpi(page):
     html = page.read_text()
     images = re.findall(r'<figure id="([^"]+)"><img src="data:image/png;base64,([^"]+)"', html)
-    assert len(images) == 8
+    assert len(images) == 10  # eight figures and two worlds
     for name, data in images:
         shown = Image.open(io.BytesIO(base64.b64decode(data))).convert("RGB")
         file = Image.open(page.parent / f"{name}.png")
