@@ -47,10 +47,10 @@ def bench_first_run(quick: bool) -> list[dict]:
     """The first `riskplan train` after an install, the paper set-up and the paper team, each in a new process
     with an empty numba cache (every kernel compiled), against a process that imports numba and compiles
     riskplan's training kernel alone, also with an empty cache; best of a few rounds taken in turn. A plain
-    kernel written for the paper world alone (riskplan/experiments/one_kernel.py) is the second reference."""
+    kernel written for the paper world alone (riskplan/experiments/baselines/one_kernel.py) is the second reference."""
     script = Path(sys.executable).with_name("riskplan")
     cli = [str(script)] if script.is_file() else [sys.executable, "-m", "riskplan"]
-    plain = str(Path(__file__).with_name("one_kernel.py"))
+    plain = str(Path(__file__).with_name("baselines") / "one_kernel.py")  # installed with the package
     commands = {
         "kernel": [sys.executable, "-c", TRAINING_KERNEL],
         "plain": [sys.executable, plain],
@@ -79,7 +79,7 @@ def bench_first_run(quick: bool) -> list[dict]:
             "note": f"the whole command (200 iterations, 100,000 evaluation episodes, files written), best of "
             f"{1 if quick else 2} new processes, each with an empty NUMBA_CACHE_DIR; baseline: a process that "
             f"imports numba and compiles riskplan's training kernel alone; a plain kernel for the paper world "
-            f"alone (experiments/one_kernel.py) takes {plain_kernel:.2f} s (ratio {best[name] / plain_kernel:.2f})",
+            f"alone (experiments/baselines/one_kernel.py) takes {plain_kernel:.2f} s (ratio {best[name] / plain_kernel:.2f})",
         }
         for name in ("paper_single", "paper_team")
     ]

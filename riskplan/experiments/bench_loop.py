@@ -1,6 +1,6 @@
 """`riskplan bench`'s loop row: the recorded training loop of the paper's single-robot run (`riskplan train`'s
 loop: the engine's loop with rows into run.mcap, checkpoints and progress, evaluation excluded) against the same
-training as a plain numba loop that records nothing (riskplan.experiments.plain_loop), in the same bench run."""
+training as a plain numba loop that records nothing (riskplan.experiments.baselines.plain_loop), in the same bench run."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import numpy as np
 from riskplan.engine.policy import move_features
 from riskplan.engine.rollout import affine_form
 from riskplan.engine.schedules import step_size
-from riskplan.experiments import plain_loop
+from riskplan.experiments.baselines import plain_loop
 from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 from riskplan.run.training import train_summary
@@ -77,7 +77,7 @@ def bench_loop(quick: bool) -> list[dict]:
             "ok": ratio <= TARGET,
             "baseline": baseline,
             "ratio": ratio,
-            "note": "baseline: the same training as a plain loop (riskplan.experiments.plain_loop: numpy policy "
+            "note": "baseline: the same training as a plain loop (riskplan.experiments.baselines.plain_loop: numpy policy "
             "tables, a plain numba rollout kernel, numpy VaR and CVaR gradient, nothing recorded); value: riskplan "
             "train's loop with its rows, run.mcap and checkpoints (summary.json's wall_time); best of 3 each",
         }

@@ -12,7 +12,8 @@ import pytest
 
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
-from riskplan.experiments.bench_rollout import python_rollouts
+from riskplan.experiments.baselines.python_loop import python_rollouts
+from riskplan.experiments.bench_rollout import python_world
 from riskplan.experiments.bench_training import bench_measures
 from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
@@ -20,7 +21,7 @@ from riskplan.run.compose import compose
 
 def test_python_baseline_matches_the_kernel_in_distribution():
     setup = build_setup(compose(["train.theta0=[40,5]"]))
-    python_z, python_steps = python_rollouts(setup.world, setup.theta0, 3000, seed=1)
+    python_z, python_steps = python_rollouts(python_world(setup.world), setup.theta0, 3000, seed=1)
     batch = simulate(
         setup.world,
         setup.kernel,
@@ -168,7 +169,7 @@ def test_the_first_run_rows_compare_each_cold_command_with_one_kernel(monkeypatc
     def fake_wall(argv, cwd, marker=None, env=None):
         caches.append(env["NUMBA_CACHE_DIR"])
         assert not any(Path(env["NUMBA_CACHE_DIR"]).iterdir())  # empty: every kernel compiled
-        name = "kernel" if "-c" in argv else "plain" if argv[-1].endswith("one_kernel.py") else None
+        name = "kernel" if "-c" in argv else "plain" if argv[-1].endswith("baselines/one_kernel.py") else None
         if name is None:
             name = "paper_team" if "experiment=paper_team" in argv else "paper_single"
             assert argv[-1].startswith("hydra.run.dir=")
@@ -193,7 +194,7 @@ def test_the_first_run_baselines_run_as_they_are():
     from riskplan.experiments import bench_first_run as first
 
     subprocess.run([sys.executable, "-c", first.TRAINING_KERNEL], check=True, capture_output=True)
-    plain = Path(first.__file__).with_name("one_kernel.py")
+    plain = Path(first.__file__).with_name("baselines") / "one_kernel.py"
     subprocess.run([sys.executable, str(plain)], check=True, capture_output=True)
 
 
@@ -243,7 +244,7 @@ def test_the_plain_loops_policy_and_gradient_are_riskplans():
     (eqs. 2-3) and the CVaR gradient of eq. (9)."""
     from riskplan.engine.estimators import cvar_gradient, tail_count
     from riskplan.engine.policy import probabilities, scores
-    from riskplan.experiments import plain_loop
+    from riskplan.experiments.baselines import plain_loop
     from riskplan.experiments.bench_loop import plain_world
 
     setup = build_setup(compose([]))

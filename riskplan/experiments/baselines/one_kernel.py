@@ -1,4 +1,4 @@
-"""The baseline of `riskplan bench`'s first-run row: a program that imports numba and compiles one parallel rollout
+"""Not riskplan: the baseline of `riskplan bench`'s first-run row: a program that imports numba and compiles one parallel rollout
 kernel of riskplan's kind, and nothing else (numpy and numba only; run as a script, it never imports riskplan).
 
 The kernel runs the paper world's episodes as riskplan's training kernel does (riskplan.engine.rollout): one

@@ -1,4 +1,4 @@
-"""The baseline of `riskplan bench`'s loop row: Algorithm 1's training loop written plainly, with numpy and numba
+"""Not riskplan: the baseline of `riskplan bench`'s loop row: Algorithm 1's training loop written plainly, with numpy and numba
 only (it imports nothing of riskplan's): each iteration the softmax policy's tables in numpy, W episodes by the
 plain rollout kernel of `one_kernel` (a numba kernel of riskplan's kind), VaR by a partition, the CVaR gradient of
 eq. (9) as a masked product, and theta's step. Nothing is recorded, checked or checkpointed: what is left is the
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from riskplan.experiments.one_kernel import rollout
+from .one_kernel import rollout  # relative: nothing of riskplan's is imported
 
 BITS = 2.0**53
 
