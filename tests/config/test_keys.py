@@ -21,6 +21,7 @@ READ_FROM_SCHEMA = [
     "experiments/reporting/tables.py",
     "experiments/reporting/study_tables.py",
     "experiments/reporting/figures/beyond.py",
+    "experiments/reporting/figures/naming.py",
 ]
 DOTTED = re.compile(r"""(?<![A-Za-z{])["'](?:risk|team|train|world|policy|engine)\.[a-z_.]+["']""")
 

@@ -19,36 +19,37 @@ from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
 
+from riskplan.config.keys import KEYS
 from riskplan.experiments.reporting.collect import PALETTE, Collection, Group
 from riskplan.experiments.reporting.labels import fault_name, measure_name, team_name
 
 MAX_CURVES = 8  # groups drawn in one panel; more make small multiples
 MAX_PANELS = 20  # panels of small multiples; past them the figure says how many it left out
-MEASURE, POLICY, FAULTS = "risk.measure", "policy", "faults"  # keys that name several config keys at once
+MEASURE, POLICY, FAULTS = KEYS.risk.measure, "policy", "faults"  # keys that name several config keys at once
 BUNDLED = {
-    "risk.eta": MEASURE,
-    "risk.weight": MEASURE,
-    "policy.kind": POLICY,
-    "policy.features": POLICY,
-    "team.faults": FAULTS,
-    "team.aggregate": FAULTS,
-    "team.trim": FAULTS,
+    KEYS.risk.eta: MEASURE,
+    KEYS.risk.weight: MEASURE,
+    KEYS.policy.kind: POLICY,
+    KEYS.policy.features: POLICY,
+    KEYS.team.faults: FAULTS,
+    KEYS.team.aggregate: FAULTS,
+    KEYS.team.trim: FAULTS,
 }
 PRIORITY = (  # the keys a name is made of, tried in this order (the rest follow alphabetically, experiment last)
     MEASURE,
-    "risk.beta",
-    "risk.schedule.kind",
-    "team.robots",
-    "team.graph",
-    "team.weights",
-    "team.order",
-    "team.delay.max",
-    "team.drop",
-    "team.consensus_rounds",
+    KEYS.risk.beta,
+    KEYS.risk.schedule.kind,
+    KEYS.team.robots,
+    KEYS.team.graph,
+    KEYS.team.weights,
+    KEYS.team.order,
+    KEYS.team.delay.max,
+    KEYS.team.drop,
+    KEYS.team.consensus_rounds,
     POLICY,
     FAULTS,
-    "team.starts",
-    "train.samples",
+    KEYS.team.starts,
+    KEYS.train.samples,
     "train.theta0",
 )
 SHORTEST = 24  # characters of a value in a name
@@ -73,22 +74,22 @@ def _value(value) -> str:
 def _key(key: str) -> str:
     """A config key as a name shows it: team.graph -> graph, train.step_size.initial -> step_size.initial."""
     head, _, rest = key.partition(".")
-    return rest if rest and head in ("team", "train", "world", "risk", "policy") else key
+    return rest if rest and head in (KEYS.team, KEYS.train, KEYS.world, KEYS.risk, KEYS.policy) else key
 
 
 def text(g: Group, key: str) -> str:
     """One key of a group, written short."""
     if key == MEASURE:
         return measure_name(g)
-    if key == "risk.beta":
+    if key == KEYS.risk.beta:
         return f"β={g.beta:g}"
-    if key == "team.robots":
+    if key == KEYS.team.robots:
         return team_name(g)
     if key == POLICY:
         return "tabular policy" if g.policy_kind == "tabular" else f"features=[{', '.join(g.features)}]"
     if key == FAULTS:
         return fault_name(g)
-    if key == "team.starts":
+    if key == KEYS.team.starts:
         starts = g.team_conf.get("starts")
         return f"{len(starts)} start cells" if starts else "one start cell"
     return f"{_key(key)}={_value(g.first.flat.get(key, '(absent)'))}"
@@ -98,11 +99,11 @@ def key_name(key: str) -> str:
     """A key as a caption says it: 'β', 'N', 'graph', 'risk measure'."""
     return {
         MEASURE: "risk measure",
-        "risk.beta": "β",
-        "team.robots": "team size N",
+        KEYS.risk.beta: "β",
+        KEYS.team.robots: "team size N",
         POLICY: "policy",
         FAULTS: "fault and aggregation",
-        "team.starts": "set of start cells",
+        KEYS.team.starts: "set of start cells",
     }.get(key, _key(key))
 
 
@@ -113,14 +114,14 @@ def differing(groups: list[Group]) -> list[str]:
     raw = sorted(k for k in {k for f in flat for k in f} if len({_hashable(f.get(k)) for f in flat}) > 1)
     keys = {_bundle(k) for k in raw}
     ordered = [k for k in PRIORITY if k in keys]
-    ordered += sorted(k for k in keys if k not in PRIORITY and k != "experiment")
-    ordered += ["experiment"] if "experiment" in keys else []
+    ordered += sorted(k for k in keys if k not in PRIORITY and k != KEYS.experiment)
+    ordered += [KEYS.experiment] if KEYS.experiment in keys else []
     return ordered + [k for k in raw if _bundle(k) != k]
 
 
 def _bundle(key: str) -> str:
     """The key a name shows for a config key: MEASURE for the measure's parameters (risk.params.*), ..."""
-    return MEASURE if key.startswith("risk.params.") else BUNDLED.get(key, key)
+    return MEASURE if key.startswith(f"{KEYS.risk.params}.") else BUNDLED.get(key, key)
 
 
 def _hashable(value):
@@ -173,12 +174,12 @@ def names(groups: list[Group], keys: list[str] | None = None, unique: bool = Tru
     out = []
     for g in groups:
         parts = [text(g, k) for k in keys]
-        if MEASURE in keys and "risk.beta" in keys:
-            parts[keys.index("risk.beta")] = ""
+        if MEASURE in keys and KEYS.risk.beta in keys:
+            parts[keys.index(KEYS.risk.beta)] = ""
         out.append(", ".join(p for p in parts if p) or "runs")
     if not unique:
         return out
-    if len(set(out)) < len(out) and MEASURE in keys and "risk.beta" in keys:  # a β that differs between neutral runs
+    if len(set(out)) < len(out) and MEASURE in keys and KEYS.risk.beta in keys:  # a β that differs between neutral runs
         out = [", ".join(text(g, k) for k in keys) for g in groups]
     seen: dict[str, int] = {}
     for i, name in enumerate(out):
