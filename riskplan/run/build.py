@@ -127,31 +127,31 @@ def initial_theta(world: World, policy: Policy, given: list) -> np.ndarray:
     return policy.initial(world, weights)
 
 
-REACH_EPISODES = 1000  # theta0's episodes per robot behind the reach warning: a 1% share is about 10 of them
+REACH_EPISODES = 1000  # theta0's episodes per distinct start behind the reach warning: 1% is about 10 of them
 RARE = 0.01  # a source reached by fewer of theta0's episodes than this gets a warning
 
 
 def check_reach(world: World, moves: np.ndarray) -> None:
     """BadInput for a static source that no start reaches within world.horizon moves (`moves`: (starts, sources)
-    fewest moves, -1 for no path). A random walk is measured from its start cell and not refused: it may walk nearer,
-    and the sampled episodes of `reach_lines` tell how often the policy meets it."""
+    fewest moves, -1 for no path). One walled off from a start was refused by engine.world already, so every static
+    source has a path from every start here. A random walk is measured from its start cell and not refused: it may
+    walk nearer, and the sampled episodes of `reach_lines` tell how often the policy meets it."""
     for j, name in enumerate(world.source_names):
-        nearest = moves[:, j][moves[:, j] >= 0]
-        if world.source_motion[j] > 0 or (nearest.size and nearest.min() <= world.horizon):
+        nearest = int(moves[:, j].min())
+        if world.source_motion[j] > 0 or nearest <= world.horizon:
             continue
         x, y = world.xy(world.source_cells[j])
-        far = f"is {int(nearest.min())} moves from the nearest start" if nearest.size else "has no path from any start"
         raise BadInput(
             f"world.sources.{j}.position",
-            f"'{name}' at ({x}, {y}) {far}, beyond world.horizon={world.horizon}: no episode can reach it; move it "
-            f"or the start nearer, or lengthen world.horizon",
+            f"'{name}' at ({x}, {y}) is {nearest} moves from the nearest start, beyond world.horizon="
+            f"{world.horizon}: no episode can reach it; move it or the start nearer, or lengthen world.horizon",
         )
 
 
 def reach_lines(setup: Setup) -> list[str]:
     """One line per source: its fewest moves from each start beside the horizon, and the share of theta0's episodes
-    that reach it (REACH_EPISODES per robot, the first iteration's own streams). A share under RARE is also a
-    warning (`warnings.warn`: one `warning:` line from the CLI) saying what to change."""
+    that reach it (`initial_shares`). A share under RARE is also a warning (`warnings.warn`: one `warning:` line
+    from the CLI) saying what to change."""
     world = setup.world
     cells = np.unique(world.starts)
     moves = source_distances(world, cells)
@@ -165,7 +165,7 @@ def reach_lines(setup: Setup) -> list[str]:
         if shares[j] < RARE:
             warnings.warn(
                 f"source {j} '{name}' is reached by {shares[j]:.1%} of the initial policy's episodes (under "
-                f"{RARE:.0%} of {REACH_EPISODES * setup.robots} sampled): training will rarely see it; raise its "
+                f"{RARE:.0%} of {REACH_EPISODES * len(cells)} sampled): training will rarely see it; raise its "
                 f"weight in train.theta0, widen its signal (world.sources.{j}.covariance) or lengthen world.horizon",
                 stacklevel=2,
             )
@@ -173,13 +173,12 @@ def reach_lines(setup: Setup) -> list[str]:
 
 
 def initial_shares(setup: Setup) -> np.ndarray:
-    """(sources,) the share of theta0's episodes that reach each source: REACH_EPISODES per robot from its start,
-    on the streams of the first iteration's episodes (the same numbers training starts from)."""
-    robots = setup.robots
-    keys = rng.robot_keys(setup.params.seed, rng.TRAIN, 0, robots)
-    thetas = np.repeat(setup.theta0[None, :], robots, axis=0)
-    run = simulator(setup)
-    batch = run(setup.world, setup.kernel, thetas, starts(setup), keys, REACH_EPISODES, scores=False)
-    return np.bincount(batch.source_reached[batch.source_reached >= 0], minlength=setup.world.sources) / len(
-        batch.source_reached
-    )
+    """(sources,) the share of theta0's episodes that reach each source: REACH_EPISODES from each distinct start
+    (robots that share a start and theta0 share their odds; a team of 1,000 costs what one robot does), on the
+    streams of the first iteration's first robots."""
+    cells = np.unique(starts(setup))
+    keys = rng.robot_keys(setup.params.seed, rng.TRAIN, 0, len(cells))
+    thetas = np.repeat(setup.theta0[None, :], len(cells), axis=0)
+    batch = simulator(setup)(setup.world, setup.kernel, thetas, cells, keys, REACH_EPISODES, scores=False)
+    reached = batch.source_reached
+    return np.bincount(reached[reached >= 0], minlength=setup.world.sources) / len(reached)
