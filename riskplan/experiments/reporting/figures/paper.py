@@ -7,7 +7,6 @@ named by what differs between them, under plain titles.
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -44,6 +43,7 @@ from riskplan.experiments.reporting.figures.naming import (
     names,
     seeded,
 )
+from riskplan.experiments.reporting.figures.world_picture import world_key
 from riskplan.experiments.reporting.labels import measure_name, team_name
 from riskplan.run.build import build_setup
 
@@ -172,10 +172,6 @@ def world_axes(world: dict, side: float = WORLD_SIDE) -> tuple[float, float]:
     return width, width / ratio
 
 
-def _world_key(config: dict) -> str:
-    return json.dumps({k: config.get(k) for k in ("world", "team")}, sort_keys=True, default=str)
-
-
 MARKS = [
     Line2D([], [], ls="none", marker="s", ms=6, color="#555555", label="end point"),
     Line2D([], [], ls="none", marker="*", ms=12, color=SOURCE_COLOUR, mec="black", label="source"),
@@ -200,7 +196,7 @@ def fig_paths(coll: Collection) -> FigureSpec | str:
     groups, called = groups[:MAX_PANELS], called[:MAX_PANELS]
     worlds: dict[str, dict | None] = {}
     for g in groups:
-        key = _world_key(g.config)
+        key = world_key(g.config)
         if key not in worlds:
             worlds[key] = _world_map(g.config)
     if any(w is None for w in worlds.values()):
@@ -227,7 +223,7 @@ def fig_paths(coll: Collection) -> FigureSpec | str:
         width, height = world_axes(next(iter(worlds.values())), side=2.7) if same else (2.7, 2.7)
         fig, axes = panel_grid(len(groups), (width + 0.4, height + 0.5), extra=0.3, sharex=same, sharey=same)
         for ax, g, name, colour in zip(axes, groups, called, colours):
-            draw_world(ax, worlds[_world_key(g.config)], labels=not same)
+            draw_world(ax, worlds[world_key(g.config)], labels=not same)
             _draw_paths(ax, g, colour, name)
             panel_title(ax, seeded(name, g.first.seed))
         if same:
