@@ -90,6 +90,11 @@ def test_team_starts_and_a_rect_in_metres(room_map):
     # x -1.9 -> pixel 1 -> cell 0, 0.1 -> pixel 21 -> cell 10; y 1.6 -> pixel 1 -> cell 0, 3.1 -> pixel 16 -> cell 8
     assert lobby[0:11, 0:9].all() and lobby.sum() == 11 * 9
     assert world.placements[-1].cells == (0, 0, 10, 8)
+    # a corner off the map is one line naming the nearest cell on the map (a rect's corner may be an obstacle)
+    err = bad_input(*on_map(room_map), "world.regions=[{name:lobby,rect:{metres:[-2.5,1.6,0.1,3.1]},reward:1}]")
+    assert err.where == "world.regions.0.rect"
+    assert "{metres: [-2.5, 1.6]} is off the map: it falls in cell (-3, 0)" in err.problem
+    assert "the nearest cell on the map is (0, 0), {metres: [-1.9, 1.6]} at its centre" in err.problem
 
 
 def test_frame_follows_origin_resolution_map_cell_and_yaw():
@@ -99,6 +104,8 @@ def test_frame_follows_origin_resolution_map_cell_and_yaw():
     assert frame.pixel_of(-10.01, -4.98) == (-1, 0)  # west of the origin: off the map
     assert frame.pixel_of(2.33, -1.23) == (246, 75)  # 12.33 / 0.05 = 246.6, 3.77 / 0.05 = 75.4: cell (24, 7)
     assert frame.centre(24, 7) == pytest.approx((2.25, -1.25))
+    # on a pixel's edge: the pixel beyond it, though -10 + 0.1 and 0.1 / 0.05 round below the edge in floats
+    assert frame.pixel_of(-9.9, -4.9) == (2, 2) and frame.pixel_of(-9.95, -5.0) == (1, 0)
     # a quarter turn: the map's x axis points along the frame's y
     turned = Frame(resolution=0.5, cell=1, origin=(1.0, 2.0, math.pi / 2), pixels=(4, 4))
     assert turned.pixel_of(0.2, 3.3) == (2, 1)  # u = y - 2 = 1.3, v = -(x - 1) = 0.8
