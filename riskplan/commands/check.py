@@ -14,6 +14,7 @@ from riskplan.commands.common import (
     reject_hydra_flags,
     with_config_dirs,
 )
+from riskplan.util.errors import BadInput
 
 
 def register(app: typer.Typer) -> None:
@@ -46,7 +47,14 @@ def check(
         draw_format(draw)
         check_writable(draw)
     cfg = compose(args, validate=False)
-    setup = build_setup(cfg)
+    try:
+        setup = build_setup(cfg)
+    except BadInput as err:
+        if draw is None:
+            raise
+        from riskplan.experiments.reporting.figures.world_picture import map_drawn_instead
+
+        raise map_drawn_instead(cfg, draw, err) from None
     typer.echo(OmegaConf.to_yaml(cfg).rstrip())
     typer.echo("")
     typer.echo(_describe_world(setup))
@@ -58,9 +66,9 @@ def check(
     )
     typer.echo(describe(setup.network, setup.params.team))
     if draw is not None:
-        from riskplan.experiments.reporting.figures.world_picture import write_picture
+        from riskplan.experiments.reporting.figures.world_picture import picture_of, write_picture
 
-        write_picture(setup, draw)
+        write_picture(picture_of(setup), draw)
         typer.echo(f"world drawn: {draw}")
     typer.echo("config OK")
 

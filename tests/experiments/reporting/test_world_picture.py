@@ -108,7 +108,7 @@ def test_shipped_floor_plan_walls_unknown_outside_start_sources_and_metres():
     colours = cell_colours(ax)
     classes = picture.cells.classes
     assert tuple(colours[0, 0]) == pytest.approx(to_rgb(wp.UNKNOWN))  # the map's unknown space outside
-    layout = picture.setup.world.obstacle.reshape(30, 24)
+    layout = picture.world.obstacle.reshape(30, 24)
     walls = layout & (classes == len(picture.cells.colours) - 1)
     assert walls.sum() > 100 and np.allclose(colours[walls], to_rgb(wp.OBSTACLE))
     wall_x, wall_y = np.argwhere(walls)[0]
@@ -195,6 +195,33 @@ def test_a_turned_map_has_no_metre_axes(room_map):
     room_map.write_text(room_map.read_text().replace("origin: [-3.0, 1.5, 0.0]", "origin: [-3.0, 1.5, 0.5]"))
     _, _, ax = drawn(f"world.map={room_map}", *ROOM)
     assert not ax.child_axes and "turned 0.5 rad (no metre axes)" in " ".join(ax.get_title().split())
+
+
+def test_check_draws_a_new_map_alone_when_its_start_is_not_placed_yet(room_map, in_tmp):
+    """A new map with the default start (0, 0), a wall of it: the error line, and the map drawn alone to place the
+    start and the sources on (its cells, unknown space and walls; no start, source or reach)."""
+    result = runner.invoke(app, ["check", f"world.map={room_map}", "world.map_cell=2", "world.regions=[]",
+                                 "--draw", "map.png"])  # fmt: skip
+    assert result.exit_code == 2
+    assert result.stderr.startswith("error: world.start: (0, 0) is an obstacle") and result.stderr.count("\n") == 1
+    assert result.stderr.rstrip().endswith("(the map alone is drawn to map.png, to place things on)")
+    assert (in_tmp / "map.png").read_bytes().startswith(b"\x89PNG")
+    setup_free = ["world.start=[2,6]", "world.sources=[{name:a,position:[6,9],reward:1}]", "train.theta0=[20.0]"]
+    world = setup_of(f"world.map={room_map}", "world.map_cell=2", "world.regions=[]", *setup_free).params.world
+    picture = wp.map_alone(world, wp.maps.read_map(world), "world.start is bad")
+    figure = wp.draw_picture(picture)
+    ax = figure.axes[0]
+    colours = cell_colours(ax)
+    assert np.allclose(colours[:, 12:16], to_rgb(wp.UNKNOWN)) and np.allclose(colours[12, 4:10], to_rgb(wp.OBSTACLE))
+    assert np.allclose(colours[13:17, 5:9], to_rgb(wp.FREE))  # no start: nothing greyed as out of reach
+    assert not markers(ax, "o") and not markers(ax, "*") and not path_lines(ax)
+    assert ax.child_axes and "the map alone (world.start is bad)" in " ".join(ax.get_title().split())
+
+
+def test_check_draws_nothing_when_the_map_itself_is_bad(in_tmp):
+    result = runner.invoke(app, ["check", "world.map=gone.yaml", "--draw", "map.png"])
+    assert result.exit_code == 2 and result.stderr.startswith("error: world.map: no map file gone.yaml")
+    assert "drawn" not in result.stderr and not (in_tmp / "map.png").exists()
 
 
 @pytest.mark.slow

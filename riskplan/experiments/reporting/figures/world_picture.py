@@ -26,9 +26,11 @@ from matplotlib.patches import Patch, PathPatch
 from matplotlib.path import Path as MplPath
 from matplotlib.ticker import MaxNLocator
 
-from riskplan.config.schema import MapUnknown
+from riskplan.config.schema import MapUnknown, WorldConf
+from riskplan.config.typed import typed
 from riskplan.engine.reachability import distances, shortest_path, source_distances
 from riskplan.engine.step import Setup
+from riskplan.engine.world import World
 from riskplan.experiments.reporting.collect import Collection
 from riskplan.experiments.reporting.figures.drawing import (
     SOURCE_COLOUR,
@@ -76,16 +78,16 @@ class Cells:
 
 @dataclass(frozen=True)
 class Picture:
-    """What the picture shows, in cells, computed from a built run set-up."""
+    """What the picture shows, in cells: a built world's, or a map's alone (no world: nothing placed on it)."""
 
-    setup: Setup
     cells: Cells
-    reachable: np.ndarray  # (W, H) bool: within `horizon` moves of a start
-    nearest: np.ndarray  # (M,) the start cell nearest each source
-    moves: np.ndarray  # (M,) its distance in moves, -1 for no path
-    paths: tuple[np.ndarray, ...]  # per source: a shortest path's cells from that start (empty: none)
     metres: tuple[float, float, float] | None  # a map world's (metres per cell, origin x, origin y)
     title: str
+    world: World | None = None  # its sources, starts and horizon
+    reachable: np.ndarray | None = None  # (W, H) bool: within `horizon` moves of a start
+    nearest: np.ndarray | None = None  # (M,) the start cell nearest each source
+    moves: np.ndarray | None = None  # (M,) its distance in moves, -1 for no path
+    paths: tuple[np.ndarray, ...] = ()  # per source: a shortest path's cells from that start (empty: none)
 
 
 def picture_of(setup: Setup) -> Picture:
@@ -104,44 +106,56 @@ def picture_of(setup: Setup) -> Picture:
         shortest_path(world, int(start), int(cell)) if d >= 0 else np.empty(0, np.int64)
         for start, cell, d in zip(nearest, world.source_cells, moves)
     )
-    size = f"{world.width} × {world.height} cells, horizon K = {world.horizon}"
-    if found is None:
-        metres, title = None, f"The world: {size}"
-    else:  # a turned map (yaw) has no metre axes: its frame's x and y do not run along the cells'
-        metres = (found.cell_size, found.origin[0], found.origin[1]) if found.origin[2] == 0 else None
-        turned = "" if metres else f", turned {found.origin[2]:g} rad (no metre axes)"
-        title = f"{Path(found.shown).name}: {size}, {found.cell_size:g} m per cell{turned}"
+    shape = (world.width, world.height)
+    region_of = world.region_of.reshape(shape)
+    regions = [(name, bool(world.region_risky[r]), region_of == r) for r, name in enumerate(world.region_names)]
+    metres, title = _frame(found, f"{world.width} × {world.height} cells, horizon K = {world.horizon}")
     return Picture(
-        setup=setup,
-        cells=_cells(setup, unknown, conf.map_unknown),
-        reachable=reachable.reshape(world.width, world.height),
+        cells=_cells(world.obstacle.reshape(shape), unknown, conf.map_unknown, regions),
+        metres=metres,
+        title=title,
+        world=world,
+        reachable=reachable.reshape(shape),
         nearest=nearest,
         moves=moves,
         paths=paths,
-        metres=metres,
-        title=title,
     )
 
 
-def _cells(setup: Setup, unknown: np.ndarray | None, unknown_as: MapUnknown) -> Cells:
-    """Free 0, each region (safe ones first, then risky), unknown, obstacle: the classes and their looks."""
-    world = setup.world
-    shape = (world.width, world.height)
-    classes = np.zeros(shape, dtype=np.int64)
+def map_alone(conf: WorldConf, found: maps.MapFile, why: str) -> Picture:
+    """The picture of a map's cells alone (free, unknown, occupied), nothing placed on it: for placing the start
+    and the sources when they are what the config gets wrong (`why`)."""
+    layout = maps.load_layout(conf, found)
+    width, height = layout.size
+    metres, title = _frame(found, f"{width} × {height} cells, the map alone ({why})")
+    return Picture(cells=_cells(layout.occupied, layout.unknown, conf.map_unknown, []), metres=metres, title=title)
+
+
+def _frame(found: maps.MapFile | None, size: str) -> tuple[tuple[float, float, float] | None, str]:
+    """(metres per cell, origin x, origin y) of a map's frame, or None, and the picture's title."""
+    if found is None:
+        return None, f"The world: {size}"
+    # a turned map (yaw) has no metre axes: its frame's x and y do not run along the cells'
+    metres = (found.cell_size, found.origin[0], found.origin[1]) if found.origin[2] == 0 else None
+    turned = "" if metres else f", turned {found.origin[2]:g} rad (no metre axes)"
+    return metres, f"{Path(found.shown).name}: {size}, {found.cell_size:g} m per cell{turned}"
+
+
+def _cells(blocked: np.ndarray, unknown: np.ndarray | None, unknown_as: MapUnknown, regions: list) -> Cells:
+    """Free 0, each region (safe ones first, then risky), unknown, obstacle: the classes and their looks.
+    `regions`: (name, risky, (W, H) cells) each; `blocked`: (W, H) cells no robot enters."""
+    classes = np.zeros(blocked.shape, dtype=np.int64)
     colours, labels, hatched = [FREE], ["free"], [False]
-    order = sorted(range(len(world.region_names)), key=lambda r: bool(world.region_risky[r]))
-    region_of = world.region_of.reshape(shape)
     safe = risky = 0
-    for r in order:
-        is_risky = bool(world.region_risky[r])
-        classes[region_of == r] = len(colours)
+    for name, is_risky, cells in sorted(regions, key=lambda region: region[1]):
+        classes[cells] = len(colours)
         if is_risky:
             colours.append(RISKY_REGIONS[risky % len(RISKY_REGIONS)])
             risky += 1
         else:
             colours.append(SAFE_REGIONS[safe % len(SAFE_REGIONS)])
             safe += 1
-        labels.append(f"region '{world.region_names[r]}'" + (" (risky)" if is_risky else ""))
+        labels.append(f"region '{name}'" + (" (risky)" if is_risky else ""))
         hatched.append(is_risky)
     open_classes = len(colours)
     if unknown is not None and unknown.any():
@@ -149,7 +163,6 @@ def _cells(setup: Setup, unknown: np.ndarray | None, unknown_as: MapUnknown) -> 
         colours.append(UNKNOWN)
         labels.append(f"unknown (world.map_unknown={unknown_as.value})")
         hatched.append(False)
-    blocked = world.obstacle.reshape(shape)
     classes[blocked if unknown is None else blocked & ~unknown] = len(colours)  # blocked unknown cells: as unknown
     colours.append(OBSTACLE)
     labels.append("obstacle")
@@ -178,18 +191,17 @@ def image_of(picture: Picture, k: int) -> np.ndarray:
     the horizon (obstacles and unknown space as they are)."""
     cells = picture.cells
     classes = blocks(cells.classes, k)
-    reachable = blocks(picture.reachable, k)
-    palette = np.array([to_rgb(c) for c in cells.colours])
-    rgb = palette[classes]
-    beyond = (classes < cells.open) & ~reachable
+    rgb = np.array([to_rgb(c) for c in cells.colours])[classes]
+    if picture.reachable is None:  # the map alone: no start to reach from
+        return rgb.transpose(1, 0, 2)
+    beyond = (classes < cells.open) & ~blocks(picture.reachable, k)
     rgb[beyond] = (1 - BEYOND_SHARE) * rgb[beyond] + BEYOND_SHARE * BEYOND_GREY
     return rgb.transpose(1, 0, 2)
 
 
 def draw_picture(picture: Picture) -> Figure:
     """The figure of a Picture: the cells, the reachable outline, signals, paths, starts and sources, a legend."""
-    world = picture.setup.world
-    w, h = world.width, world.height
+    w, h = picture.cells.classes.shape
     k = block_of(w, h)
     below = w > LEGEND_BELOW * h
     fig, axes = new_figure(*_size(w, h, below))
@@ -200,9 +212,11 @@ def draw_picture(picture: Picture) -> Figure:
     if risky:
         ax.add_patch(PathPatch(_cells_path(np.isin(blocks(picture.cells.classes, k), risky), k), facecolor="none",
                                edgecolor=RISKY_HATCH, hatch="////", lw=0, zorder=1))  # fmt: skip
-    ax.add_collection(LineCollection(_outline(blocks(picture.reachable, k), k), colors=REACH_COLOUR, lw=1.2, zorder=2))
     handles = _legend_cells(picture)
-    handles += _draw_sources(ax, picture, k)
+    if picture.world is not None:
+        outline = _outline(blocks(picture.reachable, k), k)
+        ax.add_collection(LineCollection(outline, colors=REACH_COLOUR, lw=1.2, zorder=2))
+        handles += _draw_sources(ax, picture, k)
     _axes_in_cells(ax, w, h, picture.metres)
     ax.set_title(textwrap.fill(picture.title, 64))
     if below:
@@ -261,7 +275,9 @@ def _legend_cells(picture: Picture) -> list:
         )
         if c in present
     ]
-    horizon = picture.setup.world.horizon
+    if picture.world is None:
+        return handles
+    horizon = picture.world.horizon
     handles.append(Line2D([], [], color=REACH_COLOUR, lw=1.1, label=f"reachable within K = {horizon} moves"))
     grey = (1 - BEYOND_SHARE) * np.ones(3) + BEYOND_SHARE * BEYOND_GREY
     handles.append(Patch(facecolor=grey, edgecolor="#777777", label="beyond reach (greyed)"))
@@ -271,7 +287,7 @@ def _legend_cells(picture: Picture) -> list:
 def _draw_sources(ax, picture: Picture, k: int) -> list:
     """Each source's signal contours, its shortest path from the nearest start, its star; the starts. Legend
     handles: one per source, the contours' key and the start."""
-    world = picture.setup.world
+    world = picture.world
     signals = world.signals()
     xs, ys = np.arange(0, world.width, k), np.arange(0, world.height, k)  # each block's first cell
     handles = []
@@ -368,16 +384,31 @@ def check_writable(path: Path, key: str = "--draw") -> None:
         raise BadInput(key, f"{path} cannot be written ({err.strerror}); give a path in a writable folder") from None
 
 
-def write_picture(setup: Setup, path: Path, key: str = "--draw") -> None:
-    """The world's picture written to `path` (atomically: a failed write leaves no file)."""
+def write_picture(picture: Picture, path: Path, key: str = "--draw") -> None:
+    """A picture written to `path` (atomically: a failed write leaves no file)."""
     fmt = draw_format(path, key)
-    figure = world_figure(setup)
     with matplotlib.rc_context(STYLE):
-        data = figure_bytes(figure, fmt)
+        data = figure_bytes(draw_picture(picture), fmt)
     try:
         write_atomic(path, data)
     except OSError as err:
         raise BadInput(key, f"{path} cannot be written ({err.strerror}); give a path in a writable folder") from None
+
+
+def map_drawn_instead(cfg, path: Path, err: BadInput, key: str = "--draw") -> BadInput:
+    """check --draw on a config that fails to build: a map world whose map reads is drawn alone to `path` (to place
+    the start and the sources on, which are often what fails first on a new map), and the error says so; any other
+    config's error is returned as it is."""
+    try:
+        conf = typed(cfg).world
+        found = maps.read_map(conf)
+        picture = None if found is None else map_alone(conf, found, f"{err.where} is bad")
+    except BadInput:  # the map itself, or the config's types: nothing to draw
+        return err
+    if picture is None:
+        return err
+    write_picture(picture, path, key)
+    return BadInput(err.where, f"{err.problem} (the map alone is drawn to {path}, to place things on)")
 
 
 # ------------------------------------------------------------------------------------------------ the report
