@@ -1264,6 +1264,7 @@ TRANSCRIPTS = {
     ),
     "maps_check_bad_input": Transcript(
         (
+            "riskplan check world.map=maps/floor_plan.yaml --draw map.png",
             "riskplan check experiment=floor_plan world.horizon=10",
             "riskplan check experiment=floor_plan --draw world.gif",
         )
