@@ -38,6 +38,7 @@ class BackendSpec:
     deterministic: bool = True  # the same numbers every time (False: the wall clock orders its messages)
     simulated_network: bool = True  # team.delay, team.drop and team.switching apply (a real network refuses them)
     batched: bool = True  # sweep --batch may train it with other runs (False: each run alone)
+    resume_check: str | None = None  # module:function(setup, out) -> finished, for a driver's own checkpoints
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,7 @@ BACKENDS = {
         Backend.ray,
         "riskplan.run.ray_team:train_ray",
         Extra("ray", "Ray", "distributed"),
+        resume_check="riskplan.run.ray_team:prepare_ray_resume",
         deterministic=False,
         simulated_network=False,
         batched=False,

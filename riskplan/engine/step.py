@@ -19,6 +19,7 @@ state from `state.mixer` and returns the new one, so the same state always gives
 
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 import math
@@ -28,13 +29,14 @@ from typing import NamedTuple
 
 import numpy as np
 
+from riskplan.config.backends import DEVICES, load
 from riskplan.config.schema import Device, Order, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
 from riskplan.engine import rng
 from riskplan.engine.gradients import gradients
 from riskplan.engine.policy import Policy
 from riskplan.engine.risk_measures import summary_stats
-from riskplan.engine.rollout import Kernel, simulate
+from riskplan.engine.rollout import Kernel
 from riskplan.engine.schedules import samples_at, step_size
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.engine.team.mixer import Mixer
@@ -147,13 +149,15 @@ def rollouts(setup: Setup, l: int, thetas: np.ndarray, robots=None) -> tuple[np.
 
 
 def simulator(setup: Setup):
-    """The episode kernel of a setup: riskplan.engine.rollout.simulate, or with engine.device=cuda its GPU port
-    (riskplan.engine.cuda_rollout.simulate: the same arguments and numbers)."""
-    if setup.params.engine.device == Device.cuda:
-        from riskplan.engine import cuda_rollout  # optional: numba-cuda, imported for engine.device=cuda alone
+    """The episode kernel of a setup's engine.device (riskplan.config.backends.DEVICES): riskplan.engine.rollout's
+    `simulate` on the CPU, its GPU port (numba-cuda, imported for engine.device=cuda alone) with the same arguments
+    and numbers."""
+    return _kernel(setup.params.engine.device)
 
-        return cuda_rollout.simulate
-    return simulate
+
+@functools.cache
+def _kernel(device: Device):
+    return load(DEVICES[device].kernel)
 
 
 def batched_rollouts(setups: list[Setup], l: int, thetas: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:

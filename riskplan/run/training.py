@@ -14,13 +14,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from riskplan.config.schema import Backend
+from riskplan.config.backends import BACKENDS, load
 from riskplan.engine.loop import make_train
 from riskplan.engine.step import Setup, TrainState, simulator, starts
 from riskplan.engine.team.kernels import Links, mix_linked
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import load_checkpoint
-from riskplan.run.ray_team import prepare_ray_resume, train_ray
 from riskplan.run.recorder import Driver, Recorder
 from riskplan.run.run_directory import logged_rows
 from riskplan.run.run_files import has_finished
@@ -64,8 +63,9 @@ def train_summary(
 
 def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> dict:
     """train() under the directory's lock: the engine's loop for a batch of one, its effects through the recorder."""
-    if setup.params.team.backend == Backend.ray:  # each robot a Ray actor: riskplan.run.ray_team
-        return train_ray(setup, out, resume, progress)
+    driver = BACKENDS[setup.params.team.backend].driver
+    if driver is not None:  # a backend with a loop of its own (team.backend=ray: each robot a Ray actor)
+        return load(driver)(setup, out, resume, progress)
     run = Driver(setup, out, resume, progress)
     load_kernels(setup, run.state)  # numba's cache, before the loop: wall_time is the loop's own
     resume_collection()  # the start-up is over: a command that paused the collector for it gets it back here
@@ -92,8 +92,9 @@ def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
     """The Setup of a run to resume, after every check of its config, checkpoint and log (nothing is written), and
     whether the run is finished already (its checkpoint is at train.iterations and its tables are there)."""
     setup = build_setup(config, needs_ray=False)
-    if setup.params.team.backend == Backend.ray:  # Ray only if a robot has iterations left (prepare_ray_resume)
-        return setup, prepare_ray_resume(setup, out)
+    check = BACKENDS[setup.params.team.backend].resume_check
+    if check is not None:  # checkpoints of its own (ray: one per robot; Ray only if a robot has iterations left)
+        return setup, load(check)(setup, out)
     state = load_checkpoint(out, setup)
     logged_rows(out / "run.mcap", state.iteration, setup.robots)
     done = state.iteration == setup.params.train.iterations and has_finished(out)

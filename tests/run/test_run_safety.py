@@ -222,14 +222,19 @@ def test_a_log_whose_rows_do_not_match_the_checkpoint_is_bad_input(finished, tmp
 
 # ------------------------------------------------------------------------------------ never a non-finite result
 def test_a_non_finite_reward_stops_the_run_with_one_line_and_writes_no_result(tmp_path, monkeypatch):
-    real = engine_step.simulate  # the episode kernel the engine's step runs
+    real = engine_step.simulator  # the episode kernel the engine's step runs
 
-    def overflowing(*args, **kwargs):
-        batch = real(*args, **kwargs)
-        batch.total_reward[0] = np.inf  # what a reward program that overflows would give
-        return batch
+    def overflowing_kernel(setup):
+        kernel = real(setup)
 
-    monkeypatch.setattr(engine_step, "simulate", overflowing)
+        def overflowing(*args, **kwargs):
+            batch = kernel(*args, **kwargs)
+            batch.total_reward[0] = np.inf  # what a reward program that overflows would give
+            return batch
+
+        return overflowing
+
+    monkeypatch.setattr(engine_step, "simulator", overflowing_kernel)
     monkeypatch.chdir(tmp_path)
     result = runner.invoke(app, ["train", *RUN, f"hydra.run.dir={tmp_path / 'run'}"])
     assert result.exit_code == 1
