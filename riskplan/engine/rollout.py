@@ -189,7 +189,7 @@ def simulate(
     if kernel.tables.affine and not (kernel.tables.mobile or reference or kernel.tables.tabular):
         _simulate_affine(kernel.tables, bins, score, starts, keys, episodes, record, *outputs, path_cells, path_rewards)
     else:
-        _simulate(
+        _simulate(  # the kernel's parameters, positionally in its order
             kernel.tables,
             bins,
             score,

@@ -228,6 +228,8 @@ def _pick_bits(bins, m):
     return int(m >= bins[0]) + int(m >= bins[1]) + int(m >= bins[2]) + int(m >= bins[3])
 
 
+# Twin of policy._fill_tabular's softmax (same arithmetic): that one fills every cell's tables at once, this one a
+# single cell in place at each step of a mobile world, inlined into the episode loop.
 @njit(cache=True, inline="always")
 def _cumulative_softmax(cum, best):
     """The five logits in `cum` (their largest `best`) made cumulative move probabilities in place, cum[4] = 1."""
@@ -348,6 +350,8 @@ def step_robots(tables, cells, moves, active, group, sources, states, walk_state
             walk_states[g] = _walk(sources[g], tables.source_motion, tables.height, tables.width, walk_states[g])
 
 
+# Twin of `_simulate`'s loop, its static-features-affine case alone: the loop without the other cases' branches is
+# the paper run's speed and the only episode kernel it compiles; test_kernel_fast_paths.py holds the two equal.
 @njit(parallel=True, cache=True, error_model="numpy")
 def _simulate_affine(
     tables,

@@ -17,6 +17,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+# The stream and the ziggurat below twin riskplan.engine.rng's: a baseline may not import riskplan
+# (tests/experiments/test_baselines.py holds their numbers equal, bit for bit).
 GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 CHUNK = 64
 
@@ -73,7 +75,7 @@ def normal_edge(state, i, u):
         state, c = next_uniform(state)
         if f1 + c * (f0 - f1) < 1.0:
             return state, z
-        state = state + GOLDEN
+        state = state + GOLDEN  # rejected: next_normal's fast path again, written out as rng._normal_edge does
         bits = mix(state)
         i = np.int64(bits & np.uint64(255))
         u = ((bits >> np.uint64(12)) + 0.5) * (1.0 / 2251799813685248.0) - 1.0
