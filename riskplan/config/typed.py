@@ -78,6 +78,7 @@ def check_schema(cfg) -> DictConfig:
     pass through here, so an unknown key or a value of the wrong type is BadInput before anything runs.
     """
     plain = OmegaConf.to_container(cfg) if isinstance(cfg, DictConfig) else cfg  # a typed node would let extras in
+    plain = _metres_written(plain)
     _unknown_keys(plain, schema.RiskplanConf, "")
     try:
         merged = OmegaConf.merge(schema.structured(), plain)
@@ -85,6 +86,19 @@ def check_schema(cfg) -> DictConfig:
         raise BadInput(*explain(err)) from None
     resolved(merged)
     return merged
+
+
+def _metres_written(data: typing.Any) -> typing.Any:
+    """A recorded config's positions in metres, resolved to {metres: [x, y]} (a run's config as load_run reads it),
+    written back as ${metres:x,y}: a mapping cannot replace the schema's cell [x, y] when merged, a string can."""
+    if isinstance(data, dict):
+        point = data.get("metres")
+        if len(data) == 1 and isinstance(point, list) and all(isinstance(v, (int, float)) for v in point):
+            return "${metres:" + ",".join(str(v) for v in point) + "}"
+        return {k: _metres_written(v) for k, v in data.items()}
+    if isinstance(data, list):
+        return [_metres_written(v) for v in data]
+    return data
 
 
 def _composed(node: DictConfig) -> DictConfig:

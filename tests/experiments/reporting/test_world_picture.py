@@ -323,3 +323,16 @@ def test_the_report_draws_at_most_max_worlds_and_says_how_many_it_left_out():
     assert [spec.name for spec in specs] == ["world"] + [f"world_{i}" for i in range(2, wp.MAX_WORLDS + 1)]
     assert specs[-1].caption.endswith("The runs of K=27. 2 more worlds are not drawn.")
     assert "K = 21" in specs[1].figure.axes[0].get_title()
+
+
+@pytest.mark.slow
+def test_the_report_draws_the_world_of_a_run_placed_in_metres(tmp_path):
+    """A run whose start and sources are given in metres (its recorded config holds {metres: [x, y]}) is reported,
+    not skipped, and its world drawn with them at the cells they became."""
+    placed = ["world.start=${metres:0.9,0.9}", "world.sources.0.position=${metres:0.9,3.9}"]
+    riskplan.train(riskplan.compose([*TINY, "experiment=floor_plan", *placed]), tmp_path / "runs" / "metres")
+    coll = collect([tmp_path / "runs"])
+    assert len(coll.runs) == 1 and not coll.broken
+    (world,) = [spec for spec in make_figures(coll)[0] if spec.name.startswith("world")]
+    assert markers(world.figure.axes[0], "o") == [(3.0, 3.0)]
+    assert markers(world.figure.axes[0], "*") == [(3.0, 15.0), (15.0, 3.0)]
