@@ -250,7 +250,14 @@ def metres(*point: float) -> dict:
     return {"metres": list(point)}
 
 
-OmegaConf.register_new_resolver("metres", metres, replace=True)
+def register_metres() -> None:
+    """Register the ${metres:...} resolver, once per process: before any config that may hold one is resolved (this
+    module's import does it; riskplan.run.results, which resolves a run's saved config, calls it too)."""
+    if not OmegaConf.has_resolver("metres"):
+        OmegaConf.register_new_resolver("metres", metres)
+
+
+register_metres()
 
 
 def valid_keys(path: str) -> list[str] | None:

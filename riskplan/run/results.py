@@ -13,6 +13,7 @@ import yaml
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from riskplan.config.typed import register_metres
 from riskplan.run.log_reader import read_log
 from riskplan.run.run_files import CONFIG, RUN_LOG, SUMMARY, TABLES, is_run_dir, table_file
 from riskplan.util.errors import BadInput
@@ -174,6 +175,7 @@ def _config(path: Path) -> dict:
         raise BadInput(
             str(file), f"expands to more than {CONFIG_NODES} values (YAML aliases?); it was not written by riskplan"
         )
+    register_metres()  # a run placed in metres saved ${metres:x,y}
     try:
         resolved = OmegaConf.to_container(OmegaConf.create(data), resolve=True)
     except (OmegaConfBaseException, ValueError, TypeError, KeyError, RecursionError) as err:

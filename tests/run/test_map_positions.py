@@ -181,3 +181,21 @@ def test_the_room_map_from_the_command_line(room_map, tmp_path, monkeypatch):
         "error: world.sources.1.position: (15, 11) is walled off by obstacles: it cannot be reached from the start "
         "(1, 1); remove obstacles or move the source"
     ]
+
+
+@pytest.mark.slow  # trains a run through the CLI
+def test_a_run_placed_in_metres_reads_back_in_a_process_that_typed_no_config(tmp_path, monkeypatch):
+    from omegaconf import OmegaConf
+
+    from riskplan.config.typed import register_metres
+    from riskplan.run.results import load_run
+
+    monkeypatch.chdir(tmp_path)
+    args = ["train", *TINY, "experiment=floor_plan", "world.start=${metres:0.9,0.9}", "hydra.run.dir=run"]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    assert "${metres:0.9,0.9}" in (tmp_path / "run" / ".hydra" / "config.yaml").read_text()  # as Hydra saved it
+    OmegaConf.clear_resolver("metres")  # as in `riskplan report`, which reads runs without typing a config
+    try:
+        assert load_run(tmp_path / "run").config["world"]["start"] == {"metres": [0.9, 0.9]}
+    finally:
+        register_metres()
