@@ -35,8 +35,7 @@ from numba import config as numba_config
 from numba import cuda, float64
 
 from riskplan.engine import rng, rollout_kernels
-from riskplan.engine.policy import tables
-from riskplan.engine.rollout import Batch, Kernel, move_bins, reach
+from riskplan.engine.rollout import Batch, Kernel, policy_tables
 from riskplan.engine.rollout import simulate as cpu_simulate
 from riskplan.engine.rollout_kernels import Tables
 from riskplan.engine.world import MAX_STACK, World
@@ -98,17 +97,16 @@ def simulate(  # rollout.simulate's signature: engine.step.simulator hands out e
 
 class Launch:
     """One kernel call, its inputs on the device: `run()` launches it (again, for a benchmark), `batch()` copies
-    the outputs back. The policy tables and move bins are the CPU kernel's (`rollout.simulate` computes the same)."""
+    the outputs back. The policy tables and move bins are the CPU kernel's (rollout.policy_tables)."""
 
     def __init__(self, world: World, kernel: Kernel, thetas, starts, keys, episodes: int):
         thetas = np.ascontiguousarray(thetas, dtype=np.float64)
         policies, self.size = thetas.shape
-        cells = reach(kernel, starts)
-        cum, score = tables(world, thetas, kernel.features, cells)
+        bins, score, _ = policy_tables(world, kernel, thetas, starts)
         self.total = policies * episodes
         self.inputs = (
             _on_device(kernel),
-            cuda.to_device(move_bins(cum, cells)),
+            cuda.to_device(bins),
             cuda.to_device(np.ascontiguousarray(score)),
             cuda.to_device(np.ascontiguousarray(starts, dtype=np.int64)),
             cuda.to_device(np.ascontiguousarray(keys, dtype=np.uint64)),

@@ -160,32 +160,11 @@ def simulate(
     reference of tests/engine/test_kernel_fast_paths.py.
     """
     thetas = np.ascontiguousarray(thetas, dtype=np.float64)
-    policies, size = thetas.shape
-    if kernel.tables.tabular:
-        cum, probs = tabular_tables(thetas, world.cells)
-        score = np.empty((0, 0, 0, 0))
-        bins = move_bins(cum)
-    else:  # the tables of the cells episodes can reach (none with mobile sources: their moves are computed)
-        cells = reach(kernel, starts)
-        cum, score = tables(world, thetas, kernel.features, cells)
-        probs = np.empty((0, 0, 5))
-        bins = move_bins(cum, cells)
-    total = policies * episodes
-    out_z = np.empty(total)
-    if kernel.tables.tabular:  # accumulated in place by the kernel, from zeros
-        out_score = np.zeros((total, size if scores else 0))
-    else:
-        out_score = np.empty((total, size))
-    out_risky = np.empty(total, dtype=np.int64)
-    out_reached = np.empty(total, dtype=np.int64)
-    out_steps = np.empty(total, dtype=np.int64)
-    width = kernel.tables.horizon + 1 if record else 0
-    path_cells = np.full((total if record else 0, width), -1, dtype=np.int64)
-    path_rewards = np.zeros((total if record else 0, width))
+    bins, score, probs = policy_tables(world, kernel, thetas, starts)
+    outputs, path_cells, path_rewards = _outputs(kernel, thetas.shape[0] * episodes, thetas.shape[1], record, scores)
     paths = (path_cells, path_rewards) if record else (None, None)
     starts = np.asarray(starts, np.int64)
     keys = np.asarray(keys, np.uint64)
-    outputs = (out_z, out_score, out_risky, out_reached, out_steps)
     if kernel.tables.affine and not (kernel.tables.mobile or reference or kernel.tables.tabular):
         _simulate_affine(kernel.tables, bins, score, starts, keys, episodes, record, *outputs, path_cells, path_rewards)
     else:
@@ -204,7 +183,33 @@ def simulate(
             path_cells,
             path_rewards,
         )
-    return Batch(out_z, out_score, out_risky, out_reached, out_steps, *paths)
+    return Batch(*outputs, *paths)
+
+
+def policy_tables(world: World, kernel: Kernel, thetas: np.ndarray, starts: np.ndarray):
+    """What the episode kernels read of the policies: (move bins (P, C, 4), scores (P, C, 5, F), probabilities
+    (P, C, 5)), a tabular policy's from its table (no scores: the kernel accumulates them), a features policy's for
+    the cells its episodes can reach (none with mobile sources: their moves are computed at each step)."""
+    if kernel.tables.tabular:
+        cum, probs = tabular_tables(thetas, world.cells)
+        return move_bins(cum), np.empty((0, 0, 0, 0)), probs
+    cells = reach(kernel, starts)
+    cum, score = tables(world, thetas, kernel.features, cells)
+    return move_bins(cum, cells), score, np.empty((0, 0, 5))
+
+
+def _outputs(kernel: Kernel, total: int, size: int, record: bool, scores: bool):
+    """The kernels' output arrays for `total` episodes: (z, score, risky, reached, steps), then the paths' cells and
+    rewards ((0, 0) unless `record`). A tabular policy's scores start at zero (the kernel adds into them)."""
+    if kernel.tables.tabular:
+        out_score = np.zeros((total, size if scores else 0))
+    else:
+        out_score = np.empty((total, size))
+    counts = tuple(np.empty(total, dtype=np.int64) for _ in range(3))  # risky steps, source reached, steps
+    width = kernel.tables.horizon + 1 if record else 0
+    path_cells = np.full((total if record else 0, width), -1, dtype=np.int64)
+    path_rewards = np.zeros((total if record else 0, width))
+    return (np.empty(total), out_score, *counts), path_cells, path_rewards
 
 
 def move_bins(cum: np.ndarray, cells: np.ndarray | None = None) -> np.ndarray:
