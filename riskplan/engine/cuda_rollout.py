@@ -77,7 +77,7 @@ def ported(kernel: Kernel, record: bool = False, reference: bool = False) -> boo
     return not (kernel.tables.tabular or kernel.tables.mobile or record or reference)
 
 
-def simulate(  # rollout.simulate's signature: engine.step.simulator hands out either by engine.device
+def simulate(  # rollout.simulate's signature: engine.step.simulator hands out either (config.backends.DEVICES)
     world: World,
     kernel: Kernel,
     thetas: np.ndarray,
