@@ -4,23 +4,24 @@ episodes are the CPU run's.
 
 Ported: static sources and a features policy without recording (training's and evaluation's case, the paper's
 worlds): the loop of `rollout_kernels._simulate_affine` for affine region rewards, and the program interpreter
-(`rollout_kernels._draw`) for any other region reward, with source rewards always through the interpreter.
+(`dynamics._draw`) for any other region reward, with source rewards always through the interpreter.
 Everything else runs on the CPU kernel, unchanged: a tabular policy, mobile sources, recorded paths (`record=True`)
 and the reference sampler (`reference=True`). The policy tables and move bins (riskplan.engine.policy.tables,
 rollout.move_bins) are computed on the CPU and copied over; the outputs come back as the `rollout.Batch` the CPU
 kernel returns.
 
 One source. The device functions are the CPU kernel's helpers compiled again from their own Python (`on_gpu`):
-the random stream and the ziggurat, the reward interpreter, the affine reward and the move pick. Only the episode
-loop is the GPU's own: one thread per episode, without the CPU kernel's chunks and scratch arrays.
+the random stream and the ziggurat, the reward interpreter, the affine reward, the move pick, what entering a cell
+pays (`_entered`) and the whole episode (`_static_episode`, `_simulate_affine`'s). Only the launch is the GPU's
+own: one thread per episode, local arrays in place of the CPU kernel's chunks and scratch arrays.
 
 Numbers. The stream is integer arithmetic, the same on both. Every product that a sum takes is written `mul(a, b)`
 (riskplan.engine.rng.mul), bound here to libdevice's dmul_rn, which the compiler never fuses into an FMA, so the
-float arithmetic is IEEE's, step for step, as numba's on the CPU. Under numba-cuda's simulator (NUMBA_ENABLE_CUDASIM=1, the tests) the kernels agree
-with the CPU kernel bit for bit. On a GPU, `math.exp` and `math.log` are CUDA's (libdevice, within an ulp or two of
-the CPU's libm): they enter only the ziggurat's rare edges (`_normal_edge`: its tail, about 3 normal draws in
-10,000, and its wedges' accept test), so an episode that draws in the tail can differ from the CPU's in the last
-bits (docs/sweeps.md says how to check).
+float arithmetic is IEEE's, step for step, as numba's on the CPU. Under numba-cuda's simulator
+(NUMBA_ENABLE_CUDASIM=1, the tests) the kernels agree with the CPU kernel bit for bit. On a GPU, `math.exp` and
+`math.log` are CUDA's (libdevice, within an ulp or two of the CPU's libm): they enter only the ziggurat's rare
+edges (`_normal_edge`: its tail, about 3 normal draws in 10,000, and its wedges' accept test), so an episode that
+draws in the tail can differ from the CPU's in the last bits (docs/sweeps.md says how to check).
 
 This module imports numba.cuda at the top: only `engine.device=cuda` imports it (riskplan.engine.step.simulator).
 """
@@ -32,9 +33,9 @@ import types
 
 import numpy as np
 from numba import config as numba_config
-from numba import cuda, float64
+from numba import cuda, float64, int64
 
-from riskplan.engine import rng, rollout_kernels
+from riskplan.engine import dynamics, rng
 from riskplan.engine.rollout import Batch, Kernel, policy_tables
 from riskplan.engine.rollout import simulate as cpu_simulate
 from riskplan.engine.rollout_kernels import Tables
@@ -153,7 +154,7 @@ def _on_device(kernel: Kernel) -> Tables:
 
 # ------------------------------------------------------------------------------------------ device functions
 # The CPU kernel's helpers, compiled from their own source: the random stream and the ziggurat (riskplan.engine.rng),
-# the reward program interpreter, the affine reward and the move pick (riskplan.engine.rollout_kernels).
+# the reward program interpreter, the affine reward, the move pick and the episode (riskplan.engine.dynamics).
 SHARED = (
     rng.mix,
     rng.episode_state,
@@ -164,9 +165,11 @@ SHARED = (
     rng._normal_edge,
     rng.normal_quantile,
     rng._quantile_tail,
-    rollout_kernels._affine_reward,
-    rollout_kernels._draw,
-    rollout_kernels._pick_bits,
+    dynamics._affine_reward,
+    dynamics._draw,
+    dynamics._pick_bits,
+    dynamics._entered,
+    dynamics._static_episode,
 )
 
 if SIMULATOR:  # the simulator runs device functions as Python, where libdevice's stubs return nothing
@@ -189,29 +192,29 @@ def on_gpu(helpers=SHARED) -> dict[str, object]:
         namespaces.append(namespace)
         twin = types.FunctionType(source.__code__, namespace, source.__name__, source.__defaults__)
         bound[source.__name__] = cuda.jit(device=True)(twin)
+    bound["_draw_inline"] = bound["_draw"]  # the CPU kernels' inlined `_draw`: one device function serves both
     for namespace in namespaces:  # bound after all are made: calls resolve when the kernel compiles
         namespace.update(bound)
     return bound
 
 
 _GPU = on_gpu()
-_episode_state, _next_bits, _next_normal = _GPU["episode_state"], _GPU["next_bits"], _GPU["next_normal"]
-_affine_reward, _draw, _pick_bits = _GPU["_affine_reward"], _GPU["_draw"], _GPU["_pick_bits"]
+_episode_state, _next_normal, _static_episode = _GPU["episode_state"], _GPU["next_normal"], _GPU["_static_episode"]
 
 
 @functools.cache
 def _episode_kernel(size: int):
-    """The episode kernel for a theta of `size` entries (the score kept in `size` registers per thread).
-
-    Its loop twins `_simulate_affine`'s, on the shared helpers: one episode function inlined into both measured
-    5-7% more CPU time per paper-world batch, so each device keeps its loop; test_cuda_rollout.py holds them equal."""
+    """The episode kernel for a theta of `size` entries (the score kept in `size` registers per thread): one thread
+    an episode, and the episode is `_simulate_affine`'s (dynamics._static_episode), with the interpreter for
+    region rewards without the affine form."""
 
     @cuda.jit
     def episodes_kernel(
         tables, bins, score, starts, keys, episodes, out_z, out_score, out_risky, out_reached, out_steps
     ):
-        """rollout_kernels._simulate_affine (affine) or the static features case of rollout_kernels._simulate (the
-        interpreter): episode e of policy p = e // episodes, one per thread. `tables` is the Kernel's, on the device."""
+        """Episode e of policy p = e // episodes, one per thread. `tables` is the Kernel's, on the device, read into
+        locals as `_simulate_affine` reads them (the episode takes its arrays one by one)."""
+        # Tables' fields into locals, as the CPU kernels read them: the episode takes them one by one
         next_cell = tables.next_cell
         cell_affine = tables.cell_affine
         cell_risky = tables.cell_risky
@@ -234,45 +237,44 @@ def _episode_kernel(size: int):
             return
         stack = cuda.local.array(MAX_STACK, float64)
         acc = cuda.local.array(size, float64)
+        no_cells = cuda.local.array((1, 1), int64)  # no path is recorded on the GPU
+        no_rewards = cuda.local.array((1, 1), float64)
         p = e // episodes
         state = _episode_state(keys[p], e - p * episodes)
-        cell = starts[p]
-        z = 0.0
-        risky = 0
-        reached = -1
-        steps = 0
         for j in range(size):
             acc[j] = 0.0
-        for _ in range(horizon):
-            state, m = _next_bits(state)
-            a = _pick_bits(bins[p, cell], np.int64(m))
-            for j in range(size):
-                acc[j] += score[p, cell, a, j]
-            cell = next_cell[cell, a]
-            steps += 1
-            reward = 0.0
-            if affine:
-                reward, state = _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state)
-                risky += cell_risky[cell]
-            else:
-                region = region_of[cell]
-                if region >= 0:
-                    reward, state = _draw(reg_ops, reg_par, reg_off[region], reg_off[region + 1], stack, state, False)
-                    risky += region_risky[region]
-            hit = source_at[cell]
-            if hit >= 0:
-                value, state = _draw(src_ops, src_par, src_off[hit], src_off[hit + 1], stack, state, False)
-                reward += value
-                if reached < 0:
-                    reached = hit
-            z += reward
-            if hit >= 0 and stop_at_source:
-                break
-        out_z[e] = z
+        # the arrays one by one, not Tables (riskplan.engine.dynamics says why)
+        out_z[e], out_risky[e], out_reached[e], out_steps[e] = _static_episode(
+            next_cell,
+            source_at,
+            src_off,
+            src_ops,
+            src_par,
+            horizon,
+            stop_at_source,
+            affine,
+            cell_affine,
+            cell_risky,
+            draw_uniform,
+            draw_normal,
+            region_of,
+            region_risky,
+            reg_off,
+            reg_ops,
+            reg_par,
+            bins,
+            score,
+            p,
+            e,
+            starts[p],
+            state,
+            acc,
+            stack,
+            False,
+            no_cells,
+            no_rewards,
+        )
         for j in range(size):
             out_score[e, j] = acc[j]
-        out_risky[e] = risky
-        out_reached[e] = reached
-        out_steps[e] = steps
 
     return episodes_kernel

@@ -30,7 +30,7 @@ import numpy as np
 from riskplan.util.checks import finite
 from riskplan.util.errors import BadInput
 
-# Opcodes of the postfix program run by the rollout kernel (riskplan.engine.rollout_kernels._draw).
+# Opcodes of the postfix program run by the rollout kernel (riskplan.engine.dynamics._draw).
 OP_CONST, OP_UNIFORM, OP_NORMAL, OP_BERNOULLI, OP_SCALE, OP_SUM, OP_CLIP, OP_MIXTURE = range(8)
 
 LEAVES = ("constant", "uniform", "normal", "bernoulli")

@@ -1,6 +1,9 @@
 """The numba kernels of the rollouts (riskplan.engine.rollout runs them): the episode loops `_simulate` and
 `_simulate_affine`, the helpers they inline, and `Tables`, the world and policy arrays they take as one argument.
 
+The dynamics have one definition, riskplan.engine.dynamics: what entering a cell pays, a source's reward and walk,
+the move pick, and the whole episode `_simulate_affine` runs (the GPU kernel runs it too).
+
 numba (parallel, cached on disk) runs the whole episode loop in machine code: policy lookup, move sampling,
 reward draws from the compiled distribution programs and score accumulation (eq. 10). Each episode draws from
 its own counter-based stream (riskplan.engine.rng), so numbers do not depend on threads or chunking.
@@ -27,16 +30,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from riskplan.engine import distributions as D
-from riskplan.engine.rng import (
-    bits_uniform,
-    episode_state,
-    mul,
-    next_bits,
-    next_normal,
-    next_uniform,
-    normal_quantile,
-)
+from riskplan.engine.dynamics import _draw, _entered, _pick, _pick_bits, _static_episode, _walk
+from riskplan.engine.rng import bits_uniform, episode_state, next_bits
 from riskplan.engine.world import MAX_STACK
 
 CHUNK = 64  # episodes per parallel work item: amortises the per-item scratch allocations
@@ -78,116 +73,6 @@ class Tables(NamedTuple):
     signal_at: int  # index in theta of the first signal weight, -1 for none
 
 
-@njit(cache=True, inline="always")
-def _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state):
-    """The entered cell's reward clip(c + w U + s N, lo, hi) from its coefficients; (reward, new state). The GPU
-    kernel's too (cuda_rollout compiles this source)."""
-    u = 0.0
-    g = 0.0
-    if draw_uniform:
-        state, u = next_uniform(state)
-    if draw_normal:
-        state, g = next_normal(state)
-    reward = min(
-        max(cell_affine[cell, 0] + mul(cell_affine[cell, 1], u) + mul(cell_affine[cell, 2], g), cell_affine[cell, 3]),
-        cell_affine[cell, 4],
-    )
-    return reward, state
-
-
-@njit(cache=True)
-def _draw(ops, params, first, last, stack, state, inverse_normal=False):
-    """Run one postfix reward program (riskplan.engine.distributions) and return (value, state).
-
-    Normal draws come from the ziggurat (riskplan.engine.rng.next_normal), or with `inverse_normal` from the inverse CDF
-    of one uniform (the slower sampler used before; kept as the tests' reference).
-
-    A call for a source's reward (once per episode): inlined there too, it would multiply `_simulate`'s compile
-    time (the first run after an install). Every kernel passes `inverse_normal`, so one specialisation serves all.
-    The GPU kernel's too (cuda_rollout compiles this source; it never passes `inverse_normal`).
-    """
-    top = 0
-    for i in range(first, last):
-        op = ops[i, 0]
-        if op == D.OP_CONST:
-            stack[top] = params[i, 0]
-            top += 1
-        elif op == D.OP_UNIFORM:
-            state, u = next_uniform(state)
-            stack[top] = params[i, 0] + mul(params[i, 1] - params[i, 0], u)
-            top += 1
-        elif op == D.OP_NORMAL:
-            if inverse_normal:
-                state, u = next_uniform(state)
-                g = normal_quantile(u)
-            else:
-                state, g = next_normal(state)
-            stack[top] = params[i, 0] + mul(params[i, 1], g)
-            top += 1
-        elif op == D.OP_BERNOULLI:
-            state, u = next_uniform(state)
-            stack[top] = 1.0 if u < params[i, 0] else 0.0
-            top += 1
-        elif op == D.OP_SCALE:
-            stack[top - 1] = mul(stack[top - 1], params[i, 0])
-        elif op == D.OP_CLIP:
-            stack[top - 1] = min(max(stack[top - 1], params[i, 0]), params[i, 1])
-        elif op == D.OP_SUM:
-            n = ops[i, 1]
-            acc = 0.0
-            for k in range(n):
-                acc += stack[top - 1 - k]
-            top -= n
-            stack[top] = acc
-            top += 1
-        else:  # OP_MIXTURE: n values, then their n normalised weights, on the stack
-            n = ops[i, 1]
-            state, u = next_uniform(state)
-            pick = n - 1
-            acc = 0.0
-            for k in range(n):
-                acc += stack[top - n + k]
-                if u < acc:
-                    pick = k
-                    break
-            value = stack[top - 2 * n + pick]
-            top -= 2 * n
-            stack[top] = value
-            top += 1
-    return stack[0 if top == 0 else top - 1], state
-
-
-# `_draw` inlined, for `_simulate`'s region reward of a non-affine world, drawn at every step: a call there halves
-# the kernel's speed. Not cached itself: its code is compiled into the kernel's.
-_draw_inline = njit(inline="always")(_draw.py_func)
-
-
-@njit(cache=True, inline="always")
-def _entered(tables, affine, cell, stack, state, reference):
-    """What entering `cell` pays and counts, in every kernel's step (`_simulate`'s, `step_robots`'): its region's reward
-    and whether the step is risky (no region: 0 and 0); (reward, risky, state). `affine`: the world's region rewards
-    from their coefficients (no branch on the region: both draws every step, the cell's coefficients pick the law)."""
-    if affine:
-        reward, state = _affine_reward(tables.cell_affine, cell, tables.draw_uniform, tables.draw_normal, state)
-        return reward, tables.cell_risky[cell], state
-    region = tables.region_of[cell]
-    if region < 0:
-        return 0.0, np.int64(0), state
-    ops, params, first, last = tables.reg_ops, tables.reg_par, tables.reg_off[region], tables.reg_off[region + 1]
-    reward, state = _draw_inline(ops, params, first, last, stack, state, reference)
-    return reward, tables.region_risky[region], state
-
-
-@njit(cache=True, inline="always")
-def _pick(cum, u):
-    """The move whose bin of the cumulative probabilities (cum[4] = 1) holds u: counted without branches.
-
-    Counting the bins below u gives the index a linear search would, but a random move is no longer a branch the
-    CPU mispredicts.
-    """
-    return (u > cum[0]) + (u > cum[1]) + (u > cum[2]) + (u > cum[3])
-
-
 @njit(cache=True)
 def _bins(cum, bins):
     """Cumulative move probabilities as integer bounds on a draw's 53 bits m: bits_uniform(m) > cum[a] exactly
@@ -219,13 +104,6 @@ def _bins_at(cum, bins, cells):
                 below = np.int64(math.floor(scaled - 0.5)) + 1
                 above = np.int64(min(scaled, 9007199254740992.0)) | 1
                 bins[p, c, a] = min(max(below if scaled < 4503599627370496.0 else above, 0), top)
-
-
-@njit(cache=True, inline="always")
-def _pick_bits(bins, m):
-    """`_pick` on the integer bounds of `_bins` (the GPU kernel's too; int() as numpy's bools would add as `or`
-    under numba-cuda's simulator)."""
-    return int(m >= bins[0]) + int(m >= bins[1]) + int(m >= bins[2]) + int(m >= bins[3])
 
 
 # Twin of policy._fill_tabular's softmax (same arithmetic): that one fills every cell's tables at once, this one a
@@ -301,57 +179,8 @@ def _mobile_policy(cell, theta, src, next_cell, amplitude, precision, height, si
     _cumulative_softmax(cum, best)
 
 
-@njit(cache=True)
-def _walk(src, motion, height, width, state):
-    """One random-walk step of each mobile source (stays on the grid); returns the stream state."""
-    for j in range(len(src)):
-        if motion[j] > 0.0:
-            state, u = next_uniform(state)
-            if u < motion[j]:
-                state, v = next_uniform(state)
-                a = min(int(v * 4.0), 3)
-                move = (0, 1, 3, 4)[a]  # E, W, N, S (never Stay)
-                x = src[j] // height + (1, -1, 0, 0, 0)[move]
-                y = src[j] % height + (0, 0, 0, 1, -1)[move]
-                if 0 <= x < width and 0 <= y < height:
-                    src[j] = x * height + y
-    return state
-
-
-@njit(cache=True)
-def step_robots(tables, cells, moves, active, group, sources, states, walk_states, reward, risky, hit):
-    """One time step of B robots in G copies of the world, for the environments (riskplan.experiments.environments):
-    `_simulate`'s step once its move is chosen, each robot drawing from its own stream (`states`, (B,)) and each
-    copy's mobile sources from theirs (`walk_states`, (G,)). An active robot b moves by moves[b] from cells[b], is paid
-    the entered cell (`_entered`) and the first source of its copy group[b] on it; then the sources (G, S) of every
-    copy with an active robot walk once. Updates cells, sources and the states; writes reward, risky and hit (B,)."""
-    stack = np.empty(MAX_STACK)
-    moving = np.zeros(sources.shape[0], dtype=np.bool_)
-    for b in range(cells.shape[0]):
-        reward[b], risky[b], hit[b] = 0.0, 0, -1
-        if not active[b]:
-            continue
-        moving[group[b]] = True
-        cell = tables.next_cell[cells[b], moves[b]]
-        cells[b] = cell
-        paid, counted, state = _entered(tables, tables.affine, cell, stack, states[b], False)
-        src = sources[group[b]]
-        for j in range(src.shape[0]):
-            if src[j] == cell:
-                hit[b] = j
-                break
-        if hit[b] >= 0:
-            first, last = tables.src_off[hit[b]], tables.src_off[hit[b] + 1]
-            value, state = _draw(tables.src_ops, tables.src_par, first, last, stack, state, False)
-            paid += value
-        reward[b], risky[b], states[b] = paid, counted, state
-    for g in range(sources.shape[0]):
-        if moving[g]:
-            walk_states[g] = _walk(sources[g], tables.source_motion, tables.height, tables.width, walk_states[g])
-
-
-# Twin of `_simulate`'s loop, its static-features-affine case alone: the loop without the other cases' branches is
-# the paper run's speed and the only episode kernel it compiles; test_kernel_fast_paths.py holds the two equal.
+# Twin of `_simulate`'s chunk loop, for its static-features-affine case alone (`_static_episode`): the paper run's
+# speed and the only episode kernel it compiles; test_kernel_fast_paths.py holds the two equal.
 @njit(parallel=True, cache=True, error_model="numpy")
 def _simulate_affine(
     tables,
@@ -374,61 +203,64 @@ def _simulate_affine(
     other cases' branches (tests/engine/test_kernel_fast_paths.py checks the two agree). With `record`
     it fills path_cells and path_rewards as `_simulate` does, so the paths of a paper run need no second kernel
     (`_simulate` takes much longer to compile)."""
+    # Tables' fields into locals before the parallel loop, in every kernel: read from the tuple inside it, slower
     next_cell = tables.next_cell
+    source_at = tables.source_at
+    src_off = tables.src_off
+    src_ops = tables.src_ops
+    src_par = tables.src_par
+    horizon = tables.horizon
+    stop_at_source = tables.stop_at_source
     cell_affine = tables.cell_affine
     cell_risky = tables.cell_risky
     draw_uniform = tables.draw_uniform
     draw_normal = tables.draw_normal
-    src_off = tables.src_off
-    src_ops = tables.src_ops
-    src_par = tables.src_par
-    source_at = tables.source_at
-    horizon = tables.horizon
-    stop_at_source = tables.stop_at_source
-    policies = bins.shape[0]
-    sources = score.shape[3]
-    total = policies * episodes
+    region_of = tables.region_of
+    region_risky = tables.region_risky
+    reg_off = tables.reg_off
+    reg_ops = tables.reg_ops
+    reg_par = tables.reg_par
+    total = bins.shape[0] * episodes
     chunks = (total + CHUNK - 1) // CHUNK
     for chunk in prange(chunks):
         stack = np.empty(MAX_STACK)
-        acc = np.empty(sources)
+        acc = np.empty(score.shape[3])
         for e in range(chunk * CHUNK, min(total, (chunk + 1) * CHUNK)):
             p = e // episodes
             state = episode_state(keys[p], e - p * episodes)
-            cell = starts[p]
-            z = 0.0
-            risky = 0
-            reached = -1
-            steps = 0
             acc[:] = 0.0
-            if record:
-                path_cells[e, 0] = cell
-            for k in range(horizon):
-                state, m = next_bits(state)
-                a = _pick_bits(bins[p, cell], np.int64(m))
-                for j in range(sources):
-                    acc[j] += score[p, cell, a, j]
-                cell = next_cell[cell, a]
-                steps += 1
-                reward, state = _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state)
-                risky += cell_risky[cell]
-                hit = source_at[cell]
-                if hit >= 0:
-                    value, state = _draw(src_ops, src_par, src_off[hit], src_off[hit + 1], stack, state, False)
-                    reward += value
-                    if reached < 0:
-                        reached = hit
-                z += reward
-                if record:
-                    path_cells[e, k + 1] = cell
-                    path_rewards[e, k + 1] = reward
-                if hit >= 0 and stop_at_source:
-                    break
-            out_z[e] = z
+            # the arrays one by one, not Tables (riskplan.engine.dynamics says why)
+            out_z[e], out_risky[e], out_reached[e], out_steps[e] = _static_episode(
+                next_cell,
+                source_at,
+                src_off,
+                src_ops,
+                src_par,
+                horizon,
+                stop_at_source,
+                True,
+                cell_affine,
+                cell_risky,
+                draw_uniform,
+                draw_normal,
+                region_of,
+                region_risky,
+                reg_off,
+                reg_ops,
+                reg_par,
+                bins,
+                score,
+                p,
+                e,
+                starts[p],
+                state,
+                acc,
+                stack,
+                record,
+                path_cells,
+                path_rewards,
+            )
             out_score[e, :] = acc
-            out_risky[e] = risky
-            out_reached[e] = reached
-            out_steps[e] = steps
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -454,14 +286,21 @@ def _simulate(
     """Episode loop; see rollout.simulate. A tabular policy's score goes straight into out_score (zeros on entry).
     `reference` runs every region reward through the interpreter and normals by the inverse CDF.
 
-    Long on purpose: the loop inside numba's parallel chunks is the kernel's speed (the episode as one inlined
-    function cost `_simulate_affine` 5-7% more CPU time), so only the steps' parts are helpers (`_entered`,
-    `_draw`, `_walk`, `_mobile_policy`), and every case stays in this one loop."""
+    Long on purpose: every case (tabular, mobile, features, reference) interleaves step by step in this one loop
+    inside numba's parallel chunks; the parts they share are helpers (`_entered`, `_draw`, `_walk`,
+    `_mobile_policy`). A case split out would take a dozen arrays one by one: bundled in a tuple inside the
+    parallel loop they cost the paper batch 12% more CPU time."""
     tabular = tables.tabular
     signal_at = tables.signal_at
     extra_at = tables.extra_at
     extras = tables.extras
+    # Tables' fields into locals before the parallel loop, in every kernel: read from the tuple inside it, slower
     next_cell = tables.next_cell
+    region_of = tables.region_of
+    region_risky = tables.region_risky
+    reg_off = tables.reg_off
+    reg_ops = tables.reg_ops
+    reg_par = tables.reg_par
     src_off = tables.src_off
     src_ops = tables.src_ops
     src_par = tables.src_par
@@ -476,6 +315,10 @@ def _simulate(
     stop_at_source = tables.stop_at_source
     mobile = tables.mobile
     affine = tables.affine and not reference
+    cell_affine = tables.cell_affine
+    cell_risky = tables.cell_risky
+    draw_uniform = tables.draw_uniform
+    draw_normal = tables.draw_normal
     policies = bins.shape[0]
     sources = source_cells.shape[0]
     size = 0 if tabular else thetas.shape[1]  # the score kept in `acc` (a tabular policy's is written in place)
@@ -545,7 +388,24 @@ def _simulate(
                         acc[j] += score[p, cell, a, j]
                 cell = next_cell[cell, a]
                 steps += 1
-                reward, counted, state = _entered(tables, affine, cell, stack, state, reference)
+                reward, counted, state = (
+                    _entered(  # the arrays one by one, not Tables (riskplan.engine.dynamics says why)
+                        affine,
+                        cell_affine,
+                        draw_uniform,
+                        draw_normal,
+                        cell_risky,
+                        region_of,
+                        region_risky,
+                        reg_off,
+                        reg_ops,
+                        reg_par,
+                        cell,
+                        stack,
+                        state,
+                        reference,
+                    )
+                )
                 risky += counted
                 hit = -1
                 if mobile:

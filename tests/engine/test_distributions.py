@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from riskplan.engine import distributions as D
-from riskplan.engine.rollout_kernels import _draw
+from riskplan.engine.dynamics import _draw
 from riskplan.engine.world import MAX_STACK
 from riskplan.util.errors import BadInput
 

@@ -1,6 +1,6 @@
 """riskplan's world for the Gymnasium and PettingZoo environments: many robots stepped at once, by the engine's kernel.
 
-`Worlds.step` runs riskplan.engine.rollout_kernels.step_robots, the episode kernel's own step once a move is chosen
+`Worlds.step` runs riskplan.engine.dynamics.step_robots, the episode kernel's own step once a move is chosen
 (its `_entered`, `_draw` and `_walk`), on the tables the training kernel takes (riskplan.engine.rollout.make_kernel):
   * a move is one of E, W, Stay, N, S (riskplan.engine.world.MOVES, in that order); a blocked move stays;
   * the cell entered at each step 1..K is paid its region's reward (first matching region; no region pays 0;
@@ -26,7 +26,7 @@ import numpy as np
 from riskplan.engine.policy import Policy, move_features, probabilities, tabular_probabilities
 from riskplan.engine.rng import ENVIRONMENT, SEED_LIMIT, episode_states, stream_key
 from riskplan.engine.rollout import make_kernel
-from riskplan.engine.rollout_kernels import step_robots
+from riskplan.engine.dynamics import step_robots
 from riskplan.engine.step import Setup
 from riskplan.engine.world import MOVE_NAMES, World
 from riskplan.run.build import build_setup
