@@ -85,22 +85,22 @@ def test_a_run_that_fails_leaves_the_batch_alone(tmp_path):
 
 
 def test_a_run_whose_checkpoint_the_disk_refuses_leaves_the_batch_alone(tmp_path, monkeypatch):
-    """The round's checkpoints are written together; one that fails (a full disk) stops its run alone, with its
-    checkpoints so far kept and its log readable, and the others finish as they would alone."""
-    import riskplan.run.recorder as recorder
+    """The round's checkpoints are written together (one group commit); one that fails (a full disk) stops its run
+    alone, with its checkpoints so far kept and its log readable, and the others finish as they would alone."""
+    import riskplan.run.checkpoint as checkpoint
     from riskplan.run.results import load_run
 
     names = ["cvar", "team", "ring"]
     built = setups(CHECKPOINTED, names)
     reference = alone(tmp_path, built)
-    real = recorder.save_checkpoint
+    real = checkpoint._write_temp
 
-    def full_disk(out, state):
-        if out.name == "team" and state.iteration == 15:
+    def full_disk(out, payload):
+        if out.name == "team" and payload["iteration"] == 15:
             raise OSError(28, "No space left on device")
-        real(out, state)
+        real(out, payload)
 
-    monkeypatch.setattr(recorder, "save_checkpoint", full_disk)
+    monkeypatch.setattr(checkpoint, "_write_temp", full_disk)
     runs = train_batch([BatchRun(built[n], tmp_path / "batch" / n) for n in names])
     assert isinstance(runs[1].error, OSError) and runs[1].summary is None
     assert json.loads((tmp_path / "batch" / "team" / "checkpoint").read_text())["iteration"] == 10

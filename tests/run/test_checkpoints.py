@@ -1,0 +1,74 @@
+"""A batch's checkpoints as one group commit (riskplan.run.checkpoint.save_checkpoints): the same files a run alone
+writes, each log synced before its checkpoint becomes visible, a failing run alone left at its checkpoint before,
+and the per-run fallback where the system has no syncfs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from support import setup_of
+
+import riskplan.run.checkpoint as checkpoint
+from riskplan.engine.step import initial_state, step
+from riskplan.run.checkpoint import CHECKPOINT, load_checkpoint, save_checkpoint, save_checkpoints
+
+
+class Log:
+    """A stand-in for RunLog: counts its syncs."""
+
+    def __init__(self):
+        self.syncs = 0
+
+    def sync(self):
+        self.syncs += 1
+
+
+def states(count: int):
+    setups = [setup_of(f"seed={seed}", "experiment=paper_team", "team.delay.max=2") for seed in range(count)]
+    return setups, [step(setup, initial_state(setup))[0] for setup in setups]
+
+
+@pytest.mark.parametrize("syncfs", [True, False], ids=["group commit", "run by run"])
+def test_the_group_writes_what_each_run_alone_writes(tmp_path, monkeypatch, syncfs):
+    if not syncfs:
+        monkeypatch.setattr(checkpoint, "_SYNCFS", None)
+    elif checkpoint._SYNCFS is None:
+        pytest.skip("this system has no syncfs: the group commit falls back to run by run")
+    setups, saved = states(3)
+    outs = [tmp_path / "group" / str(k) for k in range(3)]
+    for out in outs:
+        out.mkdir(parents=True)
+    logs = [Log() for _ in outs]
+    assert save_checkpoints(outs, saved, logs) == [None, None, None]
+    assert [log.syncs for log in logs] == ([0, 0, 0] if syncfs else [1, 1, 1])  # the group syncs the disk instead
+    for k, (setup, state, out) in enumerate(zip(setups, saved, outs)):
+        alone = tmp_path / "alone" / str(k)
+        alone.mkdir(parents=True)
+        save_checkpoint(alone, state)
+        assert (out / CHECKPOINT).read_bytes() == (alone / CHECKPOINT).read_bytes()
+        back = load_checkpoint(out, setup)
+        assert back.iteration == 1 and np.array_equal(back.thetas, state.thetas)
+        assert not (out / checkpoint.CHECKPOINT_TMP).exists()
+
+
+def test_a_run_whose_temp_file_fails_keeps_its_checkpoint_before_and_the_others_go_on(tmp_path, monkeypatch):
+    setups, first = states(2)
+    outs = [tmp_path / str(k) for k in range(2)]
+    for out in outs:
+        out.mkdir()
+    save_checkpoints(outs, first, [Log(), Log()])
+    second = [step(setup, state)[0] for setup, state in zip(setups, first)]
+    real = checkpoint._write_temp
+
+    def full_disk(out, payload):
+        if out == outs[0]:
+            raise OSError(28, "No space left on device")
+        real(out, payload)
+
+    monkeypatch.setattr(checkpoint, "_write_temp", full_disk)
+    errors = save_checkpoints(outs, second, [Log(), Log()])
+    assert isinstance(errors[0], OSError) and errors[1] is None
+    assert json.loads((outs[0] / CHECKPOINT).read_text())["iteration"] == 1
+    assert json.loads((outs[1] / CHECKPOINT).read_text())["iteration"] == 2
