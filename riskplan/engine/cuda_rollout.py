@@ -193,6 +193,7 @@ def on_gpu(helpers=SHARED) -> dict[str, object]:
         twin = types.FunctionType(source.__code__, namespace, source.__name__, source.__defaults__)
         bound[source.__name__] = cuda.jit(device=True)(twin)
     bound["_draw_inline"] = bound["_draw"]  # the CPU kernels' inlined `_draw`: one device function serves both
+    bound["_entered_by_call"] = bound["_entered"]  # likewise `_entered` with `_draw` as a call
     for namespace in namespaces:  # bound after all are made: calls resolve when the kernel compiles
         namespace.update(bound)
     return bound
