@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
+from riskplan.engine.dynamics import step_robots
 from riskplan.engine.policy import Policy, move_features, probabilities, tabular_probabilities
 from riskplan.engine.rng import ENVIRONMENT, SEED_LIMIT, episode_states, stream_key
 from riskplan.engine.rollout import make_kernel
-from riskplan.engine.dynamics import step_robots
 from riskplan.engine.step import Setup
 from riskplan.engine.world import MOVE_NAMES, World
 from riskplan.run.build import build_setup
