@@ -24,6 +24,7 @@ MAX_STACK = 64  # stack slots of the kernel's reward-program interpreter
 SIGNAL_LIMIT = 1e100  # largest peak |signal| w / (2 pi sqrt(det Sigma)): keeps logits and scores finite
 PRECISION_LIMIT = 1e150  # largest |entry| of Sigma^-1: the quadratic form stays finite on any allowed grid
 EDGE = 1e-9  # pixels a point may fall short of a pixel's edge by rounding and still be on it (Frame.pixel_of)
+FAR = 2.0**31  # pixels: a point farther off the map is taken as this far, so its pixel stays a finite int64
 
 
 @dataclass(frozen=True)
@@ -38,13 +39,14 @@ class Frame:
 
     def pixel_of(self, x: float, y: float) -> tuple[int, int]:
         """The pixel (column from the left, row from the bottom) under the map-frame point (x, y); off the image for
-        a point off the map. A point on a pixel's edge is the pixel beyond it (pixels are [a, b)), also where the
-        decimal point's float falls a rounding error short of the edge (-2.0 + 0.2 is 0.19999999999999996)."""
+        a point off the map (at most FAR pixels off, so that 1e308 m is an integer too). A point on a pixel's edge is
+        the pixel beyond it (pixels are [a, b)), also where the decimal point's float falls a rounding error short of
+        the edge (-2.0 + 0.2 is 0.19999999999999996)."""
         ox, oy, yaw = self.origin
         cos, sin = math.cos(yaw), math.sin(yaw)
         u = cos * (x - ox) + sin * (y - oy)
         v = cos * (y - oy) - sin * (x - ox)
-        return math.floor(u / self.resolution + EDGE), math.floor(v / self.resolution + EDGE)
+        return tuple(math.floor(min(max(w / self.resolution + EDGE, -FAR), FAR)) for w in (u, v))
 
     def on_map(self, pixel: tuple[int, int]) -> bool:
         return 0 <= pixel[0] < self.pixels[0] and 0 <= pixel[1] < self.pixels[1]

@@ -146,6 +146,13 @@ def test_the_nearest_free_cell_is_the_closest(room_map):
     )
 
 
+def test_a_point_too_far_to_count_its_pixels_is_off_the_map(room_map):
+    # 1e308 m is 1e309 pixels, beyond any integer a float turns into: taken as FAR (2**31) pixels, cell 2**30
+    err = bad_input(*on_map(room_map, "${metres:1e308,1.75}"))
+    assert err.where == "world.start" and f"off the map: it falls in cell ({2**30}, 1)" in err.problem
+    assert "the nearest free cell is (19, 1)" in err.problem
+
+
 def test_metres_without_a_map_or_malformed_are_one_line(room_map):
     err = bad_input("world.start=${metres:1,2}")
     assert err.where == "world.start" and "a position in metres needs world.map" in err.problem
