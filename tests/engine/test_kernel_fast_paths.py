@@ -15,8 +15,8 @@ from numba import njit
 
 from riskplan.engine import distributions as D
 from riskplan.engine import rng
-from riskplan.engine.rollout import affine_form, move_bins, simulate
 from riskplan.engine.dynamics import _pick, _pick_bits
+from riskplan.engine.rollout import affine_form, move_bins, simulate
 from riskplan.risk import cvar
 from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
