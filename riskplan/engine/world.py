@@ -236,7 +236,17 @@ def build_world(world: WorldConf, starts: list | None = None, layout: Layout | N
 
     next_cell = _next_cell(width, height, obstacle)
     if obstacle.any():
-        _check_reachable(next_cell, obstacle, start_cells, where if starts is None else None, src_cells, motion, height)
+        _check_reachable(
+            next_cell,
+            obstacle,
+            start_cells,
+            where if starts is None else None,
+            src_cells,
+            names,
+            motion,
+            height,
+            horizon,
+        )
     _check_total_reward(rewards, region_rewards, horizon, bool(world.stop_at_source))
 
     return World(
@@ -267,8 +277,10 @@ def _check_reachable(
     starts: list[int],
     start_key: str | None,
     sources: list[int],
+    names: list[str],
     motion: list[float],
     height: int,
+    horizon: int,
 ) -> None:
     """Every static source can be reached from every start cell through free cells (the 4 moves).
 
@@ -289,14 +301,13 @@ def _check_reachable(
                 raise BadInput(
                     here,
                     f"({sx}, {sy}) is walled in by obstacles (a pocket of {free} free "
-                    f"cell{'' if free == 1 else 's'}): world.sources.{j} at ({cx}, {cy}) cannot be "
+                    f"cell{'' if free == 1 else 's'}): world.sources.{j} '{names[j]}' at ({cx}, {cy}) cannot be "
                     f"reached from it; remove obstacles or move the start",
                 )
             raise BadInput(
                 f"world.sources.{j}.position",
-                f"({cx}, {cy}) is walled off by obstacles: it cannot be "
-                f"reached from the start ({sx}, {sy}); remove obstacles or "
-                f"move the source",
+                f"'{names[j]}' at ({cx}, {cy}) is walled off by obstacles: no path from the start ({sx}, {sy}) "
+                f"at any world.horizon (now {horizon}); remove obstacles or move the source",
             )
 
 

@@ -24,7 +24,10 @@ def test_a_source_behind_a_wall_of_obstacles_is_unreachable():
     # column 6 walls off x >= 7, where source 0 (9, 3) sits; the start (0, 0) is on the larger side
     err = bad_input(wall(6))
     assert err.where == "world.sources.0.position"
-    assert "(9, 3) is walled off by obstacles: it cannot be reached from the start (0, 0)" in err.problem
+    assert (
+        "'safe' at (9, 3) is walled off by obstacles: no path from the start (0, 0) at any world.horizon (now 20)"
+        in (err.problem)
+    )
     setup_of(wall(6, gap=3))  # one gap in the wall is enough (12 moves, within the horizon of 20)
 
 

@@ -185,8 +185,8 @@ def test_the_room_map_from_the_command_line(room_map, tmp_path, monkeypatch):
     walled = runner.invoke(app, ["check", *on_map(room_map, b="[15,11]")])
     assert walled.exit_code == 2
     assert walled.output.strip().splitlines() == [
-        "error: world.sources.1.position: (15, 11) is walled off by obstacles: it cannot be reached from the start "
-        "(1, 1); remove obstacles or move the source"
+        "error: world.sources.1.position: 'b' at (15, 11) is walled off by obstacles: no path from the start (1, 1) "
+        "at any world.horizon (now 20); remove obstacles or move the source"
     ]
 
 
