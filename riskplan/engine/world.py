@@ -490,8 +490,8 @@ class _Places:
         ):
             raise BadInput(
                 where,
-                f"got {dict(value)}; expected {shape} in cells, or {{metres: {shape}}} of finite numbers (a point of "
-                f"the map frame)",
+                f"got {_mapping(value)}; expected {shape} in cells, or {{metres: {shape}}} of finite numbers (a point "
+                f"of the map frame)",
             )
         if self.frame is None:
             raise BadInput(
@@ -524,6 +524,11 @@ class _Places:
             where,
             f"{problem}; the nearest {kind} is ({near_x}, {near_y}), {{metres: [{_m(mx)}, {_m(my)}]}} at its centre",
         )
+
+
+def _mapping(value: Mapping) -> str:
+    """A mapping as the config writes it ({meters: [1, 1]}), not as Python prints a dict ({'meters': [1, 1]})."""
+    return "{" + ", ".join(f"{key}: {item}" for key, item in value.items()) + "}"
 
 
 def _m(value: float) -> str:

@@ -158,6 +158,7 @@ def test_metres_without_a_map_or_malformed_are_one_line(room_map):
     assert err.where == "world.start" and "a position in metres needs world.map" in err.problem
     err = bad_input(*on_map(room_map, a="{meters:[1,2]}"))
     assert err.where == "world.sources.0.position"
+    assert err.problem.startswith("got {meters: [1, 2]}; ")  # as the config writes it, not Python's {'meters': ...}
     assert "expected [x, y] in cells, or {metres: [x, y]} of finite numbers" in err.problem
     err = bad_input(*on_map(room_map, a="{metres:[1]}"))
     assert "{metres: [x, y]}" in err.problem
