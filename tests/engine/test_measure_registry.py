@@ -51,6 +51,7 @@ def test_a_packages_measure_is_found_by_its_name(installed):
     assert risk_spec(POWER).params == {"gamma": 0.5}
 
 
+@pytest.mark.slow  # over a second
 def test_a_config_selects_and_checks_a_packages_measure(installed):
     installed()
     setup = build_setup(compose([*TINY, "risk.measure=power", "risk.params.gamma=0.5"], validate=False))

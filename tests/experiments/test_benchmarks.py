@@ -19,6 +19,7 @@ from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 
 
+@pytest.mark.slow  # over a second
 def test_python_baseline_matches_the_kernel_in_distribution():
     setup = build_setup(compose(["train.theta0=[40,5]"]))
     python_z, python_steps = python_rollouts(python_world(setup.world), setup.theta0, 3000, seed=1)

@@ -38,6 +38,7 @@ def alone(tmp_path, built):
     return tmp_path / "alone"
 
 
+@pytest.mark.slow  # over a second
 def test_the_runs_share_a_batch_key_and_their_episodes_are_their_own():
     built = setups(TINY)
     assert len({batch_key(s.params) for s in built.values()}) == 1
@@ -51,6 +52,7 @@ def test_the_runs_share_a_batch_key_and_their_episodes_are_their_own():
             np.testing.assert_array_equal(scores, want_scores)
 
 
+@pytest.mark.slow  # over a second
 def test_every_run_of_a_batch_is_the_same_run_alone(tmp_path):
     built = setups(TINY)
     reference = alone(tmp_path, built)
@@ -65,6 +67,7 @@ def test_every_run_of_a_batch_is_the_same_run_alone(tmp_path):
     assert seen[-1] == (5 * 3, 5 * 3) and [d for d, _ in seen] == sorted(d for d, _ in seen)
 
 
+@pytest.mark.slow  # over a second
 def test_a_run_that_fails_leaves_the_batch_alone(tmp_path):
     built = setups(TINY, ["cvar", "team"])
     reference = alone(tmp_path, built)
@@ -84,6 +87,7 @@ def test_a_run_that_fails_leaves_the_batch_alone(tmp_path):
     assert not (tmp_path / "batch" / "diverges" / "summary.json").exists()
 
 
+@pytest.mark.slow  # over a second
 def test_a_run_whose_checkpoint_the_disk_refuses_leaves_the_batch_alone(tmp_path, monkeypatch):
     """The round's checkpoints are written together (one group commit); one that fails (a full disk) stops its run
     alone, with its checkpoints so far kept and its log readable, and the others finish as they would alone."""
@@ -109,6 +113,7 @@ def test_a_run_whose_checkpoint_the_disk_refuses_leaves_the_batch_alone(tmp_path
         assert_same_outputs(tmp_path / "batch" / name, reference / name)
 
 
+@pytest.mark.slow  # over a second
 def test_a_batch_stopped_by_a_signal_resumes_to_the_same_numbers(tmp_path):
     names = ["cvar", "team", "ring"]
     built = setups(CHECKPOINTED, names)

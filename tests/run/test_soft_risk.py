@@ -65,6 +65,7 @@ def test_the_shorthand_names_the_kind_on_the_command_line():
     assert cfg.risk.schedule.kind == "exponential" and cfg.risk.schedule.start == 1.0
 
 
+@pytest.mark.slow  # over a second
 def test_no_schedule_is_the_papers_update_bit_for_bit(tmp_path):
     """kind=none (whatever its other keys) trains exactly like a config without the schedule, and like a hand-written
     loop of eq. (11) with Algorithm 1's gradient at beta."""
@@ -89,6 +90,7 @@ def test_no_schedule_is_the_papers_update_bit_for_bit(tmp_path):
     ]
 
 
+@pytest.mark.slow  # over a second
 def test_the_schedule_is_used_logged_in_parquet_and_mcap_and_metrics_stay_at_beta(tmp_path):
     run = train(compose([*RUN, *LINEAR]), tmp_path / "linear")
     params = build_setup(compose([*RUN, *LINEAR])).params

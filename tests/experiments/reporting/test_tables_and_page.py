@@ -49,6 +49,7 @@ def test_a_group_of_two_seeds_is_their_mean_with_a_t_interval(runs):
     assert pd.isna(row["degenerate"]) and "degenerate" not in html  # a CVaR run alone: nothing to flag
 
 
+@pytest.mark.slow  # over a second
 def test_a_risk_averse_group_below_its_worlds_risk_neutral_group_is_marked(tmp_path):
     """The CVaR run is pushed away from the sources (θ0 negative) and reaches none, nor did its θ0; the
     risk-neutral run heads for the safe source: on CVaR itself, the CVaR run ends far below it."""

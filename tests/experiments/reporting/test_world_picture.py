@@ -197,6 +197,7 @@ def test_a_turned_map_has_no_metre_axes(room_map):
     assert not ax.child_axes and "turned 0.5 rad (no metre axes)" in " ".join(ax.get_title().split())
 
 
+@pytest.mark.slow  # over a second
 def test_check_draws_a_new_map_alone_when_its_start_is_not_placed_yet(room_map, in_tmp):
     """A new map with the default start (0, 0), a wall of it: the error line, and the map drawn alone to place the
     start and the sources on (its cells, unknown space and walls; no start, source or reach)."""
