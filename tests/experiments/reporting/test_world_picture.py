@@ -225,6 +225,14 @@ def test_check_draws_nothing_when_the_map_itself_is_bad(in_tmp):
     assert "drawn" not in result.stderr and not (in_tmp / "map.png").exists()
 
 
+@pytest.mark.parametrize("cell, words", [("0", "got 0; expected k >= 1"), ("-2", "got -2; expected k >= 1")])
+def test_check_draws_nothing_when_the_map_cell_is_bad(room_map, in_tmp, cell, words):
+    # the map reads, but cannot be cut into cells of k < 1 pixels: the map_cell line, not a traceback
+    result = runner.invoke(app, ["check", f"world.map={room_map}", f"world.map_cell={cell}", "--draw", "map.png"])
+    assert result.exit_code == 2 and result.stderr == f"error: world.map_cell: {words} (one cell is k x k map pixels)\n"
+    assert not (in_tmp / "map.png").exists()
+
+
 @pytest.mark.slow
 def test_check_draws_each_format(in_tmp):
     for name, head in (("world.png", b"\x89PNG"), ("world.svg", b"<?xml"), ("world.pdf", b"%PDF")):
