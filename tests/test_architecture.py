@@ -189,6 +189,7 @@ def test_a_run_starts_without_the_report_or_the_sweeps():
     assert loaded & elsewhere == set()
 
 
+@pytest.mark.slow  # about a second
 def test_a_whole_run_of_riskplan_train_never_imports_pandas(tmp_path):
     """`riskplan train` builds, logs and writes its tables as numpy columns (riskplan/run/columns.py): pandas, a
     quarter of a second to import, is for reading runs back (load_run, the report)."""

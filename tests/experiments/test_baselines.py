@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from numba import njit
 
 from riskplan.engine import rng
@@ -50,6 +51,7 @@ def _normals(module_normal, states):
     return values, ends
 
 
+@pytest.mark.slow  # about a second
 def test_one_kernels_stream_and_ziggurat_are_riskplans_bit_for_bit():
     """The first-run baseline writes riskplan's stream out again (it may not import it): the same strips, and the
     same normals and end states from states that take the ziggurat's tail, its wedges and its fast path."""

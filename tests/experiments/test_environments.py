@@ -270,6 +270,7 @@ def test_the_horizon_truncates_and_without_stopping_a_source_pays_each_step():
     assert rewards == [1001.0] * 14 and info["source_reached"] == 0
 
 
+@pytest.mark.slow  # about a second
 def test_a_step_draws_the_kernels_stream_and_law(paper):
     """Worlds.step is the kernel's step: robot b's rewards come from episode b of the key (seed, ENVIRONMENT), by the
     affine law of the paper world's regions (safe: 100 U; risky: clip(200 U + 100 N)), U then N at every step."""

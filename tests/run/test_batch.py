@@ -132,6 +132,7 @@ def test_a_batch_stopped_by_a_signal_resumes_to_the_same_numbers(tmp_path):
         assert_same_outputs(tmp_path / "batch" / name, reference / name)
 
 
+@pytest.mark.slow  # about a second
 def test_each_run_of_a_batch_calibrates_with_its_part_of_the_batchs_time(tmp_path, monkeypatch):
     import time
 

@@ -78,6 +78,7 @@ def test_missing_and_infinite_values_are_empty_cells():
     assert csv_text(table) == "x,label\n1.5,a\n,\n,\n"
 
 
+@pytest.mark.slow  # about a second
 def test_the_floor_plan_table_holds_the_floor_plan_study_alone(tmp_path):
     """A user's own map experiment (here the shipped map under another experiment's name) is in report.csv, not in
     floor_plan.csv, the study's table."""

@@ -36,6 +36,7 @@ def gpu_here(monkeypatch):
     monkeypatch.setattr("riskplan.run.build.check_device", lambda params: None)
 
 
+@pytest.mark.slow  # about a second
 def test_a_sweep_on_the_gpu_has_the_folders_and_job_identities_of_the_sweep_on_the_cpu(in_tmp, gpu_here):
     plans = {
         device: plan_sweep(["seed=0,1", *([f"engine.device={device}"] if device else []), *TINY])

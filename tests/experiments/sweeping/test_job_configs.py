@@ -36,6 +36,7 @@ def loader_and_master():
     GlobalHydra.instance().clear()
 
 
+@pytest.mark.slow  # about a second
 def test_each_job_config_is_hydras_own(loader_and_master):
     loader, master = loader_and_master
     configs = JobConfigs(loader, master)
