@@ -180,7 +180,8 @@ def test_report_opens_offline_with_every_image_loaded(tmp_path, browser):
         riskplan.train(riskplan.compose(FAST + extra), tmp_path / "runs" / name)
     page = build_report([tmp_path / "runs"], tmp_path / "report", ["png"])
     images, requests = browser.open(page.resolve().as_uri())
-    assert len(images) == 7  # Figs. 1-4, reward distribution, risk frontier, team thetas
+    # Figs. 1-4, reward distribution, risk frontier, team thetas, and each world (the team's starts are its own)
+    assert len(images) == 9
     assert all(i["src"].startswith("data:image/png;base64,") for i in images)
     broken = [i for i in images if not (i["complete"] and i["width"] > 0 and i["height"] > 0)]
     assert not broken, broken
