@@ -540,8 +540,8 @@ def gen_frontier() -> str:
 
 
 def gen_landscape() -> str:
-    land = read_csv(DATA / "reproduction" / "landscape.csv")
-    first = land.iloc[0]
+    scan = read_csv(DATA / "reproduction" / "landscape.csv")
+    first = scan.iloc[0]
     head = (
         f"Grid: {int(first['points'])}×{int(first['points'])} points of θ, {int(first['episodes']):,} episodes "
         f"each on common random numbers, grid step {first['grid_step']:g}. CVaR_0.1 maximum "
@@ -561,7 +561,7 @@ def gen_landscape() -> str:
             num(r["landscape_at_final"]),
             f"{num(r['gap_to_optimum'])} ({num(r['gap_percent'], 2)}%)",
         ]
-        for _, r in land.iterrows()
+        for _, r in scan.iterrows()
     ]
     return head + table(
         [
@@ -1556,9 +1556,9 @@ def collect(args) -> None:
         ).to_csv(out / "team_consensus.csv", index=False)
         for name in ("report.csv", "soft_risk.csv", *(f"{t}.csv" for t in STUDY_TABLES)):
             shutil.copyfile(repro / "report" / name, out / name)
-        land = pd.read_csv(repro / "report" / "landscape.csv")
-        land["landscape"] = "landscape"  # not the absolute path of this machine
-        land.to_csv(out / "landscape.csv", index=False)
+        scan = pd.read_csv(repro / "report" / "landscape.csv")
+        scan["landscape"] = "landscape"  # not the absolute path of this machine
+        scan.to_csv(out / "landscape.csv", index=False)
         grid = pd.read_parquet(repro / "landscape" / "landscape.parquet")
         grid[grid["theta_1"] == 0].drop(columns=["theta_1"]).to_csv(out / "landscape_axis.csv", index=False)
         example = repro / "single" / "risk=cvar,seed=0" / "summary.json"

@@ -50,7 +50,7 @@ CHECKPOINTED_TEAM = [*CHECKPOINTED, "experiment=paper_team", "team.delay.max=2",
 
 # ------------------------------------------------------------------------------------------------ set-ups, teams
 def setup_of(*overrides: str):
-    """The built Setup of TINY plus overrides (composed without the model's checks: build_setup makes them)."""
+    """The built RunSetup of TINY plus overrides (composed without the model's checks: build_setup makes them)."""
     return build_setup(compose([*TINY, *overrides], validate=False))
 
 
@@ -108,7 +108,7 @@ WORLD_3X3 = {
 
 
 def world_3x3(*extra: dict):
-    """The built Setup of WORLD_3X3 merged with extra config dicts."""
+    """The built RunSetup of WORLD_3X3 merged with extra config dicts."""
     return build_setup(OmegaConf.merge(OmegaConf.structured(RiskplanConf), WORLD_3X3, *extra))
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import typer
 
 from riskplan.commands.common import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
-from riskplan.experiments.output_manifest import WriteFailed, claim
+from riskplan.experiments.output_manifest import WriteFailed, claim_output
 from riskplan.util.errors import BadInput
 
 
@@ -65,16 +65,16 @@ def register(app: typer.Typer) -> None:
         target = out if out is not None else default_out(inputs)  # a str: an empty --out stays empty, refused
         with write_errors_exit():
             result = write_report(inputs, target, fmts, key="--out")
-        coll = result.collection
-        for broken in coll.broken:
+        collected = result.collection
+        for broken in collected.broken:
             typer.echo(f"skipped {broken.path}: {broken.reason}", err=True)
-        rebuilt = [r for r in coll.runs if r.rebuilt]
+        rebuilt = [r for r in collected.runs if r.rebuilt]
         for r in rebuilt:
             typer.echo(f"rebuilt tables of {r.path} from run.mcap")
-        repeats = f", {len(coll.duplicates)} duplicate (counted once)" if coll.duplicates else ""
+        repeats = f", {len(collected.duplicates)} duplicate (counted once)" if collected.duplicates else ""
         typer.echo(
-            f"{len(coll.runs)} run(s) in {len(coll.groups)} group(s), {len(coll.landscapes)} landscape(s), "
-            f"{len(coll.broken)} skipped{repeats}; {len(result.figures)} figures"
+            f"{len(collected.runs)} run(s) in {len(collected.groups)} group(s), {len(collected.landscapes)} landscape(s), "
+            f"{len(collected.broken)} skipped{repeats}; {len(result.figures)} figures"
         )
         typer.echo(f"report: {result.page}")
 
@@ -112,7 +112,7 @@ def register(app: typer.Typer) -> None:
         if episodes < 1:
             raise BadInput("--episodes", f"got {episodes}; expected at least 1 episode per grid point")
         if out is not None:
-            claim(out, "landscape", "--out")  # early: a bad --out is refused before the config is composed
+            claim_output(out, "landscape", "--out")  # early: a bad --out is refused before the config is composed
         cfg = compose(args)
         bounds = parse_floats(theta_range, "--range", (2, 4))
         ranges = ((bounds[0], bounds[1]), (bounds[-2], bounds[-1]))
@@ -127,7 +127,7 @@ def register(app: typer.Typer) -> None:
             if out is not None
             else (LANDSCAPES_ROOT / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}_{cfg.experiment}")
         )
-        claim(target, "landscape", "--out")
+        claim_output(target, "landscape", "--out")
         typer.echo(f"landscape directory: {target}")
         with write_errors_exit():
             path = compute_landscape(

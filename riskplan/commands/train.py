@@ -20,7 +20,7 @@ from riskplan.commands.common import (
 from riskplan.util.collector import pause_collection, resume_collection
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
-from riskplan.util.lock import LOCK, hold, holder
+from riskplan.util.lock import LOCK, hold_lock, holder
 from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote
 
 
@@ -82,7 +82,7 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
         check_new_run_dir(out, "hydra.run.dir")
         out.mkdir(parents=True, exist_ok=True)
     try:
-        with hold(out):
+        with hold_lock(out):
             check_new_run_dir(out, "hydra.run.dir")  # again under the lock: another process may have won the race
             typer.echo(f"run directory: {out}")
             typer.echo("\n".join(reach_lines(setup)))
@@ -150,7 +150,7 @@ def _resume(run_dir: Path, args: list[str]) -> None:
                 f"override '{override.input_line}'", "cannot change a resumed run; only train.iterations=N may be given"
             )
     check_output_dir(run_dir, str(run_dir))
-    with hold(run_dir):  # before anything is read: another process may be writing it
+    with hold_lock(run_dir):  # before anything is read: another process may be writing it
         if not (run_dir / CHECKPOINT).is_file():
             raise BadInput(str(run_dir), "has no checkpoint yet (killed before the first one); start it again")
         if not (run_dir / CONFIG).is_file():

@@ -25,7 +25,7 @@ from riskplan.config.schema import (
     TrainConf,
     WorldConf,
 )
-from riskplan.util.checks import finite, require, require_installed, whole
+from riskplan.util.checks import finite, integer_at_least, require, require_installed
 
 SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias under the 64-bit stream keys
 
@@ -177,19 +177,19 @@ def check_world(world: WorldConf) -> None:
 def check_team(team: TeamConf) -> None:
     """The team's scalar settings: size, delays and drops (Assumption 5 (3)-(4)), rounds, switching, the link
     radius. The graph and its weights are checked when the network is built."""
-    whole(team.robots, "team.robots", 1, "the number of robots")
-    whole(team.delay.max, "team.delay.max", 0, "the largest message delay in iterations (B0)")
+    integer_at_least(team.robots, "team.robots", 1, "the number of robots")
+    integer_at_least(team.delay.max, "team.delay.max", 0, "the largest message delay in iterations (B0)")
     drop = finite(team.drop, "team.drop")
     require(0.0 <= drop < 1.0, "team.drop", f"is {drop:g}; the drop probability must be in [0, 1)")
-    whole(team.max_gap, "team.max_gap", 1, "the longest gap between deliveries on a link (B)")
-    whole(team.consensus_rounds, "team.consensus_rounds", 1, "the number of consensus rounds per iteration")
-    whole(team.resample, "team.resample", 0, "the number of random_geometric redraws")
-    whole(team.switching.window, "team.switching.window", 1, "the switching window (iterations)")
+    integer_at_least(team.max_gap, "team.max_gap", 1, "the longest gap between deliveries on a link (B)")
+    integer_at_least(team.consensus_rounds, "team.consensus_rounds", 1, "the number of consensus rounds per iteration")
+    integer_at_least(team.resample, "team.resample", 0, "the number of random_geometric redraws")
+    integer_at_least(team.switching.window, "team.switching.window", 1, "the switching window (iterations)")
     up = finite(team.switching.up, "team.switching.up")
     require(0.0 < up <= 1.0, "team.switching.up", f"is {up:g}; the per-iteration link-up probability must be in (0, 1]")
     radius = finite(team.radius, "team.radius")
     require(radius > 0, "team.radius", f"is {radius:g}; the link radius must be > 0 (the unit square is 1 x 1)")
-    whole(team.trim, "team.trim", 0, "the number of extreme values trimmed at each end (F)")
+    integer_at_least(team.trim, "team.trim", 0, "the number of extreme values trimmed at each end (F)")
     require(
         team.aggregate == Aggregate.mean or team.order != Order.gradient_tracking,
         "team.aggregate",
@@ -226,7 +226,7 @@ def check_team(team: TeamConf) -> None:
 def check_backend(team: TeamConf) -> None:
     """team.staleness, team.speeds and team.address, whatever the backend; the simulated network's delays, drops
     and switching links do not apply to real messages (team.backend=ray), so they are refused there."""
-    whole(team.staleness, "team.staleness", 0, "the oldest neighbour message a robot mixes, in iterations,")
+    integer_at_least(team.staleness, "team.staleness", 0, "the oldest neighbour message a robot mixes, in iterations,")
     if team.speeds is not None:
         require(
             len(team.speeds) == team.robots,

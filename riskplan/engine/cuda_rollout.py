@@ -7,7 +7,7 @@ worlds): the loop of `rollout_kernels._simulate_affine` for affine region reward
 (`dynamics._draw`) for any other region reward, with source rewards always through the interpreter.
 Everything else runs on the CPU kernel, unchanged: a tabular policy, mobile sources, recorded paths (`record=True`)
 and the reference sampler (`reference=True`). The policy tables and move bins (riskplan.engine.policy.tables,
-rollout.move_bins) are computed on the CPU and copied over; the outputs come back as the `rollout.Batch` the CPU
+rollout.move_bins) are computed on the CPU and copied over; the outputs come back as the `rollout.EpisodeBatch` the CPU
 kernel returns.
 
 One source. The device functions are the CPU kernel's helpers compiled again from their own Python (`on_gpu`):
@@ -36,9 +36,9 @@ from numba import config as numba_config
 from numba import cuda, float64, int64
 
 from riskplan.engine import dynamics, rng
-from riskplan.engine.rollout import Batch, Kernel, policy_tables
+from riskplan.engine.rollout import EpisodeBatch, KernelArrays, policy_tables
 from riskplan.engine.rollout import simulate as cpu_simulate
-from riskplan.engine.rollout_kernels import Tables
+from riskplan.engine.rollout_kernels import KernelTables
 from riskplan.engine.world import MAX_STACK, World
 from riskplan.util.errors import BadInput
 
@@ -73,14 +73,14 @@ def check_gpu() -> None:
         raise BadInput("engine.device=cuda", f"{problem}; use engine.device=cpu (the same numbers, on the CPU)")
 
 
-def ported(kernel: Kernel, record: bool = False, reference: bool = False) -> bool:
+def ported(kernel: KernelArrays, record: bool = False, reference: bool = False) -> bool:
     """Whether `simulate` runs these episodes on the GPU (else on the CPU kernel, as `rollout.simulate`)."""
     return not (kernel.tables.tabular or kernel.tables.mobile or record or reference)
 
 
 def simulate(  # rollout.simulate's signature: engine.step.simulator hands out either (config.backends.DEVICES)
     world: World,
-    kernel: Kernel,
+    kernel: KernelArrays,
     thetas: np.ndarray,
     starts: np.ndarray,
     keys: np.ndarray,
@@ -88,9 +88,9 @@ def simulate(  # rollout.simulate's signature: engine.step.simulator hands out e
     record: bool = False,
     reference: bool = False,
     scores: bool = True,
-) -> Batch:
+) -> EpisodeBatch:
     """`riskplan.engine.rollout.simulate` on the GPU where it is ported (`ported`), else on the CPU: the same
-    arguments, the same Batch, the same numbers."""
+    arguments, the same EpisodeBatch, the same numbers."""
     if not ported(kernel, record, reference):
         return cpu_simulate(world, kernel, thetas, starts, keys, episodes, record, reference, scores)
     return Launch(world, kernel, thetas, starts, keys, episodes).run().batch()
@@ -100,7 +100,7 @@ class Launch:
     """One kernel call, its inputs on the device: `run()` launches it (again, for a benchmark), `batch()` copies
     the outputs back. The policy tables and move bins are the CPU kernel's (rollout.policy_tables)."""
 
-    def __init__(self, world: World, kernel: Kernel, thetas, starts, keys, episodes: int):
+    def __init__(self, world: World, kernel: KernelArrays, thetas, starts, keys, episodes: int):
         thetas = np.ascontiguousarray(thetas, dtype=np.float64)
         policies, self.size = thetas.shape
         bins, score, _ = policy_tables(world, kernel, thetas, starts)
@@ -129,23 +129,23 @@ class Launch:
             _episode_kernel(self.size)[blocks, THREADS](*self.inputs, *self.outputs)
         return self
 
-    def batch(self) -> Batch:
-        """The outputs, copied to the host as the CPU kernel's Batch."""
-        return Batch(*(array.copy_to_host()[: self.total] for array in self.outputs))
+    def batch(self) -> EpisodeBatch:
+        """The outputs, copied to the host as the CPU kernel's EpisodeBatch."""
+        return EpisodeBatch(*(array.copy_to_host()[: self.total] for array in self.outputs))
 
 
-_DEVICE_MEMO: dict[int, tuple[Kernel, Tables]] = {}  # id(kernel) -> (kernel, its tables on the device)
+_DEVICE_MEMO: dict[int, tuple[KernelArrays, KernelTables]] = {}  # id(kernel) -> (kernel, its tables on the device)
 
 
-def _on_device(kernel: Kernel) -> Tables:
-    """The kernel's Tables with their arrays on the GPU (the constants as they are), copied once per Kernel (a
+def _on_device(kernel: KernelArrays) -> KernelTables:
+    """The kernel's KernelTables with their arrays on the GPU (the constants as they are), copied once per KernelArrays (a
     run's, a batch's): the one argument the episode kernel takes them as, as the CPU kernels do."""
     held = _DEVICE_MEMO.get(id(kernel))
     if held is not None and held[0] is kernel:
         return held[1]
     if len(_DEVICE_MEMO) >= 8:
         _DEVICE_MEMO.clear()
-    on_device = Tables(
+    on_device = KernelTables(
         *(cuda.to_device(np.ascontiguousarray(v)) if isinstance(v, np.ndarray) else v for v in kernel.tables)
     )
     _DEVICE_MEMO[id(kernel)] = (kernel, on_device)
@@ -213,9 +213,9 @@ def _episode_kernel(size: int):
     def episodes_kernel(
         tables, bins, score, starts, keys, episodes, out_z, out_score, out_risky, out_reached, out_steps
     ):
-        """Episode e of policy p = e // episodes, one per thread. `tables` is the Kernel's, on the device, read into
+        """Episode e of policy p = e // episodes, one per thread. `tables` is the KernelArrays's, on the device, read into
         locals as `_simulate_affine` reads them (the episode takes its arrays one by one)."""
-        # Tables' fields into locals, as the CPU kernels read them: the episode takes them one by one
+        # KernelTables' fields into locals, as the CPU kernels read them: the episode takes them one by one
         next_cell = tables.next_cell
         cell_affine = tables.cell_affine
         cell_risky = tables.cell_risky
@@ -244,7 +244,7 @@ def _episode_kernel(size: int):
         state = _episode_state(keys[p], e - p * episodes)
         for j in range(size):
             acc[j] = 0.0
-        # the arrays one by one, not Tables (riskplan.engine.dynamics says why)
+        # the arrays one by one, not KernelTables (riskplan.engine.dynamics says why)
         out_z[e], out_risky[e], out_reached[e], out_steps[e] = _static_episode(
             next_cell,
             source_at,

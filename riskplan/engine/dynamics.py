@@ -10,7 +10,7 @@ a source's reward (`_draw`); mobile sources walk after the step (`_walk`). Every
 counter-based stream (riskplan.engine.rng). Products that a sum takes are written rng.mul (the GPU rounds them
 alone).
 
-The world's arrays are passed one by one, not as the kernels' Tables: a tuple of them read inside numba's parallel
+The world's arrays are passed one by one, not as the kernels' KernelTables: a tuple of them read inside numba's parallel
 loop cost the paper batch 12% more CPU time.
 """
 
@@ -199,7 +199,7 @@ def step_robots(tables, cells, moves, active, group, sources, states, walk_state
         moving[group[b]] = True
         cell = tables.next_cell[cells[b], moves[b]]
         cells[b] = cell
-        paid, counted, state = _entered(  # the arrays one by one, not Tables (the module docstring says why)
+        paid, counted, state = _entered(  # the arrays one by one, not KernelTables (the module docstring says why)
             tables.affine,
             tables.cell_affine,
             tables.draw_uniform,
@@ -279,21 +279,23 @@ def _static_episode(
             acc[j] += score[p, cell, a, j]
         cell = next_cell[cell, a]
         steps += 1
-        reward, counted, state = _entered_by_call(  # the arrays one by one, not Tables (the module docstring says why)
-            affine,
-            cell_affine,
-            draw_uniform,
-            draw_normal,
-            cell_risky,
-            region_of,
-            region_risky,
-            reg_off,
-            reg_ops,
-            reg_par,
-            cell,
-            stack,
-            state,
-            False,
+        reward, counted, state = (
+            _entered_by_call(  # the arrays one by one, not KernelTables (the module docstring says why)
+                affine,
+                cell_affine,
+                draw_uniform,
+                draw_normal,
+                cell_risky,
+                region_of,
+                region_risky,
+                reg_off,
+                reg_ops,
+                reg_par,
+                cell,
+                stack,
+                state,
+                False,
+            )
         )
         risky += counted
         hit = source_at[cell]

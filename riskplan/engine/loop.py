@@ -34,7 +34,7 @@ from riskplan.engine.schedules import step_size
 from riskplan.engine.step import (
     Estimates,
     NumericalTrouble,
-    Setup,
+    RunSetup,
     Statistics,
     TrainState,
     advance,
@@ -68,7 +68,7 @@ class _Rows(NamedTuple):
     groups: list[tuple[str, object, np.ndarray]]  # (the risk node's key, the node, robot positions in the run)
 
 
-def make_train(setups: Sequence[Setup]) -> Callable[[Sequence[TrainState], Recorder], list[TrainState]]:
+def make_train(setups: Sequence[RunSetup]) -> Callable[[Sequence[TrainState], Recorder], list[TrainState]]:
     """The training function of a batch of runs that share a world, a policy and W_l (step.batch_key)."""
     setups = tuple(setups)
     totals = [setup.params.train.iterations for setup in setups]
@@ -223,7 +223,7 @@ def _compact(index: np.ndarray) -> slice | np.ndarray:
     return index
 
 
-def _risk_nodes(setup: Setup) -> list[tuple[str, object, np.ndarray]]:
+def _risk_nodes(setup: RunSetup) -> list[tuple[str, object, np.ndarray]]:
     """The risk nodes of a run's robots (one for all unless team.risk gives robots their own), each with its key
     and the positions of its robots in the run."""
     positions = np.arange(setup.robots)

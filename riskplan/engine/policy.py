@@ -209,7 +209,7 @@ def tables(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-policy cumulative move probabilities (P, C, 5) and scores (P, C, 5, M) for thetas (P, M).
 
-    `features` is move_features(world) when the caller keeps it (riskplan.engine.rollout.Kernel does: computing it is
+    `features` is move_features(world) when the caller keeps it (riskplan.engine.rollout.KernelArrays does: computing it is
     most of a small batch's fixed cost). With `cells` (an index array), only those cells' rows are filled, each with
     the numbers it has in the full tables, and the other rows are left unset: the kernel passes the cells its
     episodes can reach (riskplan.engine.rollout.reach), so a large map costs what its reachable part costs.

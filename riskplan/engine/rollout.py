@@ -1,8 +1,8 @@
 """Batched Monte Carlo rollouts: many policies x many episodes in one numba kernel.
 
-This module is the Python side: `make_kernel` packs a World and its Policy once per run (`Kernel`, whose `tables`
+This module is the Python side: `make_kernel` packs a World and its Policy once per run (`KernelArrays`, whose `tables`
 the kernels take as one argument), `simulate` computes each call's policy tables and move bins and runs the episode
-kernel of riskplan.engine.rollout_kernels on them, and returns the outcomes as a `Batch`.
+kernel of riskplan.engine.rollout_kernels on them, and returns the outcomes as an `EpisodeBatch`.
 
 Each episode draws from its own counter-based stream (riskplan.engine.rng), so numbers do not depend on threads or
 chunking. Static worlds of a features policy with affine region rewards (`affine_form`) run
@@ -27,12 +27,12 @@ import numpy as np
 from riskplan.engine import distributions as D
 from riskplan.engine.policy import Policy, make_policy, tables, tabular_tables
 from riskplan.engine.reachability import distances
-from riskplan.engine.rollout_kernels import Tables, _bins, _bins_at, _simulate, _simulate_affine
+from riskplan.engine.rollout_kernels import KernelTables, _bins, _bins_at, _simulate, _simulate_affine
 from riskplan.engine.world import World
 
 
 @dataclass(frozen=True)
-class Batch:
+class EpisodeBatch:
     """Outcome of P policies x W episodes, flattened policy-major (episode e of policy p at p * W + e)."""
 
     total_reward: np.ndarray  # (P*W,) float64
@@ -45,11 +45,11 @@ class Batch:
 
 
 @dataclass(frozen=True)
-class Kernel:
+class KernelArrays:
     """A run's world and policy packed once: the arrays the episode kernels take (`tables`), and what the policy's
     per-iteration tables read (`features`)."""
 
-    tables: Tables  # the world's and policy's arrays and flags, as the numba (and CUDA) kernels take them
+    tables: KernelTables  # the world's and policy's arrays and flags, as the numba (and CUDA) kernels take them
     features: np.ndarray  # (C, 5, F): the policy's move features (a tabular policy's: its seed's), for policy.tables
     reached: dict = field(default_factory=dict, compare=False, repr=False)  # `reach` by start cells, remembered
 
@@ -88,7 +88,7 @@ def affine_form(dist: D.Dist) -> tuple[float, float, float, float, float] | None
     return form[0], form[1], math.sqrt(form[2]), lo, hi
 
 
-def make_kernel(world: World, policy: Policy | None = None) -> Kernel:
+def make_kernel(world: World, policy: Policy | None = None) -> KernelArrays:
     """Pack a World and its Policy (default: the paper's, theta weighting the M signals) for `simulate`."""
     policy = make_policy(world) if policy is None else policy
     source_at = np.full(world.cells, -1, dtype=np.int64)
@@ -105,7 +105,7 @@ def make_kernel(world: World, policy: Policy | None = None) -> Kernel:
                 cell_affine[cell] = forms[region]
     region_off, region_ops, region_par = D.pack_programs(list(world.region_rewards))
     source_off, source_ops, source_par = D.pack_programs(list(world.source_rewards))
-    tables = Tables(
+    tables = KernelTables(
         next_cell=world.next_cell,
         region_of=world.region_of,
         region_risky=world.region_risky,
@@ -135,12 +135,12 @@ def make_kernel(world: World, policy: Policy | None = None) -> Kernel:
         tabular=bool(policy.tabular),
         signal_at=int(policy.signal_at),
     )
-    return Kernel(tables=tables, features=policy.move_features(world))
+    return KernelArrays(tables=tables, features=policy.move_features(world))
 
 
 def simulate(
     world: World,
-    kernel: Kernel,
+    kernel: KernelArrays,
     thetas: np.ndarray,
     starts: np.ndarray,
     keys: np.ndarray,
@@ -148,11 +148,11 @@ def simulate(
     record: bool = False,
     reference: bool = False,
     scores: bool = True,
-) -> Batch:
+) -> EpisodeBatch:
     """Run `episodes` episodes for each policy p (theta thetas[p], start cell starts[p], stream key keys[p]).
 
     thetas is (P, len(theta)) for the kernel's policy (`make_kernel`); a tabular policy's scores are (P*W, C*5).
-    `scores=False` skips a tabular policy's scores (Batch.score is then (P*W, 0): evaluation has no use for W C 5
+    `scores=False` skips a tabular policy's scores (EpisodeBatch.score is then (P*W, 0): evaluation has no use for W C 5
     floats); a features policy's few are always filled.
 
     `reference` runs every region reward through the program interpreter and normals by the inverse CDF of one
@@ -183,10 +183,10 @@ def simulate(
             path_cells,
             path_rewards,
         )
-    return Batch(*outputs, *paths)
+    return EpisodeBatch(*outputs, *paths)
 
 
-def policy_tables(world: World, kernel: Kernel, thetas: np.ndarray, starts: np.ndarray):
+def policy_tables(world: World, kernel: KernelArrays, thetas: np.ndarray, starts: np.ndarray):
     """What the episode kernels read of the policies: (move bins (P, C, 4), scores (P, C, 5, F), probabilities
     (P, C, 5)), a tabular policy's from its table (no scores: the kernel accumulates them), a features policy's for
     the cells its episodes can reach (none with mobile sources: their moves are computed at each step)."""
@@ -198,7 +198,7 @@ def policy_tables(world: World, kernel: Kernel, thetas: np.ndarray, starts: np.n
     return move_bins(cum, cells), score, np.empty((0, 0, 5))
 
 
-def _outputs(kernel: Kernel, total: int, size: int, record: bool, scores: bool):
+def _outputs(kernel: KernelArrays, total: int, size: int, record: bool, scores: bool):
     """The kernels' output arrays for `total` episodes: (z, score, risky, reached, steps), then the paths' cells and
     rewards ((0, 0) unless `record`). A tabular policy's scores start at zero (the kernel adds into them)."""
     if kernel.tables.tabular:
@@ -223,7 +223,7 @@ def move_bins(cum: np.ndarray, cells: np.ndarray | None = None) -> np.ndarray:
     return bins
 
 
-def reach(kernel: Kernel, starts: np.ndarray) -> np.ndarray:
+def reach(kernel: KernelArrays, starts: np.ndarray) -> np.ndarray:
     """The cells at which an episode from `starts` can pick a move (sorted): those within horizon - 1 moves of a
     start through next_cell. The kernel reads the policy tables at these cells only, so `simulate` fills only
     theirs (a 256 x 256 map whose episodes see a few hundred cells costs what those cost). Empty with mobile

@@ -1,5 +1,5 @@
 """The numba kernels of the rollouts (riskplan.engine.rollout runs them): the episode loops `_simulate` and
-`_simulate_affine`, the helpers they inline, and `Tables`, the world and policy arrays they take as one argument.
+`_simulate_affine`, the helpers they inline, and `KernelTables`, the world and policy arrays they take as one argument.
 
 The dynamics have one definition, riskplan.engine.dynamics: what entering a cell pays, a source's reward and walk,
 the move pick, and the whole episode `_simulate_affine` runs (the GPU kernel runs it too).
@@ -37,10 +37,10 @@ from riskplan.engine.world import MAX_STACK
 CHUNK = 64  # episodes per parallel work item: amortises the per-item scratch allocations
 
 
-class Tables(NamedTuple):
+class KernelTables(NamedTuple):
     """A world's and its policy's arrays and constants as the episode kernels take them: one typed argument (numba
     types a NamedTuple field by field), read by name, so no argument can slip into another's position. Built once
-    per rollout.Kernel (its `tables`); cuda_rollout copies its arrays to the GPU for the GPU kernel. The kernels read
+    per rollout.KernelArrays (its `tables`); cuda_rollout copies its arrays to the GPU for the GPU kernel. The kernels read
     each field into a local before their loop, so the loop is the one they ran when these were positional arguments."""
 
     next_cell: np.ndarray  # (C, 5) int64: the cell a move leads to
@@ -203,7 +203,7 @@ def _simulate_affine(
     other cases' branches (tests/engine/test_kernel_fast_paths.py checks the two agree). With `record`
     it fills path_cells and path_rewards as `_simulate` does, so the paths of a paper run need no second kernel
     (`_simulate` takes much longer to compile)."""
-    # Tables' fields into locals before the parallel loop, in every kernel: read from the tuple inside it, slower
+    # KernelTables' fields into locals before the parallel loop, in every kernel: read from the tuple inside it, slower
     next_cell = tables.next_cell
     source_at = tables.source_at
     src_off = tables.src_off
@@ -229,7 +229,7 @@ def _simulate_affine(
             p = e // episodes
             state = episode_state(keys[p], e - p * episodes)
             acc[:] = 0.0
-            # the arrays one by one, not Tables (riskplan.engine.dynamics says why)
+            # the arrays one by one, not KernelTables (riskplan.engine.dynamics says why)
             out_z[e], out_risky[e], out_reached[e], out_steps[e] = _static_episode(
                 next_cell,
                 source_at,
@@ -294,7 +294,7 @@ def _simulate(
     signal_at = tables.signal_at
     extra_at = tables.extra_at
     extras = tables.extras
-    # Tables' fields into locals before the parallel loop, in every kernel: read from the tuple inside it, slower
+    # KernelTables' fields into locals before the parallel loop, in every kernel: read from the tuple inside it, slower
     next_cell = tables.next_cell
     region_of = tables.region_of
     region_risky = tables.region_risky
@@ -389,7 +389,7 @@ def _simulate(
                 cell = next_cell[cell, a]
                 steps += 1
                 reward, counted, state = (
-                    _entered(  # the arrays one by one, not Tables (riskplan.engine.dynamics says why)
+                    _entered(  # the arrays one by one, not KernelTables (riskplan.engine.dynamics says why)
                         affine,
                         cell_affine,
                         draw_uniform,

@@ -36,7 +36,7 @@ from riskplan.engine import rng
 from riskplan.engine.gradients import gradients
 from riskplan.engine.policy import Policy
 from riskplan.engine.risk_measures import summary_stats
-from riskplan.engine.rollout import Kernel
+from riskplan.engine.rollout import KernelArrays
 from riskplan.engine.schedules import samples_at, step_size
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.engine.team.mixer import Mixer
@@ -45,14 +45,14 @@ from riskplan.engine.world import World
 
 
 @dataclass(frozen=True)
-class Setup:
+class RunSetup:
     """A validated experiment: its frozen config, world, kernel arrays, team network (riskplan.run.build builds it
     from a config, once)."""
 
     params: RiskplanConf  # what the engine and the training loop read
     config: dict  # the same as plain data, for the records (.hydra/config.yaml, run.mcap metadata)
     world: World
-    kernel: Kernel
+    kernel: KernelArrays
     network: Network
     mixer: Mixer
     theta0: np.ndarray  # (len(theta_names),): M for the paper's policy, C * 5 for a tabular one
@@ -104,12 +104,12 @@ class NumericalTrouble(RuntimeError):
     """theta or a gradient stopped being finite; the last good checkpoint is kept."""
 
 
-def initial_state(setup: Setup) -> TrainState:
+def initial_state(setup: RunSetup) -> TrainState:
     """Iteration 0: every robot at theta_0, no message in flight."""
     return TrainState(0, np.tile(setup.theta0, (setup.robots, 1)), setup.mixer.fresh())
 
 
-def step(setup: Setup, state: TrainState, batch: tuple[np.ndarray, np.ndarray] | None = None):
+def step(setup: RunSetup, state: TrainState, batch: tuple[np.ndarray, np.ndarray] | None = None):
     """Iteration `state.iteration` of the team: (the next state, its Statistics). NumericalTrouble when an
     estimate or the new theta is not finite. `batch`: the (z, scores) of this iteration's episodes when a caller
     ran them already; else the step runs them. (riskplan.engine.loop runs many iterations of many runs.)"""
@@ -118,7 +118,7 @@ def step(setup: Setup, state: TrainState, batch: tuple[np.ndarray, np.ndarray] |
     return advance(setup, state, estimate(setup, l, z, scores))
 
 
-def advance(setup: Setup, state: TrainState, estimates: Estimates) -> tuple[TrainState, Statistics]:
+def advance(setup: RunSetup, state: TrainState, estimates: Estimates) -> tuple[TrainState, Statistics]:
     """Steps 4-5 of iteration `state.iteration` from its estimates: eps_l, the consensus step, the checks, the
     team's agreement and network average."""
     l, thetas = state.iteration, state.thetas
@@ -134,7 +134,7 @@ def advance(setup: Setup, state: TrainState, estimates: Estimates) -> tuple[Trai
     return TrainState(l + 1, new_thetas, mixer.snapshot()), statistics
 
 
-def rollouts(setup: Setup, l: int, thetas: np.ndarray, robots=None) -> tuple[np.ndarray, np.ndarray]:
+def rollouts(setup: RunSetup, l: int, thetas: np.ndarray, robots=None) -> tuple[np.ndarray, np.ndarray]:
     """Step 1: W_l episodes of each robot at its theta, from the stream keyed by (seed, iteration, robot) and from
     its start cell: z (R, W_l), scores (R, W_l, P). `robots`: the team indices of the thetas given (default: the
     whole team); robot i's episodes are the same whoever else runs in the call."""
@@ -148,7 +148,7 @@ def rollouts(setup: Setup, l: int, thetas: np.ndarray, robots=None) -> tuple[np.
     return batch.total_reward.reshape(n, episodes), batch.score.reshape(n, episodes, -1)
 
 
-def simulator(setup: Setup):
+def simulator(setup: RunSetup):
     """The episode kernel of a setup's engine.device (riskplan.config.backends.DEVICES): riskplan.engine.rollout's
     `simulate` on the CPU, its GPU port (numba-cuda, imported for engine.device=cuda alone) with the same arguments
     and numbers."""
@@ -160,14 +160,16 @@ def _kernel(device: Device):
     return load(DEVICES[device].kernel)
 
 
-def batched_rollouts(setups: list[Setup], l: int, thetas: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+def batched_rollouts(setups: list[RunSetup], l: int, thetas: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
     """Step 1 for many runs at once (`batch_episodes`), split into each run's (z, scores): bit for bit those
     `rollouts` gives it alone."""
     z, scores, bounds = batch_episodes(setups, l, thetas)
     return [(z[a:b], scores[a:b]) for a, b in itertools.pairwise(bounds)]
 
 
-def batch_episodes(setups: list[Setup], l: int, thetas: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def batch_episodes(
+    setups: list[RunSetup], l: int, thetas: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Step 1 for many runs at once: one kernel call over every run's robots, each run's episodes from its own
     streams (its seed) and start cells. Returns the block z (T, W_l) and scores (T, W_l, P) of every robot of
     every run, and the bounds of each run's rows in it (R + 1,). The runs must share a world, a policy and W_l
@@ -191,7 +193,7 @@ def batch_key(params: RiskplanConf) -> str:
     return json.dumps(shared, sort_keys=True, default=str)
 
 
-def team_statistics(setup: Setup, l: int, z: np.ndarray, objectives: np.ndarray) -> dict[str, float]:
+def team_statistics(setup: RunSetup, l: int, z: np.ndarray, objectives: np.ndarray) -> dict[str, float]:
     """A team's network average at iteration l: the statistics of the healthy robots' episodes pooled (z (N, W)),
     and the team objective, the sum of their objectives."""
     healthy = setup.mixer.healthy(l)
@@ -199,7 +201,7 @@ def team_statistics(setup: Setup, l: int, z: np.ndarray, objectives: np.ndarray)
     return summary_stats(z[ok].ravel(), setup.params.risk.beta, parallel=True) | {"objective": objectives[ok].sum()}
 
 
-def estimate(setup: Setup, l: int, z: np.ndarray, scores: np.ndarray, robots=None, where: str = "") -> Estimates:
+def estimate(setup: RunSetup, l: int, z: np.ndarray, scores: np.ndarray, robots=None, where: str = "") -> Estimates:
     """Steps 2-3 for the robots whose episodes are z (R, W) and scores (R, W, P): the statistics at risk.beta and
     each robot's gradient by its own risk node. `robots`: their indices in the team (default: all of it), for
     team.risk; `where` names them in a message."""
@@ -218,7 +220,7 @@ def estimate(setup: Setup, l: int, z: np.ndarray, scores: np.ndarray, robots=Non
     return Estimates(z.shape[1], z, stats, grads, levels)
 
 
-def consensus_step(setup: Setup, mixer: Mixer, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int):
+def consensus_step(setup: RunSetup, mixer: Mixer, thetas: np.ndarray, grads: np.ndarray, eps: float, l: int):
     """Step 4: eq. (14) combine-then-adapt, A theta + eps Delta (default), adapt-then-combine, A (theta + eps
     Delta), or gradient tracking, A theta + eps y with y the robot's tracker of the average gradient (Mixer.track).
     One robot has no neighbours: theta + eps Delta, eq. (11)."""
@@ -232,7 +234,7 @@ def consensus_step(setup: Setup, mixer: Mixer, thetas: np.ndarray, grads: np.nda
     return mixed if adapt_first else mixed + eps * grads
 
 
-def check_step(setup: Setup, l: int, thetas: np.ndarray, grads: np.ndarray, new_thetas: np.ndarray, who: str = ""):
+def check_step(setup: RunSetup, l: int, thetas: np.ndarray, grads: np.ndarray, new_thetas: np.ndarray, who: str = ""):
     """Step 5: NumericalTrouble unless the gradients and the new thetas are finite and the new softmax logits are."""
     where = f"iteration {l}" + (f": {who}" if who else "")  # a robot alone gives its own theta (P,)
     if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(new_thetas))):
@@ -268,7 +270,7 @@ def risk_groups(params: RiskplanConf, robots=None) -> list[tuple[RiskConf, slice
     return [(node, np.array(positions)) for node, positions in groups.values()]
 
 
-def starts(setup: Setup) -> np.ndarray:
+def starts(setup: RunSetup) -> np.ndarray:
     """Start cell of each robot (all at world.start unless team.starts is given)."""
     cells = setup.world.starts
     return np.repeat(cells, setup.robots) if len(cells) == 1 else cells
@@ -279,7 +281,7 @@ def logit_bound(world: World, thetas: np.ndarray, policy: Policy | None = None) 
     features policy (a signal's peak |amplitude|, 1 for risky and stay), the largest |theta| for a tabular one.
 
     When it is finite, no logit (or partial sum of one) overflows, so the softmax stays finite. Pass the run's
-    `policy` (Setup.policy) for the exact bound; without it, theta of length M is the paper's policy (exact, as
+    `policy` (RunSetup.policy) for the exact bound; without it, theta of length M is the paper's policy (exact, as
     before), theta of length C * 5 a table, and any other length is bounded with every feature at the largest peak,
     max(1, max |amplitude|) (an upper bound whatever the order of the features).
     """

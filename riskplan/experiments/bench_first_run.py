@@ -15,7 +15,7 @@ from riskplan.experiments.bench_meters import wall
 TRAINING_KERNEL = """
 import numpy as np
 from riskplan.engine.distributions import pack_programs, parse
-from riskplan.engine.rollout_kernels import Tables, _simulate_affine
+from riskplan.engine.rollout_kernels import KernelTables, _simulate_affine
 side, episodes = 12, 100
 cells = side * side
 x, y = np.divmod(np.arange(cells), side)
@@ -28,7 +28,7 @@ affine[y > x] = [0.0, 200.0, 100.0, -1e4, 1e4]
 source_at = np.full(cells, -1)
 source_at[9 * side + 3], source_at[3 * side + 9] = 0, 1
 region, sources = pack_programs([parse(0.0)]), pack_programs([parse(1000.0), parse({"normal": [2000.0, 2000.0]})])
-tables = Tables(
+tables = KernelTables(
     next_cell=next_cell, region_of=(y > x).astype(np.int64), region_risky=np.ones(1, np.int64), reg_off=region[0],
     reg_ops=region[1], reg_par=region[2], src_off=sources[0], src_ops=sources[1], src_par=sources[2],
     source_at=source_at, source_cells=np.array([9 * side + 3, 3 * side + 9]), source_motion=np.zeros(2),

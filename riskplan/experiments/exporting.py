@@ -513,13 +513,13 @@ def export_runs(
             "DIRS",
             f"give one or more run, sweep or reproduce directories, e.g. riskplan export outputs/runs --to {target}",
         )
-    coll = collect([Path(p) for p in paths])
+    collected = collect([Path(p) for p in paths])
     result = ExportResult(target, destination or "each run directory")
-    result.skipped = list(coll.broken) + [
-        Broken(Path(land.path), "a landscape, not a training run") for land in coll.landscapes
+    result.skipped = list(collected.broken) + [
+        Broken(Path(scan.path), "a landscape, not a training run") for scan in collected.landscapes
     ]
-    result.duplicates = list(coll.duplicates)  # one sample: exported once, as the run each repeats
-    if not coll.runs:
+    result.duplicates = list(collected.duplicates)  # one sample: exported once, as the run each repeats
+    if not collected.runs:
         return result
     try:
         with file_store_allowed(destination):
@@ -529,7 +529,7 @@ def export_runs(
                 "foxglove": FoxgloveTarget,
                 "ros2": lambda: Ros2Target(destination),
             }[target]()
-            for info in coll.runs:
+            for info in collected.runs:
                 try:
                     done = writer.write(run_record(info))
                 except Skip as err:

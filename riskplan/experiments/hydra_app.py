@@ -54,7 +54,7 @@ class SingleRun:
 
 
 def single_run(out: Path, setup, stderr) -> SingleRun:
-    """Train the run into `out` (Hydra's output directory) from its built Setup; record it in status.json."""
+    """Train the run into `out` (Hydra's output directory) from its built RunSetup; record it in status.json."""
     with contextlib.redirect_stderr(stderr):
         try:
             write_run_status(out, "running", None)
@@ -113,7 +113,7 @@ def run_hydra(args: list[str], capture: bool = False):
 
 
 def run_composed(config: DictConfig, setup) -> SingleRun:
-    """Hydra's single run of a config riskplan composed and checked already, with its hydra node, and the Setup
+    """Hydra's single run of a config riskplan composed and checked already, with its hydra node, and the RunSetup
     built from it (riskplan.run.compose.compose_run): what `Hydra.run` does after composing, so the config is
     neither composed nor built a second time. The run's directory is hydra.run.dir; `.hydra/`, logging and
     callbacks are Hydra's. A failure outside the task (Hydra cannot write `.hydra/`: a full disk) is RunFailed,

@@ -25,7 +25,7 @@ from omegaconf import OmegaConf
 from riskplan.engine import rng
 from riskplan.engine.risk_measures import tail_count
 from riskplan.engine.rollout import simulate
-from riskplan.experiments.output_manifest import Output, claim
+from riskplan.experiments.output_manifest import Output, claim_output
 from riskplan.run.build import build_setup
 from riskplan.run.provenance import provenance
 from riskplan.run.results import _config
@@ -252,13 +252,13 @@ def compute_landscape(
     config = setup.config
     ranges, (a, b) = check_grid(setup, points, episodes, ranges, axes)
     beta, seed = setup.params.risk.beta, setup.params.seed
-    previous = claim(out_dir, KIND, key)
+    previous = claim_output(out_dir, KIND, key)
 
     started = time.perf_counter()
     thetas = grid_thetas(setup.theta0, (a, b), ranges, points)
     table = evaluate_grid(setup, thetas, episodes, beta, seed)
     seconds = time.perf_counter() - started
-    land = Landscape(Path(out_dir), config, table, {"axes": [a, b]})
+    scan = Landscape(Path(out_dir), config, table, {"axes": [a, b]})
     summary = {
         "kind": KIND,
         "schema_version": SCHEMA_VERSION,
@@ -271,7 +271,7 @@ def compute_landscape(
         "seed": seed,
         "theta_fixed": setup.theta0.tolist(),
         "common_random_numbers": True,
-        "best": {"mean": land.best("mean"), "cvar": land.best("cvar"), "value_at_risk": land.best("value_at_risk")},
+        "best": {"mean": scan.best("mean"), "cvar": scan.best("cvar"), "value_at_risk": scan.best("value_at_risk")},
         "seconds": seconds,
         "episodes_per_s": points * points * episodes / seconds if seconds > 0 else None,
         "provenance": provenance(),

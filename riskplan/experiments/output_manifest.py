@@ -73,7 +73,7 @@ def _is_temp(name: str) -> bool:
     return TEMP.fullmatch(Path(name).name) is not None
 
 
-def claim(out: Path | str, kind: str, key: str) -> list[str] | None:
+def claim_output(out: Path | str, kind: str, key: str) -> list[str] | None:
     """Check that `riskplan <kind>` may write into `out`; BadInput naming `key` (e.g. --out) otherwise.
 
     Returns the files a previous run of the same command listed in its manifest (None for a new directory).
@@ -132,7 +132,7 @@ def _examples(names: list[str]) -> str:
 class Output:
     """Atomic writes into an output directory claimed by `claim`, under a manifest.
 
-    output = Output(out, "report", previous)   # previous: what claim() returned
+    output = Output(out, "report", previous)   # previous: what claim_output() returned
     output.begin(["report.html", ...])          # writes the manifest (old and new files) first
     output.write("report.html", text)           # atomically, WriteFailed on failure
     output.finish()                             # drops files of the previous run not written again

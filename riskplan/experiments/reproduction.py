@@ -126,7 +126,7 @@ def reproduce(
     target = Path(out) if out is not None else claim_dir(REPRODUCE_ROOT)
     target.mkdir(parents=True, exist_ok=True)
     checked = time.time()
-    with lock.hold(target, "reproduction directory"):
+    with lock.hold_lock(target, "reproduction directory"):
         return _reproduce(
             target,
             Options(quick, seeds, jobs, fmts, list(overrides or []), extra, experiments, own, batch),

@@ -225,7 +225,7 @@ def sweep_job(cfg: DictConfig, out: Path) -> float | None:
 def _lock_folder(stack: contextlib.ExitStack, out: Path) -> bool:
     """Take the job folder's lock into `stack`; False when another process holds it."""
     try:
-        stack.enter_context(lock.hold(out, "sweep job folder"))
+        stack.enter_context(lock.hold_lock(out, "sweep job folder"))
     except BadInput:
         return False
     return True

@@ -19,19 +19,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from riskplan.engine.loop import make_train
-from riskplan.engine.step import Setup
+from riskplan.engine.step import RunSetup
 from riskplan.run.recorder import Driver, Recorder
 from riskplan.run.training import load_kernels
 from riskplan.util.collector import resume_collection
 from riskplan.util.interrupt import StopSignals
-from riskplan.util.lock import hold
+from riskplan.util.lock import hold_lock
 
 
 @dataclass
 class BatchRun:
     """One run of a batch: what to train and where, then what became of it."""
 
-    setup: Setup
+    setup: RunSetup
     out: Path
     resume: bool = False
     summary: dict | None = None  # once finished
@@ -69,7 +69,7 @@ def _open(run: BatchRun, stack: contextlib.ExitStack, locked: bool = False) -> b
     try:
         run.out.mkdir(parents=True, exist_ok=True)
         if not locked:
-            stack.enter_context(hold(run.out))
+            stack.enter_context(hold_lock(run.out))
         run.driver = Driver(run.setup, run.out, run.resume)
         stack.enter_context(run.driver.log)
     except Exception as err:  # this run alone: bad input, an unreadable checkpoint, a directory another holds

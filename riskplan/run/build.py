@@ -18,7 +18,7 @@ from riskplan.engine.measures.registry import check_risk_nodes
 from riskplan.engine.policy import Policy, make_policy
 from riskplan.engine.reachability import source_distances
 from riskplan.engine.rollout import make_kernel
-from riskplan.engine.step import Setup, simulator, starts
+from riskplan.engine.step import RunSetup, simulator, starts
 from riskplan.engine.team.mixer import Mixer
 from riskplan.engine.team.network import build_network
 from riskplan.engine.world import World, build_world, grid_size
@@ -27,7 +27,7 @@ from riskplan.util.checks import require
 from riskplan.util.errors import BadInput
 
 
-def build_setup(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool = True) -> Setup:
+def build_setup(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool = True) -> RunSetup:
     """Type and validate the config once, then build the run's objects; raises BadInput on the first problem
     (`needs_ray`: see config.validate.validate)."""
     params = typed(cfg)  # types, unknown keys, Choices, interpolations: the frozen config everything below reads
@@ -46,7 +46,7 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool = True) -
     theta0 = initial_theta(world, policy, list(params.train.theta0))
     network = build_network(params.team, policy.size, params.seed)
     budget.check(budget.sizes_of(params, world.width, world.height, world.sources, network.robots))  # before the Mixer
-    return Setup(
+    return RunSetup(
         params=params,
         config=as_dict(params),
         world=world,
@@ -148,7 +148,7 @@ def check_reach(world: World, moves: np.ndarray) -> None:
         )
 
 
-def reach_lines(setup: Setup) -> list[str]:
+def reach_lines(setup: RunSetup) -> list[str]:
     """One line per source: its fewest moves from each start beside the horizon, and the share of theta0's episodes
     that reach it (`initial_shares`). A share under RARE is also a warning (`warnings.warn`: one `warning:` line
     from the CLI) saying what to change."""
@@ -172,7 +172,7 @@ def reach_lines(setup: Setup) -> list[str]:
     return lines
 
 
-def initial_shares(setup: Setup) -> np.ndarray:
+def initial_shares(setup: RunSetup) -> np.ndarray:
     """(sources,) the share of theta0's episodes that reach each source: REACH_EPISODES from each distinct start
     (robots that share a start and theta0 share their odds; a team of 1,000 costs what one robot does), on the
     streams of the first iteration's first robots."""

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from riskplan.engine.step import Setup, TrainState, logit_bound
+from riskplan.engine.step import RunSetup, TrainState, logit_bound
 from riskplan.run.run_files import CHECKPOINT, CHECKPOINT_TMP
 from riskplan.util.errors import BadInput
 
@@ -122,7 +122,7 @@ def _attempt(work) -> Exception | None:
     return None
 
 
-def load_checkpoint(out: Path, setup: Setup) -> TrainState:
+def load_checkpoint(out: Path, setup: RunSetup) -> TrainState:
     """The last good checkpoint of a run directory (a half-written temp file is ignored), checked against the
     config: a checkpoint that cannot be this run's is bad input, never a run that continues."""
     path = out / CHECKPOINT
@@ -224,7 +224,7 @@ def save_team_checkpoint(out: Path, robots: list[dict[str, np.ndarray]], pending
     _write_durably(out, payload)
 
 
-def load_team_checkpoint(out: Path, setup: Setup, expected: list[dict[str, np.ndarray]]) -> TeamCheckpoint:
+def load_team_checkpoint(out: Path, setup: RunSetup, expected: list[dict[str, np.ndarray]]) -> TeamCheckpoint:
     """The per-robot checkpoints of a run directory, checked against `expected` (each robot's state before its
     first iteration: the names, shapes and dtypes a checkpoint of this team must have) and the config; anything
     that cannot be this run's is bad input."""

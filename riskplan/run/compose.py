@@ -17,7 +17,7 @@ from riskplan.config.hydra_safety import check_hydra_node
 from riskplan.config.schema import CONF_DIR
 from riskplan.config.typed import explain, typed
 from riskplan.config.validate import EXTRAS, check_extra
-from riskplan.engine.step import Setup
+from riskplan.engine.step import RunSetup
 from riskplan.run.build import build_setup
 from riskplan.util.errors import BadInput
 
@@ -165,14 +165,14 @@ def compose(
     return _compose(overrides, validate, with_hydra)[0]
 
 
-def compose_run(overrides: list[str] | tuple[str, ...] = ()) -> tuple[DictConfig, Setup]:
-    """`riskplan train`'s one route: the config composed and typed once, with its hydra node, and the Setup built
+def compose_run(overrides: list[str] | tuple[str, ...] = ()) -> tuple[DictConfig, RunSetup]:
+    """`riskplan train`'s one route: the config composed and typed once, with its hydra node, and the RunSetup built
     from it once; riskplan.experiments.hydra_app.run_composed runs both as they are."""
     return _compose(overrides, True, True)
 
 
-def _compose(overrides, validate: bool, with_hydra: bool) -> tuple[DictConfig, Setup | None]:
-    """compose(), and the Setup it built to validate (None without `validate`)."""
+def _compose(overrides, validate: bool, with_hydra: bool) -> tuple[DictConfig, RunSetup | None]:
+    """compose(), and the RunSetup it built to validate (None without `validate`)."""
     overrides = list(overrides)
     parsed = parse_overrides(overrides)
     check_groups(parsed)
@@ -201,7 +201,7 @@ def _compose(overrides, validate: bool, with_hydra: bool) -> tuple[DictConfig, S
     full = copy.deepcopy(cfg) if with_hydra else None
     with open_dict(cfg):
         del cfg["hydra"]
-    if validate:  # the schema's checks, then the model's, as the Setup is built
+    if validate:  # the schema's checks, then the model's, as the RunSetup is built
         setup = build_setup(cfg)
     else:
         typed(cfg)  # the schema's checks alone

@@ -82,7 +82,7 @@ class Model:
 
 
 def setup_steps(setup) -> float:
-    """A built run's estimated cost in trajectory-step equivalents (riskplan.run.build.Setup)."""
+    """A built run's estimated cost in trajectory-step equivalents (riskplan.run.build.RunSetup)."""
     world = setup.world
     return config_steps(setup.params, world.width, world.height, world.sources, setup.robots)
 

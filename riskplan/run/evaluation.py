@@ -14,7 +14,7 @@ from riskplan.engine import rng
 from riskplan.engine.measures.registry import risk_spec
 from riskplan.engine.risk_measures import objective, summary_stats
 from riskplan.engine.rollout import simulate
-from riskplan.engine.step import Setup, TrainState, check_finite, simulator, starts
+from riskplan.engine.step import RunSetup, TrainState, check_finite, simulator, starts
 from riskplan.run.budget import EVAL_BATCH
 from riskplan.run.columns import Columns, concat, rows_where
 from riskplan.run.intervals import bootstrap_intervals, objective_interval
@@ -31,18 +31,18 @@ def robot_risks(params: RiskplanConf) -> list[RiskConf]:
     return list(params.team.risk) if params.team.risk is not None else [params.risk] * params.team.robots
 
 
-def final_health(setup: Setup) -> np.ndarray:
+def final_health(setup: RunSetup) -> np.ndarray:
     """(N,) bool: the robots no fault of team.faults had stopped by the last iteration."""
     return setup.mixer.healthy(setup.params.train.iterations - 1)
 
 
-def network_average(setup: Setup, thetas: np.ndarray) -> np.ndarray:
+def network_average(setup: RunSetup, thetas: np.ndarray) -> np.ndarray:
     """theta-bar: the mean over the healthy robots (all of them without team.faults)."""
     healthy = final_health(setup)
     return thetas.mean(axis=0) if healthy.all() else thetas[healthy].mean(axis=0)
 
 
-def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def policies(setup: RunSetup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The evaluated policies: (robot ids, thetas, start cells); teams add the network average (robot -1)."""
     ids = np.arange(setup.robots)
     cells = starts(setup)
@@ -51,7 +51,7 @@ def policies(setup: Setup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     return np.append(ids, AVERAGE), np.vstack([thetas, network_average(setup, thetas)]), np.append(cells, cells[0])
 
 
-def evaluate(setup: Setup, thetas: np.ndarray) -> Columns:
+def evaluate(setup: RunSetup, thetas: np.ndarray) -> Columns:
     """The final policies on fresh episodes (own stream), one row per episode."""
     count = setup.params.train.eval_episodes
     ids, evaluated, cells = policies(setup, thetas)
@@ -80,7 +80,7 @@ def evaluate(setup: Setup, thetas: np.ndarray) -> Columns:
     return concat(frames)
 
 
-def sample_paths(setup: Setup, thetas: np.ndarray) -> Columns:
+def sample_paths(setup: RunSetup, thetas: np.ndarray) -> Columns:
     """A few sampled paths of the initial and the final policies (own stream), one row per step."""
     count = setup.params.train.paths
     frames = []
@@ -105,7 +105,7 @@ def sample_paths(setup: Setup, thetas: np.ndarray) -> Columns:
     return concat(frames)
 
 
-def summarize(setup: Setup, state: TrainState, evaluation: Columns, metrics: Columns, train_seconds: float) -> dict:
+def summarize(setup: RunSetup, state: TrainState, evaluation: Columns, metrics: Columns, train_seconds: float) -> dict:
     """summary.json: headline policy's figures with intervals, per-policy basics, timing, provenance."""
     params = setup.params
     headline = AVERAGE if setup.team else 0
@@ -156,7 +156,7 @@ def summarize(setup: Setup, state: TrainState, evaluation: Columns, metrics: Col
     }
 
 
-def initial_objective(setup: Setup) -> dict:
+def initial_objective(setup: RunSetup) -> dict:
     """The initial policy theta0 on the first INITIAL_EPISODES streams of the headline policy's evaluation (the same
     episodes' random numbers; its own call, so no evaluated number changes): the trained measure with its 95%
     bootstrap interval, `episodes`, and `reached_none`, the share of them that reached no source."""
@@ -171,7 +171,7 @@ def initial_objective(setup: Setup) -> dict:
     return {**figure, "episodes": count, "reached_none": float((batch.source_reached < 0).mean())}
 
 
-def diagnose(setup: Setup, objective_figure: dict, reached_none: float) -> dict:
+def diagnose(setup: RunSetup, objective_figure: dict, reached_none: float) -> dict:
     """summary.json's `diagnosis`: whether the run learned something degenerate, each finding with its likely
     cause, and theta0's objective it is judged against. Findings: `reached_no_source`, the headline policy's
     evaluation reached no source at all; `below_initial`, its objective's 95% interval lies wholly below theta0's
@@ -232,7 +232,9 @@ def _objective(risk, z: np.ndarray, figures: dict, params) -> dict:
     return objective_interval(z, risk, params.train.bootstrap, params.seed)[0]
 
 
-def robot_objectives(setup: Setup, thetas: np.ndarray, evaluation: Columns, headline: dict) -> tuple[list[dict], dict]:
+def robot_objectives(
+    setup: RunSetup, thetas: np.ndarray, evaluation: Columns, headline: dict
+) -> tuple[list[dict], dict]:
     """Each robot's objective at the network average theta-bar (from its own start, by its own measure: the team
     objective's terms) and the team objective, their sum over the healthy robots (team.faults), with bootstrap
     intervals from the same resamples.

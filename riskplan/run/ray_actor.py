@@ -167,7 +167,7 @@ def first_line(err: BaseException) -> str:
 def placements(ray, robots: int) -> list:
     """Where each robot's actor goes: round robin over the cluster's alive nodes that offer CPUs (all alive nodes
     when none does), as a hard node affinity; a single node gets SPREAD. Ray's own SPREAD strategy spreads actors
-    that reserve no CPU only as a best effort (three robots on two nodes may all land on one), and a soft affinity
+    that reserve no CPU only as a best effort (three robots on two nodes may all scan on one), and a soft affinity
     was seen to put them on the wrong node (Ray 2.60: all on the head, or each on the other node), so the spread is
     made explicit. An actor needs no resources, so it fits any alive node; a node that dies before its actor starts
     fails the start with one line."""

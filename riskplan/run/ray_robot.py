@@ -46,7 +46,7 @@ import numpy as np
 from riskplan.config.schema import Aggregate, FaultKind, Order, Stale, TeamConf
 from riskplan.engine.rollout import simulate
 from riskplan.engine.schedules import step_size
-from riskplan.engine.step import Setup, check_step, estimate, rollouts, starts
+from riskplan.engine.step import RunSetup, check_step, estimate, rollouts, starts
 from riskplan.engine.team import faulty, resilience
 from riskplan.run.evaluation import robot_risks
 from riskplan.run.metrics_rows import metrics_row
@@ -92,22 +92,22 @@ class Step(NamedTuple):
 
 
 # --------------------------------------------------------------------------------------------- one robot, no Ray
-def rounds_of(setup: Setup) -> int:
+def rounds_of(setup: RunSetup) -> int:
     """Consensus rounds per iteration: team.consensus_rounds in a team, none for a robot alone."""
     return setup.params.team.consensus_rounds if setup.team else 0
 
 
-def in_neighbours(setup: Setup, robot: int) -> list[int]:
+def in_neighbours(setup: RunSetup, robot: int) -> list[int]:
     """The robots j whose messages robot i mixes (adjacency[i, j]: j sends to i), in order of j."""
     return [int(j) for j in np.flatnonzero(setup.network.adjacency[robot])]
 
 
-def out_neighbours(setup: Setup, robot: int) -> list[int]:
+def out_neighbours(setup: RunSetup, robot: int) -> list[int]:
     """The robots k that mix robot i's messages."""
     return [int(k) for k in np.flatnonzero(setup.network.adjacency[:, robot])]
 
 
-def initial_state(setup: Setup, robot: int) -> dict[str, np.ndarray]:
+def initial_state(setup: RunSetup, robot: int) -> dict[str, np.ndarray]:
     """Robot i's state before its first iteration (also the shapes and dtypes its checkpoint must have)."""
     r, k, m = rounds_of(setup), len(in_neighbours(setup, robot)), setup.network.n_params
     none = np.full((r, k), -1, dtype=np.int64)
@@ -135,7 +135,7 @@ class RobotCore:
     takes in, whether it may mix, its row of the mix, its step, and its state (`state`, `initial_state`).
     `RobotActor` calls it under one lock; tests may drive it by hand."""
 
-    def __init__(self, setup: Setup, robot: int, state: dict[str, np.ndarray] | None = None):
+    def __init__(self, setup: RunSetup, robot: int, state: dict[str, np.ndarray] | None = None):
         self.setup, self.i = setup, int(robot)
         params, network = setup.params, setup.network
         team: TeamConf = params.team
@@ -340,7 +340,7 @@ def consistent_cut(histories: list[list[dict]], ins: list[list[int]]) -> list[in
     return index
 
 
-def tracking_balance(setup: Setup, states: list[dict[str, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+def tracking_balance(setup: RunSetup, states: list[dict[str, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
     """Gradient tracking's invariant over a consistent cut of the robots' states: (sum_i [y^i, v^i] + the mass in
     flight sum_{r, i, j} a^{ij} (S^j_r - rho^{ij}_r), [sum_i Delta^i, N]); equal up to rounding."""
     m, weights = setup.network.n_params, setup.network.weights

@@ -52,7 +52,7 @@ import numpy as np
 
 from riskplan.config.schema import Order
 from riskplan.config.validate import check_extra
-from riskplan.engine.step import NumericalTrouble, Setup, TrainState, team_statistics
+from riskplan.engine.step import NumericalTrouble, RunSetup, TrainState, team_statistics
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.run.checkpoint import TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
 from riskplan.run.columns import Columns, from_rows, sorted_by
@@ -91,7 +91,7 @@ class _RobotFailed(Exception):
 class _Team:
     """The driver's side: the actors, their reports, the log, the checkpoints."""
 
-    def __init__(self, ray, setup: Setup, out: Path, log: RunLog, states: list[dict], pending: list[dict], rows):
+    def __init__(self, ray, setup: RunSetup, out: Path, log: RunLog, states: list[dict], pending: list[dict], rows):
         self.ray, self.setup, self.out, self.log = ray, setup, out, log
         self.n = setup.robots
         self.ins = [in_neighbours(setup, i) for i in range(self.n)]
@@ -321,7 +321,7 @@ class _Interrupt(Exception):
 
 
 # --------------------------------------------------------------------------------------------- the run
-def train_ray(setup: Setup, out: Path, resume: bool, progress) -> dict:
+def train_ray(setup: RunSetup, out: Path, resume: bool, progress) -> dict:
     """`training.train_summary` for team.backend=ray, under the run directory's lock: the same files, written the
     same way, from a team of Ray actors (see the module docstring); returns the summary."""
     total = setup.params.train.iterations
@@ -430,7 +430,7 @@ def _metrics_table(rows: list[dict]) -> Columns:
     return metrics
 
 
-def prepare_ray_resume(setup: Setup, out: Path) -> bool:
+def prepare_ray_resume(setup: RunSetup, out: Path) -> bool:
     """Every check of a ray run's checkpoint and log before it resumes (nothing is written); whether it is
     finished already."""
     expected = [initial_state(setup, i) for i in range(setup.robots)]

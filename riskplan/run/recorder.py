@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numba
 
-from riskplan.engine.step import Setup, Statistics, TrainState, initial_state
+from riskplan.engine.step import RunSetup, Statistics, TrainState, initial_state
 from riskplan.run import cost
 from riskplan.run.checkpoint import load_checkpoint, save_checkpoints
 from riskplan.run.columns import from_rows, sorted_by
@@ -35,7 +35,7 @@ class Driver:
     iteration's rows, checkpoints and progress, then the evaluation and the finished files. The caller holds the
     directory's lock."""
 
-    def __init__(self, setup: Setup, out: Path, resume: bool, progress=None):
+    def __init__(self, setup: RunSetup, out: Path, resume: bool, progress=None):
         self.setup, self.out, self.progress = setup, out, progress
         self.entered = time.perf_counter()
         self.compiles = cost.compiles()

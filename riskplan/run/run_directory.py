@@ -12,7 +12,7 @@ import yaml
 from omegaconf import OmegaConf
 
 from riskplan.config.typed import as_dict, typed
-from riskplan.engine.step import Setup, starts
+from riskplan.engine.step import RunSetup, starts
 from riskplan.engine.team.network import network_metadata
 from riskplan.engine.world import world_map
 from riskplan.run.columns import Columns, write_parquet
@@ -24,7 +24,7 @@ from riskplan.util.errors import BadInput
 from riskplan.util.paths import atomic_path, write_atomic
 
 
-def refuse_existing_run(out: Path, setup: Setup) -> None:
+def refuse_existing_run(out: Path, setup: RunSetup) -> None:
     """A fresh run never writes over another run's files: BadInput naming --resume instead."""
     if any((out / name).exists() for name in RECORDS) or (
         (out / CONFIG).is_file() and _config_changed(out, setup.config)
@@ -34,7 +34,7 @@ def refuse_existing_run(out: Path, setup: Setup) -> None:
         )
 
 
-def start_log(out: Path, setup: Setup) -> RunLog:
+def start_log(out: Path, setup: RunSetup) -> RunLog:
     """A fresh run's run.mcap, with its header (config, provenance, policy, network, world map), after its config
     file; refuses a directory that holds another run."""
     refuse_existing_run(out, setup)
@@ -48,7 +48,7 @@ def start_log(out: Path, setup: Setup) -> RunLog:
     return log
 
 
-def reopen_log(out: Path, setup: Setup, iteration: int) -> tuple[RunLog, list[dict]]:
+def reopen_log(out: Path, setup: RunSetup, iteration: int) -> tuple[RunLog, list[dict]]:
     """run.mcap cut back to a checkpoint at `iteration`, and its metrics rows before it. An extended run
     (`--resume ... train.iterations=N`) gets its new config written and logged, and is not finished until it
     finishes again."""
@@ -84,7 +84,7 @@ def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
 
 
 def write_finished(
-    out: Path, setup: Setup, metrics: Columns, evaluation: Columns, trajectories: Columns, summary: dict
+    out: Path, setup: RunSetup, metrics: Columns, evaluation: Columns, trajectories: Columns, summary: dict
 ) -> None:
     """A finished run's files, each written atomically, summary.json last (it marks the run done)."""
     for name, table in zip(TABLES, (metrics, evaluation, trajectories), strict=True):

@@ -16,7 +16,7 @@ import numpy as np
 
 from riskplan.config.backends import BACKENDS, load
 from riskplan.engine.loop import make_train
-from riskplan.engine.step import Setup, TrainState, simulator, starts
+from riskplan.engine.step import RunSetup, TrainState, simulator, starts
 from riskplan.engine.team.kernels import Links, mix_linked
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import load_checkpoint
@@ -25,7 +25,7 @@ from riskplan.run.run_directory import logged_rows
 from riskplan.run.run_files import has_finished
 from riskplan.util.collector import resume_collection
 from riskplan.util.interrupt import StopSignals
-from riskplan.util.lock import hold
+from riskplan.util.lock import hold_lock
 from riskplan.util.paths import check_output_dir
 
 if TYPE_CHECKING:
@@ -38,10 +38,10 @@ def train(
     """Train, evaluate and record one experiment into out_dir; with resume, continue from its checkpoint. Returns
     the Run, its tables read back from the files just written (`train_summary` skips that).
 
-    `config` is a composed config (or a Setup built from one). The directory is locked for the whole run: a second
+    `config` is a composed config (or a RunSetup built from one). The directory is locked for the whole run: a second
     process writing it gets BadInput naming this one's pid. A fresh run refuses a directory that holds another run.
     """
-    setup = config if isinstance(config, Setup) else build_setup(config, needs_ray=not resume)
+    setup = config if isinstance(config, RunSetup) else build_setup(config, needs_ray=not resume)
     summary = train_summary(setup, out_dir, resume=resume, progress=progress)
     from riskplan.run.results import finished_run  # lazy: pandas, for the Run's tables; train_summary needs none
 
@@ -53,15 +53,15 @@ def train_summary(
 ) -> dict:
     """`train`, returning summary.json's dict instead of the Run: what `riskplan train` and sweep jobs need, and
     without pandas."""
-    setup = config if isinstance(config, Setup) else build_setup(config, needs_ray=not resume)
+    setup = config if isinstance(config, RunSetup) else build_setup(config, needs_ray=not resume)
     out = Path(out_dir)
     check_output_dir(out, str(out))
     out.mkdir(parents=True, exist_ok=True)
-    with hold(out):
+    with hold_lock(out):
         return _train_locked(setup, out, resume, progress)
 
 
-def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> dict:
+def _train_locked(setup: RunSetup, out: Path, resume: bool, progress) -> dict:
     """train() under the directory's lock: the engine's loop for a batch of one, its effects through the recorder."""
     driver = BACKENDS[setup.params.team.backend].driver
     if driver is not None:  # a backend with a loop of its own (team.backend=ray: each robot a Ray actor)
@@ -78,7 +78,7 @@ def _train_locked(setup: Setup, out: Path, resume: bool, progress) -> dict:
     return run.finish()
 
 
-def load_kernels(setup: Setup, state: TrainState) -> None:
+def load_kernels(setup: RunSetup, state: TrainState) -> None:
     """Load the compiled kernels an iteration runs from numba's cache (a few tenths of a second, once per process)
     by running them on one episode with throwaway keys, and the synchronous team's mixing kernel on a copy of
     theta: no state changes and no number drawn here is used."""
@@ -88,8 +88,8 @@ def load_kernels(setup: Setup, state: TrainState) -> None:
         mix_linked(setup.network, Links(setup.network), state.thetas.copy(), state.thetas.copy())
 
 
-def prepare_resume(config, out: Path) -> tuple[Setup, bool]:
-    """The Setup of a run to resume, after every check of its config, checkpoint and log (nothing is written), and
+def prepare_resume(config, out: Path) -> tuple[RunSetup, bool]:
+    """The RunSetup of a run to resume, after every check of its config, checkpoint and log (nothing is written), and
     whether the run is finished already (its checkpoint is at train.iterations and its tables are there)."""
     setup = build_setup(config, needs_ray=False)
     check = BACKENDS[setup.params.team.backend].resume_check

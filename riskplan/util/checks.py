@@ -25,7 +25,7 @@ def is_whole(value: Any) -> bool:
     return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
-def whole(value: Any, key: str, low: int, meaning: str) -> int:
+def integer_at_least(value: Any, key: str, low: int, meaning: str) -> int:
     """An integer >= low, or BadInput naming the key and what the value means."""
     require(is_whole(value) and value >= low, key, f"is {value!r}; {meaning} must be an integer >= {low}")
     return int(value)

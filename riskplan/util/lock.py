@@ -50,7 +50,7 @@ def _read_pid(fd: int, proc_only: bool = False) -> str | None:
 
 
 @contextlib.contextmanager
-def hold(directory: Path | str, what: str = "run directory"):
+def hold_lock(directory: Path | str, what: str = "run directory"):
     """Hold DIR's lock for the `with` block; BadInput naming the holder's pid when another process has it."""
     directory = Path(directory)
     key = _key(directory)

@@ -1,5 +1,5 @@
 """team.backend=ray on a real two-node Ray cluster (tests/clusters/ray_cluster.py: a head on 127.0.0.2 and a node on
-127.0.0.3, stopped by the fixture): the run connects with team.address, its robots land on both nodes (the node id
+127.0.0.3, stopped by the fixture): the run connects with team.address, its robots scan on both nodes (the node id
 of each is in run.mcap's "ray_team" metadata), the team converges, a robot four times slower stays within the
 staleness bound, and no robot's actor outlives the run.
 

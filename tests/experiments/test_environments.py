@@ -104,7 +104,7 @@ def agree(label: str, env, ker) -> None:
 
 
 class Outcomes:
-    """Episode outcomes collected from an environment loop, named as riskplan.engine.rollout.Batch names them."""
+    """Episode outcomes collected from an environment loop, named as riskplan.engine.rollout.EpisodeBatch names them."""
 
     def __init__(self):
         self.rows: list[tuple[float, int, int, int]] = []

@@ -70,7 +70,7 @@ LANDSCAPE_COMMAND = ["landscape", *FAST, "seed=4", "--points", "5", "--episodes"
 
 @pytest.mark.slow  # landscapes and a report through the CLI
 def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
-    out = tmp_path / "land"
+    out = tmp_path / "scan"
     result = runner.invoke(app, [*LANDSCAPE_COMMAND, "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert f"landscape directory: {out}" in result.output and "max CVaR_0.1" in result.output
@@ -101,8 +101,10 @@ def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
     runner.invoke(app, [*LANDSCAPE_COMMAND, "--out", str(again)])
     pd.testing.assert_frame_equal(pd.read_parquet(again / "landscape.parquet"), table)
 
-    coll = collect([out])
-    assert len(coll.landscapes) == 1 and not coll.runs and not coll.broken  # not mistaken for a broken run
+    collected = collect([out])
+    assert (
+        len(collected.landscapes) == 1 and not collected.runs and not collected.broken
+    )  # not mistaken for a broken run
     report = tmp_path / "report"
     result = runner.invoke(app, ["report", str(out), "--out", str(report), "--format", "png"])
     assert result.exit_code == 0, result.output
@@ -125,7 +127,7 @@ def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
     ],
 )
 def test_bad_input_exits_2_and_leaves_nothing(tmp_path, args):
-    out = tmp_path / "land"
+    out = tmp_path / "scan"
     result = runner.invoke(app, ["landscape", *FAST, *args, "--out", str(out)])
     assert result.exit_code == 2, result.output
     assert result.output.startswith("error: ") and "Traceback" not in result.output
@@ -133,11 +135,11 @@ def test_bad_input_exits_2_and_leaves_nothing(tmp_path, args):
 
 
 def test_broken_landscape_is_listed_not_fatal(tmp_path, setup):
-    out = tmp_path / "land"
+    out = tmp_path / "scan"
     L.compute_landscape(riskplan.compose(FAST), out, points=3, episodes=50)
     (out / "landscape.parquet").unlink()
-    coll = collect([tmp_path])
-    assert not coll.landscapes and len(coll.broken) == 1 and "landscape" in coll.broken[0].reason
+    collected = collect([tmp_path])
+    assert not collected.landscapes and len(collected.broken) == 1 and "landscape" in collected.broken[0].reason
 
 
 def test_paper_world_optima_sit_where_the_paper_policies_end():

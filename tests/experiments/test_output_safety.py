@@ -101,9 +101,9 @@ def test_runs_with_broken_configs_are_skipped_with_the_reason(done, tmp_path, mo
     for name, (text, _) in BROKEN.items():
         shutil.copytree(done, mixed / name)
         (mixed / name / ".hydra" / "config.yaml").write_text(text(good) if callable(text) else text)
-    land = mixed / "land_broken"  # a landscape whose config is broken: listed, not fatal
-    compute_landscape(riskplan.compose(TINY), land, points=3, episodes=20)
-    (land / ".hydra" / "config.yaml").write_text("risk: ${nope}\n")
+    scan = mixed / "land_broken"  # a landscape whose config is broken: listed, not fatal
+    compute_landscape(riskplan.compose(TINY), scan, points=3, episodes=20)
+    (scan / ".hydra" / "config.yaml").write_text("risk: ${nope}\n")
 
     out = tmp_path / "report"
     result = invoke("report", mixed, "--out", out, "--format", "png", code=0)
@@ -112,7 +112,7 @@ def test_runs_with_broken_configs_are_skipped_with_the_reason(done, tmp_path, mo
     for name, (_, reason) in BROKEN.items():
         line = next(line for line in skipped if line.startswith(f"skipped {mixed / name}: "))
         assert reason in line, line
-    assert any(line.startswith(f"skipped {land}: landscape: .hydra/config.yaml: ") for line in skipped)
+    assert any(line.startswith(f"skipped {scan}: landscape: .hydra/config.yaml: ") for line in skipped)
     runs = pd.read_csv(out / "runs.csv").set_index("path")
     assert runs.loc[str(mixed / "good"), "status"] == "used"
     assert (runs.drop(str(mixed / "good")).status == "skipped").all()
@@ -134,12 +134,12 @@ def test_report_refuses_an_out_directory_holding_other_files(done, tmp_path):
     assert "report.html" in line and "thesis.tex" in line
     assert snapshot(tmp_path) == before
 
-    land = tmp_path / "land"  # a landscape's directory is not the report's
-    invoke("landscape", *TINY, *LAND, "--out", land, code=0)
+    scan = tmp_path / "scan"  # a landscape's directory is not the report's
+    invoke("landscape", *TINY, *LAND, "--out", scan, code=0)
     before = snapshot(tmp_path)
-    line = one_error_line(invoke("report", done, "--out", land, code=2))
+    line = one_error_line(invoke("report", done, "--out", scan, code=2))
     assert line == (
-        f"error: --out: {land} holds the output of riskplan landscape; give riskplan report a directory of its own"
+        f"error: --out: {scan} holds the output of riskplan landscape; give riskplan report a directory of its own"
     )
     line = one_error_line(invoke("report", done, "--out", done, code=2))  # the run itself
     assert "holds files riskplan report did not write (.hydra/config.yaml, " in line
@@ -182,12 +182,12 @@ def test_report_reruns_into_its_own_output_and_drops_its_stale_files(done, tmp_p
 
 @pytest.mark.slow  # five landscapes and a report through the CLI
 def test_landscape_out_ownership(done, tmp_path):
-    land = tmp_path / "land"
-    invoke("landscape", *TINY, *LAND, "--out", land, code=0)
-    first = pd.read_parquet(land / "landscape.parquet")
-    invoke("landscape", *TINY, *LAND, "seed=3", "--out", land, code=0)  # its own directory: re-run
-    assert json.loads((land / "summary.json").read_text())["seed"] == 3
-    assert not pd.read_parquet(land / "landscape.parquet").equals(first)
+    scan = tmp_path / "scan"
+    invoke("landscape", *TINY, *LAND, "--out", scan, code=0)
+    first = pd.read_parquet(scan / "landscape.parquet")
+    invoke("landscape", *TINY, *LAND, "seed=3", "--out", scan, code=0)  # its own directory: re-run
+    assert json.loads((scan / "summary.json").read_text())["seed"] == 3
+    assert not pd.read_parquet(scan / "landscape.parquet").equals(first)
 
     report = tmp_path / "report"
     invoke("report", done, "--out", report, "--format", "png", code=0)
@@ -204,15 +204,15 @@ def test_landscape_out_ownership(done, tmp_path):
         assert line.startswith(expected), line
     assert snapshot(tmp_path) == before
 
-    (land / "extra.txt").write_text("x")
-    line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", land, code=2))
+    (scan / "extra.txt").write_text("x")
+    line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", scan, code=2))
     assert line.endswith("(extra.txt); give a new or empty directory, or remove them")
-    (land / "extra.txt").unlink()
-    (land / MANIFEST).unlink()  # a landscape written before manifests existed: refused, left as it is
-    before = snapshot(land)
-    line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", land, code=2))
-    assert line.startswith(f"error: --out: {land} holds files riskplan landscape did not write ("), line
-    assert snapshot(land) == before
+    (scan / "extra.txt").unlink()
+    (scan / MANIFEST).unlink()  # a landscape written before manifests existed: refused, left as it is
+    before = snapshot(scan)
+    line = one_error_line(invoke("landscape", *TINY, *LAND, "--out", scan, code=2))
+    assert line.startswith(f"error: --out: {scan} holds files riskplan landscape did not write ("), line
+    assert snapshot(scan) == before
 
 
 @pytest.mark.parametrize(
@@ -281,12 +281,12 @@ def fill(disk: Path) -> None:
 @pytest.mark.slow  # renders reports and landscapes on a full disk
 def test_full_disk_leaves_the_previous_report_and_landscape_whole(done, tmp_path):
     with tmpfs(tmp_path / "disk", "2m") as disk:
-        report, land = disk / "report", disk / "land"
+        report, scan = disk / "report", disk / "scan"
         invoke("report", done, "--out", report, "--format", "png", code=0)
-        invoke("landscape", *TINY, *LAND, "--out", land, code=0)
-        before = {report: snapshot(report), land: snapshot(land)}
+        invoke("landscape", *TINY, *LAND, "--out", scan, code=0)
+        before = {report: snapshot(report), scan: snapshot(scan)}
         fill(disk)
-        for args, target in ((["report", done, "--format", "png"], report), (["landscape", *TINY, *LAND], land)):
+        for args, target in ((["report", done, "--format", "png"], report), (["landscape", *TINY, *LAND], scan)):
             line = one_error_line(invoke(*args, "--out", target, code=1))
             assert line.startswith(f"error: {target}/") and "could not be written (No space left on device)" in line
             assert snapshot(target) == before[target], "a previous file was changed"
@@ -298,7 +298,7 @@ def test_full_disk_leaves_the_previous_report_and_landscape_whole(done, tmp_path
             assert "No space left on device" in line
             assert not target.exists() or not any(target.iterdir())
         assert [p for p in bad_files(disk) if Path(p).name != "filler"] == []
-        assert json.loads((land / "status.json").read_text())["status"] == "done"
+        assert json.loads((scan / "status.json").read_text())["status"] == "done"
 
 
 @pytest.mark.slow  # renders reports
@@ -318,8 +318,8 @@ def test_read_only_targets_are_one_line_and_nothing_is_written(done, tmp_path):
                 f"error: --out: {ro}/elsewhere is on a read-only filesystem; give a directory you can write",
             ),
             (
-                ["landscape", *TINY, *LAND, "--out", ro / "land"],
-                f"error: --out: {ro}/land is on a read-only filesystem; give a directory you can write",
+                ["landscape", *TINY, *LAND, "--out", ro / "scan"],
+                f"error: --out: {ro}/scan is on a read-only filesystem; give a directory you can write",
             ),
         ]
         for args, expected in cases:
@@ -332,7 +332,7 @@ def test_read_only_targets_are_one_line_and_nothing_is_written(done, tmp_path):
 def test_landscape_grid_is_bounded_by_memory_and_time_before_it_runs(tmp_path, monkeypatch):
     monkeypatch.delenv("RISKPLAN_MEMORY_GB", raising=False)
     monkeypatch.delenv("RISKPLAN_MAX_HOURS", raising=False)
-    out = tmp_path / "land"
+    out = tmp_path / "scan"
     line = one_error_line(invoke("landscape", "--points", "100000", "--out", out, code=2))
     assert line.startswith("error: --points: a 100000x100000 grid x 4000 episodes needs about ")
     assert line.endswith("; lower it, or raise the limit with RISKPLAN_MEMORY_GB=<GB>")
@@ -369,7 +369,7 @@ def test_landscape_summary_is_strict_json(tmp_path, monkeypatch):
 
     monkeypatch.setattr(L, "evaluate_grid", without_cvar)
     monkeypatch.setattr(L.time, "perf_counter", lambda: 0.0)  # no time passes: episodes/s undefined
-    out = tmp_path / "land"
+    out = tmp_path / "scan"
     result = invoke("landscape", *TINY, *LAND, "--out", out, code=0)
     assert "max CVaR_0.1 n/a (no finite value on the grid)" in result.stdout
     text = (out / "summary.json").read_text()
@@ -399,9 +399,9 @@ def test_missing_values_are_empty_cells_or_na_never_nan_or_inf(done, tmp_path):
     for name in ("report.csv", "runs.csv", "landscape.csv"):
         text = (out / name).read_text().lower()
         assert "nan" not in text and "inf" not in text, name
-    land = pd.read_csv(out / "landscape.csv").set_index("landscape")
-    assert pd.isna(land.loc[str(flat), "gap_percent"]) and land.loc[str(flat), "gap_to_optimum"] == 0
-    assert pd.isna(land.loc[str(other), "group"])
+    scan = pd.read_csv(out / "landscape.csv").set_index("landscape")
+    assert pd.isna(scan.loc[str(flat), "gap_percent"]) and scan.loc[str(flat), "gap_to_optimum"] == 0
+    assert pd.isna(scan.loc[str(other), "group"])
     html = (out / "report.html").read_text()
     cells = [c.lower() for c in pd.Series(html.split("<td")).str.extract(r"^[^>]*>(.*?)</td>")[0].dropna()]
     assert not any(c in ("nan", "inf", "-inf", "none") or "nan" in c.split() for c in cells)

@@ -7,20 +7,20 @@ from __future__ import annotations
 import os
 import subprocess
 
-from riskplan.util.lock import hold, holder
+from riskplan.util.lock import hold_lock, holder
 
 
 def test_the_lock_is_reentrant_within_a_process_and_exclusive_between_processes(tmp_path):
-    with hold(tmp_path):
-        with hold(tmp_path):  # the CLI holds it while Hydra runs the training loop, which takes it again
+    with hold_lock(tmp_path):
+        with hold_lock(tmp_path):  # the CLI holds it while Hydra runs the training loop, which takes it again
             assert holder(tmp_path) == os.getpid()
         probe = subprocess.run(
             [
                 "python",
                 "-c",
-                "import sys; from riskplan.util.lock import hold\n"
+                "import sys; from riskplan.util.lock import hold_lock\n"
                 "from riskplan.util.errors import BadInput\n"
-                f"try:\n    with hold({str(tmp_path)!r}): sys.exit(0)\n"
+                f"try:\n    with hold_lock({str(tmp_path)!r}): sys.exit(0)\n"
                 "except BadInput as err:\n    print(err); sys.exit(3)",
             ],
             capture_output=True,

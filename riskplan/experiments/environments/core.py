@@ -27,16 +27,16 @@ from riskplan.engine.dynamics import step_robots
 from riskplan.engine.policy import Policy, move_features, probabilities, tabular_probabilities
 from riskplan.engine.rng import ENVIRONMENT, SEED_LIMIT, episode_states, stream_key
 from riskplan.engine.rollout import make_kernel
-from riskplan.engine.step import Setup
+from riskplan.engine.step import RunSetup
 from riskplan.engine.world import MOVE_NAMES, World
 from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 
 
-def make_setup(config: Any = None) -> Setup:
-    """A riskplan Setup from a config: None (the defaults), Hydra overrides (a list like ["world.horizon=10",
-    "experiment=paper_team"], or one such string), a composed config or dict, or a Setup (used as it is)."""
-    if isinstance(config, Setup):
+def make_setup(config: Any = None) -> RunSetup:
+    """A riskplan RunSetup from a config: None (the defaults), Hydra overrides (a list like ["world.horizon=10",
+    "experiment=paper_team"], or one such string), a composed config or dict, or a RunSetup (used as it is)."""
+    if isinstance(config, RunSetup):
         return config
     if config is None:
         config = []
@@ -47,15 +47,15 @@ def make_setup(config: Any = None) -> Setup:
     return build_setup(config)
 
 
-def env_setup(config: Any, render_mode: str | None, modes: list[str]) -> tuple[Setup, np.ndarray]:
-    """What both environments build first: the render mode checked, the Setup, every robot's start cell."""
+def env_setup(config: Any, render_mode: str | None, modes: list[str]) -> tuple[RunSetup, np.ndarray]:
+    """What both environments build first: the render mode checked, the RunSetup, every robot's start cell."""
     if render_mode is not None and render_mode not in modes:
         raise ValueError(f"render_mode {render_mode!r} is not one of {modes}")
     setup = make_setup(config)
     return setup, robot_starts(setup)
 
 
-def robot_starts(setup: Setup) -> np.ndarray:
+def robot_starts(setup: RunSetup) -> np.ndarray:
     """Start cell of each of the team's robots (all at world.start unless team.starts is given)."""
     cells = setup.world.starts
     return np.repeat(cells, setup.robots) if len(cells) == 1 else cells.copy()
@@ -175,7 +175,7 @@ class SoftmaxPolicy:
 
     `SoftmaxPolicy(theta)` is the paper's policy: f is the observation's "signals", a (5, M) array (or a batch
     (B, 5, M)). `SoftmaxPolicy(theta, config)` is the policy a riskplan config (overrides, a composed config or a
-    Setup, as `make_setup` takes) trains, theta as long as its Setup.theta_names:
+    RunSetup, as `make_setup` takes) trains, theta as long as its RunSetup.theta_names:
       * policy.features with risky or stay: the signals and those features of x + u, in the order of
         policy.features; the extras are looked up from the observation's "position" (x, y);
       * policy.kind=tabular: theta is the (C * 5,) table of logits, theta[c * 5 + a] for the cell c at "position"
@@ -267,7 +267,7 @@ class SoftmaxPolicy:
 
 @dataclass(frozen=True)
 class Episodes:
-    """Outcomes of independent episodes, as riskplan.engine.rollout.Batch names them."""
+    """Outcomes of independent episodes, as riskplan.engine.rollout.EpisodeBatch names them."""
 
     total_reward: np.ndarray  # (E,) float64
     risky_steps: np.ndarray  # (E,) int64

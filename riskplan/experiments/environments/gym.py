@@ -1,7 +1,7 @@
 """A Gymnasium environment: one robot in riskplan's world (needs the `envs` extra: pip install 'riskplan[envs]').
 
     env = SensorPlanningEnv()                      # the paper's Section V world (riskplan's defaults)
-    env = SensorPlanningEnv(["world.horizon=30"])  # any riskplan overrides, a composed config or a Setup
+    env = SensorPlanningEnv(["world.horizon=30"])  # any riskplan overrides, a composed config or a RunSetup
     env = gymnasium.make("riskplan.experiments.environments.gym:riskplan/SensorPlanning-v0", config=["world.horizon=30"])
 
 Observation (a Dict space):
@@ -88,7 +88,7 @@ class SensorPlanningEnv(gymnasium.Env):
     metadata: ClassVar[dict] = {"render_modes": ["ansi"], "render_fps": 4}
 
     def __init__(self, config: Any = None, *, robot: int = 0, render_mode: str | None = None):
-        """`config`: riskplan overrides, a composed config or a Setup (riskplan.experiments.environments.make_setup); `robot`: whose
+        """`config`: riskplan overrides, a composed config or a RunSetup (riskplan.experiments.environments.make_setup); `robot`: whose
         start cell to use when team.starts gives several."""
         self.setup, starts = env_setup(config, render_mode, self.metadata["render_modes"])
         self.world = self.setup.world

@@ -35,7 +35,7 @@ class SensorTeamEnv(ParallelEnv):
     metadata: ClassVar[dict] = {"name": "riskplan_sensor_team_v0", "render_modes": ["ansi"], "is_parallelizable": True}
 
     def __init__(self, config: Any = None, *, render_mode: str | None = None):
-        """`config`: riskplan overrides, a composed config or a Setup; the team is team.robots robots."""
+        """`config`: riskplan overrides, a composed config or a RunSetup; the team is team.robots robots."""
         self.setup, starts = env_setup(config, render_mode, self.metadata["render_modes"])
         self.world = self.setup.world
         self.render_mode = render_mode

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from riskplan.experiments.output_manifest import Output, WriteFailed, claim
+from riskplan.experiments.output_manifest import Output, WriteFailed, claim_output
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.figures import figure_files, make_figures
 from riskplan.experiments.reporting.page import render
@@ -102,11 +102,11 @@ def write_report(
     """build_report, returning what was made (for the CLI's listing)."""
     formats = check_formats(list(formats))
     find_runs([Path(p) for p in paths])  # the inputs first (a missing path, one without runs), then --out
-    previous = claim(out_dir, "report", key)  # before reading any run: a bad --out is refused at once
-    coll = collect([Path(p) for p in paths])
-    if coll.duplicates:  # one line (the CLI shows warnings as `warning: ...`); runs.csv names each
-        warnings.warn(repeats_line(len(coll.duplicates), "runs.csv lists them as duplicate"), stacklevel=3)
-    comparison = comparison_table(coll)
+    previous = claim_output(out_dir, "report", key)  # before reading any run: a bad --out is refused at once
+    collected = collect([Path(p) for p in paths])
+    if collected.duplicates:  # one line (the CLI shows warnings as `warning: ...`); runs.csv names each
+        warnings.warn(repeats_line(len(collected.duplicates), "runs.csv lists them as duplicate"), stacklevel=3)
+    comparison = comparison_table(collected)
     degenerate = comparison["degenerate"].dropna() if "degenerate" in comparison else []
     if len(degenerate):  # one line; report.csv and the page say what and why
         warnings.warn(
@@ -114,11 +114,11 @@ def write_report(
             " report.csv's degenerate column and the page say what and the likely cause",
             stacklevel=3,
         )
-    runs = runs_table(coll)
-    landscapes = landscape_table(coll)
-    soft = soft_risk_table(coll)
-    studies = collect_studies(coll, study_tables)
-    specs, skipped = make_figures(coll)
+    runs = runs_table(collected)
+    landscapes = landscape_table(collected)
+    soft = soft_risk_table(collected)
+    studies = collect_studies(collected, study_tables)
+    specs, skipped = make_figures(collected)
     try:
         # every figure drawn to bytes first, on all CPUs (a figure's size is a fair guess of its cost); the files
         # are then written here, in order
@@ -155,17 +155,17 @@ def write_report(
         for name, table in studies.items():
             if not table.empty:
                 output.write(f"{name}.csv", csv_text(table))
-        output.write("report.html", render(coll, figures, skipped, comparison, runs, landscapes, soft, studies))
-    return Report(output.out / "report.html", coll, [spec.name for spec, _ in figures], skipped)
+        output.write("report.html", render(collected, figures, skipped, comparison, runs, landscapes, soft, studies))
+    return Report(output.out / "report.html", collected, [spec.name for spec, _ in figures], skipped)
 
 
-def collect_studies(coll, tables) -> dict:
+def collect_studies(collected, tables) -> dict:
     """The studies' tables (name -> DataFrame, empty when absent): those of reproduce's study folders, and any the
     main runs hold themselves (a sweep over risk measures given to riskplan report), one table per study."""
     out = {}
-    own = tables(coll)
+    own = tables(collected)
     for name, table in own.items():
-        parts = [table] + [tables(s.collection)[name] for s in coll.studies if s.name == name]
+        parts = [table] + [tables(s.collection)[name] for s in collected.studies if s.name == name]
         parts = [t for t in parts if not t.empty]
         out[name] = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
     return out

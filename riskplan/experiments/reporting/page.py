@@ -83,14 +83,14 @@ def _table(head: list[str], rows: list[list[str]], numeric: set[int] = frozenset
     return "\n".join(out)
 
 
-def configs_section(coll: Collection) -> str:
+def configs_section(collected: Collection) -> str:
     """The groups and the config keys that differ between them."""
-    if not coll.groups:
+    if not collected.groups:
         return "<p>No usable runs.</p>"
-    keys = coll.differing
+    keys = collected.differing
     head = ["group", "seeds"] + [f"<code>{_esc(k)}</code>" for k in keys]
     rows = []
-    for g in coll.groups:
+    for g in collected.groups:
         swatch = f'<span class="swatch" style="background:{g.color}"></span>'
         rows.append(
             [swatch + _esc(g.label), _esc(", ".join(str(s) for s in g.seeds))] + [_esc(g.settings.get(k)) for k in keys]
@@ -100,7 +100,7 @@ def configs_section(coll: Collection) -> str:
         "(curves: across-seed mean with a 95% band).</p>"
     )
     if not keys:
-        c = coll.groups[0].config
+        c = collected.groups[0].config
         text += (
             f"<p>All runs share one configuration: experiment <code>{_esc(c.get('experiment'))}</code>, "
             f"risk <code>{_esc(c.get('risk'))}</code>, team.robots={_esc(c.get('team', {}).get('robots'))}, "
@@ -278,14 +278,14 @@ STUDY_TEXT = {  # the question each study of riskplan reproduce answers, above i
 }
 
 
-def study_section(name: str, table: pd.DataFrame, figures: list[tuple[FigureSpec, dict]], coll=None) -> str:
+def study_section(name: str, table: pd.DataFrame, figures: list[tuple[FigureSpec, dict]], collected=None) -> str:
     """A study beyond the paper: what it asks, the groups it compares, its table and its figure."""
     if (table is None or table.empty) and not figures:
         return ""
     title, text = STUDY_TEXT[name]
     parts = [f'<h2 id="study-{_esc(name)}">{_esc(title)}</h2>', f"<p>{text}</p>"]
-    if coll is not None:
-        parts.append(configs_section(coll))
+    if collected is not None:
+        parts.append(configs_section(collected))
     if table is not None and not table.empty:
         parts.append(STUDY_TABLES[name](table))
         parts.append(
@@ -512,7 +512,7 @@ def figure_html(spec: FigureSpec, files: dict[str, bytes]) -> str:
 
 
 def render(
-    coll: Collection,
+    collected: Collection,
     figures: list[tuple[FigureSpec, dict]],
     skipped: dict[str, str],
     comparison: pd.DataFrame,
@@ -523,14 +523,14 @@ def render(
 ) -> str:
     """The whole page (`studies`: the tables of the studies beyond the paper, study_tables.study_tables)."""
     now = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
-    inputs = ", ".join(f"<code>{_esc(p)}</code>" for p in coll.inputs)
+    inputs = ", ".join(f"<code>{_esc(p)}</code>" for p in collected.inputs)
     counts = (
-        f"{len(coll.runs)} run(s) in {len(coll.groups)} group(s), {len(coll.landscapes)} landscape(s), "
-        f"{len(coll.broken)} skipped"
+        f"{len(collected.runs)} run(s) in {len(collected.groups)} group(s), {len(collected.landscapes)} landscape(s), "
+        f"{len(collected.broken)} skipped"
     )
-    if coll.studies:
-        studied = sum(len(s.collection.runs) for s in coll.studies)
-        counts += f" · {studied} run(s) in {len(coll.studies)} stud{'y' if len(coll.studies) == 1 else 'ies'} beyond the paper"
+    if collected.studies:
+        studied = sum(len(s.collection.runs) for s in collected.studies)
+        counts += f" · {studied} run(s) in {len(collected.studies)} stud{'y' if len(collected.studies) == 1 else 'ies'} beyond the paper"
     studied = {figure.study: figure.name for figure in FIGURES if figure.study}  # a section each
     of_study = {
         name: [f for f in figures if f[0].study == name or (not f[0].study and f[0].name.startswith(stem))]
@@ -550,17 +550,17 @@ def render(
         "<h1>riskplan report</h1>",
         f'<p class="meta">riskplan {_esc(__version__)} · generated {now} · from {inputs} · {counts}</p>',
     ]
-    if coll.broken:
-        items = "".join(f"<li><code>{_esc(b.path)}</code>: {_esc(b.reason)}</li>" for b in coll.broken)
+    if collected.broken:
+        items = "".join(f"<li><code>{_esc(b.path)}</code>: {_esc(b.reason)}</li>" for b in collected.broken)
         parts.append(
-            f'<p class="skipped"><b>Skipped {len(coll.broken)} broken or partial run(s):</b></p><ul>{items}</ul>'
+            f'<p class="skipped"><b>Skipped {len(collected.broken)} broken or partial run(s):</b></p><ul>{items}</ul>'
         )
     if worlds:
         parts.append(f"<h2>The world{'s' * (len(worlds) > 1)}</h2>")
         parts += [figure_html(spec, files) for spec, files in worlds]
     parts += [
         "<h2>Configurations that differ</h2>",
-        configs_section(coll),
+        configs_section(collected),
         "<h2>Final policies</h2>",
         comparison_section(comparison),
     ]
@@ -576,7 +576,7 @@ def render(
     parts.append(landscape_section(landscapes))
     parts.append(soft_risk_section(soft_risk))
     for name in studied:
-        own = [s.collection for s in coll.studies if s.name == name]
+        own = [s.collection for s in collected.studies if s.name == name]
         parts.append(study_section(name, (studies or {}).get(name), of_study[name], own[0] if own else None))
     if skipped:
         items = "".join(f"<li><b>{_esc(k)}</b>: {_esc(v)}</li>" for k, v in skipped.items())

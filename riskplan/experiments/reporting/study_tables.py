@@ -56,10 +56,10 @@ def _family(groups: list[Group], varying: tuple[str, ...], kind, wanted) -> list
     return best if best and wanted(best) else []
 
 
-def measure_groups(coll: Collection) -> list[Group]:
+def measure_groups(collected: Collection) -> list[Group]:
     """One robot's groups that differ only in their risk measure (risk.*), when one of them is not CVaR or the mean,
     in MEASURE_ORDER."""
-    alone = [g for g in coll.groups if not g.team]
+    alone = [g for g in collected.groups if not g.team]
     family = _family(
         alone,
         ("risk.",),
@@ -79,12 +79,12 @@ def run_objective(run: RunInfo, risk: dict | None = None) -> float:
     return float(objective(z, run.config.get("risk", {}) if risk is None else risk))
 
 
-def measures_table(coll: Collection) -> pd.DataFrame:
+def measures_table(collected: Collection) -> pd.DataFrame:
     """measures.csv: per risk measure, its final policy's trained objective, mean, CVaR at the common level,
     P(risky) and the shares of episodes reaching each source (report.csv's figures and intervals); and under_<m>:
     the policy scored by each measure m of the comparison (the mean over the seeds), so that each measure's own
     policy can be set against the others' under that measure."""
-    groups = measure_groups(coll)
+    groups = measure_groups(collected)
     if not groups:
         return pd.DataFrame()
     level = _common_beta(groups)
@@ -141,9 +141,9 @@ def seeds_reaching(group: Group, share: float = 0.5) -> dict[str, int]:
     return out
 
 
-def policy_groups(coll: Collection) -> list[Group]:
+def policy_groups(collected: Collection) -> list[Group]:
     """One robot's groups that differ only in their policy (policy.kind, policy.features): the paper's first."""
-    alone = [g for g in coll.groups if not g.team]
+    alone = [g for g in collected.groups if not g.team]
     family = _family(
         alone,
         ("policy.",),
@@ -153,29 +153,29 @@ def policy_groups(coll: Collection) -> list[Group]:
     return sorted(family, key=lambda g: (g.policy_kind == "tabular", len(g.features), g.features))
 
 
-def landscape_for(coll: Collection, group: Group):
+def landscape_for(collected: Collection, group: Group):
     """The landscape of the group's world at its CVaR level (the paper's 2-parameter policy over a grid of theta),
     or None."""
     world = flat_world(group.config)
-    for land in coll.landscapes:
-        if flat_world(land.config) == world and math.isclose(land.beta, group.beta):
-            return land
+    for scan in collected.landscapes:
+        if flat_world(scan.config) == world and math.isclose(scan.beta, group.beta):
+            return scan
     return None
 
 
-def policies_table(coll: Collection) -> pd.DataFrame:
+def policies_table(collected: Collection) -> pd.DataFrame:
     """policies.csv: per policy, its length of theta, its final policy's figures (report.csv's), the seeds that reach
     each source, and the best CVaR over the landscape's grid of the paper's 2-parameter policy, with the gap to it."""
-    groups = policy_groups(coll)
+    groups = policy_groups(collected)
     if not groups:
         return pd.DataFrame()
     rows = []
     for g in groups:
         row = group_row(g)
         names = (g.first.run.summary or {}).get("theta_names") or []
-        land = landscape_for(coll, g)
-        best = land.best("cvar") if land is not None else {"theta": None, "value": math.nan}
-        smooth = land.smoothed_best("cvar") if land is not None else {"theta": None, "value": math.nan}
+        scan = landscape_for(collected, g)
+        best = scan.best("cvar") if scan is not None else {"theta": None, "value": math.nan}
+        smooth = scan.smoothed_best("cvar") if scan is not None else {"theta": None, "value": math.nan}
         gap = best["value"] - row["cvar"]
         rows.append(
             {
@@ -214,10 +214,10 @@ def _is_central(group: Group) -> bool:
     )
 
 
-def hetero_groups(coll: Collection) -> tuple[list[Group], Group | None]:
+def hetero_groups(collected: Collection) -> tuple[list[Group], Group | None]:
     """Heterogeneous teams (team.starts or team.risk) that differ in their order or graph: (the distributed groups,
     the centralized comparator or None)."""
-    teams = [g for g in coll.groups if g.heterogeneous]
+    teams = [g for g in collected.groups if g.heterogeneous]
     varying = (
         KEYS.team.order,
         KEYS.team.graph,
@@ -283,10 +283,10 @@ def _interval_columns(name: str, values: list[float]) -> dict:
     return {name: mean, f"{name}_low": low, f"{name}_high": high}
 
 
-def hetero_table(coll: Collection) -> pd.DataFrame:
+def hetero_table(collected: Collection) -> pd.DataFrame:
     """hetero_team.csv: per order (and the centralized comparator), the consensus error's floor, the disagreement that
     persists, the team objective at theta-bar, and its gap and distance to the centralized run of the same seed."""
-    distributed, central = hetero_groups(coll)
+    distributed, central = hetero_groups(collected)
     if not distributed:
         return pd.DataFrame()
     rows = []
@@ -335,10 +335,10 @@ def hetero_table(coll: Collection) -> pd.DataFrame:
     return table
 
 
-def fault_groups(coll: Collection) -> tuple[list[Group], Group | None]:
+def fault_groups(collected: Collection) -> tuple[list[Group], Group | None]:
     """Teams that differ only in their faults and aggregation, one of them with faults: (the faulty groups, the
     fault-free comparator with the plain mean, or None)."""
-    teams = [g for g in coll.groups if g.team]
+    teams = [g for g in collected.groups if g.team]
     family = _family(
         teams,
         (KEYS.team.faults, KEYS.team.aggregate, KEYS.team.trim),
@@ -362,10 +362,10 @@ def _relative_cvar(run: RunInfo, reference: RunInfo, beta: float) -> float:
     return ratio(mine - theirs, abs(theirs))
 
 
-def faults_table(coll: Collection) -> pd.DataFrame:
+def faults_table(collected: Collection) -> pd.DataFrame:
     """faults.csv: per aggregation under the faults, and the fault-free team, the healthy robots' theta-bar on its
     evaluation episodes (report.csv's figures), and its CVaR against the fault-free run of the same seed."""
-    faulty, free = fault_groups(coll)
+    faulty, free = fault_groups(collected)
     if not faulty:
         return pd.DataFrame()
     rows = []
@@ -392,21 +392,21 @@ def faults_table(coll: Collection) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def study_tables(coll: Collection) -> dict[str, pd.DataFrame]:
+def study_tables(collected: Collection) -> dict[str, pd.DataFrame]:
     """The studies' tables of a collection (name -> table; empty tables for the studies it does not hold)."""
     return {
-        "measures": measures_table(coll),
-        "policies": policies_table(coll),
-        "hetero_team": hetero_table(coll),
-        "faults": faults_table(coll),
-        "floor_plan": floor_plan_table(coll),
+        "measures": measures_table(collected),
+        "policies": policies_table(collected),
+        "hetero_team": hetero_table(collected),
+        "faults": faults_table(collected),
+        "floor_plan": floor_plan_table(collected),
     }
 
 
-def floor_plan_table(coll: Collection) -> pd.DataFrame:
+def floor_plan_table(collected: Collection) -> pd.DataFrame:
     """floor_plan.csv: per policy of the floor-plan study (experiment=floor_plan, the shipped map), its mean, CVaR,
     P(risky) and the shares of episodes reaching each source (report.csv's figures and intervals). Runs on a map of
     another experiment are no part of it: report.csv has them."""
-    groups = [g for g in coll.groups if g.config.get("experiment") == FLOOR_PLAN]
+    groups = [g for g in collected.groups if g.config.get("experiment") == FLOOR_PLAN]
     rows = [{**group_row(g), "name": measure_name(g), **seeds_reaching(g)} for g in groups]
     return pd.DataFrame(rows)

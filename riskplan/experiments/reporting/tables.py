@@ -109,10 +109,10 @@ def group_row(group: Group, beta: float | None = None) -> dict:
     return row
 
 
-def comparison_table(coll: Collection) -> pd.DataFrame:
+def comparison_table(collected: Collection) -> pd.DataFrame:
     """report.csv: one row per group."""
-    notes = degenerate_notes(coll.groups)
-    rows = [group_row(g) | {"degenerate": "; ".join(notes.get(g.label, [])) or None} for g in coll.groups]
+    notes = degenerate_notes(collected.groups)
+    rows = [group_row(g) | {"degenerate": "; ".join(notes.get(g.label, [])) or None} for g in collected.groups]
     if not rows:
         return pd.DataFrame(
             columns=[
@@ -210,16 +210,16 @@ def used_row(r, group: str) -> dict:
     }
 
 
-def runs_table(coll: Collection) -> pd.DataFrame:
+def runs_table(collected: Collection) -> pd.DataFrame:
     """Every run directory found: used (with its group and figures), duplicate (its config and seed repeat a used
     run's: the same sample, counted once) or skipped (with the reason)."""
-    rows = [used_row(r, r.group.label if r.group else "") for r in coll.runs]
-    for study in coll.studies:  # reproduce's studies: their runs, labelled by study and group
+    rows = [used_row(r, r.group.label if r.group else "") for r in collected.runs]
+    for study in collected.studies:  # reproduce's studies: their runs, labelled by study and group
         rows += [
             used_row(r, f"{study.name}: {r.group.label}" if r.group else study.name) for r in study.collection.runs
         ]
     groups = {row["path"]: row["group"] for row in rows}
-    for d in coll.duplicates:
+    for d in collected.duplicates:
         rows.append(
             {
                 "path": str(d.path),
@@ -229,17 +229,17 @@ def runs_table(coll: Collection) -> pd.DataFrame:
                 "note": f"the same config and seed as {d.of.path}: one sample, counted once",
             }
         )
-    for land in coll.landscapes:
+    for scan in collected.landscapes:
         rows.append(
             {
-                "path": str(land.path),
+                "path": str(scan.path),
                 "status": "landscape",
                 "group": "",
-                "seed": land.summary.get("seed"),
-                "note": f"{land.summary.get('points', '?')}^2 grid x {land.summary.get('episodes', '?')} episodes",
+                "seed": scan.summary.get("seed"),
+                "note": f"{scan.summary.get('points', '?')}^2 grid x {scan.summary.get('episodes', '?')} episodes",
             }
         )
-    for b in coll.broken:
+    for b in collected.broken:
         rows.append({"path": str(b.path), "status": "skipped", "note": b.reason})
     table = pd.DataFrame(
         rows,
@@ -271,12 +271,12 @@ def theta_text(theta: list[float]) -> str:
     return " ".join(f"{t:.3f}" if math.isfinite(t) else "n/a" for t in theta)
 
 
-def soft_risk_table(coll: Collection) -> pd.DataFrame:
+def soft_risk_table(collected: Collection) -> pd.DataFrame:
     """soft_risk.csv: per seed, each soft-risk group (risk.schedule.kind other than none) and the group that differs
     from it only in risk.schedule (kind=none, the paper): the final policy's evaluated figures at risk.beta."""
     rows = []
     seen: set[int] = set()
-    for scheduled, plain in schedule_pairs(coll.groups):
+    for scheduled, plain in schedule_pairs(collected.groups):
         for g in ([plain] if plain is not None else []) + [scheduled]:
             if id(g) in seen:
                 continue
@@ -300,15 +300,15 @@ def soft_risk_table(coll: Collection) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def runs_on(land, coll: Collection) -> list[RunInfo]:
+def runs_on(scan, collected: Collection) -> list[RunInfo]:
     """The runs trained on the landscape's world (same world config and theta length) for one of its objectives:
     the mean, or CVaR at the landscape's beta (a beta sweep's other levels climb surfaces it does not show)."""
-    world = {k: v for k, v in flat_world(land.config).items()}
+    world = {k: v for k, v in flat_world(scan.config).items()}
     out = []
-    for r in coll.runs:
+    for r in collected.runs:
         risk = r.config.get("risk", {})
         shown = risk.get("measure") == "neutral" or (
-            risk.get("measure", "cvar") == "cvar" and math.isclose(float(risk.get("beta", -1.0)), land.beta)
+            risk.get("measure", "cvar") == "cvar" and math.isclose(float(risk.get("beta", -1.0)), scan.beta)
         )
         team = r.config.get("team") or {}
         if team.get("starts") or team.get("risk") or team.get("faults"):
@@ -316,7 +316,7 @@ def runs_on(land, coll: Collection) -> list[RunInfo]:
         if (
             shown
             and flat_world(r.config) == world
-            and len(r.final_theta()) == len(land.summary.get("theta_fixed", [0, 0]))
+            and len(r.final_theta()) == len(scan.summary.get("theta_fixed", [0, 0]))
         ):
             out.append(r)
     return out
@@ -350,25 +350,25 @@ def ratio(numerator: float, denominator: float) -> float:
     return numerator / denominator
 
 
-def landscape_table(coll: Collection) -> pd.DataFrame:
+def landscape_table(collected: Collection) -> pd.DataFrame:
     """Per landscape and group on its world: the grid optima and the group's final theta, distance and gap."""
     rows = []
-    for land in coll.landscapes:
-        a, b = land.axes
-        best = {k: land.best(k) for k in ("mean", "cvar")}
-        thetas = land.table[[f"theta_{a}", f"theta_{b}"]].to_numpy(float)
+    for scan in collected.landscapes:
+        a, b = scan.axes
+        best = {k: scan.best(k) for k in ("mean", "cvar")}
+        thetas = scan.table[[f"theta_{a}", f"theta_{b}"]].to_numpy(float)
         base = {
-            "landscape": str(land.path),
-            "beta": land.beta,
-            "episodes": land.summary.get("episodes"),
-            "points": land.summary.get("points"),
+            "landscape": str(scan.path),
+            "beta": scan.beta,
+            "episodes": scan.summary.get("episodes"),
+            "points": scan.summary.get("points"),
             "best_mean_theta": _fmt_theta(best["mean"]["theta"], a, b),
             "best_mean": best["mean"]["value"],
             "best_cvar_theta": _fmt_theta(best["cvar"]["theta"], a, b),
             "best_cvar": best["cvar"]["value"],
         }
         groups: dict[str, list[RunInfo]] = {}
-        for r in runs_on(land, coll):
+        for r in runs_on(scan, collected):
             groups.setdefault(r.group.label, []).append(r)
         if not groups:
             rows.append(base)
@@ -379,15 +379,15 @@ def landscape_table(coll: Collection) -> pd.DataFrame:
             found = best[target]["theta"] is not None
             opt = np.array([best[target]["theta"][a], best[target]["theta"][b]]) if found else np.full(2, np.nan)
             nearest = int(np.argmin(((thetas - final) ** 2).sum(axis=1)))
-            value_there = float(land.table[target].iloc[nearest])
+            value_there = float(scan.table[target].iloc[nearest])
             se_column = f"{target}_se"
-            best_index = land.best_index(target)
+            best_index = scan.best_index(target)
             se = (
-                float(land.table[se_column].iloc[best_index])
-                if se_column in land.table and best_index is not None
+                float(scan.table[se_column].iloc[best_index])
+                if se_column in scan.table and best_index is not None
                 else math.nan
             )
-            smooth = land.smoothed_best(target)
+            smooth = scan.smoothed_best(target)
             smooth_theta = np.array(smooth["theta"] if smooth["theta"] is not None else [np.nan, np.nan], float)
             gap = best[target]["value"] - value_there
             rows.append(

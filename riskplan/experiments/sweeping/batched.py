@@ -25,7 +25,7 @@ from omegaconf import DictConfig, open_dict
 
 from riskplan.config.backends import BACKENDS
 from riskplan.config.schema import Backend
-from riskplan.engine.step import Setup, batch_key
+from riskplan.engine.step import RunSetup, batch_key
 from riskplan.experiments.driver_watch import arrive
 from riskplan.experiments.sweep_worker import (
     JOB_LOG,
@@ -55,11 +55,11 @@ PROGRESS = ".batch_progress"  # <sweep>/.batch_progress.<chunk>.<part>.json: {"d
 
 @dataclass
 class Prepared:
-    """A job after Hydra set it up: its folder, where it stands, and its Setup when it trains in a batch."""
+    """A job after Hydra set it up: its folder, where it stands, and its RunSetup when it trains in a batch."""
 
     out: Path
     start: JobStart | None = None  # None: another process holds its folder
-    setup: Setup | None = None
+    setup: RunSetup | None = None
     config: dict | None = None  # its resolved config, for a worker process to build the run from
     value: float | None = None  # its CVaR once done (or the finished job's)
     seconds: float = 0.0  # its set-up through Hydra, the first part of its own time
@@ -116,7 +116,7 @@ def _prepare(cfg: DictConfig, out: Path, held: contextlib.ExitStack) -> Prepared
     if not BACKENDS[Backend(cfg.team.backend)].batched:
         return Prepared(out, value=sweep_job(cfg, out))
     try:
-        held.enter_context(lock.hold(out, "sweep job folder"))
+        held.enter_context(lock.hold_lock(out, "sweep job folder"))
     except BadInput:  # another process writes it: that process records it
         return Prepared(out)
     start = begin_job(cfg, out)

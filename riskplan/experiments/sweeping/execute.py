@@ -40,7 +40,7 @@ def run_sweep(
     that share a world train as one program (riskplan.experiments.sweeping.batched)."""
     plan = plan_sweep(args, jobs, sweep_dir, batch)
     plan.warnings = [note for note in plan.warnings if note not in expected]
-    with lock.hold(plan.sweep_dir, "sweep directory"):  # one driver per sweep directory, for the whole launch
+    with lock.hold_lock(plan.sweep_dir, "sweep directory"):  # one driver per sweep directory, for the whole launch
         return _run_plan(plan, args, jobs, title, out, before_launch)
 
 

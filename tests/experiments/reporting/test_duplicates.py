@@ -107,9 +107,9 @@ def test_another_seed_is_not_a_duplicate_and_a_copy_is(runs, tmp_path):
         "2 runs repeat another run's config and seed (the same sample); each is counted once (runs.csv lists them "
         "as duplicate)"
     ]
-    coll = collect([runs])
-    assert [g.seeds for g in coll.groups] == [[0, 1]]
-    assert {(d.path.name, d.of.path.name) for d in coll.duplicates} == {("cli", "api"), ("copy", "api")}
+    collected = collect([runs])
+    assert [g.seeds for g in collected.groups] == [[0, 1]]
+    assert {(d.path.name, d.of.path.name) for d in collected.duplicates} == {("cli", "api"), ("copy", "api")}
 
 
 def test_a_study_repeating_a_paper_run_uses_it_too(runs, tmp_path):
@@ -117,10 +117,10 @@ def test_a_study_repeating_a_paper_run_uses_it_too(runs, tmp_path):
     shutil.copytree(runs / "api", tmp_path / "single" / "cvar,seed=0")
     shutil.copytree(runs / "api", tmp_path / "measures" / "cvar,seed=0")
     shutil.copytree(runs / "api", tmp_path / "measures" / "cvar,seed=0,again")  # within the study: a duplicate
-    coll = collect([tmp_path])
-    assert [r.path for r in coll.runs] == [tmp_path / "single" / "cvar,seed=0"]
-    assert [[r.path for r in s.collection.runs] for s in coll.studies] == [[tmp_path / "measures" / "cvar,seed=0"]]
-    assert [(d.path, d.of.path) for d in coll.duplicates] == [
+    collected = collect([tmp_path])
+    assert [r.path for r in collected.runs] == [tmp_path / "single" / "cvar,seed=0"]
+    assert [[r.path for r in s.collection.runs] for s in collected.studies] == [[tmp_path / "measures" / "cvar,seed=0"]]
+    assert [(d.path, d.of.path) for d in collected.duplicates] == [
         (tmp_path / "measures" / "cvar,seed=0,again", tmp_path / "measures" / "cvar,seed=0")
     ]
 

@@ -100,8 +100,8 @@ def labelled(ax) -> list:
 
 @pytest.mark.slow
 def test_a_beta_sweep_draws_a_curve_per_beta_named_by_beta_outside_the_axes(root):
-    coll = collect([root / "beta"])
-    spec = fig_cvar(coll)
+    collected = collect([root / "beta"])
+    spec = fig_cvar(collected)
     (ax,) = spec.figure.axes
     lines = {line.get_label(): line for line in labelled(ax)}
     assert set(lines) == {f"β={b:g}" for b in BETAS} and all(len(label) < 30 for label in lines)
@@ -117,15 +117,15 @@ def test_a_beta_sweep_draws_a_curve_per_beta_named_by_beta_outside_the_axes(root
     spec.figure.draw_without_rendering()
     box, frame = legend.get_window_extent(renderer), ax.get_window_extent(renderer)
     assert not box.overlaps(frame)  # beside the axes, never over the curves
-    paths = fig_paths(coll)  # Fig. 1: a panel of paths per β
+    paths = fig_paths(collected)  # Fig. 1: a panel of paths per β
     assert sorted(a.get_title() for a in paths.figure.axes) == [f"β={b:g}, seed 0" for b in BETAS]
 
 
 @pytest.mark.slow
 def test_past_eight_groups_a_figure_draws_small_multiples(root):
-    coll = collect([root / "grid"])
-    assert len(coll.groups) == 9
-    specs, _ = make_figures(coll)
+    collected = collect([root / "grid"])
+    assert len(collected.groups) == 9
+    specs, _ = make_figures(collected)
     figures = {s.name: s.figure for s in specs}
     curves = figures["fig2_cvar"].axes
     assert [ax.get_title() for ax in curves] == [f"β={b:g}" for b in BETAS]
@@ -164,9 +164,9 @@ def test_no_figure_is_wider_than_2000_px_and_none_warns(root):
 @pytest.mark.slow
 def test_the_papers_titles_only_for_a_reproductions_runs(root):
     for folder, paper in (("beta", False), ("repro", True)):
-        coll = collect([root / folder])
-        specs, skipped = make_figures(coll)
-        page = render(coll, [(s, {"page": b""}) for s in specs], skipped, *[pd.DataFrame()] * 3)
+        collected = collect([root / folder])
+        specs, skipped = make_figures(collected)
+        page = render(collected, [(s, {"page": b""}) for s in specs], skipped, *[pd.DataFrame()] * 3)
         titles = {s.name: s.title for s in specs}
         assert ("The paper's figures (Section V)" in page) is paper
         if paper:

@@ -67,7 +67,7 @@ def sweep(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
-def coll(sweep):
+def collected(sweep):
     return collect([sweep])
 
 
@@ -78,8 +78,8 @@ OTHER_RUNS |= {"risk_measures", "richer_policies", "hetero_team", "faults"}
 
 
 @pytest.fixture(scope="session")
-def figures(coll):
-    specs, skipped = make_figures(coll)
+def figures(collected):
+    specs, skipped = make_figures(collected)
     assert set(skipped) <= OTHER_RUNS, skipped
     return {s.name: s for s in specs}
 
@@ -128,18 +128,18 @@ def seed_mean(sweep: Path, names: list[str], column: str, robot: int | None = No
 
 
 # ------------------------------------------------------------------------------------------------ grouping
-def test_runs_are_grouped_by_what_differs(coll):
-    assert len(coll.runs) == 6 and not coll.broken and len(coll.landscapes) == 1
-    assert {"risk.measure", "team.robots", "experiment"} <= set(coll.differing)
-    assert "seed" not in coll.differing
-    kinds = {(g.measure, g.robots): g for g in coll.groups}
+def test_runs_are_grouped_by_what_differs(collected):
+    assert len(collected.runs) == 6 and not collected.broken and len(collected.landscapes) == 1
+    assert {"risk.measure", "team.robots", "experiment"} <= set(collected.differing)
+    assert "seed" not in collected.differing
+    kinds = {(g.measure, g.robots): g for g in collected.groups}
     assert set(kinds) == {("neutral", 1), ("cvar", 1), ("cvar", 3)}
-    assert all(g.seeds == [0, 1] for g in coll.groups)
+    assert all(g.seeds == [0, 1] for g in collected.groups)
     assert "risk-neutral" in kinds["neutral", 1].label and "N=3" in kinds["cvar", 3].label
-    assert len({g.label for g in coll.groups}) == 3 and len({g.color for g in coll.groups}) == 3
-    neutral, averse = coll.paper_pair()
+    assert len({g.label for g in collected.groups}) == 3 and len({g.color for g in collected.groups}) == 3
+    neutral, averse = collected.paper_pair()
     assert (neutral, averse) == (kinds["neutral", 1], kinds["cvar", 1])
-    assert coll.team_comparison() == (kinds["cvar", 1], [kinds["cvar", 3]])
+    assert collected.team_comparison() == (kinds["cvar", 1], [kinds["cvar", 3]])
 
 
 # ------------------------------------------------------------------------------------------------ paper figures
@@ -257,11 +257,11 @@ def test_fig4_consensus_error_on_a_log_scale(figures, sweep):
 
 
 # ------------------------------------------------------------------------------------------------ beyond the paper
-def test_reward_distribution_marks_var_and_cvar(figures, sweep, coll):
+def test_reward_distribution_marks_var_and_cvar(figures, sweep, collected):
     full, _tail = figures["reward_distribution"].figure.axes[:2]
     assert full.get_xlabel() == "total reward" and "CDF" in full.get_ylabel()
     assert set(labelled(full)) == set(USER_NAMES.values())
-    for g, name in zip(coll.groups, names(coll.groups)):
+    for g, name in zip(collected.groups, names(collected.groups)):
         z = np.concatenate([eval_of(r.path).total_reward.to_numpy() for r in g.runs])
         var = [ln for ln in full.get_lines() if ln.get_label() == f"_VaR {g.label}"]
         cv = [ln for ln in full.get_lines() if ln.get_label() == f"_CVaR {g.label}"]
@@ -271,13 +271,13 @@ def test_reward_distribution_marks_var_and_cvar(figures, sweep, coll):
         assert np.all(np.diff(ecdf.get_ydata()) > 0) and ecdf.get_ydata()[-1] == 1.0
 
 
-def test_reward_distribution_with_a_beta_of_1_keeps_a_lower_tail(coll):
+def test_reward_distribution_with_a_beta_of_1_keeps_a_lower_tail(collected):
     """A beta sweep reaching 1 (CVaR = mean) once broke the tail panel: it asked for quantiles up to 2."""
     import copy
 
     from riskplan.experiments.reporting.figures import fig_distribution
 
-    swept = copy.deepcopy(coll)
+    swept = copy.deepcopy(collected)
     swept.groups[0].first.config["risk"]["beta"] = 1.0
     spec = fig_distribution(swept)
     tail = spec.figure.axes[1]
@@ -286,11 +286,11 @@ def test_reward_distribution_with_a_beta_of_1_keeps_a_lower_tail(coll):
     assert marks[0].get_ydata()[0] == 1.0  # its (VaR, beta) mark sits above the panel, drawn but clipped
 
 
-def test_risk_frontier_has_one_point_per_group(figures, coll):
+def test_risk_frontier_has_one_point_per_group(figures, collected):
     ax = figures["risk_frontier"].figure.axes[0]
     assert ax.get_xlabel() == "mean total reward" and "CVaR" in ax.get_ylabel()
-    assert len(ax.containers) == len(coll.groups)
-    for container, g in zip(ax.containers, coll.groups):
+    assert len(ax.containers) == len(collected.groups)
+    for container, g in zip(ax.containers, collected.groups):
         point = container.lines[0]
         values = [
             (eval_of(r.path).total_reward.mean(), cvar(eval_of(r.path).total_reward.to_numpy(), 0.1)) for r in g.runs
@@ -309,7 +309,7 @@ def test_team_theta_trajectories_per_robot(figures, sweep):
     )
 
 
-def test_landscape_heatmaps_with_training_paths(figures, sweep, coll):
+def test_landscape_heatmaps_with_training_paths(figures, sweep, collected):
     fig = figures["landscape"].figure
     heat = [ax for ax in fig.axes if ax.images]
     assert len(heat) == 2
@@ -323,8 +323,8 @@ def test_landscape_heatmaps_with_training_paths(figures, sweep, coll):
         assert (star.get_xdata()[0], star.get_ydata()[0]) == (best.theta_0, best.theta_1)
         paths = [ln for ln in ax.get_lines() if ln.get_linestyle() == "-"]
         assert len(paths) == 6  # every run was trained on this world
-        first = next(ln for ln in paths if ln.get_label() == coll.groups[0].label)
-        run = coll.groups[0].runs[0]
+        first = next(ln for ln in paths if ln.get_label() == collected.groups[0].label)
+        run = collected.groups[0].runs[0]
         np.testing.assert_allclose(first.get_xdata()[:-1], metrics_of(run.path).theta_0)
         assert first.get_xdata()[-1] == pytest.approx(run.run.summary["theta_final"][0])
 
@@ -474,12 +474,12 @@ def test_default_is_the_latest_reproduction(tmp_path, sweep, monkeypatch):
     assert list(runs.path) == [str(Path("outputs/reproduce/2026-01-02_00-00-00/sweep/risk=neutral"))]
 
 
-def test_landscape_table_measures_where_training_ended(page, sweep, coll):
+def test_landscape_table_measures_where_training_ended(page, sweep, collected):
     table = pd.read_csv(page.parent / "landscape.csv")
-    assert sorted(table.group) == sorted(g.label for g in coll.groups)
+    assert sorted(table.group) == sorted(g.label for g in collected.groups)
     grid = pd.read_parquet(sweep / "landscape" / "landscape.parquet")
     for _, row in table.iterrows():
-        group = next(g for g in coll.groups if g.label == row["group"])
+        group = next(g for g in collected.groups if g.label == row["group"])
         target = "mean" if group.measure == "neutral" else "cvar"
         assert row["objective"] == target
         best = grid.loc[grid[target].idxmax()]
@@ -518,8 +518,8 @@ def with_artist(monkeypatch, artist: Callable[[], Artist], names: set[str] | Non
 
     make = reporting.make_figures
 
-    def patched(coll):
-        specs, skipped = make(coll)
+    def patched(collected):
+        specs, skipped = make(collected)
         for spec in specs:
             if names is None or spec.name in names:
                 spec.figure.add_artist(artist())

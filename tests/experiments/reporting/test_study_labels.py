@@ -136,9 +136,9 @@ def test_a_tabular_theta_is_summarised_in_the_runs_table():
 def test_each_study_picks_only_its_own_comparison():
     paper = [fake_run(risk(m)) for m in ("neutral", "cvar")] + [fake_run(risk("cvar", beta=b)) for b in (0.05, 0.5)]
     groups, _ = group_runs(paper)
-    coll = SimpleNamespace(groups=groups)
-    assert measure_groups(coll) == [] and policy_groups(coll) == []  # the paper's runs hold no study
-    assert hetero_groups(coll) == ([], None) and fault_groups(coll) == ([], None)
+    collected = SimpleNamespace(groups=groups)
+    assert measure_groups(collected) == [] and policy_groups(collected) == []  # the paper's runs hold no study
+    assert hetero_groups(collected) == ([], None) and fault_groups(collected) == ([], None)
     groups, _ = group_runs(paper + [fake_run(risk("wang")), fake_run({**risk("wang"), "train": {"theta0": [0, 0]}})])
     picked = measure_groups(SimpleNamespace(groups=groups))
     assert [g.measure for g in picked] == ["cvar", "cvar", "cvar", "neutral", "wang"]  # θ0 = 0's is another world

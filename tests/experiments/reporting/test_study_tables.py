@@ -68,7 +68,7 @@ def root(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def coll(root):
+def collected(root):
     return collect([root])
 
 
@@ -81,8 +81,8 @@ def eval_rewards(run: Path, robot: int) -> np.ndarray:
     return e.loc[e.robot == robot].total_reward.to_numpy().copy()  # writable, as training's (one numba signature)
 
 
-def study(coll, name: str):
-    (found,) = [s for s in coll.studies if s.name == name]
+def study(collected, name: str):
+    (found,) = [s for s in collected.studies if s.name == name]
     return found.collection
 
 
@@ -91,15 +91,15 @@ def row_of(table: pd.DataFrame, column: str, value) -> pd.Series:
     return table.loc[index]
 
 
-def test_the_study_folders_are_collected_apart_from_the_papers_runs(coll):
-    assert sorted(s.name for s in coll.studies) == ["faults", "hetero_team", "measures", "policies"]
-    assert [g.measure for g in coll.groups] == ["neutral", "cvar"] and len(coll.runs) == 4  # single/ only
-    assert {g.label for g in study(coll, "measures").groups} >= {"Wang (η=0.5)", "entropic (η=0.001)"}
-    assert coll.landscapes and study(coll, "policies").landscapes == coll.landscapes
+def test_the_study_folders_are_collected_apart_from_the_papers_runs(collected):
+    assert sorted(s.name for s in collected.studies) == ["faults", "hetero_team", "measures", "policies"]
+    assert [g.measure for g in collected.groups] == ["neutral", "cvar"] and len(collected.runs) == 4  # single/ only
+    assert {g.label for g in study(collected, "measures").groups} >= {"Wang (η=0.5)", "entropic (η=0.001)"}
+    assert collected.landscapes and study(collected, "policies").landscapes == collected.landscapes
 
 
-def test_the_measures_table_is_recomputed_from_the_evaluation_episodes(root, coll):
-    table = measures_table(study(coll, "measures"))
+def test_the_measures_table_is_recomputed_from_the_evaluation_episodes(root, collected):
+    table = measures_table(study(collected, "measures"))
     assert table.measure.tolist() == ["cvar", "neutral", "wang", "mean_cvar", "entropic"]
     for measure, risk in (
         ("wang", {"measure": "wang", "eta": 0.5}),
@@ -124,8 +124,8 @@ def test_the_measures_table_is_recomputed_from_the_evaluation_episodes(root, col
     assert cvar_row.objective == pytest.approx(cvar_row.cvar, rel=1e-12)  # CVaR's objective is its CVaR
 
 
-def test_the_policies_table_holds_the_landscapes_best_cvar_and_the_gap(root, coll):
-    table = policies_table(study(coll, "policies"))
+def test_the_policies_table_holds_the_landscapes_best_cvar_and_the_gap(root, collected):
+    table = policies_table(study(collected, "policies"))
     assert table.policy.tolist() == ["features=[signals]", "features=[signals, risky]", "tabular policy"]
     assert table.theta_length.tolist() == [2, 3, 720]
     best = pd.read_parquet(root / "landscape" / "landscape.parquet").cvar.max()
@@ -144,8 +144,8 @@ def test_the_policies_table_holds_the_landscapes_best_cvar_and_the_gap(root, col
     assert tabular.theta_names == "720 (cell, move) logits" and tabular.theta0 == "[0.0, 0.0]"
 
 
-def test_the_hetero_table_is_recomputed_from_metrics_and_summaries(root, coll):
-    table = hetero_table(study(coll, "hetero_team"))
+def test_the_hetero_table_is_recomputed_from_metrics_and_summaries(root, collected):
+    table = hetero_table(study(collected, "hetero_team"))
     assert table.order.tolist() == ["combine_then_adapt", "gradient_tracking", "adapt_then_combine"]
     assert table.centralized.tolist() == [False, False, True]
     assert table.constant_step.all() and table.step_size.tolist() == pytest.approx([0.05] * 3)
@@ -177,8 +177,8 @@ def test_the_hetero_table_is_recomputed_from_metrics_and_summaries(root, coll):
     assert centralized.consensus_floor == 0.0 and centralized.theta_disagreement == 0.0  # the exact average
 
 
-def test_the_faults_table_compares_each_seed_with_the_fault_free_run(root, coll):
-    table = faults_table(study(coll, "faults"))
+def test_the_faults_table_compares_each_seed_with_the_fault_free_run(root, collected):
+    table = faults_table(study(collected, "faults"))
     assert table["name"].tolist() == [
         "robot 4 byzantine, mean",
         "robot 4 byzantine, trimmed_mean F=1",
@@ -199,8 +199,8 @@ def test_the_faults_table_compares_each_seed_with_the_fault_free_run(root, coll)
     assert e.loc[e.robot == -1, "healthy"].all() and not e.loc[e.robot == 4, "healthy"].any()
 
 
-def test_every_study_figure_is_drawn_and_the_report_holds_the_studies(root, coll, tmp_path):
-    specs, skipped = make_figures(coll)
+def test_every_study_figure_is_drawn_and_the_report_holds_the_studies(root, collected, tmp_path):
+    specs, skipped = make_figures(collected)
     names = {s.name: s for s in specs}
     assert {"risk_measures", "richer_policies", "hetero_team", "faults"} <= set(names)
     assert not {"risk_measures", "richer_policies", "hetero_team", "faults"} & set(skipped)

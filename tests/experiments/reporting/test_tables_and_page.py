@@ -29,8 +29,8 @@ def runs(tmp_path_factory) -> Path:
 
 
 def test_a_group_of_two_seeds_is_their_mean_with_a_t_interval(runs):
-    coll = collect([runs])
-    table = comparison_table(coll)
+    collected = collect([runs])
+    table = comparison_table(collected)
     (row,) = table.to_dict("records")
     z = [pd.read_parquet(runs / f"seed_{s}" / "eval.parquet").total_reward.to_numpy() for s in (0, 1)]
     means, cvars = [x.mean() for x in z], [cvar(x, 0.1) for x in z]
@@ -40,7 +40,7 @@ def test_a_group_of_two_seeds_is_their_mean_with_a_t_interval(runs):
     assert row["cvar"] == pytest.approx(np.mean(cvars), rel=1e-12)
     half = 12.706 * abs(means[0] - means[1]) / 2  # t(0.975, 1 df) * sd / sqrt(2), with sd = |a - b| / sqrt(2)
     assert (row["mean_low"], row["mean_high"]) == pytest.approx((np.mean(means) - half, np.mean(means) + half))
-    used = runs_table(coll)
+    used = runs_table(collected)
     assert used.status.tolist() == ["used", "used"] and used.iterations.tolist() == [3, 3]
     assert used.cvar.tolist() == pytest.approx(cvars, rel=1e-12)
     html = comparison_section(table)
@@ -55,10 +55,10 @@ def test_a_risk_averse_group_below_its_worlds_risk_neutral_group_is_marked(tmp_p
     risk-neutral run heads for the safe source: on CVaR itself, the CVaR run ends far below it."""
     train(compose([*TINY, "risk=neutral", "train.theta0=[60.0,-20.0]"]), tmp_path / "neutral")
     train(compose([*TINY, "train.theta0=[-20.0,-20.0]"]), tmp_path / "cvar")
-    coll = collect([tmp_path])
-    table = comparison_table(coll).set_index("measure")
+    collected = collect([tmp_path])
+    table = comparison_table(collected).set_index("measure")
     assert pd.isna(table.loc["neutral", "degenerate"])
-    notes = degenerate_notes(coll.groups)
+    notes = degenerate_notes(collected.groups)
     averse = table.loc["cvar", "group"]
     assert [note.split(" ", 1)[0] for note in notes[averse]] == ["reached_no_source", "below_neutral:"]
     z = {k: pd.read_parquet(tmp_path / k / "eval.parquet").total_reward.to_numpy() for k in ("neutral", "cvar")}
@@ -66,7 +66,7 @@ def test_a_risk_averse_group_below_its_worlds_risk_neutral_group_is_marked(tmp_p
     assert f"{cvar(z['cvar'], 0.1):.1f} [" in below and f"against {cvar(z['neutral'], 0.1):.1f} [" in below
     assert "risk-averse (CVaR β=0.1)" in below and "train.theta0" in below
     assert table.loc["cvar", "degenerate"] == "; ".join(notes[averse])
-    html = comparison_section(comparison_table(coll))
+    html = comparison_section(comparison_table(collected))
     assert html.count("⚠ degenerate") == 1 and "1 group(s) learned something degenerate" in html
     assert "below the risk-neutral group" in html
     with pytest.warns(UserWarning, match=r"^1 group\(s\) learned something degenerate \(risk-averse \(CVaR β=0.1\)\)"):

@@ -340,8 +340,8 @@ def test_the_report_draws_the_world_of_a_run_placed_in_metres(tmp_path):
     not skipped, and its world drawn with them at the cells they became."""
     placed = ["world.start=${metres:0.9,0.9}", "world.sources.0.position=${metres:0.9,3.9}"]
     riskplan.train(riskplan.compose([*TINY, "experiment=floor_plan", *placed]), tmp_path / "runs" / "metres")
-    coll = collect([tmp_path / "runs"])
-    assert len(coll.runs) == 1 and not coll.broken
-    (world,) = [spec for spec in make_figures(coll)[0] if spec.name.startswith("world")]
+    collected = collect([tmp_path / "runs"])
+    assert len(collected.runs) == 1 and not collected.broken
+    (world,) = [spec for spec in make_figures(collected)[0] if spec.name.startswith("world")]
     assert markers(world.figure.axes[0], "o") == [(3.0, 3.0)]
     assert markers(world.figure.axes[0], "*") == [(3.0, 15.0), (15.0, 3.0)]

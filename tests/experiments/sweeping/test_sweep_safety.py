@@ -195,7 +195,7 @@ def test_a_job_folder_held_by_another_process_is_left_alone(tmp_path):
     }
     for name, text in planted.items():
         (held / name).write_text(text)
-    with lock.hold(held, "test"):
+    with lock.hold_lock(held, "test"):
         before = files(held)
         result = riskplan_cli(tmp_path, "sweep", "seed=0,1", *TINY, "hydra.sweep.dir=s", "--jobs", "64")
         after = files(held)
@@ -219,7 +219,7 @@ def test_a_job_folder_held_by_another_process_is_left_alone(tmp_path):
 def test_a_second_driver_on_the_same_sweep_directory_is_bad_input(tmp_path):
     sweep = tmp_path / "s"
     sweep.mkdir()
-    with lock.hold(sweep, "test"):
+    with lock.hold_lock(sweep, "test"):
         before = files(tmp_path)
         result = riskplan_cli(tmp_path, "sweep", "seed=0,1", *TINY, "hydra.sweep.dir=s")
         assert files(tmp_path) == before

@@ -28,22 +28,22 @@ from riskplan.experiments.reporting.figures.figure_registry import FIGURES, LAND
 from riskplan.experiments.reporting.figures.paper import fig_consensus, fig_cvar, fig_paths, fig_team, risk_name
 
 
-def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
+def make_figures(collected: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
     """Every figure the runs support, and for the others why not (name -> reason). Never raises."""
     specs: list[FigureSpec] = []
     skipped: dict[str, str] = {}
     with matplotlib.rc_context(STYLE):
         jobs = [(figure.name, figure.build) for figure in FIGURES if figure.main]
         landscapes = [
-            (f"{LANDSCAPE}{'' if i == 0 else f'_{i + 1}'}", (lambda c, land=land, i=i: fig_landscape(c, land, i)))
-            for i, land in enumerate(coll.landscapes)
+            (f"{LANDSCAPE}{'' if i == 0 else f'_{i + 1}'}", (lambda c, scan=scan, i=i: fig_landscape(c, scan, i)))
+            for i, scan in enumerate(collected.landscapes)
         ]
         for name, build in jobs + landscapes:
-            if not coll.runs and not name.startswith(LANDSCAPE):
+            if not collected.runs and not name.startswith(LANDSCAPE):
                 skipped[name] = "no usable runs"
                 continue
             try:
-                result = build(coll)
+                result = build(collected)
             except Exception as err:
                 skipped[name] = f"failed: {type(err).__name__}: {err}"
                 continue
@@ -53,7 +53,7 @@ def make_figures(coll: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
                 specs += result
             else:
                 skipped[name] = result
-        for study in coll.studies:  # reproduce's studies, each from its own runs
+        for study in collected.studies:  # reproduce's studies, each from its own runs
             name = study_figure(study.name).name
             try:
                 result = study_figure(study.name).build(study.collection)

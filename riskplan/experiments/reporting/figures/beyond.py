@@ -37,10 +37,10 @@ MAX_TEAM_ROWS = 4  # team groups whose per-robot parameters are drawn, a row eac
 ORDER_COLOURS = dict(zip(("combine_then_adapt", "adapt_then_combine", "gradient_tracking"), ROBOT_COLOURS))
 
 
-def fig_orders(coll: Collection) -> FigureSpec | str:
+def fig_orders(collected: Collection) -> FigureSpec | str:
     """Consensus error vs iteration for each team.order, one panel per set-up (the groups' other settings)."""
     order_key = KEYS.team.order
-    teams = [g for g in coll.groups if g.team]
+    teams = [g for g in collected.groups if g.team]
     orders = {str(g.config.get("team", {}).get("order", "combine_then_adapt")) for g in teams}
     if len(orders) < 2:
         return "no team runs that differ in team.order"
@@ -104,10 +104,10 @@ MARKS = [
 ]
 
 
-def fig_distribution(coll: Collection) -> FigureSpec | str:
+def fig_distribution(collected: Collection) -> FigureSpec | str:
     """The distribution of the total reward per policy: ECDF with VaR and CVaR marked (full and lower tail); past
     MAX_CURVES groups, small multiples of the full ECDF."""
-    groups = list(coll.groups)
+    groups = list(collected.groups)
     if not groups:
         return "no runs"
     lay = layout(groups)
@@ -162,9 +162,9 @@ def fig_distribution(coll: Collection) -> FigureSpec | str:
     )
 
 
-def frontier_beta(coll: Collection) -> float:
+def frontier_beta(collected: Collection) -> float:
     """The common CVaR level of the frontier: the most frequent risk.beta (ties: closest to 0.1)."""
-    betas = [g.beta for g in coll.groups]
+    betas = [g.beta for g in collected.groups]
     return max(set(betas), key=lambda b: (betas.count(b), -abs(b - 0.1))) if betas else 0.1
 
 
@@ -201,13 +201,13 @@ def _frontier_panel(ax, groups: list[Group], called: list[str], colours: list[st
                 )
 
 
-def fig_frontier(coll: Collection) -> FigureSpec | str:
+def fig_frontier(collected: Collection) -> FigureSpec | str:
     """Risk frontier: evaluated mean vs CVaR at one common level, one point per group, beta sweeps joined."""
-    if len(coll.groups) < 2:
+    if len(collected.groups) < 2:
         return "needs at least two conditions (e.g. a risk.beta sweep)"
-    alpha = frontier_beta(coll)
-    rows = {id(g): group_row(g, beta=alpha) for g in coll.groups}
-    lay = layout(list(coll.groups))
+    alpha = frontier_beta(collected)
+    rows = {id(g): group_row(g, beta=alpha) for g in collected.groups}
+    lay = layout(list(collected.groups))
     if lay.single:
         fig, grid = new_figure(6.4, 3.6)
         axes = [grid[0, 0]]
@@ -232,9 +232,9 @@ def fig_frontier(coll: Collection) -> FigureSpec | str:
     )
 
 
-def fig_thetas(coll: Collection) -> FigureSpec | str:
+def fig_thetas(collected: Collection) -> FigureSpec | str:
     """Per-robot theta trajectories of team runs (one row per team condition, one column per component)."""
-    teams = [g for g in coll.groups if g.team]
+    teams = [g for g in collected.groups if g.team]
     if not teams:
         return "no team (distributed) runs"
     drawable = [g for g in teams if len(theta_columns(g.first.run.metrics)) <= MAX_THETA_PANELS]
@@ -280,9 +280,9 @@ def fig_thetas(coll: Collection) -> FigureSpec | str:
     )
 
 
-def fig_soft_risk(coll: Collection) -> FigureSpec | str:
+def fig_soft_risk(collected: Collection) -> FigureSpec | str:
     """Soft risk: CVaR per iteration and the paths of theta, each risk.schedule group against its kind=none twin."""
-    pairs = schedule_pairs(coll.groups)[:3]
+    pairs = schedule_pairs(collected.groups)[:3]
     if not pairs:
         return "no runs with a soft-risk schedule (risk.schedule.kind=linear or exponential)"
     if len(theta_columns(pairs[0][0].first.run.metrics)) < 2:
@@ -351,18 +351,18 @@ def _level_curve(g: Group) -> tuple[np.ndarray, np.ndarray]:
     return m.iteration.to_numpy(float), m.beta_l.to_numpy(float)
 
 
-def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
+def fig_landscape(collected: Collection, scan, index: int) -> FigureSpec | str:
     """Mean and CVaR heatmaps over the theta grid, with the training paths of the runs on that world."""
-    a, b = land.axes
+    a, b = scan.axes
     fig, axes = new_figure(8.6, 3.9, ncols=2)
-    runs = runs_on(land, coll)
-    drawn = [g for g in coll.groups if any(r.group is g for r in runs)]
+    runs = runs_on(scan, collected)
+    drawn = [g for g in collected.groups if any(r.group is g for r in runs)]
     called = dict(zip(map(id, drawn), names(drawn)))
     for ax, column, name in (
         (axes[0, 0], "mean", "mean total reward"),
-        (axes[0, 1], "cvar", f"CVaR$_{{{land.beta:g}}}$ of total reward"),
+        (axes[0, 1], "cvar", f"CVaR$_{{{scan.beta:g}}}$ of total reward"),
     ):
-        va, vb, values = land.grid(column)
+        va, vb, values = scan.grid(column)
         da = (va[1] - va[0]) / 2 if va.size > 1 else 0.5
         db = (vb[1] - vb[0]) / 2 if vb.size > 1 else 0.5
         vmin = float(np.nanpercentile(values, 5))
@@ -377,7 +377,7 @@ def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
             vmax=float(np.nanmax(values)),
         )
         fig.colorbar(image, ax=ax, label=name, extend="min", shrink=0.9)
-        best = land.best(column)["theta"]
+        best = scan.best(column)["theta"]
         outline = [patheffects.withStroke(linewidth=3, foreground="white")]
         seen: set[str] = set()
         for r in runs:
@@ -414,7 +414,7 @@ def fig_landscape(coll: Collection, land, index: int) -> FigureSpec | str:
     ]
     handles += [Line2D([], [], color=g.color, lw=1.6, label=called[id(g)]) for g in drawn]
     legend_below(fig, handles, ncols=3 if len(handles) <= 9 else 4)
-    s = land.summary
+    s = scan.summary
     return FigureSpec(
         f"landscape{'' if index == 0 else f'_{index + 1}'}",
         "Objective landscape",

@@ -2,7 +2,7 @@
 sorts into its sections, and that the docs and the registry-wide tests (tests/experiments/reporting/
 test_figure_registry.py) read.
 
-A new figure is a `fig_<name>(coll) -> FigureSpec | str` (the figure, or why the runs do not support it) in a
+A new figure is a `fig_<name>(collected) -> FigureSpec | str` (the figure, or why the runs do not support it) in a
 module of this package, and its line in FIGURES (docs/extending.md has a worked example). The landscapes are drawn
 apart, one figure per landscape found (LANDSCAPE, LANDSCAPE_2, ...).
 """
@@ -39,9 +39,9 @@ class Figure:
     main: bool = True  # drawn from the runs given (False: from its study's runs only)
 
 
-def fig_floor_plan(coll: Collection) -> FigureSpec | str:
+def fig_floor_plan(collected: Collection) -> FigureSpec | str:
     """The floor-plan study of riskplan reproduce: each policy's sampled paths on the map (Fig. 1's drawing)."""
-    spec = fig_paths(coll)
+    spec = fig_paths(collected)
     if isinstance(spec, FigureSpec):
         spec.name, spec.title = "floor_plan_paths", "A floor plan with a watched corridor: sampled paths"
     return spec

@@ -278,15 +278,15 @@ def layout(groups: list[Group], most: int = MAX_CURVES, palette: tuple[str, ...]
     return Layout(panels, shared=False, left_out=len(groups) - len(shown), keys=keys)
 
 
-def is_reproduction(coll: Collection) -> bool:
+def is_reproduction(collected: Collection) -> bool:
     """Whether the runs are a reproduction's (riskplan reproduce's single/ or team/ folders among the inputs):
     only then are Figs. 1-4 the paper's figures."""
     roots = []
-    for path in coll.inputs:
+    for path in collected.inputs:
         path = Path(path).resolve()
         if any((path / f).is_dir() for f in PAPER_FOLDERS):
             roots.append(path)
         elif path.name in PAPER_FOLDERS and all((path.parent / f).is_dir() for f in PAPER_FOLDERS):
             roots.append(path.parent)
     folders = [root / f for root in roots for f in PAPER_FOLDERS]
-    return any(folder in Path(r.path).resolve().parents for r in coll.runs for folder in folders)
+    return any(folder in Path(r.path).resolve().parents for r in collected.runs for folder in folders)

@@ -180,15 +180,15 @@ MARKS = [
 ]
 
 
-def fig_paths(coll: Collection) -> FigureSpec | str:
+def fig_paths(collected: Collection) -> FigureSpec | str:
     """Fig. 1: the world and sampled paths of the final policies: the paper's pair in one world (a reproduction's
     runs), or each group's in a world of its own."""
-    paper = is_reproduction(coll)
+    paper = is_reproduction(collected)
     if paper:
-        groups = [g for g in coll.paper_pair() if g is not None]
+        groups = [g for g in collected.paper_pair() if g is not None]
         called = [risk_name(g) for g in groups]
     else:
-        groups = [g for g in coll.groups if _paths(g) is not None]
+        groups = [g for g in collected.groups if _paths(g) is not None]
         called = names(groups)
     if not groups:
         return "no runs"
@@ -277,14 +277,14 @@ def draw_curves(lay: Layout, column: str, ylabel: str, log: bool = False, panel:
     return fig, drawn
 
 
-def fig_cvar(coll: Collection) -> FigureSpec | str:
+def fig_cvar(collected: Collection) -> FigureSpec | str:
     """Fig. 2: CVaR of the total reward per iteration: the paper's pair (a reproduction), or every group."""
-    paper = is_reproduction(coll)
+    paper = is_reproduction(collected)
     if paper:
-        groups = [g for g in coll.paper_pair() if g is not None]
+        groups = [g for g in collected.paper_pair() if g is not None]
         lay = Layout([Panel(groups, [risk_name(g) for g in groups], [g.color for g in groups])])
     else:
-        groups = list(coll.groups)
+        groups = list(collected.groups)
         lay = layout(groups)
     if not groups:
         return "no runs"
@@ -338,12 +338,12 @@ def _central(ax, central: Group, column: str, style: str, label: str = "centrali
     )
 
 
-def fig_team(coll: Collection) -> FigureSpec | str:
+def fig_team(collected: Collection) -> FigureSpec | str:
     """Fig. 3: mean and CVaR per iteration, the centralized run against each team, and their difference."""
-    central, teams = coll.team_comparison()
+    central, teams = collected.team_comparison()
     if not teams:
         return "no team (distributed) runs"
-    paper = is_reproduction(coll)
+    paper = is_reproduction(collected)
     called = names(teams) if len(teams) > 1 else [team_name(teams[0])]
     colours = _team_colours(teams)
     level = _level(teams)
@@ -437,12 +437,12 @@ def _difference(ax, central: Group, teams: list[Group], colours: list[str]) -> l
     ]
 
 
-def fig_consensus(coll: Collection) -> FigureSpec | str:
+def fig_consensus(collected: Collection) -> FigureSpec | str:
     """Fig. 4: consensus error max ||theta^i - theta^j|| per iteration, log scale, every team group."""
-    teams = [g for g in coll.groups if g.team]
+    teams = [g for g in collected.groups if g.team]
     if not teams:
         return "no team (distributed) runs"
-    paper = is_reproduction(coll)
+    paper = is_reproduction(collected)
     lay = layout(teams)
     if len(teams) == 1:
         lay.panels[0].names = [team_name(teams[0])]

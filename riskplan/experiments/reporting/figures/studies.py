@@ -40,9 +40,9 @@ from riskplan.experiments.reporting.study_tables import (
 from riskplan.experiments.reporting.tables import group_row, run_values
 
 
-def fig_measures(coll: Collection) -> FigureSpec | str:
+def fig_measures(collected: Collection) -> FigureSpec | str:
     """Risk measures: each measure's final policy by its mean and CVaR (seed intervals), and its reward distribution."""
-    groups = measure_groups(coll)
+    groups = measure_groups(collected)
     if not groups:
         return "no one-robot runs that differ only in their risk measure (wang, mean_cvar or entropic among them)"
     level = _common_beta(groups)
@@ -90,9 +90,9 @@ def fig_measures(coll: Collection) -> FigureSpec | str:
     )
 
 
-def fig_policies(coll: Collection) -> FigureSpec | str:
+def fig_policies(collected: Collection) -> FigureSpec | str:
     """Policies that see more: CVaR per iteration of each policy against the landscape's best, and where they end."""
-    groups = policy_groups(coll)
+    groups = policy_groups(collected)
     if not groups:
         return "no one-robot runs that differ only in their policy (policy.kind, policy.features)"
     fig, axes = new_figure(8.6, 3.6, ncols=2)
@@ -102,9 +102,9 @@ def fig_policies(coll: Collection) -> FigureSpec | str:
         name = policy_name(g) + f" ({len(g.first.final_theta())} parameters)"
         names.append(name)
         plot_band(curves, curve_table(g.runs, "cvar"), g.color, name)
-    land = landscape_for(coll, groups[0])
-    if land is not None:
-        best = land.best("cvar")
+    scan = landscape_for(collected, groups[0])
+    if scan is not None:
+        best = scan.best("cvar")
         curves.axhline(best["value"], color="#777777", ls="--", lw=1.0, label="_best")
         curves.annotate(
             "best CVaR of the paper's policy (landscape grid)",
@@ -166,9 +166,9 @@ def order_name(g: Group) -> str:
 SMOOTH = 10  # iterations in the moving average of the objective gap of fig_hetero
 
 
-def fig_hetero(coll: Collection) -> FigureSpec | str:
+def fig_hetero(collected: Collection) -> FigureSpec | str:
     """A heterogeneous team: the consensus error of each order, and its gap and distance to the centralized run."""
-    distributed, central = hetero_groups(coll)
+    distributed, central = hetero_groups(collected)
     if not distributed:
         return "no heterogeneous team runs (team.starts or team.risk) that differ in their order or graph"
     panels = 3 if central is not None else 1
@@ -248,9 +248,9 @@ def fig_hetero(coll: Collection) -> FigureSpec | str:
     )
 
 
-def fig_faults(coll: Collection) -> FigureSpec | str:
+def fig_faults(collected: Collection) -> FigureSpec | str:
     """Faults: the healthy robots' CVaR per iteration under each aggregation, against the fault-free team."""
-    faulty, free = fault_groups(coll)
+    faulty, free = fault_groups(collected)
     if not faulty:
         return "no team runs with team.faults that differ only in their faults or aggregation"
     groups = ([free] if free is not None else []) + faulty

@@ -29,7 +29,7 @@ from matplotlib.ticker import MaxNLocator
 from riskplan.config.schema import MapUnknown, WorldConf
 from riskplan.config.typed import typed
 from riskplan.engine.reachability import distances, shortest_path, source_distances
-from riskplan.engine.step import Setup
+from riskplan.engine.step import RunSetup
 from riskplan.engine.world import World
 from riskplan.experiments.reporting.collect import Collection
 from riskplan.experiments.reporting.figures.drawing import (
@@ -90,7 +90,7 @@ class Picture:
     paths: tuple[np.ndarray, ...] = ()  # per source: a shortest path's cells from that start (empty: none)
 
 
-def picture_of(setup: Setup) -> Picture:
+def picture_of(setup: RunSetup) -> Picture:
     """The picture of a built set-up's world: reachability and paths by riskplan.engine.reachability."""
     world = setup.world
     conf = setup.params.world
@@ -353,7 +353,7 @@ def _axes_in_cells(ax, width: int, height: int, metres: tuple[float, float, floa
         right.set_ylabel("y (m, map frame)")
 
 
-def world_figure(setup: Setup) -> Figure:
+def world_figure(setup: RunSetup) -> Figure:
     """The picture of a built set-up's world, in the report's style."""
     with matplotlib.rc_context(STYLE):
         return draw_picture(picture_of(setup))
@@ -419,11 +419,11 @@ def world_key(config: dict) -> str:
     return json.dumps({k: config.get(k) for k in ("world", "team")}, sort_keys=True, default=str)
 
 
-def fig_world(coll: Collection) -> list[FigureSpec] | str:
+def fig_world(collected: Collection) -> list[FigureSpec] | str:
     """The worlds of the runs reported, as `riskplan check --draw` draws them: a figure per distinct world (world,
     world_2, ...), in the order of the groups that ran in it."""
     worlds: dict[str, list] = {}
-    for g in coll.groups:
+    for g in collected.groups:
         worlds.setdefault(world_key(g.config), []).append(g)
     specs = []
     left_out = f" {len(worlds) - MAX_WORLDS} more worlds are not drawn." if len(worlds) > MAX_WORLDS else ""
