@@ -3,7 +3,8 @@ the numpy rule they follow. `riskplan.engine.team.mixer.Mixer` decides what they
 
 The kernels run over a range of rows (robots i); from PARALLEL_ENTRIES links or (N, N) entries on, their _parallel
 drivers run ROWS rows at a time in parallel. A row is always one thread's: the numbers do not depend on the thread
-count.
+count. The kernels take the Mixer's buffers one by one (numba takes arrays, not its Buffers), so their parameter
+lists echo the Mixer's calls.
 """
 
 from __future__ import annotations
@@ -71,47 +72,11 @@ def mix_used(weights, adjacency, use, neighbour, own) -> np.ndarray:
 
 
 @njit(parallel=True, cache=True)
-def _send_parallel(
-    adjacency,
-    up,
-    kept,
-    delay,
-    iteration,
-    max_gap,
-    round_index,
-    thetas,
-    sums,
-    last_delivered,
-    delivered,
-    forced,
-    pending,
-    pending_sent,
-    pending_due,
-    pending_sums,
-):
-    """`_send_links` of every row, ROWS at a time in parallel."""
-    chunks = (adjacency.shape[0] + ROWS - 1) // ROWS
-    for chunk in prange(chunks):
-        _send_links(
-            adjacency,
-            up,
-            kept,
-            delay,
-            iteration,
-            max_gap,
-            round_index,
-            thetas,
-            sums,
-            last_delivered,
-            delivered,
-            forced,
-            pending,
-            pending_sent,
-            pending_due,
-            pending_sums,
-            chunk * ROWS,
-            min(adjacency.shape[0], (chunk + 1) * ROWS),
-        )
+def _send_parallel(*args):
+    """`_send_links` of every row, ROWS at a time in parallel (`args`: its own, less first and last)."""
+    n = args[0].shape[0]
+    for chunk in prange((n + ROWS - 1) // ROWS):
+        _send_links(*args, chunk * ROWS, min(n, (chunk + 1) * ROWS))
 
 
 @njit(cache=True)
@@ -159,41 +124,11 @@ def _send_links(
 
 
 @njit(parallel=True, cache=True)
-def _receive_parallel(
-    adjacency,
-    iteration,
-    round_index,
-    rounds,
-    latest_rule,
-    pending,
-    pending_sent,
-    pending_due,
-    latest,
-    latest_stamp,
-    used_sent,
-    arrived,
-    use,
-):
-    """`_receive_links` of every row, ROWS at a time in parallel."""
-    chunks = (adjacency.shape[0] + ROWS - 1) // ROWS
-    for chunk in prange(chunks):
-        _receive_links(
-            adjacency,
-            iteration,
-            round_index,
-            rounds,
-            latest_rule,
-            pending,
-            pending_sent,
-            pending_due,
-            latest,
-            latest_stamp,
-            used_sent,
-            arrived,
-            use,
-            chunk * ROWS,
-            min(adjacency.shape[0], (chunk + 1) * ROWS),
-        )
+def _receive_parallel(*args):
+    """`_receive_links` of every row, ROWS at a time in parallel (`args`: its own, less first and last)."""
+    n = args[0].shape[0]
+    for chunk in prange((n + ROWS - 1) // ROWS):
+        _receive_links(*args, chunk * ROWS, min(n, (chunk + 1) * ROWS))
 
 
 @njit(cache=True)

@@ -465,7 +465,7 @@ class Mixer:
             thetas, silent = faulty.sent_values(self.faults, thetas, self.seed, iteration, round_index, *stuck)
             if silent is not None:
                 adjacency, up = adjacency & ~silent[None, :], up & ~silent[None, :]
-        kernels.send(
+        kernels.send(  # the buffers one by one (riskplan.engine.team.kernels says why)
             adjacency,
             up,
             kept,
@@ -497,7 +497,7 @@ class Mixer:
         slot = iteration % (self.max_delay + 1)
         n = self.network.robots
         arrived, use = np.empty((n, n), dtype=bool), np.empty((n, n), dtype=bool)
-        kernels.receive(
+        kernels.receive(  # the buffers one by one (riskplan.engine.team.kernels says why)
             adjacency,
             iteration,
             round_index,
