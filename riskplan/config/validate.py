@@ -12,6 +12,7 @@ import warnings
 
 from riskplan.config.backends import BACKENDS, DEVICES
 from riskplan.config.faults import faults_of
+from riskplan.config.keys import KEYS, Key
 from riskplan.config.schema import (
     Aggregate,
     Feature,
@@ -34,7 +35,7 @@ SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias und
 EXTRAS = {
     **{
         (key, spec.name.value): (spec.needs.module, spec.needs.what, spec.needs.extra, spec.needs.note)
-        for key, specs in (("team.backend", BACKENDS), ("engine.device", DEVICES))
+        for key, specs in ((KEYS.team.backend, BACKENDS), (KEYS.engine.device, DEVICES))
         for spec in specs.values()
         if spec.needs is not None
     },  # a GPU too for engine.device=cuda: riskplan.run.build checks it
@@ -73,44 +74,44 @@ def validate(params: RiskplanConf, needs_ray: bool = True) -> None:
     check_world(params.world)
     check_team(params.team)
     if needs_ray:
-        check_extra("team.backend", params.team.backend)
-    check_extra("engine.device", params.engine.device)
+        check_extra(KEYS.team.backend, params.team.backend)
+    check_extra(KEYS.engine.device, params.engine.device)
     seed = params.seed if abs(params.seed) < 10**30 else f"about 2^{params.seed.bit_length()}"
     require(
         0 <= params.seed < SEED_LIMIT,
-        "seed",
+        KEYS.seed,
         f"got {seed}; expected a whole number 0 <= seed < 2^63 (9223372036854775808); seeds are not reduced "
         f"modulo 2^64",
     )
 
 
-def check_risk(risk: RiskConf, key: str = "risk") -> None:
+def check_risk(risk: RiskConf, key: Key = KEYS.risk) -> None:
     """beta, eta, weight and the soft-risk schedule, whatever the measure (so a bad value never waits for the
     measure or the schedule's kind to change; a sweep over measures keeps one schedule, which moves the CVaR level
     of cvar and mean_cvar and leaves the others alone). `key` names the node: risk, or team.risk.<i>."""
-    require(0.0 < risk.beta <= 1.0, f"{key}.beta", f"got {risk.beta}; expected 0 < beta <= 1")
+    require(0.0 < risk.beta <= 1.0, key.beta, f"got {risk.beta}; expected 0 < beta <= 1")
     require(
         math.isfinite(risk.eta) and risk.eta > 0,
-        f"{key}.eta",
+        key.eta,
         f"got {risk.eta}; expected a finite eta > 0 (wang: the distortion's shift in standard deviations; "
         f"entropic: the aversion per unit of reward)",
     )
-    require(0.0 <= risk.weight <= 1.0, f"{key}.weight", f"got {risk.weight}; expected a weight in [0, 1]")
+    require(0.0 <= risk.weight <= 1.0, key.weight, f"got {risk.weight}; expected a weight in [0, 1]")
     plan = risk.schedule
     require(
         math.isfinite(plan.start) and 0.0 < plan.start <= 1.0,
-        f"{key}.schedule.start",
+        key.schedule.start,
         f"got {plan.start}; expected 0 < start <= 1",
     )
     require(
         plan.start >= risk.beta,
-        f"{key}.schedule.start",
-        f"got {plan.start}, below {key}.beta={risk.beta}; the schedule goes from start down to beta, so "
+        key.schedule.start,
+        f"got {plan.start}, below {key.beta}={risk.beta}; the schedule goes from start down to beta, so "
         f"expected beta <= start <= 1",
     )
     require(
         plan.iterations >= 1,
-        f"{key}.schedule.iterations",
+        key.schedule.iterations,
         f"got {plan.iterations}; expected a whole number of iterations >= 1",
     )
 
@@ -121,50 +122,53 @@ def check_policy(policy: PolicyConf) -> None:
     if policy.kind == PolicyKind.tabular:
         require(
             names == [Feature.signals.value],
-            "policy.features",
+            KEYS.policy.features,
             f"got {names}; a tabular policy has no features (its theta is the table of (cell, move) logits): drop "
-            f"policy.features, or use policy.kind=features",
+            f"{KEYS.policy.features}, or use {KEYS.policy.kind}=features",
         )
         return
-    require(bool(names), "policy.features", "is empty; expected a list from signals, risky, stay, e.g. [signals]")
+    require(bool(names), KEYS.policy.features, "is empty; expected a list from signals, risky, stay, e.g. [signals]")
     twice = sorted({n for n in names if names.count(n) > 1})
-    require(not twice, "policy.features", f"lists {', '.join(twice)} twice; give each feature once")
+    require(not twice, KEYS.policy.features, f"lists {', '.join(twice)} twice; give each feature once")
 
 
 def check_train(train: TrainConf) -> None:
     """Iterations, samples, the step-size schedule (Assumption 6 only warns), evaluation and records."""
-    require(train.iterations >= 1, "train.iterations", f"got {train.iterations}; expected a whole number >= 1")
-    require(train.samples >= 1, "train.samples", f"got {train.samples}; expected W >= 1")
+    keys = KEYS.train
+    require(train.iterations >= 1, keys.iterations, f"got {train.iterations}; expected a whole number >= 1")
+    require(train.samples >= 1, keys.samples, f"got {train.samples}; expected W >= 1")
     require(
         math.isfinite(train.samples_growth) and train.samples_growth >= 0,
-        "train.samples_growth",
+        keys.samples_growth,
         f"got {train.samples_growth}; expected a finite exponent >= 0",
     )
     step = train.step_size
     require(
         math.isfinite(step.initial) and step.initial >= 0,
-        "train.step_size.initial",
+        keys.step_size.initial,
         f"got {step.initial}; expected a finite step >= 0",
     )
-    require(math.isfinite(step.decay) and step.decay > 0, "train.step_size.decay", f"got {step.decay}; expected > 0")
-    require(math.isfinite(step.power) and step.power >= 0, "train.step_size.power", f"got {step.power}; expected >= 0")
+    require(math.isfinite(step.decay) and step.decay > 0, keys.step_size.decay, f"got {step.decay}; expected > 0")
+    require(math.isfinite(step.power) and step.power >= 0, keys.step_size.power, f"got {step.power}; expected >= 0")
     if not 0.5 < step.power <= 1.0:
-        warnings.warn(f"train.step_size.power={step.power} breaks Assumption 6 (needs 0.5 < power <= 1)", stacklevel=3)
-    require(train.eval_episodes >= 1, "train.eval_episodes", f"got {train.eval_episodes}; expected >= 1")
-    require(train.paths >= 0, "train.paths", f"got {train.paths}; expected >= 0")
-    require(train.checkpoint_every >= 1, "train.checkpoint_every", f"got {train.checkpoint_every}; expected >= 1")
-    require(train.bootstrap >= 1, "train.bootstrap", f"got {train.bootstrap}; expected >= 1 resamples")
+        warnings.warn(f"{keys.step_size.power}={step.power} breaks Assumption 6 (needs 0.5 < power <= 1)", stacklevel=3)
+    require(train.eval_episodes >= 1, keys.eval_episodes, f"got {train.eval_episodes}; expected >= 1")
+    require(train.paths >= 0, keys.paths, f"got {train.paths}; expected >= 0")
+    require(train.checkpoint_every >= 1, keys.checkpoint_every, f"got {train.checkpoint_every}; expected >= 1")
+    require(train.bootstrap >= 1, keys.bootstrap, f"got {train.bootstrap}; expected >= 1 resamples")
 
 
 def check_world(world: WorldConf) -> None:
     """The horizon, world.map_cell and each source's motion probability (cells, shapes and rewards need the grid:
     engine.world; the map's files are read by run.maps)."""
-    require(world.horizon >= 1, "world.horizon", f"got {world.horizon}; expected a whole number of moves >= 1")
+    require(world.horizon >= 1, KEYS.world.horizon, f"got {world.horizon}; expected a whole number of moves >= 1")
     require(
-        world.map_cell >= 1, "world.map_cell", f"got {world.map_cell}; expected k >= 1 (one cell is k x k map pixels)"
+        world.map_cell >= 1,
+        KEYS.world.map_cell,
+        f"got {world.map_cell}; expected k >= 1 (one cell is k x k map pixels)",
     )
     for j, source in enumerate(world.sources):
-        where = f"world.sources.{j}.motion.prob"
+        where = KEYS.world.sources.at(j).motion.prob
         prob = source.motion.prob  # checked for static sources too: a probability outside [0, 1] is a typo
         require(0.0 <= prob <= 1.0, where, f"got {prob}; expected a probability in [0, 1]")
         require(
@@ -177,47 +181,48 @@ def check_world(world: WorldConf) -> None:
 def check_team(team: TeamConf) -> None:
     """The team's scalar settings: size, delays and drops (Assumption 5 (3)-(4)), rounds, switching, the link
     radius. The graph and its weights are checked when the network is built."""
-    integer_at_least(team.robots, "team.robots", 1, "the number of robots")
-    integer_at_least(team.delay.max, "team.delay.max", 0, "the largest message delay in iterations (B0)")
-    drop = finite(team.drop, "team.drop")
-    require(0.0 <= drop < 1.0, "team.drop", f"is {drop:g}; the drop probability must be in [0, 1)")
-    integer_at_least(team.max_gap, "team.max_gap", 1, "the longest gap between deliveries on a link (B)")
-    integer_at_least(team.consensus_rounds, "team.consensus_rounds", 1, "the number of consensus rounds per iteration")
-    integer_at_least(team.resample, "team.resample", 0, "the number of random_geometric redraws")
-    integer_at_least(team.switching.window, "team.switching.window", 1, "the switching window (iterations)")
-    up = finite(team.switching.up, "team.switching.up")
-    require(0.0 < up <= 1.0, "team.switching.up", f"is {up:g}; the per-iteration link-up probability must be in (0, 1]")
-    radius = finite(team.radius, "team.radius")
-    require(radius > 0, "team.radius", f"is {radius:g}; the link radius must be > 0 (the unit square is 1 x 1)")
-    integer_at_least(team.trim, "team.trim", 0, "the number of extreme values trimmed at each end (F)")
+    keys = KEYS.team
+    integer_at_least(team.robots, keys.robots, 1, "the number of robots")
+    integer_at_least(team.delay.max, keys.delay.max, 0, "the largest message delay in iterations (B0)")
+    drop = finite(team.drop, keys.drop)
+    require(0.0 <= drop < 1.0, keys.drop, f"is {drop:g}; the drop probability must be in [0, 1)")
+    integer_at_least(team.max_gap, keys.max_gap, 1, "the longest gap between deliveries on a link (B)")
+    integer_at_least(team.consensus_rounds, keys.consensus_rounds, 1, "the number of consensus rounds per iteration")
+    integer_at_least(team.resample, keys.resample, 0, "the number of random_geometric redraws")
+    integer_at_least(team.switching.window, keys.switching.window, 1, "the switching window (iterations)")
+    up = finite(team.switching.up, keys.switching.up)
+    require(0.0 < up <= 1.0, keys.switching.up, f"is {up:g}; the per-iteration link-up probability must be in (0, 1]")
+    radius = finite(team.radius, keys.radius)
+    require(radius > 0, keys.radius, f"is {radius:g}; the link radius must be > 0 (the unit square is 1 x 1)")
+    integer_at_least(team.trim, keys.trim, 0, "the number of extreme values trimmed at each end (F)")
     require(
         team.aggregate == Aggregate.mean or team.order != Order.gradient_tracking,
-        "team.aggregate",
+        keys.aggregate,
         f"got {team.aggregate}; gradient tracking mixes running sums, which trimming would break: use "
-        f"team.aggregate=mean, or team.order=combine_then_adapt or adapt_then_combine",
+        f"{keys.aggregate}=mean, or {keys.order}=combine_then_adapt or adapt_then_combine",
     )
     if team.risk is not None:
         count = len(team.risk)
         require(
             count == team.robots,
-            "team.risk",
+            keys.risk,
             f"gives {count} risk node{'' if count == 1 else 's'} for {team.robots} robots; give one per robot or null",
         )
         for i, node in enumerate(team.risk):
-            check_risk(node, f"team.risk.{i}")
+            check_risk(node, keys.risk.at(i))
     faults_of(team)
     require(
         not team.faults or team.order != Order.gradient_tracking,
-        "team.faults",
+        keys.faults,
         "gradient tracking mixes running sums, whose invariant a faulty robot breaks: drop the faults, or use "
-        "team.order=combine_then_adapt or adapt_then_combine",
+        f"{keys.order}=combine_then_adapt or adapt_then_combine",
     )
     check_backend(team)
     if team.starts is not None:
         count = len(team.starts)
         require(
             count == team.robots,
-            "team.starts",
+            keys.starts,
             f"gives {count} start cell{'' if count == 1 else 's'} for {team.robots} robots; give one [x, y] per "
             f"robot or null",
         )
@@ -226,22 +231,23 @@ def check_team(team: TeamConf) -> None:
 def check_backend(team: TeamConf) -> None:
     """team.staleness, team.speeds and team.address, whatever the backend; the simulated network's delays, drops
     and switching links do not apply to real messages (team.backend=ray), so they are refused there."""
-    integer_at_least(team.staleness, "team.staleness", 0, "the oldest neighbour message a robot mixes, in iterations,")
+    keys = KEYS.team
+    integer_at_least(team.staleness, keys.staleness, 0, "the oldest neighbour message a robot mixes, in iterations,")
     if team.speeds is not None:
         require(
             len(team.speeds) == team.robots,
-            "team.speeds",
+            keys.speeds,
             f"gives {len(team.speeds)} factors for {team.robots} robots; give one per robot (1 = full speed) or null",
         )
         for i, speed in enumerate(team.speeds):
             require(
                 math.isfinite(speed) and speed >= 1.0,
-                f"team.speeds.{i}",
+                keys.speeds.at(i),
                 f"got {speed}; expected a slow-down factor >= 1 (4 = four times slower)",
             )
     require(
         team.address is None or bool(team.address.strip()),
-        "team.address",
+        keys.address,
         "is empty; give auto, host:port of a Ray cluster's head, or null for a local Ray instance",
     )
     if BACKENDS[team.backend].simulated_network:
@@ -249,15 +255,15 @@ def check_backend(team: TeamConf) -> None:
     simulated = [
         (key, value)
         for key, value in (
-            ("team.delay.max", team.delay.max),
-            ("team.drop", team.drop),
-            ("team.switching.enabled", team.switching.enabled),
+            (keys.delay.max, team.delay.max),
+            (keys.drop, team.drop),
+            (keys.switching.enabled, team.switching.enabled),
         )
         if value
     ]
     require(
         not simulated,
-        simulated[0][0] if simulated else "team.backend",
-        f"got {simulated[0][1] if simulated else ''}; it simulates the network, and with team.backend=ray messages "
-        f"take the time they really take: drop it (bound their age with team.staleness)",
+        simulated[0][0] if simulated else keys.backend,
+        f"got {simulated[0][1] if simulated else ''}; it simulates the network, and with {keys.backend}=ray messages "
+        f"take the time they really take: drop it (bound their age with {keys.staleness})",
     )

@@ -8,13 +8,15 @@ from pathlib import Path
 
 import pytest
 
-from riskplan.config.keys import KEYS
-from riskplan.config.schema import RiskplanConf, TeamConf
+from riskplan.config.keys import KEYS, Items, Key, _fields
+from riskplan.config.schema import MotionConf, RiskplanConf, TeamConf
 
 PACKAGE = Path(__file__).resolve().parents[2] / "riskplan"
 # modules whose key names come from KEYS: a quoted dotted key there would be a hand-written copy
 READ_FROM_SCHEMA = [
+    "config/validate.py",
     "run/budget.py",
+    "run/checkpoint.py",
     "experiments/reproduction.py",
     "experiments/reporting/collect.py",
     "experiments/reporting/labels.py",
@@ -48,6 +50,34 @@ def test_a_key_the_schema_does_not_have_fails_where_it_is_named():
         _ = KEYS.team.dely
     with pytest.raises(AttributeError):
         _ = KEYS.team.delay.max.limit  # a leaf has no keys below it
+
+
+def test_a_list_item_is_at_its_index_with_the_keys_of_its_dataclass():
+    assert KEYS.world.sources.at(3).motion.prob == "world.sources.3.motion.prob"
+    assert KEYS.team.risk.at(1).schedule.start == "team.risk.1.schedule.start"  # an Optional list too
+    assert KEYS.team.speeds.at(0) == "team.speeds.0"
+    assert KEYS.world.obstacles.at(2).at(1) == "world.obstacles.2.1"
+    with pytest.raises(AttributeError, match=r"world.sources is a list; .*world.sources.at\(0\).motion"):
+        _ = KEYS.world.sources.motion  # a list's keys are its items'
+    with pytest.raises(AttributeError, match=r"team\.robots is not a list"):
+        KEYS.team.robots.at(0)
+    with pytest.raises(AttributeError):
+        _ = KEYS.team.speeds.at(0).factor  # a plain item has no keys below it
+
+
+def test_no_field_is_hidden_by_a_method_of_a_key():
+    """A field named like a str method (count, index, ...) or Key.at would read as the method, not as its key."""
+    seen, todo = set(), [RiskplanConf]
+    while todo:
+        node = todo.pop()
+        seen.add(node)
+        for name, value in _fields(node).items():
+            assert not hasattr(Key, name), f"{node.__name__}.{name}"
+            while isinstance(value, Items):
+                value = value.node
+            if value is not None and value not in seen:
+                todo.append(value)
+    assert MotionConf in seen  # reached through the list world.sources
 
 
 @pytest.mark.parametrize("module", READ_FROM_SCHEMA)
