@@ -8,16 +8,21 @@ import json
 import math
 import os
 import signal
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
+from riskplan.config.keys import KEYS
 from riskplan.engine.step import RunSetup, TrainState, logit_bound
 from riskplan.run.run_files import CHECKPOINT, CHECKPOINT_TMP
 from riskplan.util.errors import BadInput
 
 CRASH_ENV = "RISKPLAN_TEST_KILL_IN_CHECKPOINT"  # fault injection for the crash-safety tests
+RESUME = f"only {KEYS.train.iterations} may change on resume"  # what a checkpoint that is not this run's says
+T = TypeVar("T")
 
 
 def _write_durably(out: Path, payload: dict) -> None:
@@ -125,20 +130,7 @@ def _attempt(work) -> Exception | None:
 def load_checkpoint(out: Path, setup: RunSetup) -> TrainState:
     """The last good checkpoint of a run directory (a half-written temp file is ignored), checked against the
     config: a checkpoint that cannot be this run's is bad input, never a run that continues."""
-    path = out / CHECKPOINT
-    if not path.exists():
-        raise BadInput(str(out), "has no checkpoint to resume from; start it again with riskplan train")
-    try:
-        payload = json.loads(path.read_text())
-        thetas = np.array(payload["thetas"], dtype=float)
-        mixer = {k: np.array(v, dtype=np.dtype(payload["mixer_dtypes"][k])) for k, v in payload["mixer"].items()}
-        iteration = payload["iteration"]
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
-        raise BadInput(
-            str(path),
-            f"is damaged ({type(err).__name__}: {err}); it was not written by riskplan, "
-            f"which replaces checkpoints atomically: start the run again",
-        ) from None
+    path, (iteration, thetas, mixer) = _read(out, _arrays)
     if type(iteration) is not int or iteration < 1:
         raise BadInput(
             str(path),
@@ -147,8 +139,7 @@ def load_checkpoint(out: Path, setup: RunSetup) -> TrainState:
     if thetas.shape != (setup.robots, len(setup.theta0)):
         raise BadInput(
             str(out),
-            f"checkpoint holds {thetas.shape} thetas, the config needs "
-            f"{(setup.robots, len(setup.theta0))}; only train.iterations may change on resume",
+            f"checkpoint holds {thetas.shape} thetas, the config needs {(setup.robots, len(setup.theta0))}; {RESUME}",
         )
     if not (np.all(np.isfinite(thetas)) and math.isfinite(logit_bound(setup.world, thetas, setup.policy))):
         raise BadInput(str(path), "holds a theta that is not finite (or overflows the softmax); start the run again")
@@ -165,14 +156,44 @@ def load_checkpoint(out: Path, setup: RunSetup) -> TrainState:
             )
     if set(mixer) != set(expected):
         raise BadInput(str(path), "lacks part of the consensus state of this team; start the run again")
+    _check_extendable(out, setup, iteration)
+    return TrainState(iteration, thetas, mixer)
+
+
+def _arrays(path: Path, payload: dict) -> tuple[object, np.ndarray, dict[str, np.ndarray]]:
+    """(iteration, thetas, the Mixer's state) of a checkpoint's JSON."""
+    thetas = np.array(payload["thetas"], dtype=float)
+    mixer = {k: np.array(v, dtype=np.dtype(payload["mixer_dtypes"][k])) for k, v in payload["mixer"].items()}
+    return payload["iteration"], thetas, mixer
+
+
+def _read(out: Path, parse: Callable[[Path, dict], T]) -> tuple[Path, T]:
+    """(the checkpoint's path, parse(path, its JSON)), for either kind of checkpoint: no file, or one that does not
+    parse (a missing key, a wrong type), is bad input naming it."""
+    path = out / CHECKPOINT
+    if not path.exists():
+        raise BadInput(str(out), "has no checkpoint to resume from; start it again with riskplan train")
+    try:
+        return path, parse(path, json.loads(path.read_text()))
+    except BadInput:  # a ValueError too, and already the line to show
+        raise
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+        raise BadInput(
+            str(path),
+            f"is damaged ({type(err).__name__}: {err}); it was not written by riskplan, "
+            f"which replaces checkpoints atomically: start the run again",
+        ) from None
+
+
+def _check_extendable(out: Path, setup: RunSetup, iteration: int) -> None:
+    """Bad input unless train.iterations reaches the checkpoint's `iteration`: a resumed run can only be extended."""
     if iteration > setup.params.train.iterations:
         raise BadInput(
-            "train.iterations",
+            KEYS.train.iterations,
             f"got {setup.params.train.iterations}, but {out} is checkpointed "
             f"at iteration {iteration}; a resumed run can only be extended: give "
-            f"train.iterations >= {iteration}",
+            f"{KEYS.train.iterations} >= {iteration}",
         )
-    return TrainState(iteration, thetas, mixer)
 
 
 # --- team.backend=ray: one checkpoint per robot, each at its own iteration (riskplan.run.ray_team) ---------------
@@ -228,66 +249,56 @@ def load_team_checkpoint(out: Path, setup: RunSetup, expected: list[dict[str, np
     """The per-robot checkpoints of a run directory, checked against `expected` (each robot's state before its
     first iteration: the names, shapes and dtypes a checkpoint of this team must have) and the config; anything
     that cannot be this run's is bad input."""
-    path = out / CHECKPOINT
-    if not path.exists():
-        raise BadInput(str(out), "has no checkpoint to resume from; start it again with riskplan train")
-    try:
-        payload = json.loads(path.read_text())
-        if payload.get("format") != TEAM_FORMAT:
-            raise BadInput(
-                str(path),
-                "holds the checkpoint of a team.backend=simulated run; resume it with the config it was "
-                "started with (only train.iterations may change on resume)",
-            )
-        robots = [
-            {
-                k: np.array(v, dtype=np.dtype(entry["dtypes"][k])).reshape(entry["shapes"][k])
-                for k, v in entry["arrays"].items()
-            }
-            for entry in payload["robots"]
-        ]
-        pending = [
-            {"row": dict(p["row"]), "z": np.array(p["z"], dtype=float), "grad": np.array(p["grad"], dtype=float)}
-            for p in payload["pending"]
-        ]
-    except BadInput:
-        raise
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
-        raise BadInput(
-            str(path),
-            f"is damaged ({type(err).__name__}: {err}); it was not written by riskplan, "
-            f"which replaces checkpoints atomically: start the run again",
-        ) from None
-    if len(robots) != len(expected):
+    path, checkpoint = _read(out, _team_arrays)
+    if len(checkpoint.robots) != len(expected):
         raise BadInput(
             str(out),
-            f"checkpoint holds {len(robots)} robots, the config has {len(expected)}; only train.iterations may "
-            f"change on resume",
+            f"checkpoint holds {len(checkpoint.robots)} robots, the config has {len(expected)}; {RESUME}",
         )
-    for i, (state, want) in enumerate(zip(robots, expected)):
-        if set(state) != set(want):
-            raise BadInput(str(path), f"robot {i}'s checkpoint does not fit this team; start the run again")
-        for key, value in state.items():
-            if (
-                value.shape != np.shape(want[key])
-                or value.dtype != np.asarray(want[key]).dtype
-                or (value.dtype.kind == "f" and not np.all(np.isfinite(value)))
-            ):
-                raise BadInput(
-                    str(path),
-                    f"robot {i}'s checkpoint holds a '{key}' that does not fit this team (or is not finite); "
-                    f"start the run again",
-                )
-        if not math.isfinite(logit_bound(setup.world, state["theta"][None], setup.policy)):
-            raise BadInput(str(path), f"robot {i}'s theta overflows the softmax; start the run again")
-    checkpoint = TeamCheckpoint(robots, pending)
+    for i, (state, want) in enumerate(zip(checkpoint.robots, expected)):
+        _check_robot(path, setup, i, state, want)
     if min(checkpoint.iterations) < 0:
         raise BadInput(str(path), "holds a negative iteration; start the run again")
-    if max(checkpoint.iterations) > setup.params.train.iterations:
-        raise BadInput(
-            "train.iterations",
-            f"got {setup.params.train.iterations}, but {out} is checkpointed "
-            f"at iteration {max(checkpoint.iterations)}; a resumed run can only be extended: give "
-            f"train.iterations >= {max(checkpoint.iterations)}",
-        )
+    _check_extendable(out, setup, max(checkpoint.iterations))
     return checkpoint
+
+
+def _team_arrays(path: Path, payload: dict) -> TeamCheckpoint:
+    """The robots' states and the pending rows of a team checkpoint's JSON; a simulated run's is bad input."""
+    if payload.get("format") != TEAM_FORMAT:
+        raise BadInput(
+            str(path),
+            f"holds the checkpoint of a {KEYS.team.backend}=simulated run; resume it with the config it was "
+            f"started with ({RESUME})",
+        )
+    robots = [
+        {
+            k: np.array(v, dtype=np.dtype(entry["dtypes"][k])).reshape(entry["shapes"][k])
+            for k, v in entry["arrays"].items()
+        }
+        for entry in payload["robots"]
+    ]
+    pending = [
+        {"row": dict(p["row"]), "z": np.array(p["z"], dtype=float), "grad": np.array(p["grad"], dtype=float)}
+        for p in payload["pending"]
+    ]
+    return TeamCheckpoint(robots, pending)
+
+
+def _check_robot(path: Path, setup: RunSetup, i: int, state: dict[str, np.ndarray], want: dict) -> None:
+    """Robot i's checkpointed state has `want`'s names, shapes and dtypes, finite floats, and a usable theta."""
+    if set(state) != set(want):
+        raise BadInput(str(path), f"robot {i}'s checkpoint does not fit this team; start the run again")
+    for key, value in state.items():
+        if (
+            value.shape != np.shape(want[key])
+            or value.dtype != np.asarray(want[key]).dtype
+            or (value.dtype.kind == "f" and not np.all(np.isfinite(value)))
+        ):
+            raise BadInput(
+                str(path),
+                f"robot {i}'s checkpoint holds a '{key}' that does not fit this team (or is not finite); "
+                f"start the run again",
+            )
+    if not math.isfinite(logit_bound(setup.world, state["theta"][None], setup.policy)):
+        raise BadInput(str(path), f"robot {i}'s theta overflows the softmax; start the run again")

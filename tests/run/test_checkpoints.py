@@ -1,6 +1,7 @@
 """A batch's checkpoints as one group commit (riskplan.run.checkpoint.save_checkpoints): the same files a run alone
 writes, each log synced before its checkpoint becomes visible, a failing run alone left at its checkpoint before,
-and the per-run fallback where the system has no syncfs."""
+and the per-run fallback where the system has no syncfs. A checkpoint that cannot be this run's is one line naming
+it, for either kind of checkpoint."""
 
 from __future__ import annotations
 
@@ -11,8 +12,15 @@ import pytest
 from support import setup_of
 
 import riskplan.run.checkpoint as checkpoint
-from riskplan.engine.step import initial_state, step
-from riskplan.run.checkpoint import CHECKPOINT, load_checkpoint, save_checkpoint, save_checkpoints
+from riskplan.engine.step import TrainState, initial_state, step
+from riskplan.run.checkpoint import (
+    CHECKPOINT,
+    load_checkpoint,
+    load_team_checkpoint,
+    save_checkpoint,
+    save_checkpoints,
+)
+from riskplan.util.errors import BadInput
 
 
 class Log:
@@ -72,3 +80,38 @@ def test_a_run_whose_temp_file_fails_keeps_its_checkpoint_before_and_the_others_
     assert isinstance(errors[0], OSError) and errors[1] is None
     assert json.loads((outs[0] / CHECKPOINT).read_text())["iteration"] == 1
     assert json.loads((outs[1] / CHECKPOINT).read_text())["iteration"] == 2
+
+
+def refused(load) -> str:
+    with pytest.raises(BadInput) as err:
+        load()
+    return str(err.value)
+
+
+def test_either_kind_refuses_a_missing_or_damaged_file_in_the_same_words(tmp_path):
+    setup = setup_of()
+    loads = [lambda: load_checkpoint(tmp_path, setup), lambda: load_team_checkpoint(tmp_path, setup, [])]
+    for load in loads:
+        assert refused(load) == f"{tmp_path}: has no checkpoint to resume from; start it again with riskplan train"
+    (tmp_path / CHECKPOINT).write_text("[]")
+    damaged = f"{tmp_path / CHECKPOINT}: is damaged (%s); it was not written by riskplan, which replaces checkpoints "
+    damaged += "atomically: start the run again"
+    assert refused(loads[0]) == damaged % "TypeError: list indices must be integers or slices, not str"
+    assert refused(loads[1]) == damaged % "AttributeError: 'list' object has no attribute 'get'"
+    (tmp_path / CHECKPOINT).write_text('{"format": "ray", "robots": []}')
+    assert refused(loads[1]) == damaged % "KeyError: 'pending'"
+    save_checkpoint(tmp_path, initial_state(setup))
+    assert refused(loads[1]) == (
+        f"{tmp_path / CHECKPOINT}: holds the checkpoint of a team.backend=simulated run; resume it with the config "
+        f"it was started with (only train.iterations may change on resume)"
+    )
+
+
+def test_a_resumed_run_can_only_be_extended(tmp_path):
+    setup = setup_of()  # train.iterations=3
+    first = initial_state(setup)
+    save_checkpoint(tmp_path, TrainState(5, first.thetas, first.mixer))
+    assert refused(lambda: load_checkpoint(tmp_path, setup)) == (
+        f"train.iterations: got 3, but {tmp_path} is checkpointed at iteration 5; a resumed run can only be "
+        f"extended: give train.iterations >= 5"
+    )
