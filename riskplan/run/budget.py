@@ -122,127 +122,200 @@ def check(sizes: Sizes) -> None:
         limits.check_time(key, steps / limits.STEPS_PER_SECOND, what)
 
 
-Part = tuple[float, str, list[tuple[str, object, float]]]  # (amount, description, [(key, shown value, ratio)])
+Scale = tuple[str, object, float]  # (key, shown value, ratio to its default): what a part scales with
+Part = tuple[float, str, list[Scale]]  # (amount, description, what it scales with)
 
 
 def estimate(s: Sizes) -> tuple[list[Part], list[Part]]:
     """(memory parts in bytes, time parts in trajectory steps), each with what it is and the keys it scales with."""
+    counts = _counts(s)
+    scales = _scales(s, counts)
+    return _memory(s, counts, scales), _time(s, counts, scales)
+
+
+@dataclass(frozen=True)
+class _Counts:
+    """What a run's parts are made of, as floats (see the module's table)."""
+
+    cells: float
+    n: float  # N
+    k: float  # K
+    p: float  # the length of theta
+    f: float  # the features of each (cell, move) the world keeps
+    team: bool
+    policies: float  # evaluated policies: evaluation adds the network average
+    rows: float  # metrics rows per iteration
+    w_last: float  # episodes per robot in the largest iteration
+    w_total: float  # episodes per robot over all iterations
+    slots: float  # consensus buffer slots
+    pairs: float  # ordered robot pairs
+    checkpoints: float
+    record: float  # recorded path steps
+    tables: float  # policy tables built
+
+
+def _counts(s: Sizes) -> _Counts:
     cells = _prod(s.width, s.height)
     m, n, k = float(s.sources), _f(s.robots), _f(s.horizon)
-    p = _f(s.params) if s.params else m  # the length of theta
-    f = m if s.tabular else p  # the features of each (cell, move) the world keeps
+    p = _f(s.params) if s.params else m
     team = s.robots > 1
-    policies = n + 1.0 if team else 1.0  # evaluation adds the network average
-    rows = n + 1.0 if team else 1.0  # metrics rows per iteration
-    w_last = _last_samples(s.samples, s.growth, s.iterations)
-    w_total = _total_samples(s.samples, s.growth, s.iterations)
-    slots = _prod(_f(s.delay) + 1.0, s.rounds, n, n)
-    pairs = _prod(n, n)
-    checkpoints = _f(s.iterations) / max(_f(s.checkpoint_every), 1.0) + 1.0
-    record = _prod(2.0, policies, s.paths, k + 1.0)
-    tables = _f(s.iterations) * n + policies * (_f(s.eval_episodes) / EVAL_BATCH + 3.0)
+    policies = n + 1.0 if team else 1.0
+    return _Counts(
+        cells=cells,
+        n=n,
+        k=k,
+        p=p,
+        f=m if s.tabular else p,
+        team=team,
+        policies=policies,
+        rows=n + 1.0 if team else 1.0,
+        w_last=_last_samples(s.samples, s.growth, s.iterations),
+        w_total=_total_samples(s.samples, s.growth, s.iterations),
+        slots=_prod(_f(s.delay) + 1.0, s.rounds, n, n),
+        pairs=_prod(n, n),
+        checkpoints=_f(s.iterations) / max(_f(s.checkpoint_every), 1.0) + 1.0,
+        record=_prod(2.0, policies, s.paths, k + 1.0),
+        tables=_f(s.iterations) * n + policies * (_f(s.eval_episodes) / EVAL_BATCH + 3.0),
+    )
 
-    size = (KEYS.world.size, f"[{show(s.width)}, {show(s.height)}]", cells / DEFAULTS[KEYS.world.size])
-    robots = (KEYS.team.robots, show(s.robots), n / DEFAULTS[KEYS.team.robots])
-    samples = (KEYS.train.samples, show(s.samples), _f(s.samples) / DEFAULTS[KEYS.train.samples])
-    growth = (KEYS.train.samples_growth, f"{s.growth:g}", w_last / max(_f(s.samples), 1.0))
-    iterations = (KEYS.train.iterations, show(s.iterations), _f(s.iterations) / DEFAULTS[KEYS.train.iterations])
-    horizon = (KEYS.world.horizon, show(s.horizon), k / DEFAULTS[KEYS.world.horizon])
-    evals = (KEYS.train.eval_episodes, show(s.eval_episodes), _f(s.eval_episodes) / DEFAULTS[KEYS.train.eval_episodes])
-    boot = (KEYS.train.bootstrap, show(s.bootstrap), _f(s.bootstrap) / DEFAULTS[KEYS.train.bootstrap])
-    paths = (KEYS.train.paths, show(s.paths), _f(s.paths) / DEFAULTS[KEYS.train.paths])
-    delay = (KEYS.team.delay.max, show(s.delay), _f(s.delay) + 1.0)
-    rounds = (KEYS.team.consensus_rounds, show(s.rounds), _f(s.rounds))
-    resample = (KEYS.team.resample, show(s.resample), (_f(s.resample) + 1.0) / DEFAULTS[KEYS.team.resample])
 
-    grid = f"the {show(s.width)} x {show(s.height)} grid"
-    memory = [
-        (_prod(cells, 200.0 + 40.0 * f), grid, [size]),
+@dataclass(frozen=True)
+class _Scales:
+    """Each key a part can scale with, as a Scale."""
+
+    size: Scale
+    robots: Scale
+    samples: Scale
+    growth: Scale
+    iterations: Scale
+    horizon: Scale
+    evals: Scale
+    boot: Scale
+    paths: Scale
+    delay: Scale
+    rounds: Scale
+    resample: Scale
+
+
+def _scales(s: Sizes, c: _Counts) -> _Scales:
+    return _Scales(
+        size=(KEYS.world.size, f"[{show(s.width)}, {show(s.height)}]", c.cells / DEFAULTS[KEYS.world.size]),
+        robots=(KEYS.team.robots, show(s.robots), c.n / DEFAULTS[KEYS.team.robots]),
+        samples=(KEYS.train.samples, show(s.samples), _f(s.samples) / DEFAULTS[KEYS.train.samples]),
+        growth=(KEYS.train.samples_growth, f"{s.growth:g}", c.w_last / max(_f(s.samples), 1.0)),
+        iterations=(KEYS.train.iterations, show(s.iterations), _f(s.iterations) / DEFAULTS[KEYS.train.iterations]),
+        horizon=(KEYS.world.horizon, show(s.horizon), c.k / DEFAULTS[KEYS.world.horizon]),
+        evals=(
+            KEYS.train.eval_episodes,
+            show(s.eval_episodes),
+            _f(s.eval_episodes) / DEFAULTS[KEYS.train.eval_episodes],
+        ),
+        boot=(KEYS.train.bootstrap, show(s.bootstrap), _f(s.bootstrap) / DEFAULTS[KEYS.train.bootstrap]),
+        paths=(KEYS.train.paths, show(s.paths), _f(s.paths) / DEFAULTS[KEYS.train.paths]),
+        delay=(KEYS.team.delay.max, show(s.delay), _f(s.delay) + 1.0),
+        rounds=(KEYS.team.consensus_rounds, show(s.rounds), _f(s.rounds)),
+        resample=(KEYS.team.resample, show(s.resample), (_f(s.resample) + 1.0) / DEFAULTS[KEYS.team.resample]),
+    )
+
+
+def _memory(s: Sizes, c: _Counts, on: _Scales) -> list[Part]:
+    """The memory parts, in bytes."""
+    p, grid = c.p, _grid(s)
+    return [
+        (_prod(c.cells, 200.0 + 40.0 * c.f), grid, [on.size]),
         (
-            _prod(cells, n, 160.0 if s.tabular else 40.0 + 40.0 * p),
+            _prod(c.cells, c.n, 160.0 if s.tabular else 40.0 + 40.0 * p),
             f"{grid}'s policy tables for {show(s.robots)} robot(s)",
-            [size, robots],
+            [on.size, on.robots],
         ),
         (
-            _prod(n, w_last, 48.0 + 16.0 * p),
-            f"its training batches ({_num(w_last)} episodes per robot in the largest iteration"
+            _prod(c.n, c.w_last, 48.0 + 16.0 * p),
+            f"its training batches ({_num(c.w_last)} episodes per robot in the largest iteration"
             + (f", each with a tabular policy's {_num(p)} scores)" if s.tabular else ")"),
-            [samples, growth, robots] + ([size] if s.tabular else []),
+            [on.samples, on.growth, on.robots] + ([on.size] if s.tabular else []),
         ),
         (
-            _prod(policies, s.eval_episodes, 160.0)
+            _prod(c.policies, s.eval_episodes, 160.0)
             + (_prod(min(_f(s.eval_episodes), EVAL_BATCH), p, 8.0) if s.tabular else 0.0),
             f"its evaluation ({show(s.eval_episodes)} episodes per policy)",
-            [evals, robots] + ([size] if s.tabular else []),
+            [on.evals, on.robots] + ([on.size] if s.tabular else []),
         ),
-        (_prod(record, 250.0), f"its recorded paths ({_num(record)} steps)", [paths, horizon, robots]),
+        (_prod(c.record, 250.0), f"its recorded paths ({_num(c.record)} steps)", [on.paths, on.horizon, on.robots]),
         (
-            _prod(s.iterations, rows, 2000.0 + 200.0 * p),
-            f"its metrics ({_num(_prod(s.iterations, rows))} rows)",
-            [iterations, robots],
+            _prod(s.iterations, c.rows, 2000.0 + 200.0 * p),
+            f"its metrics ({_num(_prod(s.iterations, c.rows))} rows)",
+            [on.iterations, on.robots],
         ),
         (
-            _prod(slots, (64.0 + 80.0 * p) * (2.0 if s.tracking else 1.0)),
-            f"its consensus message buffers ({_num(slots)} slots)",
-            [delay, rounds, robots],
+            _prod(c.slots, (64.0 + 80.0 * p) * (2.0 if s.tracking else 1.0)),
+            f"its consensus message buffers ({_num(c.slots)} slots)",
+            [on.delay, on.rounds, on.robots],
         ),
-        (_prod(pairs, 1000.0 + 400.0 * p), f"its network of {show(s.robots)} robots", [robots]),
+        (_prod(c.pairs, 1000.0 + 400.0 * p), f"its network of {show(s.robots)} robots", [on.robots]),
         (
             _prod(s.bootstrap, 100.0) + _prod(s.eval_episodes, 16.0),
             f"its bootstrap ({show(s.bootstrap)} resamples)",
-            [boot, evals],
+            [on.boot, on.evals],
         ),
     ]
-    time = [
+
+
+def _time(s: Sizes, c: _Counts, on: _Scales) -> list[Part]:
+    """The time parts, in trajectory steps."""
+    p, geometric = c.p, s.geometric and c.team
+    return [
         (
-            _prod(n, w_total, k),
-            f"its training ({_num(_prod(n, w_total))} episodes of up to {show(s.horizon)} moves)",
-            [samples, iterations, growth, robots, horizon],
+            _prod(c.n, c.w_total, c.k),
+            f"its training ({_num(_prod(c.n, c.w_total))} episodes of up to {show(s.horizon)} moves)",
+            [on.samples, on.iterations, on.growth, on.robots, on.horizon],
         ),
         (
-            _prod(n, w_total, p / 4.0) if s.tabular else 0.0,
-            f"its gradients ({_num(_prod(n, w_total))} episodes' scores of {_num(p)} entries)",
-            [samples, iterations, growth, robots, size],
+            _prod(c.n, c.w_total, p / 4.0) if s.tabular else 0.0,
+            f"its gradients ({_num(_prod(c.n, c.w_total))} episodes' scores of {_num(p)} entries)",
+            [on.samples, on.iterations, on.growth, on.robots, on.size],
         ),
         (
-            _prod(cells, 100.0) + _prod(tables, cells, 10.0),
-            f"{grid}'s policy tables ({_num(tables)} of them)",
-            [size, iterations, robots],
+            _prod(c.cells, 100.0) + _prod(c.tables, c.cells, 10.0),
+            f"{_grid(s)}'s policy tables ({_num(c.tables)} of them)",
+            [on.size, on.iterations, on.robots],
         ),
         (
-            _prod(s.iterations, ITERATION_STEPS + 2000.0 * rows),
+            _prod(s.iterations, ITERATION_STEPS + 2000.0 * c.rows),
             f"its {show(s.iterations)} iterations",
-            [iterations, robots],
+            [on.iterations, on.robots],
         ),
         (
-            _prod(policies, s.eval_episodes, k),
+            _prod(c.policies, s.eval_episodes, c.k),
             f"its evaluation ({show(s.eval_episodes)} episodes per policy)",
-            [evals, horizon, robots],
+            [on.evals, on.horizon, on.robots],
         ),
         (
             _prod(s.bootstrap, s.eval_episodes),
             f"its bootstrap ({show(s.bootstrap)} resamples of {show(s.eval_episodes)} episodes)",
-            [boot, evals],
+            [on.boot, on.evals],
         ),
-        (_prod(record, 400.0), f"its recorded paths ({_num(record)} steps)", [paths, horizon, robots]),
+        (_prod(c.record, 400.0), f"its recorded paths ({_num(c.record)} steps)", [on.paths, on.horizon, on.robots]),
         (
-            _prod(s.iterations, s.rounds, pairs, p + 1.0, 5.0) if team else 0.0,
+            _prod(s.iterations, s.rounds, c.pairs, p + 1.0, 5.0) if c.team else 0.0,
             f"its consensus rounds ({show(s.rounds)} per iteration)",
-            [rounds, robots, iterations],
+            [on.rounds, on.robots, on.iterations],
         ),
         (
-            _prod(slots, checkpoints, 100.0),
-            f"its checkpoints of the consensus buffers ({_num(slots)} slots)",
-            [delay, rounds, robots],
+            _prod(c.slots, c.checkpoints, 100.0),
+            f"its checkpoints of the consensus buffers ({_num(c.slots)} slots)",
+            [on.delay, on.rounds, on.robots],
         ),
         (
-            _prod(pairs, 300.0) + (_prod(_f(s.resample) + 1.0, pairs, 5.0) if s.geometric and team else 0.0),
+            _prod(c.pairs, 300.0) + (_prod(_f(s.resample) + 1.0, c.pairs, 5.0) if geometric else 0.0),
             f"its network of {show(s.robots)} robots"
-            + (f" (up to {show(s.resample + 1)} random_geometric draws)" if s.geometric and team else ""),
-            [robots] + ([resample] if s.geometric else []),
+            + (f" (up to {show(s.resample + 1)} random_geometric draws)" if geometric else ""),
+            [on.robots] + ([on.resample] if s.geometric else []),
         ),
     ]
-    return memory, time
+
+
+def _grid(s: Sizes) -> str:
+    return f"the {show(s.width)} x {show(s.height)} grid"
 
 
 def _culprit(parts: list[Part]) -> tuple[str, str]:

@@ -243,11 +243,11 @@ def robot_objectives(
     its own stream (not saved). A centralized run is a team of one: its entry is the run's own objective. When
     every robot shares one start and one measure (the common case), each term is the headline `objective` and the
     team objective is that many times it, interval included: no further bootstrap."""
-    params, count = setup.params, setup.params.train.eval_episodes
+    params = setup.params
     risks = robot_risks(params)
     cells = starts(setup)
     healthy = final_health(setup)
-    pairs = {(int(c), json.dumps(as_dict(r), sort_keys=True)): (int(c), r) for c, r in zip(cells, risks)}
+    pairs = {_term(c, r): (int(c), r) for c, r in zip(cells, risks)}
     if len(pairs) == 1 and risks[0] == params.risk:  # one term, the headline's: the robots share it
         x, y = setup.world.xy(int(cells[0]))
         robots = [
@@ -256,31 +256,12 @@ def robot_objectives(
         ]
         terms = int(healthy.sum())
         return robots, {k: terms * headline[k] for k in ("value", "low", "high")}
-    headline_robot = AVERAGE if setup.team else 0
-    average = network_average(setup, thetas)[None, :]
-    returns = {int(cells[0]): evaluation["total_reward"][evaluation["robot"] == headline_robot]}
-    for q, cell in enumerate(dict.fromkeys(int(c) for c in cells if int(c) not in returns)):
-        parts = []
-        for first in range(0, count, EVAL_BATCH):
-            key = np.array([rng.stream_key(params.seed, rng.EVAL, setup.robots + 1 + q, first)], dtype=np.uint64)
-            size = min(EVAL_BATCH, count - first)
-            batch = simulator(setup)(setup.world, setup.kernel, average, np.array([cell]), key, size, scores=False)
-            parts.append(batch.total_reward)
-        returns[cell] = np.concatenate(parts)
+    returns = _returns_at_average(setup, thetas, evaluation, cells)
     with_intervals = len(pairs) <= ROBOT_INTERVALS
-    figures = {}
-    for key, (cell, risk) in pairs.items():
-        check_finite("the evaluation's total reward", returns[cell])
-        if with_intervals:
-            figures[key] = objective_interval(returns[cell], risk, params.train.bootstrap, params.seed)
-        else:
-            figures[key] = (
-                {"measure": risk_spec(risk).measure.name, "value": float(objective(returns[cell], risk))},
-                None,
-            )
+    figures = {key: _term_figure(returns[cell], risk, params, with_intervals) for key, (cell, risk) in pairs.items()}
     robots, total, resamples = [], 0.0, np.zeros(params.train.bootstrap) if with_intervals else None
     for i, (cell, risk) in enumerate(zip(cells, risks)):
-        figure, values = figures[(int(cell), json.dumps(as_dict(risk), sort_keys=True))]
+        figure, values = figures[_term(cell, risk)]
         x, y = setup.world.xy(int(cell))
         robots.append(
             {"robot": i, "start": [int(x), int(y)], "healthy": bool(healthy[i]), "objective_at_average": figure}
@@ -296,3 +277,38 @@ def robot_objectives(
         team |= {"low": float(low), "high": float(high)}
     check_finite("the team objective", *[v for v in team.values()])
     return robots, team
+
+
+def _term(cell, risk: RiskConf) -> tuple[int, str]:
+    """A team objective's term: a start cell and a risk node (robots that share both share the term)."""
+    return int(cell), json.dumps(as_dict(risk), sort_keys=True)
+
+
+def _returns_at_average(
+    setup: RunSetup, thetas: np.ndarray, evaluation: Columns, cells: np.ndarray
+) -> dict[int, np.ndarray]:
+    """theta-bar's total rewards from each robot's start cell: eval.parquet's from robot 0's, fresh episodes of a
+    stream of their own from each other start."""
+    params, count = setup.params, setup.params.train.eval_episodes
+    headline_robot = AVERAGE if setup.team else 0
+    average = network_average(setup, thetas)[None, :]
+    returns = {int(cells[0]): evaluation["total_reward"][evaluation["robot"] == headline_robot]}
+    for q, cell in enumerate(dict.fromkeys(int(c) for c in cells if int(c) not in returns)):
+        parts = []
+        for first in range(0, count, EVAL_BATCH):
+            key = np.array([rng.stream_key(params.seed, rng.EVAL, setup.robots + 1 + q, first)], dtype=np.uint64)
+            size = min(EVAL_BATCH, count - first)
+            batch = simulator(setup)(setup.world, setup.kernel, average, np.array([cell]), key, size, scores=False)
+            parts.append(batch.total_reward)
+        returns[cell] = np.concatenate(parts)
+    return returns
+
+
+def _term_figure(
+    returns: np.ndarray, risk: RiskConf, params: RiskplanConf, with_interval: bool
+) -> tuple[dict, np.ndarray | None]:
+    """(a term's objective figure, its bootstrap resamples), or without an interval (figure, None)."""
+    check_finite("the evaluation's total reward", returns)
+    if with_interval:
+        return objective_interval(returns, risk, params.train.bootstrap, params.seed)
+    return {"measure": risk_spec(risk).measure.name, "value": float(objective(returns, risk))}, None

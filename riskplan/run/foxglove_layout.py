@@ -44,19 +44,20 @@ def series_robots(robots: int) -> list[int]:
     return [-1] + list(range(min(robots, MAX_ROBOT_SERIES)))
 
 
+def _series(value: str, label: str, color: str) -> dict:
+    """One line of a plot panel: a message path, drawn at each message's receive time."""
+    return {"value": value, "enabled": True, "timestampMethod": "receiveTime", "label": label, "color": color}
+
+
 def _plot(title: str, field: str, robots: int) -> dict:
-    paths = []
-    for i, r in enumerate(series_robots(robots)):
-        label = "team average" if r == -1 else f"robot {r}"
-        paths.append(
-            {
-                "value": f"{log_format.METRICS}{{robot=={r}}}.{field}",
-                "enabled": True,
-                "timestampMethod": "receiveTime",
-                "label": label,
-                "color": COLORS[i % len(COLORS)],
-            }
+    paths = [
+        _series(
+            f"{log_format.METRICS}{{robot=={r}}}.{field}",
+            "team average" if r == -1 else f"robot {r}",
+            COLORS[i % len(COLORS)],
         )
+        for i, r in enumerate(series_robots(robots))
+    ]
     return {
         "title": title,
         "paths": paths,
@@ -114,28 +115,9 @@ def _split(direction: str, panels: list, sizes: list[float] | None = None):
 def layout(robots: int = 1, size: tuple[int, int] = (12, 12)) -> dict:
     """The layout of a run of `robots` robots on a `size` (width, height) grid."""
     width, height = (int(size[0]), int(size[1])) if size else (12, 12)
-    grid = _scene(
-        "world, sources and sampled paths",
-        FRAME,
-        {
-            log_format.WORLD_MAP: {
-                "colorField": "cell",
-                "colorMode": "colormap",
-                "colorMap": "turbo",
-                "minValue": 0,
-                "maxValue": 2,
-                "frameLocked": True,
-            },
-            log_format.WORLD_MARKERS: {},
-            log_format.PATHS: {},
-        },
-        (width / 2, height / 2),
-        1.6 * max(width, height, 1),
-    )
-    team = _scene("communication graph", TEAM_FRAME, {log_format.NETWORK_SCENE: {}}, (5.0, 5.0), 16.0)
     config = {
-        GRID_PANEL: grid,
-        TEAM_PANEL: team,
+        GRID_PANEL: _world_scene(width, height),
+        TEAM_PANEL: _scene("communication graph", TEAM_FRAME, {log_format.NETWORK_SCENE: {}}, (5.0, 5.0), 16.0),
         CVAR_PANEL: _plot("CVaR of the training batch per iteration", "cvar", robots),
         MEAN_PANEL: _plot("mean of the training batch per iteration", "mean", robots),
         SUMMARY_PANEL: {
@@ -152,15 +134,7 @@ def layout(robots: int = 1, size: tuple[int, int] = (12, 12)) -> dict:
     if robots > 1:
         config[CONSENSUS_PANEL] = {
             **_plot("consensus error max ||θ_i − θ_j||", "consensus_error", 1),
-            "paths": [
-                {
-                    "value": f"{log_format.CONSENSUS}.consensus_error",
-                    "enabled": True,
-                    "timestampMethod": "receiveTime",
-                    "label": "consensus error",
-                    "color": COLORS[0],
-                }
-            ],
+            "paths": [_series(f"{log_format.CONSENSUS}.consensus_error", "consensus error", COLORS[0])],
         }
         plots.append(CONSENSUS_PANEL)
     left = _split("column", [GRID_PANEL, TEAM_PANEL], [3, 1])
@@ -173,6 +147,25 @@ def layout(robots: int = 1, size: tuple[int, int] = (12, 12)) -> dict:
         "playbackConfig": {"speed": 1, "messageOrder": "receiveTime"},
         "layout": _split("row", [left, right], [3, 2]),
     }
+
+
+def _world_scene(width: int, height: int) -> dict:
+    """The 3D panel of the grid: the map coloured by cell kind, the markers and the sampled paths, all in view."""
+    world_map = {
+        "colorField": "cell",
+        "colorMode": "colormap",
+        "colorMap": "turbo",
+        "minValue": 0,
+        "maxValue": 2,
+        "frameLocked": True,
+    }
+    return _scene(
+        "world, sources and sampled paths",
+        FRAME,
+        {log_format.WORLD_MAP: world_map, log_format.WORLD_MARKERS: {}, log_format.PATHS: {}},
+        (width / 2, height / 2),
+        1.6 * max(width, height, 1),
+    )
 
 
 def layout_for(config: dict) -> dict:

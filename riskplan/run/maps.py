@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from riskplan.config.keys import KEYS
 from riskplan.config.schema import CONF_DIR, WorldConf
 from riskplan.engine.world import Frame, Layout
 from riskplan.util import limits
@@ -79,7 +80,7 @@ class MapFile:
         return self.resolution * self.cell
 
 
-def find(text: str, key: str = "world.map") -> Path:
+def find(text: str, key: str = KEYS.world.map) -> Path:
     """The file a world.map path names: absolute, or relative to the current directory, else to riskplan's own
     conf/ folder (the maps it ships: world.map=maps/floor_plan.yaml)."""
     if not str(text).strip():
@@ -97,56 +98,15 @@ def read_map(world: WorldConf) -> MapFile | None:
     """world.map's YAML and its image's header, checked; None without a map. Reads no pixels."""
     if world.map is None:
         return None
-    where = "world.map"
-    path = find(world.map, where)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise BadInput(where, f"{world.map} cannot be read ({_reason(err)}); give a ROS map YAML") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        line = getattr(getattr(err, "problem_mark", None), "line", None)
-        at = f" at line {line + 1}" if line is not None else ""
-        raise BadInput(
-            where, f"{world.map} is not valid YAML{at}; give a ROS map YAML (image, resolution, ...)"
-        ) from None
-    if not isinstance(doc, dict):
-        raise BadInput(where, f"{world.map} is not a ROS map YAML (a mapping with {', '.join(REQUIRED)})")
-    missing = [k for k in REQUIRED if k not in doc]
-    if missing:
-        raise BadInput(
-            where,
-            f"{world.map} has no {', '.join(missing)}; a ROS map YAML gives image, resolution, origin [x, y, yaw], "
-            f"negate (0 or 1), occupied_thresh and free_thresh (mode is optional)",
-        )
+    path = find(world.map, KEYS.world.map)
+    doc = _map_yaml(path, world.map)
     image_text = doc["image"]
     if not isinstance(image_text, str) or not image_text.strip():
-        raise BadInput(where, f"{world.map}: image is {image_text!r}; expected the image's file name")
-    resolution = _number(doc["resolution"], world.map, "resolution")
-    if not resolution > 0:
-        raise BadInput(where, f"{world.map}: resolution is {resolution:g}; expected metres per pixel > 0")
-    origin = doc["origin"]
-    if not isinstance(origin, list) or len(origin) != 3:
-        raise BadInput(where, f"{world.map}: origin is {origin!r}; expected [x, y, yaw] of finite numbers")
-    origin_xyz = tuple(_number(v, world.map, "origin") for v in origin)
-    negate = doc["negate"]
-    if negate not in (0, 1) or not isinstance(negate, (int, bool)):
-        raise BadInput(where, f"{world.map}: negate is {negate!r}; expected 0 or 1")
-    occupied = _number(doc["occupied_thresh"], world.map, "occupied_thresh")
-    free = _number(doc["free_thresh"], world.map, "free_thresh")
-    if not (0.0 <= free <= occupied <= 1.0):
-        raise BadInput(
-            where,
-            f"{world.map}: free_thresh {free:g} and occupied_thresh {occupied:g}; expected 0 <= free_thresh <= "
-            f"occupied_thresh <= 1",
-        )
-    mode = doc.get("mode", "trinary")
-    if mode not in MODES:
-        raise BadInput(where, f"{world.map}: mode is {mode!r}; expected one of {', '.join(MODES)}")
+        raise BadInput(KEYS.world.map, f"{world.map}: image is {image_text!r}; expected the image's file name")
+    resolution, origin, negate, occupied, free, mode = _map_values(doc, world.map)
     image = Path(image_text).expanduser()
     image = image if image.is_absolute() else path.parent / image
-    kind, pixels = _header(image, f"the image {image_text} of {world.map}", where)
+    kind, pixels = _header(image, f"the image {image_text} of {world.map}", KEYS.world.map)
     return MapFile(
         yaml=path,
         shown=str(world.map),
@@ -154,13 +114,65 @@ def read_map(world: WorldConf) -> MapFile | None:
         kind=kind,
         pixels=pixels,
         resolution=resolution,
-        origin=origin_xyz,  # type: ignore[arg-type]
-        negate=bool(negate),
+        origin=origin,
+        negate=negate,
         occupied_thresh=occupied,
         free_thresh=free,
         mode=mode,
         cell=int(world.map_cell),
     )
+
+
+def _map_yaml(path: Path, shown: str) -> dict:
+    """The map YAML's mapping, with every REQUIRED key; BadInput naming world.map for anything else."""
+    where = KEYS.world.map
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise BadInput(where, f"{shown} cannot be read ({_reason(err)}); give a ROS map YAML") from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        line = getattr(getattr(err, "problem_mark", None), "line", None)
+        at = f" at line {line + 1}" if line is not None else ""
+        raise BadInput(where, f"{shown} is not valid YAML{at}; give a ROS map YAML (image, resolution, ...)") from None
+    if not isinstance(doc, dict):
+        raise BadInput(where, f"{shown} is not a ROS map YAML (a mapping with {', '.join(REQUIRED)})")
+    missing = [k for k in REQUIRED if k not in doc]
+    if missing:
+        raise BadInput(
+            where,
+            f"{shown} has no {', '.join(missing)}; a ROS map YAML gives image, resolution, origin [x, y, yaw], "
+            f"negate (0 or 1), occupied_thresh and free_thresh (mode is optional)",
+        )
+    return doc
+
+
+def _map_values(doc: dict, shown: str) -> tuple[float, tuple[float, float, float], bool, float, float, str]:
+    """(resolution, origin, negate, occupied_thresh, free_thresh, mode) of a map YAML, each checked."""
+    where = KEYS.world.map
+    resolution = _number(doc["resolution"], shown, "resolution")
+    if not resolution > 0:
+        raise BadInput(where, f"{shown}: resolution is {resolution:g}; expected metres per pixel > 0")
+    origin = doc["origin"]
+    if not isinstance(origin, list) or len(origin) != 3:
+        raise BadInput(where, f"{shown}: origin is {origin!r}; expected [x, y, yaw] of finite numbers")
+    x, y, yaw = (_number(v, shown, "origin") for v in origin)
+    negate = doc["negate"]
+    if negate not in (0, 1) or not isinstance(negate, (int, bool)):
+        raise BadInput(where, f"{shown}: negate is {negate!r}; expected 0 or 1")
+    occupied = _number(doc["occupied_thresh"], shown, "occupied_thresh")
+    free = _number(doc["free_thresh"], shown, "free_thresh")
+    if not (0.0 <= free <= occupied <= 1.0):
+        raise BadInput(
+            where,
+            f"{shown}: free_thresh {free:g} and occupied_thresh {occupied:g}; expected 0 <= free_thresh <= "
+            f"occupied_thresh <= 1",
+        )
+    mode = doc.get("mode", "trinary")
+    if mode not in MODES:
+        raise BadInput(where, f"{shown}: mode is {mode!r}; expected one of {', '.join(MODES)}")
+    return resolution, (x, y, yaw), bool(negate), occupied, free, mode
 
 
 def geometry(world: WorldConf) -> tuple[float, tuple[float, float, float]]:
@@ -186,16 +198,16 @@ def load_layout(world: WorldConf, found: MapFile) -> Layout:
     width, height = found.pixels
     images = 1 + len(mask_paths)
     limits.check_memory(
-        "world.map",
+        KEYS.world.map,
         PIXEL_BYTES * width * height * images,
         f"got {found.shown}; reading its {width}x{height} pixels ({images} image{'s' * (images > 1)})",
     )
     what = f"the image {found.image.name} of {found.shown}"
-    level, top, opacity = _pixels(found.image, found.kind, found.pixels, what, "world.map")
+    level, top, opacity = _pixels(found.image, found.kind, found.pixels, what, KEYS.world.map)
     occupied, unknown = classify(level, top, opacity, found)
     by_region: list[np.ndarray | None] = [None] * len(world.regions)
     for r, path in mask_paths:
-        where = f"world.regions.{r}.mask"
+        where = KEYS.world.regions.at(r).mask
         kind, pixels = _header(path, f"the mask {world.regions[r].mask}", where)
         if pixels != found.pixels:
             raise BadInput(
@@ -211,7 +223,9 @@ def load_layout(world: WorldConf, found: MapFile) -> Layout:
     cell_occupied = merge(to_cells(occupied), found.cell)
     cell_unknown = merge(to_cells(unknown), found.cell) & ~cell_occupied
     frame = Frame(found.resolution, found.cell, found.origin, found.pixels)
-    layout = Layout(_frozen(cell_occupied), _frozen(cell_unknown), tuple(by_region), f"world.map {found.shown}", frame)
+    layout = Layout(
+        _frozen(cell_occupied), _frozen(cell_unknown), tuple(by_region), f"{KEYS.world.map} {found.shown}", frame
+    )
     _LAYOUTS[key] = layout
     while len(_LAYOUTS) > MEMO:
         _LAYOUTS.popitem(last=False)
@@ -273,7 +287,7 @@ def _identity(path: Path) -> tuple[str, int, int]:
 
 def _mask_path(found: MapFile, text: str, r: int) -> Path:
     """A mask's file: absolute, or relative to the map YAML's folder."""
-    where = f"world.regions.{r}.mask"
+    where = KEYS.world.regions.at(r).mask
     if not str(text).strip():
         raise BadInput(where, "is empty; give the path of an image the map's size (relative to world.map's folder)")
     path = Path(text).expanduser()
@@ -282,7 +296,7 @@ def _mask_path(found: MapFile, text: str, r: int) -> Path:
 
 def _number(value, name: str, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
-        raise BadInput("world.map", f"{name}: {key} is {value!r}; expected a finite number")
+        raise BadInput(KEYS.world.map, f"{name}: {key} is {value!r}; expected a finite number")
     return float(value)
 
 

@@ -17,6 +17,7 @@ READ_FROM_SCHEMA = [
     "config/validate.py",
     "run/budget.py",
     "run/checkpoint.py",
+    "run/maps.py",
     "experiments/reproduction.py",
     "experiments/reporting/collect.py",
     "experiments/reporting/labels.py",
@@ -25,7 +26,7 @@ READ_FROM_SCHEMA = [
     "experiments/reporting/figures/beyond.py",
     "experiments/reporting/figures/naming.py",
 ]
-DOTTED = re.compile(r"""(?<![A-Za-z{])["'](?:risk|team|train|world|policy|engine)\.[a-z_.]+["']""")
+DOTTED = re.compile(r"""(?<![A-Za-z{])(["'])(?:risk|team|train|world|policy|engine)\.[a-z_.]+\1""")
 
 
 def test_a_key_is_its_dotted_path_and_a_plain_string():
@@ -82,4 +83,4 @@ def test_no_field_is_hidden_by_a_method_of_a_key():
 
 @pytest.mark.parametrize("module", READ_FROM_SCHEMA)
 def test_the_module_writes_out_no_config_key(module):
-    assert DOTTED.findall((PACKAGE / module).read_text()) == []
+    assert [m.group(0) for m in DOTTED.finditer((PACKAGE / module).read_text())] == []
