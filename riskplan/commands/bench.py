@@ -15,110 +15,114 @@ SCALING_PLOT = Path("outputs") / "bench" / "scaling.png"
 
 def register(app: typer.Typer) -> None:
     """Add `riskplan bench` to the CLI."""
+    app.command("bench")(bench)
 
-    @app.command()
-    def bench(
-        quick: bool = typer.Option(
-            False, "--quick", help="Fewer repeats and a shorter training run (about 30 s on 2 idle cores)."
-        ),
-        json_out: Path | None = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
-        scaling: bool = typer.Option(
-            False,
-            "--scaling",
-            help="Instead: trajectory-steps/s and bytes per sample "
-            "against grid size, horizon, sources, source motion "
-            "and robots, each against the paper world (about "
-            "1 minute, 30 s with --quick).",
-        ),
-        plot: Path = typer.Option(SCALING_PLOT, "--plot", metavar="PNG", help="With --scaling: the plot's file."),
-        csv_out: Path | None = typer.Option(None, "--csv", help="With --scaling: also write the rows as CSV."),
-        sweep: bool = typer.Option(
-            False,
-            "--sweep",
-            help="Instead: beta x seed sweeps of the paper world (200 iterations, W = 6000): 24 runs batched against "
-            "--jobs (a worker per job), and 64 runs batched against the bare loops of their trainings, in the same "
-            "run (a few minutes; 12 and 16 runs of 50 iterations with --quick).",
-        ),
-        threads: bool = typer.Option(
-            False,
-            "--threads",
-            help="Instead: the rollout kernel and the training iteration at 1, 2, 4, ... threads up to the cores "
-            "(numba.set_num_threads), at W = 6000 and W = 600,000, each against 1 thread (about 20 s on 2 cores).",
-        ),
-    ) -> None:
-        """Speed, memory, JIT, start-up and team-scaling targets, each with a baseline measured in the same run."""
-        import numba
-        from rich.console import Console
-        from rich.markup import escape
 
-        from riskplan.experiments.bench_gpu import Skipped, bench_gpu
-        from riskplan.experiments.bench_loop import bench_loop
-        from riskplan.experiments.bench_rollout import bench_rollout
-        from riskplan.experiments.bench_startup import bench_jit, bench_startup
-        from riskplan.experiments.bench_training import bench_checkpoints, bench_measures, bench_team, bench_training
+def _instead(flag: str, text: str):
+    """A switch that runs another benchmark instead of the targets (--scaling, --sweep, --threads)."""
+    return typer.Option(False, flag, help=f"Instead: {text}")
 
-        console = Console(soft_wrap=True)  # one line per figure, also in a log file
-        console.print(
-            f"numba {numba.__version__}, {numba.get_num_threads()} threads "
-            f"({numba.config.THREADING_LAYER} layer), {os.cpu_count()} cores, load average {_load():.2f}"
-        )
-        if _busy():
-            console.print(f"warning: {_busy()}", style="yellow")
-        if scaling:
-            _scaling(console, quick, json_out, plot, csv_out)
-            return
-        rows: list[dict] = []
 
-        def gpu_rows() -> list[dict]:
-            """The GPU rows where a GPU is present; elsewhere one line saying why they were skipped."""
-            try:
-                return bench_gpu(quick)
-            except Skipped as why:
-                why = escape(str(why))  # its pip install names [cuda], which is no style tag
-                console.print(f"[bold]GPU rollout kernel[/bold]: skipped; {why}")
-                return []
+def bench(
+    quick: bool = typer.Option(
+        False, "--quick", help="Fewer repeats and a shorter training run (about 30 s on 2 idle cores)."
+    ),
+    json_out: Path | None = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
+    scaling: bool = _instead(
+        "--scaling",
+        "trajectory-steps/s and bytes per sample against grid size, horizon, sources, source motion and robots, "
+        "each against the paper world (about 1 minute, 30 s with --quick).",
+    ),
+    plot: Path = typer.Option(SCALING_PLOT, "--plot", metavar="PNG", help="With --scaling: the plot's file."),
+    csv_out: Path | None = typer.Option(None, "--csv", help="With --scaling: also write the rows as CSV."),
+    sweep: bool = _instead(
+        "--sweep",
+        "beta x seed sweeps of the paper world (200 iterations, W = 6000): 24 runs batched against --jobs (a worker "
+        "per job), and 64 runs batched against the bare loops of their trainings, in the same run (a few minutes; "
+        "12 and 16 runs of 50 iterations with --quick).",
+    ),
+    threads: bool = _instead(
+        "--threads",
+        "the rollout kernel and the training iteration at 1, 2, 4, ... threads up to the cores "
+        "(numba.set_num_threads), at W = 6000 and W = 600,000, each against 1 thread (about 20 s on 2 cores).",
+    ),
+) -> None:
+    """Speed, memory, JIT, start-up and team-scaling targets, each with a baseline measured in the same run."""
+    import numba
+    from rich.console import Console
 
-        if sweep:
-            from riskplan.experiments.bench_sweep import bench_sweep
+    console = Console(soft_wrap=True)  # one line per figure, also in a log file
+    console.print(
+        f"numba {numba.__version__}, {numba.get_num_threads()} threads "
+        f"({numba.config.THREADING_LAYER} layer), {os.cpu_count()} cores, load average {_load():.2f}"
+    )
+    if _busy():
+        console.print(f"warning: {_busy()}", style="yellow")
+    if scaling:
+        _scaling(console, quick, json_out, plot, csv_out)
+        return
+    rows: list[dict] = []
+    for section in _sections(console, quick, sweep, threads):
+        for row in section():  # printed as each section ends, not all at the end of a long benchmark
+            _print_row(console, row)
+            rows.append(row)
+    met = sum(bool(row["ok"]) for row in rows)
+    console.print(f"{met} of {len(rows)} targets met (load average {_load():.2f} at the end, {os.cpu_count()} cores)")
+    if met < len(rows) and _busy():
+        console.print(f"warning: {_busy()}", style="yellow")
+    if json_out:
+        json_out.write_text(json.dumps(rows, indent=2, default=float))
 
-            sections = (lambda: bench_sweep(quick),)
-        elif threads:
-            from riskplan.experiments.bench_threads import bench_threads
 
-            sections = (lambda: bench_threads(quick),)
-        else:
-            from riskplan.experiments.bench_first_run import bench_first_run
+def _sections(console, quick: bool, sweep: bool, threads: bool) -> tuple:
+    """The benchmarks to run, each a function returning its rows: --sweep's, --threads', or every target's."""
+    if sweep:
+        from riskplan.experiments.bench_sweep import bench_sweep
 
-            sections = (
-                lambda: bench_rollout(quick),
-                gpu_rows,
-                lambda: bench_training(quick),
-                lambda: bench_loop(quick),
-                lambda: bench_measures(quick),
-                lambda: bench_checkpoints(quick),
-                bench_jit,
-                lambda: bench_first_run(quick),
-                lambda: bench_startup(quick),
-                lambda: bench_team(quick),
-            )
-        for section in sections:
-            for row in section():  # printed as each section ends, not all at the end of a long benchmark
-                mark = "met" if row["ok"] else "NOT MET"
-                console.print(
-                    f"[bold]{row['measure']}[/bold]: {row['value']:.4g} {row['unit']}  (target {row['target']}: {mark})"
-                )
-                console.print(
-                    f"    baseline {row['baseline']:.4g}, ratio {row['ratio']:.3g}; {row['note']}", markup=False
-                )
-                rows.append(row)
-        met = sum(bool(row["ok"]) for row in rows)
-        console.print(
-            f"{met} of {len(rows)} targets met (load average {_load():.2f} at the end, {os.cpu_count()} cores)"
-        )
-        if met < len(rows) and _busy():
-            console.print(f"warning: {_busy()}", style="yellow")
-        if json_out:
-            json_out.write_text(json.dumps(rows, indent=2, default=float))
+        return (lambda: bench_sweep(quick),)
+    if threads:
+        from riskplan.experiments.bench_threads import bench_threads
+
+        return (lambda: bench_threads(quick),)
+    from riskplan.experiments.bench_first_run import bench_first_run
+    from riskplan.experiments.bench_loop import bench_loop
+    from riskplan.experiments.bench_rollout import bench_rollout
+    from riskplan.experiments.bench_startup import bench_jit, bench_startup
+    from riskplan.experiments.bench_training import bench_checkpoints, bench_measures, bench_team, bench_training
+
+    return (
+        lambda: bench_rollout(quick),
+        lambda: _gpu_rows(console, quick),
+        lambda: bench_training(quick),
+        lambda: bench_loop(quick),
+        lambda: bench_measures(quick),
+        lambda: bench_checkpoints(quick),
+        bench_jit,
+        lambda: bench_first_run(quick),
+        lambda: bench_startup(quick),
+        lambda: bench_team(quick),
+    )
+
+
+def _gpu_rows(console, quick: bool) -> list[dict]:
+    """The GPU rows where a GPU is present; elsewhere one line saying why they were skipped."""
+    from rich.markup import escape
+
+    from riskplan.experiments.bench_gpu import Skipped, bench_gpu
+
+    try:
+        return bench_gpu(quick)
+    except Skipped as why:
+        why = escape(str(why))  # its pip install names [cuda], which is no style tag
+        console.print(f"[bold]GPU rollout kernel[/bold]: skipped; {why}")
+        return []
+
+
+def _print_row(console, row: dict) -> None:
+    """One target: its value against the target, then its baseline and note."""
+    mark = "met" if row["ok"] else "NOT MET"
+    console.print(f"[bold]{row['measure']}[/bold]: {row['value']:.4g} {row['unit']}  (target {row['target']}: {mark})")
+    console.print(f"    baseline {row['baseline']:.4g}, ratio {row['ratio']:.3g}; {row['note']}", markup=False)
 
 
 def _load() -> float:

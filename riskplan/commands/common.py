@@ -50,6 +50,12 @@ TRAIN_OVERRIDES_HELP = OVERRIDES_HELP + (
 )
 
 
+def jobs_option(help: str):
+    """--jobs / -j, shared by sweep and reproduce: a whole number from 1, or None when left out (`help` says the
+    default)."""
+    return typer.Option(None, "--jobs", "-j", min=1, show_default=False, help=help)
+
+
 def bad_input_exits(command):
     """Turn BadInput into one line on stderr and exit code 2, and a failure to read or write files at run time
     (a full disk) into one line and exit code 1: never a traceback."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from riskplan.commands.common import CONFIG_DIR_HELP, PASS_THROUGH, bad_input_exits, with_config_dirs
+from riskplan.commands.common import CONFIG_DIR_HELP, PASS_THROUGH, bad_input_exits, jobs_option, with_config_dirs
 
 # help texts are rich markup: "\\[" keeps a bracket that rich would take for a style tag ([optuna], [file://DIR])
 SWEEP_HELP = (
@@ -23,13 +23,8 @@ def register(app: typer.Typer) -> None:
     @bad_input_exits
     def sweep(
         overrides: list[str] | None = typer.Argument(None, help=SWEEP_HELP + CONFIG_DIR_HELP, show_default=False),
-        jobs: int | None = typer.Option(
-            None,
-            "--jobs",
-            "-j",
-            min=1,
-            show_default=False,
-            help="Jobs at once: joblib workers (default: the number of cores), or submitit's array_parallelism.",
+        jobs: int | None = jobs_option(
+            "Jobs at once: joblib workers (default: the number of cores), or submitit's array_parallelism."
         ),
         batch: bool = typer.Option(
             False,
