@@ -36,6 +36,7 @@ class Choice(str, Enum):
         return [member.value for member in cls]
 
 
+# One Choice per key below: alike in shape (a docstring, then names equal to their values), each a key's own values.
 class ScheduleKind(Choice):
     """risk.schedule.kind: how the gradient's CVaR level beta_l moves to risk.beta (soft risk)."""
 

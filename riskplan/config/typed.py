@@ -10,6 +10,7 @@ import collections
 import dataclasses
 import json
 import re
+import types
 import typing
 
 from omegaconf import DictConfig, OmegaConf
@@ -129,7 +130,7 @@ def resolved(cfg: DictConfig) -> dict:
 
 def _unknown_keys(data: typing.Any, node: typing.Any, path: str) -> None:
     """BadInput naming the first key of `data` that the schema type `node` does not have (lists descended)."""
-    while typing.get_origin(node) is typing.Union:  # Optional[X]
+    while typing.get_origin(node) in (typing.Union, types.UnionType):  # Optional[X], X | None
         node = next(a for a in typing.get_args(node) if a is not type(None))
     if dataclasses.is_dataclass(node) and isinstance(data, dict):
         hints = typing.get_type_hints(node)
@@ -191,43 +192,56 @@ def explain(err: Exception) -> tuple[str, str]:
         return where, f"got '{getattr(cause, 'value', '?')}'; expected true or false"
     if message.startswith("Invalid value assigned:") and "is not a ListConfig, list or tuple" in message and key:
         return where, f"got {getattr(cause, 'value', '?')!r}; expected a list, e.g. [1, 2]"
-    subclass = re.match(r"Invalid type assigned: \w+ is not a subclass of (\w+)", message)
-    if subclass and key:
-        index = re.fullmatch(r"(.*)\[(\d+)\]", key)
-        if index and getattr(cause, "value", None) == {}:
-            return where, (
-                f"the list '{_dotted(index.group(1))}' has no entry {index.group(2)}; "
-                f"replace the whole list to add entries"
-            )
-        valid = valid_keys(re.sub(r"\[\d+\]", ".0", key).replace("..", "."))
-        keys = f" with keys {', '.join(valid)}" if valid else ""
-        return where, f"got {getattr(cause, 'value', '?')!r}; expected a mapping{keys}"
+    if re.match(r"Invalid type assigned: \w+ is not a subclass of \w+", message) and key:
+        return _not_a_mapping(cause, key)
     if "not in struct" in message or (" not in '" in message and key):
-        parent, _, name = _dotted(key).rpartition(".")
-        valid = valid_keys(parent)
-        entry, override = getattr(cause, "object_type", None), re.match(r"Could not override '(.+?)'", str(err))
-        if not parent and override and dataclasses.is_dataclass(entry) and entry is not schema.RiskplanConf:
-            # a mapping in a list (world.regions=[{nme: a}]): OmegaConf names its key without the list's path
-            parent, valid = override.group(1), [f.name for f in dataclasses.fields(entry)]
-        if valid is None:
-            return f"key '{_dotted(key)}'", "unknown key; this node takes no new keys"
-        return (
-            f"key '{parent + '.' if parent else ''}{name}'",
-            f"unknown key '{name}'; valid keys under '{parent or 'top level'}': {', '.join(valid)}"
-            + did_you_mean(name, valid),
-        )
+        return _unknown_key(err, cause, key)
     missing = re.search(r"Could not find '([\w/]+)/([^']+)'", message)
     if missing:
-        group, option = missing.groups()
-        listed = re.search(r"Available options in '[^']*':\n((?:\t.*(?:\n|$))+)", text)
-        options = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))  # riskplan's own (not the schema's)
-        if group.startswith("hydra/") and listed:  # Hydra's and its plugins' groups (with riskplan's additions)
-            options = [o.strip() for o in listed.group(1).splitlines() if o.strip()]
-        available = f"available: {', '.join(options) or 'none'}{did_you_mean(option, options)}"
-        return f"key '{group}'", f"no option '{option}'; {available}"
+        return _no_option(*missing.groups(), text)
     if "Could not override" in message:
         return f"key '{message.split(chr(39))[1]}'", "unknown key; run `riskplan check` to list the config's keys"
     return (f"key '{_dotted(key)}'" if key else "config"), message
+
+
+def _not_a_mapping(cause: Exception, key: str) -> tuple[str, str]:
+    """A plain value where the schema has a node (a mapping), or an entry past a list's end."""
+    where = f"key '{_dotted(key)}'"
+    index = re.fullmatch(r"(.*)\[(\d+)\]", key)
+    if index and getattr(cause, "value", None) == {}:
+        return where, (
+            f"the list '{_dotted(index.group(1))}' has no entry {index.group(2)}; replace the whole list to add entries"
+        )
+    valid = valid_keys(re.sub(r"\[\d+\]", ".0", key).replace("..", "."))
+    keys = f" with keys {', '.join(valid)}" if valid else ""
+    return where, f"got {getattr(cause, 'value', '?')!r}; expected a mapping{keys}"
+
+
+def _unknown_key(err: Exception, cause: Exception, key: str) -> tuple[str, str]:
+    """A key the schema does not have: the keys its parent takes, and the nearest of them."""
+    parent, _, name = _dotted(key).rpartition(".")
+    valid = valid_keys(parent)
+    entry, override = getattr(cause, "object_type", None), re.match(r"Could not override '(.+?)'", str(err))
+    if not parent and override and dataclasses.is_dataclass(entry) and entry is not schema.RiskplanConf:
+        # a mapping in a list (world.regions=[{nme: a}]): OmegaConf names its key without the list's path
+        parent, valid = override.group(1), [f.name for f in dataclasses.fields(entry)]
+    if valid is None:
+        return f"key '{_dotted(key)}'", "unknown key; this node takes no new keys"
+    return (
+        f"key '{parent + '.' if parent else ''}{name}'",
+        f"unknown key '{name}'; valid keys under '{parent or 'top level'}': {', '.join(valid)}"
+        + did_you_mean(name, valid),
+    )
+
+
+def _no_option(group: str, option: str, text: str) -> tuple[str, str]:
+    """A config group's option that does not exist: the group's options, riskplan's or (hydra/...) Hydra's."""
+    listed = re.search(r"Available options in '[^']*':\n((?:\t.*(?:\n|$))+)", text)
+    options = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))  # riskplan's own (not the schema's)
+    if group.startswith("hydra/") and listed:  # Hydra's and its plugins' groups (with riskplan's additions)
+        options = [o.strip() for o in listed.group(1).splitlines() if o.strip()]
+    available = f"available: {', '.join(options) or 'none'}{did_you_mean(option, options)}"
+    return f"key '{group}'", f"no option '{option}'; {available}"
 
 
 METRES_HINT = "a position in metres over an [x, y] is written ${metres:X,Y}, which stands for {metres: [X, Y]}"
@@ -269,7 +283,7 @@ def valid_keys(path: str) -> list[str] | None:
         elif dataclasses.is_dataclass(node):
             hints = typing.get_type_hints(node)
             node = hints.get(part)
-            while typing.get_origin(node) is typing.Union:  # Optional[X]
+            while typing.get_origin(node) in (typing.Union, types.UnionType):  # Optional[X], X | None
                 node = next(a for a in typing.get_args(node) if a is not type(None))
         else:
             return None

@@ -31,3 +31,15 @@ def test_a_bad_config_raises_every_time_and_old_entries_are_dropped():
         typed(compose([f"seed={seed}"], validate=False))
     again = typed(base)
     assert again == first and again is not first
+
+
+def test_an_unknown_key_in_an_optional_list_of_nodes_is_named_with_its_path():
+    """team.risk is `list[RiskConf] | None`: its entries are checked as RiskConf, as world.regions' are."""
+    config = OmegaConf.to_container(compose(["experiment=paper_team"], validate=False))
+    config["team"]["risk"] = [{"beta": 0.1}, {"beta": 0.1}, {"bta": 0.1}]
+    with pytest.raises(BadInput) as err:
+        typed(config)
+    assert str(err.value) == (
+        "key 'team.risk.2.bta': unknown key 'bta'; valid keys under 'team.risk.2': measure, beta, eta, weight, "
+        "schedule, params; did you mean 'beta'?"
+    )
