@@ -4,7 +4,8 @@ kernel (riskplan.engine.cuda_rollout compiles these functions from their own sou
 PettingZoo environments (`step_robots`, one time step of many robots).
 
 A move is picked by integer compares of a draw's bits against the policy's bins (`_pick_bits`; `_pick` on floats,
-for the moves computed at each step with mobile sources); the entered cell pays its region's reward (`_entered`:
+for the moves computed at each step with mobile sources), its probabilities a softmax of the policy's logits
+(`_cumulative_softmax`, also every policy table's); the entered cell pays its region's reward (`_entered`:
 from per-cell coefficients for affine laws, `_affine_reward`, else the reward program's interpreter `_draw`) and
 a source's reward (`_draw`); mobile sources walk after the step (`_walk`). Every draw comes from the episode's own
 counter-based stream (riskplan.engine.rng). Products that a sum takes are written rng.mul (the GPU rounds them
@@ -16,6 +17,7 @@ loop cost the paper batch 12% more CPU time.
 
 from __future__ import annotations
 
+import math
 import types
 
 import numpy as np
@@ -130,7 +132,8 @@ def _entered(
     """What entering `cell` pays and counts, in every kernel's step: its region's reward and whether the step is
     risky (no region: 0 and 0); (reward, risky, state). With `affine` (the world's region rewards have the affine
     form) from the cell's coefficients, without a branch on the region (both draws every step, the cell's
-    coefficients pick the law); else through the region's reward program."""
+    coefficients pick the law); else through the region's reward program. The arrays come one by one, not as
+    KernelTables (the module docstring says why), so every caller lists them."""
     if affine:
         reward, state = _affine_reward(cell_affine, cell, draw_uniform, draw_normal, state)
         return reward, cell_risky[cell], state
@@ -164,6 +167,23 @@ def _pick_bits(bins, m):
     """`_pick` on the integer bounds of `_bins` (the GPU kernel's too; int() as numpy's bools would add as `or`
     under numba-cuda's simulator)."""
     return int(m >= bins[0]) + int(m >= bins[1]) + int(m >= bins[2]) + int(m >= bins[3])
+
+
+@njit(cache=True, inline="always")
+def _cumulative_softmax(mu, best, cum):
+    """The five logits in `mu` (their largest `best`) made move probabilities in place and their running sums
+    written to `cum`, cum[4] = 1 (so a draw always lands): the one arithmetic of every policy's tables
+    (riskplan.engine.policy) and of the mobile kernel's step, which passes one array as both."""
+    total = 0.0
+    for a in range(5):
+        mu[a] = math.exp(mu[a] - best)  # max-shift: no overflow for large theta
+        total += mu[a]
+    running = 0.0
+    for a in range(5):
+        mu[a] /= total
+        running += mu[a]
+        cum[a] = running
+    cum[4] = 1.0
 
 
 @njit(cache=True)
@@ -265,7 +285,8 @@ def _static_episode(
     move picked by the bins (P, C, 4), its score (P, C, 5, M) added into `acc`, the entered cell paid (`_entered`)
     and a source's reward, the path into row e of path_cells and path_rewards with `record`. (z, risky steps,
     source reached, steps). The episode of `_simulate_affine` and of the GPU kernel (cuda_rollout compiles this
-    source): one definition for both devices. The arrays come one by one, as `_entered`'s do."""
+    source): one definition for both devices. The arrays come one by one, as `_entered`'s do: hence its length,
+    most of it their list (a split would list them again)."""
     z = 0.0
     risky = 0
     reached = -1

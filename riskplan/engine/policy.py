@@ -14,12 +14,12 @@ What theta parameterises is a `Policy` (`make_policy`, from the `policy` config 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
 
+from riskplan.engine.dynamics import _cumulative_softmax
 from riskplan.engine.world import MOVE_NAMES, World
 
 SIGNALS, RISKY, STAY = "signals", "risky", "stay"  # the entries of policy.features
@@ -251,16 +251,7 @@ def _fill_tables_at(features, thetas, cum, score, first, last, cells):
                 for j in range(thetas.shape[1]):
                     mu[a] += thetas[p, j] * features[c, a, j]
                 best = max(best, mu[a])
-            total = 0.0
-            for a in range(5):
-                mu[a] = math.exp(mu[a] - best)  # max-shift: no overflow for large theta
-                total += mu[a]
-            running = 0.0
-            for a in range(5):
-                mu[a] /= total
-                running += mu[a]
-                cum[p, c, a] = running
-            cum[p, c, 4] = 1.0  # guard the last bin against round-off so a uniform draw always lands
+            _cumulative_softmax(mu, best, cum[p, c])
             for j in range(thetas.shape[1]):
                 expected = 0.0
                 for a in range(5):
@@ -303,7 +294,8 @@ def tabular_tables(thetas: np.ndarray, cells: int) -> tuple[np.ndarray, np.ndarr
 
 @njit(cache=True)
 def _fill_tabular(logits, cum, probs):
-    """The softmax of every cell's five logits, with `_fill_tables_at`'s arithmetic (same logits: same numbers)."""
+    """The softmax of every cell's five logits, by `_fill_tables_at`'s `_cumulative_softmax` (same logits: same
+    numbers)."""
     mu = np.empty(5)
     for p in range(logits.shape[0]):
         for c in range(logits.shape[1]):
@@ -311,14 +303,6 @@ def _fill_tabular(logits, cum, probs):
             for a in range(5):
                 mu[a] = logits[p, c, a]
                 best = max(best, mu[a])
-            total = 0.0
+            _cumulative_softmax(mu, best, cum[p, c])
             for a in range(5):
-                mu[a] = math.exp(mu[a] - best)
-                total += mu[a]
-            running = 0.0
-            for a in range(5):
-                mu[a] /= total
-                running += mu[a]
-                cum[p, c, a] = running
                 probs[p, c, a] = mu[a]
-            cum[p, c, 4] = 1.0

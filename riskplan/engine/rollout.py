@@ -27,7 +27,7 @@ import numpy as np
 from riskplan.engine import distributions as D
 from riskplan.engine.policy import Policy, make_policy, tables, tabular_tables
 from riskplan.engine.reachability import distances
-from riskplan.engine.rollout_kernels import KernelTables, _bins, _bins_at, _simulate, _simulate_affine
+from riskplan.engine.rollout_kernels import KernelTables, _bins, _simulate, _simulate_affine
 from riskplan.engine.world import World
 
 
@@ -165,24 +165,11 @@ def simulate(
     paths = (path_cells, path_rewards) if record else (None, None)
     starts = np.asarray(starts, np.int64)
     keys = np.asarray(keys, np.uint64)
+    arrays = (bins, score, starts, keys, episodes, record, *outputs, path_cells, path_rewards)  # either kernel's
     if kernel.tables.affine and not (kernel.tables.mobile or reference or kernel.tables.tabular):
-        _simulate_affine(kernel.tables, bins, score, starts, keys, episodes, record, *outputs, path_cells, path_rewards)
+        _simulate_affine(kernel.tables, *arrays)
     else:
-        _simulate(  # the kernel's parameters, positionally in its order
-            kernel.tables,
-            bins,
-            score,
-            probs,
-            thetas,
-            starts,
-            keys,
-            episodes,
-            record,
-            reference,
-            *outputs,
-            path_cells,
-            path_rewards,
-        )
+        _simulate(kernel.tables, probs, thetas, reference, *arrays)
     return EpisodeBatch(*outputs, *paths)
 
 
@@ -216,10 +203,8 @@ def move_bins(cum: np.ndarray, cells: np.ndarray | None = None) -> np.ndarray:
     """`_bins` of every policy's (P, C, 5) cumulative move probabilities: (P, C, 4) integer bounds (of the listed
     `cells` only, the other rows unset, when given)."""
     bins = np.empty((cum.shape[0], cum.shape[1], 4), dtype=np.int64)
-    if cells is None:
-        _bins(cum, bins)
-    else:
-        _bins_at(cum, bins, np.ascontiguousarray(cells, dtype=np.int64))
+    cells = np.arange(cum.shape[1]) if cells is None else np.ascontiguousarray(cells, dtype=np.int64)
+    _bins(cum, bins, cells)
     return bins
 
 

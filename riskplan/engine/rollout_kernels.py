@@ -30,7 +30,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from riskplan.engine.dynamics import _draw, _entered, _pick, _pick_bits, _static_episode, _walk
+from riskplan.engine.dynamics import _cumulative_softmax, _draw, _entered, _pick, _pick_bits, _static_episode, _walk
 from riskplan.engine.rng import bits_uniform, episode_state, next_bits
 from riskplan.engine.world import MAX_STACK
 
@@ -74,28 +74,16 @@ class KernelTables(NamedTuple):
 
 
 @njit(cache=True)
-def _bins(cum, bins):
-    """Cumulative move probabilities as integer bounds on a draw's 53 bits m: bits_uniform(m) > cum[a] exactly
-    when m >= bins[a], so `_pick_bits` picks the move `_pick` would, by integer compares (a shorter dependency
-    chain from one cell to the next than converting and comparing floats).
+def _bins(cum, bins, cells):
+    """Cumulative move probabilities as integer bounds on a draw's 53 bits m, at the listed cells (the other rows
+    left as they are): bits_uniform(m) > cum[a] exactly when m >= bins[a], so `_pick_bits` picks the move `_pick`
+    would, by integer compares (a shorter dependency chain from one cell to the next than converting and comparing
+    floats).
 
     The least such m in closed form, without branches (a search mispredicts half its steps, and a 1000-robot
     team has 576,000 bounds). With X = c 2^53 (exact): below 2^52, m + 0.5 is exact, so m = floor(X - 0.5) + 1;
     from 2^52 on, X is whole and m + 0.5 rounds to the even neighbour, so m = X | 1; capped at 2^53.
     tests/engine/test_kernel_fast_paths.py checks it against the search on random and edge probabilities."""
-    top = np.int64(9007199254740992)  # 2^53: one past the largest m
-    for p in range(cum.shape[0]):
-        for c in range(cum.shape[1]):
-            for a in range(4):
-                scaled = cum[p, c, a] * 9007199254740992.0
-                below = np.int64(math.floor(scaled - 0.5)) + 1
-                above = np.int64(min(scaled, 9007199254740992.0)) | 1
-                bins[p, c, a] = min(max(below if scaled < 4503599627370496.0 else above, 0), top)
-
-
-@njit(cache=True)
-def _bins_at(cum, bins, cells):
-    """`_bins` for the listed cells only: the same arithmetic, row by row."""
     top = np.int64(9007199254740992)  # 2^53: one past the largest m
     for p in range(cum.shape[0]):
         for c in cells:
@@ -104,22 +92,6 @@ def _bins_at(cum, bins, cells):
                 below = np.int64(math.floor(scaled - 0.5)) + 1
                 above = np.int64(min(scaled, 9007199254740992.0)) | 1
                 bins[p, c, a] = min(max(below if scaled < 4503599627370496.0 else above, 0), top)
-
-
-# Twin of policy._fill_tabular's softmax (same arithmetic): that one fills every cell's tables at once, this one a
-# single cell in place at each step of a mobile world, inlined into the episode loop.
-@njit(cache=True, inline="always")
-def _cumulative_softmax(cum, best):
-    """The five logits in `cum` (their largest `best`) made cumulative move probabilities in place, cum[4] = 1."""
-    total = 0.0
-    for a in range(5):
-        cum[a] = math.exp(cum[a] - best)
-        total += cum[a]
-    acc = 0.0
-    for a in range(5):
-        acc += cum[a] / total
-        cum[a] = acc
-    cum[4] = 1.0
 
 
 @njit(cache=True)
@@ -139,7 +111,7 @@ def _mobile_signals(cell, theta, src, next_cell, amplitude, precision, height, c
             logit += theta[j] * feats[a, j]
         cum[a] = logit
         best = max(best, logit)
-    _cumulative_softmax(cum, best)
+    _cumulative_softmax(cum, best, cum)
 
 
 @njit(cache=True)
@@ -176,7 +148,7 @@ def _mobile_policy(cell, theta, src, next_cell, amplitude, precision, height, si
             logit += theta[extra_at[e]] * feats[a, extra_at[e]]
         cum[a] = logit
         best = max(best, logit)
-    _cumulative_softmax(cum, best)
+    _cumulative_softmax(cum, best, cum)
 
 
 # Twin of `_simulate`'s chunk loop, for its static-features-affine case alone (`_static_episode`): the paper run's
@@ -202,7 +174,8 @@ def _simulate_affine(
     the sampled paths' case): the same draws in the same order, hence the same numbers, from a loop without the
     other cases' branches (tests/engine/test_kernel_fast_paths.py checks the two agree). With `record`
     it fills path_cells and path_rewards as `_simulate` does, so the paths of a paper run need no second kernel
-    (`_simulate` takes much longer to compile)."""
+    (`_simulate` takes much longer to compile). Long for its arrays alone: read into locals and passed one by one
+    (riskplan.engine.dynamics says why)."""
     # KernelTables' fields into locals before the parallel loop, in every kernel: read from the tuple inside it, slower
     next_cell = tables.next_cell
     source_at = tables.source_at
@@ -266,15 +239,15 @@ def _simulate_affine(
 @njit(parallel=True, cache=True, error_model="numpy")
 def _simulate(
     tables,
-    bins,
-    score,
     probs,
     thetas,
+    reference,
+    bins,
+    score,
     starts,
     keys,
     episodes,
     record,
-    reference,
     out_z,
     out_score,
     out_risky,
@@ -284,12 +257,14 @@ def _simulate(
     path_rewards,
 ):
     """Episode loop; see rollout.simulate. A tabular policy's score goes straight into out_score (zeros on entry).
-    `reference` runs every region reward through the interpreter and normals by the inverse CDF.
+    `reference` runs every region reward through the interpreter and normals by the inverse CDF. After its own
+    three, its parameters are `_simulate_affine`'s, so that rollout.simulate hands either one list of arrays.
 
     Long on purpose: every case (tabular, mobile, features, reference) interleaves step by step in this one loop
     inside numba's parallel chunks; the parts they share are helpers (`_entered`, `_draw`, `_walk`,
     `_mobile_policy`). A case split out would take a dozen arrays one by one: bundled in a tuple inside the
-    parallel loop they cost the paper batch 12% more CPU time."""
+    parallel loop they cost the paper batch 12% more CPU time. Its static-features step is `_static_episode`'s,
+    written out among the other cases (tests/engine/test_kernel_fast_paths.py holds the two equal)."""
     tabular = tables.tabular
     signal_at = tables.signal_at
     extra_at = tables.extra_at
