@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 
+from riskplan.config.keys import KEYS
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
 from riskplan.run.build import build_setup
@@ -45,7 +46,7 @@ def bench_gpu(quick: bool, runs: int = RUNS, episodes: int = EPISODES, simulator
     cuda_rollout = gpu_or_skip(simulator_ok)
     from numba import cuda  # optional: numba-cuda, as above
 
-    setup = build_setup(compose(["engine.device=cuda"]))
+    setup = build_setup(compose([f"{KEYS.engine.device}=cuda"]))
     thetas = np.random.default_rng(0).normal(20.0, 6.0, size=(runs, setup.theta0.size))  # a sweep's spread
     keys = rng.robot_keys(0, rng.TRAIN, 0, runs)
     cells = np.repeat(setup.world.starts[:1], runs)
@@ -62,14 +63,19 @@ def bench_gpu(quick: bool, runs: int = RUNS, episodes: int = EPISODES, simulator
         start = time.perf_counter()
         cpu = simulate(*args)
         cpu_s = min(cpu_s, time.perf_counter() - start)
-    steps = float(cpu.steps.sum())
+    device = getattr(cuda.get_current_device(), "name", "numba-cuda's simulator")
+    device = device.decode() if isinstance(device, bytes) else str(device)
+    shape = f"{runs:,} runs x {episodes:,} episodes of the paper world"
+    return _rows(shape, device, float(cpu.steps.sum()), kernel_s, call_s, cpu_s, gpu, cpu)
+
+
+def _rows(shape: str, device: str, steps: float, kernel_s: float, call_s: float, cpu_s: float, gpu, cpu) -> list[dict]:
+    """bench's three GPU rows: the kernel's and the whole call's steps/s against the CPU kernel's, and how many of
+    the GPU's episodes (`gpu`, an EpisodeBatch) are the CPU's (`cpu`) bit for bit."""
     same = np.ones(len(cpu.total_reward), dtype=bool)
     for field in ("total_reward", "score", "risky_steps", "source_reached", "steps"):
         same &= np.all(_bits(getattr(gpu, field), len(same)) == _bits(getattr(cpu, field), len(same)), axis=1)
     differ = np.abs(gpu.total_reward - cpu.total_reward)
-    device = getattr(cuda.get_current_device(), "name", "numba-cuda's simulator")
-    device = device.decode() if isinstance(device, bytes) else str(device)
-    shape = f"{runs:,} runs x {episodes:,} episodes of the paper world"
     return [
         {
             "measure": f"GPU rollout kernel, {shape} (steps/s)",

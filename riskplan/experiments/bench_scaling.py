@@ -13,6 +13,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import NullLocator
 
+from riskplan.config.keys import KEYS
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
 from riskplan.engine.schedules import samples_at
@@ -39,7 +40,7 @@ def source_overrides(count: int) -> list[str]:
     for j, (x, y) in zip(range(2, count), cells):
         items.append(f"{{name:s{j},position:[{x},{y}],covariance:[[16.0,0.0],[0.0,16.0]],scale:null,reward:500.0}}")
     theta0 = [20.0, 20.0, *[0.0] * (count - 2)][:count]
-    return [f"world.sources=[{','.join(items)}]", f"train.theta0=[{','.join(f'{t:g}' for t in theta0)}]"]
+    return [f"{KEYS.world.sources}=[{','.join(items)}]", f"{KEYS.train.theta0}=[{','.join(f'{t:g}' for t in theta0)}]"]
 
 
 def scaling_dimensions(quick: bool = False) -> dict[str, list[tuple[float, list[str]]]]:
@@ -52,22 +53,26 @@ def scaling_dimensions(quick: bool = False) -> dict[str, list[tuple[float, list[
     walks (prob 0.5). robots: a random geometric graph, N * W_i = TEAM_SAMPLES.
     """
     del quick  # the same sizes; --quick only measures each fewer times
+    world, team = KEYS.world, KEYS.team
+    motions = [world.sources.at(j).motion for j in (0, 1)]
     return {
         "grid": [
-            (float(s), [f"world.size=[{s},{s}]", f"world.regions.1.rect=[0,0,{s - 1},{s - 1}]"])
+            (float(s), [f"{world.size}=[{s},{s}]", f"{world.regions.at(1).rect}=[0,0,{s - 1},{s - 1}]"])
             for s in (12, 24, 48, 96, 128, 192, 256)
         ],
-        "horizon": [(float(k), [f"world.horizon={k}", "world.stop_at_source=false"]) for k in (20, 50, 100, 200, 400)],
+        "horizon": [
+            (float(k), [f"{world.horizon}={k}", f"{world.stop_at_source}=false"]) for k in (20, 50, 100, 200, 400)
+        ],
         "sources": [(float(m), source_overrides(m)) for m in (2, 4, 8, 16, 32, 64)],
         "mobile": [
             (0.0, []),
-            (1.0, [f"world.sources.{j}.motion.{key}" for j in (0, 1) for key in ("kind=random_walk", "prob=0.5")]),
+            (1.0, [o for m in motions for o in (f"{m.kind}=random_walk", f"{m.prob}=0.5")]),
         ],
         "robots": [
             (
                 float(n),
-                ([] if n == 1 else [f"team.robots={n}", "team.graph=random_geometric"])
-                + [f"train.samples={TEAM_SAMPLES // n}"],
+                ([] if n == 1 else [f"{team.robots}={n}", f"{team.graph}=random_geometric"])
+                + [f"{KEYS.train.samples}={TEAM_SAMPLES // n}"],
             )
             for n in (1, 10, 100, 1000)
         ],
@@ -219,6 +224,16 @@ def scaling_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+PANELS = (("steps_per_s", "trajectory-steps/s"), ("bytes_per_sample", "bytes per sample"))  # (row key, y label)
+TITLES = {
+    "grid": "grid side",
+    "horizon": "horizon K (no stop)",
+    "sources": "sources M",
+    "mobile": "source motion",
+    "robots": f"robots (N·W_i = {TEAM_SAMPLES:,})",
+}
+
+
 def plot_scaling(rows: list[dict], path: Path, cache: int | None = None) -> Path:
     """Steps/s (top) and bytes per sample (bottom) against each dimension, log axes; the baseline dashed."""
     cache = cache_bytes() if cache is None else cache
@@ -229,64 +244,11 @@ def plot_scaling(rows: list[dict], path: Path, cache: int | None = None) -> Path
     axes = fig.subplots(2, len(dims), squeeze=False)
     for col, dimension in enumerate(dims):
         points = [r for r in rows if r["dimension"] == dimension]
-        categorical = dimension == "mobile"
-        xs = [r["value"] if not categorical else i for i, r in enumerate(points)]
-        for row_index, (key, label) in enumerate(
-            (("steps_per_s", "trajectory-steps/s"), ("bytes_per_sample", "bytes per sample"))
-        ):
+        for row_index, (key, label) in enumerate(PANELS):
             ax = axes[row_index][col]
-            ax.plot(
-                xs,
-                [r[key] for r in points],
-                "o-",
-                color="#0072B2",
-                label="training iteration" if row_index == 0 else None,
-            )
+            _draw_panel(ax, points, dimension == "mobile", key, row_index == 0, base[key], cache)
             if row_index == 0:
-                ax.plot(
-                    xs,
-                    [r["kernel_steps_per_s"] for r in points],
-                    "s--",
-                    color="#009E73",
-                    markersize=4,
-                    label="kernel (with its tables)",
-                )
-            ax.axhline(base[key], color="#999999", linestyle=":", linewidth=1, label="paper world (iteration)")
-            ax.set_yscale("log")
-            values = (
-                [r[key] for r in points]
-                + [base[key]]
-                + ([r["kernel_steps_per_s"] for r in points] if row_index == 0 else [])
-            )
-            low, high = min(values), max(values)
-            if high < 10 * low:  # at least a decade shown, so log ticks stay readable
-                middle = math.sqrt(low * high)
-                low, high = middle / 3.2, middle * 3.2
-            ax.set_ylim(low / 1.2, high * 1.2)
-            if categorical:
-                ax.set_xticks(xs, ["mobile" if r["value"] else "static" for r in points])
-                ax.set_xlim(-0.5, len(points) - 0.5)
-            else:
-                ax.set_xscale("log")
-                ax.set_xticks(xs, [f"{x:g}" for x in xs], rotation=45 if len(xs) > 6 else 0)
-                ax.xaxis.set_minor_locator(NullLocator())
-                beyond = [x for x, r in zip(xs, points) if r["table_bytes"] > cache]
-                if beyond:
-                    ax.axvspan(
-                        min(beyond), max(xs) * 1.05, color="#E69F00", alpha=0.12, linewidth=0, label="tables > L2"
-                    )
-            ax.grid(True, which="both", alpha=0.3, linewidth=0.5)
-            if row_index == 0:
-                ax.set_title(
-                    {
-                        "grid": "grid side",
-                        "horizon": "horizon K (no stop)",
-                        "sources": "sources M",
-                        "mobile": "source motion",
-                        "robots": f"robots (N·W_i = {TEAM_SAMPLES:,})",
-                    }.get(dimension, dimension),
-                    fontsize=9,
-                )
+                ax.set_title(TITLES.get(dimension, dimension), fontsize=9)
             if col == 0:
                 ax.set_ylabel(label)
                 ax.legend(fontsize=7, frameon=False)
@@ -294,3 +256,37 @@ def plot_scaling(rows: list[dict], path: Path, cache: int | None = None) -> Path
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110, metadata={"Software": None})
     return path
+
+
+def _draw_panel(ax, points: list[dict], categorical: bool, key: str, top: bool, base: float, cache: int) -> None:
+    """One dimension's `key` (top: steps/s, with the kernel's too) against its values, the paper world's dotted."""
+    xs = [r["value"] if not categorical else i for i, r in enumerate(points)]
+    ax.plot(xs, [r[key] for r in points], "o-", color="#0072B2", label="training iteration" if top else None)
+    if top:
+        ax.plot(
+            xs,
+            [r["kernel_steps_per_s"] for r in points],
+            "s--",
+            color="#009E73",
+            markersize=4,
+            label="kernel (with its tables)",
+        )
+    ax.axhline(base, color="#999999", linestyle=":", linewidth=1, label="paper world (iteration)")
+    ax.set_yscale("log")
+    values = [r[key] for r in points] + [base] + ([r["kernel_steps_per_s"] for r in points] if top else [])
+    low, high = min(values), max(values)
+    if high < 10 * low:  # at least a decade shown, so log ticks stay readable
+        middle = math.sqrt(low * high)
+        low, high = middle / 3.2, middle * 3.2
+    ax.set_ylim(low / 1.2, high * 1.2)
+    if categorical:
+        ax.set_xticks(xs, ["mobile" if r["value"] else "static" for r in points])
+        ax.set_xlim(-0.5, len(points) - 0.5)
+    else:
+        ax.set_xscale("log")
+        ax.set_xticks(xs, [f"{x:g}" for x in xs], rotation=45 if len(xs) > 6 else 0)
+        ax.xaxis.set_minor_locator(NullLocator())
+        beyond = [x for x, r in zip(xs, points) if r["table_bytes"] > cache]
+        if beyond:
+            ax.axvspan(min(beyond), max(xs) * 1.05, color="#E69F00", alpha=0.12, linewidth=0, label="tables > L2")
+    ax.grid(True, which="both", alpha=0.3, linewidth=0.5)

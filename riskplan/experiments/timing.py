@@ -166,24 +166,43 @@ def time_breakdown(record: dict, clock: dict, started: float, folders: list[str]
     timings = [part.get("timing", {}) for part in sweeps]
     begun = clock.get("since")
     ended = started + record["seconds"]
-    wall = {
-        "start-up (interpreter, imports)": (clock["entered"] - begun) if begun and "entered" in clock else None,
-        "checks (compose each set-up, budget)": (clock["checked"] - clock["entered"]) if "checked" in clock else None,
-        "sweeps: planning (compose and validate every job)": sum(t.get("planning", 0.0) for t in timings),
-        "sweeps: waiting for the warmed-up workers": record.get("warm_up", {}).get("waited", 0.0),
-        "sweeps: launch to first job (Hydra, worker start and imports)": sum(
-            t.get("to_first_job", 0.0) for t in timings
-        )
-        - record.get("warm_up", {}).get("waited", 0.0),
-        "sweeps: jobs running (first start to last finish)": sum(t.get("running", 0.0) for t in timings),
-        "sweeps: after the last job (summary, Hydra)": sum(t.get("after_last_job", 0.0) for t in timings),
-        "landscape": record["parts"].get("landscape", {}).get("seconds", 0.0),
-        "comparison table": record["parts"].get("comparison", {}).get("seconds", 0.0),
-        "report (figures, tables, page)": record["parts"].get("report", {}).get("seconds", 0.0),
-    }
+    wall = _wall_parts(record, clock, timings)
     known = sum(v for v in wall.values() if v is not None)
     total = ended - (begun or clock.get("entered", started))
     wall["other (lock, directories, record)"] = max(0.0, total - known)
+    jobs = _job_parts(record.get("warm_up"), timings)
+    return {
+        "batched": bool(record.get("batched")),
+        "total": round(total, 2),
+        "wall": {k: None if v is None else round(v, 2) for k, v in wall.items()},
+        "jobs": {k: round(v, 2) if isinstance(v, float) else v for k, v in jobs.items()},
+    }
+
+
+def _wall_parts(record: dict, clock: dict, timings: list[dict]) -> dict[str, float | None]:
+    """The command's wall seconds by part (None: a part whose clock was not read)."""
+    begun = clock.get("since")
+    parts = record["parts"]
+    waited = record.get("warm_up", {}).get("waited", 0.0)
+    return {
+        "start-up (interpreter, imports)": (clock["entered"] - begun) if begun and "entered" in clock else None,
+        "checks (compose each set-up, budget)": (clock["checked"] - clock["entered"]) if "checked" in clock else None,
+        "sweeps: planning (compose and validate every job)": sum(t.get("planning", 0.0) for t in timings),
+        "sweeps: waiting for the warmed-up workers": waited,
+        "sweeps: launch to first job (Hydra, worker start and imports)": sum(
+            t.get("to_first_job", 0.0) for t in timings
+        )
+        - waited,
+        "sweeps: jobs running (first start to last finish)": sum(t.get("running", 0.0) for t in timings),
+        "sweeps: after the last job (summary, Hydra)": sum(t.get("after_last_job", 0.0) for t in timings),
+        "landscape": parts.get("landscape", {}).get("seconds", 0.0),
+        "comparison table": parts.get("comparison", {}).get("seconds", 0.0),
+        "report (figures, tables, page)": parts.get("report", {}).get("seconds", 0.0),
+    }
+
+
+def _job_parts(warm: dict | None, timings: list[dict]) -> dict[str, float | int]:
+    """Inside the jobs: their count, their workers', and their core-seconds by part, summed over the jobs."""
     workers: dict[str, dict] = {}
     for t in timings:
         for pid, w in t.get("workers", {}).items():
@@ -191,7 +210,7 @@ def time_breakdown(record: dict, clock: dict, started: float, folders: list[str]
                 pid, {"jobs": 0, "spawned": w["spawned"], "first_job": w["first_job"], "numba_load": w["numba_load"]}
             )
             entry["jobs"] += w["jobs"]
-    warm = record.get("warm_up")
+    load = "numba cache load (iteration 0's extra, first job of each worker)"
     jobs = {
         "jobs": sum(t.get("jobs", 0) for t in timings),
         "workers": len(workers),
@@ -204,23 +223,14 @@ def time_breakdown(record: dict, clock: dict, started: float, folders: list[str]
                 )
             }
         ),
-        "numba cache load (iteration 0's extra, first job of each worker)": sum(
-            w["numba_load"] or 0.0 for w in workers.values()
-        ),
+        load: sum(w["numba_load"] or 0.0 for w in workers.values()),
         "training loop (summary wall_time)": sum(t.get("training", 0.0) for t in timings),
         "set-up, evaluation episodes, bootstrap, files (job seconds - wall_time)": sum(
             t.get("job_seconds", 0.0) - t.get("training", 0.0) for t in timings
         ),
     }
-    jobs["training loop (summary wall_time)"] -= jobs[
-        "numba cache load (iteration 0's extra, first job of each worker)"
-    ]
-    return {
-        "batched": bool(record.get("batched")),
-        "total": round(total, 2),
-        "wall": {k: None if v is None else round(v, 2) for k, v in wall.items()},
-        "jobs": {k: round(v, 2) if isinstance(v, float) else v for k, v in jobs.items()},
-    }
+    jobs["training loop (summary wall_time)"] -= jobs[load]
+    return jobs
 
 
 def print_breakdown(breakdown: dict) -> None:

@@ -18,6 +18,8 @@ READ_FROM_SCHEMA = [
     "run/budget.py",
     "run/checkpoint.py",
     "run/maps.py",
+    "experiments/bench_gpu.py",
+    "experiments/bench_scaling.py",
     "experiments/reproduction.py",
     "experiments/reporting/collect.py",
     "experiments/reporting/labels.py",

@@ -260,3 +260,35 @@ def test_the_plain_loops_policy_and_gradient_are_riskplans():
     for beta in (0.05, 0.1, 0.5):
         got = plain_loop.cvar_gradient(z[0], s, tail_count(beta, z[0].size), beta)
         np.testing.assert_allclose(got, cvar_gradient(z[0], s, beta), rtol=1e-12)
+
+
+def test_the_start_up_rows_are_the_best_of_their_new_processes(monkeypatch):
+    """Structure only: the first train run is not timed, each row is its processes' best, and the loop row is the
+    quickest recorded loop against its own run's compute."""
+    import json
+
+    import pandas as pd
+
+    from riskplan.experiments import bench_startup as startup
+
+    calls = []
+
+    def fake_wall(argv, cwd, marker=None, env=None):
+        calls.append(argv)
+        if "train" in argv:  # the whole command: its run's files, and later runs quicker
+            k = sum("train" in a for a in calls) - 1
+            out = Path(argv[-1].removeprefix("hydra.run.dir="))
+            out.mkdir(parents=True)
+            (out / "summary.json").write_text(json.dumps({"wall_time": 1.0 - 0.1 * k}))
+            pd.DataFrame({"seconds": [0.2, 0.3 + k]}).to_parquet(out / "metrics.parquet")
+            return 2.0 - 0.1 * k
+        seconds = {"FIRST-ITERATION": 0.8, "import numba": 0.5, "--help": 0.25, "import typer": 0.1}
+        return next(v for k, v in seconds.items() if k in argv or k == marker) + 0.01 * len(calls)
+
+    monkeypatch.setattr(startup, "wall", fake_wall)
+    whole, loop, first, helps = startup.bench_startup(quick=True)
+    assert sum("train" in argv for argv in calls) == 3 and len(calls) == 3 + 2 + 2 + 4 + 4
+    assert whole["value"] == pytest.approx(1.8) and whole["baseline"] == pytest.approx(0.5 + 0.01 * 6)
+    assert (loop["value"], loop["baseline"]) == (pytest.approx(0.8), pytest.approx(2.5))  # the third run's
+    assert first["value"] == pytest.approx(0.84) and helps["value"] == pytest.approx(0.33)
+    assert helps["baseline"] == pytest.approx(0.1 + 0.01 * 12) and "best of 4" in helps["note"]
