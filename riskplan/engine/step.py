@@ -19,6 +19,7 @@ state from `state.mixer` and returns the new one, so the same state always gives
 
 from __future__ import annotations
 
+import collections
 import functools
 import itertools
 import json
@@ -188,9 +189,19 @@ def batch_key(params: RiskplanConf) -> str:
     """What runs must share to run their episodes in one kernel call: the world (grid, sources, rewards, regions,
     horizon), the policy, and the sample schedule W_l. Seeds, risk measures and levels, step sizes, theta_0, team
     sizes, graphs and the iterations may differ."""
-    shared = {"world": as_dict(params.world), "policy": as_dict(params.policy)}
-    shared["samples"] = [params.train.samples, params.train.samples_growth]
-    return json.dumps(shared, sort_keys=True, default=str)
+    kept = _SHARED.get((id(params.world), id(params.policy)))
+    if kept is None or kept[0] is not params.world or kept[1] is not params.policy:
+        text = [json.dumps(as_dict(node), sort_keys=True, default=str) for node in (params.policy, params.world)]
+        kept = (params.world, params.policy, *text)
+        _SHARED[(id(params.world), id(params.policy))] = kept  # the nodes kept alive, so their ids stay theirs
+        while len(_SHARED) > SHARED_MEMO:
+            _SHARED.popitem(last=False)
+    samples = json.dumps([params.train.samples, params.train.samples_growth], default=str)
+    return f'{{"policy": {kept[2]}, "samples": {samples}, "world": {kept[3]}}}'  # JSON with its keys sorted
+
+
+SHARED_MEMO = 16  # a sweep's jobs share their world and policy nodes (riskplan.experiments.sweeping.as_data)
+_SHARED: collections.OrderedDict[tuple[int, int], tuple] = collections.OrderedDict()
 
 
 def team_statistics(setup: RunSetup, l: int, z: np.ndarray, objectives: np.ndarray) -> dict[str, float]:

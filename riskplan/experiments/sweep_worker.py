@@ -203,9 +203,11 @@ def _finite(value):
 
 def write_status(out: Path, record: dict) -> None:
     """Write status.json atomically (a reader never sees half a file, a full disk leaves no temp file); never from a
-    worker whose sweep driver is gone."""
+    worker whose sweep driver is gone. A job's start is not synced to disk: a power cut that loses it leaves the job
+    to run again, as it would anyway; its end is."""
     exit_if_orphaned()
-    write_atomic(Path(out) / STATUS, json.dumps(_finite(record), indent=2, allow_nan=False))
+    text = json.dumps(_finite(record), indent=2, allow_nan=False)
+    write_atomic(Path(out) / STATUS, text, durable=record.get("status") != "running")
 
 
 def sweep_job(cfg: DictConfig, out: Path) -> float | None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import collections
+import dataclasses
 import math
 import re
 import warnings
@@ -10,14 +12,14 @@ import numpy as np
 from omegaconf import DictConfig
 
 from riskplan.config.backends import DEVICES, load
-from riskplan.config.schema import RiskplanConf
+from riskplan.config.schema import Choice, RiskplanConf
 from riskplan.config.typed import as_dict, typed
 from riskplan.config.validate import validate
 from riskplan.engine import rng
 from riskplan.engine.measures.registry import check_risk_nodes
 from riskplan.engine.policy import Policy, make_policy
 from riskplan.engine.reachability import source_distances
-from riskplan.engine.rollout import make_kernel
+from riskplan.engine.rollout import KernelArrays, make_kernel
 from riskplan.engine.step import RunSetup, simulator, starts
 from riskplan.engine.team.mixer import Mixer
 from riskplan.engine.team.network import build_network
@@ -38,25 +40,70 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool = True) -
     found = maps.read_map(params.world)
     width, height = grid_size(params.world.size) if found is None else found.cells
     check_sizes(params, found, width, height)
-    layout = None if found is None else maps.load_layout(params.world, found)
-    given = None if params.team.starts is None else list(params.team.starts)
-    world = build_world(params.world, given, layout)
-    check_reach(world, source_distances(world, np.unique(world.starts)))
-    policy = make_policy(world, params.policy.kind, params.policy.features)
+    world, policy, kernel = _world_and_policy(params, found)
     theta0 = initial_theta(world, policy, list(params.train.theta0))
     network = build_network(params.team, policy.size, params.seed)
     budget.check(budget.sizes_of(params, world.width, world.height, world.sources, network.robots))  # before the Mixer
     return RunSetup(
         params=params,
-        config=as_dict(params),
+        config=_plain_config(params),
         world=world,
-        kernel=make_kernel(world, policy),
+        kernel=kernel,
         network=network,
         mixer=Mixer(network, params.team, params.seed),
         theta0=theta0,
         policy=policy,
         theta_names=policy.names,
     )
+
+
+def _world_and_policy(params: RiskplanConf, found: maps.MapFile | None) -> tuple[World, Policy, KernelArrays]:
+    """The world (its sources checked reachable), the policy and their kernel arrays. Runs of a sweep that share
+    one frozen world and policy config (riskplan.experiments.sweeping.as_data's jobs: those that differ in a seed, a
+    level or a step size) share these too: they are frozen, and building them is most of a run's set-up. A map's
+    world is built each time (its file may have changed)."""
+    configs = (params.world, params.policy, params.team.starts)
+    key = tuple(map(id, configs))
+    kept = _BUILT.get(key) if found is None else None
+    if kept is not None and all(a is b for a, b in zip(kept[0], configs)):
+        _BUILT.move_to_end(key)
+        return kept[1]
+    layout = None if found is None else maps.load_layout(params.world, found)
+    given = None if params.team.starts is None else list(params.team.starts)
+    world = build_world(params.world, given, layout)
+    check_reach(world, source_distances(world, np.unique(world.starts)))
+    policy = make_policy(world, params.policy.kind, params.policy.features)
+    built = (world, policy, make_kernel(world, policy))
+    if found is None:
+        _BUILT[key] = (configs, built)  # the configs kept alive, so that their ids stay theirs
+        while len(_BUILT) > BUILT_MEMO:
+            _BUILT.popitem(last=False)
+    return built
+
+
+BUILT_MEMO = 4
+_BUILT: collections.OrderedDict[tuple, tuple] = collections.OrderedDict()
+
+
+def _plain_config(params: RiskplanConf) -> dict:
+    """as_dict(params), each node's dict made once for all the runs that share the frozen node (a sweep's jobs
+    share all but the nodes their overrides change). Nothing writes into a run's config dict."""
+    config = {}
+    for name, node in vars(params).items():
+        if not dataclasses.is_dataclass(node):
+            config[name] = node.value if isinstance(node, Choice) else node  # as as_dict writes a Choice
+            continue
+        kept = _PLAIN.get(id(node))
+        if kept is None or kept[0] is not node:
+            kept = _PLAIN[id(node)] = (node, as_dict(node))  # the node kept alive, so that its id stays its
+            while len(_PLAIN) > PLAIN_MEMO:
+                _PLAIN.popitem(last=False)
+        config[name] = kept[1]
+    return config
+
+
+PLAIN_MEMO = 64
+_PLAIN: collections.OrderedDict[int, tuple] = collections.OrderedDict()
 
 
 def check_device(params: RiskplanConf) -> None:

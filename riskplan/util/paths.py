@@ -73,17 +73,20 @@ def temp_name(name: str, pid: int | str) -> str:
 
 
 @contextlib.contextmanager
-def atomic_path(path: Path | str):
+def atomic_path(path: Path | str, durable: bool = True):
     """Yield a temp path beside `path`; rename it over `path` when the block succeeds, else remove it.
 
     Readers see the old file or the new one, never half of one; a failed write (a full disk) leaves no temp file.
+    `durable=False` skips the fsync: for a file that is written again whenever it is needed (a job's `.hydra/`
+    files, a starting job's status), where a power cut may lose it but a crash of the process cannot tear it.
     """
     path = Path(path)
     tmp = path.with_name(temp_name(path.name, os.getpid()))
     try:
         yield tmp
-        with open(tmp, "rb+") as handle:
-            os.fsync(handle.fileno())
+        if durable:
+            with open(tmp, "rb+") as handle:
+                os.fsync(handle.fileno())
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -91,9 +94,9 @@ def atomic_path(path: Path | str):
         raise
 
 
-def write_atomic(path: Path | str, data: str | bytes) -> None:
+def write_atomic(path: Path | str, data: str | bytes, durable: bool = True) -> None:
     """Write text or bytes to `path` atomically (see atomic_path)."""
-    with atomic_path(path) as tmp:
+    with atomic_path(path, durable) as tmp:
         if isinstance(data, str):
             tmp.write_text(data, encoding="utf-8")
         else:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +39,7 @@ from riskplan.experiments.sweep_worker import (
     sweep_job,
 )
 from riskplan.experiments.sweeping.grid import JobConfigs
+from riskplan.experiments.sweeping.job_setup import JobSetup
 from riskplan.run import cost
 from riskplan.run.batch import BatchRun, train_batch
 from riskplan.run.build import build_setup
@@ -80,24 +82,21 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
             return _prepare(cfg, Path(HydraConfig.get().runtime.output_dir), held)
 
         configs = JobConfigs(context.config_loader, config)  # each job's config as Hydra makes it, quicker
+        as_data = JobSetup(configs, sweep_dir)
         for idx, overrides in enumerate(job_overrides, start=initial_job_idx):
             tic = time.perf_counter()
-            sweep_config = configs(list(overrides))
-            with open_dict(sweep_config):
-                sweep_config.hydra.job.id = idx
-                sweep_config.hydra.job.num = idx
-            done = run_job(
-                hydra_context=context,
-                task_function=prepare,
-                config=sweep_config,
-                job_dir_key="hydra.sweep.dir",
-                job_subdir_key="hydra.sweep.subdir",
-            )
+            job = as_data(list(overrides), idx)  # most jobs: their files written directly
+            if job is not None:
+                done = JobReturn(list(overrides), working_dir=os.getcwd(), task_name=config.hydra.job.name)
+                done.return_value = _begin(job.config.params, job.config.plain, job.out, held)
+                done.status = JobStatus.COMPLETED
+            else:
+                done = _run_job(context, prepare, configs(list(overrides)), idx)
+                configure_log(config.hydra.hydra_logging, config.hydra.verbose)
             prepared = done.return_value if done.status == JobStatus.COMPLETED else None
             if prepared is not None:
                 prepared.seconds = time.perf_counter() - tic
             returns.append((done, prepared))
-            configure_log(config.hydra.hydra_logging, config.hydra.verbose)
         waiting = [p for _, p in returns if p is not None and p.setup is not None]
         limit = launcher.memory_gb * 1e9 if launcher.memory_gb else memory_budget()[0]
         chunks = plan_chunks(waiting, limit)
@@ -111,15 +110,35 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
     return [done for done, _ in returns]
 
 
+def _run_job(context, prepare, sweep_config: DictConfig, number: int) -> JobReturn:
+    """A job set up through Hydra's run_job (what JobSetup cannot write as data)."""
+    with open_dict(sweep_config):
+        sweep_config.hydra.job.id = number
+        sweep_config.hydra.job.num = number
+    return run_job(
+        hydra_context=context,
+        task_function=prepare,
+        config=sweep_config,
+        job_dir_key="hydra.sweep.dir",
+        job_subdir_key="hydra.sweep.subdir",
+    )
+
+
 def _prepare(cfg: DictConfig, out: Path, held: contextlib.ExitStack) -> Prepared:
     """Take the job's folder and read where it stands; a ray-backend job trains now, as it would alone."""
     if not BACKENDS[Backend(cfg.team.backend)].batched:
         return Prepared(out, value=sweep_job(cfg, out))
+    return _begin(cfg, cfg, out, held)
+
+
+def _begin(cfg, plain, out: Path, held: contextlib.ExitStack) -> Prepared:
+    """Take the job's folder, read where it stands, and build its run (`cfg`: its config; `plain`: the same as a
+    DictConfig or plain dict, for its identity)."""
     try:
         held.enter_context(lock.hold_lock(out, "sweep job folder"))
     except BadInput:  # another process writes it: that process records it
         return Prepared(out)
-    start = begin_job(cfg, out)
+    start = begin_job(plain, out)
     if start.finished:
         return Prepared(out, start, value=start.value)
     try:

@@ -12,6 +12,7 @@ import posixpath
 import warnings
 from fractions import Fraction
 from pathlib import Path
+from typing import ClassVar
 
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
@@ -19,7 +20,7 @@ from hydra._internal.config_loader_impl import ConfigLoaderImpl, get_overrides_d
 from hydra._internal.utils import create_config_search_path
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.core.override_parser.types import ChoiceSweep, RangeSweep
+from hydra.core.override_parser.types import ChoiceSweep, Override, OverrideType, RangeSweep, ValueType
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -30,6 +31,7 @@ from riskplan.config.typed import choice_problem
 from riskplan.config.validate import check_extra
 from riskplan.engine.step import batch_key
 from riskplan.experiments.sweep_worker import HOW_KEYS, config_sha, folder_name
+from riskplan.experiments.sweeping.as_data import Composition
 from riskplan.experiments.sweeping.jobs import LOCAL, SWEEPS_ROOT, Job
 from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, explain, parse_overrides
@@ -189,14 +191,14 @@ def _repeated(override) -> str | None:
     return None
 
 
-def name_folders(job_list: list[Job], naming: dict, task_ovs: list) -> None:
+def name_folders(job_list: list[Job], naming: dict, task_ovs: list, parse: ParsedOnce | None = None) -> None:
     """The folder each job gets (Hydra's override_dirname through riskplan.experiments.sweep_worker.folder_name); two jobs that
     would share one are bad input."""
-    parser = override_parser()
+    parse = parse or ParsedOnce()
     owners: dict[str, Job] = {}
     for job in job_list:
         dirname = get_overrides_dirname(
-            parser.parse_overrides(job.overrides),
+            parse(job.overrides),
             list(naming["exclude_keys"]),
             str(naming["item_sep"]),
             str(naming["kv_sep"]),
@@ -280,14 +282,14 @@ def check_hydra(hydra_args: list[str], first_job: list[str], sweeper: bool = Fal
         GlobalHydra.instance().clear()
 
 
-def constant_keys(combos: list[list[str]], swept: set[str] = frozenset()) -> list[str]:
+def constant_keys(combos: list[list[str]], swept: set[str] = frozenset(), parse: ParsedOnce | None = None) -> list[str]:
     """The override keys left out of job folder names: the engine's (engine.device: how a run computes, never what),
     and those with one value in every job that were not typed as a sweep (`seed=range(0,1)` keeps its key), as
     long as some key remains."""
-    parser = OverridesParser.create()
+    parse = parse or ParsedOnce()
     values: dict[str, set[str]] = {}
     for combo in combos:
-        for o in parser.parse_overrides(combo):
+        for o in parse(combo):
             values.setdefault(o.key_or_group, set()).add(o.input_line)
     unnamed = [k for k in values if unnamed_key(k)]
     named = {k: v for k, v in values.items() if k not in unnamed}
@@ -300,27 +302,29 @@ def unnamed_key(key: str) -> bool:
     return key.lstrip("+~").split(".", 1)[0] in HOW_KEYS
 
 
-def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job], list[str]]:
+def validate(
+    combos: list[list[str]], search: list[str] = (), parse: ParsedOnce | None = None
+) -> tuple[list[Job], list[str]]:
     """Compose every combination against the schema (BadInput on the first failure), then check each with the
     model. Compositions are shared between combinations that choose the same config groups. `search`: the
     hydra.searchpath overrides (--config-dir) every composition needs to find the user's own config files."""
-    parser = override_parser()
+    parse = parse or ParsedOnce()
     schema.register()
     GlobalHydra.instance().clear()
-    bases: dict[tuple[str, ...], object] = {}
+    bases: dict[tuple[str, ...], Composition] = {}
     jobs: list[Job] = []
     notes: list[str] = []
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             for combo in combos:
-                parsed = parser.parse_overrides(combo)
-                groups = tuple(o.input_line for o in parsed if is_group(o, CONF_DIR))
-                keys = [o for o in parsed if not is_group(o, CONF_DIR)]
+                groups, keys = parse.split(combo)
                 try:
                     if groups not in bases:
-                        bases[groups] = hydra_compose(config_name="config", overrides=[*search, *groups])
-                    cfg = copy.deepcopy(bases[groups])
-                    ConfigLoaderImpl._apply_overrides_to_config(keys, cfg)
+                        bases[groups] = Composition(hydra_compose(config_name="config", overrides=[*search, *groups]))
+                    as_data = bases[groups].job(keys)  # most jobs: no composition of their own
+                    if as_data is None:
+                        cfg = copy.deepcopy(bases[groups].cfg)
+                        ConfigLoaderImpl._apply_overrides_to_config(keys, cfg)
                 except (HydraException, OmegaConfBaseException) as err:
                     choice = choice_problem(err)
                     if choice is not None:  # a value outside a key's Choices fails only this job
@@ -331,7 +335,7 @@ def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job]
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     try:
-                        setup = build_setup(cfg)
+                        setup = build_setup(cfg if as_data is None else as_data.params)
                         steps, invalid = setup_steps(setup), None
                         shape = {"batch": batch_key(setup.params), "memory": run_bytes(setup)}
                     except MissingExtra:  # a missing package fails the whole sweep, not only this job
@@ -341,10 +345,74 @@ def validate(combos: list[list[str]], search: list[str] = ()) -> tuple[list[Job]
                 for w in caught:
                     if str(w.message) not in notes:
                         notes.append(str(w.message))
-                jobs.append(Job(list(combo), config_sha(cfg), invalid, steps=steps, **shape))
+                sha = config_sha(cfg if as_data is None else as_data.plain)
+                jobs.append(Job(list(combo), sha, invalid, steps=steps, **shape))
     finally:
         GlobalHydra.instance().clear()
     return jobs, notes
+
+
+class ParsedOnce:
+    """Hydra's override parser with each distinct override parsed once in this process (a sweep repeats its values
+    across jobs, the planner and the launcher read the same jobs, and a parse costs a fraction of a millisecond),
+    and each key's group-or-key answer remembered. A job override parses alone, whatever the sweep."""
+
+    lines: ClassVar[dict[str, object]] = {}  # override line -> Override, shared by every instance
+    LINES_KEPT: ClassVar[int] = 200_000
+
+    def __init__(self):
+        self.parser = override_parser()
+        self.groups: dict[str, bool] = {}
+
+    def __call__(self, overrides: list[str]) -> list:
+        missing = [line for line in overrides if line not in self.lines]
+        if missing:
+            if len(self.lines) > self.LINES_KEPT:
+                self.lines.clear()
+            self.lines.update(zip(missing, self.parser.parse_overrides(missing)))
+        return [self.lines[line] for line in overrides]
+
+    def learn(self, sweeps: list) -> None:
+        """The job overrides of these sweep overrides (`seed=range(0,1000)`), known without parsing: a number's
+        `key=value` parses to the number the sweep lists (anything else is parsed when a job needs it)."""
+        for override in sweeps:
+            if not (override.is_sweep_override() and override.is_discrete_sweep() and override.package is None):
+                continue
+            key = override.get_key_element()
+            if key != override.key_or_group:  # +key, ~key
+                continue
+            for text, value in zip(override.sweep_string_iterator(), override.sweep_iterator()):
+                if type(value) in (int, float):
+                    line = f"{key}={text}"
+                    self.lines.setdefault(line, _number_override(key, value, line, self.parser))
+
+    def split(self, overrides: list[str]) -> tuple[tuple[str, ...], list]:
+        """The overrides that choose config groups (as typed) and those that set keys (parsed)."""
+        parsed = self(overrides)
+        chooses = [self._group(o) for o in parsed]
+        return (
+            tuple(o.input_line for o, group in zip(parsed, chooses) if group),
+            [o for o, group in zip(parsed, chooses) if not group],
+        )
+
+    def _group(self, override) -> bool:
+        key = override.input_line
+        if key not in self.groups:
+            self.groups[key] = is_group(override, CONF_DIR)
+        return self.groups[key]
+
+
+def _number_override(key: str, value: int | float, line: str, parser) -> Override:
+    """The Override that parsing `key=<number>` gives."""
+    return Override(
+        type=OverrideType.CHANGE,
+        key_or_group=key,
+        value_type=ValueType.ELEMENT,
+        _value=value,
+        package=None,
+        input_line=line,
+        config_loader=parser.config_loader,
+    )
 
 
 def combo_sha(combo: list[str]) -> str:
@@ -445,12 +513,12 @@ class JobConfigs:
     def __call__(self, overrides: list[str]):
         parsed = self.parser.parse_overrides(list(overrides))
         if any(o.is_hydra_override() for o in parsed):  # Hydra's own settings change more than keys
-            return self._compose(list(overrides))
+            return self.compose(list(overrides))
         groups = tuple(o.input_line for o in parsed if is_group(o, Path(CONF_DIR)))
         keys = [o for o in parsed if not is_group(o, Path(CONF_DIR))]
         try:
             if groups not in self.bases:
-                self.bases[groups] = self._compose(list(groups))
+                self.bases[groups] = self.compose(list(groups))
             cfg = copy.deepcopy(self.bases[groups])
             ConfigLoaderImpl._apply_overrides_to_config(keys, cfg)
             naming = cfg.hydra.job.config.override_dirname
@@ -459,9 +527,10 @@ class JobConfigs:
                 overrides=parsed, kv_sep=naming.kv_sep, item_sep=naming.item_sep, exclude_keys=naming.exclude_keys
             )
         except (HydraException, OmegaConfBaseException):
-            return self._compose(list(overrides))
+            return self.compose(list(overrides))
         OmegaConf.copy_cache(from_config=self.master, to_config=cfg)
         return cfg
 
-    def _compose(self, overrides: list[str]):
+    def compose(self, overrides: list[str]):
+        """The sweep config of these overrides, composed by Hydra."""
         return self.loader.load_sweep_config(self.master, overrides)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from riskplan.experiments.sweep_worker import SUBDIR
 from riskplan.experiments.sweeping.grid import (
+    ParsedOnce,
     add_naming_and_logging,
     check_duplicates,
     check_hydra,
@@ -103,7 +104,9 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         check_subdir(hydra_keys["hydra.sweep.subdir"].value(), len(task_ovs) > 0)
     combos = expand(task_ovs, args)
     search = [o.input_line for o in hydra_ovs if o.key_or_group == "hydra.searchpath"]  # --config-dir
-    job_list, notes = validate(combos, search)
+    parse = ParsedOnce()  # each distinct override parsed once, for every step below
+    parse.learn(task_ovs)
+    job_list, notes = validate(combos, search, parse)
     check_duplicates(job_list, task_ovs)
     if all(job.invalid for job in job_list):
         first = job_list[0].invalid
@@ -141,14 +144,14 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         # folder names that stay one path component, whatever the values hold ('/', '..', '%', NUL)
         argv.append(f"hydra.sweep.subdir={hydra_quote(SUBDIR)}")
     argv.append(TRAVELS)
-    constant = constant_keys(combos, {o.key_or_group for o in task_ovs if o.is_sweep_override()})
+    constant = constant_keys(combos, {o.key_or_group for o in task_ovs if o.is_sweep_override()}, parse)
     for job in job_list:
         job.label = ",".join(sorted(o for o in job.overrides if o.split("=", 1)[0].lstrip("+~") not in constant))
     add_naming_and_logging(argv, hydra_keys, constant)
 
     naming = check_hydra(argv[1 + len(args) :] + [o.input_line for o in hydra_ovs], combos[0])
     if named and "hydra.sweep.subdir" not in hydra_keys:
-        name_folders(job_list, naming, task_ovs)
+        name_folders(job_list, naming, task_ovs, parse)
 
     target = target_dir(sweep_dir, explicit_dir, argv)
     plan = Plan(target, argv, job_list, launcher, workers, notes, workers_arg)

@@ -1,0 +1,138 @@
+"""A sweep's jobs as data (sweeping.as_data, sweeping.job_setup): a job's config from its composition with its
+keys set is exactly the config Hydra composes for it (typed, plain and its identity), and the files written for
+it are byte for byte those Hydra's run_job writes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from omegaconf import OmegaConf
+
+from riskplan.config import schema
+from riskplan.config.typed import as_dict, typed
+from riskplan.experiments.sweep_worker import config_sha
+from riskplan.experiments.sweeping import job_setup
+from riskplan.experiments.sweeping.as_data import Composition
+from riskplan.experiments.sweeping.execute import run_sweep
+from riskplan.experiments.sweeping.grid import ParsedOnce
+from riskplan.experiments.sweeping.job_setup import Dumps
+from riskplan.run import build
+from riskplan.run.compose import CONF_DIR, parse_overrides
+
+AS_DATA = [
+    ["seed=3"],
+    ["risk.beta=1"],  # an int on a float key: 1.0, as OmegaConf stores it
+    ["risk.beta=0.1", "seed=7"],
+    ["team.graph=complete"],  # a Choice: an Enum member
+    ["world.horizon=12", "train.iterations=5"],
+    ["engine.device=cpu"],
+    ["team.delay.max=2", "team.robots=3"],
+    ["risk.schedule.kind=linear"],
+    ["train.samples_growth=1", "train.baseline=false"],
+    ["policy.kind=tabular", "train.step_size.initial=2"],
+]
+THROUGH_HYDRA = [
+    ["+train.extra=1"],  # a key the schema lacks: Hydra names it
+    ["~train.paths"],
+    ["train.theta0=[1,2]"],  # a list
+    ["seed=${train.iterations}"],  # an interpolation
+    ["seed=abc"],  # a value the key refuses
+    ["team.starts.0=[1,1]"],  # inside a list
+]
+
+
+@pytest.fixture(scope="module")
+def compositions():
+    schema.register()
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        yield {
+            groups: (groups, Composition(compose("config", list(groups))))
+            for groups in ((), ("experiment=paper_team",))
+        }
+    GlobalHydra.instance().clear()
+
+
+@pytest.mark.parametrize("groups", [(), ("experiment=paper_team",)])
+@pytest.mark.parametrize("keys", AS_DATA, ids=",".join)
+def test_a_job_as_data_is_the_config_hydra_composes(compositions, groups, keys):
+    _, composition = compositions[groups]
+    job = composition.job(ParsedOnce()(keys))
+    assert job is not None
+    whole = compose("config", [*groups, *keys])  # inside the fixture's initialize_config_dir
+    assert job.params == typed(whole)
+    assert job.plain == OmegaConf.to_container(whole, resolve=True)
+    assert config_sha(job.plain) == config_sha(whole)
+
+
+@pytest.mark.parametrize("keys", THROUGH_HYDRA, ids=",".join)
+def test_what_only_hydra_can_compose_is_left_to_it(compositions, keys):
+    _, composition = compositions[()]
+    assert composition.job(ParsedOnce()(keys)) is None
+
+
+def test_a_composition_that_interpolates_sends_every_job_to_hydra(compositions):
+    _, composition = compositions[()]
+    cfg = OmegaConf.merge(composition.cfg, {"train": {"paths": "${train.iterations}"}})
+    assert Composition(cfg).job(ParsedOnce()(["seed=1"])) is None  # setting one key could leave another stale
+
+
+def test_a_sweep_s_numbers_are_known_without_parsing_and_equal_the_parse():
+    parse = ParsedOnce()
+    sweeps = parse_overrides(["seed=range(40000,40003)", "risk.beta=0.1,1,2.5e-3", "world.name=a,b"])
+    parse.learn(sweeps)
+    lines = ["seed=40001", "risk.beta=1", "risk.beta=0.0025"]
+    fields = ("type", "key_or_group", "value_type", "_value", "package", "input_line")
+    learned = [[getattr(parse.lines[line], f) for f in fields] for line in lines]
+    assert learned == [[getattr(o, f) for f in fields] for o in parse.parser.parse_overrides(lines)]
+    assert [type(o._value) for o in map(parse.lines.get, lines)] == [int, int, float]
+    assert "world.name=a" not in parse.lines  # strings are parsed when a job needs them
+
+
+def test_the_dumps_of_shared_entries_are_byte_for_byte_a_whole_dump():
+    data = {
+        "a": {"b": [1, "x y"], "c": {}, "d": {"e": "line one\n\nline three\n", "f": None, "g": []}},
+        "h": "yes",  # quoted: YAML 1.1 would read a bool
+        "i": {"j": {"k": 1.5, "l": "${x}"}},
+    }
+    dumps = Dumps()
+    assert dumps(data) == job_setup._dump(data)
+    changed = {**data, "i": {**data["i"], "j": {"k": 2.5, "l": "${x}"}}}
+    assert dumps(changed) == job_setup._dump(changed)  # only the changed entries dumped again
+    assert dumps({"hydra": changed}) == job_setup._dump({"hydra": changed})
+
+
+def test_runs_that_share_their_world_config_share_the_built_world(compositions):
+    _, composition = compositions[()]
+    one, two = (composition.job(ParsedOnce()([f"seed={s}"])) for s in (1, 2))
+    first, second = build.build_setup(one.params), build.build_setup(two.params)
+    assert first.world is second.world and first.kernel is second.kernel
+    assert first.config == as_dict(one.params) and second.config == as_dict(two.params)
+    wider = composition.job(ParsedOnce()(["world.horizon=31"]))
+    assert build.build_setup(wider.params).world is not first.world
+
+
+ARGS = ["seed=0,1", "risk.beta=0.1,1", "train.iterations=2", "train.samples=40", "train.eval_episodes=50"]
+ARGS += ["train.bootstrap=5", "train.paths=2"]
+
+
+@pytest.mark.slow  # two small batched sweeps, about 10 s
+def test_a_batched_sweep_s_files_are_those_hydra_s_run_job_writes(tmp_path, monkeypatch):
+    direct = tmp_path / "direct"
+    run_sweep(ARGS, sweep_dir=direct, batch=True, out=lambda text: None)
+    monkeypatch.setattr(job_setup.JobSetup, "__call__", lambda self, overrides, number: None)  # run_job for each
+    hydra = tmp_path / "hydra"
+    run_sweep(ARGS, sweep_dir=hydra, batch=True, out=lambda text: None)
+    folders = sorted(p.name for p in direct.iterdir() if p.is_dir())
+    assert len(folders) == 4 and folders == sorted(p.name for p in hydra.iterdir() if p.is_dir())
+    for folder in folders:
+        for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
+            mine = (direct / folder / ".hydra" / name).read_text().replace(str(direct), "SWEEP")
+            theirs = (hydra / folder / ".hydra" / name).read_text().replace(str(hydra), "SWEEP")
+            assert mine == theirs, (folder, name)
+        statuses = [yaml.safe_load(Path(root / folder / "status.json").read_text()) for root in (direct, hydra)]
+        assert statuses[0]["config_sha"] == statuses[1]["config_sha"] and statuses[0]["cvar"] == statuses[1]["cvar"]
