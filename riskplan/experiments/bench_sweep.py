@@ -5,10 +5,13 @@
 - A 64-run sweep batched, with every file it writes, against the bare loops of the same 64 trainings run one after
   another in this warm process: the rollout kernel and the CVaR gradient, nothing recorded, no evaluation. That
   baseline is the arithmetic a sweep cannot do without.
+- A 1,000-job sweep planned and set up for a batch (each job's folder, `.hydra/` files, status, lock and run, as
+  data), against the set-up of the same jobs through one Hydra `run_job` each (timed on 50, scaled).
 """
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import sys
 import tempfile
@@ -16,12 +19,20 @@ import time
 from pathlib import Path
 
 import pandas as pd
+from hydra._internal.callbacks import Callbacks
+from hydra._internal.config_loader_impl import ConfigLoaderImpl
+from hydra._internal.utils import create_config_search_path
+from hydra.core.utils import setup_globals
+from hydra.types import HydraContext, RunMode
 
+from riskplan.config import schema
 from riskplan.engine.estimators import cvar_gradient
 from riskplan.engine.schedules import step_size
 from riskplan.engine.step import initial_state, rollouts
+from riskplan.experiments.sweeping.batched import prepare_jobs
+from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.run.build import build_setup
-from riskplan.run.compose import compose
+from riskplan.run.compose import CONF_DIR, compose
 from riskplan.util.limits import cpu_count
 
 BETAS = (0.05, 0.1, 0.2)  # the 24-run sweep's (x 8 seeds)
@@ -30,12 +41,19 @@ RUN = ["train.samples=6000", "train.eval_episodes=10000"]
 JOBS_TARGET = 3.0  # batched at least this many times quicker than a worker per job, on 2 cores
 BARE_TARGET = 1.0  # the batched sweep at most this many times the bare loops of its trainings
 COMPARED = ["job", "status", "mean", "cvar", "value_at_risk"]
+SETUP_JOBS = 1000
+SETUP_TARGET = 5.0  # seconds to plan and set up SETUP_JOBS jobs
+HYDRA_SAMPLE = 50  # jobs the set-up row's baseline sets up through run_job, scaled to the row's
 
 
 def bench_sweep(quick: bool) -> list[dict]:
-    """The two rows (--quick: fewer seeds and 50 iterations)."""
+    """The three rows (--quick: fewer seeds and 50 iterations)."""
     iterations = 50 if quick else 200
-    return [jobs_row(4 if quick else 8, iterations), bare_row(4 if quick else 16, iterations)]
+    return [
+        jobs_row(4 if quick else 8, iterations),
+        bare_row(4 if quick else 16, iterations),
+        setup_row(SETUP_JOBS),
+    ]
 
 
 def grid(betas: tuple[float, ...], seeds: int, iterations: int) -> list[str]:
@@ -94,6 +112,43 @@ def bare_row(seeds: int, iterations: int) -> dict:
         "note": "baseline: each training's rollout kernel and CVaR gradient, one run after another in a warm "
         "process, nothing recorded, no evaluation; value: `riskplan sweep --batch` from its start to its exit",
     }
+
+
+def setup_row(jobs: int) -> dict:
+    args = ["train.iterations=1", *RUN]
+    with tempfile.TemporaryDirectory() as tmp:
+        started = time.perf_counter()
+        plan = plan_sweep([f"seed=range(0,{jobs})", *args], None, Path(tmp) / "data", batch=True)
+        planned = time.perf_counter() - started
+        set_up = prepared_in(plan, as_data=True)
+        sample = plan_sweep([f"seed=range(0,{HYDRA_SAMPLE})", *args], None, Path(tmp) / "hydra", batch=True)
+        baseline = prepared_in(sample, as_data=False) * jobs / HYDRA_SAMPLE
+    return {
+        "measure": f"{jobs:,} jobs of a batched sweep planned and set up (s)",
+        "value": planned + set_up,
+        "unit": "s",
+        "target": f"< {SETUP_TARGET:g} s",
+        "ok": planned + set_up < SETUP_TARGET,
+        "baseline": baseline,
+        "ratio": baseline / (planned + set_up),
+        "note": f"planned in {planned:.2f} s (parsed, composed, validated, named), set up in {set_up:.2f} s (folders, "
+        f".hydra/ files, status, locks, runs built); baseline: the set-up alone through one Hydra run_job a job, "
+        f"timed on {HYDRA_SAMPLE} jobs and scaled",
+    }
+
+
+def prepared_in(plan, as_data: bool) -> float:
+    """Seconds to set up the plan's jobs for its batch launcher, in this process (nothing trained)."""
+    setup_globals()
+    schema.register()
+    loader = ConfigLoaderImpl(config_search_path=create_config_search_path(str(CONF_DIR)))
+    hydra_args = [a for a in plan.argv[1:] if a.lstrip("+").startswith("hydra")]
+    config = loader.load_configuration("config", hydra_args, RunMode.MULTIRUN)
+    context = HydraContext(config_loader=loader, callbacks=Callbacks(config))
+    started = time.perf_counter()
+    with contextlib.ExitStack() as held:
+        prepare_jobs(context, config, [job.overrides for job in plan.jobs], 0, held, as_data)
+    return time.perf_counter() - started
 
 
 def bare_loops(runs: list[list[str]]) -> float:

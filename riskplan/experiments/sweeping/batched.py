@@ -68,35 +68,15 @@ class Prepared:
 
 
 def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobReturn]:
-    """The Launcher's launch: set up every job through Hydra, train the waiting ones in batches, record each."""
+    """The Launcher's launch: set up every job, train the waiting ones in batches, record each."""
     setup_globals()
     config, context = launcher.config, launcher.hydra_context
     configure_log(config.hydra.hydra_logging, config.hydra.verbose)
     sweep_dir = Path(str(config.hydra.sweep.dir))
     sweep_dir.mkdir(parents=True, exist_ok=True)
     numba.set_num_threads(min(cpu_count(), numba.config.NUMBA_NUM_THREADS))  # one process: every core
-    returns: list[tuple[JobReturn, Prepared]] = []
     with contextlib.ExitStack() as held:  # each job folder's lock, until its job is recorded
-
-        def prepare(cfg: DictConfig) -> Prepared:
-            return _prepare(cfg, Path(HydraConfig.get().runtime.output_dir), held)
-
-        configs = JobConfigs(context.config_loader, config)  # each job's config as Hydra makes it, quicker
-        as_data = JobSetup(configs, sweep_dir)
-        for idx, overrides in enumerate(job_overrides, start=initial_job_idx):
-            tic = time.perf_counter()
-            job = as_data(list(overrides), idx)  # most jobs: their files written directly
-            if job is not None:
-                done = JobReturn(list(overrides), working_dir=os.getcwd(), task_name=config.hydra.job.name)
-                done.return_value = _begin(job.config.params, job.config.plain, job.out, held)
-                done.status = JobStatus.COMPLETED
-            else:
-                done = _run_job(context, prepare, configs(list(overrides)), idx)
-                configure_log(config.hydra.hydra_logging, config.hydra.verbose)
-            prepared = done.return_value if done.status == JobStatus.COMPLETED else None
-            if prepared is not None:
-                prepared.seconds = time.perf_counter() - tic
-            returns.append((done, prepared))
+        returns = prepare_jobs(context, config, job_overrides, initial_job_idx, held)
         waiting = [p for _, p in returns if p is not None and p.setup is not None]
         limit = launcher.memory_gb * 1e9 if launcher.memory_gb else memory_budget()[0]
         chunks = plan_chunks(waiting, limit)
@@ -108,6 +88,36 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
         if prepared is not None:
             done.return_value = prepared.value
     return [done for done, _ in returns]
+
+
+def prepare_jobs(
+    context, config: DictConfig, job_overrides, first: int, held: contextlib.ExitStack, as_data: bool = True
+) -> list[tuple[JobReturn, Prepared | None]]:
+    """Set up each job: its folder and files, its lock (into `held`), where it stands and its run. Most jobs as
+    data (sweeping.job_setup); the rest, or all of them without `as_data`, through Hydra's run_job."""
+    sweep_dir = Path(str(config.hydra.sweep.dir))
+
+    def prepare(cfg: DictConfig) -> Prepared:
+        return _prepare(cfg, Path(HydraConfig.get().runtime.output_dir), held)
+
+    configs = JobConfigs(context.config_loader, config)  # each job's config as Hydra makes it, quicker
+    setup = JobSetup(configs, sweep_dir)
+    returns = []
+    for idx, overrides in enumerate(job_overrides, start=first):
+        tic = time.perf_counter()
+        job = setup(list(overrides), idx) if as_data else None  # most jobs: their files written directly
+        if job is not None:
+            done = JobReturn(list(overrides), working_dir=os.getcwd(), task_name=config.hydra.job.name)
+            done.return_value = _begin(job.config.params, job.config.plain, job.out, held)
+            done.status = JobStatus.COMPLETED
+        else:
+            done = _run_job(context, prepare, configs(list(overrides)), idx)
+            configure_log(config.hydra.hydra_logging, config.hydra.verbose)
+        prepared = done.return_value if done.status == JobStatus.COMPLETED else None
+        if prepared is not None:
+            prepared.seconds = time.perf_counter() - tic
+        returns.append((done, prepared))
+    return returns
 
 
 def _run_job(context, prepare, sweep_config: DictConfig, number: int) -> JobReturn:
