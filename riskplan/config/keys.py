@@ -37,7 +37,8 @@ class Key(str):
         fields = _fields(self.node)
         if name not in fields:
             raise AttributeError(f"{self or 'the config'} has no key {name!r}; its keys: {', '.join(fields)}")
-        return _key(f"{self}.{name}" if self else name, fields[name])
+        child = self.__dict__[name] = _key(f"{self}.{name}" if self else name, fields[name])  # found at once next time
+        return child
 
     def at(self, index: int) -> Key:
         """The key of item `index` of a list: KEYS.team.risk.at(2) is "team.risk.2", with a RiskConf's keys."""
