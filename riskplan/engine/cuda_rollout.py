@@ -78,7 +78,7 @@ def ported(kernel: KernelArrays, record: bool = False, reference: bool = False) 
     return not (kernel.tables.tabular or kernel.tables.mobile or record or reference)
 
 
-def simulate(  # rollout.simulate's signature: engine.step.simulator hands out either (config.backends.DEVICES)
+def simulate(  # rollout.simulate's signature, twinned: engine.step.simulator hands out either (test_backends checks)
     world: World,
     kernel: KernelArrays,
     thetas: np.ndarray,
@@ -213,26 +213,9 @@ def _episode_kernel(size: int):
     def episodes_kernel(
         tables, bins, score, starts, keys, episodes, out_z, out_score, out_risky, out_reached, out_steps
     ):
-        """Episode e of policy p = e // episodes, one per thread. `tables` is the KernelArrays's, on the device, read into
-        locals as `_simulate_affine` reads them (the episode takes its arrays one by one)."""
-        # KernelTables' fields into locals, as the CPU kernels read them: the episode takes them one by one
-        next_cell = tables.next_cell
-        cell_affine = tables.cell_affine
-        cell_risky = tables.cell_risky
-        region_of = tables.region_of
-        region_risky = tables.region_risky
-        reg_off = tables.reg_off
-        reg_ops = tables.reg_ops
-        reg_par = tables.reg_par
-        src_off = tables.src_off
-        src_ops = tables.src_ops
-        src_par = tables.src_par
-        source_at = tables.source_at
-        affine = tables.affine
-        draw_uniform = tables.draw_uniform
-        draw_normal = tables.draw_normal
-        horizon = tables.horizon
-        stop_at_source = tables.stop_at_source
+        """Episode e of policy p = e // episodes, one per thread. `tables` is the KernelArrays's, on the device, its
+        fields passed one by one as `_simulate_affine` passes them (that kernel reads them into locals first, for its
+        parallel loop; a thread here has none)."""
         e = cuda.grid(1)
         if e >= out_z.shape[0]:
             return
@@ -246,23 +229,23 @@ def _episode_kernel(size: int):
             acc[j] = 0.0
         # the arrays one by one, not KernelTables (riskplan.engine.dynamics says why)
         out_z[e], out_risky[e], out_reached[e], out_steps[e] = _static_episode(
-            next_cell,
-            source_at,
-            src_off,
-            src_ops,
-            src_par,
-            horizon,
-            stop_at_source,
-            affine,
-            cell_affine,
-            cell_risky,
-            draw_uniform,
-            draw_normal,
-            region_of,
-            region_risky,
-            reg_off,
-            reg_ops,
-            reg_par,
+            tables.next_cell,
+            tables.source_at,
+            tables.src_off,
+            tables.src_ops,
+            tables.src_par,
+            tables.horizon,
+            tables.stop_at_source,
+            tables.affine,
+            tables.cell_affine,
+            tables.cell_risky,
+            tables.draw_uniform,
+            tables.draw_normal,
+            tables.region_of,
+            tables.region_risky,
+            tables.reg_off,
+            tables.reg_ops,
+            tables.reg_par,
             bins,
             score,
             p,

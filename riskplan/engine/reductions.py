@@ -274,7 +274,8 @@ def _indexed_products(z, scores, index, row_offsets, v, out):
 
 @njit(parallel=True, cache=True)
 def _centred_products(z, scores, centre, out):
-    """out[r, m] = sum over i, in order, of (z[r, i] - centre[r]) scores[r, i, m]; tasks as `_indexed_products`."""
+    """out[r, m] = sum over i, in order, of (z[r, i] - centre[r]) scores[r, i, m]; tasks as `_indexed_products`.
+    Its twin over every index: one kernel for both would read an index or branch on the weight at every product."""
     dims = scores.shape[2]
     width = 1 if dims < COLUMNS else COLUMNS
     blocks = (dims + width - 1) // width

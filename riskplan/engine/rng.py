@@ -115,6 +115,7 @@ def next_uniform(state):
     return state, bits_uniform(m)
 
 
+# The stream and the ziggurat have a twin in experiments/baselines/one_kernel.py: a baseline may not import riskplan.
 def _ziggurat(layers: int = 256, r: float = 3.6541528853610088) -> tuple[np.ndarray, np.ndarray]:
     """Marsaglia-Tsang ziggurat of exp(-x^2/2) in `layers` strips of equal area v (Doornik's ZIGNOR layout).
 
