@@ -78,15 +78,29 @@ def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
     if kind in WRAPPERS:
         if "of" not in data:
             raise BadInput(where, f"'{kind}' needs 'of: <distribution>'")
-        child = parse(data["of"], f"{where}.of", level + 1)
-        if kind == "scale":
-            return Dist("scale", (finite(value, f"{where}.scale"),), (child,))
-        lo, hi = _pair(value, f"{where}.clip")
-        if lo > hi:
-            raise BadInput(f"{where}.clip", f"lower bound {lo} exceeds upper bound {hi}")
-        return Dist("clip", (lo, hi), (child,))
+        return _wrapper(kind, value, parse(data["of"], f"{where}.of", level + 1), where)
     if "of" in data:
         raise BadInput(where, f"'{kind}' takes no 'of'")
+    if kind in LEAVES:
+        return _leaf(kind, value, where)
+    items = _list(value, f"{where}.{kind}")
+    if kind == "sum":
+        return Dist("sum", (), tuple(parse(item, f"{where}.sum.{i}", level + 1) for i, item in enumerate(items)))
+    return _mixture(items, where, level)
+
+
+def _wrapper(kind: str, value: Any, child: Dist, where: str) -> Dist:
+    """A scale (its factor `value`) or a clip (its [lo, hi]) of the parsed `child`."""
+    if kind == "scale":
+        return Dist("scale", (finite(value, f"{where}.scale"),), (child,))
+    lo, hi = _pair(value, f"{where}.clip")
+    if lo > hi:
+        raise BadInput(f"{where}.clip", f"lower bound {lo} exceeds upper bound {hi}")
+    return Dist("clip", (lo, hi), (child,))
+
+
+def _leaf(kind: str, value: Any, where: str) -> Dist:
+    """A constant, uniform [lo, hi], normal [mean, std] or bernoulli p, its parameters checked."""
     if kind == "constant":
         return Dist("constant", (finite(value, where),))
     if kind == "uniform":
@@ -99,14 +113,14 @@ def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
         if std < 0:
             raise BadInput(f"{where}.normal", f"standard deviation {std} is negative; give [mean, std] with std >= 0")
         return Dist("normal", (mean, std))
-    if kind == "bernoulli":
-        p = finite(value, f"{where}.bernoulli")
-        if not 0.0 <= p <= 1.0:
-            raise BadInput(f"{where}.bernoulli", f"probability {p} is outside [0, 1]")
-        return Dist("bernoulli", (p,))
-    items = _list(value, f"{where}.{kind}")
-    if kind == "sum":
-        return Dist("sum", (), tuple(parse(item, f"{where}.sum.{i}", level + 1) for i, item in enumerate(items)))
+    p = finite(value, f"{where}.bernoulli")
+    if not 0.0 <= p <= 1.0:
+        raise BadInput(f"{where}.bernoulli", f"probability {p} is outside [0, 1]")
+    return Dist("bernoulli", (p,))
+
+
+def _mixture(items: list, where: str, level: int) -> Dist:
+    """A mixture of [{weight: w, of: <distribution>}, ...]: weights >= 0, not all 0."""
     weights, children = [], []
     for i, item in enumerate(items):
         here = f"{where}.mixture.{i}"

@@ -147,112 +147,20 @@ def build_world(world: WorldConf, starts: list | None = None, layout: Layout | N
     With a `layout` (world.map), the grid's size is the map's, its occupied cells are obstacles beside
     world.obstacles, its unknown cells follow world.map_unknown, and `mask` regions take their cells from it."""
     width, height = grid_size(world.size) if layout is None else layout.size
-    cells = width * height
-    obstacle = np.zeros((width, height), dtype=bool)
-    for i, cell in enumerate(world.obstacles):
-        x, y = _cell(cell, width, height, f"world.obstacles.{i}")
-        obstacle[x, y] = True
-    occupied = "is an obstacle"
-    if layout is not None:
-        kind = "occupied or unknown" if world.map_unknown == MapUnknown.obstacle else "occupied"
-        occupied = f"is an obstacle (an {kind} cell of {layout.name})"
-        obstacle |= layout.occupied
-        if world.map_unknown == MapUnknown.obstacle:
-            obstacle |= layout.unknown
-    obstacle = obstacle.ravel()
+    obstacle, occupied = _obstacles(world, layout, width, height)
     places = _Places(width, height, obstacle, None if layout is None else layout.frame, occupied)
-
-    horizon = world.horizon
-
-    start_list = [world.start] if starts is None else starts
-    where = "world.start" if starts is None else "team.starts"
-    start_cells = []
-    for i, start in enumerate(start_list):
-        here = where if starts is None else f"{where}.{i}"
-        x, y = places.cell(start, here)
-        if obstacle[x * height + y]:
-            raise BadInput(here, f"({x}, {y}) {occupied}; choose a free cell")
-        start_cells.append(x * height + y)
-
-    if len(world.sources) == 0:
-        raise BadInput("world.sources", "no sources; the policy needs at least one signal (M >= 1)")
-    names, src_cells, rewards, motion, amplitude, precision = [], [], [], [], [], []
-    for j, source in enumerate(world.sources):
-        here = f"world.sources.{j}"
-        x, y = places.cell(source.position, f"{here}.position")
-        if obstacle[x * height + y]:
-            raise BadInput(f"{here}.position", f"({x}, {y}) {occupied}; move the source or the obstacle")
-        if x * height + y in src_cells:
-            other = src_cells.index(x * height + y)
-            raise BadInput(
-                f"{here}.position",
-                f"({x}, {y}) is also the cell of world.sources.{other}; two sources "
-                f"on one cell cannot be told apart; give each source its own cell",
-            )
-        cov = _covariance(source.covariance, f"{here}.covariance")
-        with np.errstate(all="ignore"):
-            det = float(np.linalg.det(cov))
-            inv = np.linalg.inv(cov)
-        if not (math.isfinite(det) and np.all(np.isfinite(inv)) and np.max(np.abs(inv)) <= PRECISION_LIMIT):
-            raise BadInput(
-                f"{here}.covariance",
-                f"{cov.tolist()} is too extreme: its determinant or inverse "
-                f"overflows (inverse entries must stay below {PRECISION_LIMIT:g}); "
-                f"give entries between about 1e-100 and 1e100",
-            )
-        if source.scale is None:
-            peak = 1.0  # w = 2 pi sqrt(det Sigma): exactly 1, even where sqrt(det) would round
-        else:
-            scale = float(source.scale)
-            if not math.isfinite(scale):
-                raise BadInput(f"{here}.scale", f"got {source.scale!r}; expected a finite number or null (peak 1)")
-            peak = scale / (2.0 * math.pi * math.sqrt(det))
-            if not abs(peak) <= SIGNAL_LIMIT:
-                raise BadInput(
-                    f"{here}.scale",
-                    f"got {scale:g}; the signal would peak at about {abs(peak):.3g}, "
-                    f"beyond the limit of {SIGNAL_LIMIT:g} that keeps logits and scores "
-                    f"finite; give a smaller scale, or null for a peak of 1",
-                )
-        names.append(source.name or f"source_{j}")
-        src_cells.append(x * height + y)
-        rewards.append(_dist(source.reward, f"{here}.reward"))
-        motion.append(source.motion.prob if source.motion.kind == MotionKind.random_walk else 0.0)
-        amplitude.append(peak)
-        precision.append((inv[0, 0], inv[0, 1], inv[1, 1]))
-
-    region_of = np.full(cells, -1, dtype=np.int64)
-    region_names, region_risky, region_rewards = [], [], []
-    for r, region in enumerate(world.regions):
-        here = f"world.regions.{r}"
-        mask = None if layout is None or r >= len(layout.masks) else layout.masks[r]
-        member = _region_cells(region, places, here, mask)
-        region_of[(region_of < 0) & member] = r
-        region_names.append(region.name or f"region_{r}")
-        region_risky.append(bool(region.risky))
-        region_rewards.append(_dist(region.reward, f"{here}.reward"))
-    if layout is not None and world.map_unknown == MapUnknown.risky and layout.unknown.any():
-        _unknown_region(world, layout, region_of, region_names, region_risky, region_rewards)
-
+    start_key = "world.start" if starts is None else None  # None: team.starts.<i>
+    start_cells = _start_cells([world.start] if starts is None else starts, start_key, places)
+    names, src_cells, rewards, motion, amplitude, precision = _sources(world, places)
+    region_of, region_names, region_risky, region_rewards = _regions(world, layout, places)
     next_cell = _next_cell(width, height, obstacle)
     if obstacle.any():
-        _check_reachable(
-            next_cell,
-            obstacle,
-            start_cells,
-            where if starts is None else None,
-            src_cells,
-            names,
-            motion,
-            height,
-            horizon,
-        )
-    _check_total_reward(rewards, region_rewards, horizon, bool(world.stop_at_source))
-
+        _check_reachable(next_cell, obstacle, start_cells, start_key, src_cells, names, motion, height, world.horizon)
+    _check_total_reward(rewards, region_rewards, world.horizon, bool(world.stop_at_source))
     return World(
         width=width,
         height=height,
-        horizon=horizon,
+        horizon=world.horizon,
         stop_at_source=bool(world.stop_at_source),
         next_cell=next_cell,
         obstacle=obstacle,
@@ -269,6 +177,112 @@ def build_world(world: WorldConf, starts: list | None = None, layout: Layout | N
         starts=np.array(start_cells, dtype=np.int64),
         placements=tuple(places.placed),
     )
+
+
+def _obstacles(world: WorldConf, layout: Layout | None, width: int, height: int) -> tuple[np.ndarray, str]:
+    """The obstacle cells (C,): world.obstacles, and a map's occupied cells (and its unknown ones with
+    world.map_unknown=obstacle); and how a message says a cell is one."""
+    obstacle = np.zeros((width, height), dtype=bool)
+    for i, cell in enumerate(world.obstacles):
+        x, y = _cell(cell, width, height, f"world.obstacles.{i}")
+        obstacle[x, y] = True
+    occupied = "is an obstacle"
+    if layout is not None:
+        kind = "occupied or unknown" if world.map_unknown == MapUnknown.obstacle else "occupied"
+        occupied = f"is an obstacle (an {kind} cell of {layout.name})"
+        obstacle |= layout.occupied
+        if world.map_unknown == MapUnknown.obstacle:
+            obstacle |= layout.unknown
+    return obstacle.ravel(), occupied
+
+
+def _start_cells(start_list: list, start_key: str | None, places: _Places) -> list[int]:
+    """The free cell of each start: world.start's (`start_key`), or each of team.starts' (start_key None)."""
+    cells = []
+    for i, start in enumerate(start_list):
+        here = start_key or f"team.starts.{i}"
+        x, y = places.cell(start, here)
+        if places.obstacle[x * places.height + y]:
+            raise BadInput(here, f"({x}, {y}) {places.occupied}; choose a free cell")
+        cells.append(x * places.height + y)
+    return cells
+
+
+def _sources(world: WorldConf, places: _Places) -> tuple[list, list, list, list, list, list]:
+    """Each source's name, free cell (one source a cell), reward program, random-walk probability, signal peak and
+    precision (`_signal_shape`), as six lists."""
+    if len(world.sources) == 0:
+        raise BadInput("world.sources", "no sources; the policy needs at least one signal (M >= 1)")
+    names, cells, rewards, motion, amplitude, precision = [], [], [], [], [], []
+    for j, source in enumerate(world.sources):
+        here = f"world.sources.{j}"
+        x, y = places.cell(source.position, f"{here}.position")
+        cell = x * places.height + y
+        if places.obstacle[cell]:
+            raise BadInput(f"{here}.position", f"({x}, {y}) {places.occupied}; move the source or the obstacle")
+        if cell in cells:
+            raise BadInput(
+                f"{here}.position",
+                f"({x}, {y}) is also the cell of world.sources.{cells.index(cell)}; two sources "
+                f"on one cell cannot be told apart; give each source its own cell",
+            )
+        peak, inverse = _signal_shape(source, here)
+        names.append(source.name or f"source_{j}")
+        cells.append(cell)
+        rewards.append(_dist(source.reward, f"{here}.reward"))
+        motion.append(source.motion.prob if source.motion.kind == MotionKind.random_walk else 0.0)
+        amplitude.append(peak)
+        precision.append(inverse)
+    return names, cells, rewards, motion, amplitude, precision
+
+
+def _signal_shape(source: Any, here: str) -> tuple[float, tuple[float, float, float]]:
+    """A source signal's peak w / (2 pi sqrt(det Sigma)) and its precision (P_xx, P_xy, P_yy) of Sigma^-1, both
+    checked finite and within SIGNAL_LIMIT and PRECISION_LIMIT."""
+    cov = _covariance(source.covariance, f"{here}.covariance")
+    with np.errstate(all="ignore"):
+        det = float(np.linalg.det(cov))
+        inv = np.linalg.inv(cov)
+    if not (math.isfinite(det) and np.all(np.isfinite(inv)) and np.max(np.abs(inv)) <= PRECISION_LIMIT):
+        raise BadInput(
+            f"{here}.covariance",
+            f"{cov.tolist()} is too extreme: its determinant or inverse "
+            f"overflows (inverse entries must stay below {PRECISION_LIMIT:g}); "
+            f"give entries between about 1e-100 and 1e100",
+        )
+    if source.scale is None:
+        peak = 1.0  # w = 2 pi sqrt(det Sigma): exactly 1, even where sqrt(det) would round
+    else:
+        scale = float(source.scale)
+        if not math.isfinite(scale):
+            raise BadInput(f"{here}.scale", f"got {source.scale!r}; expected a finite number or null (peak 1)")
+        peak = scale / (2.0 * math.pi * math.sqrt(det))
+        if not abs(peak) <= SIGNAL_LIMIT:
+            raise BadInput(
+                f"{here}.scale",
+                f"got {scale:g}; the signal would peak at about {abs(peak):.3g}, "
+                f"beyond the limit of {SIGNAL_LIMIT:g} that keeps logits and scores "
+                f"finite; give a smaller scale, or null for a peak of 1",
+            )
+    return peak, (inv[0, 0], inv[0, 1], inv[1, 1])
+
+
+def _regions(world: WorldConf, layout: Layout | None, places: _Places) -> tuple[np.ndarray, list, list, list]:
+    """The region of each cell (C,), the first matching one, -1 for none; and each region's name, risky flag and
+    reward program (the map's unknown cells a first region with world.map_unknown=risky)."""
+    region_of = np.full(places.width * places.height, -1, dtype=np.int64)
+    names, risky, rewards = [], [], []
+    for r, region in enumerate(world.regions):
+        here = f"world.regions.{r}"
+        mask = None if layout is None or r >= len(layout.masks) else layout.masks[r]
+        member = _region_cells(region, places, here, mask)
+        region_of[(region_of < 0) & member] = r
+        names.append(region.name or f"region_{r}")
+        risky.append(bool(region.risky))
+        rewards.append(_dist(region.reward, f"{here}.reward"))
+    if layout is not None and world.map_unknown == MapUnknown.risky and layout.unknown.any():
+        _unknown_region(world, layout, region_of, names, risky, rewards)
+    return region_of, names, risky, rewards
 
 
 def _check_reachable(
