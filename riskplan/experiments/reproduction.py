@@ -231,6 +231,37 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
     when its checks ended, for the time breakdown; `warmed`: waits for the warmed-up workers, see _warm_workers)."""
     started = time.time()
     warm_up: dict = {}
+    record = _start(target, options, schedule)
+    code, outcomes = _run_sweeps(target, options, schedule, record, _waiter(warmed, warm_up))
+    if warm_up:
+        record["warm_up"] = warm_up
+    stop_workers()  # before the report, which may fork: no idle workers, nor their threads, in this process
+    if not options.paper_only:
+        typer.echo(f"\n{schedule.header('landscape')}")
+        tic = time.time()
+        record["parts"]["landscape"] = _landscape(target / "landscape", options.quick, list(options.overrides))
+        schedule.finished("landscape", time.time() - tic)
+    tic = time.time()
+    _print_comparison(outcomes)
+    record["parts"]["comparison"] = {"seconds": round(time.time() - tic, 2)}
+    typer.echo(f"\n{schedule.header('report')}")
+    code = max(code, _report(target, options, record))
+    record["seconds"] = round(time.time() - started, 2)
+    total = _breakdown(record, clock or {}, started, options)
+    write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
+    estimated = schedule.total
+    typer.echo(f"reproduced in {total:.1f} s (estimated {cost.say(estimated).removeprefix('about ')}): {target}")
+    if code:
+        typer.echo(
+            f"to retry what did not finish (finished jobs are skipped): riskplan reproduce {_again(target, options)}",
+            err=True,
+        )
+    return code
+
+
+def _waiter(warmed, warm_up: dict):
+    """What runs before each sweep's launch: the first time, wait for the warmed-up workers (when there are any)
+    and note in `warm_up` how many there are, their start-up seconds and how long the wait took."""
 
     def wait_for_workers() -> None:
         if warmed is not None and not warm_up:
@@ -245,22 +276,32 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
                 }
             )
 
-    quick, seeds, overrides = options.quick, options.seeds, options.overrides
-    what = ("quick" if quick else "full") + (", Section V only" if options.paper_only else "")
-    typer.echo(f"reproduction directory: {target} ({what}, {seeds} seeds)")
-    typer.echo(plan_line(schedule, None if options.batch else _workers(options.jobs, seeds, options.experiments)))
-    record = {
-        "quick": quick,
+    return wait_for_workers
+
+
+def _start(target: Path, options: Options, schedule: Schedule) -> dict:
+    """Say what runs where and how long it should take; the record reproduce.json starts from."""
+    what = ("quick" if options.quick else "full") + (", Section V only" if options.paper_only else "")
+    typer.echo(f"reproduction directory: {target} ({what}, {options.seeds} seeds)")
+    workers = None if options.batch else _workers(options.jobs, options.seeds, options.experiments)
+    typer.echo(plan_line(schedule, workers))
+    return {
+        "quick": options.quick,
         "paper_only": options.paper_only,
         "batched": options.batch,
-        "seeds": seeds,
-        "overrides": list(overrides),
+        "seeds": options.seeds,
+        "overrides": list(options.overrides),
         "started": dt.datetime.now().isoformat(timespec="seconds"),
         "estimate": {stage.name: round(stage.estimate, 1) for stage in schedule.stages},
         "parts": {},
     }
+
+
+def _run_sweeps(target: Path, options: Options, schedule: Schedule, record: dict, before_launch) -> tuple[int, list]:
+    """Every experiment's sweep into its folder, each noted in record["parts"]; the exit code and the outcomes."""
     code = 0
     outcomes = []
+    seeds = options.seeds
     for folder, what, experiment, most in options.experiments:
         args = [*experiment, f"seed=range(0,{min(seeds, most or seeds)})", *_not_set_by(experiment, options.extra)]
         typer.echo(f"\n{schedule.header(folder)}\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
@@ -270,7 +311,7 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
             options.jobs,
             sweep_dir=target / folder,
             title=folder,
-            before_launch=wait_for_workers,
+            before_launch=before_launch,
             expected=options.own_warnings.get(setup_of(experiment), frozenset()),
             batch=options.batch,
         )
@@ -288,18 +329,12 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
             "wall": round(toc - tic, 2),
             "timing": sweep_timing(outcome, tic, toc),
         }
-    if warm_up:
-        record["warm_up"] = warm_up
-    stop_workers()  # before the report, which may fork: no idle workers, nor their threads, in this process
-    if not options.paper_only:
-        typer.echo(f"\n{schedule.header('landscape')}")
-        tic = time.time()
-        record["parts"]["landscape"] = _landscape(target / "landscape", quick, list(overrides))
-        schedule.finished("landscape", time.time() - tic)
-    tic = time.time()
-    _print_comparison(outcomes)
-    record["parts"]["comparison"] = {"seconds": round(time.time() - tic, 2)}
-    typer.echo(f"\n{schedule.header('report')}")
+    return code, outcomes
+
+
+def _report(target: Path, options: Options, record: dict) -> int:
+    """The report of the whole reproduction; its exit code (1 when it failed: the runs stay, and a line says how to
+    try it again)."""
     tic = time.time()
     try:
         page = build_report([target], target / "report", options.formats)
@@ -313,34 +348,36 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
             f"(the runs are in {target}; try riskplan report {target})",
             err=True,
         )
-        code = 1
-    record["seconds"] = round(time.time() - started, 2)
+        return 1
+    return 0
+
+
+def _breakdown(record: dict, clock: dict, started: float, options: Options) -> float:
+    """Print where the time went and add it to the record; the total seconds (from the command's start when the
+    breakdown has it, else from `started`)."""
     total = record["seconds"]
     try:  # never fails the reproduction: it only says where the time went
         folders = [folder for folder, *_ in options.experiments]
-        record["breakdown"] = time_breakdown(record, clock or {}, started, folders)
+        record["breakdown"] = time_breakdown(record, clock, started, folders)
         total = record["breakdown"]["total"]  # from the command's start: the one total both lines give
         print_breakdown(record["breakdown"])
     except Exception as err:
         typer.echo(f"(no time breakdown: {type(err).__name__}: {err})", err=True)
-    write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
-    estimated = schedule.total
-    typer.echo(f"reproduced in {total:.1f} s (estimated {cost.say(estimated).removeprefix('about ')}): {target}")
-    if code:
-        again = [
-            "--out",
-            str(target),
-            *(["--quick"] if quick else []),
-            *(["--paper-only"] if options.paper_only else []),
-            "--seeds",
-            str(seeds),
-            *overrides,
-        ]
-        typer.echo(
-            f"to retry what did not finish (finished jobs are skipped): riskplan reproduce {shlex.join(again)}",
-            err=True,
-        )
-    return code
+    return total
+
+
+def _again(target: Path, options: Options) -> str:
+    """The arguments of `riskplan reproduce` that complete this reproduction."""
+    again = [
+        "--out",
+        str(target),
+        *(["--quick"] if options.quick else []),
+        *(["--paper-only"] if options.paper_only else []),
+        "--seeds",
+        str(options.seeds),
+        *options.overrides,
+    ]
+    return shlex.join(again)
 
 
 def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict, dict]:
