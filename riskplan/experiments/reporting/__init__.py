@@ -107,21 +107,45 @@ def write_report(
     if collected.duplicates:  # one line (the CLI shows warnings as `warning: ...`); runs.csv names each
         warnings.warn(repeats_line(len(collected.duplicates), "runs.csv lists them as duplicate"), stacklevel=3)
     comparison = comparison_table(collected)
-    degenerate = comparison["degenerate"].dropna() if "degenerate" in comparison else []
-    if len(degenerate):  # one line; report.csv and the page say what and why
-        warnings.warn(
-            f"{len(degenerate)} group(s) learned something degenerate ({', '.join(comparison.group[degenerate.index])}):"
-            " report.csv's degenerate column and the page say what and the likely cause",
-            stacklevel=3,
-        )
+    _warn_degenerate(comparison)
     runs = runs_table(collected)
     landscapes = landscape_table(collected)
     soft = soft_risk_table(collected)
     studies = collect_studies(collected, study_tables)
     specs, skipped = make_figures(collected)
+    figures = _draw(specs, formats, skipped)
+    csvs = {"report.csv": comparison, "runs.csv": runs}  # always; the others where they hold rows
+    optional = {"landscape.csv": landscapes, "soft_risk.csv": soft, **{f"{n}.csv": t for n, t in studies.items()}}
+    csvs.update({name: table for name, table in optional.items() if not table.empty})
+    output = Output(out_dir, "report", previous)
+    with output.writing(
+        [f"{spec.name}.{fmt}" for spec, _ in figures for fmt in formats] + list(csvs) + ["report.html"]
+    ):
+        for spec, files in figures:
+            for fmt in formats:
+                output.write(f"{spec.name}.{fmt}", files[fmt])
+        for name, table in csvs.items():
+            output.write(name, csv_text(table))
+        output.write("report.html", render(collected, figures, skipped, comparison, runs, landscapes, soft, studies))
+    return Report(output.out / "report.html", collected, [spec.name for spec, _ in figures], skipped)
+
+
+def _warn_degenerate(comparison: pd.DataFrame) -> None:
+    """One warning line for the groups that learned something degenerate; report.csv and the page say what and why
+    (stacklevel 4: the caller of write_report, as for its own warning)."""
+    degenerate = comparison["degenerate"].dropna() if "degenerate" in comparison else []
+    if len(degenerate):
+        warnings.warn(
+            f"{len(degenerate)} group(s) learned something degenerate ({', '.join(comparison.group[degenerate.index])}):"
+            " report.csv's degenerate column and the page say what and the likely cause",
+            stacklevel=4,
+        )
+
+
+def _draw(specs: list, formats: list[str], skipped: dict[str, str]) -> list[tuple]:
+    """Every figure drawn to bytes, on all CPUs (a figure's size is a fair guess of its cost): (spec, {format:
+    bytes}) of each drawn; one that failed goes into `skipped` with its reason."""
     try:
-        # every figure drawn to bytes first, on all CPUs (a figure's size is a fair guess of its cost); the files
-        # are then written here, in order
         drawn = shared_map(
             lambda spec: figure_files(spec, formats), specs, cost=lambda spec: spec.figure.get_size_inches().prod()
         )
@@ -134,29 +158,7 @@ def write_report(
             skipped[spec.name] = files
         else:
             figures.append((spec, files))
-
-    output = Output(out_dir, "report", previous)
-    tables = (
-        ["report.csv", "runs.csv"]
-        + ([] if landscapes.empty else ["landscape.csv"])
-        + ([] if soft.empty else ["soft_risk.csv"])
-        + [f"{name}.csv" for name, table in studies.items() if not table.empty]
-    )
-    with output.writing([f"{spec.name}.{fmt}" for spec, _ in figures for fmt in formats] + tables + ["report.html"]):
-        for spec, files in figures:
-            for fmt in formats:
-                output.write(f"{spec.name}.{fmt}", files[fmt])
-        output.write("report.csv", csv_text(comparison))
-        output.write("runs.csv", csv_text(runs))
-        if not landscapes.empty:
-            output.write("landscape.csv", csv_text(landscapes))
-        if not soft.empty:
-            output.write("soft_risk.csv", csv_text(soft))
-        for name, table in studies.items():
-            if not table.empty:
-                output.write(f"{name}.csv", csv_text(table))
-        output.write("report.html", render(collected, figures, skipped, comparison, runs, landscapes, soft, studies))
-    return Report(output.out / "report.html", collected, [spec.name for spec, _ in figures], skipped)
+    return figures
 
 
 def collect_studies(collected, tables) -> dict:

@@ -300,21 +300,25 @@ def _reached(table: pd.DataFrame) -> list[str]:
     return [c for c in table.columns if c.startswith("reached_") and not c.endswith(("_low", "_high"))]
 
 
+def _outcome_head(reached: list[str]) -> list[str]:
+    """The outcome columns the study tables share: mean, CVaR, P(risky), then P(reach) of each source."""
+    return ["mean", "CVaR<sub>β</sub>", "P(risky)"] + [f"P(reach {_esc(c[len('reached_') :])})" for c in reached]
+
+
+def _outcomes(row: pd.Series, reached: list[str], cvar_note: str = "") -> list[str]:
+    """A row's cells under _outcome_head, each with its interval (`cvar_note` follows the CVaR)."""
+    return [
+        _interval(row, "mean"),
+        _interval(row, "cvar") + cvar_note,
+        _interval(row, "risky_fraction", True),
+    ] + [_interval(row, c, True) for c in reached]
+
+
 def _measures_html(table: pd.DataFrame) -> str:
     reached = _reached(table)
-    head = ["measure", "seeds", "trained objective", "mean", "CVaR<sub>β</sub>", "P(risky)"] + [
-        f"P(reach {_esc(c[len('reached_') :])})" for c in reached
-    ]
+    head = ["measure", "seeds", "trained objective"] + _outcome_head(reached)
     rows = [
-        [
-            _esc(r["name"]),
-            _esc(r["seeds"]),
-            _interval(r, "objective"),
-            _interval(r, "mean"),
-            _interval(r, "cvar") + f" (β={r['beta']:g})",
-            _interval(r, "risky_fraction", True),
-        ]
-        + [_interval(r, c, True) for c in reached]
+        [_esc(r["name"]), _esc(r["seeds"]), _interval(r, "objective")] + _outcomes(r, reached, f" (β={r['beta']:g})")
         for _, r in table.iterrows()
     ]
     main = _table(head, rows, numeric=set(range(2, len(head))))
@@ -339,21 +343,14 @@ def _policies_html(table: pd.DataFrame) -> str:
     reached = _reached(table)
     seeds = [c for c in table.columns if c.startswith("seeds_reaching_")]
     head = (
-        ["policy", "parameters", "seeds", "mean", "CVaR<sub>β</sub>", "P(risky)"]
-        + [f"P(reach {_esc(c[len('reached_') :])})" for c in reached]
+        ["policy", "parameters", "seeds"]
+        + _outcome_head(reached)
         + [f"seeds mostly reaching {_esc(c[len('seeds_reaching_') :])}" for c in seeds]
         + ["landscape's best CVaR (θ)", "gap to it"]
     )
     rows = [
-        [
-            _esc(r["policy"]),
-            _esc(r["theta_length"]),
-            _esc(r["seeds"]),
-            _interval(r, "mean"),
-            _interval(r, "cvar"),
-            _interval(r, "risky_fraction", True),
-        ]
-        + [_interval(r, c, True) for c in reached]
+        [_esc(r["policy"]), _esc(r["theta_length"]), _esc(r["seeds"])]
+        + _outcomes(r, reached)
         + [f"{_whole(r[c])} of {_whole(r['seeds'])}" for c in seeds]
         + [
             f"{_num(r.get('landscape_best_cvar'))} {_text(r.get('landscape_best_theta'))}",
@@ -410,22 +407,16 @@ def _interval_sig(row: pd.Series, name: str) -> str:
 def _faults_html(table: pd.DataFrame) -> str:
     reached = _reached(table)
     head = (
-        ["faults, aggregation", "seeds", "mean", "CVaR<sub>β</sub>", "P(risky)"]
-        + [f"P(reach {_esc(c[len('reached_') :])})" for c in reached]
+        ["faults, aggregation", "seeds"]
+        + _outcome_head(reached)
         + ["CVaR vs fault-free", "largest |difference|", "within 5%"]
     )
     rows = []
     for _, r in table.iterrows():
         within = r.get("within_tolerance")
         rows.append(
-            [
-                _esc(r["name"]),
-                _esc(r["seeds"]),
-                _interval(r, "mean"),
-                _interval(r, "cvar"),
-                _interval(r, "risky_fraction", True),
-            ]
-            + [_interval(r, c, True) for c in reached]
+            [_esc(r["name"]), _esc(r["seeds"])]
+            + _outcomes(r, reached)
             + [
                 _interval(r, "cvar_vs_fault_free", True),
                 MISSING
@@ -439,19 +430,9 @@ def _faults_html(table: pd.DataFrame) -> str:
 
 def _floor_plan_html(table: pd.DataFrame) -> str:
     reached = _reached(table)
-    head = ["policy", "seeds", "mean", "CVaR<sub>β</sub>", "P(risky)"] + [
-        f"P(reach {_esc(c[len('reached_') :])})" for c in reached
-    ]
+    head = ["policy", "seeds"] + _outcome_head(reached)
     rows = [
-        [
-            _esc(r["name"]),
-            _esc(r["seeds"]),
-            _interval(r, "mean"),
-            _interval(r, "cvar") + f" (β={r['beta']:g})",
-            _interval(r, "risky_fraction", True),
-        ]
-        + [_interval(r, c, True) for c in reached]
-        for _, r in table.iterrows()
+        [_esc(r["name"]), _esc(r["seeds"])] + _outcomes(r, reached, f" (β={r['beta']:g})") for _, r in table.iterrows()
     ]
     return _table(head, rows, numeric=set(range(2, len(head))))
 
@@ -522,25 +503,7 @@ def render(
     studies: dict[str, pd.DataFrame] | None = None,
 ) -> str:
     """The whole page (`studies`: the tables of the studies beyond the paper, study_tables.study_tables)."""
-    now = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
-    inputs = ", ".join(f"<code>{_esc(p)}</code>" for p in collected.inputs)
-    counts = (
-        f"{len(collected.runs)} run(s) in {len(collected.groups)} group(s), {len(collected.landscapes)} landscape(s), "
-        f"{len(collected.broken)} skipped"
-    )
-    if collected.studies:
-        studied = sum(len(s.collection.runs) for s in collected.studies)
-        counts += f" · {studied} run(s) in {len(collected.studies)} stud{'y' if len(collected.studies) == 1 else 'ies'} beyond the paper"
-    studied = {figure.study: figure.name for figure in FIGURES if figure.study}  # a section each
-    of_study = {
-        name: [f for f in figures if f[0].study == name or (not f[0].study and f[0].name.startswith(stem))]
-        for name, stem in studied.items()
-    }
-    taken = {id(f) for fs in of_study.values() for f in fs}
-    paper = [f for f in figures if f[0].name.startswith("fig") and id(f) not in taken]
-    extra = [f for f in figures if not f[0].name.startswith("fig") and id(f) not in taken]
-    worlds = [f for f in extra if f[0].name == "world" or f[0].name.startswith("world_")]  # first, a section
-    extra = [f for f in extra if f not in worlds]
+    worlds, paper, extra, of_study = _sort_figures(figures)
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
@@ -548,7 +511,7 @@ def render(
         "<title>riskplan report</title>",
         f"<style>{CSS}</style></head><body>",
         "<h1>riskplan report</h1>",
-        f'<p class="meta">riskplan {_esc(__version__)} · generated {now} · from {inputs} · {counts}</p>',
+        _meta(collected),
     ]
     if collected.broken:
         items = "".join(f"<li><code>{_esc(b.path)}</code>: {_esc(b.reason)}</li>" for b in collected.broken)
@@ -564,22 +527,59 @@ def render(
         "<h2>Final policies</h2>",
         comparison_section(comparison),
     ]
-    if any(spec.paper for spec, _ in paper):  # a reproduction's runs: the paper's figures, then the others
-        parts.append("<h2>The paper's figures (Section V)</h2>")
-        parts += [figure_html(spec, files) for spec, files in paper]
-        if extra:
-            parts.append("<h2>Beyond the paper</h2>")
-            parts += [figure_html(spec, files) for spec, files in extra]
-    elif paper or extra:  # a user's runs: plain titles
-        parts.append("<h2>Figures</h2>")
-        parts += [figure_html(spec, files) for spec, files in paper + extra]
+    parts += _figure_sections(paper, extra)
     parts.append(landscape_section(landscapes))
     parts.append(soft_risk_section(soft_risk))
-    for name in studied:
+    for name, own_figures in of_study.items():
         own = [s.collection for s in collected.studies if s.name == name]
-        parts.append(study_section(name, (studies or {}).get(name), of_study[name], own[0] if own else None))
+        parts.append(study_section(name, (studies or {}).get(name), own_figures, own[0] if own else None))
     if skipped:
         items = "".join(f"<li><b>{_esc(k)}</b>: {_esc(v)}</li>" for k, v in skipped.items())
         parts.append(f'<h2>Figures not drawn</h2><ul class="note">{items}</ul>')
     parts += ["<h2>Runs</h2>", runs_section(runs), "</body></html>"]
     return "\n".join(parts)
+
+
+def _meta(collected: Collection) -> str:
+    """The line under the title: version, time, inputs and what they held."""
+    now = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    inputs = ", ".join(f"<code>{_esc(p)}</code>" for p in collected.inputs)
+    counts = (
+        f"{len(collected.runs)} run(s) in {len(collected.groups)} group(s), {len(collected.landscapes)} landscape(s), "
+        f"{len(collected.broken)} skipped"
+    )
+    if collected.studies:
+        studied = sum(len(s.collection.runs) for s in collected.studies)
+        counts += f" · {studied} run(s) in {len(collected.studies)} stud{'y' if len(collected.studies) == 1 else 'ies'} beyond the paper"
+    return f'<p class="meta">riskplan {_esc(__version__)} · generated {now} · from {inputs} · {counts}</p>'
+
+
+def _sort_figures(figures: list[tuple[FigureSpec, dict]]) -> tuple[list, list, list, dict]:
+    """The figures by where the page shows them: the worlds (first, a section of their own), the paper's figures
+    (fig...), the others, and each study's (a section each, in FIGURES' order; by its study, or a name starting
+    with its study figure's)."""
+    studied = {figure.study: figure.name for figure in FIGURES if figure.study}
+    of_study = {
+        name: [f for f in figures if f[0].study == name or (not f[0].study and f[0].name.startswith(stem))]
+        for name, stem in studied.items()
+    }
+    taken = {id(f) for fs in of_study.values() for f in fs}
+    paper = [f for f in figures if f[0].name.startswith("fig") and id(f) not in taken]
+    extra = [f for f in figures if not f[0].name.startswith("fig") and id(f) not in taken]
+    worlds = [f for f in extra if f[0].name == "world" or f[0].name.startswith("world_")]
+    extra = [f for f in extra if f not in worlds]
+    return worlds, paper, extra, of_study
+
+
+def _figure_sections(paper: list, extra: list) -> list[str]:
+    """A reproduction's runs: the paper's figures under the paper's heading, then the others; a user's runs: all
+    under plain titles."""
+    if any(spec.paper for spec, _ in paper):
+        parts = ["<h2>The paper's figures (Section V)</h2>"] + [figure_html(spec, files) for spec, files in paper]
+        if extra:
+            parts.append("<h2>Beyond the paper</h2>")
+            parts += [figure_html(spec, files) for spec, files in extra]
+        return parts
+    if paper or extra:
+        return ["<h2>Figures</h2>"] + [figure_html(spec, files) for spec, files in paper + extra]
+    return []

@@ -302,38 +302,16 @@ def fig_soft_risk(collected: Collection) -> FigureSpec | str:
     called = dict(zip(map(id, shown), names(shown)))
     for g in shown:
         scheduled = any(g is s for s in scheduled_groups)
-        name = called[id(g)]
-        plot_band(curves, curve_table(g.runs, "cvar"), g.color, name, "-" if scheduled else "--")
-        for k, r in enumerate(g.runs):
-            m = r.metrics_of()
-            xs = np.append(m.theta_0.to_numpy(float), r.final_theta()[0])
-            ys = np.append(m.theta_1.to_numpy(float), r.final_theta()[1])
-            paths.plot(
-                xs,
-                ys,
-                "-" if scheduled else "--",
-                color=g.color,
-                lw=1.1,
-                alpha=0.85,
-                label=name if k == 0 else f"_{name} {r.seed}",
-            )
-            paths.plot(xs[-1:], ys[-1:], ls="none", marker="s", ms=5, color=g.color, mec="white", label="_end")
+        style = "-" if scheduled else "--"
+        plot_band(curves, curve_table(g.runs, "cvar"), g.color, called[id(g)], style)
+        _theta_paths(paths, g, called[id(g)], style)
     for scheduled in scheduled_groups:
         if "beta_l" in scheduled.first.run.metrics:
             levels.plot(*_level_curve(scheduled), ":", color=scheduled.color, lw=1.2, label="_level")
     starts = {tuple(r.metrics_of()[["theta_0", "theta_1"]].iloc[0]) for g in shown for r in g.runs}
     for x, y in starts:
         paths.plot([x], [y], ls="none", marker="o", ms=6, mfc="white", mec="black", zorder=5, label="_start")
-    beta = pairs[0][0].beta
-    curves.set_xlabel("iteration")
-    integer_iterations(curves)
-    curves.set_ylabel(f"CVaR$_{{{beta:g}}}$ of total reward (training episodes)")
-    levels.set_ylabel(r"$\beta_l$ (dotted)")
-    levels.set_ylim(0, 1.05)
-    curves.set_title("(a) CVaR at β and the gradient's level β_l")
-    paths.set_xlabel(r"$\theta_0$ (weight of source 1)")
-    paths.set_ylabel(r"$\theta_1$ (weight of source 2)")
-    paths.set_title("(b) θ per iteration (circle θ0, square final)")
+    _label_soft_risk(curves, levels, paths, pairs[0][0].beta)
     legend_below(fig, curves.get_legend_handles_labels()[0], ncols=2)
     return FigureSpec(
         "soft_risk",
@@ -343,6 +321,29 @@ def fig_soft_risk(collected: Collection) -> FigureSpec | str:
         "right axis), the CVaR level its gradient ascends. Right: the paths of θ.",
         fig,
     )
+
+
+def _theta_paths(ax, g: Group, name: str, style: str) -> None:
+    """Each run's path of (theta_0, theta_1) over its iterations, ending at its final theta (a square)."""
+    for k, r in enumerate(g.runs):
+        m = r.metrics_of()
+        xs = np.append(m.theta_0.to_numpy(float), r.final_theta()[0])
+        ys = np.append(m.theta_1.to_numpy(float), r.final_theta()[1])
+        ax.plot(xs, ys, style, color=g.color, lw=1.1, alpha=0.85, label=name if k == 0 else f"_{name} {r.seed}")
+        ax.plot(xs[-1:], ys[-1:], ls="none", marker="s", ms=5, color=g.color, mec="white", label="_end")
+
+
+def _label_soft_risk(curves, levels, paths, beta: float) -> None:
+    """The axes' labels and titles of fig_soft_risk: (a) CVaR and the level β_l, (b) the plane of θ."""
+    curves.set_xlabel("iteration")
+    integer_iterations(curves)
+    curves.set_ylabel(f"CVaR$_{{{beta:g}}}$ of total reward (training episodes)")
+    levels.set_ylabel(r"$\beta_l$ (dotted)")
+    levels.set_ylim(0, 1.05)
+    curves.set_title("(a) CVaR at β and the gradient's level β_l")
+    paths.set_xlabel(r"$\theta_0$ (weight of source 1)")
+    paths.set_ylabel(r"$\theta_1$ (weight of source 2)")
+    paths.set_title("(b) θ per iteration (circle θ0, square final)")
 
 
 def _level_curve(g: Group) -> tuple[np.ndarray, np.ndarray]:
@@ -358,55 +359,8 @@ def fig_landscape(collected: Collection, scan, index: int) -> FigureSpec | str:
     runs = runs_on(scan, collected)
     drawn = [g for g in collected.groups if any(r.group is g for r in runs)]
     called = dict(zip(map(id, drawn), names(drawn)))
-    for ax, column, name in (
-        (axes[0, 0], "mean", "mean total reward"),
-        (axes[0, 1], "cvar", f"CVaR$_{{{scan.beta:g}}}$ of total reward"),
-    ):
-        va, vb, values = scan.grid(column)
-        da = (va[1] - va[0]) / 2 if va.size > 1 else 0.5
-        db = (vb[1] - vb[0]) / 2 if vb.size > 1 else 0.5
-        vmin = float(np.nanpercentile(values, 5))
-        image = ax.imshow(
-            values,
-            origin="lower",
-            aspect="auto",
-            cmap="viridis",
-            interpolation="nearest",
-            extent=(va[0] - da, va[-1] + da, vb[0] - db, vb[-1] + db),
-            vmin=vmin,
-            vmax=float(np.nanmax(values)),
-        )
-        fig.colorbar(image, ax=ax, label=name, extend="min", shrink=0.9)
-        best = scan.best(column)["theta"]
-        outline = [patheffects.withStroke(linewidth=3, foreground="white")]
-        seen: set[str] = set()
-        for r in runs:
-            m = r.metrics_of()
-            xs = np.append(m[f"theta_{a}"].to_numpy(float), r.final_theta()[a])
-            ys = np.append(m[f"theta_{b}"].to_numpy(float), r.final_theta()[b])
-            label = r.group.label if r.group.label not in seen else f"_{r.group.label} {r.seed}"
-            seen.add(r.group.label)
-            ax.plot(xs, ys, "-", color=r.group.color, lw=1.4, path_effects=outline, label=label)
-            ax.plot(xs[:1], ys[:1], ls="none", marker="o", ms=5, mfc="white", mec="black", label="_start")
-            ax.plot(xs[-1:], ys[-1:], ls="none", marker="s", ms=6, color=r.group.color, mec="white", label="_end")
-        ax.plot(
-            [best[a]],
-            [best[b]],
-            ls="none",
-            marker="*",
-            ms=15,
-            color="white",
-            mec="black",
-            mew=0.9,
-            label="grid maximum",
-            zorder=6,
-        )
-        ax.set_xlim(va[0] - da, va[-1] + da)
-        ax.set_ylim(vb[0] - db, vb[-1] + db)
-        ax.set_xlabel(rf"$\theta_{{{a}}}$ (weight of source {a + 1})")
-        ax.set_ylabel(rf"$\theta_{{{b}}}$ (weight of source {b + 1})")
-        ax.grid(False)
-        ax.set_title("(a) mean" if column == "mean" else "(b) CVaR")
+    _landscape_panel(fig, axes[0, 0], scan, "mean", "mean total reward", runs)
+    _landscape_panel(fig, axes[0, 1], scan, "cvar", f"CVaR$_{{{scan.beta:g}}}$ of total reward", runs)
     handles = [
         Line2D([], [], ls="none", marker="*", ms=11, color="white", mec="black", label="grid maximum"),
         Line2D([], [], ls="none", marker="o", ms=5, mfc="white", mec="black", label="θ0 (start)"),
@@ -425,3 +379,53 @@ def fig_landscape(collected: Collection, scan, index: int) -> FigureSpec | str:
         f"square: final θ); star: the grid maximum.",
         fig,
     )
+
+
+def _landscape_panel(fig, ax, scan, column: str, name: str, runs: list) -> None:
+    """One heatmap of the landscape (its colour bar named `name`), the runs' paths of theta over it and its maximum."""
+    a, b = scan.axes
+    va, vb, values = scan.grid(column)
+    da = (va[1] - va[0]) / 2 if va.size > 1 else 0.5
+    db = (vb[1] - vb[0]) / 2 if vb.size > 1 else 0.5
+    vmin = float(np.nanpercentile(values, 5))
+    image = ax.imshow(
+        values,
+        origin="lower",
+        aspect="auto",
+        cmap="viridis",
+        interpolation="nearest",
+        extent=(va[0] - da, va[-1] + da, vb[0] - db, vb[-1] + db),
+        vmin=vmin,
+        vmax=float(np.nanmax(values)),
+    )
+    fig.colorbar(image, ax=ax, label=name, extend="min", shrink=0.9)
+    best = scan.best(column)["theta"]
+    outline = [patheffects.withStroke(linewidth=3, foreground="white")]
+    seen: set[str] = set()
+    for r in runs:
+        m = r.metrics_of()
+        xs = np.append(m[f"theta_{a}"].to_numpy(float), r.final_theta()[a])
+        ys = np.append(m[f"theta_{b}"].to_numpy(float), r.final_theta()[b])
+        label = r.group.label if r.group.label not in seen else f"_{r.group.label} {r.seed}"
+        seen.add(r.group.label)
+        ax.plot(xs, ys, "-", color=r.group.color, lw=1.4, path_effects=outline, label=label)
+        ax.plot(xs[:1], ys[:1], ls="none", marker="o", ms=5, mfc="white", mec="black", label="_start")
+        ax.plot(xs[-1:], ys[-1:], ls="none", marker="s", ms=6, color=r.group.color, mec="white", label="_end")
+    ax.plot(  # alike in shape only to paper.draw_world's start cells: another marker, nothing to share
+        [best[a]],
+        [best[b]],
+        ls="none",
+        marker="*",
+        ms=15,
+        color="white",
+        mec="black",
+        mew=0.9,
+        label="grid maximum",
+        zorder=6,
+    )
+    ax.set_xlim(va[0] - da, va[-1] + da)
+    ax.set_ylim(vb[0] - db, vb[-1] + db)
+    ax.set_xlabel(rf"$\theta_{{{a}}}$ (weight of source {a + 1})")
+    ax.set_ylabel(rf"$\theta_{{{b}}}$ (weight of source {b + 1})")
+    ax.grid(False)
+    ax.set_title("(a) mean" if column == "mean" else "(b) CVaR")

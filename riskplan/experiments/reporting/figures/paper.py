@@ -115,7 +115,7 @@ def draw_world(ax, world: dict, labels: bool = True) -> None:
             zorder=6,
         )
     cells = np.array(world["start"], dtype=float).reshape(-1, 2)
-    ax.plot(
+    ax.plot(  # alike in shape only to beyond's grid maximum: another marker, nothing to share
         cells[:, 0],
         cells[:, 1],
         ls="none",
@@ -205,30 +205,10 @@ def fig_paths(collected: Collection) -> FigureSpec | str:
     if len(set(colours)) < len(colours):
         colours = [PALETTE[i % len(PALETTE)] for i in range(len(groups))]
     if len(groups) <= OVERLAID and len(worlds) == 1:
-        world = next(iter(worlds.values()))
-        width, height = world_axes(world)
-        entries = len(groups) + len(MARKS)
-        ncols = 3 if width + MARGIN >= 6 else 2  # a wide world's figure: its legend in fewer rows
-        fig, axes = new_figure(max(width + MARGIN, 4.6), height + 0.55 + 0.24 * math.ceil(entries / ncols) + 0.1)
-        ax = axes[0, 0]
-        draw_world(ax, world)
-        handles = []
-        for gi, (g, name, colour) in enumerate(zip(groups, called, colours)):
-            _draw_paths(ax, g, colour, name, shift=(gi - (len(groups) - 1) / 2) * 0.16)
-            handles.append(Line2D([], [], color=colour, lw=1.6, label=seeded(name, g.first.seed)))
-        legend_below(fig, handles + MARKS, ncols=ncols)
+        fig = _paths_in_one_world(next(iter(worlds.values())), groups, called, colours)
         panels = ""
     else:
-        same = len({(w["width"], w["height"]) for w in worlds.values()}) == 1
-        width, height = world_axes(next(iter(worlds.values())), side=2.7) if same else (2.7, 2.7)
-        fig, axes = panel_grid(len(groups), (width + 0.4, height + 0.5), extra=0.3, sharex=same, sharey=same)
-        for ax, g, name, colour in zip(axes, groups, called, colours):
-            draw_world(ax, worlds[world_key(g.config)], labels=not same)
-            _draw_paths(ax, g, colour, name)
-            panel_title(ax, seeded(name, g.first.seed))
-        if same:
-            outer(axes, "x (cell)", "y (cell)")
-        legend_below(fig, MARKS, ncols=4)
+        fig = _paths_panels(worlds, groups, called, colours)
         panels = " One panel per group." + (f" {left_out} more groups are not drawn." if left_out else "")
     world = next(iter(worlds.values()))
     sources = ", ".join(f"{s['name']} ({s['x']}, {s['y']})" for s in world["sources"])
@@ -241,6 +221,37 @@ def fig_paths(collected: Collection) -> FigureSpec | str:
         fig,
         paper=paper,
     )
+
+
+def _paths_in_one_world(world: dict, groups: list[Group], called: list[str], colours: list[str]):
+    """Fig. 1 for a few groups on one world: their paths side by side in it, one legend below."""
+    width, height = world_axes(world)
+    entries = len(groups) + len(MARKS)
+    ncols = 3 if width + MARGIN >= 6 else 2  # a wide world's figure: its legend in fewer rows
+    fig, axes = new_figure(max(width + MARGIN, 4.6), height + 0.55 + 0.24 * math.ceil(entries / ncols) + 0.1)
+    ax = axes[0, 0]
+    draw_world(ax, world)
+    handles = []
+    for gi, (g, name, colour) in enumerate(zip(groups, called, colours)):
+        _draw_paths(ax, g, colour, name, shift=(gi - (len(groups) - 1) / 2) * 0.16)
+        handles.append(Line2D([], [], color=colour, lw=1.6, label=seeded(name, g.first.seed)))
+    legend_below(fig, handles + MARKS, ncols=ncols)
+    return fig
+
+
+def _paths_panels(worlds: dict, groups: list[Group], called: list[str], colours: list[str]):
+    """Fig. 1 for more groups or worlds: a panel each, sharing their axes when every world has the same size."""
+    same = len({(w["width"], w["height"]) for w in worlds.values()}) == 1
+    width, height = world_axes(next(iter(worlds.values())), side=2.7) if same else (2.7, 2.7)
+    fig, axes = panel_grid(len(groups), (width + 0.4, height + 0.5), extra=0.3, sharex=same, sharey=same)
+    for ax, g, name, colour in zip(axes, groups, called, colours):
+        draw_world(ax, worlds[world_key(g.config)], labels=not same)
+        _draw_paths(ax, g, colour, name)
+        panel_title(ax, seeded(name, g.first.seed))
+    if same:
+        outer(axes, "x (cell)", "y (cell)")
+    legend_below(fig, MARKS, ncols=4)
+    return fig
 
 
 def _level(groups: list[Group]) -> str:
@@ -344,67 +355,13 @@ def fig_team(collected: Collection) -> FigureSpec | str:
     if not teams:
         return "no team (distributed) runs"
     paper = is_reproduction(collected)
-    called = names(teams) if len(teams) > 1 else [team_name(teams[0])]
     colours = _team_colours(teams)
     level = _level(teams)
     shown = "each group's β" if level == "\\beta" else level
-    cvar_label = f"CVaR$_{{{level}}}$ of total reward"
     if len(teams) <= FEW_TEAMS:
-        panels = 3 if central is not None else 2
-        fig, axes = new_figure(3.1 * panels, 3.1, ncols=panels)
-        for ax, column, ylabel, title in (
-            (axes[0, 0], "mean", "mean total reward", "(a) mean"),
-            (axes[0, 1], "cvar", cvar_label, "(b) CVaR"),
-        ):
-            for g, name, colour in zip(teams, called, colours):
-                plot_band(ax, curve_table(g.runs, column), colour, name)
-            if central is not None:
-                _central(ax, central, column, "--")
-            ax.set(xlabel="iteration", ylabel=ylabel, title=title)
-            integer_iterations(ax)
-        handles = [Line2D([], [], color=c, lw=1.6, label=n) for n, c in zip(called, colours)]
-        if central is not None:
-            handles.append(
-                Line2D([], [], color=CENTRAL_COLOUR, ls="--", marker="o", ms=3.5, mfc="white", label="centralized")
-            )
-            handles += _difference(axes[0, 2], central, teams, colours)
-        legend_below(fig, handles, ncols=min(len(handles), 4))
-        how = (
-            "(a) The mean and (b) the CVaR of the total reward per iteration, the centralized run dashed with "
-            "circles; (c) the team minus the centralized run, seed by seed (mean with a 95% band; zero inside the "
-            "band: no difference the seeds can tell)."
-            if central is not None
-            else "(a) The mean and (b) the CVaR of the total reward per iteration."
-        )
+        fig, how = _few_teams(central, teams, colours, f"CVaR$_{{{level}}}$ of total reward")
     else:
-        lay = layout(teams, most=FEW_TEAMS, palette=tuple(c for c in PALETTE if c != CENTRAL_COLOUR))
-        fig, axes = panel_grid(len(lay.panels), (3.0, 2.5), extra=0.3, sharex=True, sharey=True)
-        faceted = not all(len(p.groups) == 1 for p in lay.panels)
-        for ax, p in zip(axes, lay.panels):
-            for g, name, own in zip(p.groups, p.names, p.colours):
-                colour = own if faceted else colours[teams.index(g)]
-                plot_band(ax, curve_table(g.runs, "mean"), colour, name)
-                plot_band(ax, curve_table(g.runs, "cvar"), colour, f"_{name} CVaR", "--")
-            if central is not None:
-                _central(ax, central, "mean", "-", "_centralized mean")
-                _central(ax, central, "cvar", "--", "_centralized CVaR")
-            panel_title(ax, p.title if p.title else ", ".join(p.names))
-            integer_iterations(ax)
-        outer(axes, "iteration", "total reward")
-        handles = [
-            Line2D([], [], color="#555555", lw=1.6, label="mean"),
-            Line2D([], [], color="#555555", ls="--", lw=1.6, label=f"CVaR$_{{{_level(teams)}}}$"),
-        ]
-        if central is not None:
-            handles.append(Line2D([], [], color=CENTRAL_COLOUR, marker="o", ms=3.5, mfc="white", label="centralized"))
-        if faceted:
-            handles += [Line2D([], [], color=c, lw=1.6, label=n) for n, c in lay.legend().items()]
-        legend_below(fig, handles, ncols=min(len(handles), 5))
-        how = (
-            "Mean (solid) and CVaR (dashed) of the total reward per iteration"
-            + (", the centralized run in black with circles." if central is not None else ".")
-            + lay.note()
-        )
+        fig, how = _many_teams(central, teams, colours)
     return FigureSpec(
         "fig3_team",
         "Fig. 3 — mean and CVaR, centralized vs distributed" if paper else "Teams against the centralized run",
@@ -413,6 +370,70 @@ def fig_team(collected: Collection) -> FigureSpec | str:
         fig,
         paper=paper,
     )
+
+
+def _few_teams(central: Group | None, teams: list[Group], colours: list[str], cvar_label: str):
+    """Fig. 3 for up to FEW_TEAMS teams: (a) mean and (b) CVaR of each against the centralized run, (c) their
+    difference; the figure and the caption's first sentences."""
+    called = names(teams) if len(teams) > 1 else [team_name(teams[0])]
+    panels = 3 if central is not None else 2
+    fig, axes = new_figure(3.1 * panels, 3.1, ncols=panels)
+    for ax, column, ylabel, title in (
+        (axes[0, 0], "mean", "mean total reward", "(a) mean"),
+        (axes[0, 1], "cvar", cvar_label, "(b) CVaR"),
+    ):
+        for g, name, colour in zip(teams, called, colours):
+            plot_band(ax, curve_table(g.runs, column), colour, name)
+        if central is not None:
+            _central(ax, central, column, "--")
+        ax.set(xlabel="iteration", ylabel=ylabel, title=title)
+        integer_iterations(ax)
+    handles = [Line2D([], [], color=c, lw=1.6, label=n) for n, c in zip(called, colours)]
+    if central is None:
+        legend_below(fig, handles, ncols=min(len(handles), 4))
+        return fig, "(a) The mean and (b) the CVaR of the total reward per iteration."
+    handles.append(Line2D([], [], color=CENTRAL_COLOUR, ls="--", marker="o", ms=3.5, mfc="white", label="centralized"))
+    handles += _difference(axes[0, 2], central, teams, colours)
+    legend_below(fig, handles, ncols=min(len(handles), 4))
+    return fig, (
+        "(a) The mean and (b) the CVaR of the total reward per iteration, the centralized run dashed with "
+        "circles; (c) the team minus the centralized run, seed by seed (mean with a 95% band; zero inside the "
+        "band: no difference the seeds can tell)."
+    )
+
+
+def _many_teams(central: Group | None, teams: list[Group], colours: list[str]):
+    """Fig. 3 for more teams: small multiples of mean (solid) and CVaR (dashed), each with the centralized run;
+    the figure and the caption's first sentence."""
+    lay = layout(teams, most=FEW_TEAMS, palette=tuple(c for c in PALETTE if c != CENTRAL_COLOUR))
+    fig, axes = panel_grid(len(lay.panels), (3.0, 2.5), extra=0.3, sharex=True, sharey=True)
+    faceted = not all(len(p.groups) == 1 for p in lay.panels)
+    for ax, p in zip(axes, lay.panels):
+        for g, name, own in zip(p.groups, p.names, p.colours):
+            colour = own if faceted else colours[teams.index(g)]
+            plot_band(ax, curve_table(g.runs, "mean"), colour, name)
+            plot_band(ax, curve_table(g.runs, "cvar"), colour, f"_{name} CVaR", "--")
+        if central is not None:
+            _central(ax, central, "mean", "-", "_centralized mean")
+            _central(ax, central, "cvar", "--", "_centralized CVaR")
+        panel_title(ax, p.title if p.title else ", ".join(p.names))
+        integer_iterations(ax)
+    outer(axes, "iteration", "total reward")
+    handles = [
+        Line2D([], [], color="#555555", lw=1.6, label="mean"),
+        Line2D([], [], color="#555555", ls="--", lw=1.6, label=f"CVaR$_{{{_level(teams)}}}$"),
+    ]
+    if central is not None:
+        handles.append(Line2D([], [], color=CENTRAL_COLOUR, marker="o", ms=3.5, mfc="white", label="centralized"))
+    if faceted:
+        handles += [Line2D([], [], color=c, lw=1.6, label=n) for n, c in lay.legend().items()]
+    legend_below(fig, handles, ncols=min(len(handles), 5))
+    how = (
+        "Mean (solid) and CVaR (dashed) of the total reward per iteration"
+        + (", the centralized run in black with circles." if central is not None else ".")
+        + lay.note()
+    )
+    return fig, how
 
 
 def _difference(ax, central: Group, teams: list[Group], colours: list[str]) -> list[Line2D]:

@@ -174,54 +174,17 @@ def fig_hetero(collected: Collection) -> FigureSpec | str:
     panels = 3 if central is not None else 1
     fig, axes = new_figure(3.1 * panels, 3.5, ncols=panels)
     error = axes[0, 0]
-    colours = ORDER_COLOURS
     for g in distributed:
-        colour = colours.get(str(g.team_conf.get("order")), g.color)
         table = curve_table(g.runs, "consensus_error")
         if np.any(table.to_numpy(float) > 0):
-            plot_band(error, table, colour, order_name(g), log=True)
+            plot_band(error, table, _order_colour(g), order_name(g), log=True)
     error.set_yscale("log")
     error.set_xlabel("iteration")
     integer_iterations(error)
     error.set_ylabel(r"consensus error $\max_{i,j}\,\|\theta^i-\theta^j\|$")
     error.set_title("(a) consensus error")
     if central is not None:
-        gap, distance = axes[0, 1], axes[0, 2]
-        largest = 0.0
-        for g in distributed:
-            colour = colours.get(str(g.team_conf.get("order")), g.color)
-            gaps = paired_table(g, central, lambda m, c: c["objective"].astype(float) - m["objective"].astype(float))
-            smooth = gaps.rolling(SMOOTH, min_periods=1).mean()  # each seed's gap, a moving average
-            plot_band(gap, smooth, colour, order_name(g))
-            largest = max(largest, float(np.nanmax(np.abs(smooth.to_numpy(float)))) if smooth.size else 0.0)
-            final = _paired(g, central, lambda r, c: team_objective(c) - team_objective(r))
-            if final:
-                value, low, high = seed_interval(final)
-                last = float(gaps.index.max())
-                errorbar(gap, (last, last, last), (value, low, high), colour, f"_final {g.label}", "D")
-            thetas = theta_columns(g.first.run.metrics)
-            dist = paired_table(
-                g,
-                central,
-                lambda m, c, cols=thetas: pd.Series(
-                    np.linalg.norm(m[cols].to_numpy(float) - c.reindex(m.index)[cols].to_numpy(float), axis=1),
-                    index=m.index,
-                ),
-            )
-            dist = dist.where(dist > 1e-9)  # the first iterations, before the orders part (rounding): not drawn
-            if np.any(dist.to_numpy(float) > 0):
-                plot_band(distance, dist, colour, order_name(g), log=True)
-        gap.axhline(0.0, color="#555555", lw=0.8)
-        gap.set_yscale("symlog", linthresh=10 ** round(np.log10(max(0.005 * largest, 1e-9))))
-        gap.set_xlabel("iteration")
-        integer_iterations(gap)
-        gap.set_ylabel("team objective: centralized − distributed")
-        gap.set_title(f"(b) objective gap ({SMOOTH}-iteration mean; ◆ at θ̄)")
-        distance.set_yscale("log")
-        distance.set_xlabel("iteration")
-        integer_iterations(distance)
-        distance.set_ylabel(r"$\|\bar\theta - \bar\theta_{\mathrm{centralized}}\|$")
-        distance.set_title("(c) distance to the centralized θ")
+        _against_central(axes[0, 1], axes[0, 2], distributed, central)
     fig.legend(*error.get_legend_handles_labels(), loc="outside lower center", ncols=2)
     t = distributed[0].team_conf
     step = float(distributed[0].first.metrics_of(0).step_size.iloc[-1])
@@ -246,6 +209,51 @@ def fig_hetero(collected: Collection) -> FigureSpec | str:
         ),
         fig,
     )
+
+
+def _order_colour(g: Group) -> str:
+    """A team's colour by its order (ORDER_COLOURS, as fig_orders draws it), else its group's."""
+    return ORDER_COLOURS.get(str(g.team_conf.get("order")), g.color)
+
+
+def _against_central(gap, distance, distributed: list[Group], central: Group) -> None:
+    """Panels (b) and (c) of fig_hetero: each order's objective gap to the centralized run, seed by seed (smoothed,
+    with the final gap at θ̄ as a diamond), and the distance of its θ̄ to the centralized run's."""
+    largest = 0.0
+    for g in distributed:
+        colour = _order_colour(g)
+        gaps = paired_table(g, central, lambda m, c: c["objective"].astype(float) - m["objective"].astype(float))
+        smooth = gaps.rolling(SMOOTH, min_periods=1).mean()  # each seed's gap, a moving average
+        plot_band(gap, smooth, colour, order_name(g))
+        largest = max(largest, float(np.nanmax(np.abs(smooth.to_numpy(float)))) if smooth.size else 0.0)
+        final = _paired(g, central, lambda r, c: team_objective(c) - team_objective(r))
+        if final:
+            value, low, high = seed_interval(final)
+            last = float(gaps.index.max())
+            errorbar(gap, (last, last, last), (value, low, high), colour, f"_final {g.label}", "D")
+        thetas = theta_columns(g.first.run.metrics)
+        dist = paired_table(
+            g,
+            central,
+            lambda m, c, cols=thetas: pd.Series(
+                np.linalg.norm(m[cols].to_numpy(float) - c.reindex(m.index)[cols].to_numpy(float), axis=1),
+                index=m.index,
+            ),
+        )
+        dist = dist.where(dist > 1e-9)  # the first iterations, before the orders part (rounding): not drawn
+        if np.any(dist.to_numpy(float) > 0):
+            plot_band(distance, dist, colour, order_name(g), log=True)
+    gap.axhline(0.0, color="#555555", lw=0.8)
+    gap.set_yscale("symlog", linthresh=10 ** round(np.log10(max(0.005 * largest, 1e-9))))
+    gap.set_xlabel("iteration")
+    integer_iterations(gap)
+    gap.set_ylabel("team objective: centralized − distributed")
+    gap.set_title(f"(b) objective gap ({SMOOTH}-iteration mean; ◆ at θ̄)")
+    distance.set_yscale("log")
+    distance.set_xlabel("iteration")
+    integer_iterations(distance)
+    distance.set_ylabel(r"$\|\bar\theta - \bar\theta_{\mathrm{centralized}}\|$")
+    distance.set_title("(c) distance to the centralized θ")
 
 
 def fig_faults(collected: Collection) -> FigureSpec | str:
