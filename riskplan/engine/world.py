@@ -180,8 +180,7 @@ def build_world(world: WorldConf, starts: list | None = None, layout: Layout | N
 
 
 def _obstacles(world: WorldConf, layout: Layout | None, width: int, height: int) -> tuple[np.ndarray, str]:
-    """The obstacle cells (C,): world.obstacles, and a map's occupied cells (and its unknown ones with
-    world.map_unknown=obstacle); and how a message says a cell is one."""
+    """The obstacles (C,): world.obstacles, a map's occupied (and unknown) cells; and how messages name one."""
     obstacle = np.zeros((width, height), dtype=bool)
     for i, cell in enumerate(world.obstacles):
         x, y = _cell(cell, width, height, f"world.obstacles.{i}")
@@ -209,8 +208,7 @@ def _start_cells(start_list: list, start_key: str | None, places: _Places) -> li
 
 
 def _sources(world: WorldConf, places: _Places) -> tuple[list, list, list, list, list, list]:
-    """Each source's name, free cell (one source a cell), reward program, random-walk probability, signal peak and
-    precision (`_signal_shape`), as six lists."""
+    """Each source's name, free cell (its own), reward, walk probability and `_signal_shape`, as six lists."""
     if len(world.sources) == 0:
         raise BadInput("world.sources", "no sources; the policy needs at least one signal (M >= 1)")
     names, cells, rewards, motion, amplitude, precision = [], [], [], [], [], []
@@ -237,8 +235,7 @@ def _sources(world: WorldConf, places: _Places) -> tuple[list, list, list, list,
 
 
 def _signal_shape(source: Any, here: str) -> tuple[float, tuple[float, float, float]]:
-    """A source signal's peak w / (2 pi sqrt(det Sigma)) and its precision (P_xx, P_xy, P_yy) of Sigma^-1, both
-    checked finite and within SIGNAL_LIMIT and PRECISION_LIMIT."""
+    """A source signal's peak w / (2 pi sqrt(det Sigma)) and precision (P_xx, P_xy, P_yy) of Sigma^-1, in bounds."""
     cov = _covariance(source.covariance, f"{here}.covariance")
     with np.errstate(all="ignore"):
         det = float(np.linalg.det(cov))
