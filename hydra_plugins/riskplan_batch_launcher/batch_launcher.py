@@ -37,6 +37,6 @@ class RiskplanBatchLauncher(Launcher):
         self.config, self.hydra_context, self.task_function = config, hydra_context, task_function
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int):
-        from riskplan.experiments.sweeping.batched import launch_batches  # lazy: the integer_at_least training stack
+        from riskplan.experiments.sweeping.batched import launch_batches  # lazy: the whole training stack
 
         return launch_batches(self, job_overrides, initial_job_idx)
