@@ -95,7 +95,7 @@ def template(tmp_path_factory) -> Path:
     from riskplan.experiments.landscape import compute_landscape
     from riskplan.experiments.reporting import build_report
 
-    compute_landscape(compose(RUN), root / "outputs" / "landscapes" / "scan", points=3, episodes=20)
+    compute_landscape(compose(RUN), root / "outputs" / "landscapes" / "land", points=3, episodes=20)
     build_report([done], root / "outputs" / "reports" / "old", ["png"])
     return root
 
