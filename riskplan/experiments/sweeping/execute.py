@@ -72,28 +72,39 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         if plan.launcher == BATCH_LAUNCHER:
             echo(batch_line(waiting, plan))
         echo(estimate_line(waiting, plan))
+    launcher_error, interrupted = _launch(plan, waiting, finished, title, before_launch) if todo else (None, None)
+    return _outcome(plan, args, jobs, todo, len(finished), time.time() - started, launcher_error, interrupted)
+
+
+def _launch(plan: Plan, waiting: list, finished: set[int], title: str, before_launch) -> tuple[str | None, int | None]:
+    """Launch the waiting jobs, shown live; the launcher's error and the signal that stopped it, if any."""
+    if plan.launcher == "joblib" and plan.workers:
+        os.environ[THREADS_ENV] = str(max(1, cpu_count() // plan.workers))
+    name_driver(plan.local)  # its local workers end with this process
+    if before_launch is not None:
+        before_launch()
+    # Ctrl-C reaches local workers too, and they checkpoint and stop; the driver waits for that (see
+    # DriverSignals), then reports the interruption.
+    batched = plan.launcher == BATCH_LAUNCHER
     launcher_error, interrupted = None, None
-    if todo:
-        if plan.launcher == "joblib" and plan.workers:
-            os.environ[THREADS_ENV] = str(max(1, cpu_count() // plan.workers))
-        name_driver(plan.local)  # its local workers end with this process
-        if before_launch is not None:
-            before_launch()
-        # Ctrl-C reaches local workers too, and they checkpoint and stop; the driver waits for that (see
-        # DriverSignals), then reports the interruption.
-        batched = plan.launcher == BATCH_LAUNCHER
-        with (
-            SweepView(plan.sweep_dir, plan.jobs, finished, title, batch_progress=PROGRESS if batched else None),
-            DriverSignals(plan.launcher not in LOCAL) as stop,
-        ):
-            try:
-                launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log", [job.overrides for job in waiting])
-            except Interrupted as batch_stop:  # a batch trains here: it checkpointed and marked its jobs
-                interrupted = batch_stop.signum
-            finally:
-                for part in plan.sweep_dir.glob(f"{PROGRESS}.*.json"):
-                    part.unlink(missing_ok=True)
-        interrupted = interrupted or stop.received
+    with (
+        SweepView(plan.sweep_dir, plan.jobs, finished, title, batch_progress=PROGRESS if batched else None),
+        DriverSignals(plan.launcher not in LOCAL) as stop,
+    ):
+        try:
+            launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log", [job.overrides for job in waiting])
+        except Interrupted as batch_stop:  # a batch trains here: it checkpointed and marked its jobs
+            interrupted = batch_stop.signum
+        finally:
+            for part in plan.sweep_dir.glob(f"{PROGRESS}.*.json"):
+                part.unlink(missing_ok=True)
+    return launcher_error, interrupted or stop.received
+
+
+def _outcome(
+    plan: Plan, args: list[str], jobs: int | None, todo: int, skipped: int, seconds: float, launcher_error, interrupted
+) -> Outcome:
+    """Each job found where it ran, summary.parquet written, and what the sweep left."""
     for job in plan.jobs:  # a job found under another name (an older naming) ran in its own folder now
         if (
             job.folder is not None
@@ -110,14 +121,15 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         [a for a in args if not a.startswith("hydra.sweep.dir=")]
         + [f"hydra.sweep.dir={plan.sweep_dir}"]
         + (["--jobs", str(jobs)] if jobs else [])
+        + (["--batch"] if plan.launcher == BATCH_LAUNCHER else [])
     )
     return Outcome(
         plan.sweep_dir,
         summary,
         failed,
         todo,
-        len(finished),
-        time.time() - started,
+        skipped,
+        seconds,
         launcher_error,
         resume,
         None,

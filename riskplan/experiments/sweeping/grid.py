@@ -38,7 +38,7 @@ from riskplan.run.compose import CONF_DIR, explain, parse_overrides
 from riskplan.run.compose import compose as riskplan_compose
 from riskplan.run.cost import run_bytes, setup_steps
 from riskplan.util.errors import BadInput, MissingExtra
-from riskplan.util.limits import check_jobs
+from riskplan.util.limits import check_jobs, cpu_count
 from riskplan.util.paths import claim_dir, hydra_quote
 
 
@@ -442,6 +442,28 @@ def split_bad(message: str, count: int) -> tuple[str, str]:
 def first_line(err: Exception) -> str:
     text = str(err).strip()
     return text.splitlines()[0] if text else type(err).__name__
+
+
+def launcher_workers(argv: list[str], launcher: str, hydra_keys: dict, jobs: int | None, most: int | None):
+    """The workers riskplan gives the launcher, added to `argv`: joblib's n_jobs (--jobs, or one per core), SLURM's
+    array parallelism (--jobs), never more than `most` (the jobs, or an optimiser's trials at once). Returns the
+    workers and the index in argv of the n_jobs riskplan added (None when the user gave it)."""
+    limit = [most] if most else []
+    if launcher == "joblib":
+        workers = min([jobs or cpu_count(), *limit])  # more workers than jobs would idle
+        if "hydra.launcher.n_jobs" in hydra_keys:
+            return workers, None
+        argv.append(f"hydra.launcher.n_jobs={workers}")
+        return workers, len(argv) - 1
+    if jobs is None:
+        return None, None
+    if launcher != "submitit_slurm":
+        raise BadInput(
+            "--jobs", f"applies to the joblib and submitit_slurm launchers, not to hydra/launcher={launcher}"
+        )
+    workers = min([jobs, *limit])
+    argv.append(f"hydra.launcher.array_parallelism={workers}")
+    return workers, None
 
 
 RAY_INIT = "hydra.launcher.ray.init."

@@ -16,6 +16,7 @@ from riskplan.experiments.sweeping.grid import (
     check_subdir,
     constant_keys,
     expand,
+    launcher_workers,
     name_folders,
     ray_init_overrides,
     runs_here,
@@ -28,7 +29,6 @@ from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, DEFAULT_LAUNCHER,
 from riskplan.experiments.sweeping.search import plan_optimiser
 from riskplan.run.compose import expand_shorthands, parse_overrides
 from riskplan.util.errors import BadInput
-from riskplan.util.limits import cpu_count
 from riskplan.util.paths import check_output_dir, hydra_quote
 
 REQUEUES = 3  # submitit_slurm: times a job that reaches its time limit is requeued (it resumes from its checkpoint)
@@ -37,68 +37,20 @@ REQUEUES = 3  # submitit_slurm: times a job that reaches its time limit is reque
 def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None, batch: bool = False) -> Plan:
     """Parse, expand and validate a sweep; claim its directory last, so bad input leaves nothing behind. `batch`:
     the jobs train in batches in this process (hydra/launcher=riskplan_batch)."""
-    for arg in args:
-        if arg.startswith("-"):
-            raise BadInput(
-                f"option '{arg}'", "is not known to riskplan sweep; give Hydra overrides (key=value) and --jobs N"
-            )
+    _check_options(args)
     args = expand_shorthands(args)  # risk.schedule=none,linear -> risk.schedule.kind=none,linear
     parsed = parse_overrides(args)
     hydra_ovs = [o for o in parsed if o.is_hydra_override()]
     task_ovs = [o for o in parsed if not o.is_hydra_override()]
-    for o in hydra_ovs:
-        if o.key_or_group == "hydra.mode":
-            raise BadInput(
-                f"override '{o.input_line}'", "riskplan sweep always runs a multirun; drop it (one run: riskplan train)"
-            )
-        if o.is_sweep_override():
-            raise BadInput(
-                f"override '{o.input_line}'",
-                "sweeps over Hydra's own settings are not supported; sweep over riskplan keys, e.g. risk.beta=0.1,0.2",
-            )
+    _check_hydra_overrides(hydra_ovs)
     hydra_keys = {o.key_or_group: o for o in hydra_ovs}
-    launcher = str(hydra_keys["hydra/launcher"].value()) if "hydra/launcher" in hydra_keys else DEFAULT_LAUNCHER
-    if batch:
-        if "hydra/launcher" in hydra_keys or "hydra/sweeper" in hydra_keys:
-            given = (hydra_keys.get("hydra/launcher") or hydra_keys["hydra/sweeper"]).input_line
-            raise BadInput("--batch", f"trains in this process; drop '{given}' (a cluster launches jobs one by one)")
-        if jobs is not None:
-            raise BadInput("--jobs", "applies to parallel launchers; --batch trains one program on every core")
-        launcher = BATCH_LAUNCHER
+    launcher = _launcher(hydra_keys, jobs, batch)
     memory = batch_memory(hydra_keys) if launcher == BATCH_LAUNCHER else None
-    explicit_dir = None
-    if "hydra.sweep.dir" in hydra_keys:
-        raw = hydra_keys["hydra.sweep.dir"].value()
-        value = "" if raw is None else str(raw)
-        if "${" in value:
-            raise BadInput(
-                "hydra.sweep.dir",
-                f"got '{value}'; give a plain path (without it, riskplan sweep uses outputs/sweeps/<timestamp>)",
-            )
-        if sweep_dir is None:
-            check_output_dir(value, "hydra.sweep.dir")
-        explicit_dir = Path(value)
-    if sweep_dir is not None and explicit_dir is not None:
-        raise BadInput("hydra.sweep.dir", "is chosen by this command; do not give it")
+    explicit_dir = _explicit_dir(hydra_keys, sweep_dir)
     sweeper = str(hydra_keys["hydra/sweeper"].value()) if "hydra/sweeper" in hydra_keys else GRID_SWEEPER
     if sweeper not in ("basic", GRID_SWEEPER):  # an optimiser: it chooses the jobs as it goes
         return plan_optimiser(args, task_ovs, hydra_ovs, launcher, sweeper, jobs, sweep_dir, explicit_dir)
-    for o in task_ovs:
-        if o.is_interval_sweep():
-            raise BadInput(
-                f"override '{o.input_line}'",
-                "interval(...) is a search space for an optimising "
-                "sweeper (hydra/sweeper=optuna); a grid takes comma "
-                "lists, range(...), choice(...) or glob(...)",
-            )
-
-    for o in hydra_ovs:
-        if o.key_or_group.startswith("hydra.sweeper."):
-            raise BadInput(
-                f"override '{o.input_line}'",
-                "a grid sweep takes no sweeper settings (riskplan launches the planned jobs itself); hydra.sweeper.* "
-                "configures an optimising sweeper, e.g. hydra/sweeper=optuna",
-            )
+    _check_grid(task_ovs, hydra_ovs)
     check_size(task_ovs)
     if "hydra.sweep.subdir" in hydra_keys:
         check_subdir(hydra_keys["hydra.sweep.subdir"].value(), len(task_ovs) > 0)
@@ -109,34 +61,14 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     job_list, notes = validate(combos, search, parse)
     check_duplicates(job_list, task_ovs)
     if all(job.invalid for job in job_list):
-        first = job_list[0].invalid
-        raise BadInput(*split_bad(first, len(job_list)))
+        raise BadInput(*split_bad(job_list[0].invalid, len(job_list)))
 
     argv = ["-m", *args]
     if "hydra/sweeper" in hydra_keys:  # basic or riskplan, typed: riskplan's sweeper launches the planned grid
         argv[1 + parsed.index(hydra_keys["hydra/sweeper"])] = f"hydra/sweeper={GRID_SWEEPER}"
     else:
         argv.append(f"hydra/sweeper={GRID_SWEEPER}")
-    workers = None
-    workers_arg = None
-    if launcher == "joblib":
-        workers = min(jobs or cpu_count(), len(job_list))  # more workers than jobs would idle
-        if "hydra.launcher.n_jobs" not in hydra_keys:
-            workers_arg = len(argv)
-            argv.append(f"hydra.launcher.n_jobs={workers}")
-    elif jobs is not None:
-        if launcher == "submitit_slurm":
-            workers = min(jobs, len(job_list))
-            argv.append(f"hydra.launcher.array_parallelism={workers}")
-        else:
-            raise BadInput(
-                "--jobs", f"applies to the joblib and submitit_slurm launchers, not to hydra/launcher={launcher}"
-            )
-    if launcher == "submitit_slurm" and "hydra.launcher.max_num_timeout" not in hydra_keys:
-        argv.append(f"hydra.launcher.max_num_timeout={REQUEUES}")  # a job at its time limit is requeued, resumes
-    argv += ray_init_overrides(launcher, hydra_keys)
-    if "hydra/launcher" not in hydra_keys:
-        argv.append(f"hydra/launcher={launcher}")
+    workers, workers_arg = _launcher_settings(argv, launcher, hydra_keys, jobs, len(job_list))
     named = [o for o in task_ovs if not unnamed_key(o.key_or_group)]  # engine.device names no folder
     if not named and "hydra.sweep.subdir" not in hydra_keys:
         argv.append("hydra.sweep.subdir=defaults")  # one job without overrides: still a folder of its own
@@ -158,6 +90,94 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     plan.memory = memory
     plan.local = runs_here(launcher, hydra_keys)
     return plan
+
+
+def _check_options(args: list[str]) -> None:
+    """An option riskplan sweep does not know (it takes Hydra overrides and its own --jobs, --batch)."""
+    for arg in args:
+        if arg.startswith("-"):
+            raise BadInput(
+                f"option '{arg}'", "is not known to riskplan sweep; give Hydra overrides (key=value) and --jobs N"
+            )
+
+
+def _check_hydra_overrides(hydra_ovs: list) -> None:
+    """Hydra's own settings a sweep cannot take: its mode, or a sweep over them."""
+    for o in hydra_ovs:
+        if o.key_or_group == "hydra.mode":
+            raise BadInput(
+                f"override '{o.input_line}'", "riskplan sweep always runs a multirun; drop it (one run: riskplan train)"
+            )
+        if o.is_sweep_override():
+            raise BadInput(
+                f"override '{o.input_line}'",
+                "sweeps over Hydra's own settings are not supported; sweep over riskplan keys, e.g. risk.beta=0.1,0.2",
+            )
+
+
+def _launcher(hydra_keys: dict, jobs: int | None, batch: bool) -> str:
+    """The launcher: hydra/launcher's, riskplan's batches with --batch (which takes neither it nor --jobs), or
+    joblib."""
+    launcher = str(hydra_keys["hydra/launcher"].value()) if "hydra/launcher" in hydra_keys else DEFAULT_LAUNCHER
+    if not batch:
+        return launcher
+    if "hydra/launcher" in hydra_keys or "hydra/sweeper" in hydra_keys:
+        given = (hydra_keys.get("hydra/launcher") or hydra_keys["hydra/sweeper"]).input_line
+        raise BadInput("--batch", f"trains in this process; drop '{given}' (a cluster launches jobs one by one)")
+    if jobs is not None:
+        raise BadInput("--jobs", "applies to parallel launchers; --batch trains one program on every core")
+    return BATCH_LAUNCHER
+
+
+def _explicit_dir(hydra_keys: dict, sweep_dir: Path | None) -> Path | None:
+    """The user's hydra.sweep.dir (a plain path, checked as an output directory), or None."""
+    if "hydra.sweep.dir" not in hydra_keys:
+        return None
+    if sweep_dir is not None:
+        raise BadInput("hydra.sweep.dir", "is chosen by this command; do not give it")
+    raw = hydra_keys["hydra.sweep.dir"].value()
+    value = "" if raw is None else str(raw)
+    if "${" in value:
+        raise BadInput(
+            "hydra.sweep.dir",
+            f"got '{value}'; give a plain path (without it, riskplan sweep uses outputs/sweeps/<timestamp>)",
+        )
+    check_output_dir(value, "hydra.sweep.dir")
+    return Path(value)
+
+
+def _check_grid(task_ovs: list, hydra_ovs: list) -> None:
+    """What a grid does not take: an optimiser's search space, or an optimiser's settings."""
+    for o in task_ovs:
+        if o.is_interval_sweep():
+            raise BadInput(
+                f"override '{o.input_line}'",
+                "interval(...) is a search space for an optimising "
+                "sweeper (hydra/sweeper=optuna); a grid takes comma "
+                "lists, range(...), choice(...) or glob(...)",
+            )
+    for o in hydra_ovs:
+        if o.key_or_group.startswith("hydra.sweeper."):
+            raise BadInput(
+                f"override '{o.input_line}'",
+                "a grid sweep takes no sweeper settings (riskplan launches the planned jobs itself); hydra.sweeper.* "
+                "configures an optimising sweeper, e.g. hydra/sweeper=optuna",
+            )
+
+
+def _launcher_settings(
+    argv: list[str], launcher: str, hydra_keys: dict, jobs: int | None, count: int
+) -> tuple[int | None, int | None]:
+    """The launcher's settings riskplan adds to `argv`: its workers (joblib's n_jobs, SLURM's array parallelism),
+    SLURM's requeues, Ray's init arguments, the launcher itself. Returns the workers and the index in argv of the
+    n_jobs riskplan added (None when the user gave it)."""
+    workers, workers_arg = launcher_workers(argv, launcher, hydra_keys, jobs, count)
+    if launcher == "submitit_slurm" and "hydra.launcher.max_num_timeout" not in hydra_keys:
+        argv.append(f"hydra.launcher.max_num_timeout={REQUEUES}")  # a job at its time limit is requeued, resumes
+    argv += ray_init_overrides(launcher, hydra_keys)
+    if "hydra/launcher" not in hydra_keys:
+        argv.append(f"hydra/launcher={launcher}")
+    return workers, workers_arg
 
 
 def batch_memory(hydra_keys: dict) -> tuple[float, str] | None:

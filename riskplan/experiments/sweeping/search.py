@@ -17,6 +17,7 @@ from riskplan.experiments.sweeping.grid import (
     add_naming_and_logging,
     check_hydra,
     check_subdir,
+    launcher_workers,
     ray_init_overrides,
     runs_here,
     target_dir,
@@ -62,6 +63,49 @@ def plan_optimiser(
     search = [o for o in task_ovs if o.is_sweep_override()]
     fixed = [o for o in task_ovs if not o.is_sweep_override()]
     samples = {o.key_or_group: search_samples(o, sweeper) for o in search}
+    base, notes = _check_samples(search, fixed, samples)
+    searched = {o.key_or_group for o in search}
+
+    argv = ["-m", *args]
+    if sweeper == "optuna":
+        if "hydra.sweeper.direction" not in hydra_keys:
+            argv.append("hydra.sweeper.direction=maximize")  # the trials return their CVaR: higher is better
+        if jobs is not None and "hydra.sweeper.n_jobs" not in hydra_keys:
+            argv.append(f"hydra.sweeper.n_jobs={jobs}")  # trials per batch: as many as run at once
+    argv += ray_init_overrides(launcher, hydra_keys)
+    if "hydra/launcher" not in hydra_keys:
+        argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
+    if "hydra.sweep.subdir" in hydra_keys:
+        check_subdir(hydra_keys["hydra.sweep.subdir"].value(), True)
+    else:  # trial_007,risk.beta=0.31: numbered, so two trials that drew the same values never share a folder
+        argv.append(f"hydra.sweep.subdir={hydra_quote(TRIAL_SUBDIR)}")
+    argv.append(TRAVELS)
+    constant = [o.key_or_group for o in fixed] if search else []
+    add_naming_and_logging(argv, hydra_keys, constant)
+    _, settings = check_hydra(argv[1 + len(args) :] + [o.input_line for o in hydra_ovs], base, sweeper=True)
+    trials, batch = check_optimiser(sweeper, settings, search)
+    at_once = min([n for n in (batch, trials) if n], default=None)  # a sweeper may give neither
+    workers, workers_arg = launcher_workers(argv, launcher, hydra_keys, jobs, at_once)
+    target = target_dir(sweep_dir, explicit_dir, argv)
+    return Plan(
+        target,
+        argv,
+        [],
+        launcher,
+        workers,
+        notes,
+        workers_arg,
+        sweeper=sweeper,
+        trials=trials,
+        search=sorted(searched),
+        local=runs_here(launcher, hydra_keys),
+    )
+
+
+def _check_samples(search: list, fixed: list, samples: dict) -> tuple[list[str], list[str]]:
+    """Every swept key composed with its sample values (the others at their first): bad input when a sample does
+    not compose, or when the model rejects every sample for a key that is not searched; a warning for each sample
+    it rejects. Returns the first sample's overrides and the warnings."""
     base = [o.input_line for o in fixed] + [f"{o.get_key_element()}={samples[o.key_or_group][0]}" for o in search]
     combos = [base]
     for i, o in enumerate(search):
@@ -89,55 +133,7 @@ def plan_optimiser(
         if error:
             tried = ",".join(job.overrides[len(fixed) :])
             notes.append(f"{error} (with the sample {tried}); trials there will fail alone")
-
-    argv = ["-m", *args]
-    if sweeper == "optuna":
-        if "hydra.sweeper.direction" not in hydra_keys:
-            argv.append("hydra.sweeper.direction=maximize")  # the trials return their CVaR: higher is better
-        if jobs is not None and "hydra.sweeper.n_jobs" not in hydra_keys:
-            argv.append(f"hydra.sweeper.n_jobs={jobs}")  # trials per batch: as many as run at once
-    argv += ray_init_overrides(launcher, hydra_keys)
-    if "hydra/launcher" not in hydra_keys:
-        argv.append(f"hydra/launcher={DEFAULT_LAUNCHER}")
-    if "hydra.sweep.subdir" in hydra_keys:
-        check_subdir(hydra_keys["hydra.sweep.subdir"].value(), True)
-    else:  # trial_007,risk.beta=0.31: numbered, so two trials that drew the same values never share a folder
-        argv.append(f"hydra.sweep.subdir={hydra_quote(TRIAL_SUBDIR)}")
-    argv.append(TRAVELS)
-    constant = [o.key_or_group for o in fixed] if search else []
-    add_naming_and_logging(argv, hydra_keys, constant)
-    _, settings = check_hydra(argv[1 + len(args) :] + [o.input_line for o in hydra_ovs], base, sweeper=True)
-    trials, batch = check_optimiser(sweeper, settings, search)
-
-    workers = None
-    workers_arg = None
-    if launcher == "joblib":
-        workers = min([jobs or cpu_count(), *(n for n in (batch, trials) if n)])  # a sweeper may give neither
-        if "hydra.launcher.n_jobs" not in hydra_keys:
-            workers_arg = len(argv)
-            argv.append(f"hydra.launcher.n_jobs={workers}")
-    elif jobs is not None:
-        if launcher == "submitit_slurm":
-            workers = min(jobs, *(n for n in (batch, trials) if n))
-            argv.append(f"hydra.launcher.array_parallelism={workers}")
-        else:
-            raise BadInput(
-                "--jobs", f"applies to the joblib and submitit_slurm launchers, not to hydra/launcher={launcher}"
-            )
-    target = target_dir(sweep_dir, explicit_dir, argv)
-    return Plan(
-        target,
-        argv,
-        [],
-        launcher,
-        workers,
-        notes,
-        workers_arg,
-        sweeper=sweeper,
-        trials=trials,
-        search=sorted(searched),
-        local=runs_here(launcher, hydra_keys),
-    )
+    return base, notes
 
 
 def search_samples(override, sweeper: str) -> list[str]:

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import pandas as pd
 import typer
-from hydra.core.override_parser.overrides_parser import OverridesParser
 from rich.console import Console
 from rich.table import Table
 
 from riskplan.experiments.sweep_worker import is_finished, read_status, repeats_line
+from riskplan.experiments.sweeping.grid import ParsedOnce
 from riskplan.experiments.sweeping.jobs import SUMMARY, Job, Outcome
 from riskplan.run.evaluation import degenerate_findings
 from riskplan.run.run_files import SUMMARY as RUN_SUMMARY
@@ -36,51 +36,12 @@ def summarize(jobs: list[Job]):
     None."""
     rows = []
     first_done: dict[str, str] = {}  # run identity -> the first finished job of it
+    parse = ParsedOnce()
     for job in jobs:
         row: dict = {"job": job.name}
-        row.update(_override_columns(job.overrides))
-        status = read_status(job.path) if job.path is not None else None
-        holder = lock.holder(job.path) if job.path is not None else None
-        summary = None
-        if holder is not None and holder != os.getpid():
-            status = None  # whatever its status says, that process owns it now
-            state, error = (
-                "running",
-                (
-                    f"running in another process (pid {holder or 'unknown'}); re-run the sweep "
-                    f"when that process has ended"
-                ),
-            )
-        elif job.path is None or status is None:
-            state, error = "not run", job.invalid or "not started: the sweep stopped before it"
-        elif status.get("config_sha") != job.sha:
-            state, error = "not run", "its folder holds a run of another config"
-        elif status.get("status") == "done" and is_finished(job.path, job.sha, status):
-            state, error = "done", None
-            try:
-                summary = json.loads((job.path / RUN_SUMMARY).read_text())
-            except (OSError, ValueError) as err:
-                state, error = "failed", f"unreadable summary.json: {err}"
-        elif status.get("status") == "done":
-            state, error = "failed", "finished, but some of its output files are missing"
-        elif status.get("status") == "running":
-            state, error = "interrupted", "killed while running; re-run the sweep to resume it"
-        elif status.get("status") == "interrupted":  # a signal stopped it after a checkpoint (Ctrl-C, preemption)
-            state, error = "interrupted", f"{status.get('error')}; re-run the sweep to resume it"
-        else:
-            state, error = "failed", status.get("error") or "no error recorded"
-        for name in FIGURES:
-            figure = (summary or {}).get(name) or {}
-            row[name] = figure.get("value", float("nan"))
-            row[f"{name}_low"] = figure.get("low", float("nan"))
-            row[f"{name}_high"] = figure.get("high", float("nan"))
-        for name in EXTRA_CVARS:
-            row[name] = ((summary or {}).get(name) or {}).get("value", float("nan"))
-        row["beta"] = (summary or {}).get("beta", float("nan"))
-        row["risky_fraction"] = (summary or {}).get("risky_fraction", float("nan"))
-        reached = (summary or {}).get("source_reached") or {}
-        for name, value in reached.items() if isinstance(reached, dict) else ():
-            row[f"reached_{name}"] = value
+        row.update(_override_columns(job.overrides, parse))
+        state, error, status, summary = _job_state(job)
+        row.update(_figures(summary or {}))
         row["wall_time"] = (
             float(status["seconds"])
             if status and state == "done" and isinstance(status.get("seconds"), (int, float))
@@ -98,6 +59,55 @@ def summarize(jobs: list[Job]):
             row["duplicate_of"] = first if first != job.name else None
         row["path"] = str(job.path) if job.path is not None else None
         rows.append(row)
+    return _table(rows)
+
+
+def _job_state(job: Job) -> tuple[str, str | None, dict | None, dict | None]:
+    """A job's state, its error, its status.json and its summary.json (None when it has none, or another process
+    owns its folder)."""
+    status = read_status(job.path) if job.path is not None else None
+    holder = lock.holder(job.path) if job.path is not None else None
+    if holder is not None and holder != os.getpid():  # whatever its status says, that process owns it now
+        error = f"running in another process (pid {holder or 'unknown'}); re-run the sweep when that process has ended"
+        return "running", error, None, None
+    if job.path is None or status is None:
+        return "not run", job.invalid or "not started: the sweep stopped before it", status, None
+    if status.get("config_sha") != job.sha:
+        return "not run", "its folder holds a run of another config", status, None
+    if status.get("status") == "done" and is_finished(job.path, job.sha, status):
+        try:
+            return "done", None, status, json.loads((job.path / RUN_SUMMARY).read_text())
+        except (OSError, ValueError) as err:
+            return "failed", f"unreadable summary.json: {err}", status, None
+    if status.get("status") == "done":
+        return "failed", "finished, but some of its output files are missing", status, None
+    if status.get("status") == "running":
+        return "interrupted", "killed while running; re-run the sweep to resume it", status, None
+    if status.get("status") == "interrupted":  # a signal stopped it after a checkpoint (Ctrl-C, preemption)
+        return "interrupted", f"{status.get('error')}; re-run the sweep to resume it", status, None
+    return "failed", status.get("error") or "no error recorded", status, None
+
+
+def _figures(summary: dict) -> dict:
+    """A job's final figures with their intervals, its level, risky fraction and sources reached (NaN without)."""
+    row = {}
+    for name in FIGURES:
+        figure = summary.get(name) or {}
+        row[name] = figure.get("value", float("nan"))
+        row[f"{name}_low"] = figure.get("low", float("nan"))
+        row[f"{name}_high"] = figure.get("high", float("nan"))
+    for name in EXTRA_CVARS:
+        row[name] = (summary.get(name) or {}).get("value", float("nan"))
+    row["beta"] = summary.get("beta", float("nan"))
+    row["risky_fraction"] = summary.get("risky_fraction", float("nan"))
+    reached = summary.get("source_reached") or {}
+    for name, value in reached.items() if isinstance(reached, dict) else ():
+        row[f"reached_{name}"] = value
+    return row
+
+
+def _table(rows: list[dict]):
+    """The rows as a frame: the sources reached right after risky_fraction, mixed columns as text."""
     frame = pd.DataFrame(rows)
     reached = [c for c in frame.columns if str(c).startswith("reached_")]
     if reached:  # right after risky_fraction, whichever job first had them
@@ -111,10 +121,10 @@ def summarize(jobs: list[Job]):
     return frame
 
 
-def _override_columns(overrides: list[str]) -> dict:
+def _override_columns(overrides: list[str], parse: ParsedOnce | None = None) -> dict:
     """{key: value} of a job's overrides; numbers stay numbers, lists and dicts become their JSON text."""
     out = {}
-    for o in OverridesParser.create().parse_overrides(overrides):
+    for o in (parse or ParsedOnce())(overrides):
         value = o.value()
         if isinstance(value, (list, dict)):
             value = json.dumps(value)
