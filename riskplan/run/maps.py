@@ -107,7 +107,7 @@ def read_map(world: WorldConf) -> MapFile | None:
     image = Path(image_text).expanduser()
     image = image if image.is_absolute() else path.parent / image
     kind, pixels = _header(image, f"the image {image_text} of {world.map}", KEYS.world.map)
-    return MapFile(
+    return MapFile(  # by keyword, as engine.rollout builds its KernelTables: alike in shape only
         yaml=path,
         shown=str(world.map),
         image=image,
