@@ -62,7 +62,6 @@ class Prepared:
     out: Path
     start: JobStart | None = None  # None: another process holds its folder
     setup: RunSetup | None = None
-    config: dict | None = None  # its resolved config, for a worker process to build the run from
     value: float | None = None  # its CVaR once done (or the finished job's)
     seconds: float = 0.0  # its set-up through Hydra, the first part of its own time
 
@@ -156,7 +155,7 @@ def _begin(cfg, plain, out: Path, held: contextlib.ExitStack) -> Prepared:
     except Exception as err:  # bad input for this combination: it fails alone
         _log(out, start.opening + ")")
         return Prepared(out, start, value=_record(start, failure(err)))
-    return Prepared(out, start, setup, setup.config)
+    return Prepared(out, start, setup)
 
 
 def plan_chunks(jobs: list, limit: float, key=lambda job: batch_key(job.setup.params), size=None) -> list[list]:
@@ -197,7 +196,7 @@ def _train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int
     parts = [chunk[i::workers] for i in range(workers)]
     work = [
         delayed(train_part)(
-            [job.config for job in part],
+            [job.setup if workers == 1 else job.setup.params for job in part],  # a worker builds from the params
             [job.out for job in part],
             [job.start.resume for job in part],
             max(1, cpu_count() // workers),
@@ -223,15 +222,17 @@ def _train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int
         raise Interrupted(stopped, min(r.get("finished", 0) for records in results for r in records))
 
 
-def train_part(configs, outs, resumes, threads: int, progress_file: Path, total: int) -> list[dict]:
+def train_part(setups, outs, resumes, threads: int, progress_file: Path, total: int) -> list[dict]:
     """A part of a batch in a worker process (or this one): its runs trained together under their folders' locks,
     which the driver holds; one status record per run ("interrupted" with the signal when one stopped them). Its
     iterations done go to `progress_file` (of `total` over the whole launch). A finished run's record holds its
-    own `seconds` of the part (`own_seconds`)."""
+    own `seconds` of the part (`own_seconds`). `setups`: each run's RunSetup, or in a worker process its frozen
+    config, built here (typed already: building it is a few milliseconds, typing a config dict again tens)."""
     arrive()  # in a worker process: it ends with the driver
     started = time.perf_counter()
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-    runs = [BatchRun(build_setup(cfg), Path(out), resume) for cfg, out, resume in zip(configs, outs, resumes)]
+    setups = [s if isinstance(s, RunSetup) else build_setup(s) for s in setups]
+    runs = [BatchRun(setup, Path(out), resume) for setup, out, resume in zip(setups, outs, resumes)]
     shown = {"at": 0.0}
 
     def progress(done: int, own: int) -> None:
