@@ -486,10 +486,13 @@ def test_gradient_tracking_keeps_its_sum_with_real_messages(local_ray, tmp_path)
     np.testing.assert_allclose(held, want, rtol=1e-12, atol=1e-9)
 
 
+# 20 iterations: the signal or kill lands after the first checkpoint (iteration 5) with 15 slowed iterations to spare,
+# and the resume, which runs every iteration left at the same slowed speed, has only those 15 to finish
+LONG_ITERATIONS = 20
 LONG = [
     "experiment=paper_team",
     "team.backend=ray",
-    "train.iterations=60",
+    f"train.iterations={LONG_ITERATIONS}",
     "train.samples=3000",
     "train.eval_episodes=1000",
     "train.bootstrap=20",
@@ -509,7 +512,7 @@ def test_a_signal_checkpoints_every_robot_and_resume_finishes(tmp_path, signum):
     out = tmp_path / "r"
     run = Watched(["train", *LONG, f"hydra.run.dir={out}"], tmp_path)
     # the first checkpoint (team iteration 5) is written at once; run.mcap shows iterations a chunk at a time, so
-    # waiting for it let a loaded machine run nearly all 60 before the signal
+    # waiting for it let a loaded machine run nearly all of them before the signal
     run.wait_for(lambda: (out / CHECKPOINT).exists(), "a checkpoint")
     if signum == signal.SIGINT:
         os.killpg(run.proc.pid, signal.SIGINT)
@@ -522,11 +525,11 @@ def test_a_signal_checkpoints_every_robot_and_resume_finishes(tmp_path, signum):
     assert len(lines) == 1 and "--resume" in lines[0], err
     checkpoint = json.loads((out / CHECKPOINT).read_text())
     reached = [int(r["arrays"]["iteration"]) for r in checkpoint["robots"]]
-    assert checkpoint["format"] == "ray" and min(reached) >= 1 and max(reached) < 60
+    assert checkpoint["format"] == "ray" and min(reached) >= 1 and max(reached) < LONG_ITERATIONS
     again = Watched(["train", "--resume", str(out)], tmp_path)
     code, _, err = again.finish()
     assert code == 0, err
-    assert_complete_run(out, 60, 3, 2)
+    assert_complete_run(out, LONG_ITERATIONS, 3, 2)
     assert json.loads((out / "status.json").read_text())["status"] == "done"
 
 
@@ -546,11 +549,11 @@ def test_kill_9_of_a_robot_stops_the_run_and_resume_restarts_every_robot(tmp_pat
     assert len(lines) == 1 and "robot 1's Ray actor died" in lines[0] and "Traceback" not in err, err
     assert json.loads((out / "status.json").read_text())["status"] == "failed"
     reached = [int(r["arrays"]["iteration"]) for r in json.loads((out / CHECKPOINT).read_text())["robots"]]
-    assert min(reached) >= 1 and max(reached) < 60
+    assert min(reached) >= 1 and max(reached) < LONG_ITERATIONS
     again = Watched(["train", "--resume", str(out)], tmp_path)
     code, _, err = again.finish()
     assert code == 0, err
-    assert_complete_run(out, 60, 3, 2)
+    assert_complete_run(out, LONG_ITERATIONS, 3, 2)
     new = {r["robot"]: r["pid"] for r in read_log(out / "run.mcap").metadata["ray_team"]["robots"]}
     assert new[1] != victim["pid"]
 
