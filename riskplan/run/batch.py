@@ -20,6 +20,7 @@ from pathlib import Path
 
 from riskplan.engine.loop import make_train
 from riskplan.engine.step import RunSetup
+from riskplan.run.checkpoint import can_sync_file_systems, sync_file_systems
 from riskplan.run.recorder import Driver, Recorder
 from riskplan.run.training import load_kernels
 from riskplan.util.collector import resume_collection
@@ -56,10 +57,14 @@ def train_batch(
         unopened = sum(run.setup.params.train.iterations for run in runs if run.driver is None)
         recorder.done, recorder.total = recorder.done + unopened, recorder.total + unopened
         make_train([run.setup for run in active])([run.driver.state for run in active], recorder)
+        grouped = can_sync_file_systems() and len(active) > 1  # the finished files synced once, not run by run
         for run, error, seconds in zip(active, recorder.errors, recorder.seconds):
             run.error = error
             if error is None:
-                _isolated(run, lambda run=run, seconds=seconds: _finish(run, seconds, stop))
+                _isolated(run, lambda run=run, seconds=seconds: _finish(run, seconds, stop, not grouped))
+        finished = [run for run in active if run.summary is not None]
+        if grouped and finished:
+            _sync_finished(finished)
     return runs
 
 
@@ -87,13 +92,24 @@ def _isolated(run: BatchRun, work: Callable[[], None]) -> None:
         run.error = err
 
 
-def _finish(run: BatchRun, train_seconds: float, stop: StopSignals) -> None:
+def _sync_finished(runs: list[BatchRun]) -> None:
+    """The finished runs' files made durable together (one syncfs per file system); a disk that refuses fails
+    them, since their files may not have reached it."""
+    try:
+        sync_file_systems([run.out for run in runs])
+    except OSError as err:
+        for run in runs:
+            run.error, run.summary = err, None
+
+
+def _finish(run: BatchRun, train_seconds: float, stop: StopSignals, durable: bool = True) -> None:
     """Evaluate a trained run and write its files (run.mcap closes first, as for a run alone); its calibration
-    record is its part of the batch's time."""
+    record is its part of the batch's time. `durable=False`: its files are synced with the batch's (train_batch),
+    before the caller records the run as done."""
     started = time.perf_counter()
     run.driver.evaluate(train_seconds)
     stop.check(run.driver.state.iteration)
     run.driver.log_results()
-    run.driver.log.close()  # before the files, as a run alone closes it; the batch's exit closes it again, idly
-    run.summary = run.driver.finish(train_seconds + time.perf_counter() - started)
+    run.driver.log.close(durable)  # before the files, as a run alone closes it; the batch's exit closes it again
+    run.summary = run.driver.finish(train_seconds + time.perf_counter() - started, durable=durable)
     run.seconds = train_seconds + time.perf_counter() - started

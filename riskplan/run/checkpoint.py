@@ -63,11 +63,11 @@ def save_checkpoints(outs: list[Path], states: list[TrainState], logs: list) -> 
         _attempt(lambda out=out, state=state: _write_temp(out, _payload(state))) for out, state in zip(outs, states)
     ]
     written = [k for k, error in enumerate(errors) if error is None]
-    _sync_file_systems([outs[k] for k in written])
+    sync_file_systems([outs[k] for k in written])
     for k in written:
         _crash_point(states[k].iteration)
         errors[k] = _attempt(lambda k=k: os.replace(outs[k] / CHECKPOINT_TMP, outs[k] / CHECKPOINT))
-    _sync_file_systems([outs[k] for k, error in enumerate(errors) if error is None])
+    sync_file_systems([outs[k] for k, error in enumerate(errors) if error is None])
     return errors
 
 
@@ -92,7 +92,7 @@ def _crash_point(iteration: int) -> None:
         os.kill(os.getpid(), signal.SIGKILL)
 
 
-def _sync_file_systems(folders: list[Path]) -> None:
+def sync_file_systems(folders: list[Path]) -> None:
     """syncfs once for each file system the folders lie on: everything written to it so far becomes durable."""
     seen: set[int] = set()
     for folder in folders:
@@ -105,6 +105,11 @@ def _sync_file_systems(folders: list[Path]) -> None:
                     raise OSError(ctypes.get_errno(), f"{folder}: syncfs failed")
         finally:
             os.close(fd)
+
+
+def can_sync_file_systems() -> bool:
+    """Whether this system syncs a file system alone (syncfs, Linux): a group commit's way to durability."""
+    return _SYNCFS is not None
 
 
 def _libc_syncfs():

@@ -163,7 +163,7 @@ def record(steps: float, seconds: float, share: float = 1.0) -> None:
     try:
         path = cache_file()
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(path, json.dumps({"runs": [list(r) for r in runs]}))
+        write_atomic(path, json.dumps({"runs": [list(r) for r in runs]}), durable=False)  # a cache: not synced
     except OSError:
         pass  # a read-only or full cache costs the next estimate its calibration, nothing else
 

@@ -182,10 +182,11 @@ def layout_for(config: dict) -> dict:
     return layout(robots, size)
 
 
-def write_layout(run_dir: Path | str, robots: int = 1, size: tuple[int, int] = (12, 12)) -> Path:
-    """Write `foxglove_layout.json` into a run directory (atomically) and return its path."""
+def write_layout(run_dir: Path | str, robots: int = 1, size: tuple[int, int] = (12, 12), durable: bool = True) -> Path:
+    """Write `foxglove_layout.json` into a run directory (atomically; synced unless not `durable`) and return its
+    path."""
     path = Path(run_dir) / LAYOUT_FILE
-    write_atomic(path, json.dumps(layout(robots, size), indent=2) + "\n")
+    write_atomic(path, json.dumps(layout(robots, size), indent=2) + "\n", durable)
     return path
 
 

@@ -324,15 +324,17 @@ class RunLog:
         self._durable()
         os.fsync(self._fh.fileno())
 
-    def close(self) -> None:
-        """Write the summary section and indexes, fsync and close. Idempotent."""
+    def close(self, durable: bool = True) -> None:
+        """Write the summary section and indexes, fsync (unless the caller syncs the file system itself: a
+        batch's group commit) and close. Idempotent."""
         if self._closed:
             return
         self._closed = True
         try:
             self._w.finish()
             self._fh.flush()
-            os.fsync(self._fh.fileno())
+            if durable:
+                os.fsync(self._fh.fileno())
         finally:
             self._fh.close()
 

@@ -92,13 +92,14 @@ class Driver:
         self.log.evaluation(evaluation)
         self.log.summary(summary)
 
-    def finish(self, seconds: float | None = None, share: float | None = None) -> dict:
+    def finish(self, seconds: float | None = None, share: float | None = None, durable: bool = True) -> dict:
         """The finished run's files (after run.mcap closed), summary.json last; returns the summary. A whole run
         calibrates the time estimates of sweeps and reproductions on this machine (riskplan.run.cost) with its wall
         seconds since it opened (a batch gives each run its part of the batch's time, on all cores), unless numba
-        compiled a kernel meanwhile: then its seconds are mostly the compiler's."""
+        compiled a kernel meanwhile: then its seconds are mostly the compiler's. `durable=False`: the files are not
+        synced one by one (a batch syncs its file systems once)."""
         metrics, evaluation, trajectories, summary = self.results
-        write_finished(self.out, self.setup, metrics, evaluation, trajectories, summary)
+        write_finished(self.out, self.setup, metrics, evaluation, trajectories, summary, durable)
         if not self.resumed_at and cost.compiles() == self.compiles:
             seconds = time.perf_counter() - self.entered if seconds is None else seconds
             share = numba.get_num_threads() / cpu_count() if share is None else share

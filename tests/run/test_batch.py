@@ -146,3 +146,30 @@ def test_each_run_of_a_batch_calibrates_with_its_part_of_the_batchs_time(tmp_pat
     records = json.loads(cost.cache_file().read_text())["runs"]
     assert [steps for steps, _ in records] == [cost.setup_steps(setups(TINY, [n])[n]) for n in names]
     assert sum(seconds for _, seconds in records) <= whole  # parts of the batch, not the batch once per run
+
+
+def test_a_batch_syncs_its_finished_files_once_and_a_refused_sync_fails_its_runs(tmp_path, monkeypatch):
+    """A batch's finished files are written without an fsync each and made durable by one syncfs per file system
+    for all its runs, before the runs count as done; a disk that refuses that sync fails them (their files may not
+    have reached it), and nothing fsyncs file by file meanwhile."""
+    import riskplan.run.batch as batch
+
+    if not batch.can_sync_file_systems():
+        pytest.skip("this system has no syncfs: a batch's runs sync their files one by one")
+    names = ["cvar", "neutral"]
+    synced, fsyncs = [], []
+    real_fsync = os.fsync
+    monkeypatch.setattr(batch, "sync_file_systems", lambda folders: synced.append(sorted(f.name for f in folders)))
+    runs = train_batch([BatchRun(setups(TINY, [n])[n], tmp_path / "ok" / n) for n in names])
+    assert all(run.summary is not None for run in runs) and synced == [names]
+
+    def refused(folders):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(batch, "sync_file_systems", refused)
+    monkeypatch.setattr(os, "fsync", lambda fd: (fsyncs.append(fd), real_fsync(fd)))
+    runs = train_batch([BatchRun(setups(TINY, [n])[n], tmp_path / "refused" / n) for n in names])
+    assert all(isinstance(run.error, OSError) and run.summary is None for run in runs)
+    finished_files = {"summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet"}
+    assert finished_files <= {p.name for p in (tmp_path / "refused" / "cvar").iterdir()}
+    assert len(fsyncs) <= 2 * len(names)  # the checkpoints' (TINY: one each, at the end); none for the files
