@@ -9,8 +9,12 @@ import re
 import pandas as pd
 import pytest
 from support import FAST, riskplan_cli
+from typer.testing import CliRunner
+
+from riskplan.cli import app
 
 pytestmark = pytest.mark.slow
+runner = CliRunner()
 
 
 def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
@@ -130,17 +134,22 @@ def test_reproduce_paper_only_runs_section_v_alone(tmp_path):
     assert (root / "report" / "fig1_paths.png").is_file() and (root / "report" / "fig3_team.png").is_file()
 
 
-def test_reproduce_rejects_sweeps_and_its_own_keys_as_bad_input(tmp_path):
+# bad input in this process (typer's runner): the exit code and stderr are the command's own, without a start-up each
+def test_reproduce_rejects_sweeps_and_its_own_keys_as_bad_input(in_tmp):
     for args in (["risk.beta=0.1,0.2"], ["seed=3"], ["train.iterations=abc"], ["--seeds", "0"]):
-        result = riskplan_cli(tmp_path, "reproduce", *args)
-        assert result.returncode == 2, (args, result.stderr)
+        result = runner.invoke(app, ["reproduce", *args])
+        assert result.exit_code == 2, (args, result.stderr)
         assert "Traceback" not in result.stderr
-    assert not (tmp_path / "outputs").exists()
+    assert not (in_tmp / "outputs").exists()
 
 
-def test_reproduce_seeds_are_bounded(tmp_path):
-    result = riskplan_cli(tmp_path, "reproduce", "--seeds", "40", env={"RISKPLAN_MAX_JOBS": "100"})
-    assert result.returncode == 2 and "RISKPLAN_MAX_JOBS" in result.stderr and len(result.stderr.splitlines()) == 1
-    result = riskplan_cli(tmp_path, "reproduce", "--seeds", "3", env={"RISKPLAN_MAX_HOURS": "0.0001"})
-    assert result.returncode == 2 and "RISKPLAN_MAX_HOURS" in result.stderr and len(result.stderr.splitlines()) == 1
-    assert not (tmp_path / "outputs").exists()
+def test_reproduce_seeds_are_bounded(in_tmp, monkeypatch):
+    with monkeypatch.context() as limit:
+        limit.setenv("RISKPLAN_MAX_JOBS", "100")
+        result = runner.invoke(app, ["reproduce", "--seeds", "40"])
+    assert result.exit_code == 2 and "RISKPLAN_MAX_JOBS" in result.stderr and len(result.stderr.splitlines()) == 1
+    with monkeypatch.context() as limit:
+        limit.setenv("RISKPLAN_MAX_HOURS", "0.0001")
+        result = runner.invoke(app, ["reproduce", "--seeds", "3"])
+    assert result.exit_code == 2 and "RISKPLAN_MAX_HOURS" in result.stderr and len(result.stderr.splitlines()) == 1
+    assert not (in_tmp / "outputs").exists()

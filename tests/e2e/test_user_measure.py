@@ -14,8 +14,10 @@ import numpy as np
 import pytest
 from measure_cases import install_package
 from support import WORLD_3X3, exact_distribution, rollouts, run_cli
+from typer.testing import CliRunner
 
 from riskplan import load_run
+from riskplan.cli import app
 from riskplan.engine.measures import registry
 from riskplan.risk import risk_spec
 from riskplan.run.build import build_setup
@@ -23,6 +25,7 @@ from riskplan.run.build import build_setup
 POWER = ["risk.measure=power", "risk.params.gamma=0.5"]
 SAMPLES = 200_000  # the first step's episodes: 16 batches of 12,500 give its standard error
 QUICK = ["train.eval_episodes=1000", "train.bootstrap=20", "train.paths=1"]
+runner = CliRunner()
 
 
 @pytest.fixture
@@ -78,19 +81,21 @@ def test_a_power_distortion_from_a_package_trains_and_its_first_step_matches_exa
     np.testing.assert_array_less(np.abs(step - truth), 4 * se)
 
 
-def test_a_packages_measure_goes_through_a_sweep_the_report_and_export(package):
+def test_a_packages_measure_goes_through_a_sweep_the_report_and_export(package, monkeypatch):
     sweep = package / "sweep"
     overrides = ["risk.measure=power", "risk.params.gamma=0.5,0.8", "train.iterations=2", "train.samples=300", *QUICK]
-    done = run_cli(["sweep", *overrides, f"hydra.sweep.dir={sweep}"], package)
+    done = run_cli(["sweep", *overrides, f"hydra.sweep.dir={sweep}"], package)  # its jobs find the package too
     assert done.returncode == 0, done.stderr[-2000:]
     runs = sorted(p.parent for p in sweep.rglob("summary.json"))
     assert [json.loads((r / "summary.json").read_text())["objective"]["measure"] for r in runs] == ["power"] * 2
-    done = run_cli(["report", str(sweep)], package)
-    assert done.returncode == 0, done.stderr[-2000:]
+    # the report and export in this process, which finds the package as a new one does (the registry emptied)
+    monkeypatch.chdir(package)
+    done = runner.invoke(app, ["report", str(sweep)])
+    assert done.exit_code == 0, done.output[-2000:]
     page = (sweep / "report" / "report.html").read_text()
     assert "power (gamma=0.5)" in page and "power (gamma=0.8)" in page
-    done = run_cli(["export", str(sweep), "--to", "tensorboard", "--uri", str(package / "tb")], package)
-    assert done.returncode == 0, done.stderr[-2000:]
+    done = runner.invoke(app, ["export", str(sweep), "--to", "tensorboard", "--uri", str(package / "tb")])
+    assert done.exit_code == 0, done.output[-2000:]
     assert "2 exported" in done.stdout
 
 
@@ -104,9 +109,13 @@ def test_a_packages_measure_goes_through_a_sweep_the_report_and_export(package):
         ([*POWER, "risk.params.delta=1"], "error: risk.params.delta: unknown parameter of measure 'power'"),
     ],
 )
-def test_bad_input_for_a_packages_measure_is_one_line_and_exit_2_with_nothing_written(package, overrides, line):
+def test_bad_input_for_a_packages_measure_is_one_line_and_exit_2_with_nothing_written(
+    package, monkeypatch, overrides, line
+):
+    # in this process (the package on its sys.path): the command's own exit code and stderr, without a start-up each
+    monkeypatch.chdir(package)
     out = package / "run"
-    done = run_cli(["train", *overrides, "train.iterations=1", f"hydra.run.dir={out}"], package)
-    assert done.returncode == 2
+    done = runner.invoke(app, ["train", *overrides, "train.iterations=1", f"hydra.run.dir={out}"])
+    assert done.exit_code == 2, done.output
     assert done.stderr.strip().startswith(line) and len(done.stderr.strip().splitlines()) == 1
     assert not out.exists()

@@ -15,10 +15,14 @@ import pandas as pd
 import pytest
 import yaml
 from support import TINY, riskplan_cli
+from typer.testing import CliRunner
+
+from riskplan.cli import app
 
 pytest.importorskip("hydra_plugins.hydra_optuna_sweeper", reason="the optuna extra is not installed")
 
 pytestmark = pytest.mark.slow
+runner = CliRunner()
 
 # 4 trials over beta, with train.iterations=0 (which the model rejects) in some of them: seed 1 draws 0, 0, 3, 3
 STUDY = [
@@ -80,14 +84,16 @@ def test_an_optuna_study_runs_isolates_failed_trials_and_resumes(tmp_path):
     assert list(second.status) == list(summary.status) and list(second["risk.beta"]) == list(summary["risk.beta"])
 
 
-def test_bad_search_spaces_write_nothing(tmp_path):
+def test_bad_search_spaces_write_nothing(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("COLUMNS", "250")
     for args, expected in [
         (["risk.beta=interval(0.05,1)"], "interval(...) is a search space for an optimising sweeper"),
         (["hydra/sweeper=optuna", "risk=glob(*)"], "the optuna sweeper takes choice(...)"),
         (["hydra/sweeper=optuna", "train.iterations=interval(1.5,4.5)"], "composed with the sample value 3.0"),
         (["hydra/sweeper=optuna", "risk.beta=interval(0.1,1)", "train.iterations=0"], "(in every trial; nothing"),
     ]:
-        result = riskplan(tmp_path, "sweep", *args)
-        assert result.returncode == 2 and expected in result.stderr, (args, result.stderr)
+        result = runner.invoke(app, ["sweep", *args])  # in this process: bad input needs no start-up of its own
+        assert result.exit_code == 2 and expected in result.stderr, (args, result.stderr)
         assert len(result.stderr.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []

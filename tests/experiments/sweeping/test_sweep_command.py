@@ -1,6 +1,7 @@
-"""`riskplan sweep` through the real command line (a subprocess per call), on small configs: a grid runs once, then
-skips, then reruns only what was deleted; failing jobs fail alone; bad input exits 2 before anything runs; the
-submitit launcher; a killed sweep resumes. The grid's expansion and checks are unit-tested in test_grid.py."""
+"""`riskplan sweep` through the real command line (a subprocess per call, but for bad input: typer's runner in this
+process), on small configs: a grid runs once, then skips, then reruns only what was deleted; failing jobs fail
+alone; bad input exits 2 before anything runs; the submitit launcher; a killed sweep resumes. The grid's expansion
+and checks are unit-tested in test_grid.py."""
 
 from __future__ import annotations
 
@@ -12,8 +13,12 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from support import FAST, riskplan_cli
+from typer.testing import CliRunner
+
+from riskplan.cli import app
 
 pytestmark = pytest.mark.slow
+runner = CliRunner()
 
 
 def sweep_dir_of(result: subprocess.CompletedProcess, cwd: Path) -> Path:
@@ -142,9 +147,11 @@ def test_an_invalid_combination_and_a_raising_job_fail_alone(tmp_path):
         (["seed=0", "hydra.sweep.subdir=../out"], "hydra.sweep.subdir"),  # outside the sweep directory
     ],
 )
-def test_bad_input_exits_2_before_anything_runs(tmp_path, args, names):
-    result = riskplan_cli(tmp_path, "sweep", *FAST, *args)
-    assert result.returncode == 2, result.stdout + result.stderr
+def test_bad_input_exits_2_before_anything_runs(tmp_path, monkeypatch, args, names):
+    # in this process: the exit code and stderr are the command's own, without two seconds of start-up per row
+    monkeypatch.chdir(tmp_path)
+    result = runner.invoke(app, ["sweep", *FAST, *args])
+    assert result.exit_code == 2, result.stdout + result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and names in lines[0], result.stderr
     assert "Traceback" not in result.stderr
