@@ -14,6 +14,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
+import support
 from support import FAST, TINY, team_conf  # noqa: F401  (`from conftest import FAST, team_conf` keeps working)
 
 try:
@@ -92,3 +93,23 @@ def tiny_overrides() -> list[str]:
 def fast_overrides() -> list[str]:
     """Overrides that make a run take well under a second (support.FAST)."""
     return list(FAST)
+
+
+@pytest.fixture(scope="session")
+def uninterrupted(tmp_path_factory):
+    """uninterrupted(seed): the directory of `riskplan train` of support.CHECKPOINTED with that seed, run once a
+    session (read only): the run that killed, interrupted and resumed runs and sweep jobs must equal. In one thread:
+    tests/e2e/test_determinism.py compares the other thread counts and launchers with it."""
+    runs: dict[int, Path] = {}
+
+    def run(seed: int = 0) -> Path:
+        if seed not in runs:
+            out = tmp_path_factory.mktemp(f"uninterrupted_seed{seed}") / "run"
+            result = support.train_cli(
+                [*support.CHECKPOINTED, f"seed={seed}"], out, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1"
+            )
+            assert result.returncode == 0, result.stderr
+            runs[seed] = out
+        return runs[seed]
+
+    return run

@@ -27,10 +27,8 @@ def job_dirs(sweep: Path) -> dict[int, Path]:
     return jobs
 
 
-def test_same_numbers_across_threads_jobs_and_launchers(tmp_path):
-    plain = tmp_path / "train_1_thread"
-    result = train_cli([*RUN, "seed=1"], plain, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1")
-    assert result.returncode == 0, result.stderr
+def test_same_numbers_across_threads_jobs_and_launchers(tmp_path, uninterrupted):
+    plain = uninterrupted(1)  # `riskplan train` of RUN, seed=1, in one thread (conftest.py)
 
     sweeps = {}
     for jobs in (1, 2):

@@ -47,12 +47,9 @@ runner = CliRunner()
 
 # ----------------------------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
-def baseline(tmp_path_factory) -> Path:
-    """An uninterrupted `riskplan train` of RUN (30 iterations, checkpoints every 5)."""
-    out = tmp_path_factory.mktemp("baseline") / "run"
-    result = train_cli(RUN, out)
-    assert result.returncode == 0, result.stderr
-    return out
+def baseline(uninterrupted) -> Path:
+    """An uninterrupted `riskplan train` of RUN (30 iterations, checkpoints every 5), shared with the session."""
+    return uninterrupted(0)
 
 
 @pytest.fixture(scope="module")

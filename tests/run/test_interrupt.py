@@ -11,7 +11,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from support import CHECKPOINTED, TIMEOUT, assert_same_outputs, child_env, resume_cli, riskplan_command, train_cli
+from support import CHECKPOINTED, TIMEOUT, assert_same_outputs, child_env, resume_cli, riskplan_command
 
 from riskplan.run.checkpoint import CHECKPOINT
 from riskplan.run.recorder import STOP_ENV
@@ -83,9 +83,7 @@ def interrupt_at(command: list[str], cwd: Path, iteration: int, signum: int) -> 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_an_interrupted_run_resumes_to_the_uninterrupted_result(tmp_path, signum, code):
-    reference = tmp_path / "reference"
-    assert train_cli(CHECKPOINTED, reference).returncode == 0
+def test_an_interrupted_run_resumes_to_the_uninterrupted_result(tmp_path, uninterrupted, signum, code):
     out = tmp_path / "run"
     done = interrupt_at(["train", *CHECKPOINTED, f"hydra.run.dir={out}"], tmp_path, 12, signum)  # between checkpoints
     assert done.returncode == code, done.stderr
@@ -99,22 +97,13 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_result(tmp_path, signum
     assert not (out / "summary.json").exists()
     resumed = resume_cli(out)
     assert resumed.returncode == 0, resumed.stderr
-    assert_same_outputs(out, reference)
+    assert_same_outputs(out, uninterrupted(0))
 
 
 @pytest.mark.slow
-def test_an_interrupted_sweep_stops_its_jobs_checkpointed_and_resumes_to_the_same_numbers(tmp_path):
+def test_an_interrupted_sweep_stops_its_jobs_checkpointed_and_resumes_to_the_same_numbers(tmp_path, uninterrupted):
     overrides = [*CHECKPOINTED, "seed=0,1"]
-    reference, sweep = tmp_path / "reference", tmp_path / "sweep"
-    first = subprocess.run(
-        [*riskplan_command(), "sweep", *overrides, f"hydra.sweep.dir={reference}"],
-        cwd=tmp_path,
-        env=child_env(),
-        capture_output=True,
-        text=True,
-        timeout=TIMEOUT,
-    )
-    assert first.returncode == 0, first.stderr
+    sweep = tmp_path / "sweep"
     proc = subprocess.Popen(
         [*riskplan_command(), "sweep", *overrides, f"hydra.sweep.dir={sweep}"],
         cwd=tmp_path,
@@ -154,7 +143,7 @@ def test_an_interrupted_sweep_stops_its_jobs_checkpointed_and_resumes_to_the_sam
     for seed in (0, 1):
         job = sweep / f"seed={seed}"
         assert json.loads((job / "status.json").read_text())["resumed"] is True
-        assert_same_outputs(job, reference / f"seed={seed}")
+        assert_same_outputs(job, uninterrupted(seed))  # a job's numbers are the run's (test_determinism.py)
 
 
 def _wait_until_pending(pid: int, signum: int) -> None:
