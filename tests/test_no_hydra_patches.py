@@ -66,7 +66,10 @@ def test_the_scan_finds_each_kind_of_patch():
 def test_no_module_patches_hydra():
     found = {}
     for path in sorted([*(ROOT / "riskplan").rglob("*.py"), *(ROOT / "hydra_plugins").rglob("*.py")]):
-        lines = patches(path.read_text())
+        text = path.read_text()
+        if "hydra" not in text:  # no hydra import, so no name to patch through (and most modules): skip the parse
+            continue
+        lines = patches(text)
         if lines:
             found[str(path.relative_to(ROOT))] = lines
     assert found == {}
