@@ -123,21 +123,6 @@ def train(out: Path, device: str, env: dict[str, str]) -> None:
     assert done.returncode == 0, done.stderr[-3000:]
 
 
-def test_a_run_on_the_gpu_is_the_run_on_the_cpu(tmp_path):
-    train(tmp_path / "gpu", "cuda", simulator_env())
-    train(tmp_path / "cpu", "cpu", dict(os.environ))
-    assert "device: cuda" in (tmp_path / "gpu" / ".hydra" / "config.yaml").read_text()
-    for table in ("eval", "trajectories"):
-        gpu, cpu = (pd.read_parquet(tmp_path / d / f"{table}.parquet") for d in ("gpu", "cpu"))
-        pd.testing.assert_frame_equal(gpu, cpu, check_exact=True)
-    gpu, cpu = (pd.read_parquet(tmp_path / d / "metrics.parquet") for d in ("gpu", "cpu"))
-    pd.testing.assert_frame_equal(gpu.drop(columns="seconds"), cpu.drop(columns="seconds"), check_exact=True)
-    gpu, cpu = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("gpu", "cpu"))
-    timed = ("wall_time", "throughput_episodes_per_s", "provenance")
-    assert {k: v for k, v in gpu.items() if k not in timed} == {k: v for k, v in cpu.items() if k not in timed}
-    assert gpu["theta_final"] == cpu["theta_final"] and cpu["theta_final"] != [[20.0, 20.0]]
-
-
 CPU_RUN = """
 import sys
 from typer.testing import CliRunner
@@ -148,9 +133,29 @@ print(sorted(m for m in sys.modules if m.startswith(("numba.cuda", "numba_cuda",
 """
 
 
-def test_a_run_on_the_cpu_never_imports_numba_cuda(tmp_path):
-    done = subprocess.run(
-        [sys.executable, "-c", CPU_RUN, str(tmp_path / "run"), *TRAIN], capture_output=True, text=True
-    )
+@pytest.fixture(scope="module")
+def cpu_run(tmp_path_factory) -> tuple[Path, str]:
+    """The CPU run of TRAIN in a new process (the GPU run's reference), and the numba-cuda modules it imported."""
+    out = tmp_path_factory.mktemp("cpu") / "run"
+    done = subprocess.run([sys.executable, "-c", CPU_RUN, str(out), *TRAIN], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
-    assert done.stdout.splitlines()[-1] == "[]"
+    return out, done.stdout.splitlines()[-1]
+
+
+def test_a_run_on_the_gpu_is_the_run_on_the_cpu(tmp_path, cpu_run):
+    runs = {"gpu": tmp_path / "gpu", "cpu": cpu_run[0]}
+    train(runs["gpu"], "cuda", simulator_env())
+    assert "device: cuda" in (runs["gpu"] / ".hydra" / "config.yaml").read_text()
+    for table in ("eval", "trajectories"):
+        gpu, cpu = (pd.read_parquet(runs[d] / f"{table}.parquet") for d in ("gpu", "cpu"))
+        pd.testing.assert_frame_equal(gpu, cpu, check_exact=True)
+    gpu, cpu = (pd.read_parquet(runs[d] / "metrics.parquet") for d in ("gpu", "cpu"))
+    pd.testing.assert_frame_equal(gpu.drop(columns="seconds"), cpu.drop(columns="seconds"), check_exact=True)
+    gpu, cpu = (json.loads((runs[d] / "summary.json").read_text()) for d in ("gpu", "cpu"))
+    timed = ("wall_time", "throughput_episodes_per_s", "provenance")
+    assert {k: v for k, v in gpu.items() if k not in timed} == {k: v for k, v in cpu.items() if k not in timed}
+    assert gpu["theta_final"] == cpu["theta_final"] and cpu["theta_final"] != [[20.0, 20.0]]
+
+
+def test_a_run_on_the_cpu_never_imports_numba_cuda(cpu_run):
+    assert cpu_run[1] == "[]"
