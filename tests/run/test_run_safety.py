@@ -75,10 +75,11 @@ def finished(tmp_path_factory) -> Path:
 
 # ------------------------------------------------------------------------------------ claimed, locked directories
 @pytest.mark.slow  # the `finished` run: `riskplan train` in a subprocess
-def test_a_second_run_into_a_finished_run_directory_is_refused_and_changes_nothing(finished, tmp_path):
+def test_a_second_run_into_a_finished_run_directory_is_refused_and_changes_nothing(finished, tmp_path, monkeypatch):
     before = files(finished)
-    result = train_cli([*RUN, "seed=7"], finished)  # another config into the same directory
-    assert result.returncode == 2
+    monkeypatch.chdir(tmp_path)  # in this process: refused before anything runs, as bad input
+    result = CliRunner().invoke(app, ["train", *RUN, "seed=7", f"hydra.run.dir={finished}"])  # another config
+    assert result.exit_code == 2
     assert result.stderr.strip() == (
         f"error: hydra.run.dir: {finished} already holds a run; resume it with riskplan "
         f"train --resume {finished}, or give a new directory"
@@ -131,19 +132,22 @@ def test_two_processes_never_write_one_run_directory(tmp_path):
 
 
 # ------------------------------------------------------------------------------------ read-only mounts, full disks
-@pytest.mark.slow  # `riskplan train` in subprocesses
-def test_a_read_only_output_directory_is_one_line_and_nothing_written(tmp_path):
+def test_a_read_only_output_directory_is_one_line_and_nothing_written(tmp_path, monkeypatch):
     source = tmp_path / "source"
     source.mkdir()
+    runner = CliRunner()  # in this process: refused before anything runs, as bad input
     with mounted(tmp_path / "ro", "--bind", str(source)) as target:
         assert subprocess.run(["mount", "-o", "remount,bind,ro", str(target)]).returncode == 0
-        result = run_cli(["train", *RUN, f"hydra.run.dir={target / 'run'}"], tmp_path)
-        assert result.returncode == 2
+        monkeypatch.chdir(tmp_path)
+        result = runner.invoke(app, ["train", *RUN, f"hydra.run.dir={target / 'run'}"])
+        assert result.exit_code == 2
         assert result.stderr.strip() == (
             f"error: hydra.run.dir: {target / 'run'} is on a read-only filesystem; give a directory you can write"
         )
-        default = run_cli(["train", *RUN], target)  # outputs/runs/<timestamp> below a read-only working directory
-        assert default.returncode == 2
+        monkeypatch.chdir(target)
+        default = runner.invoke(app, ["train", *RUN])  # outputs/runs/<timestamp> below a read-only working directory
+        monkeypatch.chdir(tmp_path)  # out of the mount before it goes
+        assert default.exit_code == 2
         assert default.stderr.strip() == (
             "error: outputs/runs: outputs/runs is on a read-only filesystem; give a directory you can write"
         )

@@ -17,7 +17,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from support import CLI, TINY, alive, files, riskplan_cli
+from typer.testing import CliRunner
 
+from riskplan.cli import app
 from riskplan.experiments import driver_watch
 from riskplan.experiments.sweep_worker import NAME_MAX
 from riskplan.util import lock
@@ -265,9 +267,11 @@ def test_swept_values_with_path_syntax_stay_direct_children_of_the_sweep_directo
 # ------------------------------------------------------------------------------------------------ sizes
 
 
-def test_the_job_limit_can_be_raised_and_lowered(tmp_path):
-    small = riskplan_cli(tmp_path, "sweep", "seed=range(0,3)", *TINY, env={"RISKPLAN_MAX_JOBS": "2"})
-    assert small.returncode == 2
+def test_the_job_limit_can_be_raised_and_lowered(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # in this process: bad input needs no start-up of its own
+    monkeypatch.setenv("RISKPLAN_MAX_JOBS", "2")
+    small = CliRunner().invoke(app, ["sweep", "seed=range(0,3)", *TINY])
+    assert small.exit_code == 2
     assert small.stderr.strip() == (
         "error: override 'seed=range(0,3)': expands to 3 jobs, more than the 2 allowed; "
         "sweep fewer values, or raise the limit with RISKPLAN_MAX_JOBS=<jobs>"
