@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ from riskplan.config.typed import check_schema
 from riskplan.engine.measures.registry import MEASURES
 from riskplan.experiments.landscape import is_landscape_dir, load_landscape
 from riskplan.experiments.reporting.labels import MISSING, hashable, label_groups
+from riskplan.experiments.reporting.parallel import shared_map
 from riskplan.experiments.study_registry import STUDIES
 from riskplan.experiments.sweep_worker import HOW_KEYS, distinct
 from riskplan.run.metrics_rows import AVERAGE
@@ -303,14 +305,15 @@ def collect(paths: list[Path]) -> Collection:
     landscapes = []
     folders = study_folders(inputs)
     loaded: list[tuple[RunInfo, str | None]] = []  # each usable run with its study (None: none), in path order
+    results = _load_all([path for path in found if not is_landscape_dir(path)])
     for path in found:
-        if is_landscape_dir(path):
+        if path not in results:
             try:
                 landscapes.append(load_landscape(path))
             except Exception as err:
                 broken.append(Broken(path, f"landscape: {_reason(err, path)}"))
             continue
-        info, problem = _load(path)
+        info, problem = results[path]
         if info is None:
             broken.append(Broken(path, problem))
         else:
@@ -405,6 +408,32 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
     if not usable:
         return None, f"no metrics or evaluation rows for the headline policy (robot {info.headline})"
     return info, ""
+
+
+def _load_all(paths: list[Path]) -> dict[Path, tuple[RunInfo | None, str]]:
+    """_load of each run directory, on all CPUs (reading the tables and checking the configs is a fifth of a
+    reproduction's report): a condition's seeds at a time, so that one process checks their config once."""
+    conditions: dict[tuple, list[Path]] = {}
+    for path in paths:
+        conditions.setdefault(_condition(path), []).append(path)
+    batches = list(conditions.values())
+    loaded = shared_map(lambda batch: [_load(p) for p in batch], batches, cost=lambda batch: sum(map(_size, batch)))
+    return {path: result for batch, results in zip(batches, loaded) for path, result in zip(batch, results)}
+
+
+def _condition(path: Path) -> tuple[Path, str]:
+    """A run directory's folder and its name without the seed (risk=cvar,seed=1 -> risk=cvar,): a sweep names a
+    condition's seeds alike. Only the sharing of the loading depends on it."""
+    return path.parent, re.sub(r"(?<![^,])seed=\d+", "", path.name)
+
+
+def _size(path: Path) -> int:
+    """Bytes of the files in a run directory: a guess of what loading it costs (its tables, or run.mcap); 0 for
+    one that cannot be listed (_load says why)."""
+    try:
+        return sum(file.stat().st_size for file in path.iterdir() if file.is_file())
+    except OSError:
+        return 0
 
 
 def _failed_status(path: Path) -> str:
