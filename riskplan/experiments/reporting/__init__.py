@@ -11,8 +11,10 @@ the same sample: it is counted once, listed in runs.csv as `duplicate`, with one
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,7 +24,7 @@ from riskplan.experiments.output_manifest import Output, WriteFailed, claim_outp
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.figures import figure_files, make_figures
 from riskplan.experiments.reporting.page import render
-from riskplan.experiments.reporting.parallel import shared_map
+from riskplan.experiments.reporting.parallel import sharing
 from riskplan.experiments.reporting.study_tables import study_tables
 from riskplan.experiments.reporting.tables import (
     comparison_table,
@@ -106,14 +108,14 @@ def write_report(
     collected = collect([Path(p) for p in paths])
     if collected.duplicates:  # one line (the CLI shows warnings as `warning: ...`); runs.csv names each
         warnings.warn(repeats_line(len(collected.duplicates), "runs.csv lists them as duplicate"), stacklevel=3)
-    comparison = comparison_table(collected)
-    _warn_degenerate(comparison)
-    runs = runs_table(collected)
-    landscapes = landscape_table(collected)
-    soft = soft_risk_table(collected)
-    studies = collect_studies(collected, study_tables)
     specs, skipped = make_figures(collected)
-    figures = _draw(specs, formats, skipped)
+    with _drawing(specs, formats, skipped) as figures:  # forked children draw while this process makes the tables
+        comparison = comparison_table(collected)
+        _warn_degenerate(comparison)
+        runs = runs_table(collected)
+        landscapes = landscape_table(collected)
+        soft = soft_risk_table(collected)
+        studies = collect_studies(collected, study_tables)
     csvs = {"report.csv": comparison, "runs.csv": runs}  # always; the others where they hold rows
     optional = {"landscape.csv": landscapes, "soft_risk.csv": soft, **{f"{n}.csv": t for n, t in studies.items()}}
     csvs.update({name: table for name, table in optional.items() if not table.empty})
@@ -142,23 +144,25 @@ def _warn_degenerate(comparison: pd.DataFrame) -> None:
         )
 
 
-def _draw(specs: list, formats: list[str], skipped: dict[str, str]) -> list[tuple]:
-    """Every figure drawn to bytes, on all CPUs (a figure's size is a fair guess of its cost): (spec, {format:
-    bytes}) of each drawn; one that failed goes into `skipped` with its reason."""
+@contextlib.contextmanager
+def _drawing(specs: list, formats: list[str], skipped: dict[str, str]) -> Iterator[list[tuple]]:
+    """Every figure drawn to bytes on all CPUs (a figure's size is a fair guess of its cost): forked children start
+    on entering, this process joins them on leaving, and the list yielded then holds (spec, {format: bytes}) of
+    each drawn; one that failed goes into `skipped` with its reason."""
+    figures: list[tuple] = []
     try:
-        drawn = shared_map(
+        with sharing(
             lambda spec: figure_files(spec, formats), specs, cost=lambda spec: spec.figure.get_size_inches().prod()
-        )
+        ) as drawn:
+            yield figures
     finally:
         for spec in specs:
             spec.figure.clear()
-    figures = []
     for spec, files in zip(specs, drawn):
         if isinstance(files, str):
             skipped[spec.name] = files
         else:
             figures.append((spec, files))
-    return figures
 
 
 def collect_studies(collected, tables) -> dict:

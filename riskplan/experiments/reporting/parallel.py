@@ -1,13 +1,20 @@
-"""The report's CPU-bound work shared with forked children: drawing the figures is most of `riskplan report`.
+"""The report's CPU-bound work shared with forked children: drawing the figures is most of `riskplan report`,
+loading the runs most of the rest.
 
     shared_map(draw, specs, cost) == [draw(spec) for spec in specs], on the CPUs this process may use
+    with sharing(draw, specs, cost) as drawn:  # the children start at once; this process works on the tables
+        tables = ...
+    drawn == [draw(spec) for spec in specs]  # this process joined in on leaving the block
 
 The children are forked, so they inherit what this process built (matplotlib figures) without pickling it, and
 send back only their results; every file is still written by this process. Items are handed out one at a time from
 a shared counter, costliest first, so whoever finishes first takes the next and the cheap ones at the end even out
 the finish (the figures' costs differ threefold). Whatever a child did not deliver (it died) is computed here
-afterwards: the result never depends on the children. `function` must not raise (return the failure instead), as
-its exceptions would end a child.
+afterwards: the result never depends on the children. `function` should not raise (return the failure instead): an
+exception ends a child, and its items then raise here.
+
+While the items are shared, what existed before (the runs, the figures) is out of the garbage collector's full
+passes (gc.freeze): they walked every object, in this process and into each child's copy.
 
 Fork is Linux only here (unsafe on macOS, missing on Windows); elsewhere, and on one CPU, all runs in this process.
 RISKPLAN_REPORT_WORKERS sets the number of processes (1: no children), e.g. to compare both paths in the tests.
@@ -15,10 +22,12 @@ RISKPLAN_REPORT_WORKERS sets the number of processes (1: no children), e.g. to c
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import multiprocessing
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from riskplan.util.errors import BadInput
@@ -39,12 +48,65 @@ def workers() -> int:
 def shared_map(function: Callable[[Any], Any], items: Sequence, cost: Callable[[Any], float]) -> list:
     """[function(item) for item in items], this process and forked children taking items in turn, in decreasing
     (estimated) cost."""
+    with sharing(function, items, cost) as results:
+        pass
+    return results
+
+
+@contextlib.contextmanager
+def sharing(function: Callable[[Any], Any], items: Sequence, cost: Callable[[Any], float]) -> Iterator[list]:
+    """shared_map begun on entering: the children take items while the block runs here, and this process joins
+    them on leaving; the list yielded then holds [function(item) for item in items]. When the block (or `function`
+    here) raises, the children are ended."""
+    results: list = []
     children = min(workers(), len(items)) - 1
-    if children < 1:
-        return [function(item) for item in items]
-    context = multiprocessing.get_context("fork")
-    counter = context.Value("i", 0)  # the next position in `order`
-    order = sorted(range(len(items)), key=lambda i: -cost(items[i]))
+    with _long_lived():
+        if children < 1:
+            yield results
+            results.extend(function(item) for item in items)
+            return
+        context = multiprocessing.get_context("fork")
+        counter = context.Value("i", 0)  # the next position in `order`
+        order = sorted(range(len(items)), key=lambda i: -cost(items[i]))
+        started = _fork(context, children, function, items, order, counter)
+        try:
+            yield results
+            done = _share(function, items, order, counter)
+            for child, receive in started:
+                try:
+                    done.update(receive.recv())
+                except (EOFError, OSError):
+                    pass  # the child died: its items are computed below
+                receive.close()
+                child.join()
+        except BaseException:  # the block, or `function` here: no child is left waiting to be read
+            for child, receive in started:
+                child.terminate()
+                child.join()
+                receive.close()
+            raise
+        results.extend(done[i] if i in done else function(item) for i, item in enumerate(items))
+
+
+@contextlib.contextmanager
+def _long_lived() -> Iterator[None]:
+    """The objects alive now (the runs, the figures) out of the collector's full passes while the block runs
+    (gc.freeze), here and in the children forked meanwhile: each pass over them cost a tenth of the report, and
+    made a child copy every page it touched. Left alone when something else froze objects first (only it may
+    release them)."""
+    if gc.get_freeze_count():
+        yield
+        return
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
+def _fork(context, children: int, function: Callable[[Any], Any], items: Sequence, order: list[int], counter) -> list:
+    """Up to `children` forked children taking items (fewer when fork fails): (process, the end of its pipe that
+    this process reads)."""
     started = []
     for _ in range(children):
         receive, send = context.Pipe(duplex=False)
@@ -57,15 +119,7 @@ def shared_map(function: Callable[[Any], Any], items: Sequence, cost: Callable[[
         finally:
             send.close()  # the child holds the only write end now: its death reads as EOF below
         started.append((child, receive))
-    results = _share(function, items, order, counter)
-    for child, receive in started:
-        try:
-            results.update(receive.recv())
-        except (EOFError, OSError):
-            pass  # the child died: its items are computed below
-        receive.close()
-        child.join()
-    return [results[i] if i in results else function(item) for i, item in enumerate(items)]
+    return started
 
 
 def _share(function: Callable[[Any], Any], items: Sequence, order: list[int], counter) -> dict[int, Any]:

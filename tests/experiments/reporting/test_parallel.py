@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from riskplan.experiments.reporting.parallel import WORKERS_ENV, shared_map
+from riskplan.experiments.reporting.parallel import WORKERS_ENV, shared_map, sharing
 from riskplan.util.errors import BadInput
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="worker processes are forked on Linux")
@@ -36,3 +36,14 @@ def test_work_no_worker_delivered_is_done_in_this_process(monkeypatch):
     monkeypatch.setenv(WORKERS_ENV, "two")
     with pytest.raises(BadInput, match=WORKERS_ENV):
         shared_map(square, [1, 2], cost=float)
+
+
+@linux_only
+def test_the_block_runs_while_the_children_work_and_its_failure_ends_them(monkeypatch):
+    monkeypatch.setenv(WORKERS_ENV, "3")
+    with sharing(lambda x: x * x, list(range(7)), cost=float) as results:
+        assert results == []  # filled on leaving the block, this process joining in
+    assert results == [x * x for x in range(7)] and not multiprocessing.active_children()
+    with pytest.raises(RuntimeError, match="tables"), sharing(lambda x: x * x, list(range(7)), cost=float) as results:
+        raise RuntimeError("tables")
+    assert results == [] and not multiprocessing.active_children()
