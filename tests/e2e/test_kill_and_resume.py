@@ -54,10 +54,10 @@ def baseline(uninterrupted) -> Path:
 
 @pytest.fixture(scope="module")
 def team_baseline(tmp_path_factory) -> Path:
-    """An uninterrupted team run: 3 robots on a line, delayed and dropped messages."""
+    """An uninterrupted team run: 3 robots on a line, delayed and dropped messages (trained in this process: the
+    numbers of a `riskplan train`, test_determinism.py)."""
     out = tmp_path_factory.mktemp("team_baseline") / "run"
-    result = train_cli(TEAM, out)
-    assert result.returncode == 0, result.stderr
+    training.train(compose(TEAM), out)
     return out
 
 
@@ -126,8 +126,7 @@ def test_team_run_killed_twice_resumes_to_the_uninterrupted_run(tmp_path, team_b
 
 def test_gradient_tracking_run_killed_resumes_to_the_uninterrupted_run(tmp_path):
     reference = tmp_path / "reference"
-    result = train_cli(TRACKING, reference)
-    assert result.returncode == 0, result.stderr
+    training.train(compose(TRACKING), reference)  # uninterrupted, in this process
     out = tmp_path / "run"
     assert kill_after_iteration(TRACKING, out, 12) == -signal.SIGKILL
     assert checkpoint_iteration(out) == 10
