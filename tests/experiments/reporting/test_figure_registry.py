@@ -47,7 +47,20 @@ def runs(tmp_path_factory) -> Path:
     return root
 
 
-def drawn_or_why(runs: Path, figure: Figure) -> tuple:
+@pytest.fixture(scope="module")
+def made(runs):
+    """made(root): make_figures of the runs below root, drawn once for every figure of the registry that asks."""
+    drawn: dict[Path, tuple] = {}
+
+    def of(root: Path) -> tuple:
+        if root not in drawn:
+            drawn[root] = make_figures(collect([root]))
+        return drawn[root]
+
+    return of
+
+
+def drawn_or_why(runs: Path, figure: Figure, made) -> tuple:
     """The figure make_figures draws from `runs` under its name (in its study's folder for a study figure), or
     the reason it gives."""
     root = runs
@@ -56,15 +69,15 @@ def drawn_or_why(runs: Path, figure: Figure) -> tuple:
         if not root.exists():  # the runs, and a copy in the study's first folder
             shutil.copytree(runs, root / "runs")
             shutil.copytree(runs, root / STUDIES[figure.study][1][0])
-    specs, skipped = make_figures(collect([root]))
+    specs, skipped = made(root)
     drawn = [spec for spec in specs if spec.name == figure.name]
     return (drawn[0] if drawn else None), skipped.get(figure.name)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("figure", FIGURES, ids=IDS)
-def test_the_figure_is_drawn_within_the_widest_or_says_why_not(runs, figure: Figure):
-    spec, why = drawn_or_why(runs, figure)
+def test_the_figure_is_drawn_within_the_widest_or_says_why_not(runs, made, figure: Figure):
+    spec, why = drawn_or_why(runs, figure, made)
     assert (spec is None) != (why is None), (spec, why)  # one or the other
     if spec is None:
         assert why and not why.startswith("failed") and "failed:" not in why, why
