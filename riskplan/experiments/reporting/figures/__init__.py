@@ -23,7 +23,7 @@ from riskplan.experiments.reporting.figures.beyond import (
     fig_soft_risk,
     fig_thetas,
 )
-from riskplan.experiments.reporting.figures.drawing import STYLE, FigureSpec, figure_files
+from riskplan.experiments.reporting.figures.drawing import STYLE, FigureSpec, figure_files, uncollected
 from riskplan.experiments.reporting.figures.figure_registry import FIGURES, LANDSCAPE, Figure, study_figure
 from riskplan.experiments.reporting.figures.paper import fig_consensus, fig_cvar, fig_paths, fig_team, risk_name
 
@@ -32,7 +32,7 @@ def make_figures(collected: Collection) -> tuple[list[FigureSpec], dict[str, str
     """Every figure the runs support, and for the others why not (name -> reason). Never raises."""
     specs: list[FigureSpec] = []
     skipped: dict[str, str] = {}
-    with matplotlib.rc_context(STYLE):
+    with matplotlib.rc_context(STYLE), uncollected():
         jobs = [(figure.name, figure.build) for figure in FIGURES if figure.main]
         landscapes = [
             (f"{LANDSCAPE}{'' if i == 0 else f'_{i + 1}'}", (lambda c, scan=scan, i=i: fig_landscape(c, scan, i)))
