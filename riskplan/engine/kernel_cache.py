@@ -4,7 +4,8 @@ numba checks a cached kernel against its own file's time stamp only, and it unpi
 types name engine classes) before that check. So an edit to a helper in another file (rng.py, dynamics.py) keeps
 a stale kernel, and a renamed class makes the load fail outright. Once per process, this compares a stamp of
 every engine source (path, size, mtime) with the one saved beside the cache, and on a change removes riskplan's
-cached kernels, so that they compile afresh from the sources as they are.
+cached kernels, so that they compile afresh from the sources as they are. A cache that NUMBA_CACHE_DIR puts
+elsewhere is the user's, and left alone.
 """
 
 from __future__ import annotations
