@@ -1,7 +1,9 @@
-"""`hydra/launcher=riskplan_batch`: a sweep's jobs trained as batches in this process (`riskplan sweep --batch`).
+"""`hydra/launcher=riskplan_batch`: a sweep's jobs trained as batches in this process (`riskplan sweep --batch`);
+and with submitit's launchers, a chunk of them per cluster task (`riskplan sweep --batch hydra/launcher=submitit_slurm`).
 
 Hydra finds launchers only in the `hydra_plugins` package, so this module is the plugin's face: its config and a
-Launcher that hands the jobs to riskplan.experiments.sweeping.batched. Hydra imports every plugin module whenever
+Launcher that hands the jobs to riskplan.experiments.sweeping.batched, and the Launchers that hand them to
+riskplan.experiments.sweeping.cluster_batches. Hydra imports every plugin module whenever
 it starts, so this one imports nothing heavy. (No `from __future__ import annotations`: Hydra's scan executes the
 module before it is in sys.modules, where dataclasses would look string annotations up.)
 """
@@ -40,3 +42,31 @@ class RiskplanBatchLauncher(Launcher):
         from riskplan.experiments.sweeping.batched import launch_batches  # lazy: the whole training stack
 
         return launch_batches(self, job_overrides, initial_job_idx)
+
+
+class SubmititBatchLauncher(Launcher):
+    """`riskplan sweep --batch hydra/launcher=submitit_slurm` (or submitit_local): riskplan puts this class in the
+    launcher's `_target_`, so every hydra.launcher.* key of submitit's launcher holds; each task of its array trains
+    a chunk of the sweep as one batch (riskplan.experiments.sweeping.cluster_batches)."""
+
+    cluster = ""  # submitit's executor: slurm or local
+
+    def __init__(self, **params) -> None:
+        self.params = params
+        self.config = self.hydra_context = self.task_function = None
+
+    def setup(self, *, hydra_context, task_function, config) -> None:
+        self.config, self.hydra_context, self.task_function = config, hydra_context, task_function
+
+    def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int):
+        from riskplan.experiments.sweeping.cluster_batches import launch_chunks  # lazy: the whole training stack
+
+        return launch_chunks(self, job_overrides, initial_job_idx)
+
+
+class SlurmBatchLauncher(SubmititBatchLauncher):
+    cluster = "slurm"
+
+
+class LocalBatchLauncher(SubmititBatchLauncher):
+    cluster = "local"

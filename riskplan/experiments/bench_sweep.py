@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import subprocess
 import sys
 import tempfile
@@ -29,7 +30,7 @@ from riskplan.config import schema
 from riskplan.engine.estimators import cvar_gradient
 from riskplan.engine.schedules import step_size
 from riskplan.engine.step import initial_state, rollouts
-from riskplan.experiments.sweeping.batched import prepare_jobs
+from riskplan.experiments.sweeping.batched import prepare_job, prepare_jobs
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, compose
@@ -147,7 +148,8 @@ def prepared_in(plan, as_data: bool) -> float:
     context = HydraContext(config_loader=loader, callbacks=Callbacks(config))
     started = time.perf_counter()
     with contextlib.ExitStack() as held:
-        prepare_jobs(context, config, [job.overrides for job in plan.jobs], 0, held, as_data)
+        begin = functools.partial(prepare_job, held=held)
+        prepare_jobs(context, config, [job.overrides for job in plan.jobs], 0, begin, as_data)
     return time.perf_counter() - started
 
 

@@ -326,7 +326,7 @@ def _locked_job(cfg: DictConfig, out: Path, watched: str | None = None) -> float
             # scheduler that requeues it (preemption, submitit's checkpoint) runs it again and it resumes
             print(f"=== {stop}", flush=True)
             interrupt_job(start, stop)
-            raise SystemExit(stop.exit_code) from None
+            stop.end()
         print(f"=== {record['status']}" + (f": {record['error']}" if record["error"] else ""), flush=True)
     return end_job(start, record)
 

@@ -68,10 +68,11 @@ class Driver:
         every, at = self.setup.params.train.checkpoint_every, self.state.iteration
         return self.saved != at and (at % every == 0 or at == self.total)
 
-    def pause_for_tests(self) -> None:
-        """STOP_ENV: stop this process (SIGSTOP) once the iteration it names is logged and checkpointed if due."""
-        if os.environ.get(STOP_ENV) == str(self.state.iteration - 1):
-            os.kill(os.getpid(), signal.SIGSTOP)
+    @property
+    def pauses_for_tests(self) -> bool:
+        """STOP_ENV: whether the iteration it names was just logged (and checkpointed if due): the process then
+        stops itself (SIGSTOP), once for all the runs of its batch, so that a test can act on it there."""
+        return os.environ.get(STOP_ENV) == str(self.state.iteration - 1)
 
     def evaluate(self, train_seconds: float) -> dict:
         """The final policies on fresh episodes, the sampled paths and summary.json's figures."""
@@ -143,8 +144,8 @@ class Recorder:
         checkpoint unless it has one there) and Interrupted. Returns the runs whose checkpoint failed: they leave
         the batch."""
         failed = self._checkpoint([r for r in runs if self.drivers[r].due])
-        for r in runs:
-            self.drivers[r].pause_for_tests()
+        if any(self.drivers[r].pauses_for_tests for r in runs):
+            os.kill(os.getpid(), signal.SIGSTOP)
         if self.stop.received is not None:
             failed += self._checkpoint([r for r in runs if r not in failed and not self._saved(r)])
             self.stop.check(min((states[r].iteration for r in runs if r not in failed), default=0))

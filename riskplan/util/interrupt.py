@@ -1,7 +1,8 @@
 """Stopping cleanly on SIGINT or SIGTERM (Ctrl-C, a scheduler's preemption or requeue): the signal is noted, the
 run finishes the iteration in progress, writes a checkpoint and stops with `Interrupted`; a second signal stops at
 once, as the signal would have without riskplan. Where a job runner handles SIGUSR2 itself (submitit requeues a
-SLURM job on it before its time limit), riskplan checkpoints first, then hands the signal to that handler."""
+SLURM job on it before its time limit), riskplan checkpoints and records the job first, then hands the signal to
+that handler (`Interrupted.end`)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import contextlib
 import os
 import signal
 import threading
+import typing
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 HANDED_ON = signal.SIGUSR2  # caught only while a Python handler (submitit's) has it: that handler runs after
@@ -31,6 +33,14 @@ class Interrupted(BaseException):
     def exit_code(self) -> int:
         """The shell's code for a process ended by the signal: 130 for SIGINT, 143 for SIGTERM."""
         return 128 + self.signum
+
+    def end(self) -> typing.NoReturn:
+        """End this process as the signal would have, once its runs are checkpointed and recorded: SIGUSR2 goes to
+        the handler it was meant for (submitit's, which requeues the job and exits); any signal ends it with its
+        exit code, leaving no result behind."""
+        if self.signum == HANDED_ON and callable(signal.getsignal(HANDED_ON)):
+            signal.raise_signal(HANDED_ON)
+        raise SystemExit(self.exit_code)
 
 
 class StopSignals(contextlib.AbstractContextManager):
@@ -66,11 +76,7 @@ class StopSignals(contextlib.AbstractContextManager):
 
     def check(self, finished: int) -> None:
         """Interrupted(signal, finished iterations) once a signal was received: call it where stopping loses
-        nothing."""
-        if self.received == HANDED_ON:  # checkpointed: now what the job runner does with it (submitit requeues)
-            handler = self._previous[HANDED_ON]
-            self._restore()
-            handler(HANDED_ON, None)
+        nothing. (A SIGUSR2 goes on to its job runner's handler from there: Interrupted.end.)"""
         if self.received is not None:
             raise Interrupted(self.received, finished)
 

@@ -330,6 +330,57 @@ def test_a_cancelled_job_is_named_with_its_overrides(slurm_cluster, slurm_env, t
     assert f"SLURM job {job_id} (seed=1) ended CANCELLED without a result" in line, line
 
 
+BATCHED = [SEEDS, *LAUNCHER, "--batch"]  # the two jobs as one batch: one array task
+
+
+def test_a_batched_sweep_is_one_task_and_a_cancelled_task_resumes_with_the_uninterrupted_numbers(
+    slurm_cluster, slurm_env, reference, tmp_path
+):
+    """--batch on SLURM: the two jobs train as one batch in one task. scancel of that task mid-run checkpoints both
+    runs (SIGTERM) and ends it CANCELLED; the sweep's error line names both jobs. The next run of the sweep submits
+    one task again, and both jobs resume to the numbers of the uninterrupted sweep."""
+    before = all_slurm_jobs(slurm_cluster)
+    run = run_sweep(slurm_cluster, slurm_env, tmp_path / "sweep", BATCHED, actions={"seed=0": "cancel"})
+    assert run.returncode == 1, run.explain(slurm_cluster)
+    assert "batched on the cluster: 2 runs as 1 task of up to 2 runs" in run.output, run.output
+    assert run.acted == {"seed=0": ["cancel"]}, run.explain(slurm_cluster)  # one process holds both jobs
+    job_id = run.slurm_ids["seed=0"]
+    assert slurm_cluster.wait_for(job_id, timeout=60) == "CANCELLED"
+    for name in ("seed=0", "seed=1"):
+        job = run.sweep_dir / name
+        assert status(job).get("status") == "interrupted", status(job)
+        assert STOP_AFTER < _interrupted_at((job / "job.log").read_text()) < ITERATIONS
+    errors = [line for line in run.output.splitlines() if line.startswith("error: the launcher stopped:")]
+    assert len(errors) == 1 and f"SLURM job {job_id} (seed=0; seed=1) ended CANCELLED" in errors[0], run.output
+
+    resumed = run_sweep(slurm_cluster, slurm_env, run.sweep_dir, BATCHED)
+    assert resumed.returncode == 0, resumed.explain(slurm_cluster)
+    submitted = sorted(p.name for p in (run.sweep_dir / ".submitit").iterdir() if p.name[0].isdigit())
+    assert len(submitted) == 2, submitted  # a task per launch, not a job per run
+    wait_until(lambda: len(all_slurm_jobs(slurm_cluster)) >= len(before) + 2, 60, "both tasks in sacct")
+    assert all_slurm_jobs(slurm_cluster) == sorted([*before, *submitted])
+    jobs = finished_jobs(run.sweep_dir)
+    assert sorted(jobs) == ["seed=0", "seed=1"]
+    for name, job in jobs.items():
+        assert status(job).get("resumed") is True
+        assert "in a batch of 2" in (job / "job.log").read_text()
+        assert numbers(job) == numbers(reference / name), name
+
+
+def test_a_batched_task_near_its_time_limit_is_requeued_and_resumes(slurm_cluster, slurm_env, reference, tmp_path):
+    """SIGUSR2 to a batched task: riskplan checkpoints both runs, then submitit's handler requeues the same chunk
+    (ChunkTask.checkpoint), and the task's next run resumes both to the uninterrupted numbers."""
+    run = run_sweep(slurm_cluster, slurm_env, tmp_path / "sweep", BATCHED, actions={"seed=0": "timeout"})
+    assert run.returncode == 0, run.explain(slurm_cluster)
+    assert run.acted.get("seed=0", [None])[0] == "timeout", run.explain(slurm_cluster)
+    assert sacct_states(slurm_cluster, run.slurm_ids["seed=0"]) == ["REQUEUED", "COMPLETED"]
+    for name, job in finished_jobs(run.sweep_dir).items():
+        log = (job / "job.log").read_text()
+        assert "=== interrupted by SIGUSR2 after" in log and "riskplan sweep job resumed at" in log, log
+        assert status(job).get("resumed") is True
+        assert numbers(job) == numbers(reference / name), name
+
+
 PROBE = '''"""Test probe (tests/clusters/test_slurm_sweeps.py): when a SLURM job step's Python exits, record the numba
 threads its main thread ran with, the CPUs SLURM granted and the CPUs the process could run on."""
 import atexit, json, os, sys

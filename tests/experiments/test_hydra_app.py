@@ -10,7 +10,8 @@ from hydra.errors import HydraException
 from omegaconf import OmegaConf
 
 from hydra_plugins.riskplan_sweeper.plan_sweeper import RiskplanSweeper, planned_jobs
-from riskplan.experiments.sweeping.launch import _launcher_error
+from riskplan.experiments.sweeping.jobs import TASKS
+from riskplan.experiments.sweeping.launch import _launcher_error, _task_names
 
 
 class Result:
@@ -91,5 +92,9 @@ def test_a_slurm_job_without_a_result_is_named_by_its_overrides(tmp_path):
         "submitit.core.utils.UncompletedJobError: Job 4242_1 (task: 0) with path /x has not produced any output "
         "(state: TIMEOUT)\n"
     )
-    error = _launcher_error(log, [["seed=0"], ["risk.beta=0.2", "seed=1"]])
+    error = _launcher_error(log, _task_names(tmp_path, [["seed=0"], ["risk.beta=0.2", "seed=1"]]))
     assert "SLURM job 4242_1 (risk.beta=0.2,seed=1) ended TIMEOUT" in error
+    # a batched sweep on the cluster: task 1 trained a chunk of jobs, all of them named
+    (tmp_path / TASKS).write_text(json.dumps({"tasks": [[0], [1, 2]], "names": ["seed=0", "seed=1; seed=2"]}))
+    error = _launcher_error(log, _task_names(tmp_path, [["seed=0"], ["seed=1"], ["seed=2"]]))
+    assert "SLURM job 4242_1 (seed=1; seed=2) ended TIMEOUT" in error

@@ -41,16 +41,19 @@ def test_a_second_sigint_stops_at_once():
 
 def test_sigusr2_goes_on_to_the_job_runners_handler_after_the_checkpoint():
     """submitit handles SIGUSR2 (a time limit near: it requeues the job); riskplan notes it, checkpoints at the
-    iteration's end, then calls that handler."""
+    iteration's end, the job is recorded, then Interrupted.end calls that handler (which exits after requeueing;
+    one that returns leaves the process to end with the signal's code)."""
     handed = []
     previous = signal.signal(signal.SIGUSR2, lambda signum, frame: handed.append(signum))
     try:
-        with StopSignals() as stop:
+        with pytest.raises(Interrupted) as caught, StopSignals() as stop:
             os.kill(os.getpid(), signal.SIGUSR2)
             assert stop.received == signal.SIGUSR2 and handed == []  # noted, not handled yet
-            with pytest.raises(Interrupted):
-                stop.check(3)
-        assert handed == [signal.SIGUSR2]
+            stop.check(3)
+        assert handed == [] and caught.value.finished == 3  # the job records its interruption first
+        with pytest.raises(SystemExit) as ended:
+            caught.value.end()
+        assert handed == [signal.SIGUSR2] and ended.value.code == 128 + signal.SIGUSR2
     finally:
         signal.signal(signal.SIGUSR2, previous)
     with StopSignals():  # nobody handles SIGUSR2 in Python: riskplan leaves it alone

@@ -12,6 +12,7 @@ runs as it would under the basic launcher. A job that fails, fails alone.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import time
@@ -75,14 +76,15 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
     sweep_dir.mkdir(parents=True, exist_ok=True)
     numba.set_num_threads(min(cpu_count(), numba.config.NUMBA_NUM_THREADS))  # one process: every core
     with contextlib.ExitStack() as held:  # each job folder's lock, until its job is recorded
-        returns = prepare_jobs(context, config, job_overrides, initial_job_idx, held)
+        begin = functools.partial(prepare_job, held=held)
+        returns = prepare_jobs(context, config, job_overrides, initial_job_idx, begin)
         waiting = [p for _, p in returns if p is not None and p.setup is not None]
         limit = launcher.memory_gb * 1e9 if launcher.memory_gb else memory_budget()[0]
         chunks = plan_chunks(waiting, limit)
         total = sum(p.setup.params.train.iterations for p in waiting)
         for number, chunk in enumerate(chunks):
             workers = launcher.workers or workers_for(chunk)
-            _train_chunk(chunk, sweep_dir / f"{PROGRESS}.{number}", total, workers)
+            train_chunk(chunk, sweep_dir / f"{PROGRESS}.{number}", total, workers)
     for done, prepared in returns:
         if prepared is not None:
             done.return_value = prepared.value
@@ -90,14 +92,16 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
 
 
 def prepare_jobs(
-    context, config: DictConfig, job_overrides, first: int, held: contextlib.ExitStack, as_data: bool = True
+    context, config: DictConfig, job_overrides, first: int, begin, as_data: bool = True
 ) -> list[tuple[JobReturn, Prepared | None]]:
-    """Set up each job: its folder and files, its lock (into `held`), where it stands and its run. Most jobs as
-    data (sweeping.job_setup); the rest, or all of them without `as_data`, through Hydra's run_job."""
+    """Set up each job: its folder and `.hydra/` files, then `begin(config, plain, out)`, which makes of it what
+    the launcher needs (Prepared: locked, where it stands, its run; or a cluster task's job). Most jobs as data
+    (sweeping.job_setup), their config typed and their plain config apart; the rest, or all of them without
+    `as_data`, through Hydra's run_job, their DictConfig as both."""
     sweep_dir = Path(str(config.hydra.sweep.dir))
 
-    def prepare(cfg: DictConfig) -> Prepared:
-        return _prepare(cfg, Path(HydraConfig.get().runtime.output_dir), held)
+    def prepare(cfg: DictConfig):
+        return begin(cfg, cfg, Path(HydraConfig.get().runtime.output_dir))
 
     configs = JobConfigs(context.config_loader, config)  # each job's config as Hydra makes it, quicker
     setup = JobSetup(configs, sweep_dir)
@@ -107,7 +111,7 @@ def prepare_jobs(
         job = setup(list(overrides), idx) if as_data else None  # most jobs: their files written directly
         if job is not None:
             done = JobReturn(list(overrides), working_dir=os.getcwd(), task_name=config.hydra.job.name)
-            done.return_value = _begin(job.config.params, job.config.plain, job.out, held)
+            done.return_value = begin(job.config.params, job.config.plain, job.out)
             done.status = JobStatus.COMPLETED
         else:
             done = _run_job(context, prepare, configs(list(overrides)), idx)
@@ -133,16 +137,12 @@ def _run_job(context, prepare, sweep_config: DictConfig, number: int) -> JobRetu
     )
 
 
-def _prepare(cfg: DictConfig, out: Path, held: contextlib.ExitStack) -> Prepared:
-    """Take the job's folder and read where it stands; a ray-backend job trains now, as it would alone."""
+def prepare_job(cfg, plain, out: Path, held: contextlib.ExitStack) -> Prepared:
+    """Take the job's folder (its lock into `held`), read where it stands, and build its run (`cfg`: its config;
+    `plain`: the same as a DictConfig or plain dict, for its identity). A ray-backend job (`cfg` a DictConfig)
+    trains now, as it would alone."""
     if not BACKENDS[Backend(cfg.team.backend)].batched:
         return Prepared(out, value=sweep_job(cfg, out))
-    return _begin(cfg, cfg, out, held)
-
-
-def _begin(cfg, plain, out: Path, held: contextlib.ExitStack) -> Prepared:
-    """Take the job's folder, read where it stands, and build its run (`cfg`: its config; `plain`: the same as a
-    DictConfig or plain dict, for its identity)."""
     try:
         held.enter_context(lock.hold_lock(out, "sweep job folder"))
     except BadInput:  # another process writes it: that process records it
@@ -186,10 +186,11 @@ def workers_for(chunk: list[Prepared]) -> int:
     return min(cpu_count(), len(chunk)) if seconds >= PARALLEL_SECONDS else 1
 
 
-def _train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int) -> None:
+def train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int, threads: int | None = None) -> None:
     """Train one chunk as a batch and record each of its jobs (a signal: each is interrupted, resumable). With
     several `workers`, the chunk's runs are split into a part per worker, each trained as a batch in a worker
-    process (the runs' own steps and files then go on in parallel too); with one, in this process."""
+    process (the runs' own steps and files then go on in parallel too); with one, in this process. `threads`:
+    numba's in each (default: the cores, shared out)."""
     for job in chunk:
         _log(job.out, job.start.opening + f", in a batch of {len(chunk)})")
     workers = max(1, min(workers, len(chunk)))
@@ -199,7 +200,7 @@ def _train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int
             [job.setup if workers == 1 else job.setup.params for job in part],  # a worker builds from the params
             [job.out for job in part],
             [job.start.resume for job in part],
-            max(1, cpu_count() // workers),
+            threads or max(1, cpu_count() // workers),
             progress.with_name(f"{progress.name}.{i}.json"),
             total,
         )

@@ -11,7 +11,17 @@ import typer
 from riskplan.experiments.driver_watch import end_leftovers, name_driver
 from riskplan.experiments.sweep_worker import THREADS_ENV, is_finished
 from riskplan.experiments.sweeping.batched import PROGRESS, plan_chunks
-from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, GRID_SWEEPER, LOCAL, SUMMARY, Outcome, Plan, locate
+from riskplan.experiments.sweeping.cluster_batches import task_chunks, write_tasks
+from riskplan.experiments.sweeping.jobs import (
+    BATCH_LAUNCHER,
+    GRID_SWEEPER,
+    LOCAL,
+    SUMMARY,
+    TASKS,
+    Outcome,
+    Plan,
+    locate,
+)
 from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.experiments.sweeping.search import run_optimiser
@@ -69,7 +79,9 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
     )
     waiting = [job for i, job in enumerate(plan.jobs) if i not in finished]
     if todo:
-        if plan.launcher == BATCH_LAUNCHER:
+        if plan.on_cluster:
+            echo(tasks_line(waiting, plan))
+        elif plan.batch:
             echo(batch_line(waiting, plan))
         echo(estimate_line(waiting, plan))
     launcher_error, interrupted = _launch(plan, waiting, finished, title, before_launch) if todo else (None, None)
@@ -83,12 +95,13 @@ def _launch(plan: Plan, waiting: list, finished: set[int], title: str, before_la
     name_driver(plan.local)  # its local workers end with this process
     if before_launch is not None:
         before_launch()
+    if plan.on_cluster:  # the chunks the launcher submits, a task each
+        write_tasks(plan.sweep_dir, waiting, task_chunks(waiting, plan.tasks))
     # Ctrl-C reaches local workers too, and they checkpoint and stop; the driver waits for that (see
     # DriverSignals), then reports the interruption.
-    batched = plan.launcher == BATCH_LAUNCHER
     launcher_error, interrupted = None, None
     with (
-        SweepView(plan.sweep_dir, plan.jobs, finished, title, batch_progress=PROGRESS if batched else None),
+        SweepView(plan.sweep_dir, plan.jobs, finished, title, batch_progress=PROGRESS if plan.batch else None),
         DriverSignals(plan.launcher not in LOCAL) as stop,
     ):
         try:
@@ -96,7 +109,7 @@ def _launch(plan: Plan, waiting: list, finished: set[int], title: str, before_la
         except Interrupted as batch_stop:  # a batch trains here: it checkpointed and marked its jobs
             interrupted = batch_stop.signum
         finally:
-            for part in plan.sweep_dir.glob(f"{PROGRESS}.*.json"):
+            for part in [*plan.sweep_dir.glob(f"{PROGRESS}.*.json"), plan.sweep_dir / TASKS]:
                 part.unlink(missing_ok=True)
     return launcher_error, interrupted or stop.received
 
@@ -121,7 +134,7 @@ def _outcome(
         [a for a in args if not a.startswith("hydra.sweep.dir=")]
         + [f"hydra.sweep.dir={plan.sweep_dir}"]
         + (["--jobs", str(jobs)] if jobs else [])
-        + (["--batch"] if plan.launcher == BATCH_LAUNCHER else [])
+        + (["--batch"] if plan.batch else [])
     )
     return Outcome(
         plan.sweep_dir,
@@ -166,6 +179,17 @@ def batch_line(jobs: list, plan: Plan) -> str:
         f"batched: {len(jobs) - alone} runs in {groups} group{'s' if groups != 1 else ''} of a shared world, "
         f"trained as {len(chunks)} batch{'es' if len(chunks) != 1 else ''} (the largest needs about {size(largest)}, "
         f"within the {size(budget)} memory budget: {source})" + (f"; {alone} jobs alone" if alone else "")
+    )
+
+
+def tasks_line(jobs: list, plan: Plan) -> str:
+    """A batched sweep's plan on a cluster: its tasks, their largest, and the limits that sized them."""
+    chunks, size_of = task_chunks(jobs, plan.tasks), plan.tasks
+    largest = max(chunks, key=len)
+    return (
+        f"batched on the cluster: {len(jobs)} runs as {len(chunks)} task{'s' if len(chunks) != 1 else ''} of up to "
+        f"{len(largest)} runs (each within {size(size_of.memory)}: {size_of.source}; and half its time limit, "
+        f"{cost.duration(size_of.seconds)} on {size_of.cores} CPU{'s' if size_of.cores != 1 else ''})"
     )
 
 

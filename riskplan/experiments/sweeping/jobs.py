@@ -21,6 +21,13 @@ SUMMARY = "summary.parquet"
 DEFAULT_LAUNCHER = "joblib"
 BATCH_LAUNCHER = "riskplan_batch"  # riskplan sweep --batch (hydra_plugins.riskplan_batch_launcher)
 LOCAL = ("joblib", "submitit_local", "basic", BATCH_LAUNCHER)  # launchers whose jobs run below the driver
+# --batch on a cluster: each task of the launcher's array trains a chunk of the sweep as one batch; the launcher's own
+# config, with riskplan's class as its _target_ (hydra_plugins.riskplan_batch_launcher)
+CLUSTER_BATCHES = {
+    name: f"hydra_plugins.riskplan_batch_launcher.batch_launcher.{cls}"
+    for name, cls in (("submitit_slurm", "SlurmBatchLauncher"), ("submitit_local", "LocalBatchLauncher"))
+}
+TASKS = ".batch_tasks.json"  # a cluster batch's tasks, each its jobs' overrides: the launcher's error names them
 # the callback that travels with every job: folder names, and a local worker that ends with its driver
 TRAVELS = "+hydra.callbacks.riskplan_folders._target_=riskplan.experiments.sweep_worker.FolderNames"
 GRID_SWEEPER = "riskplan"  # launches the planned grid's jobs still to run (hydra_plugins.riskplan_sweeper)
@@ -71,6 +78,13 @@ class Plan:
     search: list[str] = field(default_factory=list)  # the keys it searches
     memory: tuple[float, str] | None = None  # a batched sweep's hydra.launcher.memory_gb: (bytes, where it was set)
     local: bool = False  # its jobs run on this machine below the driver (grid.runs_here), and end with it
+    batch: bool = False  # --batch: its jobs train as batches, in this process or a chunk per cluster task
+    tasks: object = None  # on a cluster, what a task may hold (sweeping.cluster_batches.TaskSize)
+
+    @property
+    def on_cluster(self) -> bool:
+        """--batch on a cluster launcher: a chunk of the jobs per task (sweeping.cluster_batches)."""
+        return self.batch and self.launcher in CLUSTER_BATCHES
 
 
 @dataclass

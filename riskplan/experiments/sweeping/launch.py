@@ -18,6 +18,7 @@ from joblib import Parallel, delayed
 from riskplan.experiments.driver_watch import name_driver, recorded
 from riskplan.experiments.hydra_app import run_hydra
 from riskplan.experiments.sweep_worker import THREADS_ENV, warm_up
+from riskplan.experiments.sweeping.jobs import TASKS
 from riskplan.util.limits import cpu_count
 from riskplan.util.paths import hydra_quote, write_atomic
 
@@ -44,7 +45,7 @@ def launch(argv: list[str], log_file: Path, jobs: list[list[str]] | None = None)
                 run_hydra(argv)
             except SystemExit as stop:  # Hydra prints an exception in the launcher, then exits 1
                 if stop.code not in (0, None):
-                    return _launcher_error(log_file, jobs or [])
+                    return _launcher_error(log_file, _task_names(log_file.parent, jobs or []))
             except KeyboardInterrupt:
                 return "interrupted (Ctrl-C)"
             except Exception as err:
@@ -60,9 +61,18 @@ def launch(argv: list[str], log_file: Path, jobs: list[list[str]] | None = None)
 UNCOMPLETED = re.compile(r"UncompletedJobError: Job (\S+) \(task: \d+\).*?\(state: ([A-Z_]+)", re.DOTALL)
 
 
-def _launcher_error(log_file: Path, launched: list[list[str]]) -> str:
+def _task_names(sweep_dir: Path, jobs: list[list[str]]) -> list[str]:
+    """What each task of the launch ran, by its index: a job's overrides, or a cluster batch's jobs (TASKS)."""
+    try:
+        return [str(name) for name in json.loads((sweep_dir / TASKS).read_text())["names"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return [",".join(job) for job in jobs]
+
+
+def _launcher_error(log_file: Path, launched: list[str]) -> str:
     """The cause of the error Hydra printed into sweep.log: for a SLURM job that ended without a result (cancelled,
-    preempted, out of time or memory), which job and the state SLURM gave it; else the last error line."""
+    preempted, out of time or memory), which job (`launched`: what each task ran) and the state SLURM gave it; else
+    the last error line."""
     try:
         text = log_file.read_text()
     except OSError:
@@ -72,7 +82,7 @@ def _launcher_error(log_file: Path, launched: list[list[str]]) -> str:
         job, state = uncompleted[-1]
         index = job.partition("_")[2]  # <array job>_<index>; a sweep of one job is a plain job, not an array
         task = int(index) if index.isdigit() else (0 if len(launched) == 1 else -1)
-        overrides = ",".join(launched[task]) if 0 <= task < len(launched) else f"job {job}"
+        overrides = launched[task] if 0 <= task < len(launched) else f"job {job}"
         return (
             f"the launcher stopped: SLURM job {job} ({overrides}) ended {state} without a result (submitit's "
             f"UncompletedJobError; see {log_file})"

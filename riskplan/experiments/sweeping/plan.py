@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 from riskplan.experiments.sweep_worker import SUBDIR
+from riskplan.experiments.sweeping.cluster_batches import task_size
 from riskplan.experiments.sweeping.grid import (
     ParsedOnce,
     add_naming_and_logging,
@@ -25,7 +26,14 @@ from riskplan.experiments.sweeping.grid import (
     unnamed_key,
     validate,
 )
-from riskplan.experiments.sweeping.jobs import BATCH_LAUNCHER, DEFAULT_LAUNCHER, GRID_SWEEPER, TRAVELS, Plan
+from riskplan.experiments.sweeping.jobs import (
+    BATCH_LAUNCHER,
+    CLUSTER_BATCHES,
+    DEFAULT_LAUNCHER,
+    GRID_SWEEPER,
+    TRAVELS,
+    Plan,
+)
 from riskplan.experiments.sweeping.search import plan_optimiser
 from riskplan.run.compose import expand_shorthands, parse_overrides
 from riskplan.util.errors import BadInput
@@ -36,7 +44,8 @@ REQUEUES = 3  # submitit_slurm: times a job that reaches its time limit is reque
 
 def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None, batch: bool = False) -> Plan:
     """Parse, expand and validate a sweep; claim its directory last, so bad input leaves nothing behind. `batch`:
-    the jobs train in batches in this process (hydra/launcher=riskplan_batch)."""
+    the jobs train in batches in this process (hydra/launcher=riskplan_batch), or with a cluster launcher
+    (submitit's) a chunk of them per task (sweeping.cluster_batches)."""
     _check_options(args)
     args = expand_shorthands(args)  # risk.schedule=none,linear -> risk.schedule.kind=none,linear
     parsed = parse_overrides(args)
@@ -46,6 +55,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     hydra_keys = {o.key_or_group: o for o in hydra_ovs}
     launcher = _launcher(hydra_keys, jobs, batch)
     memory = batch_memory(hydra_keys) if launcher == BATCH_LAUNCHER else None
+    tasks = task_size(hydra_keys, jobs) if batch and launcher in CLUSTER_BATCHES else None
     explicit_dir = _explicit_dir(hydra_keys, sweep_dir)
     sweeper = str(hydra_keys["hydra/sweeper"].value()) if "hydra/sweeper" in hydra_keys else GRID_SWEEPER
     if sweeper not in ("basic", GRID_SWEEPER):  # an optimiser: it chooses the jobs as it goes
@@ -68,7 +78,11 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
         argv[1 + parsed.index(hydra_keys["hydra/sweeper"])] = f"hydra/sweeper={GRID_SWEEPER}"
     else:
         argv.append(f"hydra/sweeper={GRID_SWEEPER}")
-    workers, workers_arg = _launcher_settings(argv, launcher, hydra_keys, jobs, len(job_list))
+    workers, workers_arg = _launcher_settings(
+        argv, launcher, hydra_keys, jobs if tasks is None else None, len(job_list)
+    )
+    if tasks is not None:
+        _cluster_batch_settings(argv, launcher, jobs, len(job_list))
     named = [o for o in task_ovs if not unnamed_key(o.key_or_group)]  # engine.device names no folder
     if not named and "hydra.sweep.subdir" not in hydra_keys:
         argv.append("hydra.sweep.subdir=defaults")  # one job without overrides: still a folder of its own
@@ -87,9 +101,17 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
 
     target = target_dir(sweep_dir, explicit_dir, argv)
     plan = Plan(target, argv, job_list, launcher, workers, notes, workers_arg)
-    plan.memory = memory
+    plan.memory, plan.tasks, plan.batch = memory, tasks, batch
     plan.local = runs_here(launcher, hydra_keys)
     return plan
+
+
+def _cluster_batch_settings(argv: list[str], launcher: str, jobs: int | None, count: int) -> None:
+    """--batch on a cluster: riskplan's launcher class in the launcher's config (its keys stay submitit's), and
+    --jobs as SLURM's array parallelism (the tasks that run at once; the plan makes at least that many)."""
+    argv.append(f"hydra.launcher._target_={CLUSTER_BATCHES[launcher]}")
+    if jobs is not None and launcher == "submitit_slurm":
+        argv.append(f"hydra.launcher.array_parallelism={min(jobs, count)}")
 
 
 def _check_options(args: list[str]) -> None:
@@ -121,11 +143,21 @@ def _launcher(hydra_keys: dict, jobs: int | None, batch: bool) -> str:
     launcher = str(hydra_keys["hydra/launcher"].value()) if "hydra/launcher" in hydra_keys else DEFAULT_LAUNCHER
     if not batch:
         return launcher
-    if "hydra/launcher" in hydra_keys or "hydra/sweeper" in hydra_keys:
-        given = (hydra_keys.get("hydra/launcher") or hydra_keys["hydra/sweeper"]).input_line
-        raise BadInput("--batch", f"trains in this process; drop '{given}' (a cluster launches jobs one by one)")
+    if "hydra/sweeper" in hydra_keys:
+        given = hydra_keys["hydra/sweeper"].input_line
+        raise BadInput("--batch", f"trains a grid's jobs together; drop '{given}' (an optimiser picks jobs one by one)")
+    if "hydra/launcher" in hydra_keys:
+        if launcher not in CLUSTER_BATCHES:
+            raise BadInput(
+                "--batch",
+                f"trains in this process, or a chunk per task with hydra/launcher=submitit_slurm or submitit_local; "
+                f"drop '{hydra_keys['hydra/launcher'].input_line}'",
+            )
+        return launcher
     if jobs is not None:
-        raise BadInput("--jobs", "applies to parallel launchers; --batch trains one program on every core")
+        raise BadInput(
+            "--jobs", "applies to parallel launchers and to --batch on a cluster; --batch alone trains on every core"
+        )
     return BATCH_LAUNCHER
 
 

@@ -1,0 +1,224 @@
+"""`riskplan sweep --batch` on a cluster (hydra/launcher=submitit_slurm or submitit_local): the sweep's runs cut
+into chunks, each chunk one task of one job array that trains it as one batch (riskplan.run.batch), so a
+10,000-run sweep is tens or hundreds of tasks, not 10,000.
+
+The driver plans the chunks (`task_chunks`: by what the runs must share, the task's memory, half its time limit,
+and --jobs) and writes them beside the sweep (TASKS). Hydra's launcher call (`launch_chunks`, behind
+hydra_plugins.riskplan_batch_launcher's SubmititBatchLauncher, which takes every hydra.launcher.* key of submitit's)
+sets up each job's folder and `.hydra/` files as a local batched sweep does, then submits one task per chunk
+through submitit, as Hydra's submitit launcher would: the same executor and parameters, the same requeue on
+SIGUSR2 and the same error for a task that ends without a result.
+
+A task (`ChunkTask`, on its node) takes its jobs' folder locks, skips the finished, resumes the checkpointed and
+trains the rest as one batch in its process, the kernels on the CPUs the task was granted; each job is recorded
+as under any launcher. A signal checkpoints every run of the batch: SIGTERM (scancel, preemption) ends the task
+without a result, SIGUSR2 (a time limit near) lets submitit requeue the same chunk, and the next run of the task or
+of the sweep resumes each job to the numbers of an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numba
+from hydra.core.utils import JobReturn, configure_log, setup_globals
+from omegaconf import DictConfig, OmegaConf
+
+from riskplan.config.backends import BACKENDS
+from riskplan.config.schema import Backend
+from riskplan.config.typed import typed
+from riskplan.experiments.sweep_worker import job_threads
+from riskplan.experiments.sweeping.batched import PROGRESS, plan_chunks, prepare_job, prepare_jobs, train_chunk
+from riskplan.experiments.sweeping.jobs import TASKS
+from riskplan.run import cost
+from riskplan.util.errors import BadInput
+from riskplan.util.interrupt import Interrupted
+from riskplan.util.limits import cpu_count, memory_budget
+from riskplan.util.paths import write_atomic
+
+TASK_SECONDS = 300.0  # without --jobs, a task gets about this much estimated work on its CPUs
+TASK_MEMORY_SHARE = 0.8  # of hydra.launcher.mem_gb, for the batch's runs; the rest for Python and the kernels' code
+SUBMITIT_TIMEOUT_MIN = 60  # submitit's defaults (hydra_plugins.hydra_submitit_launcher.config.BaseQueueConf)
+SUBMITIT_CPUS = 1
+
+
+@dataclass(frozen=True)
+class TaskSize:
+    """What one task may hold: `memory` bytes (and where that limit comes from), `seconds` of estimated work on its
+    `cores`, and the number of tasks asked for (--jobs; None: by the work)."""
+
+    memory: float
+    source: str
+    seconds: float
+    cores: int
+    tasks: int | None
+
+
+def task_size(hydra_keys: dict, jobs: int | None) -> TaskSize:
+    """A task's limits from the launcher's overrides: hydra.launcher.mem_gb (or riskplan's memory budget of this
+    machine), half of hydra.launcher.timeout_min, hydra.launcher.cpus_per_task (submitit's defaults otherwise)."""
+
+    def given(key: str, default):
+        override = hydra_keys.get(f"hydra.launcher.{key}")
+        value = override.value() if override is not None and not override.is_delete() else None
+        return default if value is None else value
+
+    cores, minutes, gb = (
+        given("cpus_per_task", SUBMITIT_CPUS),
+        given("timeout_min", SUBMITIT_TIMEOUT_MIN),
+        given("mem_gb", None),
+    )
+    for key, value in (("cpus_per_task", cores), ("timeout_min", minutes), ("mem_gb", gb)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise BadInput(f"hydra.launcher.{key}", f"got {value!r}; expected a whole number of at least 1")
+    if gb is None:
+        memory, source = memory_budget()
+    else:
+        memory, source = TASK_MEMORY_SHARE * gb * 1e9, f"80% of hydra.launcher.mem_gb={gb}"
+    return TaskSize(memory, source, 0.5 * minutes * 60.0, cores, jobs)
+
+
+def task_chunks(jobs: list, size: TaskSize) -> list[list]:
+    """The planned jobs (sweeping.jobs.Job) still to run, cut into the tasks that train them: grouped by what a
+    batch shares, each chunk within the task's memory and half its time limit (riskplan.run.cost's estimate, on its
+    cores), then the chunks cut evenly until there are as many as --jobs asks for (or, without it, one per
+    TASK_SECONDS of work), the largest first. A job that cannot share a batch (the ray backend) is a task of its own."""
+    model = cost.model()
+
+    def seconds(job) -> float:
+        return model.run_seconds(job.steps) / size.cores
+
+    batchable = [job for job in jobs if job.batch]
+    by_memory = plan_chunks(batchable, size.memory, key=lambda job: job.batch, size=lambda job: job.memory)
+    chunks = [
+        part for chunk in by_memory for part in plan_chunks(chunk, size.seconds, key=lambda job: "", size=seconds)
+    ]
+    wanted = size.tasks or math.ceil(sum(seconds(job) for job in batchable) / TASK_SECONDS)
+    parts = [1] * len(chunks)  # each chunk's share of the tasks: one more to the largest tasks, while any holds 2+
+    while sum(parts) < wanted:
+        i = max(range(len(chunks)), key=lambda i: len(chunks[i]) / parts[i])
+        if len(chunks[i]) <= parts[i]:
+            break
+        parts[i] += 1
+    even = [piece for chunk, n in zip(chunks, parts) for piece in _split(chunk, n)]
+    return even + [[job] for job in jobs if not job.batch]
+
+
+def _split(chunk: list, n: int) -> list[list]:
+    """`chunk` in `n` consecutive pieces whose lengths differ by at most one."""
+    q, r = divmod(len(chunk), n)
+    ends = [(i + 1) * q + min(i + 1, r) for i in range(n)]
+    return [chunk[end - q - (i < r) : end] for i, end in enumerate(ends)]
+
+
+def write_tasks(sweep_dir: Path, waiting: list, chunks: list[list]) -> None:
+    """The chunks for the launcher, as positions in the list of jobs it is handed (the jobs to run, in order), and
+    each task's jobs by name, for the error line of a task that ends without a result."""
+    position = {id(job): i for i, job in enumerate(waiting)}
+    tasks = [[position[id(job)] for job in chunk] for chunk in chunks]
+    names = ["; ".join(job.shown for job in chunk) for chunk in chunks]
+    write_atomic(sweep_dir / TASKS, json.dumps({"tasks": tasks, "names": names}))
+
+
+def read_tasks(sweep_dir: Path, count: int) -> list[list[int]]:
+    """The chunks the driver planned for these `count` jobs (TASKS); a launch without them was not started by
+    `riskplan sweep --batch`."""
+    try:
+        tasks = json.loads((sweep_dir / TASKS).read_text())["tasks"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise BadInput(
+            "--batch", f"{sweep_dir / TASKS} holds no task plan; start the sweep with riskplan sweep --batch"
+        ) from None
+    if sorted(i for task in tasks for i in task) != list(range(count)):
+        raise BadInput("--batch", f"{sweep_dir / TASKS} does not plan these {count} jobs; run the sweep again")
+    return tasks
+
+
+@dataclass
+class Pending:
+    """A job set up by the driver, for its task: its folder, its config (typed, or a DictConfig for a job that
+    cannot share a batch), its plain config (its identity) and its set-up time."""
+
+    out: Path
+    config: object
+    plain: dict
+    seconds: float = 0.0
+
+
+def _pending(cfg, plain, out: Path) -> Pending:
+    """A job as its task needs it. One set up through run_job comes as its DictConfig: typed and made plain here,
+    where Hydra's own interpolations still resolve."""
+    if isinstance(cfg, DictConfig):
+        plain = OmegaConf.to_container(cfg, resolve=True)
+        if BACKENDS[Backend(cfg.team.backend)].batched:
+            cfg = typed(cfg)
+    return Pending(Path(out), cfg, plain)
+
+
+def launch_chunks(launcher, job_overrides, initial_job_idx: int) -> list[JobReturn]:
+    """The launcher's launch: every job's folder set up here, then one task per planned chunk through submitit;
+    waits for them all, as Hydra's submitit launcher does."""
+    setup_globals()
+    config, context = launcher.config, launcher.hydra_context
+    configure_log(config.hydra.hydra_logging, config.hydra.verbose)
+    sweep_dir = Path(str(config.hydra.sweep.dir))
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    tasks = read_tasks(sweep_dir, len(job_overrides))
+    returns = prepare_jobs(context, config, job_overrides, initial_job_idx, _pending)
+    total = sum(int(pending.config.train.iterations) for _, pending in returns if pending is not None)
+    chunks = [[returns[i][1] for i in task] for task in tasks]
+    executor = _executor(launcher.params, launcher.cluster)
+    progress = [str(sweep_dir / f"{PROGRESS}.{number}") for number in range(len(chunks))]
+    cpus = int(launcher.params.get("cpus_per_task") or 1)  # what each task asked for (SLURM's default: 1)
+    submitted = executor.map_array(ChunkTask(), chunks, progress, [total] * len(chunks), [cpus] * len(chunks))
+    for task, job in zip(tasks, submitted):
+        for i, value in zip(task, job.results()[0]):
+            returns[i][0].return_value = value
+    return [done for done, _ in returns]
+
+
+def _executor(params: dict, cluster: str):
+    """submitit's executor for the launcher's parameters, set up as Hydra's submitit launcher sets it up."""
+    import submitit  # optional: the slurm extra
+    from hydra_plugins.hydra_submitit_launcher.config import BaseQueueConf  # optional: the slurm extra
+
+    params = {k: OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v for k, v in params.items()}
+    init = {"folder": params.pop("submitit_folder")}
+    if "max_num_timeout" in params:
+        init[f"{cluster}_max_num_timeout"] = params.pop("max_num_timeout")
+    executor = submitit.AutoExecutor(cluster=cluster, **init)
+    shared = set(OmegaConf.structured(BaseQueueConf).keys())
+    executor.update_parameters(**{k if k in shared else f"{cluster}_{k}": v for k, v in params.items()})
+    return executor
+
+
+class ChunkTask:
+    """One task of the array: its chunk of jobs trained as one batch, on the task's node. submitit calls it, and
+    on SIGUSR2 (after riskplan checkpointed every run) its `checkpoint`, which requeues the same chunk."""
+
+    def __call__(self, jobs: list[Pending], progress: str, total: int, cpus: int) -> list[float | None]:
+        threads = min(job_threads() or cpu_count(), cpus)  # the CPUs the task asked for and was granted
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+        with contextlib.ExitStack() as held:  # each job folder's lock, until its job is recorded
+            prepared = []
+            for job in jobs:
+                start = prepare_job(job.config, job.plain, job.out, held)
+                start.seconds = job.seconds
+                prepared.append(start)
+            waiting = [start for start in prepared if start.setup is not None]
+            if waiting:
+                try:
+                    train_chunk(waiting, Path(progress), total, workers=1, threads=threads)
+                except Interrupted as stop:  # every run checkpointed and marked interrupted: end by the signal,
+                    stop.end()  # without a result, so that the task runs again (requeued) or the sweep resumes it
+        return [start.value for start in prepared]
+
+    def checkpoint(self, *args):
+        """submitit's requeue on SIGUSR2: the same chunk again; each job resumes from its checkpoint."""
+        import submitit  # optional: the slurm extra
+
+        return submitit.helpers.DelayedSubmission(self, *args)
