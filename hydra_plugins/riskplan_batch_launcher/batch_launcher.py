@@ -44,19 +44,16 @@ class RiskplanBatchLauncher(Launcher):
         return launch_batches(self, job_overrides, initial_job_idx)
 
 
-class SubmititBatchLauncher(Launcher):
+class SubmititBatchLauncher(RiskplanBatchLauncher):
     """`riskplan sweep --batch hydra/launcher=submitit_slurm` (or submitit_local): riskplan puts this class in the
-    launcher's `_target_`, so every hydra.launcher.* key of submitit's launcher holds; each task of its array trains
-    a chunk of the sweep as one batch (riskplan.experiments.sweeping.cluster_batches)."""
+    launcher's `_target_`, so every hydra.launcher.* key of submitit's launcher holds (`params`); each task of its
+    array trains a chunk of the sweep as one batch (riskplan.experiments.sweeping.cluster_batches)."""
 
     cluster = ""  # submitit's executor: slurm or local
 
     def __init__(self, **params) -> None:
+        super().__init__()
         self.params = params
-        self.config = self.hydra_context = self.task_function = None
-
-    def setup(self, *, hydra_context, task_function, config) -> None:
-        self.config, self.hydra_context, self.task_function = config, hydra_context, task_function
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int):
         from riskplan.experiments.sweeping.cluster_batches import launch_chunks  # lazy: the whole training stack
