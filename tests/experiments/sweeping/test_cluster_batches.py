@@ -1,18 +1,22 @@
 """`riskplan sweep --batch` on a cluster launcher (riskplan.experiments.sweeping.cluster_batches): the sweep's runs
 cut into tasks by what they share, the task's memory, half its time limit and --jobs; each task trains its chunk
-as one batch, to the numbers of the runs alone, and a task killed mid-way resumes to them. Here on submitit's local
+as one batch, to the numbers of the runs alone, and a sweep killed mid-way (its local tasks with it) resumes to them. Here on submitit's local
 executor (real processes, the same submitit code path as SLURM's); tests/clusters/test_slurm_sweeps.py runs it on
 a real SLURM cluster."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import subprocess
+import time
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 import yaml
-from support import FAST, assert_same_outputs, riskplan_cli
+from support import FAST, assert_same_outputs, child_env, riskplan_cli, riskplan_command
 from test_sweep_command import job_dirs
 from typer.testing import CliRunner
 
@@ -22,6 +26,7 @@ from riskplan.experiments.sweeping import cluster_batches
 from riskplan.experiments.sweeping.cluster_batches import TASK_SECONDS, TaskSize, task_chunks, task_size
 from riskplan.run import cost
 from riskplan.run.compose import parse_overrides
+from riskplan.run.recorder import STOP_ENV
 from riskplan.util.errors import BadInput
 
 pytest.importorskip("hydra_plugins.hydra_submitit_launcher", reason="the slurm extra (submitit) is not installed")
@@ -117,28 +122,59 @@ def tasks_submitted(sweep) -> list[str]:
     return sorted(p.name for p in (sweep / ".submitit").iterdir() if p.name.isdigit())
 
 
+def paused_tasks(sweep) -> set[int]:
+    """The pids of the tasks that stopped themselves (STOP_ENV), as the jobs' status.json name them."""
+    pids = set()
+    for status_file in sweep.glob("*/status.json"):
+        pid = json.loads(status_file.read_text()).get("pid")
+        with contextlib.suppress(OSError, IndexError):
+            if pid and Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T":
+                pids.add(pid)
+    return pids
+
+
 @pytest.mark.slow
-def test_each_task_trains_its_chunk_to_the_numbers_of_the_runs_alone_and_a_killed_task_resumes(tmp_path):
+def test_each_task_trains_its_chunk_to_the_numbers_of_the_runs_alone_and_resumes_after_a_kill(tmp_path):
     reference = {}
     for seed in (0, 1):
         for beta in (0.1, 0.2):
             reference[seed, beta] = tmp_path / "alone" / f"{seed},{beta}"
             train(compose([*RUN, f"seed={seed}", f"risk.beta={beta}"]), reference[seed, beta])
 
-    # every task dies in its second checkpoint (iteration 4): it ends without a result, its runs checkpointed at 2
-    killed = riskplan_cli(tmp_path, *SWEEP, "hydra.sweep.dir=s", env={"RISKPLAN_TEST_KILL_IN_CHECKPOINT": "4"})
-    assert killed.returncode == 1, killed.stdout + killed.stderr
-    assert "batched on the cluster: 4 runs as 2 tasks of up to 2 runs" in killed.stdout
-    assert "error: the launcher stopped:" in killed.stderr
-    assert len(tasks_submitted(tmp_path / "s")) == 2  # two tasks for four jobs
-    statuses = [json.loads(p.read_text())["status"] for p in (tmp_path / "s").glob("*/status.json")]
-    assert len(statuses) == 4 and "done" not in statuses
-    assert not (tmp_path / "s" / cluster_batches.TASKS).exists()
+    # both tasks stop themselves after iteration 4 (checkpointed); the sweep is killed there (SIGKILL), and its
+    # local tasks end with it
+    sweep = tmp_path / "s"
+    driver = subprocess.Popen(
+        [*riskplan_command(), *SWEEP, f"hydra.sweep.dir={sweep}"],
+        cwd=tmp_path,
+        env=child_env(**{STOP_ENV: "3"}),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while len(paused := paused_tasks(sweep)) < 2 and driver.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert len(paused) == 2, f"two tasks, each a batch of two jobs, should have paused: {paused}"
+        driver.kill()
+        output = driver.communicate(timeout=60)[0]
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+            driver.wait()
+    assert "batched on the cluster: 4 runs as 2 tasks of up to 2 runs" in output, output
+    deadline = time.monotonic() + 30
+    while any(Path(f"/proc/{pid}").exists() for pid in paused) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(Path(f"/proc/{pid}").exists() for pid in paused), "the tasks outlived their sweep"
+    assert len(tasks_submitted(sweep)) == 2  # two tasks for four jobs
+    assert [json.loads(p.read_text())["status"] for p in sweep.glob("*/status.json")] == ["running"] * 4
 
     resumed = riskplan_cli(tmp_path, *SWEEP, "hydra.sweep.dir=s")
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
-    assert len(tasks_submitted(tmp_path / "s")) == 4
-    jobs = job_dirs(tmp_path / "s")
+    assert len(tasks_submitted(sweep)) == 4
+    jobs = job_dirs(sweep)
     assert len(jobs) == 4
     for job in jobs:
         status = json.loads((job / "status.json").read_text())
@@ -146,7 +182,8 @@ def test_each_task_trains_its_chunk_to_the_numbers_of_the_runs_alone_and_a_kille
         assert "in a batch of 2" in (job / "job.log").read_text()
         config = yaml.safe_load((job / ".hydra" / "config.yaml").read_text())
         assert_same_outputs(job, reference[config["seed"], config["risk"]["beta"]])
+    assert not (sweep / cluster_batches.TASKS).exists()
 
     again = riskplan_cli(tmp_path, *SWEEP, "hydra.sweep.dir=s")
     assert again.returncode == 0 and "4 jobs: 0 to run, 4 already finished" in again.stdout
-    assert len(tasks_submitted(tmp_path / "s")) == 4  # nothing submitted
+    assert len(tasks_submitted(sweep)) == 4  # nothing submitted
