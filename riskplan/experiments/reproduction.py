@@ -112,7 +112,7 @@ def reproduce(
         raise BadInput(
             "--jobs", "sets the workers of a job-by-job reproduction; --batch trains each sweep as one batch"
         )
-    warmed = None if batch else _warm_workers(jobs, seeds, experiments)  # the workers start while the checks run
+    warmed = _warm_workers(jobs, seeds, experiments)  # the workers start while the checks run (a batch's parts too)
     try:
         extra, configs, own = _check_overrides(list(overrides or []), quick)
         check_work(seeds, jobs_total, configs, list(overrides or []), experiments)

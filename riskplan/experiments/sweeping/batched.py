@@ -22,7 +22,7 @@ from pathlib import Path
 import numba
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.utils import JobReturn, JobStatus, configure_log, run_job, setup_globals
-from joblib import Parallel, delayed
+from joblib import delayed
 from omegaconf import DictConfig, open_dict
 
 from riskplan.config.backends import BACKENDS
@@ -41,6 +41,7 @@ from riskplan.experiments.sweep_worker import (
 )
 from riskplan.experiments.sweeping.grid import JobConfigs
 from riskplan.experiments.sweeping.job_setup import JobSetup
+from riskplan.experiments.sweeping.launch import local_pool, pool_started
 from riskplan.run import cost
 from riskplan.run.batch import BatchRun, train_batch
 from riskplan.run.build import build_setup
@@ -180,10 +181,14 @@ def plan_chunks(jobs: list, limit: float, key=lambda job: batch_key(job.setup.pa
 
 
 def workers_for(chunk: list[Prepared]) -> int:
-    """Processes to split a batch over: one per core when its work is large enough to pay for starting them
-    (PARALLEL_SECONDS by riskplan.run.cost's model of this machine), else this process alone."""
+    """Processes to split a batch over: one per core when the local workers are up already (reproduce starts
+    them while it plans), or when its work is large enough to pay for starting them (PARALLEL_SECONDS by
+    riskplan.run.cost's model of this machine); else this process alone."""
+    workers = min(cpu_count(), len(chunk))
+    if workers > 1 and pool_started(workers):
+        return workers
     seconds = sum(cost.model().run_seconds(cost.setup_steps(job.setup)) for job in chunk)
-    return min(cpu_count(), len(chunk)) if seconds >= PARALLEL_SECONDS else 1
+    return workers if seconds >= PARALLEL_SECONDS else 1
 
 
 def train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int, threads: int | None = None) -> None:
@@ -209,7 +214,7 @@ def train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int,
     if workers == 1:
         results = [call(*args, **kwargs) for call, args, kwargs in work]
     else:
-        results = Parallel(n_jobs=workers, backend="loky")(work)
+        results = local_pool(workers)(work)
     stopped = None
     for part, records in zip(parts, results):
         for job, record in zip(part, records):

@@ -109,13 +109,11 @@ def warm_workers(workers: int):
     settings, and the environment `_run_plan` gives a sweep's workers is set before they are spawned."""
     os.environ[THREADS_ENV] = str(max(1, cpu_count() // workers))
     name_driver(True)
-    settings = {key: value for key, value in dataclasses.asdict(JobLibLauncherConf()).items() if key != "_target_"}
-    settings.update(n_jobs=workers, backend="loky")
     warmed: list[tuple[int, float]] = []
     # Spawned here, not on the thread below: a worker dies with the thread that spawned it (driver_watch), and
     # that thread ends with the warm-up. The generator dispatches the first tasks, and so spawns, in this call.
     try:
-        results = Parallel(**settings, return_as="generator")(delayed(warm_up)() for _ in range(WARMED))
+        results = local_pool(workers, return_as="generator")(delayed(warm_up)() for _ in range(WARMED))
     except Exception:
         results = iter(())
 
@@ -133,3 +131,21 @@ def warm_workers(workers: int):
         return list(warmed)
 
     return wait
+
+
+_pools: set[int] = set()  # the sizes of the local worker pools this process started: they stay up, reused
+
+
+def local_pool(workers: int, **options) -> Parallel:
+    """joblib's Parallel over this process's local workers, made with the joblib launcher's own settings: joblib
+    reuses one loky executor for the same settings, so the workers warm_workers started (or a batch's parts
+    started before) serve the joblib launcher's jobs and the batches' parts alike."""
+    settings = {key: value for key, value in dataclasses.asdict(JobLibLauncherConf()).items() if key != "_target_"}
+    settings.update(n_jobs=workers, backend="loky", **options)
+    _pools.add(workers)
+    return Parallel(**settings)
+
+
+def pool_started(workers: int) -> bool:
+    """Whether this process has started a pool of `workers` local workers (they are up: using them costs no start)."""
+    return workers in _pools
