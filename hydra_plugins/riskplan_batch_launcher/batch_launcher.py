@@ -1,5 +1,5 @@
 """`hydra/launcher=riskplan_batch`: a sweep's jobs trained as batches in this process (`riskplan sweep --batch`);
-and with submitit's launchers, a chunk of them per cluster task (`riskplan sweep --batch hydra/launcher=submitit_slurm`).
+and with a cluster's launcher, a chunk of them per task (`riskplan sweep --batch hydra/launcher=submitit_slurm`).
 
 Hydra finds launchers only in the `hydra_plugins` package, so this module is the plugin's face: its config and a
 Launcher that hands the jobs to riskplan.experiments.sweeping.batched, and the Launchers that hand them to
@@ -44,12 +44,12 @@ class RiskplanBatchLauncher(Launcher):
         return launch_batches(self, job_overrides, initial_job_idx)
 
 
-class SubmititBatchLauncher(RiskplanBatchLauncher):
-    """`riskplan sweep --batch hydra/launcher=submitit_slurm` (or submitit_local): riskplan puts this class in the
-    launcher's `_target_`, so every hydra.launcher.* key of submitit's launcher holds (`params`); each task of its
-    array trains a chunk of the sweep as one batch (riskplan.experiments.sweeping.cluster_batches)."""
+class ClusterBatchLauncher(RiskplanBatchLauncher):
+    """`riskplan sweep --batch` with a cluster's launcher (submitit_slurm, submitit_local, ray, ray_cluster): riskplan
+    puts this class in that launcher's `_target_`, so every hydra.launcher.* key of that launcher holds (`params`);
+    each of its tasks trains a chunk of the sweep as one batch (riskplan.experiments.sweeping.cluster_batches)."""
 
-    cluster = ""  # submitit's executor: slurm or local
+    cluster = ""  # where the tasks run: submitit's slurm or local executor, or ray
 
     def __init__(self, **params) -> None:
         super().__init__()
@@ -61,9 +61,13 @@ class SubmititBatchLauncher(RiskplanBatchLauncher):
         return launch_chunks(self, job_overrides, initial_job_idx)
 
 
-class SlurmBatchLauncher(SubmititBatchLauncher):
+class SlurmBatchLauncher(ClusterBatchLauncher):
     cluster = "slurm"
 
 
-class LocalBatchLauncher(SubmititBatchLauncher):
+class LocalBatchLauncher(ClusterBatchLauncher):
     cluster = "local"
+
+
+class RayBatchLauncher(ClusterBatchLauncher):
+    cluster = "ray"

@@ -25,7 +25,7 @@ def register(app: typer.Typer) -> None:
         overrides: list[str] | None = typer.Argument(None, help=SWEEP_HELP + CONFIG_DIR_HELP, show_default=False),
         jobs: int | None = jobs_option(
             "Jobs at once: joblib workers (default: the number of cores), or submitit's array_parallelism; with "
-            "--batch on SLURM, at least this many tasks, each a batch."
+            "--batch on a cluster (SLURM, Ray), at least this many tasks, each a batch."
         ),
         batch: bool = typer.Option(
             False,
@@ -33,7 +33,7 @@ def register(app: typer.Typer) -> None:
             help="Train the jobs that share a world and sample schedule as one program in this process, one "
             "kernel call per iteration over all their robots (every core); the same folders and files, bit for "
             "bit the same numbers. Seeds, risk levels and parameters, step sizes, theta0 and graphs may differ. "
-            "With hydra/launcher=submitit_slurm (or submitit_local): a chunk of the runs per task, each a batch.",
+            "With hydra/launcher=submitit_slurm, submitit_local, ray or ray_cluster: a chunk of the runs per task.",
         ),
     ) -> None:
         """Run a grid of experiments (a Hydra multirun) into outputs/sweeps/<timestamp>/, one folder per job."""

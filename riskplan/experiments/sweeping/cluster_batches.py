@@ -1,13 +1,14 @@
-"""`riskplan sweep --batch` on a cluster (hydra/launcher=submitit_slurm or submitit_local): the sweep's runs cut
-into chunks, each chunk one task of one job array that trains it as one batch (riskplan.run.batch), so a
-10,000-run sweep is tens or hundreds of tasks, not 10,000.
+"""`riskplan sweep --batch` on a cluster (hydra/launcher=submitit_slurm, submitit_local, ray or ray_cluster): the
+sweep's runs cut into chunks, each chunk one task (of one SLURM job array, or of Ray) that trains it as one batch
+(riskplan.run.batch), so a 10,000-run sweep is tens or hundreds of tasks, not 10,000.
 
 The driver plans the chunks (`task_chunks`: by what the runs must share, the task's memory, half its time limit,
 and --jobs) and writes them beside the sweep (TASKS). Hydra's launcher call (`launch_chunks`, behind
 hydra_plugins.riskplan_batch_launcher's SubmititBatchLauncher, which takes every hydra.launcher.* key of submitit's)
 sets up each job's folder and `.hydra/` files as a local batched sweep does, then submits one task per chunk
-through submitit, as Hydra's submitit launcher would: the same executor and parameters, the same requeue on
-SIGUSR2 and the same error for a task that ends without a result.
+through submitit, as Hydra's submitit launcher would (the same executor and parameters, the same requeue on
+SIGUSR2 and the same error for a task that ends without a result), or to Ray, as Hydra's Ray launcher would (Ray
+started or joined with its init options, each task with its remote options).
 
 A task (`ChunkTask`, on its node) takes its jobs' folder locks, skips the finished, resumes the checkpointed and
 trains the rest as one batch in its process, the kernels on the CPUs the task was granted; each job is recorded
@@ -58,28 +59,35 @@ class TaskSize:
     tasks: int | None
 
 
-def task_size(hydra_keys: dict, jobs: int | None) -> TaskSize:
-    """A task's limits from the launcher's overrides: hydra.launcher.mem_gb (or riskplan's memory budget of this
-    machine), half of hydra.launcher.timeout_min, hydra.launcher.cpus_per_task (submitit's defaults otherwise)."""
+def task_size(hydra_keys: dict, jobs: int | None, launcher: str = "submitit_slurm") -> TaskSize:
+    """A task's limits from the launcher's overrides. submitit: hydra.launcher.mem_gb (or riskplan's memory budget
+    of this machine), half of hydra.launcher.timeout_min, hydra.launcher.cpus_per_task (submitit's defaults
+    otherwise). Ray: hydra.launcher.ray.remote.memory (bytes) and num_cpus, and no time limit."""
 
-    def given(key: str, default):
+    def given(key: str, default, kind: type = int):
         override = hydra_keys.get(f"hydra.launcher.{key}")
         value = override.value() if override is not None and not override.is_delete() else None
-        return default if value is None else value
+        if value is None:
+            return default
+        if isinstance(value, bool) or not isinstance(value, (int, kind)) or not 0 < value < math.inf:
+            what = "a whole number of at least 1" if kind is int else "a positive number"
+            raise BadInput(f"hydra.launcher.{key}", f"got {value!r}; expected {what}")
+        return value
 
+    budget = memory_budget()
+    if launcher.startswith("ray"):
+        cores, memory = max(1, int(given("ray.remote.num_cpus", 1, float))), given("ray.remote.memory", None)
+        if memory is not None:
+            budget = TASK_MEMORY_SHARE * memory, f"80% of hydra.launcher.ray.remote.memory={memory}"
+        return TaskSize(*budget, math.inf, cores, jobs)
     cores, minutes, gb = (
         given("cpus_per_task", SUBMITIT_CPUS),
         given("timeout_min", SUBMITIT_TIMEOUT_MIN),
         given("mem_gb", None),
     )
-    for key, value in (("cpus_per_task", cores), ("timeout_min", minutes), ("mem_gb", gb)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise BadInput(f"hydra.launcher.{key}", f"got {value!r}; expected a whole number of at least 1")
-    if gb is None:
-        memory, source = memory_budget()
-    else:
-        memory, source = TASK_MEMORY_SHARE * gb * 1e9, f"80% of hydra.launcher.mem_gb={gb}"
-    return TaskSize(memory, source, 0.5 * minutes * 60.0, cores, jobs)
+    if gb is not None:
+        budget = TASK_MEMORY_SHARE * gb * 1e9, f"80% of hydra.launcher.mem_gb={gb}"
+    return TaskSize(*budget, 0.5 * minutes * 60.0, cores, jobs)
 
 
 def task_chunks(jobs: list, size: TaskSize) -> list[list]:
@@ -171,14 +179,41 @@ def launch_chunks(launcher, job_overrides, initial_job_idx: int) -> list[JobRetu
     returns = prepare_jobs(context, config, job_overrides, initial_job_idx, _pending)
     total = sum(int(pending.config.train.iterations) for _, pending in returns if pending is not None)
     chunks = [[returns[i][1] for i in task] for task in tasks]
-    executor = _executor(launcher.params, launcher.cluster)
     progress = [str(sweep_dir / f"{PROGRESS}.{number}") for number in range(len(chunks))]
-    cpus = int(launcher.params.get("cpus_per_task") or 1)  # what each task asked for (SLURM's default: 1)
-    submitted = executor.map_array(ChunkTask(), chunks, progress, [total] * len(chunks), [cpus] * len(chunks))
-    for task, job in zip(tasks, submitted):
-        for i, value in zip(task, job.results()[0]):
+    submit = _on_ray if launcher.cluster == "ray" else _on_submitit
+    for task, values in zip(tasks, submit(launcher, chunks, progress, total)):
+        for i, value in zip(task, values):
             returns[i][0].return_value = value
     return [done for done, _ in returns]
+
+
+def _on_submitit(launcher, chunks: list[list[Pending]], progress: list[str], total: int) -> list[list]:
+    """The chunks as one job array through submitit, as Hydra's submitit launcher would submit them (its
+    executor and parameters); each task's values, once all are done."""
+    executor = _executor(launcher.params, launcher.cluster)
+    cpus = int(launcher.params.get("cpus_per_task") or 1)  # what each task asked for (SLURM's default: 1)
+    count = len(chunks)
+    submitted = executor.map_array(ChunkTask(), chunks, progress, [total] * count, [cpus] * count)
+    return [job.results()[0] for job in submitted]
+
+
+def _on_ray(launcher, chunks: list[list[Pending]], progress: list[str], total: int) -> list[list]:
+    """The chunks as Ray tasks, Ray started (or joined) as Hydra's Ray launcher does, each task with the launcher's
+    ray.remote options (num_cpus, memory, ...); each task's values, once all are done."""
+    import ray  # optional: the ray extra
+    from hydra_plugins.hydra_ray_launcher._launcher_util import start_ray  # optional: the ray extra
+
+    config = _plain(launcher.params["ray"])
+    start_ray(OmegaConf.create(config.get("init") or {}))  # it takes a config node, as the launcher has it
+    options = config.get("remote") or {}
+    cpus = int(options.get("num_cpus") or 1)
+    remote = ray.remote(**options)(_chunk_task) if options else ray.remote(_chunk_task)
+    return ray.get([remote.remote(chunk, part, total, cpus) for chunk, part in zip(chunks, progress)])
+
+
+def _chunk_task(jobs: list[Pending], progress: str, total: int, cpus: int) -> list[float | None]:
+    """A chunk trained in a Ray task (Ray runs functions, submitit callables with a checkpoint)."""
+    return ChunkTask()(jobs, progress, total, cpus)
 
 
 def _executor(params: dict, cluster: str):
@@ -186,7 +221,7 @@ def _executor(params: dict, cluster: str):
     import submitit  # optional: the slurm extra
     from hydra_plugins.hydra_submitit_launcher.config import BaseQueueConf  # optional: the slurm extra
 
-    params = {k: OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v for k, v in params.items()}
+    params = {key: _plain(value) for key, value in params.items()}
     init = {"folder": params.pop("submitit_folder")}
     if "max_num_timeout" in params:
         init[f"{cluster}_max_num_timeout"] = params.pop("max_num_timeout")
@@ -194,6 +229,11 @@ def _executor(params: dict, cluster: str):
     shared = set(OmegaConf.structured(BaseQueueConf).keys())
     executor.update_parameters(**{k if k in shared else f"{cluster}_{k}": v for k, v in params.items()})
     return executor
+
+
+def _plain(value):
+    """A launcher parameter as plain data (Hydra hands nested ones over as OmegaConf nodes)."""
+    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
 
 
 class ChunkTask:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from pathlib import Path
@@ -186,10 +187,15 @@ def tasks_line(jobs: list, plan: Plan) -> str:
     """A batched sweep's plan on a cluster: its tasks, their largest, and the limits that sized them."""
     chunks, size_of = task_chunks(jobs, plan.tasks), plan.tasks
     largest = max(chunks, key=len)
+    cpus = f"{size_of.cores} CPU{'s' if size_of.cores != 1 else ''}"
+    time_limit = (
+        f"; and half its time limit, {cost.duration(size_of.seconds)} on {cpus}"
+        if size_of.seconds < math.inf
+        else f"; on {cpus}"
+    )
     return (
         f"batched on the cluster: {len(jobs)} runs as {len(chunks)} task{'s' if len(chunks) != 1 else ''} of up to "
-        f"{len(largest)} runs (each within {size(size_of.memory)}: {size_of.source}; and half its time limit, "
-        f"{cost.duration(size_of.seconds)} on {size_of.cores} CPU{'s' if size_of.cores != 1 else ''})"
+        f"{len(largest)} runs (each within {size(size_of.memory)}: {size_of.source}{time_limit})"
     )
 
 

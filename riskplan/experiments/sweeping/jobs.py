@@ -21,11 +21,16 @@ SUMMARY = "summary.parquet"
 DEFAULT_LAUNCHER = "joblib"
 BATCH_LAUNCHER = "riskplan_batch"  # riskplan sweep --batch (hydra_plugins.riskplan_batch_launcher)
 LOCAL = ("joblib", "submitit_local", "basic", BATCH_LAUNCHER)  # launchers whose jobs run below the driver
-# --batch on a cluster: each task of the launcher's array trains a chunk of the sweep as one batch; the launcher's own
+# --batch on a cluster: each task of the launcher trains a chunk of the sweep as one batch; the launcher's own
 # config, with riskplan's class as its _target_ (hydra_plugins.riskplan_batch_launcher)
 CLUSTER_BATCHES = {
     name: f"hydra_plugins.riskplan_batch_launcher.batch_launcher.{cls}"
-    for name, cls in (("submitit_slurm", "SlurmBatchLauncher"), ("submitit_local", "LocalBatchLauncher"))
+    for name, cls in (
+        ("submitit_slurm", "SlurmBatchLauncher"),
+        ("submitit_local", "LocalBatchLauncher"),
+        ("ray", "RayBatchLauncher"),
+        ("ray_cluster", "RayBatchLauncher"),
+    )
 }
 TASKS = ".batch_tasks.json"  # a cluster batch's tasks, each its jobs' overrides: the launcher's error names them
 # the callback that travels with every job: folder names, and a local worker that ends with its driver

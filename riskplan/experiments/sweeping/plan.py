@@ -55,7 +55,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     hydra_keys = {o.key_or_group: o for o in hydra_ovs}
     launcher = _launcher(hydra_keys, jobs, batch)
     memory = batch_memory(hydra_keys) if launcher == BATCH_LAUNCHER else None
-    tasks = task_size(hydra_keys, jobs) if batch and launcher in CLUSTER_BATCHES else None
+    tasks = task_size(hydra_keys, jobs, launcher) if batch and launcher in CLUSTER_BATCHES else None
     explicit_dir = _explicit_dir(hydra_keys, sweep_dir)
     sweeper = str(hydra_keys["hydra/sweeper"].value()) if "hydra/sweeper" in hydra_keys else GRID_SWEEPER
     if sweeper not in ("basic", GRID_SWEEPER):  # an optimiser: it chooses the jobs as it goes
@@ -150,7 +150,8 @@ def _launcher(hydra_keys: dict, jobs: int | None, batch: bool) -> str:
         if launcher not in CLUSTER_BATCHES:
             raise BadInput(
                 "--batch",
-                f"trains in this process, or a chunk per task with hydra/launcher=submitit_slurm or submitit_local; "
+                f"trains in this process, or a chunk per task with hydra/launcher=submitit_slurm, submitit_local, "
+                f"ray or ray_cluster; "
                 f"drop '{hydra_keys['hydra/launcher'].input_line}'",
             )
         return launcher

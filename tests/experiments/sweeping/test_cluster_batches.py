@@ -96,6 +96,14 @@ def test_task_size_reads_the_launcher_keys():
     for bad in ("hydra.launcher.mem_gb=0", "hydra.launcher.cpus_per_task=-1", "hydra.launcher.timeout_min=1.5"):
         with pytest.raises(BadInput, match=bad.split("=")[0]):
             task_size(overrides(bad), None)
+    # Ray: its remote options size the task (fractional CPUs allowed), and there is no time limit
+    ray = task_size(
+        overrides("hydra.launcher.ray.remote.num_cpus=2.5", "hydra.launcher.ray.remote.memory=1000"), 3, "ray"
+    )
+    assert ray == TaskSize(800.0, "80% of hydra.launcher.ray.remote.memory=1000", math.inf, 2, 3)
+    for bad in ("hydra.launcher.ray.remote.num_cpus=0", "hydra.launcher.ray.remote.memory=0.5"):
+        with pytest.raises(BadInput, match=bad.split("=")[0]):
+            task_size(overrides(bad), None, "ray_cluster")
 
 
 @pytest.mark.parametrize(
