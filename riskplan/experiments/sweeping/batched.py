@@ -81,11 +81,10 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
         returns = prepare_jobs(context, config, job_overrides, initial_job_idx, begin)
         waiting = [p for _, p in returns if p is not None and p.setup is not None]
         limit = launcher.memory_gb * 1e9 if launcher.memory_gb else memory_budget()[0]
-        chunks = plan_chunks(waiting, limit)
         total = sum(p.setup.params.train.iterations for p in waiting)
-        for number, chunk in enumerate(chunks):
-            workers = launcher.workers or workers_for(chunk)
-            train_chunk(chunk, sweep_dir / f"{PROGRESS}.{number}", total, workers)
+        for number, chunks in enumerate(side_by_side(plan_chunks(waiting, limit), limit)):
+            workers = launcher.workers or workers_for([job for chunk in chunks for job in chunk])
+            train_chunks(chunks, sweep_dir / f"{PROGRESS}.{number}", total, workers)
     for done, prepared in returns:
         if prepared is not None:
             done.return_value = prepared.value
@@ -180,6 +179,21 @@ def plan_chunks(jobs: list, limit: float, key=lambda job: batch_key(job.setup.pa
     return chunks
 
 
+def side_by_side(chunks: list[list], limit: float, size=lambda job: run_bytes(job.setup)) -> list[list[list]]:
+    """The chunks in rounds trained at once: consecutive chunks whose runs' memory together stays within `limit`
+    (a sweep of many worlds, a few runs each, trains them side by side, not one world after another)."""
+    rounds: list[list[list]] = []
+    used = 0.0
+    for chunk in chunks:
+        need = sum(size(job) for job in chunk)
+        if not rounds or used + need > limit:
+            rounds.append([])
+            used = 0.0
+        rounds[-1].append(chunk)
+        used += need
+    return rounds
+
+
 def workers_for(chunk: list[Prepared]) -> int:
     """Processes to split a batch over: one per core when the local workers are up already (reproduce starts
     them while it plans), or when its work is large enough to pay for starting them (PARALLEL_SECONDS by
@@ -191,15 +205,17 @@ def workers_for(chunk: list[Prepared]) -> int:
     return workers if seconds >= PARALLEL_SECONDS else 1
 
 
-def train_chunk(chunk: list[Prepared], progress: Path, total: int, workers: int, threads: int | None = None) -> None:
-    """Train one chunk as a batch and record each of its jobs (a signal: each is interrupted, resumable). With
-    several `workers`, the chunk's runs are split into a part per worker, each trained as a batch in a worker
-    process (the runs' own steps and files then go on in parallel too); with one, in this process. `threads`:
-    numba's in each (default: the cores, shared out)."""
-    for job in chunk:
-        _log(job.out, job.start.opening + f", in a batch of {len(chunk)})")
-    workers = max(1, min(workers, len(chunk)))
-    parts = [chunk[i::workers] for i in range(workers)]
+def train_chunks(chunks: list[list[Prepared]], progress: Path, total: int, workers: int, threads=None) -> None:
+    """Train chunks (each its runs of one world) as batches and record each of their jobs (a signal: each is
+    interrupted, resumable). With several `workers`, each chunk's runs are split into up to a part per worker, and
+    the parts are trained as batches on the worker processes (the runs' own steps and files then go on in
+    parallel too, and so do the chunks); with one, in this process, one chunk after another. `threads`: numba's
+    in each (default: the cores, shared out)."""
+    for chunk in chunks:
+        for job in chunk:
+            _log(job.out, job.start.opening + f", in a batch of {len(chunk)})")
+    workers = max(1, min(workers, sum(len(chunk) for chunk in chunks)))
+    parts = [chunk[i::split] for chunk in chunks for split in [min(workers, len(chunk))] for i in range(split)]
     work = [
         delayed(train_part)(
             [job.setup if workers == 1 else job.setup.params for job in part],  # a worker builds from the params

@@ -33,7 +33,7 @@ from riskplan.config.backends import BACKENDS
 from riskplan.config.schema import Backend
 from riskplan.config.typed import typed
 from riskplan.experiments.sweep_worker import job_threads
-from riskplan.experiments.sweeping.batched import PROGRESS, plan_chunks, prepare_job, prepare_jobs, train_chunk
+from riskplan.experiments.sweeping.batched import PROGRESS, plan_chunks, prepare_job, prepare_jobs, train_chunks
 from riskplan.experiments.sweeping.jobs import TASKS
 from riskplan.run import cost
 from riskplan.util.errors import BadInput
@@ -252,7 +252,7 @@ class ChunkTask:
             waiting = [start for start in prepared if start.setup is not None]
             if waiting:
                 try:
-                    train_chunk(waiting, Path(progress), total, workers=1, threads=threads)
+                    train_chunks([waiting], Path(progress), total, workers=1, threads=threads)
                 except Interrupted as stop:  # every run checkpointed and marked interrupted: end by the signal,
                     stop.end()  # without a result, so that the task runs again (requeued) or the sweep resumes it
         return [start.value for start in prepared]

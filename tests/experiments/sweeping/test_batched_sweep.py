@@ -15,7 +15,7 @@ from support import FAST, assert_same_outputs, riskplan_cli
 from test_sweep_command import job_dirs, sweep_dir_of
 
 from riskplan import compose, train
-from riskplan.experiments.sweeping.batched import own_seconds, plan_chunks
+from riskplan.experiments.sweeping.batched import own_seconds, plan_chunks, side_by_side
 from riskplan.run.batch import BatchRun
 
 GRID = ["risk.beta=0.1,0.3", "seed=range(0,2)", "experiment=paper_single,paper_team", *FAST]
@@ -116,6 +116,13 @@ def test_batches_are_the_groups_cut_to_the_memory_budget():
         [("a", 9)],  # larger than the rest of the budget: a batch of its own
         [("b", 1)],
     ]
+
+
+def test_small_batches_of_different_worlds_train_side_by_side_within_the_memory_budget():
+    jobs = [SimpleNamespace(batch=key, memory=memory) for key, memory in [("a", 3), ("b", 3), ("c", 3), ("d", 9)]]
+    chunks = plan_chunks(jobs, 10, key=lambda j: j.batch, size=lambda j: j.memory)
+    rounds = side_by_side(chunks, 10, size=lambda j: j.memory)
+    assert [[[j.batch for j in chunk] for chunk in chunks] for chunks in rounds] == [[["a"], ["b"], ["c"]], [["d"]]]
 
 
 @pytest.mark.slow
