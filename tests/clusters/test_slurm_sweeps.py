@@ -9,6 +9,8 @@ test cluster of conftest.py (`slurm_cluster`: partition `debug`, task/affinity, 
 - A job cancelled mid-run is named, with its overrides and CANCELLED, in the sweep's error line.
 - Without CPU binding (TaskPlugin=task/none, a second small cluster) a job runs numba on the CPUs SLURM granted it
   (SLURM_CPUS_PER_TASK), not on every core of the node.
+- --batch: the two jobs as one task, cancelled mid-run (both runs checkpointed, both jobs named) or sent SIGUSR2
+  (requeued by submitit), resume to the uninterrupted numbers.
 - Every SLURM block of docs/clusters.md (`<!-- tested: slurm -->`) runs as written, and the per-job overhead is
   measured on its sweep (printed; see the docs' "Overhead per job").
 
@@ -333,6 +335,12 @@ def test_a_cancelled_job_is_named_with_its_overrides(slurm_cluster, slurm_env, t
 BATCHED = [SEEDS, *LAUNCHER, "--batch"]  # the two jobs as one batch: one array task
 
 
+def submitted_tasks(sweep_dir: Path) -> list[str]:
+    """The SLURM ids of the tasks submitit submitted for a sweep (each has a folder with its pickled task; an
+    array's own folder holds only its batch script)."""
+    return sorted(p.name for p in (sweep_dir / ".submitit").iterdir() if any(p.glob("*_submitted.pkl")))
+
+
 def test_a_batched_sweep_is_one_task_and_a_cancelled_task_resumes_with_the_uninterrupted_numbers(
     slurm_cluster, slurm_env, reference, tmp_path
 ):
@@ -355,7 +363,7 @@ def test_a_batched_sweep_is_one_task_and_a_cancelled_task_resumes_with_the_unint
 
     resumed = run_sweep(slurm_cluster, slurm_env, run.sweep_dir, BATCHED)
     assert resumed.returncode == 0, resumed.explain(slurm_cluster)
-    submitted = sorted(p.name for p in (run.sweep_dir / ".submitit").iterdir() if p.name[0].isdigit())
+    submitted = submitted_tasks(run.sweep_dir)
     assert len(submitted) == 2, submitted  # a task per launch, not a job per run
     wait_until(lambda: len(all_slurm_jobs(slurm_cluster)) >= len(before) + 2, 60, "both tasks in sacct")
     assert all_slurm_jobs(slurm_cluster) == sorted([*before, *submitted])
@@ -506,6 +514,14 @@ def test_the_docs_slurm_commands_run_as_written(slurm_cluster, slurm_env, tmp_pa
         ended = time.time()
         for sweep_dir in sweep_dirs(result.stdout, work):
             jobs = finished_jobs(sweep_dir)
+            if "batched on the cluster:" in result.stdout:  # --batch: a SLURM task per chunk of jobs, COMPLETED
+                tasks = submitted_tasks(sweep_dir)
+                assert 0 < len(tasks) < len(jobs), (str(block), tasks)
+                for task in tasks:
+                    assert slurm_cluster.wait_for(task, timeout=60) == "COMPLETED", (str(block), task)
+                print(f"\n{block}: {len(jobs)} jobs as {len(tasks)} tasks in {ended - started:.1f} s")
+                submitted += 1
+                continue
             for name, job in jobs.items():  # each ran as a SLURM job (its id is Hydra's hydra.job.id), COMPLETED
                 job_id = str(OmegaConf.load(job / ".hydra" / "hydra.yaml").hydra.job.id)
                 # slurmctld hands a finished job to slurmdbd a moment later: sacct may not know it yet
