@@ -168,8 +168,8 @@ def _pending(cfg, plain, out: Path) -> Pending:
 
 
 def launch_chunks(launcher, job_overrides, initial_job_idx: int) -> list[JobReturn]:
-    """The launcher's launch: every job's folder set up here, then one task per planned chunk through submitit;
-    waits for them all, as Hydra's submitit launcher does."""
+    """The launcher's launch: every job's folder set up here, then one task per planned chunk through submitit or
+    Ray; waits for them all, as Hydra's launchers do."""
     setup_globals()
     config, context = launcher.config, launcher.hydra_context
     configure_log(config.hydra.hydra_logging, config.hydra.verbose)
