@@ -59,11 +59,12 @@ def load_run(path):
     return _load_run(path)
 
 
-def sweep(overrides=(), jobs=None, sweep_dir=None, batch=False):
+def sweep(overrides=(), jobs=None, sweep_dir=None, batch=None):
     """Run a grid of experiments (or an Optuna study) as `riskplan sweep OVERRIDES --jobs JOBS [--batch]` does, into
     a new outputs/sweeps/<timestamp>/ or `sweep_dir` (finished jobs there are skipped). Returns the outcome:
     `.summary` (the summary.parquet table), `.sweep_dir`, `.failed` [(job, error)], `.ok`
-    (riskplan.experiments.sweeping.run_sweep). With `batch`, the jobs that share a world train as one program."""
+    (riskplan.experiments.sweeping.run_sweep). The jobs that share a world train as one program (batched) unless
+    `batch=False` or `jobs` asks for a worker process per job."""
     from riskplan.experiments.sweeping import run_sweep
 
     return run_sweep(list(overrides), jobs, sweep_dir, out=lambda text: None, batch=batch)

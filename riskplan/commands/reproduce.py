@@ -41,13 +41,16 @@ def reproduce_command(
         show_default=False,
         help=f"Seeds per condition (default {SEEDS}, {QUICK_SEEDS} with --quick).",
     ),
-    jobs: int | None = jobs_option("Parallel jobs (default: the number of cores)."),
+    jobs: int | None = jobs_option(
+        "Run the sweeps job by job, this many at once (a worker process per job); without it, each sweep trains "
+        "as batches."
+    ),
     formats: str = typer.Option("png,pdf", "--format", help="Figure files of the report: any of png,pdf,svg."),
     batch: bool = typer.Option(
         False,
         "--batch",
-        help="Train each sweep as one batch (riskplan sweep --batch): the same numbers; on a few cores job by "
-        "job is about as quick (docs/sweeps.md).",
+        help="Train each sweep as batches (riskplan sweep --batch), the default: the same numbers as job by job "
+        "(--jobs N), as quick or quicker (docs/sweeps.md).",
     ),
     paper_only: bool = typer.Option(
         False,
@@ -72,6 +75,6 @@ def reproduce_command(
             list(overrides or []),
             since=process_started(),
             paper_only=paper_only,
-            batch=batch,
+            batch=True if batch else None,
         )
     )

@@ -24,15 +24,15 @@ def register(app: typer.Typer) -> None:
     def sweep(
         overrides: list[str] | None = typer.Argument(None, help=SWEEP_HELP + CONFIG_DIR_HELP, show_default=False),
         jobs: int | None = jobs_option(
-            "Jobs at once: joblib workers (default: the number of cores), or submitit's array_parallelism; with "
+            "Run job by job, this many at once: joblib workers, or submitit's array_parallelism; with "
             "--batch on a cluster (SLURM, Ray), at least this many tasks, each a batch."
         ),
         batch: bool = typer.Option(
             False,
             "--batch",
-            help="Train the jobs that share a world and sample schedule as one program in this process, one "
-            "kernel call per iteration over all their robots (every core); the same folders and files, bit for "
-            "bit the same numbers. Seeds, risk levels and parameters, step sizes, theta0 and graphs may differ. "
+            help="Train the jobs that share a world and sample schedule as one program, one kernel call per "
+            "iteration over all their robots (every core): the default without --jobs or a launcher. The same "
+            "folders and files, bit for bit the same numbers as job by job. Seeds, risk levels and parameters, step sizes, theta0 and graphs may differ. "
             "With hydra/launcher=submitit_slurm, submitit_local, ray or ray_cluster: a chunk of the runs per task.",
         ),
     ) -> None:
@@ -42,5 +42,5 @@ def register(app: typer.Typer) -> None:
 
         args = with_config_dirs(list(overrides or []))
         check_extras(args)  # a launcher, sweeper or team.backend whose extra is missing: before any folder
-        outcome = run_sweep(args, jobs, batch=batch)
+        outcome = run_sweep(args, jobs, batch=True if batch else None)  # None: batches unless --jobs or a launcher
         raise typer.Exit(report_outcome(outcome))

@@ -94,20 +94,22 @@ def reproduce(
     *,
     since: float | None = None,
     paper_only: bool = False,
-    batch: bool = False,
+    batch: bool | None = None,
 ) -> int:
     """Run Section V (and, unless `paper_only`, the studies beyond it and the landscape), then the report,
     `seeds` seeds per condition; return the exit code (1 when a job or the report failed).
 
     `overrides` (plain key=value, no sweeps) apply to every experiment, e.g. train.samples=3000. `since`: when the
     command started (epoch seconds; the CLI gives its process's start), so the time breakdown includes start-up.
-    `batch`: each sweep trains as one batch (riskplan.experiments.sweeping.batched) instead of job by job.
+    `batch`: each sweep trains as batches (riskplan.experiments.sweeping.batched), the default unless `jobs` asks
+    for job by job; False: job by job.
     """
     entered = time.time()
     if seeds < 1:
         raise BadInput("--seeds", f"got {seeds}; expected at least 1")
     experiments = chosen(paper_only)
     jobs_total = check_seeds(seeds, experiments)
+    batch = jobs is None if batch is None else batch
     if batch and jobs is not None:
         raise BadInput(
             "--jobs", "sets the workers of a job-by-job reproduction; --batch trains each sweep as one batch"

@@ -19,7 +19,10 @@ runner = CliRunner()
 
 def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     # risk.beta: a user's value for the paper set-ups must not clash with the frontier's own beta sweep
-    result = riskplan_cli(tmp_path, "reproduce", "--quick", "--seeds", "1", "--format", "png", *FAST, "risk.beta=0.1")
+    # job by job (--jobs 2): its workers, warm-up and breakdown; the default, batched, is the paper-only test's
+    result = riskplan_cli(
+        tmp_path, "reproduce", "--quick", "--seeds", "1", "--jobs", "2", "--format", "png", *FAST, "risk.beta=0.1"
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     roots = list((tmp_path / "outputs" / "reproduce").iterdir())
     assert len(roots) == 1
@@ -121,8 +124,8 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
 
 def test_reproduce_paper_only_runs_section_v_alone(tmp_path):
     result = riskplan_cli(
-        tmp_path, "reproduce", "--quick", "--paper-only", "--batch", "--seeds", "1", "--format", "png", *FAST
-    )
+        tmp_path, "reproduce", "--quick", "--paper-only", "--seeds", "1", "--format", "png", *FAST
+    )  # batched: the default
     assert result.returncode == 0, result.stdout + result.stderr
     (root,) = (tmp_path / "outputs" / "reproduce").iterdir()
     assert sorted(p.name for p in root.iterdir() if p.is_dir()) == ["report", "single", "team"]

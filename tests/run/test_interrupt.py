@@ -108,7 +108,7 @@ def test_an_interrupted_sweep_stops_its_jobs_checkpointed_and_resumes_to_the_sam
     overrides = [*CHECKPOINTED, "seed=0,1"]
     sweep = tmp_path / "sweep"
     proc = subprocess.Popen(
-        [*riskplan_command(), "sweep", *overrides, f"hydra.sweep.dir={sweep}"],
+        [*riskplan_command(), "sweep", *overrides, f"hydra.sweep.dir={sweep}", "--jobs", "2"],  # a worker per job
         cwd=tmp_path,
         env=child_env(**{STOP_ENV: "12"}),  # every job stops itself after iteration 12
         stdout=subprocess.PIPE,

@@ -42,7 +42,7 @@ def run_sweep(
     out=None,
     before_launch=None,
     expected: frozenset[str] = frozenset(),
-    batch: bool = False,
+    batch: bool | None = None,
 ) -> Outcome:
     """Plan, launch through Hydra, show progress, write summary.parquet. BadInput before anything runs.
 
@@ -72,7 +72,8 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         plan.workers = todo  # no more workers than jobs to run: each gets more threads
         plan.argv[plan.workers_arg] = f"hydra.launcher.n_jobs={todo}"
     plural = "s" if plan.workers != 1 else ""
-    where = f"{plan.launcher}" + (f", {plan.workers} worker{plural}" if plan.workers else "")
+    where = "as batches" if plan.launcher == BATCH_LAUNCHER else plan.launcher
+    where += f", {plan.workers} worker{plural}" if plan.workers else ""
     echo(f"{title} directory: {plan.sweep_dir}")
     echo(
         f"{len(plan.jobs)} job{'s' if len(plan.jobs) != 1 else ''}: {todo} to run, {len(finished)} already "

@@ -42,7 +42,9 @@ from riskplan.util.paths import check_output_dir, hydra_quote
 REQUEUES = 3  # submitit_slurm: times a job that reaches its time limit is requeued (it resumes from its checkpoint)
 
 
-def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None = None, batch: bool = False) -> Plan:
+def plan_sweep(
+    args: list[str], jobs: int | None = None, sweep_dir: Path | None = None, batch: bool | None = None
+) -> Plan:
     """Parse, expand and validate a sweep; claim its directory last, so bad input leaves nothing behind. `batch`:
     the jobs train in batches in this process (hydra/launcher=riskplan_batch), or with a cluster launcher
     (submitit's) a chunk of them per task (sweeping.cluster_batches)."""
@@ -53,6 +55,7 @@ def plan_sweep(args: list[str], jobs: int | None = None, sweep_dir: Path | None 
     task_ovs = [o for o in parsed if not o.is_hydra_override()]
     _check_hydra_overrides(hydra_ovs)
     hydra_keys = {o.key_or_group: o for o in hydra_ovs}
+    batch = default_batch(hydra_keys, jobs) if batch is None else batch
     launcher = _launcher(hydra_keys, jobs, batch)
     memory = batch_memory(hydra_keys) if launcher == BATCH_LAUNCHER else None
     tasks = task_size(hydra_keys, jobs, launcher) if batch and launcher in CLUSTER_BATCHES else None
@@ -135,6 +138,12 @@ def _check_hydra_overrides(hydra_ovs: list) -> None:
                 f"override '{o.input_line}'",
                 "sweeps over Hydra's own settings are not supported; sweep over riskplan keys, e.g. risk.beta=0.1,0.2",
             )
+
+
+def default_batch(hydra_keys: dict, jobs: int | None) -> bool:
+    """Whether a sweep given neither --batch nor --jobs trains as batches: yes, unless it names a launcher or a
+    sweeper (a cluster's jobs, an optimiser's trials), or --jobs asks for a worker process per job."""
+    return jobs is None and "hydra/launcher" not in hydra_keys and "hydra/sweeper" not in hydra_keys
 
 
 def _launcher(hydra_keys: dict, jobs: int | None, batch: bool) -> str:

@@ -171,6 +171,7 @@ def test_submitit_local_launcher_runs_a_two_job_sweep(tmp_path):
 
 def test_a_killed_sweep_resumes_its_interrupted_jobs(tmp_path):
     args = ["sweep", "seed=0,1", *FAST, "train.iterations=6", "train.checkpoint_every=2", "hydra.sweep.dir=s"]
+    args += ["--jobs", "2"]  # job by job (a batch killed mid-way: test_batched_sweep.py)
     killed = riskplan_cli(tmp_path, *args, env={"RISKPLAN_TEST_KILL_IN_CHECKPOINT": "4"})  # SIGKILL at iteration 4
     assert killed.returncode == 1
     summary = pd.read_parquet(tmp_path / "s" / "summary.parquet")
