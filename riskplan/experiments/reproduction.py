@@ -52,7 +52,7 @@ from riskplan.experiments.landscape import compute_landscape
 from riskplan.experiments.reporting import REPRODUCE_ROOT, build_report, check_formats
 from riskplan.experiments.reporting.parallel import workers as report_workers
 from riskplan.experiments.study_registry import EXPERIMENTS
-from riskplan.experiments.sweeping import report_outcome, run_sweep, sweep_size, warm_workers
+from riskplan.experiments.sweeping import as_job, report_outcome, run_sweep, sweep_size, warm_workers
 from riskplan.experiments.timing import (
     Schedule,
     Stage,
@@ -63,7 +63,8 @@ from riskplan.experiments.timing import (
     time_breakdown,
 )
 from riskplan.run import cost, maps
-from riskplan.run.compose import compose, parse_overrides
+from riskplan.run.build import build_setup
+from riskplan.run.compose import check_extras, check_groups, compose, parse_overrides
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
 from riskplan.util.limits import JOBS_ENV, STEPS_PER_SECOND, check_time, cpu_count, job_budget
@@ -405,13 +406,29 @@ def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict
         if setup not in configs:
             with warnings.catch_warnings(record=True) as caught:  # a set-up's warnings print with its sweep
                 warnings.simplefilter("always")
-                configs[setup] = compose([*setup, *_not_set_by(experiment, extra)])
+                configs[setup] = _set_up([*setup, *_not_set_by(experiment, extra)])
                 own[setup] = frozenset()
                 if caught:
                     caught.clear()
-                    compose(list(setup))
+                    _set_up(list(setup))
                     own[setup] = frozenset(str(w.message) for w in caught)
     return extra, configs, own
+
+
+def _set_up(overrides: list[str]):
+    """A set-up's config, typed and checked (its RunSetup built), as a sweep's planning makes a job's: its keys set
+    as data on its groups' composition, which the sweeps reuse (sweeping.as_job). Through compose() when that
+    needs Hydra or finds the config bad: compose() names what is wrong."""
+    check_groups(parse_overrides(overrides))
+    check_extras(overrides)
+    job = as_job(overrides)
+    if job is not None:
+        try:
+            build_setup(job.params)
+            return job.params
+        except BadInput:
+            pass
+    return compose(overrides)
 
 
 def setup_of(experiment: list[str]) -> tuple[str, ...]:

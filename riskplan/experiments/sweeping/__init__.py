@@ -30,7 +30,7 @@ search (optimising sweepers) -> plan -> run.
 from __future__ import annotations
 
 from riskplan.experiments.sweeping.execute import run_sweep
-from riskplan.experiments.sweeping.grid import constant_keys, expand, sweep_size
+from riskplan.experiments.sweeping.grid import as_job, constant_keys, expand, sweep_size
 from riskplan.experiments.sweeping.jobs import SUMMARY, SWEEPS_ROOT, Job, Outcome, Plan
 from riskplan.experiments.sweeping.launch import warm_workers
 from riskplan.experiments.sweeping.plan import plan_sweep
@@ -42,6 +42,7 @@ __all__ = [
     "Job",
     "Outcome",
     "Plan",
+    "as_job",
     "constant_keys",
     "expand",
     "plan_sweep",

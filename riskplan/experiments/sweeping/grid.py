@@ -4,6 +4,7 @@ checked, job folders named, Hydra's own settings checked."""
 from __future__ import annotations
 
 import copy
+import functools
 import hashlib
 import itertools
 import json
@@ -31,7 +32,7 @@ from riskplan.config.typed import choice_problem
 from riskplan.config.validate import check_extra
 from riskplan.engine.step import batch_key
 from riskplan.experiments.sweep_worker import HOW_KEYS, config_sha, folder_name
-from riskplan.experiments.sweeping.as_data import Composition
+from riskplan.experiments.sweeping.as_data import Composition, JobConfig, shared
 from riskplan.experiments.sweeping.jobs import LOCAL, SWEEPS_ROOT, Job
 from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, explain, parse_overrides
@@ -320,7 +321,7 @@ def validate(
                 groups, keys = parse.split(combo)
                 try:
                     if groups not in bases:
-                        bases[groups] = Composition(hydra_compose(config_name="config", overrides=[*search, *groups]))
+                        bases[groups] = shared(groups, parse(search), functools.partial(compose_groups, search, groups))
                     as_data = bases[groups].job(keys)  # most jobs: no composition of their own
                     if as_data is None:
                         cfg = copy.deepcopy(bases[groups].cfg)
@@ -350,6 +351,28 @@ def validate(
     finally:
         GlobalHydra.instance().clear()
     return jobs, notes
+
+
+def compose_groups(search: list[str], groups: tuple[str, ...]):
+    """Hydra's composition of these config-group choices (inside initialize_config_dir)."""
+    return hydra_compose(config_name="config", overrides=[*search, *groups])
+
+
+def as_job(overrides: list[str]) -> JobConfig | None:
+    """One config as a sweep's planning makes a job's: its plain keys set as data on its groups' composition,
+    which the process keeps (as_data.shared), so a reproduction's checks compose nothing its sweeps do not. None
+    when it needs Hydra (riskplan.run.compose.compose composes it then, and names what is wrong)."""
+    parse = ParsedOnce()
+    schema.register()
+    GlobalHydra.instance().clear()
+    try:
+        groups, keys = parse.split(overrides)
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            return shared(groups, [], functools.partial(compose_groups, [], groups)).job(keys)
+    except (HydraException, OmegaConfBaseException, ValueError):
+        return None
+    finally:
+        GlobalHydra.instance().clear()
 
 
 class ParsedOnce:

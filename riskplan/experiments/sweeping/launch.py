@@ -16,7 +16,7 @@ from hydra_plugins.hydra_joblib_launcher.config import JobLibLauncherConf
 from joblib import Parallel, delayed
 
 from riskplan.experiments.driver_watch import name_driver, recorded
-from riskplan.experiments.hydra_app import run_hydra
+from riskplan.experiments.hydra_app import run_multirun
 from riskplan.experiments.sweep_worker import THREADS_ENV, warm_up
 from riskplan.experiments.sweeping.jobs import TASKS
 from riskplan.util.limits import cpu_count
@@ -26,7 +26,8 @@ JOB_LIST = ".jobs.json"  # a grid's jobs to launch, beside sweep.log while the l
 
 
 def launch(argv: list[str], log_file: Path, jobs: list[list[str]] | None = None) -> str | None:
-    """Run Hydra's multirun, its printed output going to sweep.log; return the launcher's error, if any.
+    """Run Hydra's multirun (`argv`: -m and its overrides), its printed output going to sweep.log; return the
+    launcher's error, if any.
 
     `jobs`: a grid's jobs still to run, in order, for riskplan's sweeper (hydra_plugins.riskplan_sweeper), which
     launches exactly these (a re-run sweep submits only what needs to run). An optimising sweeper chooses its own."""
@@ -42,7 +43,7 @@ def launch(argv: list[str], log_file: Path, jobs: list[list[str]] | None = None)
             contextlib.redirect_stderr(log),
         ):
             try:
-                run_hydra(argv)
+                run_multirun(argv[1:])  # argv[0] is -m
             except SystemExit as stop:  # Hydra prints an exception in the launcher, then exits 1
                 if stop.code not in (0, None):
                     return _launcher_error(log_file, _task_names(log_file.parent, jobs or []))

@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 from riskplan.config import schema
 from riskplan.config.typed import as_dict, typed
 from riskplan.experiments.sweep_worker import config_sha
-from riskplan.experiments.sweeping import job_setup
+from riskplan.experiments.sweeping import as_data, grid, job_setup
 from riskplan.experiments.sweeping.as_data import Composition
 from riskplan.experiments.sweeping.execute import run_sweep
 from riskplan.experiments.sweeping.grid import ParsedOnce
@@ -79,6 +79,52 @@ def test_a_composition_that_interpolates_sends_every_job_to_hydra(compositions):
     _, composition = compositions[()]
     cfg = OmegaConf.merge(composition.cfg, {"train": {"paths": "${train.iterations}"}})
     assert Composition(cfg).job(ParsedOnce()(["seed=1"])) is None  # setting one key could leave another stale
+
+
+def test_a_config_as_a_job_is_hydras_and_its_groups_are_composed_once_a_process(monkeypatch):
+    """A reproduction's checks and every sweep after them share one composition per choice of groups."""
+    composed = []
+
+    def counted(search, groups):
+        composed.append(groups)
+        return compose("config", [*search, *groups])
+
+    monkeypatch.setattr(grid, "compose_groups", counted)
+    monkeypatch.setattr(as_data, "_kept", type(as_data._kept)())
+    first = grid.as_job(["experiment=paper_team", "risk=neutral", "seed=4"])
+    second = grid.as_job(["experiment=paper_team", "risk=neutral", "risk.beta=0.3"])
+    assert composed == [("experiment=paper_team", "risk=neutral")]
+    schema.register()
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        for job, keys in ((first, ["seed=4"]), (second, ["risk.beta=0.3"])):
+            assert job.params == typed(compose("config", ["experiment=paper_team", "risk=neutral", *keys]))
+    GlobalHydra.instance().clear()
+    assert grid.as_job(["experiment=paper_team", "train.theta0=[1,2]"]) is None  # a list: compose() takes it
+
+
+def test_a_kept_composition_is_composed_again_once_a_config_file_changes(tmp_path, monkeypatch):
+    """A --config-dir file edited between two sweeps of one process (a notebook) is read again."""
+    (tmp_path / "experiment").mkdir()
+    mine = tmp_path / "experiment" / "mine.yaml"
+    mine.write_text("# @package _global_\ndefaults:\n  - paper_single\nseed: 5\n")
+    search = [f"hydra.searchpath=[file://{tmp_path}]"]
+    monkeypatch.setattr(as_data, "_kept", type(as_data._kept)())
+    schema.register()
+    GlobalHydra.instance().clear()
+    seeds = []
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        for text in (None, "seed: 6"):
+            if text is not None:
+                mine.write_text(mine.read_text().replace("seed: 5", text))
+            kept = as_data.shared(
+                ("experiment=mine",), ParsedOnce()(search), lambda: compose("config", [*search, "experiment=mine"])
+            )
+            again = as_data.shared(("experiment=mine",), ParsedOnce()(search), lambda: pytest.fail("composed twice"))
+            assert again is kept
+            seeds.append(kept.params.seed)
+    GlobalHydra.instance().clear()
+    assert seeds == [5, 6]
 
 
 def test_a_sweep_s_numbers_are_known_without_parsing_and_equal_the_parse():
