@@ -19,7 +19,7 @@ def register(app: typer.Typer) -> None:
 
 
 def _instead(flag: str, text: str):
-    """A switch that runs another benchmark instead of the targets (--scaling, --sweep, --threads)."""
+    """A switch that runs another benchmark instead of the targets (--scaling, --sweep, --threads, --reproduce)."""
     return typer.Option(False, flag, help=f"Instead: {text}")
 
 
@@ -40,6 +40,11 @@ def bench(
         "beta x seed sweeps of the paper world (200 iterations, W = 6000): 24 runs batched against --jobs (a worker "
         "per job), and 64 runs batched against the bare loops of their trainings, in the same run (a few minutes; "
         "12 and 16 runs of 50 iterations with --quick).",
+    ),
+    reproduce: bool = _instead(
+        "--reproduce",
+        "riskplan reproduce --quick batched (the default) against job by job (--jobs, a worker per core), each in a "
+        "process of its own, and whether both left the same numbers (about 70 s on 2 cores).",
     ),
     threads: bool = _instead(
         "--threads",
@@ -62,7 +67,7 @@ def bench(
         _scaling(console, quick, json_out, plot, csv_out)
         return
     rows: list[dict] = []
-    for section in _sections(console, quick, sweep, threads):
+    for section in _sections(console, quick, sweep, threads, reproduce):
         for row in section():  # printed as each section ends, not all at the end of a long benchmark
             _print_row(console, row)
             rows.append(row)
@@ -74,8 +79,13 @@ def bench(
         json_out.write_text(json.dumps(rows, indent=2, default=float))
 
 
-def _sections(console, quick: bool, sweep: bool, threads: bool) -> tuple:
-    """The benchmarks to run, each a function returning its rows: --sweep's, --threads', or every target's."""
+def _sections(console, quick: bool, sweep: bool, threads: bool, reproduce: bool = False) -> tuple:
+    """The benchmarks to run, each a function returning its rows: --sweep's, --threads', --reproduce's, or every
+    target's."""
+    if reproduce:
+        from riskplan.experiments.bench_reproduce import bench_reproduce
+
+        return (bench_reproduce,)
     if sweep:
         from riskplan.experiments.bench_sweep import bench_sweep
 

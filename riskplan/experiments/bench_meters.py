@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -54,3 +55,9 @@ def wall(argv: list[str], cwd: Path, marker: str | None = None, env: dict[str, s
     if not stamps:
         raise RuntimeError(f"no {marker} line from {argv[:3]}: {done.stderr[-300:]}")
     return stamps[0] - start
+
+
+def riskplan_command() -> list[str]:
+    """The console script beside this interpreter, or the module."""
+    script = Path(sys.executable).with_name("riskplan")
+    return [str(script)] if script.is_file() else [sys.executable, "-m", "riskplan"]

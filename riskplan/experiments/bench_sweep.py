@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -30,6 +29,7 @@ from riskplan.config import schema
 from riskplan.engine.estimators import cvar_gradient
 from riskplan.engine.schedules import step_size
 from riskplan.engine.step import initial_state, rollouts
+from riskplan.experiments.bench_meters import riskplan_command
 from riskplan.experiments.sweeping.batched import prepare_job, prepare_jobs
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.run.build import build_setup
@@ -165,9 +165,3 @@ def bare_loops(runs: list[list[str]]) -> float:
             z, scores = rollouts(setup, l, thetas)
             thetas = thetas + step_size(l, params.train.step_size) * cvar_gradient(z, scores, params.risk.beta)
     return time.perf_counter() - started
-
-
-def riskplan_command() -> list[str]:
-    """The console script beside this interpreter, or the module."""
-    script = Path(sys.executable).with_name("riskplan")
-    return [str(script)] if script.is_file() else [sys.executable, "-m", "riskplan"]

@@ -12,6 +12,7 @@ from support import FAST, riskplan_cli
 from typer.testing import CliRunner
 
 from riskplan.cli import app
+from riskplan.experiments.bench_reproduce import read_reproduction
 
 pytestmark = pytest.mark.slow
 runner = CliRunner()
@@ -67,6 +68,9 @@ def test_reproduce_runs_section_v_through_sweeps_then_the_report(tmp_path):
     assert all(v is None or v >= 0 for v in breakdown["wall"].values())
     assert breakdown["wall"]["report (figures, tables, page)"] > 0 and breakdown["total"] > 0
     assert breakdown["jobs"]["training loop (summary wall_time)"] >= 0
+    total, numbers = read_reproduction(root)  # what riskplan bench --reproduce reads of a reproduction
+    assert total == breakdown["total"] and set(numbers) == set(record["parts"]) - {"landscape", "comparison", "report"}
+    assert numbers["single"].equals(single[["job", "status", "mean", "cvar", "value_at_risk"]])
     # one sweep worker was warmed up while reproduce planned, and the sweeps ran their jobs on it
     warm = record["warm_up"]
     assert warm["workers"] == 1 and len(warm["seconds"]) == 1 and warm["seconds"][0] > 0

@@ -292,3 +292,28 @@ def test_the_start_up_rows_are_the_best_of_their_new_processes(monkeypatch):
     assert (loop["value"], loop["baseline"]) == (pytest.approx(0.8), pytest.approx(2.5))  # the third run's
     assert first["value"] == pytest.approx(0.84) and helps["value"] == pytest.approx(0.33)
     assert helps["baseline"] == pytest.approx(0.1 + 0.01 * 12) and "best of 4" in helps["note"]
+
+
+@pytest.mark.parametrize(("batched", "same", "met"), [(29.0, True, True), (31.0, True, False), (20.0, False, False)])
+def test_the_reproduce_row_is_the_batched_reproduction_against_job_by_job(monkeypatch, batched, same, met):
+    """--reproduce's one row: batched reproduce --quick against job by job, met within 30 s and with equal numbers."""
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from riskplan.cli import app
+    from riskplan.experiments import bench_reproduce
+
+    def numbers(cvar):
+        return {"single": pd.DataFrame({"job": ["risk=cvar"], "status": ["done"], "cvar": [cvar]})}
+
+    def fake(out, extra):
+        return (36.0, numbers(1.0)) if extra else (batched, numbers(1.0 if same else 2.0))
+
+    monkeypatch.setattr(bench_reproduce, "reproduce", fake)
+    (row,) = bench_reproduce.bench_reproduce()
+    assert (row["value"], row["baseline"], row["ok"]) == (batched, 36.0, met)
+    assert row["ratio"] == pytest.approx(batched / 36.0)
+    assert ("THE NUMBERS DIFFER" in row["note"]) == (not same)
+    result = CliRunner().invoke(app, ["bench", "--reproduce"])
+    assert result.exit_code == 0, result.output
+    assert "riskplan reproduce --quick, 50 runs" in result.output and f"{int(met)} of 1 targets met" in result.output
