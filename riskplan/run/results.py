@@ -175,6 +175,8 @@ def _config(path: Path) -> dict:
         raise BadInput(
             str(file), f"expands to more than {CONFIG_NODES} values (YAML aliases?); it was not written by riskplan"
         )
+    if _plain(data):  # nothing to resolve: OmegaConf would give the same dict back (10 ms a run)
+        return data
     register_metres()  # a run placed in metres saved ${metres:x,y}
     try:
         resolved = OmegaConf.to_container(OmegaConf.create(data), resolve=True)
@@ -205,6 +207,26 @@ def _yaml_kind(data) -> str:
     if isinstance(data, (int, float)):
         return "number"
     return type(data).__name__
+
+
+def _plain(data) -> bool:
+    """Whether a YAML document holds only string keys and plain values (strings without an interpolation,
+    numbers, booleans, nulls), in mappings and lists: what OmegaConf.create then to_container gives back as it is."""
+    stack = [data]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, dict):
+            if not all(isinstance(key, str) for key in node):
+                return False
+            stack.extend(node.values())
+        elif isinstance(node, list):
+            stack.extend(node)
+        elif isinstance(node, str):
+            if "${" in node:
+                return False
+        elif node is not None and not isinstance(node, (bool, int, float)):
+            return False
+    return True
 
 
 def _nodes(data, limit: int = CONFIG_NODES) -> int:

@@ -402,7 +402,10 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
     flat = {k: v for k, v in flatten(as_compared(run.config)).items() if k not in IGNORED_KEYS}
     info = RunInfo(run, flat, rebuilt)
     try:
-        usable = not info.eval_of().empty and not info.metrics_of().empty
+        # the report reads the headline policy's evaluation alone: a team's other robots' episodes (eight times
+        # as many rows) are left on disk, not held and sent between the processes that load the runs
+        run.eval = info.eval_of()
+        usable = not run.eval.empty and not info.metrics_of().empty
     except (AttributeError, KeyError) as err:
         return None, f"tables lack a column: {err}"
     if not usable:

@@ -143,6 +143,15 @@ def test_runs_are_grouped_by_what_differs(collected):
 
 
 # ------------------------------------------------------------------------------------------------ paper figures
+def test_a_team_runs_evaluation_is_held_for_its_headline_policy_alone(collected, sweep):
+    """The report reads a run's headline evaluation only: a team's robots' own episodes stay on disk."""
+    (team,) = [info for info in collected.runs if info.path == sweep / "team_s0"]
+    on_disk = pd.read_parquet(sweep / "team_s0" / "eval.parquet")
+    assert team.headline == -1 and set(on_disk.robot) == {-1, 0, 1, 2}
+    kept = on_disk[on_disk.robot == -1]
+    assert team.run.eval.reset_index(drop=True).equals(kept.reset_index(drop=True))
+
+
 def test_fig1_world_sources_start_and_final_paths(paper_figures, sweep):
     spec = paper_figures["fig1_paths"]
     assert spec.paper and spec.title.startswith("Fig. 1")  # a reproduction's runs: the paper's figure
