@@ -17,7 +17,7 @@ from riskplan.engine.rollout import simulate
 from riskplan.engine.step import RunSetup, TrainState, check_finite, simulator, starts
 from riskplan.run.budget import EVAL_BATCH
 from riskplan.run.columns import Columns, concat, rows_where
-from riskplan.run.intervals import bootstrap_intervals, objective_interval
+from riskplan.run.intervals import bootstrap_intervals, objective_interval, objective_intervals
 from riskplan.run.metrics_rows import AVERAGE
 from riskplan.run.provenance import provenance
 
@@ -258,7 +258,7 @@ def robot_objectives(
         return robots, {k: terms * headline[k] for k in ("value", "low", "high")}
     returns = _returns_at_average(setup, thetas, evaluation, cells)
     with_intervals = len(pairs) <= ROBOT_INTERVALS
-    figures = {key: _term_figure(returns[cell], risk, params, with_intervals) for key, (cell, risk) in pairs.items()}
+    figures = _term_figures({key: (returns[cell], risk) for key, (cell, risk) in pairs.items()}, params, with_intervals)
     robots, total, resamples = [], 0.0, np.zeros(params.train.bootstrap) if with_intervals else None
     for i, (cell, risk) in enumerate(zip(cells, risks)):
         figure, values = figures[_term(cell, risk)]
@@ -304,11 +304,15 @@ def _returns_at_average(
     return returns
 
 
-def _term_figure(
-    returns: np.ndarray, risk: RiskConf, params: RiskplanConf, with_interval: bool
-) -> tuple[dict, np.ndarray | None]:
-    """(a term's objective figure, its bootstrap resamples), or without an interval (figure, None)."""
-    check_finite("the evaluation's total reward", returns)
-    if with_interval:
-        return objective_interval(returns, risk, params.train.bootstrap, params.seed)
-    return {"measure": risk_spec(risk).measure.name, "value": float(objective(returns, risk))}, None
+def _term_figures(terms: dict, params: RiskplanConf, with_intervals: bool) -> dict:
+    """Each term's (objective figure, its bootstrap resamples) from its (returns, risk node), or without intervals
+    (figure, None); the terms bootstrap together (objective_intervals: each resample drawn once for all)."""
+    for returns, _ in terms.values():
+        check_finite("the evaluation's total reward", returns)
+    if with_intervals:
+        zs, risks = zip(*terms.values())
+        return dict(zip(terms, objective_intervals(list(zs), list(risks), params.train.bootstrap, params.seed)))
+    return {
+        key: ({"measure": risk_spec(risk).measure.name, "value": float(objective(returns, risk))}, None)
+        for key, (returns, risk) in terms.items()
+    }

@@ -106,10 +106,32 @@ def objective_interval(z: np.ndarray, risk, resamples: int, seed: int) -> tuple[
     """Point value and 95% percentile-bootstrap interval of the measure of z that `risk` names (a risk node), from
     the very resamples of `bootstrap_intervals` (the same stream): ({"measure", "value", "low", "high"}, each
     resample's value), the latter for intervals of sums over robots."""
-    measure, params = risk_spec(risk)
-    z = np.sort(np.asarray(z, dtype=float))
-    values = np.empty(resamples)
-    measure.bootstrap(z, params, np.uint64(stream_key(seed, BOOTSTRAP)), values)
-    low, high = np.percentile(values, [2.5, 97.5])
-    value = float(measure.objective(z, params))
-    return {"measure": measure.name, "value": value, "low": float(low), "high": float(high)}, values
+    return objective_intervals([z], [risk], resamples, seed)[0]
+
+
+def objective_intervals(zs: list[np.ndarray], risks: list, resamples: int, seed: int) -> list[tuple[dict, np.ndarray]]:
+    """objective_interval of each (z, risk node) pair, the same numbers. The samples of one measure and one size
+    bootstrap together (Measure.bootstrap_rows): their resamples' counts are the same, drawn once for all (a team
+    whose robots start apart has a term per start, eight bootstraps in one)."""
+    key = np.uint64(stream_key(seed, BOOTSTRAP))
+    specs = [risk_spec(risk) for risk in risks]
+    groups: dict[tuple[int, int], list[int]] = {}
+    for i, ((measure, _), z) in enumerate(zip(specs, zs)):
+        groups.setdefault((id(measure), np.size(z)), []).append(i)
+    sorted_zs: list[np.ndarray] = [np.empty(0)] * len(zs)
+    values: list[np.ndarray] = [np.empty(0)] * len(zs)
+    for members in groups.values():
+        rows = np.empty((len(members), np.size(zs[members[0]])))
+        for row, i in zip(rows, members):
+            row[:] = np.asarray(zs[i], dtype=float).ravel()
+            row.sort()
+        out = np.empty((len(members), resamples))
+        specs[members[0]][0].bootstrap_rows(rows, [specs[i][1] for i in members], key, out)
+        for k, i in enumerate(members):
+            sorted_zs[i], values[i] = rows[k], out[k]
+    results = []
+    for (measure, params), z, resampled in zip(specs, sorted_zs, values):
+        low, high = np.percentile(resampled, [2.5, 97.5])
+        figure = {"measure": measure.name, "value": float(measure.objective(z, params))}
+        results.append((figure | {"low": float(low), "high": float(high)}, resampled))
+    return results

@@ -28,6 +28,7 @@ from riskplan.util.interrupt import StopSignals
 from riskplan.util.limits import cpu_count
 
 STOP_ENV = "RISKPLAN_TEST_STOP_AFTER_ITERATION"  # SIGSTOP after logging this iteration, so a test can SIGKILL there
+SETTLE_SECONDS = 0.2  # after that stop, for a signal sent meanwhile to be handled (tests only)
 
 
 class Driver:
@@ -146,6 +147,9 @@ class Recorder:
         failed = self._checkpoint([r for r in runs if self.drivers[r].due])
         if any(self.drivers[r].pauses_for_tests for r in runs):
             os.kill(os.getpid(), signal.SIGSTOP)
+            # a signal the test sent while this process stood still may reach one of numba's threads, whose
+            # handler call lets the main thread look later than this round: it is taken before the check below
+            time.sleep(SETTLE_SECONDS)
         if self.stop.received is not None:
             failed += self._checkpoint([r for r in runs if r not in failed and not self._saved(r)])
             self.stop.check(min((states[r].iteration for r in runs if r not in failed), default=0))

@@ -20,6 +20,7 @@ from support import exact_outcomes, rollouts, world_3x3
 from riskplan.config.schema import RiskConf
 from riskplan.engine.policy import move_features, probabilities, scores
 from riskplan.engine.risk_measures import normal_cdf, normal_quantile, objective_and_gradient
+from riskplan.engine.rng import resample_counts
 from riskplan.risk import (
     MEASURES,
     Spectral,
@@ -590,6 +591,24 @@ def test_every_measure_estimates_its_closed_form_on_a_normal(unit_normal_sample,
     assert 0.0 < se < 0.01  # a tolerance that could not hide a wrong formula
     assert measure.objective(unit_normal_sample, params) == pytest.approx(expected, abs=4 * se)
     assert objective(unit_normal_sample, risk) == measure.objective(unit_normal_sample, params)
+
+
+@pytest.mark.parametrize("risk", CASES)
+def test_every_measures_rows_bootstrap_alone_and_each_resample_is_the_measure_of_its_draws(risk):
+    """bootstrap_rows (a team's terms in one call) gives each row what it gives that row alone, bit for bit, and
+    resample b's value is the measure of the sample drawn with resample_counts(key, b)."""
+    measure, params = risk_spec(risk)
+    rows = np.sort(np.random.default_rng(8).normal(100.0, 30.0, (3, 3001)).round(1), axis=1)  # with ties
+    key = np.uint64(77)
+    together = np.empty((3, 40))
+    measure.bootstrap_rows(rows, [params] * 3, key, together)
+    for row, values in zip(rows, together):
+        alone = np.empty(40)
+        measure.bootstrap(row.copy(), params, key, alone)
+        np.testing.assert_array_equal(values, alone)
+        for b in range(5):
+            drawn = np.repeat(row, resample_counts(key, b, row.size))
+            assert values[b] == pytest.approx(measure.objective(drawn, params), rel=1e-9, abs=1e-9)
 
 
 @pytest.mark.parametrize("risk", SPECTRAL_CASES)

