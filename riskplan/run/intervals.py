@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
-import numba
 import numpy as np
 from numba import njit
 
 from riskplan.engine.estimators import cvar, tail_count, value_at_risk
 from riskplan.engine.measures.registry import risk_spec
 from riskplan.engine.rng import BOOTSTRAP, resample_counts, stream_key
+from riskplan.engine.threads import over_threads
 
 REPORT_BETAS = (0.05, 0.1, 0.2)
 
@@ -35,21 +33,8 @@ LANES = 4  # resamples summed side by side: four independent chains of additions
 
 def _bootstrap(z_sorted: np.ndarray, betas: np.ndarray, tails: np.ndarray, key: np.uint64, out: np.ndarray) -> None:
     """out[b] = mean, VaR_beta and the CVaRs of resample b: the groups of LANES resamples split among numba's
-    thread count of threads, each running `_bootstrap_groups` without the GIL. Every resample is its own, so the
-    numbers do not depend on the split. Threads rather than a parallel kernel: a serial kernel compiles in a third
-    of the time, and a run's first start compiles it (riskplan bench: the first run)."""
-    groups = (out.shape[0] + LANES - 1) // LANES
-    workers = max(1, min(numba.get_num_threads(), groups))
-    bounds = [groups * k // workers for k in range(workers + 1)]
-    if workers == 1:
-        _bootstrap_groups(z_sorted, betas, tails, key, out, 0, groups)
-        return
-    with ThreadPoolExecutor(workers) as pool:
-        for done in [
-            pool.submit(_bootstrap_groups, z_sorted, betas, tails, key, out, bounds[k], bounds[k + 1])
-            for k in range(workers)
-        ]:
-            done.result()
+    thread count of threads (engine.threads), each running `_bootstrap_groups` without the GIL."""
+    over_threads(_bootstrap_groups, (out.shape[0] + LANES - 1) // LANES, z_sorted, betas, tails, key, out)
 
 
 @njit(cache=True, nogil=True)
