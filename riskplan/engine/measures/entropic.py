@@ -5,11 +5,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from riskplan.engine.estimators import as_sample, entropic, entropic_gradient
 from riskplan.engine.measures.base import Measure, Parameter, Params
 from riskplan.engine.rng import resample_counts
+from riskplan.engine.threads import over_threads
 
 ETA = Parameter("eta", 0.0, math.inf, symbol="η")  # the aversion per unit of reward
 
@@ -38,16 +39,16 @@ class Entropic(Measure):
         return float(low - math.log(np.sum(probabilities * np.exp(-eta * (z - low)))) / eta)
 
     def bootstrap(self, z_sorted: np.ndarray, params: Params, key: np.uint64, out: np.ndarray) -> None:
-        _bootstrap_entropic(z_sorted, params.eta, key, out)
+        over_threads(_bootstrap_entropic, out.shape[0], z_sorted, params.eta, key, out)
 
 
-@njit(parallel=True, cache=True)
-def _bootstrap_entropic(z_sorted, eta, key, out):
-    """The entropic risk of each resample, -(1/eta) log (sum_k C_k exp(-eta z_k) / n), shifted by the smallest z
-    so that no exponential overflows."""
+@njit(cache=True, nogil=True)
+def _bootstrap_entropic(z_sorted, eta, key, out, begin, end):
+    """The entropic risk of resamples begin..end-1, -(1/eta) log (sum_k C_k exp(-eta z_k) / n), shifted by the
+    smallest z so that no exponential overflows."""
     n = z_sorted.size
     shift = z_sorted[0]
-    for b in prange(out.shape[0]):
+    for b in range(begin, end):
         counts = resample_counts(key, b, n)
         total = 0.0
         for i in range(n):
