@@ -4,10 +4,11 @@ trajectory-step equivalents, turned into seconds by a model calibrated on the ru
 Every run that finishes records (its estimated steps at the whole machine's rate, its wall seconds) in a small
 file of this host's (RISKPLAN_CACHE_DIR, else $XDG_CACHE_HOME/riskplan or ~/.cache/riskplan). A run that had only
 some of the cores (a sweep job with fewer numba threads) counts its steps divided by its share of the cores, so
-sweeps and single runs calibrate one rate, while its overhead stays the wall seconds each sweep worker pays. The model is seconds = overhead + steps / rate, fitted to the latest records; before any
-run has finished here it assumes DEFAULT_RATE and half a second of overhead, and says so, with its estimate as a
-range. A sweep adds what no run's own seconds hold: its start and finish, and each job's set-up by Hydra. The file
-is a hint: a missing, unreadable, read-only or corrupt one never stops a run.
+sweeps and single runs calibrate one rate, while its overhead stays the wall seconds each sweep worker pays. The
+model is seconds = overhead + steps / rate, fitted to the latest records by medians; before any run has finished
+here it assumes DEFAULT_RATE and half a second of overhead, and says so, with its estimate as a range. A sweep
+adds what no run's own seconds hold: its start and finish, and each job's set-up by Hydra. The file is a hint: a
+missing, unreadable, read-only or corrupt one never stops a run.
 """
 
 from __future__ import annotations
@@ -169,25 +170,45 @@ def record(steps: float, seconds: float, share: float = 1.0) -> None:
 
 
 def model() -> Model:
-    """The model fitted to this machine's records: least squares of seconds on steps when the runs' sizes differ
-    enough to tell overhead from rate, else the default overhead and the median rate of the runs long enough to
-    say it (over twice that overhead: a tiny run's seconds are its overhead, such as a sweep worker's warm-up)."""
+    """The model fitted to this machine's records: a Theil-Sen line of seconds on steps (the median of the
+    slopes between records of different sizes, then the median overhead) when the runs' sizes differ enough to tell
+    overhead from rate, else the default overhead and the median rate of the runs long enough to say it (over twice
+    that overhead: a tiny run's seconds are its overhead, such as a sweep worker's warm-up). Medians, not least
+    squares: one run slowed by a busy minute pulled a least-squares line far enough to say minutes for a run of
+    seconds, while the median moves only when most of the records do."""
     runs = _records()
     if not runs:
         return Model(DEFAULT_RATE, DEFAULT_OVERHEAD, 0)
     steps = [s for s, _ in runs]
-    seconds = [t for _, t in runs]
     if len(runs) >= 3 and max(steps) > 1.5 * min(steps):
-        mean_s, mean_t = sum(steps) / len(runs), sum(seconds) / len(runs)
-        spread = sum((s - mean_s) ** 2 for s in steps)
-        slope = sum((s - mean_s) * (t - mean_t) for s, t in runs) / spread
-        overhead = mean_t - slope * mean_s
-        if slope > 0 and overhead >= 0:
-            return Model(1.0 / slope, overhead, len(runs))
+        fitted = _theil_sen(runs)
+        if fitted is not None:
+            return Model(*fitted, len(runs))
     rates = sorted(s / (t - DEFAULT_OVERHEAD) for s, t in runs if t > 2 * DEFAULT_OVERHEAD)
     if not rates:
         return Model(DEFAULT_RATE, DEFAULT_OVERHEAD, 0)
-    return Model(rates[len(rates) // 2], DEFAULT_OVERHEAD, len(rates))
+    return Model(_median(rates), DEFAULT_OVERHEAD, len(rates))
+
+
+def _theil_sen(runs: list[tuple[float, float]]) -> tuple[float, float] | None:
+    """(rate, overhead) of the Theil-Sen line through (steps, seconds), over the pairs whose steps differ by more
+    than a tenth (closer sizes give a slope that is mostly noise); None where it is not a rate and an overhead."""
+    slopes = [
+        (t2 - t1) / (s2 - s1)
+        for i, (s1, t1) in enumerate(runs)
+        for s2, t2 in runs[i + 1 :]
+        if abs(s2 - s1) > 0.1 * max(s1, s2)
+    ]
+    if not slopes:
+        return None
+    slope = _median(slopes)
+    overhead = _median([t - slope * s for s, t in runs])
+    return (1.0 / slope, overhead) if slope > 0 and overhead >= 0 else None
+
+
+def _median(values: list[float]) -> float:
+    ordered, half = sorted(values), len(values) // 2
+    return ordered[half] if len(ordered) % 2 else (ordered[half - 1] + ordered[half]) / 2
 
 
 def say(seconds: float, model: Model | None = None) -> str:
