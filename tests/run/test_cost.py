@@ -42,8 +42,8 @@ def test_runs_slowed_by_a_busy_minute_do_not_move_the_fitted_line(cache):
     sizes = [1e7 * (k + 1) for k in range(10)]
     for steps in sizes:
         cost.record(steps, 0.5 + steps / 5e7)  # 0.5 s of overhead, 50M steps/s
-    for steps in sizes[-3:]:
-        cost.record(steps, 10 * (0.5 + steps / 5e7))  # three runs ten times slower (least squares: 6M steps/s, negative overhead)
+    for steps in sizes[-3:]:  # three runs ten times slower: a least-squares line says 6M steps/s, overhead < 0
+        cost.record(steps, 10 * (0.5 + steps / 5e7))
     model = cost.model()  # most slopes between records, and most overheads, are the line's: their medians are exact
     assert model.runs == 13
     assert model.rate == pytest.approx(5e7) and model.overhead == pytest.approx(0.5)
