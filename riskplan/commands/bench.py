@@ -38,13 +38,15 @@ def bench(
     sweep: bool = _instead(
         "--sweep",
         "beta x seed sweeps of the paper world (200 iterations, W = 6000): 24 runs batched against --jobs (a worker "
-        "per job), and 64 runs batched against the bare loops of their trainings, in the same run (a few minutes; "
-        "12 and 16 runs of 50 iterations with --quick).",
+        "per job), 64 runs batched against the bare loops of their trainings, and 256 runs batched against the "
+        "time of their episode kernels, replayed, in the same run (about 4 minutes on 2 cores; 12, 16 and 64 runs "
+        "of 50 iterations with --quick).",
     ),
     reproduce: bool = _instead(
         "--reproduce",
         "riskplan reproduce --quick batched (the default) against job by job (--jobs, a worker per core), each in a "
-        "process of its own, and whether both left the same numbers (about 70 s on 2 cores).",
+        "process of its own, and whether both left the same numbers; then the whole reproduce against the time of "
+        "the episode kernels its runs ran, replayed (about 4 minutes on 2 cores; the first row alone with --quick).",
     ),
     threads: bool = _instead(
         "--threads",
@@ -85,11 +87,12 @@ def _sections(console, quick: bool, sweep: bool, threads: bool, reproduce: bool 
     if reproduce:
         from riskplan.experiments.bench_reproduce import bench_reproduce
 
-        return (bench_reproduce,)
+        return (lambda: bench_reproduce(quick),)
     if sweep:
+        from riskplan.experiments.bench_kernel_share import bench_kernel_share
         from riskplan.experiments.bench_sweep import bench_sweep
 
-        return (lambda: bench_sweep(quick),)
+        return (lambda: bench_sweep(quick), lambda: bench_kernel_share(quick))
     if threads:
         from riskplan.experiments.bench_threads import bench_threads
 

@@ -28,7 +28,7 @@ from riskplan.engine.rollout import simulate
 from riskplan.experiments.output_manifest import Output, claim_output
 from riskplan.run.build import build_setup
 from riskplan.run.provenance import provenance
-from riskplan.run.results import _config
+from riskplan.run.results import run_config
 from riskplan.util.errors import BadInput
 from riskplan.util.limits import STEPS_PER_SECOND, check_memory, check_time
 
@@ -115,7 +115,7 @@ def load_landscape(path: Path) -> Landscape:
     summary = json.loads((path / "summary.json").read_text()) if (path / "summary.json").is_file() else {}
     if not isinstance(summary, dict):
         raise ValueError("summary.json is not a JSON object (it was not written by riskplan)")
-    config = _config(path)  # BadInput naming the file for invalid YAML, not a mapping, unresolvable values
+    config = run_config(path)  # BadInput naming the file for invalid YAML, not a mapping, unresolvable values
     needed = {"mean", "cvar", "value_at_risk"}
     if not needed <= set(table.columns) or len(_theta_columns(table)) < 2:
         raise ValueError(f"{TABLE} lacks columns {sorted(needed - set(table.columns))} or theta columns")

@@ -101,7 +101,7 @@ def load_run(path: str | Path) -> Run:
     path = Path(path)
     if not path.is_dir() or not is_run_dir(path):
         raise BadInput(str(path), "holds no run (no run.mcap or .hydra/config.yaml); give a run directory")
-    config = _config(path)
+    config = run_config(path)
     summary_file = path / SUMMARY
     if all((path / table_file(name)).is_file() for name in TABLES) and summary_file.is_file():
         try:
@@ -141,7 +141,7 @@ def finished_run(path: Path, config: dict, summary: dict) -> Run:
     return Run(path, config, tables["metrics"], tables["eval"], tables["trajectories"], summary, True)
 
 
-def _config(path: Path) -> dict:
+def run_config(path: Path) -> dict:
     """The run's config from .hydra/config.yaml, interpolations resolved (empty when the file is missing).
 
     BadInput naming the file when it cannot be a config: unreadable, not valid YAML, not a mapping of keys, too

@@ -310,10 +310,90 @@ def test_the_reproduce_row_is_the_batched_reproduction_against_job_by_job(monkey
         return (36.0, numbers(1.0)) if extra else (batched, numbers(1.0 if same else 2.0))
 
     monkeypatch.setattr(bench_reproduce, "reproduce", fake)
-    (row,) = bench_reproduce.bench_reproduce()
+    (row,) = bench_reproduce.bench_reproduce(quick=True)
     assert (row["value"], row["baseline"], row["ok"]) == (batched, 36.0, met)
     assert row["ratio"] == pytest.approx(batched / 36.0)
     assert ("THE NUMBERS DIFFER" in row["note"]) == (not same)
-    result = CliRunner().invoke(app, ["bench", "--reproduce"])
+    result = CliRunner().invoke(app, ["bench", "--reproduce", "--quick"])
     assert result.exit_code == 0, result.output
     assert "riskplan reproduce --quick, 50 runs" in result.output and f"{int(met)} of 1 targets met" in result.output
+
+
+@pytest.mark.parametrize(
+    ("wall", "statuses", "faithful", "met"),
+    [
+        (70.0, ["done", "done"], True, True),
+        (80.0, ["done", "done"], True, False),
+        (70.0, ["done", "failed"], True, False),
+        (70.0, ["done", "done"], False, False),
+    ],
+)
+def test_the_whole_reproduction_row_is_its_wall_time_against_its_replayed_kernels(
+    monkeypatch, wall, statuses, faithful, met
+):
+    """--reproduce's second row: the whole reproduction, met within 75 s with every run done and replayed as it
+    ran; its baseline the kernels' seconds of the runs done, found in each sweep's folder by job."""
+    import pandas as pd
+
+    from riskplan.experiments import bench_reproduce
+
+    def fake(out, extra, quick=True):
+        assert not quick and extra == []
+        return wall, {"single": pd.DataFrame({"job": ["seed=0", "seed=1"], "status": statuses})}
+
+    replayed = []
+
+    def replay(paths):
+        replayed.extend(path.relative_to(path.parents[1]) for path in paths)
+        return 20.0, faithful
+
+    monkeypatch.setattr(bench_reproduce, "reproduce", fake)
+    monkeypatch.setattr(bench_reproduce, "replay", replay)
+    row = bench_reproduce.full_row()
+    assert replayed == [Path("single/seed=0"), *([Path("single/seed=1")] if statuses[1] == "done" else [])]
+    assert (row["value"], row["baseline"], row["ok"]) == (wall, 20.0, met)
+    assert row["ratio"] == pytest.approx(wall / 20.0) and row["measure"] == "riskplan reproduce, 2 runs (s)"
+    assert ("DIFFERENT from the replay's" in row["note"]) == (not faithful)
+
+
+@pytest.mark.slow  # two short runs trained and replayed
+def test_the_replay_simulates_the_runs_own_episodes(tmp_path):
+    """The kernel floors replay every episode of finished runs, a team's robots each at its own logged theta and a
+    single run in the same kernel calls: the replayed training episodes give every robot's logged means bit for
+    bit, a run whose log says otherwise is caught, and only the kernels are timed."""
+    import pandas as pd
+    from support import CHECKPOINTED_TEAM, TINY
+
+    from riskplan.engine import rollout
+    from riskplan.experiments.bench_kernel_share import kernel_clock, replay
+    from riskplan.run.training import train_summary
+
+    single, team = tmp_path / "single", tmp_path / "team"
+    train_summary(build_setup(compose([*TINY, "train.iterations=4"])), single)
+    train_summary(
+        build_setup(
+            compose([*CHECKPOINTED_TEAM, "train.iterations=6", "team.faults=[{robot: 1, kind: crash, from: 3}]"])
+        ),
+        team,
+    )
+    kernels, faithful = replay([single, team])
+    assert faithful and kernels > 0
+    log = team / "metrics.parquet"  # a robot whose logged mean is not its episodes'
+    metrics = pd.read_parquet(log)
+    metrics.loc[(metrics["iteration"] == 5) & (metrics["robot"] == 2), "mean"] += 1e-9
+    metrics.to_parquet(log)
+    assert replay([single, team])[1] is False
+    assert replay([single])[1] is True
+
+    kernel = rollout._simulate_affine
+    with kernel_clock() as spent:
+        assert rollout._simulate_affine is not kernel
+        assert spent == [0.0]
+        rollout.simulate(*_paper_call())
+        assert spent[0] > 0
+    assert rollout._simulate_affine is kernel  # the kernels themselves again once the block ends
+
+
+def _paper_call():
+    setup = build_setup(compose([]))
+    return setup.world, setup.kernel, setup.theta0[None], np.zeros(1, np.int64), np.array([7], np.uint64), 100

@@ -8,7 +8,7 @@ import yaml
 from omegaconf import OmegaConf
 
 from riskplan.run.compose import compose
-from riskplan.run.results import _config
+from riskplan.run.results import run_config
 
 DOCS = {
     "a composed config": None,  # filled from compose() below
@@ -26,6 +26,6 @@ def test_a_config_is_what_omegaconf_resolves(tmp_path, name):
     (tmp_path / ".hydra").mkdir()
     (tmp_path / ".hydra" / "config.yaml").write_text(yaml.safe_dump(data))
     read = yaml.safe_load((tmp_path / ".hydra" / "config.yaml").read_text())
-    assert _config(tmp_path) == OmegaConf.to_container(OmegaConf.create(read), resolve=True)
+    assert run_config(tmp_path) == OmegaConf.to_container(OmegaConf.create(read), resolve=True)
     if name == "an interpolation":
-        assert _config(tmp_path)["train"]["paths"] == 7
+        assert run_config(tmp_path)["train"]["paths"] == 7
