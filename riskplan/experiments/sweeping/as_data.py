@@ -3,9 +3,10 @@ overrides (seed=3, risk.beta=0.1) applied to that composition's frozen config an
 Hydra composition (or deep copy) per job, which costs milliseconds a job and seconds a sweep.
 
 An override's value is converted once by OmegaConf itself, on a scratch copy of the composition, so each job gets
-exactly the value and type Hydra would give it (0.1 on a float key, an Enum member on a Choice key). Anything else
-(a config group, a `+key` or `~key`, a list or mapping, an interpolation, a key inside a list, or a composition that
-interpolates) is composed by Hydra as before: `job` returns None for it.
+exactly the value and type Hydra would give it (0.1 on a float key, an Enum member on a Choice key, a list of typed
+entries on a list key, a mapping merged into the key's own as Hydra merges it). Anything else (a config group, a
+`+key` or `~key`, an interpolation, a key inside a list, a list or mapping set after a key inside it, or a
+composition that interpolates) is composed by Hydra as before: `job` returns None for it.
 """
 
 from __future__ import annotations
@@ -50,12 +51,23 @@ class JobConfig:
     plain: dict
 
 
+@dataclass(frozen=True)
+class Change:
+    """A job's plain key override: its key's path, the value typed (what RiskplanConf holds there) and plain (what
+    the plain dict holds), and whether it sets a whole list or mapping."""
+
+    path: tuple[str, ...]
+    typed: Any
+    plain: Any
+    whole: bool = False
+
+
 class Composition:
     """One composition of the config (a choice of config groups) and the jobs that differ from it in plain keys."""
 
     def __init__(self, cfg: DictConfig):
         self.cfg = _task(cfg)
-        self._values: dict[str, tuple[tuple[str, ...], Any] | None] = {}  # override line -> (path, value)
+        self._values: dict[str, Change | None] = {}  # override line -> its change
         self._scratch: dict[str, DictConfig] = {}  # key -> a copy of cfg that its overrides are tried on
         self.params: RiskplanConf | None = None
         self.plain: dict = {}
@@ -77,17 +89,18 @@ class Composition:
             change = self._values.get(override.input_line, ...)
             if change is ...:
                 change = self._values[override.input_line] = self._convert(override)
-            if change is None:
-                return None
+            if change is None or (change.whole and any(_within(done.path, change.path) for done in changes)):
+                return None  # a list or mapping set after a key inside it: computed on the composition, it would
+                # drop what that key set, where Hydra keeps it
             changes.append(change)
         params, plain = self.params, dict(self.plain)
-        for path, value in changes:
-            params = _replaced(params, path, value)
-            plain = _set(plain, path, value)
+        for change in changes:
+            params = _replaced(params, change.path, change.typed)
+            plain = _set(plain, change.path, change.plain)
         return JobConfig(params, plain)
 
-    def _convert(self, override: Override) -> tuple[tuple[str, ...], Any] | None:
-        """(path, value) of a plain key override, its value as OmegaConf types it on this key; None otherwise."""
+    def _convert(self, override: Override) -> Change | None:
+        """The change a plain key override makes, its value as OmegaConf types it on this key; None otherwise."""
         key = override.key_or_group
         path = tuple(key.split("."))
         if (
@@ -97,22 +110,27 @@ class Composition:
             or path[0] == HYDRA
             or not all(part.isidentifier() for part in path)
             or "${" in override.input_line
-            or isinstance(OmegaConf.select(self.cfg, key, default=None), Container)
             or OmegaConf.select(self.cfg, key, default=...) is ...
         ):
             return None
         value = _as_typed(self.cfg, path, override.value())
         if value is not None:
-            return path, value
-        scratch = self._scratch.get(key)
-        if scratch is None:
-            scratch = self._scratch[key] = copy.deepcopy(self.cfg)
+            return Change(path, value, value)
+        whole = isinstance(OmegaConf.select(self.cfg, key), Container) or isinstance(override.value(), (list, dict))
+        if whole:  # Hydra merges a mapping into the key's own: each on a fresh copy, so no job's merge is another's
+            scratch = copy.deepcopy(self.cfg)
+        else:
+            scratch = self._scratch.get(key)
+            if scratch is None:
+                scratch = self._scratch[key] = copy.deepcopy(self.cfg)
         try:
             ConfigLoaderImpl._apply_overrides_to_config([override], scratch)
             value = OmegaConf.select(scratch, key)
+            if not isinstance(value, Container):
+                return Change(path, value, value, whole)
+            return Change(path, OmegaConf.to_object(value), OmegaConf.to_container(value, resolve=True), whole)
         except (HydraException, OmegaConfBaseException):
             return None  # a value the key refuses: Hydra's path says why
-        return (path, value) if not isinstance(value, Container) else None
 
 
 KEPT = 32  # compositions a process keeps (a reproduction's sweeps and checks choose about ten sets of groups)
@@ -203,6 +221,11 @@ def _replaced(node: Any, path: tuple[str, ...], value: Any) -> Any:
     head, rest = path[0], path[1:]
     inner = value if not rest else _replaced(getattr(node, head), rest, value)
     return dataclasses.replace(node, **{head: inner})
+
+
+def _within(path: tuple[str, ...], outer: tuple[str, ...]) -> bool:
+    """Whether `path` is `outer` or a key inside it."""
+    return path[: len(outer)] == outer
 
 
 def _set(data: dict, path: tuple[str, ...], value: Any) -> dict:

@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 from riskplan.config import schema
 from riskplan.config.typed import as_dict, typed
 from riskplan.experiments.sweep_worker import config_sha
-from riskplan.experiments.sweeping import as_data, grid, job_setup
+from riskplan.experiments.sweeping import as_data, batched, grid, job_setup
 from riskplan.experiments.sweeping.as_data import Composition
 from riskplan.experiments.sweeping.execute import run_sweep
 from riskplan.experiments.sweeping.grid import ParsedOnce
@@ -34,11 +34,17 @@ AS_DATA = [
     ["risk.schedule.kind=linear"],
     ["train.samples_growth=1", "train.baseline=false"],
     ["policy.kind=tabular", "train.step_size.initial=2"],
+    ["train.theta0=[1,2]"],  # a list
+    ["policy.features=[signals,risky]", "train.theta0=[0,0]"],  # a list of Choices
+    ["team.robots=3", "team.starts=[[0,0],[5,0],[11,0]]"],  # a list of lists
+    ["team.faults=[{robot:1,kind:byzantine,from:2,value:[-10,40]}]"],  # a list of typed entries
+    ["team.delay={max:2}"],  # a mapping, merged into the key's own
+    ["team.delay={max:2}", "team.delay.max=3", "seed=2"],  # a key inside it set after it
 ]
 THROUGH_HYDRA = [
     ["+train.extra=1"],  # a key the schema lacks: Hydra names it
     ["~train.paths"],
-    ["train.theta0=[1,2]"],  # a list
+    ["team.delay.max=3", "team.delay={drop:0.5}"],  # a mapping set after a key inside it
     ["seed=${train.iterations}"],  # an interpolation
     ["seed=abc"],  # a value the key refuses
     ["team.starts.0=[1,1]"],  # inside a list
@@ -100,7 +106,7 @@ def test_a_config_as_a_job_is_hydras_and_its_groups_are_composed_once_a_process(
         for job, keys in ((first, ["seed=4"]), (second, ["risk.beta=0.3"])):
             assert job.params == typed(compose("config", ["experiment=paper_team", "risk=neutral", *keys]))
     GlobalHydra.instance().clear()
-    assert grid.as_job(["experiment=paper_team", "train.theta0=[1,2]"]) is None  # a list: compose() takes it
+    assert grid.as_job(["experiment=paper_team", "seed=${train.iterations}"]) is None  # compose() takes it
 
 
 def test_a_kept_composition_is_composed_again_once_a_config_file_changes(tmp_path, monkeypatch):
@@ -162,19 +168,31 @@ def test_runs_that_share_their_world_config_share_the_built_world(compositions):
     assert build.build_setup(wider.params).world is not first.world
 
 
-ARGS = ["seed=0,1", "risk.beta=0.1,1", "train.iterations=2", "train.samples=40", "train.eval_episodes=50"]
-ARGS += ["train.bootstrap=5", "train.paths=2"]
+SMALL = ["train.iterations=2", "train.samples=40", "train.eval_episodes=50", "train.bootstrap=5", "train.paths=2"]
+ARGS = ["seed=0,1", "risk.beta=0.1,1", *SMALL]
+LISTS = [  # lists, typed entries with a Choice, a mapping merged into the key's own
+    "experiment=paper_team",
+    "team.robots=3",
+    "team.starts=[[0,0],[5,0],[11,0]],[[1,1],[2,2],[3,3]]",
+    "team.faults=[{robot:2,kind:byzantine,from:0,value:[-10,40]}]",
+    "team.delay={max:2}",
+    *SMALL,
+]
 
 
 @pytest.mark.slow  # two small batched sweeps, about 10 s
-def test_a_batched_sweep_s_files_are_those_hydra_s_run_job_writes(tmp_path, monkeypatch):
+@pytest.mark.parametrize("args", [ARGS, LISTS], ids=["keys", "lists"])
+def test_a_batched_sweep_s_files_are_those_hydra_s_run_job_writes(tmp_path, monkeypatch, args):
     direct = tmp_path / "direct"
-    run_sweep(ARGS, sweep_dir=direct, batch=True, out=lambda text: None)
+    with monkeypatch.context() as patched:  # every job as data: none through run_job
+        patched.setattr(batched, "_run_job", lambda *args: pytest.fail("a job went through run_job"))
+        run_sweep(args, sweep_dir=direct, batch=True, out=lambda text: None)
     monkeypatch.setattr(job_setup.JobSetup, "__call__", lambda self, overrides, number: None)  # run_job for each
     hydra = tmp_path / "hydra"
-    run_sweep(ARGS, sweep_dir=hydra, batch=True, out=lambda text: None)
+    run_sweep(args, sweep_dir=hydra, batch=True, out=lambda text: None)
     folders = sorted(p.name for p in direct.iterdir() if p.is_dir())
-    assert len(folders) == 4 and folders == sorted(p.name for p in hydra.iterdir() if p.is_dir())
+    assert len(folders) == (4 if args is ARGS else 2)
+    assert folders == sorted(p.name for p in hydra.iterdir() if p.is_dir())
     for folder in folders:
         for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
             mine = (direct / folder / ".hydra" / name).read_text().replace(str(direct), "SWEEP")
