@@ -56,6 +56,7 @@ from riskplan.experiments.sweeping import as_job, report_outcome, run_sweep, swe
 from riskplan.experiments.timing import (
     Schedule,
     Stage,
+    plan_key,
     plan_line,
     print_breakdown,
     report_seconds,
@@ -133,7 +134,7 @@ def reproduce(
         return _reproduce(
             target,
             Options(quick, seeds, jobs, fmts, list(overrides or []), extra, experiments, own, batch),
-            schedule_of(seeds, configs, experiments, jobs, quick, batch),
+            schedule_of(seeds, configs, experiments, jobs, quick, batch, list(overrides or [])),
             {"since": since, "entered": entered, "checked": checked},
             warmed,
         )
@@ -211,9 +212,16 @@ def check_work(
 
 
 def schedule_of(
-    seeds: int, configs: dict, experiments: tuple, jobs: int | None, quick: bool, batch: bool = False
+    seeds: int,
+    configs: dict,
+    experiments: tuple,
+    jobs: int | None,
+    quick: bool,
+    batch: bool = False,
+    overrides: list[str] | None = None,
 ) -> Schedule:
-    """The stages and their estimated seconds on this machine: each sweep, the landscape, the report."""
+    """The stages and their estimated seconds on this machine: each sweep, the landscape, the report; each as the
+    last reproduction of the same plan took it, where this machine ran one."""
     model = cost.model()
     workers = _workers(jobs, seeds, experiments)
     stages = []
@@ -226,7 +234,15 @@ def schedule_of(
         horizon = int(next(iter(configs.values())).world.horizon)
         stages.append(Stage("landscape", model.run_seconds(grid["points"] ** 2 * grid["episodes"] * horizon)))
     stages.append(Stage("report", report_seconds(sum(stage.jobs for stage in stages))))
-    return Schedule(stages)
+    plan = plan_key(
+        seeds=seeds,
+        experiments=[folder for folder, *_ in experiments],
+        jobs=jobs,
+        quick=quick,
+        batch=batch,
+        overrides=overrides or [],
+    )
+    return Schedule.remembered(stages, plan)
 
 
 def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict | None = None, warmed=None) -> int:
@@ -243,12 +259,14 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
         typer.echo(f"\n{schedule.header('landscape')}")
         tic = time.time()
         record["parts"]["landscape"] = _landscape(target / "landscape", options.quick, list(options.overrides))
-        schedule.finished("landscape", time.time() - tic)
+        schedule.finished("landscape", time.time() - tic, whole="skipped" not in record["parts"]["landscape"])
     tic = time.time()
     _print_comparison(outcomes)
     record["parts"]["comparison"] = {"seconds": round(time.time() - tic, 2)}
     typer.echo(f"\n{schedule.header('report')}")
+    tic = time.time()
     code = max(code, _report(target, options, record))
+    schedule.finished("report", time.time() - tic, whole=code == 0)
     record["seconds"] = round(time.time() - started, 2)
     total = _breakdown(record, clock or {}, started, options)
     write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
@@ -319,7 +337,7 @@ def _run_sweeps(target: Path, options: Options, schedule: Schedule, record: dict
             batch=options.batch,
         )
         toc = time.time()
-        schedule.finished(folder, toc - tic)
+        schedule.finished(folder, toc - tic, whole=not outcome.skipped and not outcome.failed)
         outcomes.append(outcome)
         code = max(code, report_outcome(outcome, folder, hint=False))
         record["parts"][folder] = {

@@ -1,9 +1,12 @@
 """Where a reproduction's time goes: the estimate said before it starts, the stage and overall ETA while it runs,
 and the breakdown of the wall time at its end (reproduce.json's `breakdown`).
 
-The estimate is riskplan.run.cost's model of this machine applied to each stage's jobs; while the stages run, the
-remaining estimate is scaled by how the finished stages compared with theirs, so the ETA follows the machine's
-load.
+The estimate of a stage is what it took the last time this machine reproduced the same plan (the same options and
+overrides, so the same jobs), else riskplan.run.cost's model of this machine applied to its jobs: the model counts
+trajectory steps, which weigh a team's bootstrap or a tabular policy's kernel alike, while a stage's own time says
+it all. While the stages run, the remaining estimate is scaled by how the finished stages compared with theirs, so
+the ETA follows the machine's load. Like the cost model's, the file of stage times is a hint: a missing,
+unreadable or read-only one never stops a reproduction.
 """
 
 from __future__ import annotations
@@ -19,8 +22,10 @@ import typer
 
 from riskplan.run import cost
 from riskplan.run.run_files import STATUS, SUMMARY, table_file
+from riskplan.util.paths import write_atomic
 
 REPORT_SECONDS = (3.0, 0.1)  # the report: a fixed part and a part per run (figures, tables, page)
+PLANS_KEPT = 16  # reproduction plans whose stage times this machine keeps
 
 
 @dataclass
@@ -38,6 +43,17 @@ class Schedule:
 
     stages: list[Stage]
     taken: dict[str, float] = field(default_factory=dict)
+    plan: str = ""  # what the stage times are remembered under (`plan_key`); "" remembers nothing
+    measured: int = 0  # stages whose estimate is what they took last time
+
+    @classmethod
+    def remembered(cls, stages: list[Stage], plan: str) -> Schedule:
+        """The stages, each estimated as it took the last time this machine ran `plan`, where it did."""
+        past = _plans().get(plan, {})
+        for stage in stages:
+            if isinstance(past.get(stage.name), (int, float)) and past[stage.name] > 0:
+                stage.estimate = float(past[stage.name])
+        return cls(stages, plan=plan, measured=sum(stage.name in past for stage in stages))
 
     @property
     def total(self) -> float:
@@ -58,8 +74,39 @@ class Schedule:
         ends = (dt.datetime.now() + dt.timedelta(seconds=left)).strftime("%H:%M")
         return f"[stage {index + 1} of {len(self.stages)}: {name}] {cost.say(left)} left in all (ETA {ends})"
 
-    def finished(self, name: str, seconds: float) -> None:
+    def finished(self, name: str, seconds: float, whole: bool = True) -> None:
+        """Stage `name` took `seconds`; `whole`: it did all its work (no job skipped or failed), so the next
+        reproduction of this plan may expect as much."""
         self.taken[name] = seconds
+        if self.plan and whole:
+            _remember(self.plan, name, seconds)
+
+
+def plan_key(**options) -> str:
+    """What a reproduction's stage times are remembered under: its options, which decide its jobs."""
+    return json.dumps(options, sort_keys=True)
+
+
+def _plans() -> dict[str, dict[str, float]]:
+    try:
+        data = json.loads(cost.cache_file("stages").read_text())
+    except (OSError, ValueError):
+        return {}
+    return {k: v for k, v in data.items() if isinstance(v, dict)} if isinstance(data, dict) else {}
+
+
+def _remember(plan: str, name: str, seconds: float) -> None:
+    """Keep what stage `name` of `plan` took (the latest PLANS_KEPT plans); a cache that cannot be written costs
+    the next estimate, nothing else."""
+    plans = _plans()
+    stages = {**plans.pop(plan, {}), name: round(seconds, 2)}
+    plans = {**dict(list(plans.items())[-(PLANS_KEPT - 1) :]), plan: stages}
+    try:
+        path = cost.cache_file("stages")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, json.dumps(plans), durable=False)
+    except OSError:
+        pass
 
 
 def plan_line(schedule: Schedule, workers: int | None) -> str:
@@ -69,9 +116,14 @@ def plan_line(schedule: Schedule, workers: int | None) -> str:
         "each sweep one batch on every core" if workers is None else f"on {workers} worker{'s' if workers != 1 else ''}"
     )
     model = cost.model()
+    basis = model.describe()
+    if schedule.measured == len(schedule.stages):
+        basis, model = "each stage as this machine's last reproduction of this plan took it", None
+    elif schedule.measured:
+        basis = f"{schedule.measured} stages as this machine's last reproduction of this plan took them, the rest by the cost model, {basis}"
     return (
         f"plan: {len(schedule.stages)} stages, {jobs} jobs, {how}; "
-        f"estimated time {cost.say(schedule.total, model)} ({model.describe()}; finished jobs are skipped)"
+        f"estimated time {cost.say(schedule.total, model)} ({basis}; finished jobs are skipped)"
     )
 
 

@@ -105,14 +105,15 @@ def run_bytes(setup) -> float:
     return sum(amount for amount, _, _ in budget.estimate(sizes)[0])
 
 
-def cache_file() -> Path:
-    """This host's calibration file."""
+def cache_file(kind: str = "cost") -> Path:
+    """This host's calibration file (`kind`: another file of timings kept beside it, such as a reproduction's
+    stages)."""
     root = os.environ.get(CACHE_ENV, "").strip()
     if not root:
         base = os.environ.get("XDG_CACHE_HOME", "").strip() or str(Path.home() / ".cache")
         root = str(Path(base) / "riskplan")
     host = re.sub(r"[^A-Za-z0-9._-]", "_", platform.node() or "host")[:64]
-    return Path(root) / f"cost-v{VERSION}-{host}-{os.cpu_count() or 1}cpu.json"
+    return Path(root) / f"{kind}-v{VERSION}-{host}-{os.cpu_count() or 1}cpu.json"
 
 
 def _records() -> list[tuple[float, float]]:
@@ -192,7 +193,8 @@ def model() -> Model:
 
 def _theil_sen(runs: list[tuple[float, float]]) -> tuple[float, float] | None:
     """(rate, overhead) of the Theil-Sen line through (steps, seconds), over the pairs whose steps differ by more
-    than a tenth (closer sizes give a slope that is mostly noise); None where it is not a rate and an overhead."""
+    than a tenth (closer sizes give a slope that is mostly noise); through the origin where its overhead would be
+    negative; None where seconds do not grow with steps."""
     slopes = [
         (t2 - t1) / (s2 - s1)
         for i, (s1, t1) in enumerate(runs)
@@ -202,8 +204,12 @@ def _theil_sen(runs: list[tuple[float, float]]) -> tuple[float, float] | None:
     if not slopes:
         return None
     slope = _median(slopes)
+    if slope <= 0:
+        return None
     overhead = _median([t - slope * s for s, t in runs])
-    return (1.0 / slope, overhead) if slope > 0 and overhead >= 0 else None
+    if overhead < 0:  # runs of different kinds, whose line would give a small run no time: the median rate instead
+        return _median([s / t for s, t in runs]), 0.0
+    return 1.0 / slope, overhead
 
 
 def _median(values: list[float]) -> float:

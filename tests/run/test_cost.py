@@ -49,6 +49,14 @@ def test_runs_slowed_by_a_busy_minute_do_not_move_the_fitted_line(cache):
     assert model.rate == pytest.approx(5e7) and model.overhead == pytest.approx(0.5)
 
 
+def test_a_line_that_would_give_small_runs_no_time_goes_through_the_origin(cache):
+    runs = [(1e7, 0.1), (2e7, 0.3), (4e7, 0.7), (8e7, 1.5)]  # the Theil-Sen line: 20 ns a step, -0.1 s
+    for steps, seconds in runs:
+        cost.record(steps, seconds)
+    model = cost.model()
+    assert model.overhead == 0.0 and model.rate == pytest.approx((2e7 / 0.3 + 4e7 / 0.7) / 2)  # median steps/s
+
+
 def test_runs_of_one_size_give_the_median_rate(cache):
     for seconds in (3.0, 5.0, 100.0):  # one run on a loaded machine does not move the median
         cost.record(1e8, seconds)
