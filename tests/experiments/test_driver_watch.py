@@ -37,6 +37,14 @@ def python(code: str, driver: str, **kwargs) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-c", code], env={**os.environ, ENV: driver}, **kwargs)
 
 
+def written(folder) -> bool:
+    """Whether the worker has written its "1" into folder/written."""
+    try:
+        return (folder / "written").read_text() == "1"
+    except FileNotFoundError:
+        return False
+
+
 def wait_gone(pid: int) -> bool:
     deadline = time.monotonic() + GONE
     while alive(pid) and time.monotonic() < deadline:
@@ -85,9 +93,9 @@ def test_a_worker_of_a_living_driver_works_and_dies_with_its_parent_the_moment_i
     child = int(parent.stdout.readline())
     try:
         deadline = time.monotonic() + 60
-        while not (tmp_path / "written").exists() and time.monotonic() < deadline:
+        while not written(tmp_path) and time.monotonic() < deadline:  # its content, not the file: open() comes first
             time.sleep(0.05)
-        assert (tmp_path / "written").read_text() == "1" and alive(child)
+        assert written(tmp_path) and alive(child)
         parent.kill()
         parent.wait()
         assert wait_gone(child)
