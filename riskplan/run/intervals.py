@@ -7,7 +7,7 @@ from numba import njit
 
 from riskplan.engine.estimators import cvar, tail_count, value_at_risk
 from riskplan.engine.measures.registry import risk_spec
-from riskplan.engine.rng import BOOTSTRAP, resample_counts, stream_key
+from riskplan.engine.rng import BOOTSTRAP, count_resample, stream_key
 from riskplan.engine.threads import over_threads
 
 REPORT_BETAS = (0.05, 0.1, 0.2)
@@ -39,52 +39,72 @@ def _bootstrap(z_sorted: np.ndarray, betas: np.ndarray, tails: np.ndarray, key: 
 
 @njit(cache=True, nogil=True)
 def _bootstrap_groups(z_sorted, betas, tails, key, out, begin, end):
-    """Resample groups begin..end-1: each resample draws n indices (`resample_counts`), then reads mean, VaR and
-    CVaRs off the sorted counts.
+    """Resample groups begin..end-1: each resample draws n indices (`count_resample`, into arrays reused from one
+    group to the next), then reads mean, VaR and CVaRs off the sorted counts.
 
     The means of LANES resamples are summed in one pass, each in its own order: a sum's additions wait on each
     other, and four chains keep the core busy (the same numbers, a quarter less time).
     """
     n, resamples = z_sorted.size, out.shape[0]
+    lanes = np.zeros((LANES, n), dtype=np.int32)  # past the last resample, a lane's sum is computed and dropped
+    drawn = np.empty(n, dtype=np.uint32)
+    c0, c1, c2, c3 = lanes[0], lanes[1], lanes[2], lanes[3]
     for group in range(begin, end):
         first = group * LANES
-        c0 = resample_counts(key, first, n)
-        c1 = resample_counts(key, first + 1, n) if first + 1 < resamples else c0  # past the end: a stand-in
-        c2 = resample_counts(key, first + 2, n) if first + 2 < resamples else c0
-        c3 = resample_counts(key, first + 3, n) if first + 3 < resamples else c0
+        used = min(LANES, resamples - first)
+        for lane in range(used):
+            count_resample(key, first + lane, lanes[lane], drawn)
         t0 = t1 = t2 = t3 = 0.0
         for i in range(n):
             t0 += c0[i] * z_sorted[i]
             t1 += c1[i] * z_sorted[i]
             t2 += c2[i] * z_sorted[i]
             t3 += c3[i] * z_sorted[i]
-        lanes, totals = (c0, c1, c2, c3), (t0, t1, t2, t3)
-        for lane in range(min(LANES, resamples - first)):
-            _tails(z_sorted, lanes[lane], totals[lane], betas, tails, out[first + lane])
+        totals = (t0, t1, t2, t3)
+        for lane in range(used):
+            out[first + lane, 0] = totals[lane] / n
+        _tails(z_sorted, c0, c1, c2, c3, used, betas, tails, out[first : first + used])
 
 
 @njit(cache=True)
-def _tails(z_sorted, counts, total, betas, tails, row):
-    """row = mean, VaR_beta and the CVaRs of one resample, from its counts and the sum of its values."""
+def _tails(z_sorted, c0, c1, c2, c3, used, betas, tails, rows):
+    """rows[lane, 1:] = VaR_beta and the CVaRs of the group's resamples from their counts (`used` of the LANES).
+
+    Each CVaR's tail sum of the LANES resamples runs side by side, as the means do: to the longest of their tails,
+    a resample's terms past its own tail each a 0.0, which leaves its sum as it was (the sum starts at +0.0 and its
+    terms are at most 0, so it is never -0.0)."""
     n = z_sorted.size
-    row[0] = total / n
+    position = np.zeros(LANES, dtype=np.int64)
+    var = np.zeros(LANES)
+    lanes = (c0, c1, c2, c3)
     for t in range(betas.size):
         if t > 0 and betas[t] == betas[0]:  # the run's beta is also a reported one: the same numbers
-            row[2 + t] = row[2]
+            for lane in range(used):
+                rows[lane, 2 + t] = rows[lane, 2]
             continue
         m = tails[t]
-        seen = 0
-        i = 0
-        while seen + counts[i] < m:
-            seen += counts[i]
-            i += 1
-        v = z_sorted[i]
-        if t == 0:
-            row[1] = v
-        tail = 0.0
-        for k in range(i):
-            tail += counts[k] * (z_sorted[k] - v)
-        row[2 + t] = v + tail / (betas[t] * n)
+        for lane in range(used):
+            counts = lanes[lane]
+            seen = 0
+            i = 0
+            while seen + counts[i] < m:
+                seen += counts[i]
+                i += 1
+            position[lane], var[lane] = i, z_sorted[i]
+            if t == 0:
+                rows[lane, 1] = z_sorted[i]
+        i0, i1, i2, i3 = position[0], position[1], position[2], position[3]
+        v0, v1, v2, v3 = var[0], var[1], var[2], var[3]
+        a0 = a1 = a2 = a3 = 0.0
+        for k in range(position[:used].max()):
+            z = z_sorted[k]
+            a0 += c0[k] * (z - v0) if k < i0 else 0.0
+            a1 += c1[k] * (z - v1) if k < i1 else 0.0
+            a2 += c2[k] * (z - v2) if k < i2 else 0.0
+            a3 += c3[k] * (z - v3) if k < i3 else 0.0
+        sums = (a0, a1, a2, a3)
+        for lane in range(used):
+            rows[lane, 2 + t] = var[lane] + sums[lane] / (betas[t] * n)
 
 
 def objective_interval(z: np.ndarray, risk, resamples: int, seed: int) -> tuple[dict, np.ndarray]:

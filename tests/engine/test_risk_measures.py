@@ -20,6 +20,7 @@ from support import exact_outcomes, rollouts, world_3x3
 from riskplan.config.schema import RiskConf
 from riskplan.engine.policy import move_features, probabilities, scores
 from riskplan.engine.risk_measures import normal_cdf, normal_quantile, objective_and_gradient
+from riskplan.engine.measures.spectral import _bootstrap_distorted, _flat_from
 from riskplan.engine.rng import resample_counts
 from riskplan.risk import (
     MEASURES,
@@ -609,6 +610,27 @@ def test_every_measures_rows_bootstrap_alone_and_each_resample_is_the_measure_of
         for b in range(5):
             drawn = np.repeat(row, resample_counts(key, b, row.size))
             assert values[b] == pytest.approx(measure.objective(drawn, params), rel=1e-9, abs=1e-9)
+
+
+@pytest.mark.parametrize("risk", SPECTRAL_CASES)
+def test_a_distortion_bootstrap_that_stops_where_its_table_turns_flat_gives_the_whole_sums(risk):
+    """_bootstrap_distorted stops a row's sum once the cumulative count reaches the table's flat part (_flat_from:
+    CVaR_beta's g from beta n on): every term it skips is z * 0.0, so the resamples equal the whole sums bit for bit.
+    The flat part is where the table first equals its last value and stays there."""
+    measure, params = risk_spec(risk)
+    n = 2001
+    rows = np.sort(np.random.default_rng(5).normal(-20.0, 30.0, (2, n)), axis=1)  # negative z: its z * 0.0 is -0.0
+    table = measure.distortion(np.arange(n + 1) / n, params)
+    flat = _flat_from(table)
+    assert np.all(table[flat:] == table[-1]) and (flat == 0 or table[flat - 1] != table[-1])
+    if measure.name == "cvar":
+        assert flat - 1 <= params["beta"] * n <= flat
+    tables = np.stack([table, table])
+    stopped, whole = np.empty((2, 60)), np.empty((2, 60))
+    key = np.uint64(31)
+    _bootstrap_distorted(rows, tables, np.array([flat, flat]), key, stopped, 0, 60)
+    _bootstrap_distorted(rows, tables, np.array([n + 1, n + 1]), key, whole, 0, 60)  # never stops early
+    assert stopped.tobytes() == whole.tobytes()
 
 
 @pytest.mark.parametrize("risk", SPECTRAL_CASES)

@@ -70,3 +70,22 @@ def test_robot_keys_known_values():
         902475832917225024,
     ]
     assert int(rng.robot_keys(2**63 - 1, rng.EVAL, 99, 5)[4]) == 7221517220371294345
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000])  # odd n takes the unpaired draw
+def test_resample_counts_are_the_streams_draws_counted_and_reused_arrays_change_nothing(n):
+    """resample b's counts: the indices floor(u n / 2^32) of the 32-bit halves u of its stream's draws (the stream
+    recomputed here in Python ints), the low half first; count_resample into arrays that held another resample
+    gives the same counts."""
+    key, b = 1234567, 5
+    state, indices = rng._mix_int(key ^ rng._mix_int((b + rng.GOLDEN) & rng.MASK)), []
+    while len(indices) < n:
+        state = (state + rng.GOLDEN) & rng.MASK
+        bits = rng._mix_int(state)
+        indices += [((bits & 0xFFFFFFFF) * n) >> 32, ((bits >> 32) * n) >> 32]
+    expected = np.bincount(indices[:n], minlength=n)
+    counts = rng.resample_counts(np.uint64(key), b, n)
+    np.testing.assert_array_equal(counts, expected)
+    reused, drawn = rng.resample_counts(np.uint64(key), b + 1, n), np.full(n, 7, dtype=np.uint32)
+    rng.count_resample(np.uint64(key), b, reused, drawn)
+    np.testing.assert_array_equal(reused, expected)

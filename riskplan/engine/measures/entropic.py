@@ -9,7 +9,7 @@ from numba import njit
 
 from riskplan.engine.estimators import as_sample, entropic, entropic_gradient
 from riskplan.engine.measures.base import Measure, Parameter, Params
-from riskplan.engine.rng import resample_counts
+from riskplan.engine.rng import count_resample
 from riskplan.engine.threads import over_threads
 
 ETA = Parameter("eta", 0.0, math.inf, symbol="η")  # the aversion per unit of reward
@@ -48,8 +48,10 @@ def _bootstrap_entropic(z_sorted, eta, key, out, begin, end):
     smallest z so that no exponential overflows."""
     n = z_sorted.size
     shift = z_sorted[0]
+    counts = np.empty(n, dtype=np.int32)  # reused from one resample to the next
+    drawn = np.empty(n, dtype=np.uint32)
     for b in range(begin, end):
-        counts = resample_counts(key, b, n)
+        count_resample(key, b, counts, drawn)
         total = 0.0
         for i in range(n):
             if counts[i]:
