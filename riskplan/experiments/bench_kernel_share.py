@@ -1,13 +1,15 @@
-"""`riskplan bench`'s kernel floors: the time of the episode kernels a sweep or a reproduction ran, replayed in this
-process on every core, against the wall time of the whole command. The arithmetic no recording, evaluation or
-launcher can go under (the issue that made the loop the engine's asks a 256-run sweep to spend at least half of
-its wall time in them, and a reproduction to take at most 75 s).
+"""`riskplan bench`'s kernel floors: the time of the kernels a sweep or a reproduction ran, replayed in this process
+on every core, against the wall time of the whole command. The arithmetic no recording, evaluation or launcher can
+go under (the issue that made the loop the engine's asks a 256-run sweep to spend at least half of its wall time in
+the episode kernels, and a reproduction to take at most 75 s).
 
 `replay` simulates again every episode of finished runs: each run's training episodes at the θ_l its
 metrics.parquet logged for each robot, from the run's own streams, one kernel call per iteration for all the runs
 that share a world (`step.batch_episodes`, as their batch made them); then each run's evaluation, its sampled paths
-and θ0's episodes for the diagnosis. The replayed episodes are the runs' (each robot's logged mean at the first and
-last iteration is checked against them, bit for bit), and only the kernels are timed.
+and its summary, whose bootstrap intervals are kernels too (1,000 resamples of every evaluation, each drawing as
+many indices as it has episodes) and which simulates θ0's episodes for the diagnosis. The replayed episodes are the
+runs' (each robot's logged mean at the first and last iteration is checked against them, bit for bit), and only the
+kernels are timed: the episode kernels and the bootstrap kernels apart.
 """
 
 from __future__ import annotations
@@ -18,17 +20,18 @@ import time
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
-from riskplan.engine import rollout
+from riskplan.engine import rollout, threads
 from riskplan.engine.risk_measures import summary_stats
-from riskplan.engine.step import RunSetup, batch_episodes, batch_key, rollouts
+from riskplan.engine.step import RunSetup, TrainState, batch_episodes, batch_key, rollouts
 from riskplan.experiments.bench_sweep import MORE_BETAS, grid, sweep
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import load_checkpoint
-from riskplan.run.evaluation import evaluate, initial_objective, sample_paths
+from riskplan.run.evaluation import evaluate, sample_paths, summarize
 from riskplan.run.results import run_config
 from riskplan.run.run_files import table_file
 
@@ -50,59 +53,81 @@ def kernel_share_row(seeds: int, iterations: int) -> dict:
         wall, _ = sweep(args, Path(tmp) / "batched", ["--batch"])
         runs = pd.read_parquet(Path(tmp) / "batched" / "summary.parquet")
         done = runs[runs["status"] == "done"]
-        kernels, faithful = replay([Path(path) for path in done["path"]])
-    share = kernels / wall
+        floor = replay([Path(path) for path in done["path"]])
+    share = floor.episodes / wall
     return {
         "measure": f"a {len(runs)}-run beta x seed sweep, batched: its wall time (s)",
         "value": wall,
         "unit": "s",
         "target": f"episode kernels >= {SHARE_TARGET:g} of it",
-        "ok": share >= SHARE_TARGET and faithful and len(done) == len(runs),
-        "baseline": kernels,
+        "ok": share >= SHARE_TARGET and floor.faithful and len(done) == len(runs),
+        "baseline": floor.episodes,
         "ratio": share,
-        "note": f"baseline: {replayed(faithful, len(done), len(runs))}; ratio: the kernels' share; value: `riskplan "
+        "note": f"baseline: {replayed(floor, len(done), len(runs))}; ratio: the kernels' share; value: `riskplan "
         f"sweep --batch` from its start to its exit; {' '.join(args)}",
     }
 
 
-def replayed(faithful: bool, done: int, runs: int) -> str:
-    """What a row's baseline is, and whether its replay was the runs' own episodes."""
-    same = "equal to" if faithful else "DIFFERENT from"
+def replayed(floor: Replay, done: int, runs: int, bootstrap: bool = False) -> str:
+    """What a row's baseline is: the episode kernels' seconds, with the bootstrap kernels' where `bootstrap`; and
+    whether the replay was the runs' own episodes."""
+    same = "equal to" if floor.faithful else "DIFFERENT from"
+    kernels = (
+        f"the episode and bootstrap kernels' seconds ({floor.episodes:.1f} s and {floor.bootstrap:.1f} s)"
+        if bootstrap
+        else f"the episode kernels' seconds (the bootstrap kernels' {floor.bootstrap:.1f} s not counted)"
+    )
     return (
-        f"the episode kernels' seconds of the same runs, replayed in this process on every core (training at each "
-        f"run's logged theta, evaluation, paths, theta0's episodes; {done} of {runs} runs done, their logged means "
-        f"{same} the replay's)"
+        f"{kernels} of the same runs, replayed in this process on every core (training at each run's logged theta, "
+        f"evaluation, paths, theta0's episodes, the summary's intervals; {done} of {runs} runs done, their logged "
+        f"means {same} the replay's)"
     )
 
 
-def replay(paths: list[Path]) -> tuple[float, bool]:
-    """Seconds inside the episode kernels to simulate again every episode of the finished runs at `paths`, and
-    whether the replayed training episodes are the logged ones."""
+class Replay(NamedTuple):
+    """What replaying finished runs took in their kernels, and whether it was the runs' own episodes."""
+
+    episodes: float  # seconds in the episode kernels: training, evaluation, paths, theta0's episodes
+    bootstrap: float  # seconds in the bootstrap kernels of the runs' summaries
+    faithful: bool  # every replayed robot's mean the logged one, bit for bit
+
+
+class _Logged(NamedTuple):
+    setup: RunSetup
+    thetas: np.ndarray  # the robots' logged theta_l, (L, N, M)
+    means: np.ndarray  # their logged means, (L, N)
+    state: TrainState  # the final one, from the checkpoint
+    metrics: pd.DataFrame
+
+
+def replay(paths: list[Path]) -> Replay:
+    """The kernels' seconds to simulate again every episode of the finished runs at `paths` and bootstrap their
+    summaries, and whether the replayed training episodes are the logged ones."""
     runs = [_logged(path) for path in paths]
-    groups: dict[str, list[tuple]] = {}
+    groups: dict[str, list[_Logged]] = {}
     for run in runs:  # the runs a batch could share its kernel calls between
-        groups.setdefault(batch_key(run[0].params), []).append(run)
+        groups.setdefault(batch_key(run.setup.params), []).append(run)
     if runs:
-        rollouts(runs[0][0], 0, runs[0][1][0])  # the kernel loaded from numba's cache, untimed
+        rollouts(runs[0].setup, 0, runs[0].thetas[0])  # the kernel loaded from numba's cache, untimed
     faithful = True
     with kernel_clock() as spent:
         for group in groups.values():
-            for l in range(max(len(thetas) for _, thetas, _, _ in group)):
-                live = [run for run in group if l < len(run[1])]
-                z, _, bounds = batch_episodes([run[0] for run in live], l, [run[1][l] for run in live])
-                for (setup, thetas, means, _), start, stop in zip(live, bounds[:-1], bounds[1:]):
-                    if l in (0, len(thetas) - 1):  # the loop's own statistics, row by row: the logged means
-                        mean = summary_stats(z[start:stop], setup.params.risk.beta, parallel=True)["mean"]
-                        faithful &= bool(np.array_equal(mean, means[l]))
-        for setup, _, _, final in runs:
-            evaluate(setup, final)
-            sample_paths(setup, final)
-            initial_objective(setup)
-    return spent[0], faithful
+            for l in range(max(len(run.thetas) for run in group)):
+                live = [run for run in group if l < len(run.thetas)]
+                z, _, bounds = batch_episodes([run.setup for run in live], l, [run.thetas[l] for run in live])
+                for run, start, stop in zip(live, bounds[:-1], bounds[1:]):
+                    if l in (0, len(run.thetas) - 1):  # the loop's own statistics, row by row: the logged means
+                        mean = summary_stats(z[start:stop], run.setup.params.risk.beta, parallel=True)["mean"]
+                        faithful &= bool(np.array_equal(mean, run.means[l]))
+        for run in runs:
+            evaluation = evaluate(run.setup, run.state.thetas)
+            sample_paths(run.setup, run.state.thetas)
+            summarize(run.setup, run.state, evaluation, run.metrics, 1.0)  # its intervals and theta0's episodes
+    return Replay(spent["episodes"], spent["bootstrap"], faithful)
 
 
-def _logged(path: Path) -> tuple[RunSetup, np.ndarray, np.ndarray, np.ndarray]:
-    """A finished run's set-up, its robots' logged theta_l (L, N, M) and means (L, N), and its final thetas."""
+def _logged(path: Path) -> _Logged:
+    """A finished run's set-up, its robots' logged theta_l and means, its final state and its metrics."""
     with warnings.catch_warnings():  # a config's warnings (a step size outside Assumption 6) were its run's to give
         warnings.simplefilter("ignore", UserWarning)
         setup = build_setup(run_config(path), needs_ray=False)
@@ -111,27 +136,29 @@ def _logged(path: Path) -> tuple[RunSetup, np.ndarray, np.ndarray, np.ndarray]:
     names = [f"theta_{j}" for j in range(len(setup.theta0))]
     thetas = rows[names].to_numpy().reshape(-1, setup.robots, len(names))
     means = rows["mean"].to_numpy().reshape(-1, setup.robots)
-    return setup, thetas, means, load_checkpoint(path, setup).thetas
+    return _Logged(setup, thetas, means, load_checkpoint(path, setup), metrics)
 
 
 @contextlib.contextmanager
-def kernel_clock() -> Iterator[list[float]]:
-    """rollout's episode kernels timed while inside the block: yields a list whose one item sums their seconds."""
-    spent = [0.0]
-    originals = {name: getattr(rollout, name) for name in KERNELS}
+def kernel_clock() -> Iterator[dict[str, float]]:
+    """rollout's episode kernels and the bootstrap kernels (every one runs through threads.over_threads) timed
+    while inside the block: yields {"episodes": seconds, "bootstrap": seconds}, summed as they run."""
+    spent = {"episodes": 0.0, "bootstrap": 0.0}
+    timed_here = [(rollout, name, "episodes") for name in KERNELS] + [(threads, "over_threads", "bootstrap")]
+    originals = [(module, name, getattr(module, name)) for module, name, _ in timed_here]
 
-    def timed(kernel):
+    def timed(kernel, kind):
         def call(*args):
             started = time.perf_counter()
             kernel(*args)
-            spent[0] += time.perf_counter() - started
+            spent[kind] += time.perf_counter() - started
 
         return call
 
-    for name, kernel in originals.items():
-        setattr(rollout, name, timed(kernel))
+    for (module, name, kind), (_, _, kernel) in zip(timed_here, originals):
+        setattr(module, name, timed(kernel, kind))
     try:
         yield spent
     finally:
-        for name, kernel in originals.items():
-            setattr(rollout, name, kernel)
+        for module, name, kernel in originals:
+            setattr(module, name, kernel)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from riskplan.engine import threads
 from riskplan.engine.estimators import cvar, tail_count, value_at_risk
 from riskplan.engine.measures.registry import risk_spec
 from riskplan.engine.rng import BOOTSTRAP, count_resample, stream_key
-from riskplan.engine.threads import over_threads
 
 REPORT_BETAS = (0.05, 0.1, 0.2)
 
@@ -34,7 +34,7 @@ LANES = 4  # resamples summed side by side: four independent chains of additions
 def _bootstrap(z_sorted: np.ndarray, betas: np.ndarray, tails: np.ndarray, key: np.uint64, out: np.ndarray) -> None:
     """out[b] = mean, VaR_beta and the CVaRs of resample b: the groups of LANES resamples split among numba's
     thread count of threads (engine.threads), each running `_bootstrap_groups` without the GIL."""
-    over_threads(_bootstrap_groups, (out.shape[0] + LANES - 1) // LANES, z_sorted, betas, tails, key, out)
+    threads.over_threads(_bootstrap_groups, (out.shape[0] + LANES - 1) // LANES, z_sorted, betas, tails, key, out)
 
 
 @njit(cache=True, nogil=True)

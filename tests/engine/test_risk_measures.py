@@ -18,9 +18,9 @@ from omegaconf import OmegaConf
 from support import exact_outcomes, rollouts, world_3x3
 
 from riskplan.config.schema import RiskConf
+from riskplan.engine.measures.spectral import _bootstrap_distorted, _flat_from
 from riskplan.engine.policy import move_features, probabilities, scores
 from riskplan.engine.risk_measures import normal_cdf, normal_quantile, objective_and_gradient
-from riskplan.engine.measures.spectral import _bootstrap_distorted, _flat_from
 from riskplan.engine.rng import resample_counts
 from riskplan.risk import (
     MEASURES,

@@ -332,10 +332,12 @@ def test_the_whole_reproduction_row_is_its_wall_time_against_its_replayed_kernel
     monkeypatch, wall, statuses, faithful, met
 ):
     """--reproduce's second row: the whole reproduction, met within 75 s with every run done and replayed as it
-    ran; its baseline the kernels' seconds of the runs done, found in each sweep's folder by job."""
+    ran; its baseline the episode and bootstrap kernels' seconds of the runs done, found in each sweep's folder by
+    job."""
     import pandas as pd
 
     from riskplan.experiments import bench_reproduce
+    from riskplan.experiments.bench_kernel_share import Replay
 
     def fake(out, extra, quick=True):
         assert not quick and extra == []
@@ -345,7 +347,7 @@ def test_the_whole_reproduction_row_is_its_wall_time_against_its_replayed_kernel
 
     def replay(paths):
         replayed.extend(path.relative_to(path.parents[1]) for path in paths)
-        return 20.0, faithful
+        return Replay(14.0, 6.0, faithful)
 
     monkeypatch.setattr(bench_reproduce, "reproduce", fake)
     monkeypatch.setattr(bench_reproduce, "replay", replay)
@@ -354,18 +356,21 @@ def test_the_whole_reproduction_row_is_its_wall_time_against_its_replayed_kernel
     assert (row["value"], row["baseline"], row["ok"]) == (wall, 20.0, met)
     assert row["ratio"] == pytest.approx(wall / 20.0) and row["measure"] == "riskplan reproduce, 2 runs (s)"
     assert ("DIFFERENT from the replay's" in row["note"]) == (not faithful)
+    assert "(14.0 s and 6.0 s)" in row["note"]
 
 
 @pytest.mark.slow  # two short runs trained and replayed
 def test_the_replay_simulates_the_runs_own_episodes(tmp_path):
     """The kernel floors replay every episode of finished runs, a team's robots each at its own logged theta and a
     single run in the same kernel calls: the replayed training episodes give every robot's logged means bit for
-    bit, a run whose log says otherwise is caught, and only the kernels are timed."""
+    bit, a run whose log says otherwise is caught, and only the kernels are timed: the episode kernels, and apart
+    the bootstrap kernels of the summaries' intervals."""
     import pandas as pd
     from support import CHECKPOINTED_TEAM, TINY
 
-    from riskplan.engine import rollout
+    from riskplan.engine import rollout, threads
     from riskplan.experiments.bench_kernel_share import kernel_clock, replay
+    from riskplan.run.intervals import bootstrap_intervals
     from riskplan.run.training import train_summary
 
     single, team = tmp_path / "single", tmp_path / "team"
@@ -376,22 +381,24 @@ def test_the_replay_simulates_the_runs_own_episodes(tmp_path):
         ),
         team,
     )
-    kernels, faithful = replay([single, team])
-    assert faithful and kernels > 0
+    floor = replay([single, team])
+    assert floor.faithful and floor.episodes > 0 and floor.bootstrap > 0
     log = team / "metrics.parquet"  # a robot whose logged mean is not its episodes'
     metrics = pd.read_parquet(log)
     metrics.loc[(metrics["iteration"] == 5) & (metrics["robot"] == 2), "mean"] += 1e-9
     metrics.to_parquet(log)
-    assert replay([single, team])[1] is False
-    assert replay([single])[1] is True
+    assert replay([single, team]).faithful is False
+    assert replay([single]).faithful is True
 
-    kernel = rollout._simulate_affine
+    kernel, spread = rollout._simulate_affine, threads.over_threads
     with kernel_clock() as spent:
-        assert rollout._simulate_affine is not kernel
-        assert spent == [0.0]
+        assert rollout._simulate_affine is not kernel and threads.over_threads is not spread
+        assert spent == {"episodes": 0.0, "bootstrap": 0.0}
         rollout.simulate(*_paper_call())
-        assert spent[0] > 0
-    assert rollout._simulate_affine is kernel  # the kernels themselves again once the block ends
+        assert spent["episodes"] > 0 and spent["bootstrap"] == 0.0
+        bootstrap_intervals(np.arange(1000.0), 0.1, 100, 0)
+        assert spent["bootstrap"] > 0
+    assert (rollout._simulate_affine, threads.over_threads) == (kernel, spread)  # themselves once the block ends
 
 
 def _paper_call():

@@ -7,10 +7,10 @@ import math
 import numpy as np
 from numba import njit
 
+from riskplan.engine import threads
 from riskplan.engine.estimators import as_sample, entropic, entropic_gradient
 from riskplan.engine.measures.base import Measure, Parameter, Params
 from riskplan.engine.rng import count_resample
-from riskplan.engine.threads import over_threads
 
 ETA = Parameter("eta", 0.0, math.inf, symbol="η")  # the aversion per unit of reward
 
@@ -39,7 +39,7 @@ class Entropic(Measure):
         return float(low - math.log(np.sum(probabilities * np.exp(-eta * (z - low)))) / eta)
 
     def bootstrap(self, z_sorted: np.ndarray, params: Params, key: np.uint64, out: np.ndarray) -> None:
-        over_threads(_bootstrap_entropic, out.shape[0], z_sorted, params.eta, key, out)
+        threads.over_threads(_bootstrap_entropic, out.shape[0], z_sorted, params.eta, key, out)
 
 
 @njit(cache=True, nogil=True)

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from riskplan.engine import threads
 from riskplan.engine.estimators import (
     as_count,
     as_sample,
@@ -33,7 +34,6 @@ from riskplan.engine.estimators import (
 )
 from riskplan.engine.measures.base import Measure, Parameter, Params
 from riskplan.engine.rng import count_resample
-from riskplan.engine.threads import over_threads
 from riskplan.util.errors import BadInput
 
 NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # a measure's name, as `risk.measure=NAME` takes it
@@ -117,7 +117,9 @@ class Spectral(Measure):
         n = z_rows.shape[1]
         tables = np.stack([self.distortion(np.arange(n + 1) / n, params) for params in params_rows])
         ends = np.array([_flat_from(table) for table in tables], dtype=np.int64)
-        over_threads(_bootstrap_distorted, out.shape[1], kernel_input(z_rows), kernel_input(tables), ends, key, out)
+        threads.over_threads(
+            _bootstrap_distorted, out.shape[1], kernel_input(z_rows), kernel_input(tables), ends, key, out
+        )
 
 
 def _flat_from(table: np.ndarray) -> int:
