@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import tempfile
 from pathlib import Path
 
@@ -26,6 +27,12 @@ else:  # the property tests: reproducible examples, no deadline on a loaded mach
     settings.load_profile("riskplan")
 
 TESTS = Path(__file__).resolve().parent
+# pytest caches each test module as it rewrote its asserts, unless Python may not write bytecode: where the
+# environment says so (PYTHONDONTWRITEBYTECODE), every run parsed and rewrote all of them again, 4-5 s of each
+# worker's start. Collection caches them (in the gitignored __pycache__ folders), and the tests then run as the
+# environment asked.
+DONT_WRITE_BYTECODE = sys.dont_write_bytecode
+sys.dont_write_bytecode = False
 # Runs record their cost for the time estimates (riskplan.run.cost): the tests' runs go to a folder of their own,
 # not into the user's cache, and a test that checks the calibration sets its own.
 os.environ.setdefault("RISKPLAN_CACHE_DIR", tempfile.mkdtemp(prefix="riskplan-tests-cache-"))
@@ -50,6 +57,10 @@ def pytest_cmdline_main(config):
     ):
         config.option.numprocesses = os.cpu_count()
         config.option.dist = "loadgroup"
+
+
+def pytest_collection_finish(session):
+    sys.dont_write_bytecode = DONT_WRITE_BYTECODE
 
 
 def pytest_collection_modifyitems(config, items):

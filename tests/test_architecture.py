@@ -125,6 +125,7 @@ def sizes() -> tuple[dict[str, int], dict[str, int]]:
     return modules, classes
 
 
+@pytest.mark.slow  # every module parsed (near a second)
 def test_no_module_is_over_600_lines_and_no_class_over_250():
     modules, classes = sizes()
     assert {m: n for m, n in modules.items() if n > MODULE_LINES and m not in OVER_THE_LIMIT} == {}
@@ -154,6 +155,7 @@ def imports_in_functions() -> list[tuple[str, int, str]]:
     return sorted(found)
 
 
+@pytest.mark.slow  # every module parsed (near a second)
 def test_imports_inside_functions_say_why():
     """Module-level imports show each module's dependencies: an import inside a function is at the command
     boundary, in a lazy public face, or says why (an optional extra, a cycle, a heavy module on a rare path)."""
@@ -180,6 +182,7 @@ def test_the_cli_imports_no_commands_work():
     assert loaded_after("riskplan.cli") & heavy == set()
 
 
+@pytest.mark.slow  # a new interpreter imports what train does (near a second)
 def test_a_run_starts_without_the_report_or_the_sweeps():
     """What `riskplan train` imports before its run starts (riskplan.commands.train.train_command's imports) leaves out
     matplotlib, the launchers and the optional extras, and the report and sweep modules that would bring them."""

@@ -59,6 +59,7 @@ def test_no_tracked_file_points_outside_the_repository():
     assert not found, "lines that point outside the repository:\n" + "\n".join(found)
 
 
+@pytest.mark.slow  # docs/generate.py --check in an interpreter of its own (near a second)
 def test_the_generated_tables_match_their_data():
     done = subprocess.run(
         [sys.executable, str(ROOT / "docs" / "generate.py"), "--check"], cwd=ROOT, capture_output=True, text=True

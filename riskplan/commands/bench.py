@@ -46,7 +46,8 @@ def bench(
         "--reproduce",
         "riskplan reproduce --quick batched (the default) against job by job (--jobs, a worker per core), each in a "
         "process of its own, and whether both left the same numbers; then the whole reproduce against the time of "
-        "the episode kernels its runs ran, replayed (about 4 minutes on 2 cores; the first row alone with --quick).",
+        "the episode and bootstrap kernels its runs ran, replayed (about 5 minutes on 2 cores; the first row alone "
+        "with --quick).",
     ),
     threads: bool = _instead(
         "--threads",

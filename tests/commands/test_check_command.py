@@ -11,6 +11,7 @@ from riskplan.cli import app
 runner = CliRunner()
 
 
+@pytest.mark.slow  # riskplan check composes a team and checks its graph (near a second)
 def test_check_reports_team_assumptions(in_tmp):
     result = runner.invoke(app, ["check", "experiment=paper_team", "team.graph=ring"])
     assert result.exit_code == 0, result.output

@@ -85,6 +85,7 @@ def test_a_deeply_nested_reward_program_is_one_line():
     assert "nests more than 32 levels deep" in err.problem
 
 
+@pytest.mark.slow  # worlds with extreme covariances composed and built (near a second)
 def test_extreme_covariances_and_scales():
     assert bad_input("world.sources.0.covariance=[[1e300,0],[0,1e300]]").where == "world.sources.0.covariance"
     assert bad_input("world.sources.0.covariance=[[1e-10,0],[0,1e-300]]").where == "world.sources.0.covariance"

@@ -148,6 +148,7 @@ def test_each_run_of_a_batch_calibrates_with_its_part_of_the_batchs_time(tmp_pat
     assert sum(seconds for _, seconds in records) <= whole  # parts of the batch, not the batch once per run
 
 
+@pytest.mark.slow  # two batches trained, evaluated and written (near a second)
 def test_a_batch_syncs_its_finished_files_once_and_a_refused_sync_fails_its_runs(tmp_path, monkeypatch):
     """A batch's finished files are written without an fsync each and made durable by one syncfs per file system
     for all its runs, before the runs count as done; a disk that refuses that sync fails them (their files may not

@@ -132,6 +132,7 @@ def test_two_processes_never_write_one_run_directory(tmp_path):
 
 
 # ------------------------------------------------------------------------------------ read-only mounts, full disks
+@pytest.mark.slow  # runs refused on a read-only mount (near a second)
 def test_a_read_only_output_directory_is_one_line_and_nothing_written(tmp_path, monkeypatch):
     source = tmp_path / "source"
     source.mkdir()

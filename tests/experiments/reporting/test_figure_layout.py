@@ -198,6 +198,7 @@ def test_fig3_shows_the_centralized_curves_beside_the_teams(root):
 WIDE = ["world.size=[48,12]", "world.regions.1.rect=[0,0,47,11]"]  # four times as wide as high
 
 
+@pytest.mark.slow  # a run trained and its figure drawn (near a second)
 @pytest.mark.parametrize("world", [[], WIDE], ids=["paper", "wide"])
 def test_fig1_fills_its_width_with_the_world_and_its_legend_sits_close(tmp_path, world):
     """Fig. 1's world at its aspect fills the figure's width (a wide one uses the widest figure), and the legend
