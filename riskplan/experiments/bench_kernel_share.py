@@ -107,8 +107,10 @@ def replay(paths: list[Path]) -> Replay:
     groups: dict[str, list[_Logged]] = {}
     for run in runs:  # the runs a batch could share its kernel calls between
         groups.setdefault(batch_key(run.setup.params), []).append(run)
-    if runs:
-        rollouts(runs[0].setup, 0, runs[0].thetas[0])  # the kernel loaded from numba's cache, untimed
+    if runs:  # the episode and bootstrap kernels loaded from numba's cache, untimed
+        first = runs[0]
+        rollouts(first.setup, 0, first.thetas[0])
+        summarize(first.setup, first.state, evaluate(first.setup, first.state.thetas), first.metrics, 1.0)
     faithful = True
     with kernel_clock() as spent:
         for group in groups.values():
