@@ -18,6 +18,7 @@ from omegaconf import OmegaConf
 from support import exact_outcomes, rollouts, world_3x3
 
 from riskplan.config.schema import RiskConf
+from riskplan.engine.measures.entropic import _bootstrap_entropic
 from riskplan.engine.measures.spectral import _bootstrap_distorted, _flat_from
 from riskplan.engine.policy import move_features, probabilities, scores
 from riskplan.engine.risk_measures import normal_cdf, normal_quantile, objective_and_gradient
@@ -631,6 +632,26 @@ def test_a_distortion_bootstrap_that_stops_where_its_table_turns_flat_gives_the_
     _bootstrap_distorted(rows, tables, np.array([flat, flat]), key, stopped, 0, 60)
     _bootstrap_distorted(rows, tables, np.array([n + 1, n + 1]), key, whole, 0, 60)  # never stops early
     assert stopped.tobytes() == whole.tobytes()
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 3001])
+def test_the_entropic_bootstrap_sums_four_resamples_side_by_side_to_each_ones_own_sum(n):
+    """_bootstrap_entropic takes the exponentials once and sums LANES resamples side by side: any split of the
+    resamples into ranges (a thread's share, a group cut short at its end) gives each resample the bits it has
+    alone, and that is -(1/eta) log of the mean of exp(-eta z) over its draws."""
+    z = np.sort(np.random.default_rng(n).normal(100.0, 30.0, n).round(1))
+    key, eta, resamples = np.uint64(5), 0.05, 23
+    whole, split, alone = (np.full(resamples, np.nan) for _ in range(3))
+    _bootstrap_entropic(z, eta, key, whole, 0, resamples)
+    for begin, end in [(0, 3), (3, 10), (10, 11), (11, resamples)]:
+        _bootstrap_entropic(z, eta, key, split, begin, end)
+    for b in range(resamples):
+        _bootstrap_entropic(z, eta, key, alone, b, b + 1)
+    assert whole.tobytes() == split.tobytes() == alone.tobytes()
+    for b in range(resamples):
+        drawn = np.repeat(z, resample_counts(key, b, n))
+        expected = drawn.min() - math.log(np.mean(np.exp(-eta * (drawn - drawn.min())))) / eta
+        assert whole[b] == pytest.approx(expected, rel=1e-12) and whole[b] >= drawn.min() - 1e-9
 
 
 @pytest.mark.parametrize("risk", SPECTRAL_CASES)
