@@ -95,8 +95,11 @@ def _tails(z_sorted, c0, c1, c2, c3, used, betas, tails, rows):
                 rows[lane, 1] = z_sorted[i]
         i0, i1, i2, i3 = position[0], position[1], position[2], position[3]
         v0, v1, v2, v3 = var[0], var[1], var[2], var[3]
+        longest = 0  # a loop, not position[:used].max(): numba compiles an array's max for half a second
+        for lane in range(used):
+            longest = max(longest, position[lane])
         a0 = a1 = a2 = a3 = 0.0
-        for k in range(position[:used].max()):
+        for k in range(longest):
             z = z_sorted[k]
             a0 += c0[k] * (z - v0) if k < i0 else 0.0
             a1 += c1[k] * (z - v1) if k < i1 else 0.0
