@@ -63,51 +63,54 @@ def _bootstrap_groups(z_sorted, betas, tails, key, out, begin, end):
         totals = (t0, t1, t2, t3)
         for lane in range(used):
             out[first + lane, 0] = totals[lane] / n
-        _tails(z_sorted, c0, c1, c2, c3, used, betas, tails, out[first : first + used])
+        _tails(z_sorted, lanes, used, betas, tails, out[first : first + used])
 
 
 @njit(cache=True)
-def _tails(z_sorted, c0, c1, c2, c3, used, betas, tails, rows):
-    """rows[lane, 1:] = VaR_beta and the CVaRs of the group's resamples from their counts (`used` of the LANES).
+def _tails(z_sorted, lanes, used, betas, tails, rows):
+    """rows[lane, 1:] = VaR_beta and the CVaRs of the group's resamples from their counts lanes (LANES, n), `used`
+    of them.
 
     Each CVaR's tail sum of the LANES resamples runs side by side, as the means do: to the longest of their tails,
     a resample's terms past its own tail each a 0.0, which leaves its sum as it was (the sum starts at +0.0 and its
-    terms are at most 0, so it is never -0.0)."""
+    terms are at most 0, so it is never -0.0). Plain loops and scalars throughout: a tuple indexed at run time, or
+    an array's max, took numba a second more to compile in a first run."""
     n = z_sorted.size
-    position = np.zeros(LANES, dtype=np.int64)
-    var = np.zeros(LANES)
-    lanes = (c0, c1, c2, c3)
+    c0, c1, c2, c3 = lanes[0], lanes[1], lanes[2], lanes[3]
     for t in range(betas.size):
         if t > 0 and betas[t] == betas[0]:  # the run's beta is also a reported one: the same numbers
             for lane in range(used):
                 rows[lane, 2 + t] = rows[lane, 2]
             continue
         m = tails[t]
+        i0 = i1 = i2 = i3 = 0  # each lane's VaR position (an unused lane's stays 0: no terms)
         for lane in range(used):
-            counts = lanes[lane]
             seen = 0
             i = 0
-            while seen + counts[i] < m:
-                seen += counts[i]
+            while seen + lanes[lane, i] < m:
+                seen += lanes[lane, i]
                 i += 1
-            position[lane], var[lane] = i, z_sorted[i]
+            if lane == 0:
+                i0 = i
+            elif lane == 1:
+                i1 = i
+            elif lane == 2:
+                i2 = i
+            else:
+                i3 = i
             if t == 0:
                 rows[lane, 1] = z_sorted[i]
-        i0, i1, i2, i3 = position[0], position[1], position[2], position[3]
-        v0, v1, v2, v3 = var[0], var[1], var[2], var[3]
-        longest = 0  # a loop, not position[:used].max(): numba compiles an array's max for half a second
-        for lane in range(used):
-            longest = max(longest, position[lane])
+        v0, v1, v2, v3 = z_sorted[i0], z_sorted[i1], z_sorted[i2], z_sorted[i3]
         a0 = a1 = a2 = a3 = 0.0
-        for k in range(longest):
+        for k in range(max(max(i0, i1), max(i2, i3))):
             z = z_sorted[k]
             a0 += c0[k] * (z - v0) if k < i0 else 0.0
             a1 += c1[k] * (z - v1) if k < i1 else 0.0
             a2 += c2[k] * (z - v2) if k < i2 else 0.0
             a3 += c3[k] * (z - v3) if k < i3 else 0.0
-        sums = (a0, a1, a2, a3)
         for lane in range(used):
-            rows[lane, 2 + t] = var[lane] + sums[lane] / (betas[t] * n)
+            var, total = (v0, a0) if lane == 0 else (v1, a1) if lane == 1 else (v2, a2) if lane == 2 else (v3, a3)
+            rows[lane, 2 + t] = var + total / (betas[t] * n)
 
 
 def objective_interval(z: np.ndarray, risk, resamples: int, seed: int) -> tuple[dict, np.ndarray]:
