@@ -66,3 +66,28 @@ def test_parquet_files_are_what_pandas_writes(tmp_path, rows):
     pd.testing.assert_frame_equal(
         pd.read_parquet(tmp_path / "ours.parquet"), pd.read_parquet(tmp_path / "pandas.parquet")
     )
+
+
+def test_parquet_integers_are_delta_encoded_and_pages_zstd_compressed(tmp_path):
+    """An evaluation's columns (episode numbers counting up, small counts, robots, rewards) are written with their
+    integers delta-encoded and every page zstd-compressed: the same values as pyarrow's defaults give, in a file
+    at least a fifth smaller."""
+    rng = np.random.default_rng(3)
+    rows = 60_000
+    table = {
+        "episode": np.tile(np.arange(rows // 3, dtype=np.int64), 3),
+        "robot": np.repeat(np.arange(3, dtype=np.int64), rows // 3),
+        "total_reward": rng.normal(2000.0, 300.0, rows),
+        "steps": rng.integers(5, 40, rows),
+        "healthy": rng.random(rows) < 0.9,
+    }
+    write_parquet(table, tmp_path / "ours.parquet")
+    pd.DataFrame(table).to_parquet(tmp_path / "defaults.parquet", index=False)
+    ours = pq.ParquetFile(tmp_path / "ours.parquet")
+    columns = [ours.metadata.row_group(0).column(i) for i in range(ours.metadata.num_columns)]
+    assert {column.compression for column in columns} == {"ZSTD"}
+    encodings = {column.path_in_schema: set(column.encodings) for column in columns}
+    assert all("DELTA_BINARY_PACKED" in encodings[name] for name in ("episode", "robot", "steps"))
+    assert not any("DELTA_BINARY_PACKED" in encodings[name] for name in ("total_reward", "healthy"))
+    pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "ours.parquet"), pd.DataFrame(table))
+    assert (tmp_path / "ours.parquet").stat().st_size < 0.8 * (tmp_path / "defaults.parquet").stat().st_size
