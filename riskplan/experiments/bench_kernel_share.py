@@ -107,7 +107,7 @@ def replay(paths: list[Path]) -> Replay:
     groups: dict[str, list[_Logged]] = {}
     for run in runs:  # the runs a batch could share its kernel calls between
         groups.setdefault(batch_key(run.setup.params), []).append(run)
-    if runs:  # the episode and bootstrap kernels loaded from numba's cache, untimed
+    if runs:  # the first run's episode and bootstrap kernels loaded from numba's cache, untimed
         first = runs[0]
         rollouts(first.setup, 0, first.thetas[0])
         summarize(first.setup, first.state, evaluate(first.setup, first.state.thetas), first.metrics, 1.0)

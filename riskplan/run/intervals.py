@@ -8,7 +8,7 @@ from numba import njit
 from riskplan.engine import threads
 from riskplan.engine.estimators import cvar, tail_count, value_at_risk
 from riskplan.engine.measures.registry import risk_spec
-from riskplan.engine.rng import BOOTSTRAP, count_resample, stream_key
+from riskplan.engine.rng import BOOTSTRAP, LANES, count_lanes, lane_sums, stream_key
 
 REPORT_BETAS = (0.05, 0.1, 0.2)
 
@@ -28,9 +28,6 @@ def bootstrap_intervals(z: np.ndarray, beta: float, resamples: int, seed: int) -
     return {name: {"value": point[i], "low": float(low[i]), "high": float(high[i])} for i, name in enumerate(names)}
 
 
-LANES = 4  # resamples summed side by side: four independent chains of additions instead of one
-
-
 def _bootstrap(z_sorted: np.ndarray, betas: np.ndarray, tails: np.ndarray, key: np.uint64, out: np.ndarray) -> None:
     """out[b] = mean, VaR_beta and the CVaRs of resample b: the groups of LANES resamples split among numba's
     thread count of threads (engine.threads), each running `_bootstrap_groups` without the GIL."""
@@ -39,28 +36,17 @@ def _bootstrap(z_sorted: np.ndarray, betas: np.ndarray, tails: np.ndarray, key: 
 
 @njit(cache=True, nogil=True)
 def _bootstrap_groups(z_sorted, betas, tails, key, out, begin, end):
-    """Resample groups begin..end-1: each resample draws n indices (`count_resample`, into arrays reused from one
-    group to the next), then reads mean, VaR and CVaRs off the sorted counts.
-
-    The means of LANES resamples are summed in one pass, each in its own order: a sum's additions wait on each
-    other, and four chains keep the core busy (the same numbers, a quarter less time).
-    """
+    """Resample groups begin..end-1 of LANES resamples each: their counts drawn (`count_lanes`, into arrays reused
+    from one group to the next), their means summed side by side (`lane_sums`), then VaR and the CVaRs read off
+    the sorted counts (`_tails`)."""
     n, resamples = z_sorted.size, out.shape[0]
     lanes = np.zeros((LANES, n), dtype=np.int32)  # past the last resample, a lane's sum is computed and dropped
     drawn = np.empty(n, dtype=np.uint32)
-    c0, c1, c2, c3 = lanes[0], lanes[1], lanes[2], lanes[3]
     for group in range(begin, end):
         first = group * LANES
         used = min(LANES, resamples - first)
-        for lane in range(used):
-            count_resample(key, first + lane, lanes[lane], drawn)
-        t0 = t1 = t2 = t3 = 0.0
-        for i in range(n):
-            t0 += c0[i] * z_sorted[i]
-            t1 += c1[i] * z_sorted[i]
-            t2 += c2[i] * z_sorted[i]
-            t3 += c3[i] * z_sorted[i]
-        totals = (t0, t1, t2, t3)
+        count_lanes(key, first, used, lanes, drawn)
+        totals = lane_sums(lanes, z_sorted)
         for lane in range(used):
             out[first + lane, 0] = totals[lane] / n
         _tails(z_sorted, lanes, used, betas, tails, out[first : first + used])

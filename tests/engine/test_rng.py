@@ -89,3 +89,21 @@ def test_resample_counts_are_the_streams_draws_counted_and_reused_arrays_change_
     reused, drawn = rng.resample_counts(np.uint64(key), b + 1, n), np.full(n, 7, dtype=np.uint32)
     rng.count_resample(np.uint64(key), b, reused, drawn)
     np.testing.assert_array_equal(reused, expected)
+
+
+@pytest.mark.parametrize("used", [1, 3, rng.LANES])
+def test_lanes_hold_their_resamples_counts_and_sum_each_in_order(used):
+    """count_lanes puts resamples first..first+used-1's counts in the first `used` rows and leaves the others as they
+    were; lane_sums gives each row's sum of count * value, added in index order (a Python loop's bits)."""
+    n, key, first = 257, np.uint64(41), 6
+    lanes = np.full((rng.LANES, n), 7, dtype=np.int32)
+    rng.count_lanes(key, first, used, lanes, np.empty(n, dtype=np.uint32))
+    for lane in range(rng.LANES):
+        expected = rng.resample_counts(key, first + lane, n) if lane < used else np.full(n, 7)
+        np.testing.assert_array_equal(lanes[lane], expected)
+    values = np.random.default_rng(used).normal(size=n) * 1e3
+    for row, total in zip(lanes, rng.lane_sums(lanes, values)):
+        in_order = 0.0
+        for count, value in zip(row.tolist(), values.tolist()):
+            in_order += count * value
+        assert total == in_order

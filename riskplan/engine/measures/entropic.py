@@ -10,9 +10,7 @@ from numba import njit
 from riskplan.engine import threads
 from riskplan.engine.estimators import as_sample, entropic, entropic_gradient
 from riskplan.engine.measures.base import Measure, Parameter, Params
-from riskplan.engine.rng import count_resample
-
-LANES = 4  # resamples summed side by side
+from riskplan.engine.rng import LANES, count_lanes, lane_sums
 
 ETA = Parameter("eta", 0.0, math.inf, symbol="η")  # the aversion per unit of reward
 
@@ -51,8 +49,7 @@ def _bootstrap_entropic(z_sorted, eta, key, out, begin, end):
 
     The exponentials are the sample's, the same for every resample: taken once, not once per draw. A count of 0
     adds 0 * w = +0.0 (w is in [0, 1], the sum starts at +0.0), which leaves the sum as skipping it did, so there
-    is no branch; and LANES resamples are summed side by side, each in its own order (as `run.intervals` sums
-    its means): the same numbers as one resample at a time, without the sums' additions waiting on each other."""
+    is no branch, and LANES resamples are summed side by side (`lane_sums`): the same numbers as one at a time."""
     n = z_sorted.size
     shift = z_sorted[0]
     weights = np.empty(n)
@@ -60,18 +57,9 @@ def _bootstrap_entropic(z_sorted, eta, key, out, begin, end):
         weights[i] = math.exp(-eta * (z_sorted[i] - shift))
     lanes = np.zeros((LANES, n), dtype=np.int32)  # reused from one group to the next; an unused lane's sum is dropped
     drawn = np.empty(n, dtype=np.uint32)
-    c0, c1, c2, c3 = lanes[0], lanes[1], lanes[2], lanes[3]
     for first in range(begin, end, LANES):
         used = min(LANES, end - first)
-        for lane in range(used):
-            count_resample(key, first + lane, lanes[lane], drawn)
-        t0 = t1 = t2 = t3 = 0.0
-        for i in range(n):
-            w = weights[i]
-            t0 += c0[i] * w
-            t1 += c1[i] * w
-            t2 += c2[i] * w
-            t3 += c3[i] * w
-        totals = (t0, t1, t2, t3)
+        count_lanes(key, first, used, lanes, drawn)
+        totals = lane_sums(lanes, weights)
         for lane in range(used):
             out[first + lane] = shift - math.log(totals[lane] / n) / eta
