@@ -52,32 +52,30 @@ def policies(setup: RunSetup, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def evaluate(setup: RunSetup, thetas: np.ndarray) -> Columns:
-    """The final policies on fresh episodes (own stream), one row per episode."""
+    """The final policies on fresh episodes (own stream), one row per episode: each policy's in turn, every
+    kernel call's results copied once, into columns made for all of them (a team's are 900,000 rows)."""
     count = setup.params.train.eval_episodes
     ids, evaluated, cells = policies(setup, thetas)
-    healthy = np.append(final_health(setup), True)  # the network average is the healthy robots'
-    frames = []
+    healthy = np.append(final_health(setup), True)[: len(ids)]  # the network average is the healthy robots'
+    table = {
+        "episode": np.tile(np.arange(count, dtype=np.int64), len(ids)),
+        "robot": np.repeat(ids.astype(np.int64), count),
+        "healthy": np.repeat(healthy, count),
+        **{name: np.empty(count * len(ids), dtype) for name, dtype in OUTCOMES.items()},
+    }
     run = simulator(setup)  # rollout.simulate, or its GPU port (engine.device=cuda)
-    for p, robot in enumerate(ids):
-        parts = []
+    for p in range(len(ids)):
         for first in range(0, count, EVAL_BATCH):
             key = np.array([rng.stream_key(setup.params.seed, rng.EVAL, p, first)], dtype=np.uint64)
             size = min(EVAL_BATCH, count - first)
-            parts.append(
-                run(setup.world, setup.kernel, evaluated[p : p + 1], cells[p : p + 1], key, size, scores=False)
-            )
-        frames.append(
-            {
-                "episode": np.arange(count, dtype=np.int64),
-                "robot": np.full(count, robot, dtype=np.int64),
-                "healthy": np.full(count, healthy[p], dtype=bool),
-                "total_reward": np.concatenate([b.total_reward for b in parts]),
-                "risky_steps": np.concatenate([b.risky_steps for b in parts]),
-                "source_reached": np.concatenate([b.source_reached for b in parts]),
-                "steps": np.concatenate([b.steps for b in parts]),
-            }
-        )
-    return concat(frames)
+            batch = run(setup.world, setup.kernel, evaluated[p : p + 1], cells[p : p + 1], key, size, scores=False)
+            rows = slice(p * count + first, p * count + first + size)
+            for name in OUTCOMES:
+                table[name][rows] = getattr(batch, name)
+    return table
+
+
+OUTCOMES = {"total_reward": np.float64, "risky_steps": np.int64, "source_reached": np.int64, "steps": np.int64}
 
 
 def sample_paths(setup: RunSetup, thetas: np.ndarray) -> Columns:

@@ -35,14 +35,17 @@ import io
 import json
 import math
 import os
+import threading
 import time as _time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import mcap.writer
 import numpy as np
 import orjson
+import zstandard
 from mcap.opcode import Opcode
 from mcap.records import Channel, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader
@@ -74,6 +77,31 @@ MAGIC = b"\x89MCAP0\r\n"
 BATCH_ROWS = 20_000
 CHUNK_SIZE = 8 * 1024 * 1024  # larger than any iteration, so each iteration is one chunk (flushed explicitly)
 STEP_SECONDS = 0.25  # playback time between two steps on /paths
+CHUNK_LEVEL = 1  # zstd level of every MCAP chunk riskplan writes (ChunkCompressor)
+
+
+class ChunkCompressor:
+    """What mcap's Writer compresses its chunks with. The writer calls `zstandard.compress(chunk)`, at zstd's
+    default level 3 and with no option for another, and that call builds a new compressor each time. This one
+    stands in for the zstandard module there (mcap.writer.zstandard, set below): level 1, the level the Go
+    writer's and rosbag2's live recorders use, on one compressor per thread, reused. A team's 900,000 evaluation
+    rows compress in 65 ms instead of 190 ms, into 9% more bytes; any reader decompresses either."""
+
+    def __init__(self, level: int = CHUNK_LEVEL) -> None:
+        self.level = level
+        self._own = threading.local()  # a ZstdCompressor is not to be shared between threads
+
+    def compress(self, data: bytes) -> bytes:
+        compressor = getattr(self._own, "compressor", None)
+        if compressor is None:
+            compressor = self._own.compressor = zstandard.ZstdCompressor(level=self.level)
+        return compressor.compress(data)
+
+    def __getattr__(self, name: str):
+        return getattr(zstandard, name)  # the rest of the module, should a later mcap call more of it
+
+
+mcap.writer.zstandard = ChunkCompressor()  # the mcap Writers of a process that imported this module
 
 
 # --------------------------------------------------------------------------------------- JSON values

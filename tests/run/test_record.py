@@ -12,14 +12,19 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
 import jsonschema
+import mcap.writer
 import numpy as np
 import pandas as pd
 import pytest
+import zstandard
 from mcap.reader import make_reader
+from mcap.records import Chunk
+from mcap.stream_reader import StreamReader
 
 from riskplan.run import foxglove_scene as fx
 from riskplan.run.log_reader import read_log
@@ -504,6 +509,33 @@ def test_closed_file_is_standard_mcap_with_summary(tmp_path):
         assert summary is not None and summary.statistics.message_count > 0
         assert {c.topic for c in summary.channels.values()} >= {"/metrics", "/world/map", "/paths"}
         assert {m.name for m in reader.iter_metadata()} == {"config", "provenance", "network", "world"}
+
+
+def test_chunks_are_zstd_at_level_1_from_threads_alike(tmp_path):
+    """Every chunk is zstd's level-1 frame of its records (ChunkCompressor), not the writer's default level 3,
+    also when logs are written from other threads (a compressor each); and the file reads back whole."""
+    paths = [tmp_path / f"run{k}.mcap" for k in range(3)]
+    workers = [
+        threading.Thread(target=write_full, args=(path,), kwargs={"n_eval": 3000, "seed": k})
+        for k, path in enumerate(paths)
+    ]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join()
+    level = {n: zstandard.ZstdCompressor(level=n) for n in (1, 3)}
+    for path in paths:
+        with open(path, "rb") as f:
+            chunks = [r for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+        assert chunks and {chunk.compression for chunk in chunks} == {"zstd"}
+        for chunk in chunks:
+            records = zstandard.decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+            assert chunk.data == level[1].compress(records)
+        biggest = max(chunks, key=lambda chunk: chunk.uncompressed_size)  # the evaluation's: level 3 differs there
+        records = zstandard.decompress(biggest.data, max_output_size=biggest.uncompressed_size)
+        assert level[3].compress(records) != biggest.data
+        assert read_log(path).complete
+    assert mcap.writer.zstandard.ZstdDecompressor is zstandard.ZstdDecompressor  # the module's other names pass
 
 
 # ------------------------------------------------------------------------------------------------ bad input, cost
