@@ -42,12 +42,16 @@ class BatchRun:
 
 
 def train_batch(
-    runs: list[BatchRun], progress: Callable[[int, int], None] | None = None, locked: bool = False
+    runs: list[BatchRun],
+    progress: Callable[[int, int], None] | None = None,
+    locked: bool = False,
+    between: Callable[[], None] | None = None,
 ) -> list[BatchRun]:
     """Train `runs` (simulated backend, one world and sample schedule: riskplan.engine.step.batch_key) together,
     each under its directory's lock (`locked`: the caller's process holds them); returns them with their summary
     or error. `progress(done, total)` is called as iterations finish, over all runs (one that could not open
-    counts as done). Interrupted (after every run's checkpoint) when a signal stops the batch."""
+    counts as done); `between()` before each run's evaluation (where a part of a sweep takes freed cores).
+    Interrupted (after every run's checkpoint) when a signal stops the batch."""
     with contextlib.ExitStack() as stack, StopSignals() as stop:
         active = [run for run in runs if _open(run, stack, locked)]
         if active:
@@ -61,6 +65,8 @@ def train_batch(
         for run, error, seconds in zip(active, recorder.errors, recorder.seconds):
             run.error = error
             if error is None:
+                if between:
+                    between()
                 _isolated(run, lambda run=run, seconds=seconds: _finish(run, seconds, stop, not grouped))
         finished = [run for run in active if run.summary is not None]
         if grouped and finished:

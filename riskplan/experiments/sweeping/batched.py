@@ -216,14 +216,18 @@ def train_chunks(chunks: list[list[Prepared]], progress: Path, total: int, worke
             _log(job.out, job.start.opening + f", in a batch of {len(chunk)})")
     workers = max(1, min(workers, sum(len(chunk) for chunk in chunks)))
     parts = [chunk[i::split] for chunk in chunks for split in [min(workers, len(chunk))] for i in range(split)]
+    files = [progress.with_name(f"{progress.name}.{i}.json") for i in range(len(parts))]
+    for file in files:  # a killed launch's files would tell this one's parts their siblings had finished
+        file.unlink(missing_ok=True)
     work = [
         delayed(train_part)(
             [job.setup if workers == 1 else job.setup.params for job in part],  # a worker builds from the params
             [job.out for job in part],
             [job.start.resume for job in part],
             threads or max(1, cpu_count() // workers),
-            progress.with_name(f"{progress.name}.{i}.json"),
+            files[i],
             total,
+            files[:i] + files[i + 1 :],
         )
         for i, part in enumerate(parts)
     ]
@@ -244,28 +248,34 @@ def train_chunks(chunks: list[list[Prepared]], progress: Path, total: int, worke
         raise Interrupted(stopped, min(r.get("finished", 0) for records in results for r in records))
 
 
-def train_part(setups, outs, resumes, threads: int, progress_file: Path, total: int) -> list[dict]:
+def train_part(
+    setups, outs, resumes, threads: int, progress_file: Path, total: int, siblings: list[Path] = ()
+) -> list[dict]:
     """A part of a batch in a worker process (or this one): its runs trained together under their folders' locks,
     which the driver holds; one status record per run ("interrupted" with the signal when one stopped them). Its
-    iterations done go to `progress_file` (of `total` over the whole launch). A finished run's record holds its
-    own `seconds` of the part (`own_seconds`). `setups`: each run's RunSetup, or in a worker process its frozen
-    config, built here (typed already: building it is a few milliseconds, typing a config dict again tens)."""
+    iterations done go to `progress_file` (of `total` over the whole launch), and at its end that it finished.
+    `siblings`: the other parts' files, whose cores this part takes as they finish (`FreedCores`). A finished
+    run's record holds its own `seconds` of the part (`own_seconds`). `setups`: each run's RunSetup, or in a worker
+    process its frozen config, built here (typed already: building it is a few milliseconds, typing a config dict
+    again tens)."""
     arrive()  # in a worker process: it ends with the driver
     started = time.perf_counter()
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     setups = [s if isinstance(s, RunSetup) else build_setup(s) for s in setups]
     runs = [BatchRun(setup, Path(out), resume) for setup, out, resume in zip(setups, outs, resumes)]
-    shown = {"at": 0.0}
+    freed = FreedCores(threads, list(siblings))
+    shown = {"at": 0.0, "done": 0}
 
     def progress(done: int, own: int) -> None:
         now = time.time()
         if now - shown["at"] >= 0.5 or done == own:
-            shown["at"] = now
+            shown.update(at=now, done=done)
             with contextlib.suppress(OSError):
                 write_atomic(progress_file, json.dumps({"done": done, "total": total}))
+            freed.take()
 
     try:
-        train_batch(runs, progress, locked=True)
+        train_batch(runs, progress, locked=True, between=freed.take)
     except Interrupted as stop:
         return [
             outcome(run.summary)
@@ -273,10 +283,39 @@ def train_part(setups, outs, resumes, threads: int, progress_file: Path, total: 
             else (failure(run.error) if run.error is not None else _interrupted(stop, run))
             for run in runs
         ]
+    finally:
+        with contextlib.suppress(OSError):
+            write_atomic(progress_file, json.dumps({"done": shown["done"], "total": total, "finished": True}))
     own = own_seconds(runs, time.perf_counter() - started)
     return [
         outcome(run.summary) | {"seconds": s} if run.error is None else failure(run.error) for run, s in zip(runs, own)
     ]
+
+
+class FreedCores:
+    """A part's share of the cores as the other parts of its launch finish: numba's threads raised to the cores
+    over the parts still training (their files not yet marked finished). A batch of 5 like runs on 2 workers is
+    parts of 3 and 2 runs; once the part of 2 has finished, the part of 3 goes on on both cores instead of one. The
+    numbers do not depend on the threads (the kernels' streams and sums are fixed per episode and per resample)."""
+
+    def __init__(self, threads: int, siblings: list[Path]):
+        self.threads, self.siblings = threads, siblings
+
+    def take(self) -> None:
+        if not self.siblings:
+            return
+        self.siblings = [path for path in self.siblings if not _finished(path)]
+        want = max(self.threads, cpu_count() // (1 + len(self.siblings)))
+        if want > numba.get_num_threads():
+            numba.set_num_threads(min(want, numba.config.NUMBA_NUM_THREADS))
+
+
+def _finished(progress_file: Path) -> bool:
+    """Whether the part that writes `progress_file` has marked it finished."""
+    try:
+        return json.loads(progress_file.read_text()).get("finished") is True
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def own_seconds(runs: list[BatchRun], seconds: float) -> list[float]:

@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 from types import SimpleNamespace
 
+import numba
 import pandas as pd
 import pytest
 import yaml
@@ -15,8 +16,11 @@ from support import FAST, assert_same_outputs, riskplan_cli
 from test_sweep_command import job_dirs, sweep_dir_of
 
 from riskplan import compose, train
-from riskplan.experiments.sweeping.batched import own_seconds, plan_chunks, side_by_side
+from riskplan.experiments.sweeping import batched
+from riskplan.experiments.sweeping.batched import FreedCores, own_seconds, plan_chunks, side_by_side, train_part
+from riskplan.run import batch
 from riskplan.run.batch import BatchRun
+from riskplan.run.build import build_setup
 
 GRID = ["risk.beta=0.1,0.3", "seed=range(0,2)", "experiment=paper_single,paper_team", *FAST]
 
@@ -182,3 +186,63 @@ def test_a_batched_job_gets_its_own_share_of_its_part():
     runs[0].seconds, runs[1].seconds = 1.0, 3.0  # runs[2] failed
     assert own_seconds(runs, 7.0) == [2.0, 4.0, 1.0]
     assert sum(own_seconds(runs, 7.0)) == 7.0
+
+
+needs_two_threads = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="numba runs one thread here")
+
+
+def test_a_part_takes_its_share_of_the_cores_its_finished_siblings_left(tmp_path, monkeypatch):
+    """Four cores, four parts: one thread each while all train, two once two siblings have marked their files
+    finished (the cores over the parts left), never fewer than it was given."""
+    monkeypatch.setattr(batched, "cpu_count", lambda: 4)
+    monkeypatch.setattr(numba.config, "NUMBA_NUM_THREADS", 4)  # numba's own pool has 2 threads here: set_num_threads
+    monkeypatch.setattr(numba, "set_num_threads", lambda n: calls.append(n))  # is recorded, not made
+    monkeypatch.setattr(numba, "get_num_threads", lambda: calls[-1] if calls else 1)
+    calls: list[int] = []
+    siblings = [tmp_path / f"part.{i}.json" for i in range(3)]
+    freed = FreedCores(1, siblings)
+    freed.take()
+    assert calls == []  # every sibling trains (no file yet)
+    siblings[0].write_text(json.dumps({"done": 5, "total": 20, "finished": True}))
+    siblings[1].write_text(json.dumps({"done": 5, "total": 20}))  # trained, still evaluating
+    freed.take()
+    assert calls == []  # 4 cores over 3 parts: still one thread
+    siblings[1].write_text(json.dumps({"done": 5, "total": 20, "finished": True}))
+    siblings[2].write_text("{not json")  # a file being replaced: not finished
+    freed.take()
+    assert calls == [2]
+    siblings[2].write_text(json.dumps({"done": 5, "total": 20, "finished": True}))
+    freed.take()
+    assert calls == [2, 4]
+    assert FreedCores(3, []).take() is None and calls == [2, 4]  # no siblings: nothing to take
+
+
+@pytest.mark.slow
+@needs_two_threads
+def test_a_part_whose_siblings_finished_evaluates_on_both_cores_to_the_same_numbers(tmp_path, monkeypatch):
+    """The same two runs as a part on one thread, once beside a sibling still training and once after its
+    sibling finished: the second evaluates them on two threads, the first on one, and every number is the same;
+    the part's file ends marked finished."""
+    monkeypatch.setattr(batched, "cpu_count", lambda: 2)
+    threads: list[int] = []
+    finish = batch._finish
+    monkeypatch.setattr(batch, "_finish", lambda *a, **k: (threads.append(numba.get_num_threads()), finish(*a, **k)))
+    configs = [compose([*FAST, f"seed={seed}"]) for seed in (0, 1)]
+    sibling = tmp_path / "progress.1.json"
+    before = numba.get_num_threads()  # train_part sets this thread's: put back after
+    try:
+        for name, state in (
+            ("alone", {"done": 3, "total": 20}),
+            ("freed", {"done": 10, "total": 20, "finished": True}),
+        ):
+            sibling.write_text(json.dumps(state))
+            outs = [tmp_path / name / f"seed={seed}" for seed in (0, 1)]
+            mine = tmp_path / f"{name}.0.json"
+            records = train_part([build_setup(c) for c in configs], outs, [False, False], 1, mine, 20, [sibling])
+            assert [r["status"] for r in records] == ["done", "done"]
+            assert json.loads(mine.read_text()) == {"done": 10, "total": 20, "finished": True}
+    finally:
+        numba.set_num_threads(before)
+    assert threads == [1, 1, 2, 2]
+    for seed in (0, 1):
+        assert_same_outputs(tmp_path / "freed" / f"seed={seed}", tmp_path / "alone" / f"seed={seed}")
