@@ -12,6 +12,7 @@ import threading
 import traceback
 from pathlib import Path
 
+import numba
 from hydra_plugins.hydra_joblib_launcher.config import JobLibLauncherConf
 from joblib import Parallel, delayed
 
@@ -22,6 +23,7 @@ from riskplan.experiments.sweeping.jobs import TASKS
 from riskplan.util.limits import cpu_count
 from riskplan.util.paths import hydra_quote, write_atomic
 
+NUMBA_THREADS_ENV = "NUMBA_NUM_THREADS"
 JOB_LIST = ".jobs.json"  # a grid's jobs to launch, beside sweep.log while the launch lasts (hydra/sweeper=riskplan)
 
 
@@ -143,6 +145,10 @@ def local_pool(workers: int, **options) -> Parallel:
     started before) serve the joblib launcher's jobs and the batches' parts alike."""
     settings = {key: value for key, value in dataclasses.asdict(JobLibLauncherConf()).items() if key != "_target_"}
     settings.update(n_jobs=workers, backend="loky", **options)
+    # joblib caps a worker's numba at cores // workers threads (NUMBA_NUM_THREADS, fixed for the process's life)
+    # unless this process's environment sets it: set, a worker keeps numba's whole pool, trains on its share of
+    # the cores (train_part sets it) and takes those of parts that finished (sweeping.batched.FreedCores).
+    os.environ.setdefault(NUMBA_THREADS_ENV, str(numba.config.NUMBA_NUM_THREADS))
     _pools.add(workers)
     return Parallel(**settings)
 
