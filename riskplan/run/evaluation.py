@@ -18,6 +18,7 @@ from riskplan.engine.step import RunSetup, TrainState, check_finite, simulator, 
 from riskplan.run.budget import EVAL_BATCH
 from riskplan.run.columns import Columns, concat, rows_where
 from riskplan.run.intervals import bootstrap_intervals, objective_interval, objective_intervals
+from riskplan.run.log_format import EVAL_COLUMNS
 from riskplan.run.metrics_rows import AVERAGE
 from riskplan.run.provenance import provenance
 
@@ -75,7 +76,7 @@ def evaluate(setup: RunSetup, thetas: np.ndarray) -> Columns:
     return table
 
 
-OUTCOMES = {"total_reward": np.float64, "risky_steps": np.int64, "source_reached": np.int64, "steps": np.int64}
+OUTCOMES = {name: np.dtype(dtype) for name, dtype in list(EVAL_COLUMNS.items())[3:]}  # after episode, robot, healthy
 
 
 def sample_paths(setup: RunSetup, thetas: np.ndarray) -> Columns:

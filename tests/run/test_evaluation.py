@@ -10,6 +10,7 @@ from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
 from riskplan.run import evaluation
 from riskplan.run.evaluation import evaluate
+from riskplan.run.log_format import EVAL_COLUMNS
 
 
 def test_each_policys_rows_are_its_own_streams_batch_by_batch(monkeypatch):
@@ -20,15 +21,7 @@ def test_each_policys_rows_are_its_own_streams_batch_by_batch(monkeypatch):
     thetas = np.array([[0.5, -0.2], [1.0, 0.3], [-0.4, 0.8]])
     table = evaluate(setup, thetas)
     policies = [*thetas, thetas.mean(axis=0)]
-    assert list(table) == [
-        "episode",
-        "robot",
-        "healthy",
-        "total_reward",
-        "risky_steps",
-        "source_reached",
-        "steps",
-    ]
+    assert [(name, str(values.dtype)) for name, values in table.items()] == list(EVAL_COLUMNS.items())
     assert table["robot"].tolist() == [r for r in (0, 1, 2, -1) for _ in range(23)]
     assert table["episode"].tolist() == list(range(23)) * 4
     assert table["healthy"].all() and table["healthy"].dtype == bool
