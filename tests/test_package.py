@@ -1,5 +1,5 @@
 """Package hygiene: licence and citation files that agree with the package, shell completion, a readable Run in a
-terminal and in a notebook, and a progress bar in notebooks."""
+terminal and in a notebook, and progress bars in notebooks and terminals."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import io
 import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -96,6 +97,32 @@ def test_the_training_bar_runs_in_a_notebook(monkeypatch):
     with quiet as update:  # neither a notebook nor a terminal (pytest's stderr): no bar, the callback still works
         update(1, 3, {"mean": 1.0, "cvar": 2.0})
         assert quiet._bar.disable
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_the_report_bars_show_each_phase_on_a_terminal_without_a_thread(monkeypatch):
+    """riskplan report's bars: one per phase as it comes, drawn without rich's refresh thread (the report forks
+    while they are up); nothing at all where stderr is no terminal."""
+    shown = io.StringIO()
+    monkeypatch.setattr(progress, "console", Console(file=shown, force_terminal=True, width=100))
+    monkeypatch.setattr(sys, "stderr", Terminal())
+    threads = threading.active_count()
+    with progress.PhaseBars() as update:
+        update("loading runs", 0, 5)
+        update("loading runs", 5, 5)
+        update("drawing figures", 3, 4)
+        assert threading.active_count() == threads
+    text = shown.getvalue()
+    assert "loading runs" in text and "5/5" in text and "drawing figures" in text and "3/4" in text
+    monkeypatch.setattr(progress, "console", Console(file=(quiet := io.StringIO())))
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    with progress.PhaseBars() as update:
+        update("loading runs", 5, 5)
+    assert quiet.getvalue() == ""
 
 
 @pytest.mark.slow  # a sweep and a report

@@ -60,12 +60,13 @@ def report(
 ) -> None:
     """Figures (the paper's Figs. 1-4 and more), tables and a self-contained report.html from finished runs."""
     from riskplan.experiments.reporting import check_formats, default_out, latest_reproduction, write_report
+    from riskplan.util.progress import PhaseBars
 
     fmts = check_formats(formats)
     inputs = list(paths) if paths else [latest_reproduction()]
     target = out if out is not None else default_out(inputs)  # a str: an empty --out stays empty, refused
-    with write_errors_exit():
-        result = write_report(inputs, target, fmts, key="--out")
+    with write_errors_exit(), PhaseBars() as progress:
+        result = write_report(inputs, target, fmts, key="--out", progress=progress)
     _print_report(result)
 
 

@@ -70,6 +70,7 @@ from riskplan.util import lock
 from riskplan.util.errors import BadInput
 from riskplan.util.limits import JOBS_ENV, STEPS_PER_SECOND, check_time, cpu_count, job_budget
 from riskplan.util.paths import check_output_dir, claim_dir, write_atomic
+from riskplan.util.progress import PhaseBars
 
 # --quick: fewer iterations and evaluation episodes; the same experiments, for a first look
 QUICK = ["train.iterations=60", "train.eval_episodes=20000", "train.bootstrap=200", "train.paths=10"]
@@ -358,7 +359,8 @@ def _report(target: Path, options: Options, record: dict) -> int:
     try it again)."""
     tic = time.time()
     try:
-        page = build_report([target], target / "report", options.formats)
+        with PhaseBars() as progress:
+            page = build_report([target], target / "report", options.formats, progress=progress)
         typer.echo(f"report: {page}")
         record["parts"]["report"] = {"seconds": round(time.time() - tic, 2), "page": str(page)}
     except BadInput:

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import functools
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from riskplan.experiments.output_manifest import Output, WriteFailed, claim_outp
 from riskplan.experiments.reporting.collect import collect
 from riskplan.experiments.reporting.figures import figure_files, make_figures
 from riskplan.experiments.reporting.page import render
-from riskplan.experiments.reporting.parallel import sharing
+from riskplan.experiments.reporting.parallel import Progress, sharing
 from riskplan.experiments.reporting.study_tables import study_tables
 from riskplan.experiments.reporting.tables import (
     comparison_table,
@@ -39,6 +40,8 @@ from riskplan.util.errors import BadInput
 
 FORMATS = ("png", "pdf", "svg")
 DEFAULT_FORMATS = ("png", "pdf")
+PHASES = ("loading runs", "making figures", "drawing figures")  # what a report's progress hears, in order
+PhaseProgress = Callable[[str, int, int], None]  # progress(phase, done, total)
 
 REPRODUCE_ROOT = Path("outputs") / "reproduce"  # where riskplan reproduce claims its folders
 REPORTS_ROOT = Path("outputs") / "reports"
@@ -88,28 +91,43 @@ class Report:
     skipped: dict[str, str]
 
 
-def build_report(paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS, key: str = "out_dir") -> Path:
+def build_report(
+    paths: list[Path],
+    out_dir: Path,
+    formats: list[str] = DEFAULT_FORMATS,
+    key: str = "out_dir",
+    progress: PhaseProgress | None = None,
+) -> Path:
     """Find the runs under `paths`, write figures, report.csv, runs.csv and report.html to out_dir; return the page.
 
     Raises BadInput (before writing anything) for a path that holds no run, for an unknown format, or for an
     out_dir riskplan may not write into (see riskplan.experiments.output_manifest; `key` names it in the message). Raises
     WriteFailed (an OSError, one line) when a file cannot be written: every file is written atomically.
+    `progress(phase, done, total)` hears how far each long phase has come: the runs loaded (PHASES[0]), the
+    figures made (PHASES[1]) and drawn (PHASES[2]); e.g. riskplan.util.progress.PhaseBars on a terminal.
     """
-    return write_report(paths, out_dir, formats, key).page
+    return write_report(paths, out_dir, formats, key, progress).page
 
 
 def write_report(
-    paths: list[Path], out_dir: Path, formats: list[str] = DEFAULT_FORMATS, key: str = "out_dir"
+    paths: list[Path],
+    out_dir: Path,
+    formats: list[str] = DEFAULT_FORMATS,
+    key: str = "out_dir",
+    progress: PhaseProgress | None = None,
 ) -> Report:
     """build_report, returning what was made (for the CLI's listing)."""
+    tell = progress or (lambda phase, done, total: None)
     formats = check_formats(list(formats))
     find_runs([Path(p) for p in paths])  # the inputs first (a missing path, one without runs), then --out
     previous = claim_output(out_dir, "report", key)  # before reading any run: a bad --out is refused at once
-    collected = collect([Path(p) for p in paths])
+    collected = collect([Path(p) for p in paths], functools.partial(tell, PHASES[0]))
     if collected.duplicates:  # one line (the CLI shows warnings as `warning: ...`); runs.csv names each
         warnings.warn(repeats_line(len(collected.duplicates), "runs.csv lists them as duplicate"), stacklevel=3)
-    specs, skipped = make_figures(collected)
-    with _drawing(specs, formats, skipped) as figures:  # forked children draw while this process makes the tables
+    specs, skipped = make_figures(collected, functools.partial(tell, PHASES[1]))
+    with _drawing(
+        specs, formats, skipped, functools.partial(tell, PHASES[2])
+    ) as figures:  # forked children draw while this process makes the tables
         comparison = comparison_table(collected)
         _warn_degenerate(comparison)
         runs = runs_table(collected)
@@ -145,14 +163,17 @@ def _warn_degenerate(comparison: pd.DataFrame) -> None:
 
 
 @contextlib.contextmanager
-def _drawing(specs: list, formats: list[str], skipped: dict[str, str]) -> Iterator[list[tuple]]:
+def _drawing(specs: list, formats: list[str], skipped: dict[str, str], progress: Progress) -> Iterator[list[tuple]]:
     """Every figure drawn to bytes on all CPUs (a figure's size is a fair guess of its cost): forked children start
     on entering, this process joins them on leaving, and the list yielded then holds (spec, {format: bytes}) of
     each drawn; one that failed goes into `skipped` with its reason."""
     figures: list[tuple] = []
     try:
         with sharing(
-            lambda spec: figure_files(spec, formats), specs, cost=lambda spec: spec.figure.get_size_inches().prod()
+            lambda spec: figure_files(spec, formats),
+            specs,
+            cost=lambda spec: spec.figure.get_size_inches().prod(),
+            progress=progress,
         ) as drawn:
             yield figures
     finally:
@@ -180,6 +201,7 @@ def collect_studies(collected, tables) -> dict:
 __all__ = [
     "DEFAULT_FORMATS",
     "FORMATS",
+    "PHASES",
     "Report",
     "WriteFailed",
     "build_report",

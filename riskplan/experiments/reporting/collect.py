@@ -32,7 +32,7 @@ from riskplan.config.typed import check_schema
 from riskplan.engine.measures.registry import MEASURES
 from riskplan.experiments.landscape import is_landscape_dir, load_landscape
 from riskplan.experiments.reporting.labels import MISSING, hashable, label_groups
-from riskplan.experiments.reporting.parallel import shared_map
+from riskplan.experiments.reporting.parallel import Progress, shared_map
 from riskplan.experiments.study_registry import STUDIES
 from riskplan.experiments.sweep_worker import HOW_KEYS, distinct
 from riskplan.run.metrics_rows import AVERAGE
@@ -297,15 +297,16 @@ def theta_columns(metrics: pd.DataFrame) -> list[str]:
     return sorted(cols, key=lambda c: int(c[6:]))
 
 
-def collect(paths: list[Path]) -> Collection:
-    """Find, load and group every run under `paths`; BadInput only for a path that holds no run at all."""
+def collect(paths: list[Path], progress: Progress | None = None) -> Collection:
+    """Find, load and group every run under `paths`; BadInput only for a path that holds no run at all.
+    `progress(done, total)`: runs loaded so far."""
     inputs = [Path(p) for p in paths]
     found = find_runs(inputs)  # BadInput for a missing path or one without any run
     broken: list[Broken] = []
     landscapes = []
     folders = study_folders(inputs)
     loaded: list[tuple[RunInfo, str | None]] = []  # each usable run with its study (None: none), in path order
-    results = _load_all([path for path in found if not is_landscape_dir(path)])
+    results = _load_all([path for path in found if not is_landscape_dir(path)], progress)
     for path in found:
         if path not in results:
             try:
@@ -413,14 +414,20 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
     return info, ""
 
 
-def _load_all(paths: list[Path]) -> dict[Path, tuple[RunInfo | None, str]]:
+def _load_all(paths: list[Path], progress: Progress | None = None) -> dict[Path, tuple[RunInfo | None, str]]:
     """_load of each run directory, on all CPUs (reading the tables and checking the configs is a fifth of a
     reproduction's report): a condition's seeds at a time, so that one process checks their config once."""
     conditions: dict[tuple, list[Path]] = {}
     for path in paths:
         conditions.setdefault(_condition(path), []).append(path)
     batches = list(conditions.values())
-    loaded = shared_map(lambda batch: [_load(p) for p in batch], batches, cost=lambda batch: sum(map(_size, batch)))
+    loaded = shared_map(
+        lambda batch: [_load(p) for p in batch],
+        batches,
+        cost=lambda batch: sum(map(_size, batch)),
+        progress=progress,
+        weight=len,
+    )
     return {path: result for batch, results in zip(batches, loaded) for path, result in zip(batch, results)}
 
 

@@ -26,9 +26,9 @@ from typer.testing import CliRunner
 import riskplan
 from riskplan.cli import app
 from riskplan.experiments.landscape import compute_landscape
-from riskplan.experiments.reporting import build_report, write_report
+from riskplan.experiments.reporting import PHASES, build_report, write_report
 from riskplan.experiments.reporting.collect import collect
-from riskplan.experiments.reporting.figures import make_figures
+from riskplan.experiments.reporting.figures import FIGURES, make_figures
 from riskplan.experiments.reporting.figures.naming import names
 from riskplan.experiments.reporting.parallel import WORKERS_ENV
 from riskplan.experiments.reporting.stats import seed_interval, wilson
@@ -527,8 +527,8 @@ def with_artist(monkeypatch, artist: Callable[[], Artist], names: set[str] | Non
 
     make = reporting.make_figures
 
-    def patched(collected):
-        specs, skipped = make(collected)
+    def patched(collected, progress=None):
+        specs, skipped = make(collected, progress)
         for spec in specs:
             if names is None or spec.name in names:
                 spec.figure.add_artist(artist())
@@ -557,6 +557,24 @@ def test_worker_processes_write_the_same_files_as_one_process(sweep, tmp_path, m
     assert one == two
     assert {f"{name}.{fmt}" for name in made[2].figures for fmt in ("png", "pdf", "svg")} < set(two)
     assert not any(name.startswith("fig2_cvar") for name in two)
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_the_report_tells_how_far_each_phase_has_come(sweep, tmp_path, monkeypatch, workers):
+    monkeypatch.setenv(WORKERS_ENV, workers)
+    heard = []
+    made = write_report([sweep], tmp_path / "report", ["png"], progress=lambda *told: heard.append(told))
+    assert list(dict.fromkeys(phase for phase, _, _ in heard)) == list(PHASES)  # each in turn
+    for phase in PHASES:
+        done = [d for p, d, _ in heard if p == phase]
+        assert done == sorted(done)
+    last = {phase: (done, total) for phase, done, total in heard}
+    builders = sum(figure.main for figure in FIGURES) + 1  # and the one landscape
+    assert last == {
+        "loading runs": (len(CONDITIONS), len(CONDITIONS)),  # the runs; the landscape is no run
+        "making figures": (builders, builders),
+        "drawing figures": (len(made.figures), len(made.figures)),
+    }
 
 
 @linux_only

@@ -26,10 +26,12 @@ from riskplan.experiments.reporting.figures.beyond import (
 from riskplan.experiments.reporting.figures.drawing import STYLE, FigureSpec, figure_files, uncollected
 from riskplan.experiments.reporting.figures.figure_registry import FIGURES, LANDSCAPE, Figure, study_figure
 from riskplan.experiments.reporting.figures.paper import fig_consensus, fig_cvar, fig_paths, fig_team, risk_name
+from riskplan.experiments.reporting.parallel import Progress
 
 
-def make_figures(collected: Collection) -> tuple[list[FigureSpec], dict[str, str]]:
-    """Every figure the runs support, and for the others why not (name -> reason). Never raises."""
+def make_figures(collected: Collection, progress: Progress | None = None) -> tuple[list[FigureSpec], dict[str, str]]:
+    """Every figure the runs support, and for the others why not (name -> reason). Never raises. `progress(done,
+    total)`: the builders run so far."""
     specs: list[FigureSpec] = []
     skipped: dict[str, str] = {}
     with matplotlib.rc_context(STYLE), uncollected():
@@ -38,7 +40,10 @@ def make_figures(collected: Collection) -> tuple[list[FigureSpec], dict[str, str
             (f"{LANDSCAPE}{'' if i == 0 else f'_{i + 1}'}", (lambda c, scan=scan, i=i: fig_landscape(c, scan, i)))
             for i, scan in enumerate(collected.landscapes)
         ]
-        for name, build in jobs + landscapes:
+        tell = progress or (lambda done, total: None)
+        total = len(jobs) + len(landscapes) + len(collected.studies)
+        for done, (name, build) in enumerate(jobs + landscapes):
+            tell(done, total)
             if not collected.runs and not name.startswith(LANDSCAPE):
                 skipped[name] = "no usable runs"
                 continue
@@ -53,7 +58,8 @@ def make_figures(collected: Collection) -> tuple[list[FigureSpec], dict[str, str
                 specs += result
             else:
                 skipped[name] = result
-        for study in collected.studies:  # reproduce's studies, each from its own runs
+        for done, study in enumerate(collected.studies, start=len(jobs) + len(landscapes)):
+            tell(done, total)  # reproduce's studies, each from its own runs
             name = study_figure(study.name).name
             try:
                 result = study_figure(study.name).build(study.collection)
@@ -68,6 +74,7 @@ def make_figures(collected: Collection) -> tuple[list[FigureSpec], dict[str, str
                 skipped.pop(name, None)
             else:
                 skipped.setdefault(name, f"{study.name}/: {result}")
+        tell(total, total)
     return specs, skipped
 
 
