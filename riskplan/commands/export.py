@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import typer
@@ -48,13 +49,17 @@ def export(
     changed and left as it is otherwise; broken runs are skipped with their reason, and a run repeating another's
     config and seed is exported once."""
     from riskplan.experiments.exporting import ExportFailed, export_runs
+    from riskplan.experiments.reporting import PHASES
+    from riskplan.util.progress import PhaseBars
 
     def echo(done) -> None:
         typer.echo(f"{done.action} {done.path} -> {done.where}")
 
     uri = _destination(to, uri, experiment, out)
     try:
-        result = export_runs(list(paths or []), to, uri, experiment=experiment, echo=echo)
+        with PhaseBars() as progress:
+            loading = functools.partial(progress, PHASES[0])
+            result = export_runs(list(paths or []), to, uri, experiment=experiment, echo=echo, progress=loading)
     except ExportFailed as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(1) from None

@@ -504,16 +504,18 @@ def export_runs(
     *,
     experiment: str = EXPERIMENT,
     echo: Callable[[Exported], None] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> ExportResult:
     """Export every run under `paths`. BadInput (nothing written) for a bad --to or --uri, a missing package or a
-    path without runs; ExportFailed when the destination cannot be written."""
+    path without runs; ExportFailed when the destination cannot be written. `echo`: each run as it is exported;
+    `progress(done, total)`: the runs loaded so far, before."""
     target, destination = prepare(to, uri)
     if not paths:
         raise BadInput(
             "DIRS",
             f"give one or more run, sweep or reproduce directories, e.g. riskplan export outputs/runs --to {target}",
         )
-    collected = collect([Path(p) for p in paths])
+    collected = collect([Path(p) for p in paths], progress)
     result = ExportResult(target, destination or "each run directory")
     result.skipped = list(collected.broken) + [
         Broken(Path(scan.path), "a landscape, not a training run") for scan in collected.landscapes

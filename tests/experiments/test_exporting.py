@@ -19,7 +19,13 @@ from typer.testing import CliRunner
 
 from riskplan import compose, train
 from riskplan.cli import app
-from riskplan.experiments.exporting import metric_prefix, param_value, summary_figures, tensorboard_name
+from riskplan.experiments.exporting import (
+    export_runs,
+    metric_prefix,
+    param_value,
+    summary_figures,
+    tensorboard_name,
+)
 from riskplan.experiments.reporting.collect import flatten
 from riskplan.experiments.sweep_worker import config_sha
 from riskplan.run.foxglove_layout import LAYOUT_FILE, layout, panels, topics, write_layout
@@ -279,6 +285,16 @@ def mcap_topics(run: Path) -> set[str]:
 
     with open(run / "run.mcap", "rb") as f:
         return {channel.topic for channel in make_reader(f).get_summary().channels.values()}
+
+
+@pytest.mark.slow  # the `runs` fixture
+def test_export_tells_the_runs_loaded_before_it_exports(runs, tmp_path):
+    shutil.copytree(runs, tmp_path / "runs")  # the Foxglove layout goes into each run directory
+    heard = []
+    result = export_runs([tmp_path / "runs"], "foxglove", progress=lambda *told: heard.append(told))
+    done = [d for d, _ in heard]
+    assert heard[-1] == (4, 4) and done == sorted(done)  # the killed run is loaded too, then skipped
+    assert sorted(Path(e.path).name for e in result.done) == list(GOOD)
 
 
 @pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
