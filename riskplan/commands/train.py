@@ -21,7 +21,7 @@ from riskplan.util.collector import pause_collection, resume_collection
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
 from riskplan.util.lock import LOCK, hold_lock, holder
-from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote
+from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote, write_atomic
 
 
 def register(app: typer.Typer) -> None:
@@ -151,15 +151,15 @@ def _resume(run_dir: Path, args: list[str]) -> None:
             )
     check_output_dir(run_dir, str(run_dir))
     with hold_lock(run_dir):  # before anything is read: another process may be writing it
-        if not (run_dir / CHECKPOINT).is_file():
-            raise BadInput(str(run_dir), "has no checkpoint yet (killed before the first one); start it again")
         if not (run_dir / CONFIG).is_file():
             raise BadInput(str(run_dir / CONFIG), "is missing; a run cannot be resumed without its config")
-        _resume_locked(run_dir, args)
+        _resume_locked(run_dir, args, restart=not (run_dir / CHECKPOINT).is_file())
 
 
-def _resume_locked(run_dir: Path, args: list[str]) -> None:
-    """The resume itself, under the run directory's lock."""
+def _resume_locked(run_dir: Path, args: list[str], restart: bool = False) -> None:
+    """The resume itself, under the run directory's lock. `restart`: the run stopped before its first checkpoint, so
+    it trains again from its start, in its directory: nothing of it was kept, and the same config and seed give the
+    numbers of an uninterrupted run."""
     import yaml
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
@@ -179,16 +179,19 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
             str(run_dir / CONFIG),
             f"cannot be read as a config ({type(err).__name__}); it was not written by riskplan: start the run again",
         ) from None
-    setup, finished = prepare_resume(cfg, run_dir)  # every check of config and checkpoint, before any write
+    if restart:
+        setup, finished = _restart_setup(cfg, run_dir), False
+    else:
+        setup, finished = prepare_resume(cfg, run_dir)  # every check of config and checkpoint, before any write
     if finished:  # nothing to do: a finished run is left exactly as it is
         typer.echo(f"already finished: {run_dir}")
         _closing_lines(json.loads((run_dir / SUMMARY).read_text()), run_dir)
         return
-    typer.echo(f"resuming: {run_dir}")
+    typer.echo(f"restarting (no checkpoint yet): {run_dir}" if restart else f"resuming: {run_dir}")
     try:
         write_run_status(run_dir, "running", None)
         with TrainingBar() as progress:
-            train_run(setup, run_dir, resume=True, progress=progress)
+            train_run(setup, run_dir, resume=not restart, progress=progress)
     except Interrupted as stop:
         _try_status(run_dir, str(stop), "interrupted")
         _stopped(stop, run_dir)
@@ -199,6 +202,23 @@ def _resume_locked(run_dir: Path, args: list[str]) -> None:
         raise typer.Exit(1) from None
     write_run_status(run_dir, "done", None)
     _finish(run_dir)
+
+
+def _restart_setup(cfg, run_dir: Path):
+    """The RunSetup of a run to train again from its start, its own files of the first attempt removed (its config,
+    status and log stay). A backend with checkpoints of its own (team.backend=ray) is not restarted here."""
+    from omegaconf import OmegaConf
+
+    from riskplan.config.backends import BACKENDS
+    from riskplan.run.build import build_setup
+    from riskplan.run.run_files import CONFIG, remove_stale
+
+    setup = build_setup(cfg, needs_ray=False)
+    if BACKENDS[setup.params.team.backend].resume_check is not None:
+        raise BadInput(str(run_dir), "has no checkpoint yet (stopped before its first one); remove it and start again")
+    remove_stale(run_dir)
+    write_atomic(run_dir / CONFIG, OmegaConf.to_yaml(cfg))  # with any new train.iterations
+    return setup
 
 
 def _stopped(stop: Interrupted, out: Path) -> None:

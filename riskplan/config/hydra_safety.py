@@ -35,23 +35,69 @@ CALLABLE_KEYS = ("_target_", "()", "class")
 DOTTED = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)+")
 
 
+PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._-]*")
+
+
 def check_hydra_node(cfg: DictConfig, hydra_overrides: list) -> None:
-    """BadInput for a Hydra override that fails to resolve, or a Hydra setting that names code to run."""
+    """BadInput for a Hydra override that fails to resolve, names a file outside the run's directory, or names code
+    to run."""
     for override in hydra_overrides:
         key = override.key_or_group
         if "/" in key or override.is_delete():
             continue
         try:
-            OmegaConf.select(cfg, key, throw_on_missing=False)
+            value = OmegaConf.select(cfg, key, throw_on_missing=False)
         except (MissingMandatoryValue, InterpolationToMissingValueError):
-            pass  # refers to a value Hydra sets when the job starts (hydra.runtime.output_dir, hydra.job.num, ...)
+            continue  # refers to a value Hydra sets when the job starts (hydra.runtime.output_dir, hydra.job.num, ...)
         except OmegaConfBaseException as err:
             reason = interpolation_reason(err)
             raise BadInput(
                 f"key '{key}'",
                 f"the interpolation {override.value()} cannot be resolved ({reason}); give a plain value",
             ) from None
+        check_path_setting(key, value)
     check_callables(OmegaConf.to_container(cfg.hydra, resolve=False), "hydra")
+
+
+def check_path_setting(key: str, value: Any) -> None:
+    """Hydra's settings that name files: each stays a plain name inside the run's directory, so a value with path
+    syntax cannot write (or break) a file elsewhere."""
+    if key == "hydra.job.name" and not (isinstance(value, str) and PLAIN_NAME.fullmatch(value)):
+        raise BadInput(
+            f"key '{key}'",
+            f"got {value!r}; it names the run's log file <name>.log in its directory: give a plain name of letters, "
+            f"digits, '.', '_' and '-', e.g. riskplan",
+        )
+    if key == "hydra.output_subdir" and value != ".hydra":
+        raise BadInput(f"key '{key}'", f"got {value!r}; riskplan keeps a run's config in .hydra: drop it")
+    if key.startswith(("hydra.job_logging.", "hydra.hydra_logging.")) and key.endswith(".filename"):
+        raise BadInput(f"key '{key}'", f"got {value!r}; the run's log is <run directory>/<hydra.job.name>.log: drop it")
+
+
+RESOLVER_CALL = re.compile(r"\$\{\s*([^\s:{}]+)\s*:")
+FIXED_RESOLVERS = ("metres",)  # resolvers whose value depends on their arguments alone (riskplan.config.typed)
+
+
+def check_resolvers(node: Any, path: str = "") -> None:
+    """BadInput for a task value that calls a resolver whose answer can change between reads (${now:...},
+    ${oc.env:...}): a run keeps its config's text in .hydra/config.yaml, and resuming, reporting or sweeping it again
+    must read the same config."""
+    if isinstance(node, DictConfig):
+        node = OmegaConf.to_container(node, resolve=False)
+    if isinstance(node, dict):
+        for key, value in node.items():
+            check_resolvers(value, f"{path}.{key}" if path else str(key))
+    elif isinstance(node, list):
+        for index, value in enumerate(node):
+            check_resolvers(value, f"{path}.{index}")
+    elif isinstance(node, str):
+        for name in RESOLVER_CALL.findall(node):
+            if name not in FIXED_RESOLVERS:
+                raise BadInput(
+                    f"key '{path}'",
+                    f"got {node!r}; ${{{name}:...}} may give another value each time the config is read, so the run "
+                    f"could not be resumed or reported as it ran: give a plain value (or ${{metres:...}} for a position)",
+                )
 
 
 def interpolation_reason(err: Exception) -> str:

@@ -22,6 +22,7 @@ Three things end the workers:
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import ctypes
 import os
@@ -30,6 +31,7 @@ import socket
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from riskplan.util.paths import write_atomic
@@ -67,6 +69,7 @@ def name_driver(local: bool) -> None:
         os.environ.pop(ENV, None)
         return
     if not _guardian:
+        atexit.register(_leave_guardian)
         _guardian.append(
             subprocess.Popen(
                 [sys.executable, "-m", __name__, me],
@@ -79,6 +82,14 @@ def name_driver(local: bool) -> None:
             )
         )
     os.environ[ENV] = me
+
+
+def _leave_guardian() -> None:
+    """At exit: the guardian outlives this process by design (it waits for it to end), so dropping its handle is no
+    leak: without the warning Popen gives for a child still running, a second line after a bad input's one."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ResourceWarning)
+        _guardian.clear()
 
 
 def driver() -> str | None:

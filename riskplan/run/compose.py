@@ -13,7 +13,7 @@ from omegaconf import DictConfig, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from riskplan.config import schema
-from riskplan.config.hydra_safety import check_hydra_node
+from riskplan.config.hydra_safety import check_hydra_node, check_resolvers
 from riskplan.config.schema import CONF_DIR
 from riskplan.config.typed import explain, typed
 from riskplan.config.validate import EXTRAS, check_extra
@@ -201,6 +201,7 @@ def _compose(overrides, validate: bool, with_hydra: bool) -> tuple[DictConfig, R
     full = copy.deepcopy(cfg) if with_hydra else None
     with open_dict(cfg):
         del cfg["hydra"]
+    check_resolvers(cfg)
     if validate:  # the schema's checks, then the model's, as the RunSetup is built
         setup = build_setup(cfg)
     else:

@@ -33,8 +33,8 @@ def claim_dir(root: Path, suffix: str = "") -> Path:
 def check_output_dir(path: Path | str, key: str) -> Path:
     """A directory riskplan may write into (existing or to be made): BadInput naming `key` otherwise.
 
-    Refused: an empty or blank path, the filesystem root, /proc, /sys and /dev, a file (or a path through one), and a
-    directory on a read-only filesystem or without write permission.
+    Refused: an empty or blank path, the filesystem root, /proc, /sys and /dev, a path through a .hydra folder, a file
+    (or a path through one), and a directory on a read-only filesystem or without write permission.
     """
     text = str(path)
     if not text.strip() or "\x00" in text:
@@ -46,6 +46,10 @@ def check_output_dir(path: Path | str, key: str) -> Path:
     for virtual in VIRTUAL:
         if resolved == Path(virtual) or Path(virtual) in resolved.parents:
             raise BadInput(key, f"{text} is under {virtual}, a kernel filesystem; give a directory on a disk")
+    if ".hydra" in resolved.parts:  # Hydra's record of a run's config: jobs written there are taken for it
+        raise BadInput(
+            key, f"{text} is inside a .hydra folder, where Hydra keeps a run's config; give another directory"
+        )
     if resolved.exists() and not resolved.is_dir():
         raise BadInput(key, f"{text} is a file; expected a directory")
     existing = resolved

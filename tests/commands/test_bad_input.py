@@ -58,11 +58,6 @@ def template(tmp_path_factory) -> Path:
     runs = root / "outputs" / "runs"
     done = runs / "done"
     train(compose(RUN), done)  # a finished run, checkpointed at iteration 12
-    early = runs / "early"  # killed before its first checkpoint
-    shutil.copytree(done, early)
-    (early / CHECKPOINT).unlink()
-    for name in ("metrics.parquet", "eval.parquet", "trajectories.parquet", "summary.json"):
-        (early / name).unlink()
     damaged = runs / "damaged"
     shutil.copytree(done, damaged)
     (damaged / CHECKPOINT).write_text('{"iteration": 1')

@@ -157,3 +157,22 @@ def test_a_cluster_launch_names_no_driver_so_its_jobs_outlive_it(monkeypatch, lo
     monkeypatch.setenv(ENV, "stale")
     driver_watch.name_driver(local)
     assert os.environ.get(ENV) == (identity(os.getpid()) if local else None)
+
+
+def test_a_driver_that_exits_with_its_guardian_running_says_nothing_of_it(tmp_path):
+    """The guardian outlives its driver by design: a driver that named itself and then exits (a reproduction's bad
+    --out, after its workers started) prints no warning about the child still running, so bad input stays one
+    line; and the guardian still ends once the driver has."""
+    code = (
+        "import os, warnings; warnings.simplefilter('always')\n"
+        "from riskplan.experiments import driver_watch\n"
+        "driver_watch.name_driver(True)\n"
+        "print(driver_watch._guardian[0].pid)\n"
+    )
+    done = subprocess.run([sys.executable, "-X", "dev", "-c", code], capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    guardian = int(done.stdout)
+    deadline = time.monotonic() + GONE + 2 * driver_watch.WATCH_SECONDS
+    while alive(guardian) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not alive(guardian)

@@ -20,7 +20,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from support import TINY, assert_same_outputs, child_env, files, riskplan_command, run_cli, train_cli
+from support import (
+    TINY,
+    assert_same_outputs,
+    child_env,
+    files,
+    kill_after_iteration,
+    resume_cli,
+    riskplan_command,
+    run_cli,
+    train_cli,
+)
 from typer.testing import CliRunner
 
 import riskplan.engine.step as engine_step
@@ -179,6 +189,23 @@ def test_a_full_disk_fails_in_one_line_keeps_every_checkpoint_and_resumes_to_the
         reference = tmp_path / "reference"  # trained here: the numbers of a `riskplan train` (test_determinism.py)
         training.train(compose([*RUN, "train.eval_episodes=20000"]), reference)
         assert_same_outputs(out, reference)
+
+
+@pytest.mark.slow  # killed `riskplan train` processes
+@pytest.mark.parametrize("extra", [[], ["train.iterations=14"]])
+def test_a_run_stopped_before_its_first_checkpoint_resumes_from_its_start(tmp_path, extra):
+    """Killed at iteration 2 of 12, before the checkpoint at 4: --resume trains it again in its directory (nothing
+    of it was kept), to the numbers of an uninterrupted run, rather than sending the user to start it again, which
+    the directory's own run would refuse."""
+    out = tmp_path / "early"
+    assert kill_after_iteration(RUN, out, 2) == -signal.SIGKILL
+    assert not (out / CHECKPOINT).exists() and (out / "run.mcap").is_file()
+    again = resume_cli(out, *extra)
+    assert again.returncode == 0, again.stderr
+    assert again.stdout.startswith(f"restarting (no checkpoint yet): {out}")
+    reference = tmp_path / "reference"
+    training.train(compose([*RUN, *extra]), reference)
+    assert_same_outputs(out, reference)
 
 
 # ------------------------------------------------------------------------------------ checkpoints

@@ -21,6 +21,7 @@ from riskplan.experiments.sweeping.jobs import (
     TASKS,
     Outcome,
     Plan,
+    check_job_folders,
     locate,
 )
 from riskplan.experiments.sweeping.launch import launch
@@ -66,6 +67,7 @@ def _run_plan(plan: Plan, args: list[str], jobs: int | None, title: str, out, be
         return run_optimiser(plan, args, jobs, title, echo)
     started = time.time()
     locate(plan.sweep_dir, plan.jobs)
+    check_job_folders(plan.sweep_dir, plan.jobs)
     finished = {i for i, job in enumerate(plan.jobs) if job.path is not None and is_finished(job.path, job.sha)}
     todo = len(plan.jobs) - len(finished)
     if plan.workers_arg is not None and plan.workers and todo and todo < plan.workers:

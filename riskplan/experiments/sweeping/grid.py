@@ -27,7 +27,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from riskplan.config import schema
-from riskplan.config.hydra_safety import check_hydra_node
+from riskplan.config.hydra_safety import check_hydra_node, check_resolvers
 from riskplan.config.typed import choice_problem
 from riskplan.config.validate import check_extra
 from riskplan.engine.step import batch_key
@@ -322,6 +322,7 @@ def validate(
                 try:
                     if groups not in bases:
                         bases[groups] = shared(groups, parse(search), functools.partial(compose_groups, search, groups))
+                        check_resolvers(bases[groups].cfg)  # a config file's own (the overrides are checked apart)
                     as_data = bases[groups].job(keys)  # most jobs: no composition of their own
                     if as_data is None:
                         cfg = copy.deepcopy(bases[groups].cfg)

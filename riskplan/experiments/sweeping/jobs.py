@@ -9,13 +9,18 @@ from pathlib import Path
 
 import yaml
 
+from riskplan.experiments.driver_watch import DRIVER_FILE
 from riskplan.experiments.sweep_worker import read_status
+from riskplan.run.run_files import is_run_dir
 from riskplan.util import lock
+from riskplan.util.errors import BadInput
 
 SWEEPS_ROOT = Path("outputs") / "sweeps"
 
 
 SUMMARY = "summary.parquet"
+SWEEP_MARKS = ("sweep.log", "multirun.yaml", DRIVER_FILE)  # what a launch writes first: a sweep's directory
+JOB_OWN = (lock.LOCK, "job.log", ".hydra")  # what a job's folder holds before its status.json (a launch killed early)
 
 
 DEFAULT_LAUNCHER = "joblib"
@@ -141,6 +146,45 @@ def locate(sweep_dir: Path, jobs: list[Job]) -> None:
     for key, folder in elsewhere.items():
         if key in missing:
             missing[key].path = folder
+
+
+def check_sweep_dir(path: Path, key: str) -> None:
+    """A sweep starts in a new or empty directory, or goes on in a sweep's own: never in a run's directory or among
+    files of some other kind, which its summary.parquet and job folders would write over."""
+    if not path.is_dir() or any((path / mark).is_file() for mark in SWEEP_MARKS):
+        return
+    if not [entry for entry in path.iterdir() if entry.name != lock.LOCK]:
+        return
+    if is_run_dir(path):
+        raise BadInput(key, f"{path} holds a run of riskplan train, not a sweep; give a new directory")
+    raise BadInput(key, f"{path} is not empty and holds no sweep; give a new or empty directory, or a sweep's own")
+
+
+def check_job_folders(sweep_dir: Path, jobs: list[Job]) -> None:
+    """Before a launch (its jobs located): BadInput if a job would write over what is not its own: a folder holding a
+    run of another config that did not fail (a re-run in a sweep's directory skips or resumes its own jobs, and
+    replaces failed ones), or a folder of files that are not a job's. A folder another process holds is left to its
+    job, which fails alone."""
+    clashes = []
+    for job in jobs:
+        folder = job.path if job.path is not None or job.folder is None else sweep_dir / job.folder
+        if folder is None or not folder.is_dir():
+            continue
+        if lock.holder(folder) is not None:  # another process's: the job fails alone, touching nothing
+            continue
+        status = read_status(folder)
+        if status is None and any(entry.name not in JOB_OWN for entry in folder.iterdir()):
+            clashes.append((folder, "holds files that are not a sweep job's"))
+        elif status is not None and status.get("config_sha") != job.sha and status.get("status") != "failed":
+            clashes.append((folder, f"holds a {status.get('status')} run of another config"))
+    if clashes:
+        folder, problem = clashes[0]
+        more = f" (and {len(clashes) - 1} more job folders)" if len(clashes) > 1 else ""
+        raise BadInput(
+            str(folder),
+            f"{problem}{more}; a sweep goes on in its directory only with the same configs: give a new "
+            f"hydra.sweep.dir, or remove what is there",
+        )
 
 
 def override_files(root: Path):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from riskplan.config.hydra_safety import check_resolvers
 from riskplan.experiments.sweep_worker import SUBDIR
 from riskplan.experiments.sweeping.cluster_batches import task_size
 from riskplan.experiments.sweeping.grid import (
@@ -33,6 +34,7 @@ from riskplan.experiments.sweeping.jobs import (
     GRID_SWEEPER,
     TRAVELS,
     Plan,
+    check_sweep_dir,
 )
 from riskplan.experiments.sweeping.search import plan_optimiser
 from riskplan.run.compose import expand_shorthands, parse_overrides
@@ -54,12 +56,16 @@ def plan_sweep(
     hydra_ovs = [o for o in parsed if o.is_hydra_override()]
     task_ovs = [o for o in parsed if not o.is_hydra_override()]
     _check_hydra_overrides(hydra_ovs)
+    for override in task_ovs:  # the jobs take them as data, not through compose's check of the whole config
+        check_resolvers(override.input_line.partition("=")[2], override.key_or_group)
     hydra_keys = {o.key_or_group: o for o in hydra_ovs}
     batch = default_batch(hydra_keys, jobs) if batch is None else batch
     launcher = _launcher(hydra_keys, jobs, batch)
     memory = batch_memory(hydra_keys) if launcher == BATCH_LAUNCHER else None
     tasks = task_size(hydra_keys, jobs, launcher) if batch and launcher in CLUSTER_BATCHES else None
     explicit_dir = _explicit_dir(hydra_keys, sweep_dir)
+    if sweep_dir is not None:  # a reproduction's study
+        check_sweep_dir(Path(sweep_dir), str(sweep_dir))
     sweeper = str(hydra_keys["hydra/sweeper"].value()) if "hydra/sweeper" in hydra_keys else GRID_SWEEPER
     if sweeper not in ("basic", GRID_SWEEPER):  # an optimiser: it chooses the jobs as it goes
         return plan_optimiser(args, task_ovs, hydra_ovs, launcher, sweeper, jobs, sweep_dir, explicit_dir)
@@ -185,6 +191,7 @@ def _explicit_dir(hydra_keys: dict, sweep_dir: Path | None) -> Path | None:
             f"got '{value}'; give a plain path (without it, riskplan sweep uses outputs/sweeps/<timestamp>)",
         )
     check_output_dir(value, "hydra.sweep.dir")
+    check_sweep_dir(Path(value), "hydra.sweep.dir")
     return Path(value)
 
 

@@ -19,9 +19,10 @@ import pytest
 from support import CLI, TINY, alive, files, riskplan_cli
 from typer.testing import CliRunner
 
+from riskplan import compose
 from riskplan.cli import app
 from riskplan.experiments import driver_watch
-from riskplan.experiments.sweep_worker import NAME_MAX
+from riskplan.experiments.sweep_worker import NAME_MAX, config_sha
 from riskplan.util import lock
 
 pytestmark = pytest.mark.slow
@@ -190,9 +191,11 @@ def cmdline(pid: int) -> str:
 def test_a_job_folder_held_by_another_process_is_left_alone(tmp_path):
     held = tmp_path / "s" / "seed=0"
     held.mkdir(parents=True)
+    (tmp_path / "s" / "sweep.log").write_text("")  # the sweep's directory, its job seed=0 running elsewhere
     planted = {
-        "status.json": json.dumps({"status": "running", "config_sha": "0" * 16, "pid": os.getpid()}),
-        "checkpoint": "someone else's",
+        "status.json": json.dumps(
+            {"status": "running", "config_sha": config_sha(compose([*TINY, "seed=0"])), "pid": os.getpid()}
+        ),
         "run.mcap": "someone else's log",
     }
     for name, text in planted.items():
