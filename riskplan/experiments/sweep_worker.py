@@ -33,10 +33,12 @@ import hashlib
 import json
 import math
 import os
+import signal
 import socket
 import string
 import sys
 import tempfile
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable
@@ -218,10 +220,39 @@ def sweep_job(cfg: DictConfig, out: Path) -> float | None:
     """
     out = Path(out)
     watched = arrive()
+    if watched and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, _stop_or_end)
     with contextlib.ExitStack() as stack:
         if not _lock_folder(stack, out):
             return None
-        return _locked_job(cfg, out, watched)
+        _in_job.append(out)
+        try:
+            return _locked_job(cfg, out, watched)
+        except KeyboardInterrupt:  # Ctrl-C in the job's set-up, before its training's own handler took over
+            _mark_interrupted(out)
+            raise
+        finally:
+            _in_job.clear()
+
+
+def _mark_interrupted(out: Path) -> None:
+    """status.json says interrupted, not running, for a job this process began and a signal stopped."""
+    status = read_status(out)
+    if status is not None and status.get("status") == "running" and status.get("pid") == os.getpid():
+        write_status(out, {**status, "status": "interrupted", "error": "interrupted by SIGINT before its training"})
+
+
+_in_job: list[Path] = []  # the job this local worker runs now (none between jobs)
+
+
+def _stop_or_end(signum: int, frame) -> None:
+    """SIGINT (Ctrl-C reaches the driver's whole process group) in a local worker: a job's set-up stops with
+    KeyboardInterrupt and is marked interrupted (its training has a handler of its own, which checkpoints first);
+    between jobs the worker ends at once and quietly, as its driver is stopping too. Left to Python, an idle
+    worker printed a traceback from loky's loop."""
+    if _in_job:
+        raise KeyboardInterrupt
+    os._exit(128 + signum)
 
 
 def _lock_folder(stack: contextlib.ExitStack, out: Path) -> bool:
