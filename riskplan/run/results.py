@@ -105,7 +105,10 @@ def load_run(path: str | Path) -> Run:
     summary_file = path / SUMMARY
     if all((path / table_file(name)).is_file() for name in TABLES) and summary_file.is_file():
         try:
-            return finished_run(path, config, json.loads(summary_file.read_text()))
+            summary = json.loads(summary_file.read_text())
+            if not isinstance(summary, dict):  # `NaN`, a list: not what riskplan writes
+                raise ValueError(f"{SUMMARY} holds a {type(summary).__name__}, not an object")
+            return finished_run(path, config, summary)
         except (OSError, ValueError) as err:  # a damaged table: fall back to the log of record
             damaged = f"unreadable tables ({err}); rebuilt from run.mcap"
     else:
