@@ -155,8 +155,8 @@ def mean_cvar_mix(mean_part: np.ndarray, cvar_part: np.ndarray, weight: float) -
 
 def entropic(z: np.ndarray, eta: float) -> np.ndarray | float:
     """-(1/eta) log E[exp(-eta Z)] along the last axis, stably for large eta |z| and for eta -> 0 (`_entropic_parts`)."""
-    mean, log_mean, _ = _entropic_parts(as_sample(z), check_eta(eta))
-    return (mean - log_mean / eta)[..., 0][()]
+    centre, log_mean, _ = _entropic_parts(as_sample(z), check_eta(eta))
+    return (centre - log_mean / eta)[..., 0][()]
 
 
 def entropic_gradient(z: np.ndarray, scores: np.ndarray, eta: float, *, baseline: bool = True) -> np.ndarray:
@@ -173,23 +173,34 @@ def entropic_gradient(z: np.ndarray, scores: np.ndarray, eta: float, *, baseline
 
 
 def _entropic_parts(z: np.ndarray, eta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(mean z, log E[exp(x)], softmax(x) - 1/W) along the last axis, x = -eta (z - mean z); the first two keepdims.
+    """(c, log E[exp(x)], softmax(x) - 1/W) along the last axis, x = -eta (z - c), c = mean z; the first two
+    keepdims. The entropic risk is c - log E[exp(x)] / eta, whatever c.
 
     The log-sum-exp shifted by max x, so nothing overflows, where max x >= 1; where max x < 1 (eta |z - mean| small),
-    by expm1 and log1p, so -(1/eta) log E[exp(x)] and the weights keep their relative accuracy as eta -> 0.
+    by expm1 and log1p, so -(1/eta) log E[exp(x)] and the weights keep their relative accuracy as eta -> 0. Where
+    eta |z - mean| itself overflows (eta near the largest float), c is the row's smallest z instead: x <= 0 there,
+    an exponential that underflows is 0, and the sum, >= 1, has a finite logarithm.
     """
     n = z.shape[-1]
     mean = z.mean(axis=-1, keepdims=True)
-    x = -eta * (z - mean)
+    with np.errstate(over="ignore"):  # an infinite x is taken care of below
+        x = -eta * (z - mean)
     top = x.max(axis=-1, keepdims=True)
-    small = top < 1.0
+    wide = top == np.inf
+    if np.any(wide):  # only there do the numbers differ from those of the mean as c
+        low = z.min(axis=-1, keepdims=True)
+        with np.errstate(over="ignore"):  # -inf: a weight of 0
+            x = np.where(wide, -eta * (z - low), x)
+        mean, top = np.where(wide, low, mean), np.where(wide, 0.0, top)
+    small = (top < 1.0) & ~wide
     if np.any(small):
         u = np.expm1(np.where(small, x, 0.0))  # the large rows' x would overflow here: they take the other branch
         u_mean = u.mean(axis=-1, keepdims=True)
         small_parts = np.log1p(u_mean), (u - u_mean) / (n * (1.0 + u_mean))
         if np.all(small):
             return mean, *small_parts
-    e = np.exp(x - top)
+    with np.errstate(over="ignore"):  # x - top below the largest -float: a weight of 0
+        e = np.exp(x - top)
     total = e.sum(axis=-1, keepdims=True)
     large_parts = top + np.log(total / n), e / total - 1.0 / n
     if not np.any(small):

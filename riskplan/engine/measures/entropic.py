@@ -13,6 +13,7 @@ from riskplan.engine.measures.base import Measure, Parameter, Params
 from riskplan.engine.rng import LANES, count_lanes, lane_sums
 
 ETA = Parameter("eta", 0.0, math.inf, symbol="η")  # the aversion per unit of reward
+_TINY = float(np.finfo(np.float64).tiny)  # the smallest normal float: a sum below it has lost relative accuracy
 
 
 class Entropic(Measure):
@@ -45,7 +46,10 @@ class Entropic(Measure):
 @njit(cache=True, nogil=True)
 def _bootstrap_entropic(z_sorted, eta, key, out, begin, end):
     """The entropic risk of resamples begin..end-1, -(1/eta) log (sum_k C_k exp(-eta z_k) / n), shifted by the
-    smallest z so that no exponential overflows.
+    smallest z so that no exponential overflows. A resample that misses the smallest z's may find all its weights
+    underflowed (eta (z - min z) > 708: eta = 2 and rewards hundreds apart), a sum of 0 and an infinite value: one
+    whose sum is below the smallest normal float is summed again, shifted by its own smallest z
+    (`_resample_entropic`); the others keep the shared weights' numbers.
 
     The exponentials are the sample's, the same for every resample: taken once, not once per draw. A count of 0
     adds 0 * w = +0.0 (w is in [0, 1], the sum starts at +0.0), which leaves the sum as skipping it did, so there
@@ -62,4 +66,22 @@ def _bootstrap_entropic(z_sorted, eta, key, out, begin, end):
         count_lanes(key, first, used, lanes, drawn)
         totals = lane_sums(lanes, weights)
         for lane in range(used):
-            out[first + lane] = shift - math.log(totals[lane] / n) / eta
+            if totals[lane] >= _TINY:
+                out[first + lane] = shift - math.log(totals[lane] / n) / eta
+            else:  # the resample misses the sample's lowest z's, and its weights underflow (eta dz > 708)
+                out[first + lane] = _resample_entropic(z_sorted, lanes[lane], eta)
+
+
+@njit(cache=True, nogil=True)
+def _resample_entropic(z_sorted, counts, eta):
+    """The entropic risk of one resample by its counts, shifted by its own smallest z (the first with a count):
+    its sum is then >= 1, so the logarithm is finite and accurate however far its z's lie above the sample's."""
+    n = z_sorted.size
+    first = 0
+    while counts[first] == 0:
+        first += 1
+    shift = z_sorted[first]
+    total = 0.0
+    for i in range(first, n):
+        total += counts[i] * math.exp(-eta * (z_sorted[i] - shift))
+    return shift - math.log(total / n) / eta

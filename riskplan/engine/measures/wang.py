@@ -25,8 +25,7 @@ class Wang(Spectral):
         return normal_cdf(normal_quantile(np.asarray(u, dtype=float)) + params.eta)
 
     def spectrum(self, u: np.ndarray, params: Params) -> np.ndarray:
-        eta = params.eta
-        return np.exp(-eta * normal_quantile(np.asarray(u, dtype=float)) - 0.5 * eta**2)
+        return _phi(normal_quantile(np.asarray(u, dtype=float)), params.eta)
 
     def make_tables(self, params: Params, n: int) -> tuple[np.ndarray, np.ndarray]:
         """g and 1 - g = Phi(-Phi^-1(u) - eta), each where it is the smaller: the weights keep their relative
@@ -35,8 +34,22 @@ class Wang(Spectral):
         x = normal_quantile(np.arange(n + 1) / n)
         lower, upper = normal_cdf(x + eta), normal_cdf(-x - eta)
         weights = np.where(lower[1:] <= 0.5, np.diff(lower), -np.diff(upper))
-        return weights, np.exp(-eta * x[1:-1] - 0.5 * eta**2)
+        return weights, _phi(x[1:-1], eta)
 
     def of_normal(self, mu: float, sigma: float, params: Params) -> float:
         """mu - eta sigma."""
         return mu - params.eta * sigma
+
+
+def _phi(x: np.ndarray, eta: float) -> np.ndarray:
+    """phi = exp(-eta x - eta^2 / 2) at x = Phi^-1(u). Where eta^2 overflows (eta > 1.3e154, a shift of that many
+    standard deviations), phi is 0 at every finite x, as exp of anything below -745 is (and infinite at x = -inf, as
+    its limit u -> 0 is): computed as it is written, it would be an OverflowError, or inf - inf."""
+    try:
+        with np.errstate(over="ignore"):  # a numpy eta's square is inf, a float's an OverflowError
+            half_square = 0.5 * eta**2
+    except OverflowError:
+        half_square = math.inf
+    if half_square == math.inf:
+        return np.where(x == -np.inf, np.inf, np.where(np.isnan(x), np.nan, 0.0))
+    return np.exp(-eta * x - half_square)
