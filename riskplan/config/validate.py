@@ -11,7 +11,7 @@ import math
 import warnings
 
 from riskplan.config.backends import BACKENDS, DEVICES
-from riskplan.config.faults import faults_of
+from riskplan.config.faults import Fault, faults_of
 from riskplan.config.keys import KEYS, Key
 from riskplan.config.schema import (
     Aggregate,
@@ -29,6 +29,7 @@ from riskplan.config.schema import (
 from riskplan.util.checks import finite, integer_at_least, require, require_installed
 
 SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias under the 64-bit stream keys
+BYZANTINE_LIMIT = 1e100  # largest |value| and scale a byzantine robot sends (team.faults): squares stay finite
 
 # The values that need an optional extra: (key, value) -> (the module that provides it, what it is, the extra, a
 # note). A missing one is bad input (MissingExtra) in check, train and sweep, before anything is written.
@@ -210,7 +211,7 @@ def check_team(team: TeamConf) -> None:
         )
         for i, node in enumerate(team.risk):
             check_risk(node, keys.risk.at(i))
-    faults_of(team)
+    check_byzantine(faults_of(team))
     require(
         not team.faults or team.order != Order.gradient_tracking,
         keys.faults,
@@ -226,6 +227,31 @@ def check_team(team: TeamConf) -> None:
             f"gives {count} start cell{'' if count == 1 else 's'} for {team.robots} robots; give one [x, y] per "
             f"robot or null",
         )
+
+
+def check_byzantine(faults: tuple[Fault, ...]) -> None:
+    """What a byzantine robot sends stays within BYZANTINE_LIMIT, whatever the world: a `value` in [-1e100, 1e100],
+    noise of a `scale` <= 1e100. The thetas that mix it, their gaps squared (the consensus error) and their softmax
+    logits (every signal peaks below 1e100, riskplan.engine.world.SIGNAL_LIMIT) then stay finite; a value of 1e308
+    made the consensus error inf, and its thetas the report's axes overflow. The engine's step checks what still
+    could overflow at run time (riskplan.engine.step.check_agreement)."""
+    for i, fault in enumerate(faults):
+        where = KEYS.team.faults.at(i)
+        if fault.value is not None:
+            largest = max(fault.value, key=abs)
+            require(
+                abs(largest) <= BYZANTINE_LIMIT,
+                f"{where}.value",
+                f"got {largest:g}; expected numbers in [-1e100, 1e100]: beyond that, the thetas that mix what a "
+                f"byzantine robot sends overflow when squared (the consensus error), and their softmax logits may",
+            )
+        if fault.scale is not None:
+            require(
+                fault.scale <= BYZANTINE_LIMIT,
+                f"{where}.scale",
+                f"got {fault.scale:g}; expected a noise scale in (0, 1e100]: beyond that, the thetas that mix what a "
+                f"byzantine robot sends overflow when squared (the consensus error), and their softmax logits may",
+            )
 
 
 def check_backend(team: TeamConf) -> None:

@@ -129,7 +129,11 @@ def advance(setup: RunSetup, state: TrainState, estimates: Estimates) -> tuple[T
         new_thetas = consensus_step(setup, mixer, thetas, estimates.grads, eps, l)
     check_step(setup, l, thetas, estimates.grads, new_thetas)
     healthy = mixer.healthy(l)  # team.faults: the averages and the consensus error are the healthy robots'
-    error = consensus_error(thetas if healthy.all() else thetas[healthy]) if setup.team else math.nan
+    error = math.nan  # one robot: no team to agree
+    if setup.team:
+        kept = thetas if healthy.all() else thetas[healthy]
+        error = consensus_error(kept)
+        check_agreement(l, kept, error)
     team = team_statistics(setup, l, estimates.z, estimates.stats["objective"]) if setup.team else None
     statistics = Statistics(l, thetas, estimates, eps, error, healthy, team)
     return TrainState(l + 1, new_thetas, mixer.snapshot()), statistics
@@ -257,6 +261,24 @@ def check_step(setup: RunSetup, l: int, thetas: np.ndarray, grads: np.ndarray, n
         raise NumericalTrouble(
             f"{where}: the new theta={_shown(new_thetas)} overflows the softmax "
             f"(theta . features is not finite); lower train.step_size.initial"
+        )
+
+
+def check_agreement(l: int, thetas: np.ndarray, error: float) -> None:
+    """Step 5 for a team: NumericalTrouble unless the consensus error of the healthy robots' thetas (H, P) and their
+    mean (the network average's theta) are finite; each theta is (check_step), but they may be too far apart."""
+    with np.errstate(over="ignore", invalid="ignore"):  # what overflows is said below, in one line
+        mean_ok = bool(np.isfinite(thetas.mean(axis=0)).all())
+    if not (math.isfinite(error) and mean_ok):
+        what, why = (
+            ("consensus error max ||theta^i - theta^j||", "too far apart")
+            if not math.isfinite(error)
+            else ("mean theta", "too large")
+        )
+        raise NumericalTrouble(
+            f"iteration {l}: the healthy robots' {what} is not finite (overflow; theta={_shown(thetas)}): their "
+            f"thetas are {why} for a float; lower train.step_size.initial (or a byzantine robot's team.faults value "
+            f"or scale)"
         )
 
 

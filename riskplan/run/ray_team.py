@@ -52,7 +52,7 @@ import numpy as np
 
 from riskplan.config.schema import Order
 from riskplan.config.validate import check_extra
-from riskplan.engine.step import NumericalTrouble, RunSetup, TrainState, team_statistics
+from riskplan.engine.step import NumericalTrouble, RunSetup, TrainState, check_agreement, team_statistics
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.run.checkpoint import TeamCheckpoint, load_team_checkpoint, save_team_checkpoint
 from riskplan.run.columns import Columns, from_rows, sorted_by
@@ -260,6 +260,7 @@ class _Team:
         error = consensus_error(thetas[ok]) if setup.team else math.nan
         rows = []
         if setup.team:
+            check_agreement(l, thetas[ok], error)  # as the simulated step: never a non-finite row
             objectives = np.array([e["row"]["objective"] for e in entries])
             team = team_statistics(setup, l, np.stack([e["z"] for e in entries]), objectives)
             levels = np.array([e["row"]["beta_l"] for e in entries])

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -26,10 +28,34 @@ def consensus_error(thetas: np.ndarray) -> float:
     so the rows are taken farthest first, each against all rows, until no pair of the rows left can beat the best
     gap found (`_gap_bound`, which allows for rounding). A round cloud needs a few dozen rows; the worst case (every
     row as far from c) takes them all, in blocks.
+
+    Finite rows whose squared gaps overflow (gaps beyond about 1e154, where the brute force says inf) are measured
+    again scaled by a power of two (`_rescaled`): the true error when a float holds it, else inf (the engine's step
+    stops on that: riskplan.engine.step.check_agreement). Every other answer is the brute force's, bit for bit.
     """
     t = np.asarray(thetas, dtype=float)
     if t.ndim != 2:
         raise ValueError(f"expected thetas of shape (N, M), got {t.shape}")
+    with np.errstate(over="ignore"):  # a square that overflows gives inf, measured again just below
+        error = _unscaled_error(t)
+    if error == math.inf and np.isfinite(t).all():
+        return _rescaled(t)
+    return error
+
+
+def _rescaled(t: np.ndarray) -> float:
+    """consensus_error of finite rows whose squared gaps overflow: the rows scaled by 2^-e, e the exponent of the
+    widest coordinate's half range (so every scaled gap is below 2 and no square overflows), measured, and the
+    error scaled back by 2^e (exact scalings: the brute force's number in a float of unbounded exponent); inf when
+    it is beyond the largest float."""
+    half_range = float(np.max(t.max(axis=0) * 0.5 - t.min(axis=0) * 0.5))  # no overflow: each term <= 0.9e308
+    exponent = int(np.frexp(half_range)[1])
+    with np.errstate(over="ignore"):
+        return float(np.ldexp(_unscaled_error(np.ldexp(t, -exponent)), exponent))
+
+
+def _unscaled_error(t: np.ndarray) -> float:
+    """consensus_error as computed in t's own scale (inf when a squared gap overflows)."""
     n, m = t.shape
     if n <= 1:
         return 0.0
