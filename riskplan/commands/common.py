@@ -69,7 +69,11 @@ def bad_input_exits(command):
             raise typer.Exit(2) from None
         except OSError as err:
             where = f" {err.filename}" if err.filename else ""
-            typer.echo(f"error: cannot write{where}: {err.strerror or err}", err=True)
+            typer.echo(
+                f"error: cannot write{where}: {err.strerror or err}; free space (or give another directory), then run "
+                f"the same command again: what finished is kept",
+                err=True,
+            )
             raise typer.Exit(1) from None
 
     return wrapper

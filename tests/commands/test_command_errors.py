@@ -1,0 +1,50 @@
+"""Every command's last line of defence (riskplan.commands.common.bad_input_exits): bad input is one line and exit
+code 2; a file that cannot be written at run time (a full disk) is one line and exit code 1, which says what to do."""
+
+from __future__ import annotations
+
+import errno
+
+import pytest
+import typer
+
+from riskplan.commands.common import bad_input_exits
+from riskplan.util.errors import BadInput
+
+
+def failing(error: Exception):
+    @bad_input_exits
+    def command():
+        raise error
+
+    return command
+
+
+@pytest.mark.parametrize(
+    "error, code, line",
+    [
+        (
+            BadInput("risk.beta", "got 2; expected a level in (0, 1]"),
+            2,
+            "error: risk.beta: got 2; expected a level in (0, 1]",
+        ),
+        (
+            OSError(errno.ENOSPC, "No space left on device", "out/s/summary.parquet"),
+            1,
+            "error: cannot write out/s/summary.parquet: No space left on device; free space (or give another "
+            "directory), then run the same command again: what finished is kept",
+        ),
+        (
+            OSError(errno.ENOSPC, "No space left on device"),  # a write() names no file
+            1,
+            "error: cannot write: No space left on device; free space (or give another directory), then run the "
+            "same command again: what finished is kept",
+        ),
+    ],
+)
+def test_a_failure_is_one_line_with_its_exit_code(capsys, error, code, line):
+    with pytest.raises(typer.Exit) as stop:
+        failing(error)()
+    assert stop.value.exit_code == code
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [line] and captured.out == ""
