@@ -13,8 +13,6 @@ the type of a loaded run; both load when first used.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from riskplan.version import __version__
 
 __all__ = ["BadInput", "Run", "__version__", "compose", "load_run", "report", "sweep", "train"]
@@ -37,26 +35,40 @@ def __dir__():
 def compose(overrides=()):
     """Compose and validate a config from Hydra overrides (riskplan.run.compose.compose)."""
     from riskplan.run.compose import compose as _compose
+    from riskplan.util.api_args import overrides_list
 
-    return _compose(list(overrides))
+    return _compose(overrides_list(overrides))
 
 
 def train(config, out_dir, progress: bool = True):
     """Train, evaluate and record one experiment into out_dir; returns its Run (riskplan.run.training.train).
 
     With `progress`, a live bar on a terminal or in a Jupyter notebook (nothing is printed elsewhere)."""
+    from riskplan.run.run_directory import check_new_run_dir
     from riskplan.run.training import train as _train
+    from riskplan.util.api_args import a_path
+    from riskplan.util.errors import BadInput
+    from riskplan.util.paths import check_output_dir
     from riskplan.util.progress import TrainingBar, silent
 
+    if config is None or isinstance(config, (str, bytes, list, tuple)):
+        raise BadInput("config", f"got {config!r}; give a composed config, e.g. riskplan.compose(['risk=neutral'])")
+    out = check_output_dir(a_path(out_dir, "out_dir"), "out_dir")
+    check_new_run_dir(out, "out_dir")  # a run never writes among other files; `riskplan train --resume` resumes
     with TrainingBar() if progress else silent() as bar:
-        return _train(config, out_dir, progress=bar)
+        return _train(config, out, progress=bar)
 
 
 def load_run(path):
     """Load a run directory (tables rebuilt from run.mcap if needed) (riskplan.run.results.load_run)."""
     from riskplan.run.results import load_run as _load_run
+    from riskplan.util.api_args import a_path
+    from riskplan.util.errors import BadInput
 
-    return _load_run(path)
+    run_dir = a_path(path, "path")
+    if not run_dir.exists():
+        raise BadInput(str(run_dir), "does not exist; give a run directory")
+    return _load_run(run_dir)
 
 
 def sweep(overrides=(), jobs=None, sweep_dir=None, batch=None):
@@ -66,8 +78,13 @@ def sweep(overrides=(), jobs=None, sweep_dir=None, batch=None):
     (riskplan.experiments.sweeping.run_sweep). The jobs that share a world train as one program (batched) unless
     `batch=False` or `jobs` asks for a worker process per job."""
     from riskplan.experiments.sweeping import run_sweep
+    from riskplan.util.api_args import a_path, optional_count, optional_flag, overrides_list
+    from riskplan.util.paths import check_output_dir
 
-    return run_sweep(list(overrides), jobs, sweep_dir, out=lambda text: None, batch=batch)
+    args, jobs, batch = overrides_list(overrides), optional_count(jobs, "jobs"), optional_flag(batch, "batch")
+    if sweep_dir is not None:
+        sweep_dir = check_output_dir(a_path(sweep_dir, "sweep_dir"), "sweep_dir")
+    return run_sweep(args, jobs, sweep_dir, out=lambda text: None, batch=batch)
 
 
 def report(paths, out_dir=None, formats=("png", "pdf")):
@@ -75,6 +92,8 @@ def report(paths, out_dir=None, formats=("png", "pdf")):
     `out_dir` (default: PATH/report for one path, else outputs/reports/<timestamp>/). Returns the page's path
     (riskplan.experiments.reporting.build_report)."""
     from riskplan.experiments.reporting import build_report, default_out
+    from riskplan.util.api_args import a_path, formats_list, paths_list
 
-    inputs = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
-    return build_report(inputs, Path(out_dir) if out_dir is not None else default_out(inputs), list(formats))
+    inputs = paths_list(paths, "paths")
+    out = a_path(out_dir, "out_dir") if out_dir is not None else default_out(inputs)
+    return build_report(inputs, out, formats_list(formats))

@@ -20,7 +20,7 @@ from riskplan.commands.common import (
 from riskplan.util.collector import pause_collection, resume_collection
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
-from riskplan.util.lock import LOCK, hold_lock, holder
+from riskplan.util.lock import hold_lock
 from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote, write_atomic
 
 
@@ -54,6 +54,7 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
     from riskplan.experiments.hydra_app import RunFailed, run_composed, run_hydra
     from riskplan.run.build import reach_lines
     from riskplan.run.compose import check_hydra_args, compose_run, parse_overrides
+    from riskplan.run.run_directory import check_new_run_dir
 
     args = with_config_dirs(overrides)
     multirun = sorted(MULTIRUN_FLAGS & set(args))
@@ -112,29 +113,6 @@ def run_dir_override(parsed: list) -> Path | None:
             check_output_dir(value, "hydra.run.dir")
             return Path(value)
     return None
-
-
-def check_new_run_dir(out: Path, key: str) -> None:
-    """A run starts only in a new or empty directory: never over another run's files (resume is explicit)."""
-    from riskplan.run.run_files import is_run_dir
-
-    if not out.is_dir():
-        return
-    entries = [p for p in out.iterdir() if p.name != LOCK]
-    if not entries:
-        return
-    pid = holder(out)
-    if pid is not None:
-        raise BadInput(
-            str(out),
-            f"is in use by another riskplan process (pid {pid or 'unknown'}); one process "
-            f"writes a run directory at a time: wait for it to end or stop it",
-        )
-    if is_run_dir(out):
-        raise BadInput(
-            key, f"{out} already holds a run; resume it with riskplan train --resume {out}, or give a new directory"
-        )
-    raise BadInput(key, f"{out} is not empty and holds no run; give a new or empty directory")
 
 
 def _resume(run_dir: Path, args: list[str]) -> None:

@@ -19,9 +19,31 @@ from riskplan.run.columns import Columns, write_parquet
 from riskplan.run.foxglove_layout import write_layout
 from riskplan.run.provenance import provenance
 from riskplan.run.record import RunLog, resume_log
-from riskplan.run.run_files import CONFIG, ENDS, RECORDS, RUN_LOG, SUMMARY, TABLES, table_file
+from riskplan.run.run_files import CONFIG, ENDS, RECORDS, RUN_LOG, SUMMARY, TABLES, is_run_dir, table_file
 from riskplan.util.errors import BadInput
+from riskplan.util.lock import LOCK, holder
 from riskplan.util.paths import atomic_path, write_atomic
+
+
+def check_new_run_dir(out: Path, key: str) -> None:
+    """A run starts only in a new or empty directory: never over another run's files (resume is explicit)."""
+    if not out.is_dir():
+        return
+    entries = [p for p in out.iterdir() if p.name != LOCK]
+    if not entries:
+        return
+    pid = holder(out)
+    if pid is not None:
+        raise BadInput(
+            str(out),
+            f"is in use by another riskplan process (pid {pid or 'unknown'}); one process "
+            f"writes a run directory at a time: wait for it to end or stop it",
+        )
+    if is_run_dir(out):
+        raise BadInput(
+            key, f"{out} already holds a run; resume it with riskplan train --resume {out}, or give a new directory"
+        )
+    raise BadInput(key, f"{out} is not empty and holds no run; give a new or empty directory")
 
 
 def refuse_existing_run(out: Path, setup: RunSetup) -> None:
