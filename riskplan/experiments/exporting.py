@@ -267,7 +267,7 @@ def check_uri(to: str, uri: str | None) -> str:
     text = str(uri)
     if to == "mlflow" and URI_SCHEME.match(text) and not text.startswith("file:"):
         return text  # sqlite:///..., http://..., databricks: MLflow checks these itself
-    if to == "mlflow" and text.startswith("file:"):
+    if text.startswith("file:"):  # a file URI names a directory, for TensorBoard as for MLflow
         text = unquote(urlparse(text).path) if text.startswith("file://") else text[len("file:") :]
     check_output_dir(text, "--uri")
     directory = Path(os.path.abspath(os.path.expanduser(text)))
@@ -360,17 +360,28 @@ class MlflowTarget:
         tags = {k: v[:MAX_TAG_VAL_LENGTH] for k, v in rec.tags.items() if k != "riskplan.fingerprint"}
         run = self.client.create_run(self.experiment_id, start_time=int(rec.start * 1000), tags=tags, run_name=rec.name)
         run_id = run.info.run_id
-        params = [Param(k, v[:MAX_PARAM_VAL_LENGTH]) for k, v in rec.params.items()]
-        for i in range(0, len(params), MAX_PARAMS_TAGS_PER_BATCH):
-            self.client.log_batch(run_id, params=params[i : i + MAX_PARAMS_TAGS_PER_BATCH])
-        metrics = [Metric(key, value, round(t * 1000), step) for key, step, value, t in rec.points]
-        for i in range(0, len(metrics), MAX_METRICS_PER_BATCH):
-            self.client.log_batch(run_id, metrics=metrics[i : i + MAX_METRICS_PER_BATCH])
-        # the fingerprint last: a run cut short by an error is never taken for a finished export
-        self.client.set_tag(run_id, "riskplan.fingerprint", rec.fingerprint)
+        try:
+            params = [Param(mlflow_key(k), v[:MAX_PARAM_VAL_LENGTH]) for k, v in rec.params.items()]
+            for i in range(0, len(params), MAX_PARAMS_TAGS_PER_BATCH):
+                self.client.log_batch(run_id, params=params[i : i + MAX_PARAMS_TAGS_PER_BATCH])
+            metrics = [Metric(mlflow_key(key), value, round(t * 1000), step) for key, step, value, t in rec.points]
+            for i in range(0, len(metrics), MAX_METRICS_PER_BATCH):
+                self.client.log_batch(run_id, metrics=metrics[i : i + MAX_METRICS_PER_BATCH])
+            # the fingerprint last: a run cut short by an error is never taken for a finished export
+            self.client.set_tag(run_id, "riskplan.fingerprint", rec.fingerprint)
+        except BaseException:
+            with contextlib.suppress(Exception):  # not left RUNNING: marked failed, and replaced by the next export
+                self.client.set_terminated(run_id, "FAILED")
+            raise
         self.client.set_terminated(run_id, "FINISHED", end_time=round(rec.end * 1000))
         self.by_dir[rec.tags["riskplan.run_dir"]] = []
         return Exported(rec.path, "replaced" if old else "exported", f"mlflow run {run_id}")
+
+
+def mlflow_key(key: str) -> str:
+    """A param or metric name as MLflow takes it: ASCII letters, digits and _-./ and spaces; any other character of
+    a user's name (a source called 'sáfe 😀') becomes '_', as the TensorBoard and ROS 2 names do."""
+    return re.sub(r"[^A-Za-z0-9_\-./ ]", "_", key)
 
 
 # ------------------------------------------------------------------------------------------- TensorBoard
@@ -402,7 +413,9 @@ class TensorboardTarget:
             "version": EXPORT_VERSION,
         }
         if is_marked(
-            target, marker, lambda: Skip(f"{target} exists and was not written by riskplan export; move it away")
+            target,
+            marker,
+            lambda: Skip(f"{target} exists and is not a TensorBoard log of riskplan export's; move it away"),
         ):
             return Exported(rec.path, "unchanged", str(target))
         status = replace_marked_dir(target, marker, lambda tmp: self._events(tmp, name, rec))

@@ -40,7 +40,7 @@ from riskplan.util.errors import BadInput
 from riskplan.util.paths import is_marked, replace_marked_dir, write_atomic
 
 BAG = "rosbag2"  # the bag's directory inside a run directory when no --out is given
-FOREIGN = "exists and was not written by riskplan export; move it away or give another --out"
+FOREIGN = "exists and is not a ROS 2 bag of riskplan export's; move it away or give another --out"
 FRAME = "map"
 STEP_NS = 500_000_000  # one move of an episode: half a second of the bag's time
 OCCUPIED, FREE = 100, 0

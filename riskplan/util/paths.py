@@ -117,13 +117,17 @@ MARKER = "riskplan-export.json"  # what riskplan writes into a directory it expo
 
 def is_marked(target: Path, marker: dict, foreign) -> bool:
     """Whether `target` holds riskplan's MARKER with `marker` (an export that is already there, unchanged). A
-    directory there without riskplan's marker is someone else's: `foreign()` is the error raised."""
+    directory there without riskplan's marker, or with another exporter's (its `format`: a ROS 2 bag where
+    TensorBoard would write), is not this exporter's to replace: `foreign()` is the error raised."""
     if not target.exists():
         return False
     try:
-        return json.loads((target / MARKER).read_text()) == marker
+        found = json.loads((target / MARKER).read_text())
     except (OSError, ValueError):
         raise foreign() from None
+    if not isinstance(found, dict) or found.get("format") != marker.get("format"):
+        raise foreign()
+    return found == marker
 
 
 def replace_marked_dir(target: Path, marker: dict, fill) -> str:

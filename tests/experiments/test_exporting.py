@@ -173,6 +173,24 @@ def test_mlflow_reexport_is_idempotent_and_replaces_a_changed_run(runs, tmp_path
     assert after["single_0"].data.metrics["summary/cvar"] == s["cvar"]["value"]
 
 
+def test_a_source_name_mlflow_refuses_is_exported_under_a_safe_key(tmp_path, file_store):
+    """A source called 'sáfe src/😀' (the CLI takes it) names summary figures MLflow refuses: its key keeps ASCII
+    letters, digits, _-./ and spaces, the rest '_'; the run is exported whole and finished, never left RUNNING."""
+    pytest.importorskip("mlflow")
+    run = tmp_path / "runs" / "named"
+    train(compose([*TINY, "world.sources.0.name='sáfe src/😀'"]), run)
+    store = tmp_path / "mlruns"
+    done = invoke(str(run), "--to", "mlflow", "--uri", f"file:{store}")
+    assert done.exit_code == 0 and "1 exported" in done.stdout, done.output
+    client, found = mlflow_runs(store)
+    exported = found["named"]
+    assert exported.info.status == "FINISHED" and exported.data.tags["riskplan.fingerprint"]
+    named = [key for key in exported.data.metrics if "src" in key]
+    assert named and all(re.fullmatch(r"[A-Za-z0-9_\-./ ]+", key) for key in named), named
+    assert any("s_fe src/_" in key for key in named), named
+    assert len(client.search_runs([exported.info.experiment_id], run_view_type=3)) == 1  # none left RUNNING
+
+
 # ------------------------------------------------------------------------------------------- TensorBoard
 def accumulator(directory: Path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator

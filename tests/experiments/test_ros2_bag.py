@@ -171,6 +171,29 @@ def test_exporting_again_leaves_the_bags_alone_and_the_default_is_inside_each_ru
     assert set(read_bag(runs / "one" / "rosbag2")) == set(read_bag(bag_of(out, "one")))
 
 
+def test_a_bag_and_a_tensorboard_log_never_replace_each_other(bags, tmp_path):
+    """Both targets name a run's folder <run>-<hash>: pointed at the same directory, neither replaces the other's
+    (the run is skipped, with the reason, and the other's folder left whole); a file URI names the TensorBoard
+    directory itself."""
+    runs, *_ = bags
+    shared = tmp_path / "shared"
+    assert runner.invoke(app, ["export", str(runs / "one"), "--to", "ros2", "--out", str(shared)]).exit_code == 0
+    bag = bag_of(shared, "one")
+    before = {p: p.read_bytes() for p in bag.rglob("*") if p.is_file()}
+    done = runner.invoke(app, ["export", str(runs / "one"), "--to", "tensorboard", "--uri", shared.as_uri()])
+    assert "is not a TensorBoard log of riskplan export's" in done.output, done.output
+    assert {p: p.read_bytes() for p in bag.rglob("*") if p.is_file()} == before
+    assert not (Path.cwd() / "file:").exists()
+
+    logs = tmp_path / "logs"
+    assert runner.invoke(app, ["export", str(runs / "one"), "--to", "tensorboard", "--uri", str(logs)]).exit_code == 0
+    (log,) = [p for p in logs.iterdir() if p.is_dir()]
+    before = {p: p.read_bytes() for p in log.rglob("*") if p.is_file()}
+    done = runner.invoke(app, ["export", str(runs / "one"), "--to", "ros2", "--out", str(logs)])
+    assert "1 skipped" in done.output and "is not a ROS 2 bag of riskplan export's" in done.output, done.output
+    assert {p: p.read_bytes() for p in log.rglob("*") if p.is_file()} == before
+
+
 def test_out_belongs_to_ros2_and_uri_does_not(bags, tmp_path):
     runs, *_ = bags
     done = runner.invoke(app, ["export", str(runs), "--to", "tensorboard", "--out", str(tmp_path)])
