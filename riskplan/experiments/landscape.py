@@ -25,6 +25,7 @@ from omegaconf import OmegaConf
 from riskplan.engine import rng
 from riskplan.engine.risk_measures import tail_count
 from riskplan.engine.rollout import simulate
+from riskplan.engine.step import logit_bound
 from riskplan.experiments.output_manifest import Output, claim_output
 from riskplan.run.build import build_setup
 from riskplan.run.provenance import provenance
@@ -200,9 +201,18 @@ def check_grid(setup, points: int, episodes: int, ranges, axes) -> tuple[tuple, 
     if episodes < 1:
         raise BadInput("--episodes", f"got {episodes}; expected at least 1 episode per grid point")
     ranges = tuple(tuple(float(v) for v in r) for r in ranges) if ranges is not None else (DEFAULT_RANGE, DEFAULT_RANGE)
+    text = ",".join(f"{v:g}" for r in ranges for v in r)
     if len(ranges) != 2 or any(not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) for lo, hi in ranges):
-        text = ",".join(f"{v:g}" for r in ranges for v in r)
         raise BadInput("--range", f"got {text}; expected LO,HI (both axes) or LO,HI,LO,HI, finite, with LO < HI")
+    corners = grid_thetas(setup.theta0, (a, b), ranges, 2)  # |logits| peak at the grid's corners
+    if any(not math.isfinite(hi - lo) for lo, hi in ranges) or not math.isfinite(
+        logit_bound(setup.world, corners, setup.policy)
+    ):
+        raise BadInput(
+            "--range",
+            f"got {text}; a theta that far overflows the softmax (theta . features is not finite), as riskplan train "
+            f"refuses it: give a narrower range, e.g. -20,20",
+        )
     check_size(points, episodes, sources, setup.kernel.tables.horizon)
     return ranges, (a, b)
 

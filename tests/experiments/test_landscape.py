@@ -118,6 +118,8 @@ def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
     [
         ["--range=5,1"],
         ["--range=1,2,3"],
+        ["--range=-1e308,1e308"],  # its step overflows: theta NaN at the grid's points
+        ["--range=0,1e308"],  # a theta whose logits overflow, which riskplan train refuses
         ["--axes", "0,0"],
         ["--axes", "0,2"],
         ["--points", "1"],
