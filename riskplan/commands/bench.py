@@ -10,12 +10,15 @@ from pathlib import Path
 
 import typer
 
+from riskplan.commands.common import bad_input_exits
+
 SCALING_PLOT = Path("outputs") / "bench" / "scaling.png"
+PLOT_TYPES = (".png", ".pdf", ".svg")  # what the scaling plot's writer takes (with its metadata)
 
 
 def register(app: typer.Typer) -> None:
     """Add `riskplan bench` to the CLI."""
-    app.command("bench")(bench)
+    app.command("bench")(bad_input_exits(bench))
 
 
 def _instead(flag: str, text: str):
@@ -59,6 +62,8 @@ def bench(
     import numba
     from rich.console import Console
 
+    _check_outputs(json_out, csv_out, plot if scaling else None)  # before minutes of measuring, not after
+
     console = Console(soft_wrap=True)  # one line per figure, also in a log file
     console.print(
         f"numba {numba.__version__}, {numba.get_num_threads()} threads "
@@ -80,6 +85,21 @@ def bench(
         console.print(f"warning: {_busy()}", style="yellow")
     if json_out:
         json_out.write_text(json.dumps(rows, indent=2, default=float))
+
+
+def _check_outputs(json_out: Path | None, csv_out: Path | None, plot: Path | None) -> None:
+    """The files the bench will write: each in a writable folder and not a folder itself, and the plot a type its
+    writer takes. BadInput (one line, exit 2) naming the option otherwise."""
+    from riskplan.util.errors import BadInput
+    from riskplan.util.paths import check_output_dir, check_output_file
+
+    for path, key, ending in ((json_out, "--json", ".json"), (csv_out, "--csv", ".csv")):
+        if path is not None:
+            check_output_file(path, key, ending)
+    if plot is not None:  # its folder is made when the plot is written (outputs/bench by default)
+        if plot.suffix.lower() not in PLOT_TYPES or plot.is_dir():
+            raise BadInput("--plot", f"got {plot}; give a file path ending {', '.join(PLOT_TYPES)}")
+        check_output_dir(plot.parent if str(plot.parent) else Path("."), "--plot")
 
 
 def _sections(console, quick: bool, sweep: bool, threads: bool, reproduce: bool = False) -> tuple:

@@ -15,6 +15,7 @@ from riskplan.commands.common import (
     with_config_dirs,
 )
 from riskplan.util.errors import BadInput
+from riskplan.util.paths import check_output_file
 
 
 def register(app: typer.Typer) -> None:
@@ -42,10 +43,10 @@ def check(
     args = with_config_dirs(list(overrides or []))
     reject_hydra_flags(args, "check prints the composed config itself")
     if draw is not None:  # matplotlib only when asked to draw: check stays fast without it
-        from riskplan.experiments.reporting.figures.world_picture import check_writable, draw_format
+        from riskplan.experiments.reporting.figures.world_picture import draw_format
 
         draw_format(draw)
-        check_writable(draw)
+        check_output_file(draw, "--draw", ".png, .svg or .pdf")
     cfg = compose(args, validate=False)
     try:
         setup = build_setup(cfg)

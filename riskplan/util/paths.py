@@ -63,6 +63,24 @@ def check_output_dir(path: Path | str, key: str) -> Path:
     return Path(text)
 
 
+def check_output_file(path: Path, key: str, ending: str) -> None:
+    """A file riskplan may write (--draw's picture, bench's --json): its folder exists and can be written, and it is
+    not a folder itself; checked before the work that writes it. `ending` names the file types, for the message."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise BadInput(key, f"{path} is a folder; give a file path ending {ending}")
+    if not folder.is_dir():
+        why = f"{folder} is a file, not a folder" if folder.exists() else f"no folder {folder}"
+        raise BadInput(key, f"{path} cannot be written: {why}; give a path in an existing folder")
+    probe = folder / f".{path.name}.probe"
+    try:
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as err:
+        raise BadInput(key, f"{path} cannot be written ({err.strerror}); give a path in a writable folder") from None
+
+
 def _read_only(path: Path) -> bool:
     """Whether path lies on a filesystem mounted read-only (root ignores permission bits, not this)."""
     try:

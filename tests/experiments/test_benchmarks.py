@@ -9,7 +9,9 @@ from pathlib import Path
 import numba
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from riskplan.cli import app
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
 from riskplan.experiments.baselines.python_loop import python_rollouts
@@ -404,3 +406,25 @@ def test_the_replay_simulates_the_runs_own_episodes(tmp_path):
 def _paper_call():
     setup = build_setup(compose([]))
     return setup.world, setup.kernel, setup.theta0[None], np.zeros(1, np.int64), np.array([7], np.uint64), 100
+
+
+@pytest.mark.parametrize(
+    "args, line",
+    [
+        (["--json", "adir"], "error: --json: adir is a folder; give a file path ending .json"),
+        (["--json", "nodir/x.json"], "error: --json: nodir/x.json cannot be written: no folder nodir"),
+        (["--scaling", "--csv", "adir"], "error: --csv: adir is a folder; give a file path ending .csv"),
+        (["--scaling", "--plot", "x.jpg"], "error: --plot: got x.jpg; give a file path ending .png, .pdf, .svg"),
+    ],
+)
+def test_the_files_bench_writes_are_checked_before_it_measures(tmp_path, monkeypatch, args, line):
+    """A --json, --csv or --plot the bench could not write is one line and exit code 2 at once, not a traceback
+    after minutes of measuring (and the lost figures)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "adir").mkdir()
+    measured = []
+    monkeypatch.setattr("riskplan.commands.bench._sections", lambda *a, **k: measured.append(a) or ())
+    result = CliRunner().invoke(app, ["bench", "--quick", *args])
+    assert result.exit_code == 2 and result.stderr.splitlines()[0].startswith(line), result.output
+    assert len(result.stderr.splitlines()) == 1 and measured == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"]

@@ -368,22 +368,6 @@ def draw_format(path: Path, key: str = "--draw") -> str:
     return fmt
 
 
-def check_writable(path: Path, key: str = "--draw") -> None:
-    """A --draw path whose folder exists and can be written, and that is not a folder itself."""
-    folder = path.parent if str(path.parent) else Path(".")
-    if path.is_dir():
-        raise BadInput(key, f"{path} is a folder; give a file path ending .png, .svg or .pdf")
-    if not folder.is_dir():
-        why = f"{folder} is a file, not a folder" if folder.exists() else f"no folder {folder}"
-        raise BadInput(key, f"{path} cannot be written: {why}; give a path in an existing folder")
-    probe = folder / f".{path.name}.probe"
-    try:
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as err:
-        raise BadInput(key, f"{path} cannot be written ({err.strerror}); give a path in a writable folder") from None
-
-
 def write_picture(picture: Picture, path: Path, key: str = "--draw") -> None:
     """A picture written to `path` (atomically: a failed write leaves no file)."""
     fmt = draw_format(path, key)
