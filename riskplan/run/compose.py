@@ -81,11 +81,24 @@ def _short(text: str, limit: int = 60) -> str:
 
 
 def check_groups(parsed: list) -> None:
-    """A config group set to null (`experiment=null`) is bad input naming the group's options, not a crash."""
+    """A config group set to null (`experiment=null`) is bad input naming the group's options, not a crash; so is
+    an option given as a path out of the group's folder (`risk=../experiment/paper_team`, `experiment=/etc/x`),
+    which Hydra would load from elsewhere. A sweep's values are checked each."""
     for override in parsed:
         group = override.key_or_group
-        if override.value() is None and not override.is_delete() and group_options(group) is not None:
+        if override.is_delete() or group_options(group) is None:
+            continue
+        value = override.value()
+        if value is None:
             raise BadInput(f"key '{group}'", f"cannot be null; available: {', '.join(group_options(group))}")
+        for option in getattr(value, "list", None) or [value]:
+            text = str(option)
+            if text.startswith("/") or ".." in text.split("/"):
+                raise BadInput(
+                    f"key '{group}'",
+                    f"got {text!r}; give one of its options (no path out of its folder): "
+                    f"{', '.join(group_options(group))}, or your own with -cd DIR",
+                )
 
 
 def group_options(group: str) -> list[str] | None:
