@@ -37,14 +37,14 @@ def tail_count(beta: float, n: int) -> int:
 
 def value_at_risk(z: np.ndarray, beta: float) -> np.ndarray | float:
     """beta-VaR (eq. 5/8): the ceil(beta W)-th smallest sample, along the last axis."""
-    z = np.asarray(z, dtype=float)
+    z = as_sample(z)
     m = tail_count(beta, z.shape[-1])
     return np.partition(z, m - 1, axis=-1)[..., m - 1][()]  # [()] gives a scalar for 1-D input
 
 
 def cvar(z: np.ndarray, beta: float) -> np.ndarray | float:
     """beta-CVaR, Rockafellar-Uryasev form at the empirical quantile (last axis); cvar(z, 1) == mean(z)."""
-    z = np.asarray(z, dtype=float)
+    z = as_sample(z)
     v = value_at_risk(z, beta)
     return v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1])
 
@@ -56,8 +56,8 @@ def cvar_gradient(z: np.ndarray, scores: np.ndarray, beta: float, var=None, *, p
     scores are finite (a training step's), and a large sample may take the parallel kernels
     (riskplan.engine.reductions): the same numbers.
     """
-    z = np.asarray(z, dtype=float)
-    scores = np.asarray(scores, dtype=float)
+    z = as_sample(z)
+    scores = as_scores(z, scores)
     if parallel and _large(z, scores):
         rows, table = _rows(z, scores)
         v = _row_values(z, var) if var is not None else reductions.value_at_risk(rows, tail_count(beta, z.shape[-1]))
@@ -70,8 +70,8 @@ def cvar_gradient(z: np.ndarray, scores: np.ndarray, beta: float, var=None, *, p
 def mean_gradient(z: np.ndarray, scores: np.ndarray, baseline: bool = True, *, parallel: bool = False) -> np.ndarray:
     """REINFORCE estimate of grad E[Z] (eq. 4): mean of score_i (z_i - b), b = mean(z) by default, else 0.
     `parallel`: as `cvar_gradient`'s."""
-    z = np.asarray(z, dtype=float)
-    scores = np.asarray(scores, dtype=float)
+    z = as_sample(z)
+    scores = as_scores(z, scores)
     if parallel and _large(z, scores):
         rows, table = _rows(z, scores)
         centre = reductions.row_sums(rows) / z.shape[-1] if baseline else np.zeros(len(rows))

@@ -112,3 +112,22 @@ def test_every_measures_gradient_on_the_normal_family_is_its_closed_forms_deriva
     se = grads.std(axis=0, ddof=1) / 4.0
     assert np.all(se < 0.02)  # a tolerance that could not hide a wrong estimator
     np.testing.assert_array_less(np.abs(grads.mean(axis=0) - expected), 4 * se)
+
+
+@pytest.mark.parametrize(
+    "call, words",
+    [
+        (lambda z, s: cvar(None, 0.1), "z must have shape (..., W)"),
+        (lambda z, s: value_at_risk(np.float64(3.0), 0.5), "z must have shape (..., W)"),
+        (lambda z, s: cvar_gradient(z, s[:50], 0.1), "scores must have shape (100, 'M')"),
+        (lambda z, s: cvar_gradient(z, z, 0.1), "scores must have shape (100, 'M')"),
+        (lambda z, s: mean_gradient(z, s[:10]), "scores must have shape (100, 'M')"),
+    ],
+)
+def test_arrays_of_the_wrong_shape_are_one_line_naming_them(call, words):
+    """The public estimators (riskplan.risk) say what shape they take, not numpy's broadcast or index error."""
+    z = np.random.default_rng(0).normal(size=100)
+    scores = np.random.default_rng(1).normal(size=(100, 2))
+    with pytest.raises(ValueError) as refused:
+        call(z, scores)
+    assert words in str(refused.value) and "\n" not in str(refused.value)
