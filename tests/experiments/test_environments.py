@@ -336,6 +336,25 @@ def test_bad_actions_are_refused():
     team.reset(seed=0)
     with pytest.raises(ValueError, match="robot_2"):
         team.step({"robot_0": STAY, "robot_1": STAY})
+    with pytest.raises(ValueError, match=r"0\.\.4"):
+        env.step(True)  # a bool is not a move, though Discrete takes it for 1
+    with pytest.raises(ValueError, match="no robot 'robot_99'"):
+        team.step({"robot_0": STAY, "robot_1": STAY, "robot_2": STAY, "robot_99": STAY})
+    with pytest.raises(ValueError, match="no robot 'bogus'"):
+        team.observation_space("bogus")
+    with pytest.raises(RuntimeError, match=r"call reset\(\) before step\(\)"):
+        SensorPlanningEnv(["world.horizon=12"]).step(STAY)
+
+
+@pytest.mark.parametrize("theta", [[], [math.nan, 1.0], [math.inf, 0.0]])
+def test_a_policy_takes_finite_thetas_of_the_observations_length(theta):
+    with pytest.raises(ValueError, match="theta must be one or more finite numbers"):
+        SoftmaxPolicy(theta)
+    signals = np.zeros((5, 2))  # the paper world's two sources
+    with pytest.raises(ValueError, match="theta has 3 entries; the observation gives 2 features"):
+        SoftmaxPolicy([1.0, 2.0, 3.0]).act(signals, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="config: got 5"):
+        SensorPlanningEnv(5)
 
 
 def test_render_shows_the_robot_and_the_sources(paper):

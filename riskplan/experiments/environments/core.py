@@ -17,11 +17,12 @@ distribution is (tests/experiments/test_environments.py checks it against `riskp
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from omegaconf import DictConfig
 
 from riskplan.engine.dynamics import step_robots
 from riskplan.engine.policy import Policy, move_features, probabilities, tabular_probabilities
@@ -31,6 +32,7 @@ from riskplan.engine.step import RunSetup
 from riskplan.engine.world import MOVE_NAMES, World
 from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
+from riskplan.util.errors import BadInput
 
 
 def make_setup(config: Any = None) -> RunSetup:
@@ -44,6 +46,8 @@ def make_setup(config: Any = None) -> RunSetup:
         config = [config]
     if isinstance(config, Sequence):
         return build_setup(compose(list(config), validate=False))
+    if not isinstance(config, (Mapping, DictConfig)):
+        raise BadInput("config", f"got {config!r}; give overrides (a list of key=value), a config or a RunSetup")
     return build_setup(config)
 
 
@@ -185,6 +189,8 @@ class SoftmaxPolicy:
 
     def __init__(self, theta: Sequence[float] | np.ndarray, config: Any = None):
         self.theta = np.asarray(theta, dtype=float).reshape(-1)
+        if not (self.theta.size and np.all(np.isfinite(self.theta))):
+            raise ValueError(f"theta must be one or more finite numbers, got {theta!r}")
         self._setup = None if config is None else make_setup(config)
         self._policy: Policy | None = None if self._setup is None else self._setup.policy
         self._table: np.ndarray | None = None
@@ -232,6 +238,10 @@ class SoftmaxPolicy:
             probs = self._table[self._cells(position, 1 if one else len(signals))]
         else:
             feats = self.features(signals, position)
+            if feats.shape[-1] != self.theta.size:
+                raise ValueError(
+                    f"theta has {self.theta.size} entries; the observation gives {feats.shape[-1]} features"
+                )
             probs = probabilities(feats[None] if one else feats, self.theta)
         return probs[0] if one else probs
 

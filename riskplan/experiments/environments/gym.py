@@ -96,18 +96,22 @@ class SensorPlanningEnv(gymnasium.Env):
         if not 0 <= robot < len(starts):
             raise ValueError(f"robot {robot} is not one of the team's robots 0..{len(starts) - 1}")
         self._worlds = Worlds(self.world, starts[robot : robot + 1])
+        self._started = False  # step() before reset() is refused, as gymnasium's OrderEnforcing does
         self.observation_space = observation_space(self.world)
         self.action_space = spaces.Discrete(len(MOVE_NAMES))
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         self._worlds.reset(new_seed(self.np_random))
+        self._started = True
         return observations(self._worlds)[0], infos(self._worlds)[0]
 
     def step(self, action):
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
         if self._worlds.done[0]:
             raise RuntimeError("the episode has ended; call reset()")
-        if not self.action_space.contains(action):
+        if isinstance(action, (bool, np.bool_)) or not self.action_space.contains(action):
             raise ValueError(f"action {action!r} is not one of 0..4 ({', '.join(MOVE_NAMES)})")
         reward, terminated, truncated = self._worlds.step(np.array([int(action)]))
         obs, info = observations(self._worlds)[0], infos(self._worlds)[0]

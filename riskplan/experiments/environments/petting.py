@@ -48,10 +48,16 @@ class SensorTeamEnv(ParallelEnv):
         self._rng: np.random.Generator | None = None
 
     def observation_space(self, agent: str) -> spaces.Dict:
+        self._known(agent)
         return self._observation_space
 
     def action_space(self, agent: str) -> spaces.Discrete:
+        self._known(agent)
         return self._action_space
+
+    def _known(self, agent) -> None:
+        if agent not in self._index:
+            raise ValueError(f"no robot {agent!r}; the robots are {', '.join(self.possible_agents)}")
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None or self._rng is None:
@@ -64,12 +70,14 @@ class SensorTeamEnv(ParallelEnv):
     def step(self, actions: dict[str, int]):
         if not self.agents:
             raise RuntimeError("every robot's episode has ended; call reset()")
+        for agent in actions:
+            self._known(agent)
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"no action for {', '.join(missing)}: every live robot acts at every step")
         moves = np.full(len(self.possible_agents), len(MOVE_NAMES) // 2, dtype=np.int64)  # Stay, for the finished
         for agent in self.agents:
-            if not self._action_space.contains(actions[agent]):
+            if isinstance(actions[agent], (bool, np.bool_)) or not self._action_space.contains(actions[agent]):
                 raise ValueError(f"action {actions[agent]!r} of {agent} is not one of 0..4 ({', '.join(MOVE_NAMES)})")
             moves[self._index[agent]] = int(actions[agent])
         reward, terminated, truncated = self._worlds.step(moves)
