@@ -294,7 +294,12 @@ def _mask_path(found: MapFile, text: str, r: int) -> Path:
     return path if path.is_absolute() else found.yaml.parent / path
 
 
+YAML12_FLOAT = re.compile(r"[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?")  # what ROS's YAML reads as one
+
+
 def _number(value, name: str, key: str) -> float:
+    if isinstance(value, str) and YAML12_FLOAT.fullmatch(value.strip()):
+        value = float(value)  # 25e-2 or 1.0e308: numbers to ROS's YAML 1.2 reader, strings to PyYAML's 1.1
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
         raise BadInput(KEYS.world.map, f"{name}: {key} is {value!r}; expected a finite number")
     return float(value)

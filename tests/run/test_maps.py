@@ -11,6 +11,8 @@ from support import TINY, bad_input, setup_of
 from typer.testing import CliRunner
 
 from riskplan.cli import app
+from riskplan.run.maps import geometry
+from riskplan.util.errors import BadInput
 
 # A 4 x 3 map as map_saver writes it: 0 occupied, 254 free, 205 unknown. Row 0 is the top row (y = 2).
 ROWS = [
@@ -91,6 +93,19 @@ def test_p2_p5_16_bit_and_png_images_give_the_same_world(tmp_path, small_map):
     for image in ("text.pgm", "wide.pgm", "grey.png", "rgb.png"):
         world = world_of(write_yaml(tmp_path / f"{image}.yaml", image))
         assert cells(world.obstacle, world) == reference, image
+
+
+def test_numbers_written_as_ros_writes_them_are_numbers(tmp_path, small_map):
+    """25e-2 and 1e0 are numbers to ROS's YAML 1.2 reader, strings to PyYAML's 1.1: the map takes them as ROS does,
+    the same world as 0.25 and 1.0 give; a word stays an error naming the key."""
+    write_pgm(tmp_path / "small.pgm", ROWS)
+    plain = write_yaml(tmp_path / "plain.yaml", "small.pgm", resolution=0.25, origin="[-1.0, 2.0, 0.0]")
+    ros = write_yaml(tmp_path / "ros.yaml", "small.pgm", resolution="25e-2", origin="[-1e0, 2e0, 0e0]")
+    read = [geometry(setup_of(f"world.map={path}", *SMALL).params.world) for path in (plain, ros)]
+    assert read[0] == read[1] == (0.25, (-1.0, 2.0, 0.0))
+    assert cells(world_of(ros).obstacle, world_of(ros)) == cells(world_of(plain).obstacle, world_of(plain))
+    with pytest.raises(BadInput, match="resolution is 'fine'; expected a finite number"):
+        world_of(write_yaml(tmp_path / "word.yaml", "small.pgm", resolution="fine"))
 
 
 def test_the_thresholds_and_negate_follow_map_server(tmp_path):
