@@ -225,6 +225,13 @@ def test_check_draws_nothing_when_the_map_itself_is_bad(in_tmp):
     assert "drawn" not in result.stderr and not (in_tmp / "map.png").exists()
 
 
+def test_check_draws_nothing_for_bad_input_outside_the_world(in_tmp):
+    """The map alone is drawn to place a start or sources on; a bad risk.beta is bad input like any other."""
+    result = runner.invoke(app, ["check", "experiment=floor_plan", "risk.beta=7", "--draw", "map.png"])
+    assert result.exit_code == 2 and result.stderr == "error: risk.beta: got 7.0; expected 0 < beta <= 1\n"
+    assert not (in_tmp / "map.png").exists()
+
+
 @pytest.mark.parametrize("cell, words", [("0", "got 0; expected k >= 1"), ("-2", "got -2; expected k >= 1")])
 def test_check_draws_nothing_when_the_map_cell_is_bad(room_map, in_tmp, cell, words):
     # the map reads, but cannot be cut into cells of k < 1 pixels: the map_cell line, not a traceback

@@ -382,8 +382,11 @@ def write_picture(picture: Picture, path: Path, key: str = "--draw") -> None:
 def map_drawn_instead(cfg, path: Path, err: BadInput, key: str = "--draw") -> BadInput:
     """check --draw on a config that fails to build: a map world whose map reads is drawn alone to `path` (to place
     the start and the sources on, which are often what fails first on a new map), and the error says so; any other
-    config's error is returned as it is, as is an error in the map's own keys (world.map_cell=0 cannot be drawn)."""
+    config's error is returned as it is, as is an error in the map's own keys (world.map_cell=0 cannot be drawn) and
+    one outside the world's placement (risk.beta=7): bad input then writes nothing."""
     if err.where.split(".")[:2] in (["world", "map"], ["world", "map_cell"], ["world", "map_unknown"]):
+        return err
+    if not err.where.startswith(("world.", "team.starts")):
         return err
     try:
         conf = typed(cfg).world
