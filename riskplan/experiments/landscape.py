@@ -204,10 +204,9 @@ def check_grid(setup, points: int, episodes: int, ranges, axes) -> tuple[tuple, 
     text = ",".join(f"{v:g}" for r in ranges for v in r)
     if len(ranges) != 2 or any(not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) for lo, hi in ranges):
         raise BadInput("--range", f"got {text}; expected LO,HI (both axes) or LO,HI,LO,HI, finite, with LO < HI")
-    corners = grid_thetas(setup.theta0, (a, b), ranges, 2)  # |logits| peak at the grid's corners
-    if any(not math.isfinite(hi - lo) for lo, hi in ranges) or not math.isfinite(
-        logit_bound(setup.world, corners, setup.policy)
-    ):
+    spans = all(math.isfinite(hi - lo) for lo, hi in ranges)  # else the grid's step overflows: theta NaN
+    corners = grid_thetas(setup.theta0, (a, b), ranges, 2) if spans else None  # |logits| peak at the corners
+    if not (spans and math.isfinite(logit_bound(setup.world, corners, setup.policy))):
         raise BadInput(
             "--range",
             f"got {text}; a theta that far overflows the softmax (theta . features is not finite), as riskplan train "
