@@ -55,6 +55,7 @@ def test_a_run_never_starts_among_other_files(tmp_path, monkeypatch, where):
     assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == before
 
 
+@pytest.mark.slow  # a run and its report
 def test_figure_formats_may_be_one_string(tmp_path):
     riskplan.train(riskplan.compose(TINY), tmp_path / "run", progress=False)
     page = riskplan.report(tmp_path / "run", tmp_path / "report", formats="png")

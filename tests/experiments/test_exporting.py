@@ -173,6 +173,7 @@ def test_mlflow_reexport_is_idempotent_and_replaces_a_changed_run(runs, tmp_path
     assert after["single_0"].data.metrics["summary/cvar"] == s["cvar"]["value"]
 
 
+@pytest.mark.slow  # a run, then an export
 def test_a_source_name_mlflow_refuses_is_exported_under_a_safe_key(tmp_path, file_store):
     """A source called 'sáfe src/😀' (the CLI takes it) names summary figures MLflow refuses: its key keeps ASCII
     letters, digits, _-./ and spaces, the rest '_'; the run is exported whole and finished, never left RUNNING."""

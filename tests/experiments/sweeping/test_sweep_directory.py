@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 
 from riskplan.cli import app
 
+pytestmark = pytest.mark.slow  # real sweeps, kept tiny
 runner = CliRunner()
 
 
