@@ -21,14 +21,15 @@ from numba import njit
 
 from riskplan.engine import reductions
 from riskplan.engine.sorting import argsort_into, workspace
+from riskplan.util.errors import BadInput
 
 
 def tail_count(beta: float, n: int) -> int:
     """m = ceil(beta * n), guarded against float error (0.07 * 100 gives 7, not 8)."""
     if not 0.0 < beta <= 1.0:
-        raise ValueError(f"beta must be in (0, 1], got {beta}")
+        raise BadInput("beta", f"must be in (0, 1], got {beta}")
     if n < 1:
-        raise ValueError("need at least one sample")
+        raise BadInput("z", "need at least one sample")
     product = beta * n
     nearest = round(product)
     m = nearest if abs(product - nearest) <= 1e-9 * max(1.0, product) else math.ceil(product)
@@ -36,17 +37,37 @@ def tail_count(beta: float, n: int) -> int:
 
 
 def value_at_risk(z: np.ndarray, beta: float) -> np.ndarray | float:
-    """beta-VaR (eq. 5/8): the ceil(beta W)-th smallest sample, along the last axis."""
+    """beta-VaR (eq. 5/8): the ceil(beta W)-th smallest sample, along the last axis; NaN for a row holding a NaN,
+    as `cvar` and the mean give (numpy's partition would sort the NaN last and ignore it)."""
     z = as_sample(z)
-    m = tail_count(beta, z.shape[-1])
-    return np.partition(z, m - 1, axis=-1)[..., m - 1][()]  # [()] gives a scalar for 1-D input
+    v = _quantile(z, beta)
+    return np.where(np.isnan(z).any(axis=-1), np.nan, v)[()]
 
 
 def cvar(z: np.ndarray, beta: float) -> np.ndarray | float:
-    """beta-CVaR, Rockafellar-Uryasev form at the empirical quantile (last axis); cvar(z, 1) == mean(z)."""
+    """beta-CVaR, Rockafellar-Uryasev form at the empirical quantile (last axis); cvar(z, 1) == mean(z).
+
+    A finite row whose tail sum overflows (samples near the largest float) is measured again on z / 2^k, exact for
+    such numbers, and scaled back: CVaR is positively homogeneous, and lies within the row's range."""
     z = as_sample(z)
-    v = value_at_risk(z, beta)
+    with np.errstate(over="ignore", invalid="ignore"):
+        value = np.asarray(_cvar(z, beta))
+    overflowed = ~np.isfinite(value) & np.isfinite(z).all(axis=-1)
+    if overflowed.any():
+        scale = 2.0 ** (2 + math.ceil(math.log2(z.shape[-1])))
+        value = np.where(overflowed, np.asarray(_cvar(z / scale, beta)) * scale, value)
+    return value[()]
+
+
+def _cvar(z: np.ndarray, beta: float) -> np.ndarray | float:
+    v = _quantile(z, beta)
     return v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1])
+
+
+def _quantile(z: np.ndarray, beta: float) -> np.ndarray | float:
+    """The ceil(beta W)-th smallest sample of each row (a NaN sorts last)."""
+    m = tail_count(beta, z.shape[-1])
+    return np.partition(z, m - 1, axis=-1)[..., m - 1][()]  # [()] gives a scalar for 1-D input
 
 
 def cvar_gradient(z: np.ndarray, scores: np.ndarray, beta: float, var=None, *, parallel: bool = False) -> np.ndarray:
@@ -63,7 +84,7 @@ def cvar_gradient(z: np.ndarray, scores: np.ndarray, beta: float, var=None, *, p
         v = _row_values(z, var) if var is not None else reductions.value_at_risk(rows, tail_count(beta, z.shape[-1]))
         grads = reductions.tail_products(rows, table, v)
         return grads.reshape(scores.shape[:-2] + scores.shape[-1:]) / (beta * z.shape[-1])
-    weights = _tail_weights(z, value_at_risk(z, beta) if var is None else var)
+    weights = _tail_weights(z, _quantile(z, beta) if var is None else var)
     return np.einsum("...w,...wm->...m", weights, scores) / (beta * z.shape[-1])
 
 
@@ -88,7 +109,7 @@ def summary_stats(z: np.ndarray, beta: float, *, parallel: bool = False) -> dict
     z = np.asarray(z, dtype=float)
     if parallel and z.ndim >= 1 and z.shape[-1] >= reductions.PARALLEL_SAMPLES:
         return _summary_rows(z, beta)
-    v = value_at_risk(z, beta)
+    v = _quantile(z, beta)
     return {
         "mean": z.mean(axis=-1),
         "cvar": v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1]),
@@ -241,18 +262,18 @@ def spectral_estimates(
 
 
 def check_eta(eta: Any) -> float:
-    """A checked eta: a finite number > 0 (ValueError otherwise)."""
+    """A checked eta: a finite number > 0 (BadInput otherwise)."""
     if isinstance(eta, bool) or not isinstance(eta, (int, float, np.integer, np.floating)):
-        raise ValueError(f"eta must be a number, got {eta!r}")
+        raise BadInput("eta", f"must be a number, got {eta!r}")
     if not (math.isfinite(eta) and eta > 0.0):
-        raise ValueError(f"eta must be finite and > 0, got {eta}")
+        raise BadInput("eta", f"must be finite and > 0, got {eta}")
     return float(eta)
 
 
 def as_count(n: Any) -> int:
     """A checked sample count W >= 1."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ValueError(f"need at least one sample (W >= 1), got {n!r}")
+        raise BadInput("n", f"need at least one sample (W >= 1), got {n!r}")
     return int(n)
 
 
@@ -260,7 +281,7 @@ def as_sample(z: Any) -> np.ndarray:
     """z as a float array (..., W) with W >= 1."""
     z = np.asarray(z, dtype=float)
     if z.ndim < 1 or z.shape[-1] < 1:
-        raise ValueError(f"z must have shape (..., W) with W >= 1 samples, got shape {z.shape}")
+        raise BadInput("z", f"must have shape (..., W) with W >= 1 samples, got shape {z.shape}")
     return z
 
 
@@ -268,7 +289,7 @@ def as_scores(z: np.ndarray, scores: Any) -> np.ndarray:
     """scores as a float array of shape z.shape + (M,)."""
     scores = np.asarray(scores, dtype=float)
     if scores.ndim != z.ndim + 1 or scores.shape[:-1] != z.shape:
-        raise ValueError(f"scores must have shape {(*z.shape, 'M')} for z of shape {z.shape}, got {scores.shape}")
+        raise BadInput("scores", f"must have shape {(*z.shape, 'M')} for z of shape {z.shape}, got {scores.shape}")
     return scores
 
 

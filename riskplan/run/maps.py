@@ -50,6 +50,8 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PIXEL_BYTES = 48.0  # peak bytes per pixel while an image is classified (its shade, occupancy and masks)
 HEADER_BYTES = 1 << 16  # a PGM header (with its comments) must fit in the file's first 64 KiB
 MEMO = 4  # maps remembered
+RESOLUTIONS = (1e-6, 1e6)  # metres per pixel: a micrometre to a kilometre; beyond, positions in metres lose digits
+ORIGIN_METRES = 1e9  # |origin x|, |origin y| at most (the Earth is 4e7 m round); a cell's corner stays exact to 1 um
 
 
 @dataclass(frozen=True)
@@ -90,6 +92,8 @@ def find(text: str, key: str = KEYS.world.map) -> Path:
     for candidate in candidates:
         if candidate.is_file():
             return candidate.resolve()
+        if candidate.is_dir():
+            raise BadInput(key, f"{text} is a folder ({candidate}); give the path of a ROS map YAML file in it")
     looked = " or ".join(str(c) for c in candidates)
     raise BadInput(key, f"no map file {text} (looked for {looked}); give the path of a ROS map YAML")
 
@@ -152,12 +156,19 @@ def _map_values(doc: dict, shown: str) -> tuple[float, tuple[float, float, float
     """(resolution, origin, negate, occupied_thresh, free_thresh, mode) of a map YAML, each checked."""
     where = KEYS.world.map
     resolution = _number(doc["resolution"], shown, "resolution")
-    if not resolution > 0:
-        raise BadInput(where, f"{shown}: resolution is {resolution:g}; expected metres per pixel > 0")
+    low, high = RESOLUTIONS
+    if not low <= resolution <= high:
+        raise BadInput(
+            where, f"{shown}: resolution is {resolution:g}; expected metres per pixel in [{low:g}, {high:g}]"
+        )
     origin = doc["origin"]
     if not isinstance(origin, list) or len(origin) != 3:
         raise BadInput(where, f"{shown}: origin is {origin!r}; expected [x, y, yaw] of finite numbers")
     x, y, yaw = (_number(v, shown, "origin") for v in origin)
+    if max(abs(x), abs(y)) > ORIGIN_METRES:
+        raise BadInput(
+            where, f"{shown}: origin is [{x:g}, {y:g}, {yaw:g}]; expected x and y within ±{ORIGIN_METRES:g} m"
+        )
     negate = doc["negate"]
     if negate not in (0, 1) or not isinstance(negate, (int, bool)):
         raise BadInput(where, f"{shown}: negate is {negate!r}; expected 0 or 1")
@@ -351,7 +362,9 @@ def _pgm_header(data: bytes, what: str, where: str) -> tuple[int, int, int, int]
         raise BadInput(where, f"{what} has a corrupt PGM header: no whitespace after maxval {maxval}")
     if width < 1 or height < 1 or not 1 <= maxval <= 65535:
         raise BadInput(
-            where, f"{what} has a PGM header of {width}x{height} pixels, maxval {maxval}; expected >= 1 and 1..65535"
+            where,
+            f"{what} has a PGM header of {width}x{height} pixels and maxval {maxval}; expected a width and height of at "
+            f"least 1 pixel and a maxval of 1 to 65535",
         )
     return width, height, maxval, pos + 1
 

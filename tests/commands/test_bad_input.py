@@ -47,6 +47,7 @@ ROWS = table_rows()
 def test_the_table_has_at_least_25_distinct_inputs_across_every_command():
     assert len(ROWS) >= 25
     assert len({tuple(argv) for _, _, argv, _ in ROWS}) == len(ROWS)
+    assert len({number for number, _, _, _ in ROWS}) == len(ROWS)  # a row's number names it in notes and issues
     commands = {argv[0] + (" --resume" if "--resume" in argv else "") for _, _, argv, _ in ROWS}
     assert commands >= {"train", "train --resume", "check", "report", "sweep"}
 

@@ -10,6 +10,7 @@ import pytest
 from measure_cases import measure_cases
 
 from riskplan.risk import cvar, cvar_gradient, mean_gradient, risk_spec, tail_count, value_at_risk
+from riskplan.util.errors import BadInput
 
 
 def normal_cvar(mu: float, sigma: float, beta: float) -> float:
@@ -117,17 +118,44 @@ def test_every_measures_gradient_on_the_normal_family_is_its_closed_forms_deriva
 @pytest.mark.parametrize(
     "call, words",
     [
-        (lambda z, s: cvar(None, 0.1), "z must have shape (..., W)"),
-        (lambda z, s: value_at_risk(np.float64(3.0), 0.5), "z must have shape (..., W)"),
-        (lambda z, s: cvar_gradient(z, s[:50], 0.1), "scores must have shape (100, 'M')"),
-        (lambda z, s: cvar_gradient(z, z, 0.1), "scores must have shape (100, 'M')"),
-        (lambda z, s: mean_gradient(z, s[:10]), "scores must have shape (100, 'M')"),
+        (lambda z, s: cvar(None, 0.1), "z: must have shape (..., W)"),
+        (lambda z, s: value_at_risk(np.float64(3.0), 0.5), "z: must have shape (..., W)"),
+        (lambda z, s: cvar_gradient(z, s[:50], 0.1), "scores: must have shape (100, 'M')"),
+        (lambda z, s: cvar_gradient(z, z, 0.1), "scores: must have shape (100, 'M')"),
+        (lambda z, s: mean_gradient(z, s[:10]), "scores: must have shape (100, 'M')"),
+        (lambda z, s: cvar(z, 0.0), "beta: must be in (0, 1], got 0.0"),
+        (lambda z, s: value_at_risk(z, 1.5), "beta: must be in (0, 1], got 1.5"),
+        (lambda z, s: cvar_gradient(z, s, -0.1), "beta: must be in (0, 1], got -0.1"),
     ],
 )
 def test_arrays_of_the_wrong_shape_are_one_line_naming_them(call, words):
     """The public estimators (riskplan.risk) say what shape they take, not numpy's broadcast or index error."""
     z = np.random.default_rng(0).normal(size=100)
     scores = np.random.default_rng(1).normal(size=(100, 2))
-    with pytest.raises(ValueError) as refused:
+    with pytest.raises(BadInput) as refused:  # the CLI's one-line error, still a ValueError
         call(z, scores)
     assert words in str(refused.value) and "\n" not in str(refused.value)
+
+
+def test_a_nan_sample_gives_nan_from_value_at_risk_as_from_cvar_and_the_mean():
+    """numpy's partition sorts a NaN last, so VaR alone would ignore it; every estimator says NaN instead, row by
+    row: the finite row keeps its numbers."""
+    z = np.array([[3.0, np.nan, 1.0, 2.0], [4.0, 1.0, 3.0, 2.0]])
+    assert np.isnan(value_at_risk(z, 0.5)[0]) and np.isnan(cvar(z, 0.5)[0]) and np.isnan(z.mean(axis=-1)[0])
+    assert value_at_risk(z, 0.5)[1] == 2.0 and cvar(z, 0.5)[1] == 1.5
+    assert np.isnan(value_at_risk([np.nan], 1.0)) and np.isnan(cvar([np.nan], 1.0))
+
+
+@pytest.mark.parametrize(
+    "z, beta, expected",
+    [
+        ([1e308, 1e308, -1e308], 1.0, 1e308 / 3),  # the mean of the three, where z - v overflows
+        ([1e308, 1e308, -1e308], 0.5, -1e308 / 3),  # beta W = 1.5: v = 1e308, v + (-2e308) / 1.5
+        ([-1.5e308, 1.7e308, 1.7e308], 1.0, 1.9 / 3 * 1e308),
+        ([-0.9e308] * 4 + [0.9e308], 1.0, -0.54e308),  # each z - v is finite, their sum is not
+    ],
+)
+def test_cvar_of_samples_near_the_largest_float_is_their_tail_mean_not_inf(z, beta, expected):
+    value = cvar(np.array(z), beta)
+    assert np.isfinite(value) and value == pytest.approx(expected, rel=1e-12, abs=1e292)
+    assert cvar(np.array([z, [1.0] * len(z)]), beta)[1] == 1.0  # a batch: only the overflowing row is measured again

@@ -550,13 +550,13 @@ def test_bad_samples_and_scores_raise_value_error():
         with pytest.raises(ValueError, match=r"W >= 1"):
             objective(5.0, measure)
         for bad in (np.zeros(50), np.zeros((51, 2)), np.zeros((50, 2, 1)), np.zeros((2, 50, 2))):
-            with pytest.raises(ValueError, match=r"scores must have shape \(50, 'M'\)"):
+            with pytest.raises(ValueError, match=r"scores: must have shape \(50, 'M'\)"):
                 objective_gradient(z, bad, measure)
     with pytest.raises(ValueError, match=r"W >= 1"):
         spectral_weights(0, risk)
     with pytest.raises(ValueError, match="not spectral"):
         distortion_at(0.5, {"measure": "entropic", "eta": 1.0})
-    with pytest.raises(ValueError, match=r"beta must be in \(0, 1\]"):
+    with pytest.raises(ValueError, match=r"beta: must be in \(0, 1\]"):
         tail_count(0.0, 10)
 
 

@@ -191,6 +191,10 @@ def test_a_start_or_source_on_an_occupied_cell_is_named(small_map):
         (lambda d: write_yaml(d / "m.yaml", "gone.pgm"), "world.map", "the image gone.pgm of"),
         (lambda d: write_yaml(d / "m.yaml", "small.pgm", resolution=None), "world.map", "has no resolution"),
         (lambda d: write_yaml(d / "m.yaml", "small.pgm", resolution=-1), "world.map", "resolution is -1"),
+        # a subnormal resolution would put a metre in cell -2147483648: positions in metres must keep their digits
+        (lambda d: write_yaml(d / "m.yaml", "small.pgm", resolution=1e-320), "world.map", "in [1e-06, 1e+06]"),
+        (lambda d: write_yaml(d / "m.yaml", "small.pgm", resolution=1e300), "world.map", "resolution is 1e+300"),
+        (lambda d: write_yaml(d / "m.yaml", "small.pgm", origin="[1.7e308, 0, 0]"), "world.map", "within ±1e+09 m"),
         (lambda d: write_yaml(d / "m.yaml", "small.pgm", mode="fancy"), "world.map", "expected one of trinary"),
         (lambda d: write_yaml(d / "m.yaml", "small.pgm", free_thresh=0.9), "world.map", "free_thresh 0.9"),
         (lambda d: write_yaml(d / "m.yaml", "small.pgm", origin="[0, 0]"), "world.map", "expected [x, y, yaw]"),
@@ -213,6 +217,7 @@ def test_truncated_and_corrupt_images_are_one_line(tmp_path):
     (tmp_path / "head.pgm").write_bytes(b"P5\n4 ")
     (tmp_path / "text.pgm").write_text("P2\n4 3\n255\n0 1 2 x 4 5 6 7 8 9 10 11\n")
     (tmp_path / "over.pgm").write_text("P2\n4 3\n100\n0 1 2 300 4 5 6 7 8 9 10 11\n")
+    (tmp_path / "zero.pgm").write_text("P2\n4 3\n0\n0 0 0 0 0 0 0 0 0 0 0 0\n")
     Image.fromarray(np.array(ROWS, dtype=np.uint8)).save(tmp_path / "ok.png")
     png = (tmp_path / "ok.png").read_bytes()
     (tmp_path / "cut.png").write_bytes(png[: len(png) // 2 + 10])
@@ -221,6 +226,7 @@ def test_truncated_and_corrupt_images_are_one_line(tmp_path):
         "head.pgm": "corrupt or truncated PGM header",
         "text.pgm": "is corrupt: a P2 image holds whole numbers 0..255 only",
         "over.pgm": "is corrupt: a pixel of 300 above its maxval 100",
+        "zero.pgm": "4x3 pixels and maxval 0; expected a width and height of at least 1 pixel and a maxval of 1 to 65535",
         "cut.png": "truncated or corrupt",
     }
     for name, words in expected.items():
@@ -260,6 +266,9 @@ def test_relative_paths_the_map_from_the_working_directory_its_image_from_its_fo
     assert cells(world.obstacle, world) == OCCUPIED | UNKNOWN
     err = bad_input("world.map=maps/nothing.yaml", *SMALL)
     assert err.where == "world.map" and "no map file maps/nothing.yaml" in err.problem
+    (tmp_path / "maps" / "folder.yaml").mkdir()
+    err = bad_input("world.map=maps/folder.yaml", *SMALL)
+    assert err.where == "world.map" and err.problem.startswith("maps/folder.yaml is a folder (")
 
 
 def test_the_cli_gives_one_line_exit_2_and_no_run_directory_for_a_truncated_map(tmp_path, monkeypatch):
