@@ -12,7 +12,7 @@ import typer
 
 from riskplan.commands.common import bad_input_exits
 
-SCALING_PLOT = Path("outputs") / "bench" / "scaling.png"
+SCALING_PLOT = "outputs/bench/scaling.png"
 PLOT_TYPES = (".png", ".pdf", ".svg")  # what the scaling plot's writer takes (with its metadata)
 
 
@@ -30,14 +30,14 @@ def bench(
     quick: bool = typer.Option(
         False, "--quick", help="Fewer repeats and a shorter training run (about 30 s on 2 idle cores)."
     ),
-    json_out: Path | None = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
+    json_out: str | None = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
     scaling: bool = _instead(
         "--scaling",
         "trajectory-steps/s and bytes per sample against grid size, horizon, sources, source motion and robots, "
         "each against the paper world (about 1 minute, 30 s with --quick).",
     ),
-    plot: Path = typer.Option(SCALING_PLOT, "--plot", metavar="PNG", help="With --scaling: the plot's file."),
-    csv_out: Path | None = typer.Option(None, "--csv", help="With --scaling: also write the rows as CSV."),
+    plot: str = typer.Option(SCALING_PLOT, "--plot", metavar="PNG", help="With --scaling: the plot's file."),
+    csv_out: str | None = typer.Option(None, "--csv", help="With --scaling: also write the rows as CSV."),
     sweep: bool = _instead(
         "--sweep",
         "beta x seed sweeps of the paper world (200 iterations, W = 6000): 24 runs batched against --jobs (a worker "
@@ -62,7 +62,7 @@ def bench(
     import numba
     from rich.console import Console
 
-    _check_outputs(json_out, csv_out, plot if scaling else None)  # before minutes of measuring, not after
+    json_out, csv_out, plot = _check_outputs(json_out, csv_out, plot if scaling else None)  # before, not after
 
     console = Console(soft_wrap=True)  # one line per figure, also in a log file
     console.print(
@@ -87,19 +87,21 @@ def bench(
         json_out.write_text(json.dumps(rows, indent=2, default=float))
 
 
-def _check_outputs(json_out: Path | None, csv_out: Path | None, plot: Path | None) -> None:
-    """The files the bench will write: each in a writable folder and not a folder itself, and the plot a type its
-    writer takes. BadInput (one line, exit 2) naming the option otherwise."""
+def _check_outputs(json_out: str | None, csv_out: str | None, plot: str | None) -> tuple[Path | None, ...]:
+    """The files the bench will write, as paths: each in a writable folder and not a folder itself, and the plot a
+    type its writer takes. BadInput (one line, exit 2) naming the option otherwise."""
     from riskplan.util.errors import BadInput
-    from riskplan.util.paths import check_output_dir, check_output_file
+    from riskplan.util.paths import check_output_dir, check_output_file, file_path
 
-    for path, key, ending in ((json_out, "--json", ".json"), (csv_out, "--csv", ".csv")):
-        if path is not None:
-            check_output_file(path, key, ending)
-    if plot is not None:  # its folder is made when the plot is written (outputs/bench by default)
-        if plot.suffix.lower() not in PLOT_TYPES or plot.is_dir():
-            raise BadInput("--plot", f"got {plot}; give a file path ending {', '.join(PLOT_TYPES)}")
-        check_output_dir(plot.parent if str(plot.parent) else Path("."), "--plot")
+    json_path = None if json_out is None else check_output_file(json_out, "--json", ".json")
+    csv_path = None if csv_out is None else check_output_file(csv_out, "--csv", ".csv")
+    if plot is None:
+        return json_path, csv_path, None
+    plot_path = file_path(plot, "--plot", ", ".join(PLOT_TYPES))
+    if plot_path.suffix.lower() not in PLOT_TYPES or plot_path.is_dir():  # its folder is made when it is written
+        raise BadInput("--plot", f"got {plot}; give a file path ending {', '.join(PLOT_TYPES)}")
+    check_output_dir(plot_path.parent if str(plot_path.parent) else Path("."), "--plot")
+    return json_path, csv_path, plot_path
 
 
 def _sections(console, quick: bool, sweep: bool, threads: bool, reproduce: bool = False) -> tuple:

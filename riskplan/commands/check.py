@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import typer
 
 from riskplan.commands.common import (
@@ -25,7 +23,7 @@ def register(app: typer.Typer) -> None:
 
 def check(
     overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP + CONFIG_DIR_HELP, show_default=False),
-    draw: Path | None = typer.Option(
+    draw: str | None = typer.Option(
         None,
         "--draw",
         metavar="PATH",
@@ -45,8 +43,8 @@ def check(
     if draw is not None:  # matplotlib only when asked to draw: check stays fast without it
         from riskplan.experiments.reporting.figures.world_picture import draw_format
 
+        draw = check_output_file(draw, "--draw", ".png, .svg or .pdf")
         draw_format(draw)
-        check_output_file(draw, "--draw", ".png, .svg or .pdf")
     cfg = compose(args, validate=False)
     try:
         setup = build_setup(cfg)

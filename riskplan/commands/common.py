@@ -126,8 +126,22 @@ def reject_hydra_flags(args: list[str], instead: str) -> None:
         raise BadInput(f"option '{flags[0]}'", f"only riskplan train passes Hydra's flags through; {instead}")
 
 
-def check_out_dir(path: Path | None) -> Path | None:
+INPUT = "a run, sweep or reproduce directory"  # what report and export read
+
+
+def path_option(text: str | None, key: str, what: str = "a directory path") -> Path | None:
+    """A path option or argument as typed, None when not given. Paths are taken as str, not typer's Path, which
+    would turn '' into '.' (the current directory, written into or searched in silence) and drop a trailing '/'."""
+    if text is None:
+        return None
+    if not text.strip() or "\x00" in text:
+        raise BadInput(key, f"got {text!r}; give {what}")
+    return Path(text)
+
+
+def check_out_dir(text: str | None) -> Path | None:
     """An --out directory that exists or can be made; a file there is bad input."""
+    path = path_option(text, "--out")
     if path is not None and path.exists() and not path.is_dir():
         raise BadInput("--out", f"{path} is a file; expected a directory (new, or one riskplan wrote)")
     return path

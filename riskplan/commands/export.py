@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import functools
-from pathlib import Path
 
 import typer
 
-from riskplan.commands.common import bad_input_exits
+from riskplan.commands.common import INPUT, bad_input_exits, path_option
 from riskplan.util.errors import BadInput
 
 
@@ -17,8 +16,8 @@ def register(app: typer.Typer) -> None:
 
 
 def export(
-    paths: list[Path] | None = typer.Argument(
-        None, help="Run, sweep or reproduce directories (searched recursively).", show_default=False
+    paths: list[str] | None = typer.Argument(
+        None, metavar="DIRS", help="Run, sweep or reproduce directories (searched recursively).", show_default=False
     ),
     to: str | None = typer.Option(
         None,
@@ -36,7 +35,7 @@ def export(
         show_default=False,
     ),
     experiment: str = typer.Option("riskplan", "--experiment", help="The MLflow experiment to log into."),
-    out: Path | None = typer.Option(
+    out: str | None = typer.Option(
         None,
         "--out",
         help="ros2: the folder for the bags, one rosbag2 directory per run (default: rosbag2/ inside each run "
@@ -59,14 +58,15 @@ def export(
     try:
         with PhaseBars() as progress:
             loading = functools.partial(progress, PHASES[0])
-            result = export_runs(list(paths or []), to, uri, experiment=experiment, echo=echo, progress=loading)
+            inputs = [path_option(p, "DIRS", INPUT) for p in paths or []]
+            result = export_runs(inputs, to, uri, experiment=experiment, echo=echo, progress=loading)
     except ExportFailed as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(1) from None
     _print_export(result, experiment)
 
 
-def _destination(to: str | None, uri: str | None, experiment: str, out: Path | None) -> str | None:
+def _destination(to: str | None, uri: str | None, experiment: str, out: str | None) -> str | None:
     """The options checked together; the URI to export to (ros2 takes --out for it, the others --uri)."""
     if not experiment.strip():
         raise BadInput("--experiment", "got ''; give an MLflow experiment name, e.g. riskplan")
@@ -75,7 +75,7 @@ def _destination(to: str | None, uri: str | None, experiment: str, out: Path | N
         raise BadInput("--out", "only --to ros2 writes into --out; mlflow and tensorboard take --uri")
     if ros2 and uri is not None:
         raise BadInput("--uri", "--to ros2 writes its bags into --out DIR (default: each run directory)")
-    return str(out) if ros2 and out is not None else uri
+    return str(path_option(out, "--out")) if ros2 and out is not None else uri
 
 
 def _print_export(result, experiment: str) -> None:

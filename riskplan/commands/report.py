@@ -9,7 +9,14 @@ from pathlib import Path
 
 import typer
 
-from riskplan.commands.common import OVERRIDES_HELP, PASS_THROUGH, bad_input_exits, reject_hydra_flags
+from riskplan.commands.common import (
+    INPUT,
+    OVERRIDES_HELP,
+    PASS_THROUGH,
+    bad_input_exits,
+    path_option,
+    reject_hydra_flags,
+)
 from riskplan.experiments.output_manifest import WriteFailed, claim_output
 from riskplan.util.errors import BadInput
 
@@ -42,8 +49,9 @@ def register(app: typer.Typer) -> None:
 
 
 def report(
-    paths: list[Path] | None = typer.Argument(
+    paths: list[str] | None = typer.Argument(
         None,
+        metavar="DIRS",
         help="Run, sweep, reproduce or landscape directories (searched recursively). "
         "Default: the newest folder in outputs/reproduce/.",
         show_default=False,
@@ -63,7 +71,7 @@ def report(
     from riskplan.util.progress import PhaseBars
 
     fmts = check_formats(formats)
-    inputs = list(paths) if paths else [latest_reproduction()]
+    inputs = [path_option(p, "DIRS", INPUT) for p in paths] if paths else [latest_reproduction()]
     target = out if out is not None else default_out(inputs)  # a str: an empty --out stays empty, refused
     with write_errors_exit(), PhaseBars() as progress:
         result = write_report(inputs, target, fmts, key="--out", progress=progress)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import typer
 
 from riskplan.commands.common import PASS_THROUGH, bad_input_exits, check_out_dir, jobs_option
@@ -24,7 +22,7 @@ def reproduce_command(
         show_default=False,
         help="Plain overrides for every experiment (no sweeps), e.g. train.samples=3000 world.horizon=24.",
     ),
-    out: Path | None = typer.Option(
+    out: str | None = typer.Option(
         None,
         "--out",
         metavar="DIR",

@@ -15,6 +15,7 @@ from riskplan.commands.common import (
     PASS_THROUGH,
     TRAIN_OVERRIDES_HELP,
     bad_input_exits,
+    path_option,
     with_config_dirs,
 )
 from riskplan.util.collector import pause_collection, resume_collection
@@ -31,7 +32,7 @@ def register(app: typer.Typer) -> None:
 
 def train_command(
     overrides: list[str] | None = typer.Argument(None, help=TRAIN_OVERRIDES_HELP + CONFIG_DIR_HELP, show_default=False),
-    resume: Path | None = typer.Option(
+    resume: str | None = typer.Option(
         None,
         "--resume",
         help="Continue the run in RUN_DIR from its last checkpoint (also: extend a finished run "
@@ -42,7 +43,7 @@ def train_command(
     """Train one experiment (default: experiment=paper_single) into outputs/runs/<timestamp>_<experiment>/."""
     pause_collection()  # the start-up only allocates; the training loop resumes it (riskplan.util.collector)
     try:
-        _train_or_resume(list(overrides or []), resume)
+        _train_or_resume(list(overrides or []), path_option(resume, "--resume", "a run directory"))
     finally:
         resume_collection()
 

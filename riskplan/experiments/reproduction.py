@@ -80,6 +80,7 @@ QUICK_LANDSCAPE = {"points": 31, "episodes": 1000, "ranges": ((-30.0, 60.0), (-3
 
 
 PAPER = ("single", "team")  # the folders of Section V itself (--paper-only): Figs. 1-4
+RECORD = "reproduce.json"  # what a reproduction did, written when it ends
 
 
 def chosen(paper_only: bool) -> tuple:
@@ -124,7 +125,7 @@ def reproduce(
         fmts = check_formats(formats)
         report_workers()  # a bad RISKPLAN_REPORT_WORKERS is bad input now, not after the sweeps
         if out is not None:
-            check_output_dir(out, "--out")
+            check_reproduction_dir(out)
     except BadInput:
         stop_workers()
         raise
@@ -138,6 +139,24 @@ def reproduce(
             schedule_of(seeds, configs, experiments, jobs, quick, batch, list(overrides or [])),
             {"since": since, "entered": entered, "checked": checked},
             warmed,
+        )
+
+
+def check_reproduction_dir(out: Path) -> None:
+    """--out: a directory riskplan may write, new, empty or a reproduction's own (its record, its experiments'
+    sweeps, landscape and report), which it completes; never a folder of other files, which its sweeps would join."""
+    check_output_dir(out, "--out")
+    path = Path(out)
+    if not path.is_dir() or (path / RECORD).is_file():
+        return
+    own = {folder for folder, *_ in EXPERIMENTS} | {"landscape", "report", lock.LOCK}
+    foreign = sorted(e.name for e in path.iterdir() if e.name not in own and not e.name.startswith(f".{RECORD}"))
+    if foreign:
+        more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+        raise BadInput(
+            "--out",
+            f"{out} holds files that are not a reproduction's ({foreign[0]}{more}); give a new or empty directory, "
+            f"or a reproduction's own to complete it",
         )
 
 
@@ -270,7 +289,7 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
     schedule.finished("report", time.time() - tic, whole=code == 0)
     record["seconds"] = round(time.time() - started, 2)
     total = _breakdown(record, clock or {}, started, options)
-    write_atomic(target / "reproduce.json", json.dumps(record, indent=2))
+    write_atomic(target / RECORD, json.dumps(record, indent=2))
     estimated = schedule.total
     typer.echo(f"reproduced in {total:.1f} s (estimated {cost.say(estimated).removeprefix('about ')}): {target}")
     if code:

@@ -63,10 +63,22 @@ def check_output_dir(path: Path | str, key: str) -> Path:
     return Path(text)
 
 
-def check_output_file(path: Path, key: str, ending: str) -> None:
-    """A file riskplan may write (--draw's picture, bench's --json): its folder exists and can be written, and it is
-    not a folder itself; checked before the work that writes it. `ending` names the file types, for the message."""
-    path = Path(path)
+def file_path(text: str | Path, key: str, ending: str) -> Path:
+    """A file's path as typed, not empty and not named as a folder (a trailing '/'), which typer's Path would read as
+    '.' and as the file without the '/'. `ending` names the file types, for the message."""
+    text = str(text)
+    if not text.strip() or "\x00" in text:
+        raise BadInput(key, f"got {text!r}; give a file path ending {ending}")
+    if text.endswith(("/", os.sep)):
+        raise BadInput(key, f"{text} ends in '/', which names a folder; give a file path ending {ending}")
+    return Path(text)
+
+
+def check_output_file(text: str | Path, key: str, ending: str) -> Path:
+    """A file riskplan may write (--draw's picture, bench's --json), as typed: its folder exists and can be written,
+    and it is not a folder itself (nor named as one, with a trailing '/'); checked before the work that writes it.
+    `ending` names the file types, for the message."""
+    path = file_path(text, key, ending)
     folder = path.parent if str(path.parent) else Path(".")
     if path.is_dir():
         raise BadInput(key, f"{path} is a folder; give a file path ending {ending}")
@@ -79,6 +91,7 @@ def check_output_file(path: Path, key: str, ending: str) -> None:
         probe.unlink()
     except OSError as err:
         raise BadInput(key, f"{path} cannot be written ({err.strerror}); give a path in a writable folder") from None
+    return path
 
 
 def _read_only(path: Path) -> bool:
