@@ -18,7 +18,7 @@ from riskplan.commands.common import (
     reject_hydra_flags,
 )
 from riskplan.experiments.output_manifest import WriteFailed, claim_output
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, one_line
 
 
 def parse_floats(text: str, where: str, counts: tuple[int, ...]) -> list[float]:
@@ -86,6 +86,9 @@ def _print_report(result) -> None:
     for r in collected.runs:
         if r.rebuilt:
             typer.echo(f"rebuilt tables of {r.path} from run.mcap")
+    for name, why in result.skipped.items():  # a figure that failed is a fault to see here, not only in the page
+        if why.startswith("failed:"):
+            typer.echo(one_line(f"warning: figure {name} {why}"), err=True)
     repeats = f", {len(collected.duplicates)} duplicate (counted once)" if collected.duplicates else ""
     typer.echo(
         f"{len(collected.runs)} run(s) in {len(collected.groups)} group(s), {len(collected.landscapes)} landscape(s), "

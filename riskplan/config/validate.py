@@ -8,10 +8,12 @@ weights of Assumption 5) is checked by the engine when it builds those, once. Ev
 from __future__ import annotations
 
 import math
+import unicodedata
 import warnings
 
 from riskplan.config.backends import BACKENDS, DEVICES
 from riskplan.config.faults import Fault, faults_of
+from riskplan.config.hydra_safety import PLAIN_NAME
 from riskplan.config.keys import KEYS, Key
 from riskplan.config.schema import (
     Aggregate,
@@ -29,6 +31,8 @@ from riskplan.config.schema import (
 from riskplan.util.checks import finite, integer_at_least, require, require_installed
 
 SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias under the 64-bit stream keys
+NAME_LENGTH = 64  # characters of a name: the experiment's (a folder's), a source's or region's (a metric's)
+HIDDEN = ("Cc", "Cf", "Zl", "Zp", "Cs")  # Unicode categories a name may not hold: controls, format marks, breaks
 BYZANTINE_LIMIT = 1e100  # largest |value| and scale a byzantine robot sends (team.faults): squares stay finite
 
 # The values that need an optional extra: (key, value) -> (the module that provides it, what it is, the extra, a
@@ -69,6 +73,7 @@ def validate(params: RiskplanConf, needs_ray: bool = True) -> None:
     """BadInput naming the first key outside its range; a warning where only a theorem's assumption breaks; and
     MissingExtra for a value whose optional package is not installed, before the run: not a failed run directory.
     `needs_ray=False`: a resumed Ray run, which needs Ray only if a robot has iterations left (run.ray_team)."""
+    check_name(params.experiment, KEYS.experiment, "the run directory's name")
     check_risk(params.risk)
     check_policy(params.policy)
     check_train(params.train)
@@ -84,6 +89,29 @@ def validate(params: RiskplanConf, needs_ray: bool = True) -> None:
         f"got {seed}; expected a whole number 0 <= seed < 2^63 (9223372036854775808); seeds are not reduced "
         f"modulo 2^64",
     )
+
+
+def check_name(value: str, key: Key, meaning: str) -> None:
+    """A name that becomes part of a path: a plain name of at most NAME_LENGTH characters, never path syntax."""
+    require(
+        PLAIN_NAME.fullmatch(value) is not None and len(value) <= NAME_LENGTH,
+        key,
+        f"got {value!r}; it is {meaning}: give a plain name of at most {NAME_LENGTH} letters, digits, '.', '_' and "
+        f"'-', e.g. paper_single",
+    )
+
+
+def check_label(value: str, key: Key) -> None:
+    """A source's or region's name: text that reaches figures, tables, logs and trackers' metric names, so at most
+    NAME_LENGTH characters and none that would break a line, a CSV row or an SVG (control and format characters)."""
+    hidden = next((c for c in value if unicodedata.category(c) in HIDDEN), None)
+    require(
+        hidden is None,
+        key,
+        f"holds the character {hidden!r}; give a name of printable characters (line breaks, tabs and control "
+        f"characters would break the logs, tables and figures it appears in)",
+    )
+    require(len(value) <= NAME_LENGTH, key, f"is {len(value)} characters long; give a name of at most {NAME_LENGTH}")
 
 
 def check_risk(risk: RiskConf, key: Key = KEYS.risk) -> None:
@@ -168,6 +196,10 @@ def check_world(world: WorldConf) -> None:
         KEYS.world.map_cell,
         f"got {world.map_cell}; expected k >= 1 (one cell is k x k map pixels)",
     )
+    for j, source in enumerate(world.sources):
+        check_label(source.name, KEYS.world.sources.at(j).name)
+    for r, region in enumerate(world.regions):
+        check_label(region.name, KEYS.world.regions.at(r).name)
     for j, source in enumerate(world.sources):
         where = KEYS.world.sources.at(j).motion.prob
         prob = source.motion.prob  # checked for static sources too: a probability outside [0, 1] is a typo

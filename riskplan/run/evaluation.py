@@ -15,6 +15,7 @@ from riskplan.engine.measures.registry import risk_spec
 from riskplan.engine.risk_measures import objective, summary_stats
 from riskplan.engine.rollout import simulate
 from riskplan.engine.step import RunSetup, TrainState, check_finite, simulator, starts
+from riskplan.engine.world import NO_SOURCE
 from riskplan.run.budget import EVAL_BATCH
 from riskplan.run.columns import Columns, concat, rows_where
 from riskplan.run.intervals import bootstrap_intervals, objective_interval, objective_intervals
@@ -123,11 +124,11 @@ def summarize(setup: RunSetup, state: TrainState, evaluation: Columns, metrics: 
             "source_reached": {
                 name: float((group["source_reached"] == j).mean()) for j, name in enumerate(setup.world.source_names)
             }
-            | {"none": float((group["source_reached"] < 0).mean())},
+            | {NO_SOURCE: float((group["source_reached"] < 0).mean())},
         }
     _, final_thetas, _ = policies(setup, state.thetas)
     objective_figure = _objective(params.risk, z, figures, params)
-    reached_none = per_policy[str(headline)]["source_reached"]["none"]
+    reached_none = per_policy[str(headline)]["source_reached"][NO_SOURCE]
     robots, team_objective = robot_objectives(setup, state.thetas, evaluation, objective_figure)
     return {
         "schema_version": SCHEMA_VERSION,

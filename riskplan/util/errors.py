@@ -11,8 +11,15 @@ class BadInput(ValueError):
     def __init__(self, where: str, problem: str):
         self.where = where
         self.problem = problem
-        # one line whatever the user typed: a key or value with a line break is shown escaped
-        super().__init__(f"{where}: {problem}".replace("\r", "\\r").replace("\n", "\\n"))
+        super().__init__(one_line(f"{where}: {problem}"))
+
+
+def one_line(text: str) -> str:
+    """text as one line whatever a user typed: line breaks, escape codes and other characters that do not print are
+    shown escaped (\\n, \\x1b), so a value cannot break or forge a line of the terminal or a log."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 class MissingExtra(BadInput):

@@ -87,3 +87,21 @@ def test_a_value_hydra_takes_only_quoted_names_the_characters_and_the_quoted_for
     assert "'☢', '源'" in bad.stderr and "world.sources.0.name='Quelle ☢ 源'" in bad.stderr
     good = runner.invoke(app, ["check", "world.sources.0.name='Quelle ☢ 源'"])
     assert good.exit_code == 0 and "source 0 'Quelle ☢ 源'" in good.stdout
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["../../outside", "a/b/c", "line\nbreak", "nul\x00x", "x" * 65, ".."],
+)
+def test_an_experiment_name_with_path_syntax_is_one_line_and_writes_nothing(config_dir, tmp_path, monkeypatch, name):
+    """`experiment:` names the run directory (outputs/runs/<time>_<experiment>): a name with path syntax would put
+    the run outside outputs/ (the probe's ../../outside), or fail on a NUL with a traceback."""
+    (config_dir / "experiment" / "odd.yaml").write_text(MINE.replace("experiment: mine", f"experiment: {name!r}"))
+    monkeypatch.chdir(tmp_path)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    for command in ("check", "train"):
+        result = runner.invoke(app, [command, "-cd", str(config_dir), "experiment=odd"])
+        assert result.exit_code == 2, result.output
+        assert result.stderr.startswith("error: experiment: got ") and result.stderr.count("\n") == 1
+        assert "give a plain name of at most 64 letters, digits" in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # no outputs/ and no run anywhere

@@ -32,3 +32,34 @@ def test_starts_must_match_the_team_size():
     with pytest.raises(BadInput) as err:
         compose(["experiment=paper_team", "team.starts=[[0,0]]"])
     assert err.value.where == "team.starts"
+
+
+@pytest.mark.parametrize(
+    ("overrides", "where", "words"),
+    [
+        (["world.sources.0.name=none"], "world.sources.0.name", "got 'none', the name the results give the episodes"),
+        (["world.sources.1.name=safe"], "world.sources.1.name", "'safe' is also the name of world.sources.0; the"),
+        # an unnamed source is source_<j>: a user's name may not take it
+        (["world.sources.0.name=source_1", "world.sources.1.name=''"], "world.sources.1.name", "'source_1' is also"),
+        (["world.sources.0.name='a\rb'"], "world.sources.0.name", "holds the character '\\r'; give a name of"),
+        (["world.regions.1.name='x\x1b[31m'"], "world.regions.1.name", "holds the character '\\x1b'"),
+        (["world.regions.0.name='a\u202eb'"], "world.regions.0.name", "holds the character '\\u202e'"),  # RTL override
+        (
+            [f"world.sources.0.name={'A' * 65}"],
+            "world.sources.0.name",
+            "is 65 characters long; give a name of at most 64",
+        ),
+    ],
+)
+def test_source_and_region_names_are_each_sources_own_and_printable(overrides, where, words):
+    """summary.json counts the episodes reaching each source by its name and those reaching none as 'none': a name
+    shared, or 'none', merged two counts into one. Names also reach logs, CSV headers, SVGs and metric names."""
+    err = bad_input(*overrides)
+    assert err.where == where and words in err.problem
+
+
+def test_names_of_64_printable_characters_any_script_are_accepted():
+    setup = setup_of(
+        f"world.sources.0.name={'A' * 64}", "world.sources.1.name='Quelle ☢ 源'", "world.regions.0.name=safe"
+    )
+    assert setup.world.source_names == ("A" * 64, "Quelle ☢ 源")

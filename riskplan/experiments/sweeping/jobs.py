@@ -13,7 +13,7 @@ from riskplan.experiments.driver_watch import DRIVER_FILE
 from riskplan.experiments.sweep_worker import read_status
 from riskplan.run.run_files import is_run_dir
 from riskplan.util import lock
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, one_line
 
 SWEEPS_ROOT = Path("outputs") / "sweeps"
 
@@ -68,8 +68,9 @@ class Job:
 
     @property
     def shown(self) -> str:
-        """How progress names it: the overrides that vary, as typed (its folder name is percent-encoded)."""
-        return self.label or ",".join(self.overrides) or self.name
+        """How progress names it: the overrides that vary, as typed (its folder name is percent-encoded), on one
+        line."""
+        return one_line(self.label or ",".join(self.overrides) or self.name)
 
 
 @dataclass

@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from riskplan.experiments.sweep_worker import is_finished, read_status, repeats_line
@@ -20,6 +21,7 @@ from riskplan.experiments.sweeping.jobs import SUMMARY, Job, Outcome
 from riskplan.run.evaluation import degenerate_findings
 from riskplan.run.run_files import SUMMARY as RUN_SUMMARY
 from riskplan.util import lock
+from riskplan.util.errors import one_line
 from riskplan.util.paths import atomic_path
 
 FIGURES = ("mean", "cvar", "value_at_risk")
@@ -168,15 +170,15 @@ def print_table(frame, title: str, limit: int = 40) -> None:
     keys = (["trial"] if "trial" in frame.columns else []) + varying_columns(frame)
     reached = [c for c in frame.columns if str(c).startswith("reached_")]
     for key in keys:
-        table.add_column(key, no_wrap=True)
+        table.add_column(escape(one_line(str(key))), no_wrap=True)
     table.add_column("status", no_wrap=True)
     for label in ("mean [95% CI]", "CVaR [95% CI]", "VaR"):
         table.add_column(label, justify="right", no_wrap=True)
     for column in reached:
-        table.add_column(column, justify="right", no_wrap=True)
+        table.add_column(escape(one_line(str(column))), justify="right", no_wrap=True)
     table.add_column("wall s", justify="right", no_wrap=True)
     for values in frame.head(limit).to_dict("records"):
-        cells = [str(values[k]) for k in keys]
+        cells = [escape(one_line(str(values[k]))) for k in keys]  # a value is text, never markup
         status = values["status"]
         if status != "done":
             cells.append(f"[red]{status}[/red]")

@@ -14,6 +14,8 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 from PIL import Image
 from support import TINY
 
@@ -56,6 +58,17 @@ def test_a_name_says_only_what_differs_in_a_few_words():
     mixed = grouped([{"risk": {"measure": m, "beta": b}} for m, b in (("neutral", 0.1), ("cvar", 0.1), ("cvar", 0.2))])
     assert sorted(names(mixed)) == ["risk-averse (CVaR β=0.1)", "risk-averse (CVaR β=0.2)", "risk-neutral"]
     assert all(len(n) < 30 for n in names(betas) + names(teams) + names(mixed))
+
+
+def test_a_value_is_named_as_typed_never_as_mathtext():
+    """A swept value is text: '$x^2$' keeps its dollars (escaped for matplotlib, which draws '\\$' as '$'), so the
+    legend reads as typed and '$\\nosuchcmd$', which mathtext cannot parse, no longer loses the figure."""
+    odd = grouped([{"team": {"address": a}} for a in ("$x^2$", "$\\nosuchcmd$")])
+    assert sorted(names(odd)) == ["address=\\$\\nosuchcmd\\$", "address=\\$x^2\\$"]
+    figure = Figure()
+    for name in names(odd):
+        figure.text(0, 0, name)
+    FigureCanvasAgg(figure).draw()  # raised ValueError (mathtext) before
 
 
 def test_past_eight_groups_one_panel_per_value_of_a_key():

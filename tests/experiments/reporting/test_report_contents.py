@@ -559,6 +559,16 @@ def test_worker_processes_write_the_same_files_as_one_process(sweep, tmp_path, m
     assert not any(name.startswith("fig2_cvar") for name in two)
 
 
+def test_the_command_says_on_stderr_which_figure_failed_and_why(sweep, tmp_path, monkeypatch):
+    """A failed figure is a fault to see where the command runs, not only in the page's list of figures left out."""
+    monkeypatch.setenv(WORKERS_ENV, "1")
+    with_artist(monkeypatch, Unfinished, {"fig2_cvar"})
+    result = runner.invoke(app, ["report", str(sweep), "--out", str(tmp_path / "report"), "--format", "png"])
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.stderr.splitlines() if line.startswith("warning: figure")]
+    assert warnings == ["warning: figure fig2_cvar failed: RuntimeError: half-drawn"]
+
+
 @pytest.mark.parametrize("workers", ["1", "2"])
 def test_the_report_tells_how_far_each_phase_has_come(sweep, tmp_path, monkeypatch, workers):
     monkeypatch.setenv(WORKERS_ENV, workers)

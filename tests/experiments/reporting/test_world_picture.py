@@ -352,3 +352,13 @@ def test_the_report_draws_the_world_of_a_run_placed_in_metres(tmp_path):
     (world,) = [spec for spec in make_figures(collected)[0] if spec.name.startswith("world")]
     assert markers(world.figure.axes[0], "o") == [(3.0, 3.0)]
     assert markers(world.figure.axes[0], "*") == [(3.0, 15.0), (15.0, 3.0)]
+
+
+def test_names_are_drawn_as_typed_never_as_mathtext():
+    """A name is text: '$x$' is drawn with its dollars, not as an italic x, and '$\\nosuchcmd$', which mathtext cannot
+    parse, no longer loses the picture (SVG keeps text as text, so the file shows what was drawn)."""
+    _, figure, _ = drawn("world.sources.0.name='$x$'", "world.regions.0.name='$\\nosuchcmd$'")
+    with matplotlib.rc_context(STYLE):
+        svg = figure_bytes(figure, "svg").decode()
+    assert ">1 '$x$' (9, 3): 12 moves from (0, 0)</text>" in svg
+    assert ">region '$\\nosuchcmd$' (risky)</text>" in svg

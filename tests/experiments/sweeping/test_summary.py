@@ -10,7 +10,7 @@ from support import TINY, riskplan_cli
 
 from riskplan.experiments.sweep_worker import write_status
 from riskplan.experiments.sweeping.jobs import Job
-from riskplan.experiments.sweeping.summary import _override_columns, summarize, varying_columns
+from riskplan.experiments.sweeping.summary import _override_columns, print_table, summarize, varying_columns
 
 
 def test_every_job_gets_a_row_with_why_it_did_not_finish(tmp_path):
@@ -76,3 +76,23 @@ def test_a_degenerate_job_is_marked_in_the_table_named_after_it_and_kept_in_its_
     frame = pd.read_parquet(tmp_path / "s" / "summary.parquet")
     assert frame.status.tolist() == ["done", "done"]
     assert frame.degenerate[0].startswith("reached_no_source: ") and pd.isna(frame.degenerate[1])
+
+
+def test_the_table_prints_values_as_text_never_as_markup_or_extra_lines(capsys):
+    """A value is printed as typed: '[/]' crashed the table (rich read it as a closing tag) after every job had
+    finished, '[red]x' lost its brackets, and a line break forged a line of the sweep's output."""
+    frame = pd.DataFrame(
+        {
+            "job": ["a", "b", "c"],
+            "team.address": ["[/]", "[red]x", "x\n[2/2] failed FAKE"],
+            "status": "done",
+            **{name: 1.0 for name in ("mean", "mean_low", "mean_high", "cvar", "cvar_low", "cvar_high")},
+            "value_at_risk": 1.0,
+            "wall_time": 1.0,
+        }
+    )
+    print_table(frame, "sweep: s")
+    rows = capsys.readouterr().out.splitlines()
+    shown = [row.split("│")[0].strip() for row in rows if "│" in row]
+    assert shown == ["[/]", "[red]x", "x\\n[2/2] failed FAKE"]
+    assert not any(row.startswith("[2/2]") for row in rows)

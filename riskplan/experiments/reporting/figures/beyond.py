@@ -21,6 +21,7 @@ from riskplan.experiments.reporting.figures.drawing import (
     legend,
     legend_below,
     legend_right,
+    literal,
     new_figure,
     outer,
     panel_grid,
@@ -406,7 +407,7 @@ def _landscape_panel(fig, ax, scan, column: str, name: str, runs: list) -> None:
         m = r.metrics_of()
         xs = np.append(m[f"theta_{a}"].to_numpy(float), r.final_theta()[a])
         ys = np.append(m[f"theta_{b}"].to_numpy(float), r.final_theta()[b])
-        label = r.group.label if r.group.label not in seen else f"_{r.group.label} {r.seed}"
+        label = literal(r.group.label) if r.group.label not in seen else f"_{r.group.label} {r.seed}"
         seen.add(r.group.label)
         ax.plot(xs, ys, "-", color=r.group.color, lw=1.4, path_effects=outline, label=label)
         ax.plot(xs[:1], ys[:1], ls="none", marker="o", ms=5, mfc="white", mec="black", label="_start")

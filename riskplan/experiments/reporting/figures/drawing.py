@@ -65,6 +65,12 @@ class FigureSpec:
     paper: bool = False  # one of the paper's figures, drawn from a reproduction's runs (Section V)
 
 
+def literal(text: str) -> str:
+    """A user's text (a name, a value) drawn as typed: matplotlib would read $...$ in it as mathtext, drawing $x$ as
+    an italic x, or failing on $\\nosuchcmd$ and losing the figure."""
+    return text.replace("$", r"\$")
+
+
 def new_figure(width: float, height: float, ncols: int = 1, nrows: int = 1, **kw) -> tuple[Figure, np.ndarray]:
     """A constrained-layout figure with a (nrows x ncols) array of axes, never wider than WIDEST."""
     fig = Figure(figsize=(min(width, WIDEST), height), layout="constrained")

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from riskplan.config.keys import KEYS
 from riskplan.experiments.reporting.collect import PALETTE, Collection, Group
+from riskplan.experiments.reporting.figures.drawing import literal
 from riskplan.experiments.reporting.labels import fault_name, measure_name, team_name
 
 MAX_CURVES = 8  # groups drawn in one panel; more make small multiples
@@ -68,7 +69,7 @@ def _value(value) -> str:
             text = "[" + ", ".join(f"{x:g}" if isinstance(x, float) else str(x) for x in items) + "]"
         except (TypeError, ValueError):
             pass
-    return text if len(text) <= SHORTEST else text[: SHORTEST - 1] + "…"
+    return literal(text if len(text) <= SHORTEST else text[: SHORTEST - 1] + "…")
 
 
 def _key(key: str) -> str:

@@ -38,6 +38,7 @@ from riskplan.experiments.reporting.figures.drawing import (
     WIDEST,
     FigureSpec,
     figure_bytes,
+    literal,
     new_figure,
 )
 from riskplan.run import maps
@@ -155,7 +156,7 @@ def _cells(blocked: np.ndarray, unknown: np.ndarray | None, unknown_as: MapUnkno
         else:
             colours.append(SAFE_REGIONS[safe % len(SAFE_REGIONS)])
             safe += 1
-        labels.append(f"region '{name}'" + (" (risky)" if is_risky else ""))
+        labels.append(f"region '{literal(name)}'" + (" (risky)" if is_risky else ""))
         hatched.append(is_risky)
     open_classes = len(colours)
     if unknown is not None and unknown.any():
@@ -218,7 +219,7 @@ def draw_picture(picture: Picture) -> Figure:
         ax.add_collection(LineCollection(outline, colors=REACH_COLOUR, lw=1.2, zorder=2))
         handles += _draw_sources(ax, picture, k)
     _axes_in_cells(ax, w, h, picture.metres)
-    ax.set_title(textwrap.fill(picture.title, 64))
+    ax.set_title(literal(textwrap.fill(picture.title, 64)))
     if below:
         fig.legend(handles=handles, loc="outside lower center", ncols=2)
     else:
@@ -309,7 +310,7 @@ def _draw_sources(ax, picture: Picture, k: int) -> list:
         x0, y0 = world.xy(picture.nearest[j])
         reached = f"{picture.moves[j]} moves from ({x0}, {y0})" if picture.moves[j] >= 0 else "no path from a start"
         walk = ", a random walk from here" if world.source_motion[j] > 0 else ""
-        label = f"{j + 1} '{name}' ({sx}, {sy}{walk}): {reached}"
+        label = f"{j + 1} '{literal(name)}' ({sx}, {sy}{walk}): {reached}"
         handles.append(Line2D([], [], color=colour, lw=2.0, marker="*", ms=11, mec="black", label=label))
     handles += [
         Line2D([], [], color="#555555", lw=0.9, ls=style, label=f"signal at {n:g}σ ({math.exp(-(n**2) / 2):.0%})")
