@@ -51,7 +51,8 @@ from riskplan.experiments.reporting.collect import Broken, Duplicate, RunInfo, c
 from riskplan.experiments.sweep_worker import config_sha
 from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
 from riskplan.util.checks import require_installed
-from riskplan.util.errors import BadInput, did_you_mean
+from riskplan.util.errors import BadInput, did_you_mean, one_line
+from riskplan.util.names import unique
 from riskplan.util.paths import check_output_dir, is_marked, replace_marked_dir, write_atomic
 
 TARGETS = ("mlflow", "tensorboard", "foxglove", "ros2")
@@ -282,6 +283,20 @@ def check_uri(to: str, uri: str | None) -> str:
     return directory.as_uri()
 
 
+def check_experiment(name: str) -> None:
+    """--experiment: a name MLflow takes (at most its MAX_EXPERIMENT_NAME_LENGTH printable characters), checked
+    before the store is opened: MLflow would refuse it after making the store's folder."""
+    from mlflow.utils.validation import MAX_EXPERIMENT_NAME_LENGTH  # optional: the mlflow extra
+
+    if len(name) > MAX_EXPERIMENT_NAME_LENGTH:
+        raise BadInput(
+            "--experiment",
+            f"is {len(name)} characters long; MLflow takes a name of at most {MAX_EXPERIMENT_NAME_LENGTH}",
+        )
+    if not name.isprintable():
+        raise BadInput("--experiment", f"got {name!r}; give a name of printable characters, e.g. riskplan")
+
+
 def _is_mlflow_store(directory: Path) -> bool:
     """An MLflow file store: experiment folders with a meta.yaml, or its .trash."""
     return (directory / ".trash").is_dir() or any(p.is_file() for p in directory.glob("*/meta.yaml"))
@@ -334,6 +349,7 @@ class MlflowTarget:
 
     def write(self, rec: Record) -> Exported:
         from mlflow.entities import Metric, Param  # optional: the mlflow extra
+        from mlflow.exceptions import MlflowException  # optional: the mlflow extra
         from mlflow.utils.validation import (  # optional: the mlflow extra
             MAX_METRICS_PER_BATCH,
             MAX_PARAM_VAL_LENGTH,
@@ -361,27 +377,46 @@ class MlflowTarget:
         run = self.client.create_run(self.experiment_id, start_time=int(rec.start * 1000), tags=tags, run_name=rec.name)
         run_id = run.info.run_id
         try:
-            params = [Param(mlflow_key(k), v[:MAX_PARAM_VAL_LENGTH]) for k, v in rec.params.items()]
+            params = [Param(key, rec.params[k][:MAX_PARAM_VAL_LENGTH]) for k, key in mlflow_keys(rec.params).items()]
             for i in range(0, len(params), MAX_PARAMS_TAGS_PER_BATCH):
                 self.client.log_batch(run_id, params=params[i : i + MAX_PARAMS_TAGS_PER_BATCH])
-            metrics = [Metric(mlflow_key(key), value, round(t * 1000), step) for key, step, value, t in rec.points]
+            keys = mlflow_keys(dict.fromkeys(key for key, *_ in rec.points))
+            metrics = [Metric(keys[key], value, round(t * 1000), step) for key, step, value, t in rec.points]
             for i in range(0, len(metrics), MAX_METRICS_PER_BATCH):
                 self.client.log_batch(run_id, metrics=metrics[i : i + MAX_METRICS_PER_BATCH])
             # the fingerprint last: a run cut short by an error is never taken for a finished export
             self.client.set_tag(run_id, "riskplan.fingerprint", rec.fingerprint)
+        except MlflowException as err:
+            if err.error_code != "INVALID_PARAMETER_VALUE":  # the store's fault (disk, server): the export stops
+                self._failed(run_id)
+                raise
+            with contextlib.suppress(Exception):  # this run's values MLflow refuses: the run alone is skipped
+                self.client.delete_run(run_id)
+            raise Skip(f"MLflow refused its values: {one_line(str(err).strip().splitlines()[0])}") from None
         except BaseException:
-            with contextlib.suppress(Exception):  # not left RUNNING: marked failed, and replaced by the next export
-                self.client.set_terminated(run_id, "FAILED")
+            self._failed(run_id)
             raise
         self.client.set_terminated(run_id, "FINISHED", end_time=round(rec.end * 1000))
         self.by_dir[rec.tags["riskplan.run_dir"]] = []
         return Exported(rec.path, "replaced" if old else "exported", f"mlflow run {run_id}")
+
+    def _failed(self, run_id: str) -> None:
+        """A run cut short: not left RUNNING, but marked failed, and replaced by the next export."""
+        with contextlib.suppress(Exception):
+            self.client.set_terminated(run_id, "FAILED")
 
 
 def mlflow_key(key: str) -> str:
     """A param or metric name as MLflow takes it: ASCII letters, digits and _-./ and spaces; any other character of
     a user's name (a source called 'sáfe 😀') becomes '_', as the TensorBoard and ROS 2 names do."""
     return re.sub(r"[^A-Za-z0-9_\-./ ]", "_", key)
+
+
+def mlflow_keys(keys: dict) -> dict[str, str]:
+    """Each key's MLflow name, distinct: sources named 'x?' and 'x!' are source_reached.x_ and source_reached.x__1,
+    not one metric holding both."""
+    taken: set[str] = set()
+    return {key: unique(mlflow_key(key), taken) for key in keys}
 
 
 # ------------------------------------------------------------------------------------------- TensorBoard
@@ -523,6 +558,8 @@ def export_runs(
     path without runs; ExportFailed when the destination cannot be written. `echo`: each run as it is exported;
     `progress(done, total)`: the runs loaded so far, before."""
     target, destination = prepare(to, uri)
+    if target == "mlflow":
+        check_experiment(experiment)
     if not paths:
         raise BadInput(
             "DIRS",

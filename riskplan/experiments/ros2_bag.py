@@ -37,6 +37,7 @@ from mcap.writer import CompressionType, Writer
 from riskplan.run.build import build_setup
 from riskplan.run.maps import geometry
 from riskplan.util.errors import BadInput
+from riskplan.util.names import unique
 from riskplan.util.paths import is_marked, replace_marked_dir, write_atomic
 
 BAG = "rosbag2"  # the bag's directory inside a run directory when no --out is given
@@ -109,12 +110,7 @@ def topic_name(name: str, taken: set[str]) -> str:
     """A region's name as one valid ROS topic token (letters, digits and `_`, not starting with a digit), unique."""
     token = re.sub(r"[^A-Za-z0-9_]", "_", name).strip("_") or "region"
     token = re.sub(r"_+", "_", token)
-    token = f"r_{token}" if token[0].isdigit() else token
-    unique, n = token, 1
-    while unique in taken:
-        unique, n = f"{token}_{n}", n + 1
-    taken.add(unique)
-    return unique
+    return unique(f"r_{token}" if token[0].isdigit() else token, taken)
 
 
 def bag_dir(run_dir: Path, out_dir: Path | None) -> Path:

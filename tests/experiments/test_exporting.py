@@ -192,6 +192,48 @@ def test_a_source_name_mlflow_refuses_is_exported_under_a_safe_key(tmp_path, fil
     assert len(client.search_runs([exported.info.experiment_id], run_view_type=3)) == 1  # none left RUNNING
 
 
+@pytest.mark.slow  # two runs, then exports
+def test_names_mlflow_would_merge_stay_apart_and_a_run_it_refuses_is_skipped_alone(tmp_path, file_store, monkeypatch):
+    """Sources 'x?' and 'x!' both become 'x_' in MLflow's characters: each keeps its own metric, with its own
+    value. A run whose values MLflow refuses (a metric name past its 250 characters) is skipped with the reason and
+    leaves no run in the store; the other run is exported."""
+    pytest.importorskip("mlflow")
+    from riskplan.experiments import exporting
+
+    runs = tmp_path / "runs"
+    train(compose([*TINY, "world.sources.0.name='x?'", "world.sources.1.name='x!'"]), runs / "a_named")
+    train(compose([*TINY, "seed=1"]), runs / "b_refused")
+    record = exporting.run_record
+
+    def refused(info):  # what MLflow refuses, in one run only
+        rec = record(info)
+        if rec.name == "b_refused":
+            rec.points.append(("x" * 300, 0, 1.0, rec.start))
+        return rec
+
+    monkeypatch.setattr(exporting, "run_record", refused)
+    store = tmp_path / "mlruns"
+    done = invoke(str(runs), "--to", "mlflow", "--uri", f"file:{store}")
+    assert done.exit_code == 0 and "1 exported" in done.stdout, done.output
+    assert "b_refused: MLflow refused its values: " in done.output
+    _, found = mlflow_runs(store)
+    assert set(found) == {"a_named"}  # the refused run was deleted, not left FAILED beside it
+    reached = json.loads((runs / "a_named" / "summary.json").read_text())["source_reached"]
+    metrics = found["a_named"].data.metrics
+    assert metrics["summary/source_reached.x_"] == reached["x?"]
+    assert metrics["summary/source_reached.x__1"] == reached["x!"]
+    assert reached["x?"] != reached["x!"]  # two counts, which one key had merged
+
+
+def test_an_mlflow_experiment_name_it_would_refuse_is_bad_input_before_the_store(tmp_path):
+    pytest.importorskip("mlflow")
+    store = tmp_path / "mlruns"
+    for name, words in (("x" * 501, "is 501 characters long; MLflow takes a name of at most 500"), ("a\nb", "got 'a")):
+        result = invoke(str(tmp_path), "--to", "mlflow", "--uri", str(store), "--experiment", name)
+        assert result.exit_code == 2 and result.stderr.startswith(f"error: --experiment: {words}"), result.output
+    assert not store.exists()
+
+
 # ------------------------------------------------------------------------------------------- TensorBoard
 def accumulator(directory: Path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
