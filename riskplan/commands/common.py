@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 from typer.core import TyperGroup
 
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, remedy
 from riskplan.util.paths import hydra_quote
 
 # typer vendors click in recent releases and depends on it in older ones: find click's base exception either way
@@ -70,8 +70,8 @@ def bad_input_exits(command):
         except OSError as err:
             where = f" {err.filename}" if err.filename else ""
             typer.echo(
-                f"error: cannot write{where}: {err.strerror or err}; free space (or give another directory), then run "
-                f"the same command again: what finished is kept",
+                f"error: cannot write{where}: {err.strerror or err}; {remedy(err)} (or give another directory), then "
+                f"run the same command again: what finished is kept",
                 err=True,
             )
             raise typer.Exit(1) from None

@@ -19,7 +19,7 @@ from riskplan.commands.common import (
     with_config_dirs,
 )
 from riskplan.util.collector import pause_collection, resume_collection
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, remedy
 from riskplan.util.interrupt import Interrupted
 from riskplan.util.lock import hold_lock
 from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote, write_atomic
@@ -238,7 +238,7 @@ def _os_error(err: OSError, out: Path) -> str:
     """One line for a failure to write at run time (a full disk, a vanished directory)."""
     where = f" {err.filename}" if err.filename else ""
     return (
-        f"cannot write{where}: {err.strerror or err}; the last checkpoint is kept: free space, then riskplan "
+        f"cannot write{where}: {err.strerror or err}; the last checkpoint is kept: {remedy(err)}, then riskplan "
         f"train --resume {out}"
     )
 

@@ -35,7 +35,7 @@ from riskplan.config import schema
 from riskplan.engine.step import NumericalTrouble
 from riskplan.experiments.sweep_worker import sweep_job, write_status
 from riskplan.run.training import train_summary
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, remedy
 from riskplan.util.interrupt import Interrupted
 from riskplan.util.progress import TrainingBar
 
@@ -76,7 +76,7 @@ def single_run(out: Path, setup, stderr) -> SingleRun:
         except OSError as err:  # a full disk, a directory removed under the run
             where = f" {err.filename}" if err.filename else ""
             return _failed(
-                out, f"cannot write{where}: {err.strerror or err}; free space, then riskplan train --resume {out}"
+                out, f"cannot write{where}: {err.strerror or err}; {remedy(err)}, then riskplan train --resume {out}"
             )
         except Exception as err:  # any other error: its status records why
             return _failed(out, f"{type(err).__name__}: {err}", traceback.format_exc())

@@ -24,7 +24,7 @@ import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, remedy
 from riskplan.util.paths import atomic_path, check_output_dir
 from riskplan.version import __version__
 
@@ -149,7 +149,7 @@ class Output:
         why = err.strerror or str(err) or type(err).__name__
         return WriteFailed(
             f"{self.out / name}: could not be written ({why}); files written before are complete, "
-            f"none is half-written; free space or fix the directory and run the command again"
+            f"none is half-written; {remedy(err)}, then run the command again"
         )
 
     def begin(self, planned: Iterable[str]) -> None:

@@ -2,6 +2,7 @@
 the closest valid option its line suggests for a mistyped one."""
 
 import difflib
+import errno
 from collections.abc import Iterable
 
 
@@ -32,3 +33,17 @@ def did_you_mean(value: object, options: Iterable[object]) -> str:
     cutoff above difflib's 0.6, which would offer 'none' for 'cosine')."""
     close = difflib.get_close_matches(str(value), [str(option) for option in options], n=1, cutoff=0.7)
     return f"; did you mean '{close[0]}'?" if close else ""
+
+
+def remedy(err: OSError) -> str:
+    """What fixes a failed write, for its line: 'free space' for a full disk, and the cause's own fix otherwise (a
+    file size limit is not a full disk)."""
+    return {
+        errno.ENOSPC: "free space",
+        errno.EDQUOT: "free space (a disk quota is reached)",
+        errno.EFBIG: "raise the file size limit (ulimit -f)",
+        errno.EACCES: "make the directory writable",
+        errno.EPERM: "make the directory writable",
+        errno.EROFS: "give a directory on a writable disk",
+        errno.ENOENT: "restore the directory (it was removed)",
+    }.get(err.errno, "fix the cause")

@@ -40,6 +40,18 @@ def failing(error: Exception):
             "error: cannot write: No space left on device; free space (or give another directory), then run the "
             "same command again: what finished is kept",
         ),
+        (
+            OSError(errno.EFBIG, "File too large", "out/run.mcap"),  # ulimit -f: freeing space would not help
+            1,
+            "error: cannot write out/run.mcap: File too large; raise the file size limit (ulimit -f) (or give "
+            "another directory), then run the same command again: what finished is kept",
+        ),
+        (
+            OSError(errno.EACCES, "Permission denied", "out"),
+            1,
+            "error: cannot write out: Permission denied; make the directory writable (or give another directory), "
+            "then run the same command again: what finished is kept",
+        ),
     ],
 )
 def test_a_failure_is_one_line_with_its_exit_code(capsys, error, code, line):
