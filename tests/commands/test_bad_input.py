@@ -69,6 +69,12 @@ def template(tmp_path_factory) -> Path:
     shutil.copytree(done, not_mcap)
     (not_mcap / "run.mcap").write_text("these are notes, not a log")
     (root / "empty").mkdir()
+    killed = root / "stopped" / "killed"  # a run killed mid-way: half its log, none of its final files
+    shutil.copytree(done, killed)
+    log = (killed / "run.mcap").read_bytes()
+    (killed / "run.mcap").write_bytes(log[: len(log) // 2])
+    for name in ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet"):
+        (killed / name).unlink(missing_ok=True)
     (root / "notes.txt").write_text("not a run\n")
     # checkpoints and configs that cannot be this run's (resume validates them)
     for name, edit in (

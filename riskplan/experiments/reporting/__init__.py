@@ -109,6 +109,19 @@ def build_report(
     return write_report(paths, out_dir, formats, key, progress).page
 
 
+def check_reportable(collected, paths: list[Path]) -> None:
+    """BadInput, before anything is written, when the paths hold runs but none that can be reported (each running,
+    killed before its first checkpoint, or damaged) and no landscape: a report of nothing would exit 0."""
+    if collected.runs or collected.landscapes or collected.studies:
+        return
+    first = collected.broken[0]
+    more = f" ({len(collected.broken) - 1} more skipped)" if len(collected.broken) > 1 else ""
+    raise BadInput(
+        ", ".join(str(p) for p in paths),
+        f"holds no run that can be reported: {first.path} {first.reason}{more}; resume it (riskplan train --resume DIR) or let it finish, then report it",
+    )
+
+
 def write_report(
     paths: list[Path],
     out_dir: Path,
@@ -122,6 +135,7 @@ def write_report(
     find_runs([Path(p) for p in paths])  # the inputs first (a missing path, one without runs), then --out
     previous = claim_output(out_dir, "report", key)  # before reading any run: a bad --out is refused at once
     collected = collect([Path(p) for p in paths], functools.partial(tell, PHASES[0]))
+    check_reportable(collected, paths)
     if collected.duplicates:  # one line (the CLI shows warnings as `warning: ...`); runs.csv names each
         warnings.warn(repeats_line(len(collected.duplicates), "runs.csv lists them as duplicate"), stacklevel=3)
     specs, skipped = make_figures(collected, functools.partial(tell, PHASES[1]))
