@@ -54,9 +54,9 @@ from riskplan.engine.step import NumericalTrouble
 from riskplan.experiments.driver_watch import arrive, exit_if_orphaned
 from riskplan.run.compose import compose
 from riskplan.run.run_files import CHECKPOINT, JOB_LOG, STATUS, has_finished, remove_stale
-from riskplan.run.training import train_summary
+from riskplan.run.training import prepare_resume, train_summary
 from riskplan.util import lock
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, one_line
 from riskplan.util.interrupt import Interrupted
 from riskplan.util.paths import write_atomic
 
@@ -274,13 +274,15 @@ class JobStart:
     value: float | None = None
     resume: bool = False
     base: dict = field(default_factory=dict)
+    unusable: str | None = None  # why its checkpoint could not be resumed, when it starts again instead
 
     @property
     def opening(self) -> str:
         """job.log's first line for this start."""
         b = self.base
+        how = "resumed" if self.resume else f"started again ({self.unusable})" if self.unusable else "started"
         return (
-            f"=== riskplan sweep job {'resumed' if self.resume else 'started'} at {time.ctime(b['started'])} "
+            f"=== riskplan sweep job {how} at {time.ctime(b['started'])} "
             f"on {b['host']} ({b['threads']} numba threads, pid {b['pid']}"
         )
 
@@ -299,6 +301,9 @@ def begin_job(cfg: DictConfig, out: Path) -> JobStart:
         and prior.get("config_sha") == sha
         and (out / CHECKPOINT).is_file()
     )
+    unusable = _unusable_checkpoint(cfg, out) if resume else None
+    if unusable is not None:  # a damaged checkpoint or log: the job trains again from scratch, to the same numbers
+        resume = False
     if not resume:
         remove_stale(out)
     base = {
@@ -309,7 +314,17 @@ def begin_job(cfg: DictConfig, out: Path) -> JobStart:
         "threads": numba_threads(),
     }
     write_status(out, {"status": "running", "error": None, **base})
-    return JobStart(out, resume=resume, base=base)
+    return JobStart(out, resume=resume, base=base, unusable=unusable)
+
+
+def _unusable_checkpoint(cfg: DictConfig, out: Path) -> str | None:
+    """Why the job's checkpoint cannot be resumed (damaged, or not matching its log), or None. A run of riskplan
+    train asks its user to start it again; a sweep job, whose folder is the sweep's, simply does."""
+    try:
+        prepare_resume(cfg, out)
+    except (BadInput, OSError) as err:
+        return f"its checkpoint could not be resumed: {one_line(str(err))}"
+    return None
 
 
 def end_job(start: JobStart, record: dict) -> float | None:

@@ -243,7 +243,7 @@ def test_swept_values_with_path_syntax_stay_direct_children_of_the_sweep_directo
     long = "n" * 300
     args = [
         "sweep",
-        "world.sources.0.name=a/b,../../x,%2F,..,'sp ace'," + long,
+        "team.address=a/b,../../x,%2F,..,'sp ace'," + long,  # free text (a source's name is at most 64 characters)
         "seed=0",
         *TINY,
         "hydra.sweep.dir=deep/s",
@@ -259,10 +259,10 @@ def test_swept_values_with_path_syntax_stay_direct_children_of_the_sweep_directo
         assert file.parent.parent.parent == sweep, file  # <sweep>/<job>/.hydra/overrides.yaml
     names = sorted(file.parent.parent.name for file in found)
     assert len(set(names)) == 6 and all(len(n.encode()) <= NAME_MAX for n in names)
-    assert "world.sources.0.name=a%2Fb" in names and "world.sources.0.name=..%2F..%2Fx" in names
+    assert "team.address=a%2Fb" in names and "team.address=..%2F..%2Fx" in names
     summary = pd.read_parquet(sweep / "summary.parquet")
     assert len(summary) == 6 and (summary.status == "done").all()
-    assert sorted(summary["world.sources.0.name"]) == sorted(["a/b", "../../x", "%2F", "..", "sp ace", long])
+    assert sorted(summary["team.address"]) == sorted(["a/b", "../../x", "%2F", "..", "sp ace", long])
     again = riskplan_cli(tmp_path, *args)
     assert again.returncode == 0 and "6 jobs: 0 to run, 6 already finished" in again.stdout
 
