@@ -236,6 +236,14 @@ class SourceConf(Frozen):
     name: str = ""
 
 
+NO_SOURCE = "none"  # the results' name for the episodes that reach no source (summary.json's source_reached)
+
+
+def source_names(sources: list[SourceConf]) -> list[str]:
+    """Each source's name in the results: its own, or source_<j>."""
+    return [source.name or f"source_{j}" for j, source in enumerate(sources)]
+
+
 @dataclass
 class RegionConf(Frozen):
     """A named cell set with a per-step reward; give exactly one of rect, halfplane, cells, mask."""

@@ -16,6 +16,7 @@ from riskplan.config.faults import Fault, faults_of
 from riskplan.config.hydra_safety import PLAIN_NAME
 from riskplan.config.keys import KEYS, Key
 from riskplan.config.schema import (
+    NO_SOURCE,
     Aggregate,
     Feature,
     MotionKind,
@@ -27,6 +28,7 @@ from riskplan.config.schema import (
     TeamConf,
     TrainConf,
     WorldConf,
+    source_names,
 )
 from riskplan.util.checks import finite, integer_at_least, require, require_installed
 
@@ -99,6 +101,25 @@ def check_name(value: str, key: Key, meaning: str) -> None:
         f"got {value!r}; it is {meaning}: give a plain name of at most {NAME_LENGTH} letters, digits, '.', '_' and "
         f"'-', e.g. paper_single",
     )
+
+
+def check_source_names(names: list[str]) -> None:
+    """Each source's name is its own, and not 'none': the results count the episodes that reach each source by its
+    name, and those that reach none as 'none', so a shared name would merge two counts into one."""
+    for j, name in enumerate(names):
+        key = KEYS.world.sources.at(j).name
+        require(
+            name != NO_SOURCE,
+            key,
+            f"got '{NO_SOURCE}', the name the results give the episodes that reach no source; give another name",
+        )
+        first = names.index(name)
+        require(
+            first == j,
+            key,
+            f"'{name}' is also the name of world.sources.{first}; the results count each source's episodes by its "
+            f"name: give each source its own",
+        )
 
 
 def check_label(value: str, key: Key) -> None:
@@ -198,6 +219,7 @@ def check_world(world: WorldConf) -> None:
     )
     for j, source in enumerate(world.sources):
         check_label(source.name, KEYS.world.sources.at(j).name)
+    check_source_names(source_names(world.sources))
     for r, region in enumerate(world.regions):
         check_label(region.name, KEYS.world.regions.at(r).name)
     for j, source in enumerate(world.sources):

@@ -93,8 +93,8 @@ def make_policy(world: World, kind: str = FEATURES, features: tuple[str, ...] | 
     """The Policy of `policy.kind` and `policy.features` (validated by riskplan.config.validate) on `world`.
 
     theta_names: a source's name for its signal, "risky_region" for risky, "stay" for stay, and x{x}_y{y}_{move}
-    for a table entry. Names stay unique: a duplicated source name gets _2, _3, ... and an extra feature whose name
-    a source already has gets the first free "feature_<name>", "feature_<name>_2", ...
+    for a table entry. Names stay unique: source names are each their own (riskplan.config.validate), and an extra
+    feature whose name a source already has gets the first free "feature_<name>", "feature_<name>_2", ...
     """
     kind = str(kind)
     features = (SIGNALS,) if kind == TABULAR else tuple(str(f) for f in features)
@@ -103,8 +103,8 @@ def make_policy(world: World, kind: str = FEATURES, features: tuple[str, ...] | 
         raise ValueError(
             f"policy kind {kind!r} with features {list(features)}: expected features|tabular of signals, risky, stay"
         )
-    taken: set[str] = set()
-    source_names = [_claim(name, taken) for name in world.source_names]
+    source_names = list(world.source_names)
+    taken = set(source_names)
     extra_names = {f: _claim(EXTRA_NAMES[f], taken, "feature_") for f in features if f != SIGNALS}
     seed_names: list[str] = []
     peaks: list[float] = []

@@ -13,14 +13,13 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from riskplan.config.schema import MapUnknown, MotionKind, WorldConf
+from riskplan.config.schema import MapUnknown, MotionKind, WorldConf, source_names
 from riskplan.engine import distributions
 from riskplan.engine.distributions import Dist
 from riskplan.util.errors import BadInput
 
 MOVES = np.array([[1, 0], [-1, 0], [0, 0], [0, 1], [0, -1]], dtype=np.int64)  # E, W, Stay, N, S
 MOVE_NAMES = ("E", "W", "Stay", "N", "S")
-NO_SOURCE = "none"  # the results' name for the episodes that reach no source (summary.json's source_reached)
 MAX_STACK = 64  # stack slots of the kernel's reward-program interpreter
 SIGNAL_LIMIT = 1e100  # largest peak |signal| w / (2 pi sqrt(det Sigma)): keeps logits and scores finite
 PRECISION_LIMIT = 1e150  # largest |entry| of Sigma^-1: the quadratic form stays finite on any allowed grid
@@ -212,7 +211,7 @@ def _sources(world: WorldConf, places: _Places) -> tuple[list, list, list, list,
     """Each source's name, free cell (its own), reward, walk probability and `_signal_shape`, as six lists."""
     if len(world.sources) == 0:
         raise BadInput("world.sources", "no sources; the policy needs at least one signal (M >= 1)")
-    names, cells, rewards, motion, amplitude, precision = [], [], [], [], [], []
+    names, cells, rewards, motion, amplitude, precision = source_names(world.sources), [], [], [], [], []
     for j, source in enumerate(world.sources):
         here = f"world.sources.{j}"
         x, y = places.cell(source.position, f"{here}.position")
@@ -226,32 +225,12 @@ def _sources(world: WorldConf, places: _Places) -> tuple[list, list, list, list,
                 f"on one cell cannot be told apart; give each source its own cell",
             )
         peak, inverse = _signal_shape(source, here)
-        names.append(source.name or f"source_{j}")
         cells.append(cell)
         rewards.append(_dist(source.reward, f"{here}.reward"))
         motion.append(source.motion.prob if source.motion.kind == MotionKind.random_walk else 0.0)
         amplitude.append(peak)
         precision.append(inverse)
-    _check_source_names(names)
     return names, cells, rewards, motion, amplitude, precision
-
-
-def _check_source_names(names: list[str]) -> None:
-    """Each source's name is its own, and not 'none': the results count the episodes that reach each source by its
-    name, and those that reach none as 'none', so a shared name would merge two counts into one."""
-    for j, name in enumerate(names):
-        if name == NO_SOURCE:
-            raise BadInput(
-                f"world.sources.{j}.name",
-                f"got '{NO_SOURCE}', the name the results give the episodes that reach no source; give another name",
-            )
-        first = names.index(name)
-        if first != j:
-            raise BadInput(
-                f"world.sources.{j}.name",
-                f"'{name}' is also the name of world.sources.{first}; the results count each source's episodes by its "
-                f"name: give each source its own",
-            )
 
 
 def _signal_shape(source: Any, here: str) -> tuple[float, tuple[float, float, float]]:

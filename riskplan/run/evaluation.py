@@ -8,14 +8,13 @@ import json
 import numpy as np
 
 from riskplan.config.backends import BACKENDS
-from riskplan.config.schema import RiskConf, RiskplanConf
+from riskplan.config.schema import NO_SOURCE, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
 from riskplan.engine import rng
 from riskplan.engine.measures.registry import risk_spec
 from riskplan.engine.risk_measures import objective, summary_stats
 from riskplan.engine.rollout import simulate
 from riskplan.engine.step import RunSetup, TrainState, check_finite, simulator, starts
-from riskplan.engine.world import NO_SOURCE
 from riskplan.run.budget import EVAL_BATCH
 from riskplan.run.columns import Columns, concat, rows_where
 from riskplan.run.intervals import bootstrap_intervals, objective_interval, objective_intervals

@@ -144,15 +144,16 @@ def test_theta_names_stay_unique():
     }
     setup = built(WORLD_3X3, clash, with_policy(ALL))
     assert setup.theta_names == ("risky_region", "stay", "feature_risky_region", "feature_stay")
-    twins = {
+    taken = {
         "world": {
             "sources": [
-                {"name": "a", "position": [2, 0], "covariance": [[1, 0], [0, 1]], "reward": 1.0},
-                {"name": "a", "position": [0, 2], "covariance": [[1, 0], [0, 1]], "reward": 1.0},
+                {"name": "stay", "position": [2, 0], "covariance": [[1, 0], [0, 1]], "reward": 1.0},
+                {"name": "feature_stay", "position": [0, 2], "covariance": [[1, 0], [0, 1]], "reward": 1.0},
             ]
         }
     }
-    assert built(WORLD_3X3, twins, with_policy(["signals", "stay"])).theta_names == ("a", "a_2", "stay")
+    names = built(WORLD_3X3, taken, with_policy(["signals", "stay"])).theta_names
+    assert names == ("stay", "feature_stay", "feature_stay_2")
 
 
 # -- the logit bound ------------------------------------------------------------------------------------------------
