@@ -436,7 +436,7 @@ def prepare_ray_resume(setup: RunSetup, out: Path) -> bool:
     finished already."""
     expected = [initial_state(setup, i) for i in range(setup.robots)]
     checkpoint = load_team_checkpoint(out, setup, expected)
-    logged_rows(out / RUN_LOG, checkpoint.iteration, setup.robots)
+    logged_rows(out / RUN_LOG, checkpoint.iteration, setup.robots, setup.config)
     if min(checkpoint.iterations) < setup.params.train.iterations:  # robots to run: Ray (else evaluation only)
         check_extra("team.backend", setup.params.team.backend)
     return min(checkpoint.iterations) == setup.params.train.iterations and has_finished(out)

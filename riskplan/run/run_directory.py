@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import json
 from pathlib import Path
+from typing import Any
 
 import yaml
 from omegaconf import OmegaConf
@@ -75,7 +76,7 @@ def reopen_log(out: Path, setup: RunSetup, iteration: int) -> tuple[RunLog, list
     (`--resume ... train.iterations=N`) gets its new config written and logged, and is not finished until it
     finishes again."""
     log = resume_log(out / RUN_LOG, out / RUN_LOG, iteration - 1)
-    rows = logged_rows(out / RUN_LOG, iteration, setup.robots)
+    rows = logged_rows(out / RUN_LOG, iteration, setup.robots, setup.config)
     if _config_changed(out, setup.config):
         _write_config(out, setup.config, replace=True)
         log.metadata("config", setup.config)
@@ -84,15 +85,18 @@ def reopen_log(out: Path, setup: RunSetup, iteration: int) -> tuple[RunLog, list
     return log, rows
 
 
-def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
+def logged_rows(path: Path, iterations: int, robots: int, config: dict) -> list[dict]:
     """The metrics rows of iterations 0..iterations-1 from run.mcap: what a checkpoint no longer copies.
 
-    Every iteration must be there with one row per robot (and the network average in a team); anything else means
-    the log and the checkpoint are not of one run, which is bad input.
+    Every iteration must be there with one row per robot (and the network average in a team), and the config to
+    resume with must be the one the log recorded but for train.iterations; anything else means the log, the
+    checkpoint and .hydra/config.yaml are not of one run, which is bad input.
     """
     from riskplan.run.log_reader import read_log  # lazy: pandas, which only a resume needs
 
-    metrics = read_log(path).metrics
+    log = read_log(path)
+    _check_logged_config(path, log.metadata.get("config"), config)
+    metrics = log.metrics
     metrics = metrics[metrics.iteration < iterations]
     per_iteration = robots + (1 if robots > 1 else 0)
     counts = metrics.groupby("iteration").size()
@@ -103,6 +107,33 @@ def logged_rows(path: Path, iterations: int, robots: int) -> list[dict]:
             f"{per_iteration} rows per iteration); start the run again",
         )
     return metrics.to_dict("records")
+
+
+def _check_logged_config(path: Path, logged: Any, config: dict) -> None:
+    """BadInput when the config to resume with differs from the one run.mcap recorded in any key but
+    train.iterations: a hand-edited .hydra/config.yaml (another seed, another beta) would otherwise go on training
+    the run under another config, a result of neither."""
+    if not isinstance(logged, dict):
+        return
+    changed = [key for key in _differing(logged, config) if key != "train.iterations"]
+    if changed:
+        more = f" and {len(changed) - 1} more" if len(changed) > 1 else ""
+        raise BadInput(
+            str(path.parent / CONFIG),
+            f"differs from the config {path.name} recorded for this run in {changed[0]}{more}; restore it: a resumed "
+            f"run goes on with its own config (only train.iterations=N may be given), or train a new run",
+        )
+
+
+def _differing(a: Any, b: Any, key: str = "") -> list[str]:
+    """The dotted keys where two plain configs differ."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [
+            k
+            for name in sorted(set(a) | set(b), key=str)
+            for k in _differing(a.get(name), b.get(name), f"{key}.{name}".lstrip("."))
+        ]
+    return [] if a == b else [key or "(the whole config)"]
 
 
 def write_finished(

@@ -22,8 +22,9 @@ from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import load_checkpoint
 from riskplan.run.recorder import Driver, Recorder
 from riskplan.run.run_directory import logged_rows
-from riskplan.run.run_files import has_finished
+from riskplan.run.run_files import CONFIG, has_finished
 from riskplan.util.collector import resume_collection
+from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import StopSignals
 from riskplan.util.lock import hold_lock
 from riskplan.util.paths import check_output_dir
@@ -91,11 +92,14 @@ def load_kernels(setup: RunSetup, state: TrainState) -> None:
 def prepare_resume(config, out: Path) -> tuple[RunSetup, bool]:
     """The RunSetup of a run to resume, after every check of its config, checkpoint and log (nothing is written), and
     whether the run is finished already (its checkpoint is at train.iterations and its tables are there)."""
+    for own in (out / Path(CONFIG).parent, out / CONFIG):  # an extended run rewrites its config: never another's
+        if own.is_symlink():
+            raise BadInput(str(own), "is a symbolic link; a run keeps its own config: copy the run rather than link it")
     setup = build_setup(config, needs_ray=False)
     check = BACKENDS[setup.params.team.backend].resume_check
     if check is not None:  # checkpoints of its own (ray: one per robot; Ray only if a robot has iterations left)
         return setup, load(check)(setup, out)
     state = load_checkpoint(out, setup)
-    logged_rows(out / "run.mcap", state.iteration, setup.robots)
+    logged_rows(out / "run.mcap", state.iteration, setup.robots, setup.config)
     done = state.iteration == setup.params.train.iterations and has_finished(out)
     return setup, done

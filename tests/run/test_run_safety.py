@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 from support import (
     TINY,
     assert_same_outputs,
@@ -250,6 +251,50 @@ def test_a_log_whose_rows_do_not_match_the_checkpoint_is_bad_input(finished, tmp
     log.close()
     with pytest.raises(BadInput, match="holds rows that do not match the checkpoint"):
         prepare_resume(compose(RUN), out)
+
+
+@pytest.mark.slow  # the `finished` run: `riskplan train` in a subprocess
+@pytest.mark.parametrize(("key", "value"), [("seed", 5), ("risk.beta", 0.3), ("train.samples", 60)])
+@pytest.mark.parametrize("extra", [[], ["train.iterations=14"]], ids=["resumed", "extended"])
+def test_a_hand_edited_config_is_not_resumed(finished, tmp_path, monkeypatch, key, value, extra):
+    """A resume goes on with the run's own config: a .hydra/config.yaml edited since (another seed or beta) would
+    train the rest of the run under another config, a result of neither. run.mcap recorded the config it ran."""
+    out = tmp_path / "run"
+    shutil.copytree(finished, out)
+    config = yaml.safe_load((out / ".hydra" / "config.yaml").read_text())
+    node, leaf = config, key.split(".")
+    for part in leaf[:-1]:
+        node = node[part]
+    node[leaf[-1]] = value
+    (out / ".hydra" / "config.yaml").write_text(yaml.safe_dump(config))
+    before = files(out)
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["train", "--resume", str(out), *extra])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.strip() == (
+        f"error: {out}/.hydra/config.yaml: differs from the config run.mcap recorded for this run in {key}; "
+        f"restore it: a resumed run goes on with its own config (only train.iterations=N may be given), or train a "
+        f"new run"
+    )
+    assert files(out) == before
+
+
+@pytest.mark.slow  # the `finished` run: `riskplan train` in a subprocess
+def test_a_run_whose_config_folder_links_to_another_runs_is_not_extended(finished, tmp_path, monkeypatch):
+    """Extending a run rewrites its config: through a linked .hydra, that was another run's, which a later resume of
+    that run then extended unasked."""
+    other, linked = tmp_path / "other", tmp_path / "linked"
+    shutil.copytree(finished, other)
+    shutil.copytree(finished, linked)
+    shutil.rmtree(linked / ".hydra")
+    (linked / ".hydra").symlink_to(other / ".hydra")
+    before = files(other)
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["train", "--resume", str(linked), "train.iterations=14"])
+    assert result.exit_code == 2 and result.stderr.strip() == (
+        f"error: {linked}/.hydra: is a symbolic link; a run keeps its own config: copy the run rather than link it"
+    )
+    assert files(other) == before
 
 
 # ------------------------------------------------------------------------------------ never a non-finite result
