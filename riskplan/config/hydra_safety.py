@@ -36,6 +36,11 @@ DOTTED = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)+")
 
 
 PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._-]*")
+# a log inside the run's (or sweep's) directory, as Hydra's own config and riskplan's sweeps (job.log, sweep.log)
+# name it
+RUN_LOG_FILE = re.compile(
+    r"\$\{hydra\.(runtime\.output_dir|sweep\.dir)\}/(\$\{hydra\.job\.name\}|[A-Za-z0-9_][A-Za-z0-9._-]*)\.log"
+)
 
 
 def check_hydra_node(cfg: DictConfig, hydra_overrides: list) -> None:
@@ -56,7 +61,25 @@ def check_hydra_node(cfg: DictConfig, hydra_overrides: list) -> None:
                 f"the interpolation {override.value()} cannot be resolved ({reason}); give a plain value",
             ) from None
         check_path_setting(key, value)
-    check_callables(OmegaConf.to_container(cfg.hydra, resolve=False), "hydra")
+    hydra = OmegaConf.to_container(cfg.hydra, resolve=False)
+    check_composed_paths(hydra)
+    check_callables(hydra, "hydra")
+
+
+def check_composed_paths(hydra: dict) -> None:
+    """The file settings as composed, wherever they were set: a config file of `-cd DIR` (`# @package hydra`) sets
+    them as an override does, so each is held to check_path_setting's rule."""
+    job = hydra.get("job") or {}
+    if isinstance(job, dict) and "name" in job:
+        check_path_setting("hydra.job.name", job["name"])
+    if "output_subdir" in hydra:
+        check_path_setting("hydra.output_subdir", hydra["output_subdir"])
+    for section in ("job_logging", "hydra_logging"):
+        handlers = (hydra.get(section) or {}).get("handlers") or {}
+        for name, handler in handlers.items() if isinstance(handlers, dict) else ():
+            filename = handler.get("filename") if isinstance(handler, dict) else None
+            if filename is not None and not (isinstance(filename, str) and RUN_LOG_FILE.fullmatch(filename)):
+                check_path_setting(f"hydra.{section}.handlers.{name}.filename", filename)
 
 
 def check_path_setting(key: str, value: Any) -> None:

@@ -105,3 +105,28 @@ def test_an_experiment_name_with_path_syntax_is_one_line_and_writes_nothing(conf
         assert result.stderr.startswith("error: experiment: got ") and result.stderr.count("\n") == 1
         assert "give a plain name of at most 64 letters, digits" in result.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no outputs/ and no run anywhere
+
+
+@pytest.mark.parametrize(
+    ("text", "key"),
+    [
+        ("# @package hydra\njob:\n  name: ../../evil\n", "hydra.job.name"),
+        (
+            "# @package _global_\nhydra:\n  job_logging:\n    handlers:\n      file:\n        filename: /tmp/evil.log\n",
+            "hydra.job_logging.handlers.file.filename",
+        ),
+        ("# @package _global_\nhydra:\n  output_subdir: ../elsewhere\n", "hydra.output_subdir"),
+    ],
+)
+def test_hydra_file_settings_in_a_config_file_are_held_to_the_command_lines_rule(tmp_path, monkeypatch, text, key):
+    """A `-cd` file sets Hydra's file settings as an override would: its run's log went to ../../evil.log and
+    /tmp/evil.log, and its .hydra folder outside the run. Each is refused as the override is (rows 47, 248, 249)."""
+    folder = tmp_path / "mine"
+    (folder / "experiment").mkdir(parents=True)
+    (folder / "experiment" / "odd.yaml").write_text(text)
+    monkeypatch.chdir(tmp_path)
+    for command in (["train", f"hydra.run.dir={tmp_path / 'run'}"], ["sweep", "seed=0,1", "hydra.sweep.dir=s"]):
+        result = runner.invoke(app, [command[0], "-cd", str(folder), "experiment=odd", *command[1:]])
+        assert result.exit_code == 2, result.output
+        assert result.stderr.startswith(f"error: key '{key}': got ") and result.stderr.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
