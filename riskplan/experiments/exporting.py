@@ -50,6 +50,7 @@ from riskplan.experiments import ros2_bag
 from riskplan.experiments.reporting.collect import Broken, Duplicate, RunInfo, collect, flatten
 from riskplan.experiments.sweep_worker import config_sha
 from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
+from riskplan.util import lock
 from riskplan.util.checks import require_installed
 from riskplan.util.errors import BadInput, did_you_mean, one_line
 from riskplan.util.names import unique
@@ -274,7 +275,7 @@ def check_uri(to: str, uri: str | None) -> str:
     directory = Path(os.path.abspath(os.path.expanduser(text)))
     if to == "tensorboard":
         return str(directory)
-    if directory.is_dir() and any(directory.iterdir()) and not _is_mlflow_store(directory):
+    if directory.is_dir() and any(p.name != lock.LOCK for p in directory.iterdir()) and not _is_mlflow_store(directory):
         raise BadInput(
             "--uri",
             f"{uri} holds files that are not an MLflow file store; give a new or empty "
@@ -545,6 +546,29 @@ def prepare(to: str | None, uri: str | None) -> tuple[str, str]:
     return target, destination
 
 
+@contextlib.contextmanager
+def _one_writer(target: str, destination: str):
+    """The destination directory's writers' lock, held while the runs are exported (a TensorBoard log directory, the
+    bags' folder, an MLflow file store): two exports at once made two experiments of one name in a store, or failed
+    on each other's temp folders. A server store locks itself; each run directory has its own lock."""
+    uri = urlparse(destination) if target == "mlflow" else None
+    if not destination or (uri is not None and uri.scheme != "file"):  # into each run directory, or a server
+        yield
+        return
+    directory = Path(unquote(uri.path)) if uri is not None else Path(destination)
+    made = not directory.exists()
+    directory.mkdir(parents=True, exist_ok=True)
+    try:
+        with lock.hold_lock(directory, f"{target} export destination"):
+            yield
+    except BadInput:
+        if made:
+            with contextlib.suppress(OSError):
+                (directory / lock.LOCK).unlink(missing_ok=True)
+                directory.rmdir()
+        raise
+
+
 def export_runs(
     paths: list[Path],
     to: str | None,
@@ -574,7 +598,7 @@ def export_runs(
     if not collected.runs:
         return result
     try:
-        with file_store_allowed(destination):
+        with file_store_allowed(destination), _one_writer(target, destination):
             writer = {
                 "mlflow": lambda: MlflowTarget(destination, experiment),
                 "tensorboard": lambda: TensorboardTarget(destination),

@@ -24,6 +24,7 @@ import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
+from riskplan.util import lock
 from riskplan.util.errors import BadInput, remedy
 from riskplan.util.paths import atomic_path, check_output_dir
 from riskplan.version import __version__
@@ -37,7 +38,8 @@ class WriteFailed(OSError):
 
 
 def _entries(root: Path) -> tuple[list[str], list[str]]:
-    """(files, directories) below root, as relative POSIX paths; symlinks count as files."""
+    """(files, directories) below root, as relative POSIX paths, but for the writers' lock; symlinks count as
+    files."""
     files, dirs = [], []
     for base, subdirs, names in os.walk(root):
         rel = Path(base).relative_to(root)
@@ -47,7 +49,7 @@ def _entries(root: Path) -> tuple[list[str], list[str]]:
                 subdirs.remove(d)
             else:
                 dirs.append((rel / d).as_posix())
-        files.extend((rel / n).as_posix() for n in names)
+        files.extend((rel / n).as_posix() for n in names if not (n == lock.LOCK and rel == Path(".")))
     return sorted(files), sorted(dirs)
 
 
@@ -83,6 +85,13 @@ def claim_output(out: Path | str, kind: str, key: str) -> list[str] | None:
     out = Path(out)
     if not out.exists():
         return None
+    pid = lock.holder(out)
+    if pid is not None:  # refused now, not after the work: the writer's lock says so again when it writes
+        raise BadInput(
+            str(out),
+            f"is in use by another riskplan process (pid {pid}); one process writes a {kind} directory at a time: "
+            f"wait for it to end or stop it",
+        )
     files, dirs = _entries(out)
     if not files and not dirs:
         return None
@@ -141,6 +150,7 @@ class Output:
     def __init__(self, out: Path | str, kind: str, previous: list[str] | None):
         self.out = Path(out)
         self.kind = kind
+        self.claimed = previous  # what claim_output saw: None for a new or empty directory
         self.previous = list(previous or [])
         self.planned: list[str] = []
         self.created = False
@@ -155,12 +165,7 @@ class Output:
     def begin(self, planned: Iterable[str]) -> None:
         """Create the directory and write the manifest listing the previous and the planned files."""
         self.planned = list(dict.fromkeys(planned))
-        try:
-            if not self.out.exists():
-                self.out.mkdir(parents=True)
-                self.created = True
-        except OSError as err:
-            raise self._fail("", err) from None
+        self._make()
         self._manifest(sorted(set(self.previous) | set(self.planned)))
 
     def _manifest(self, files: list[str]) -> None:
@@ -190,14 +195,45 @@ class Output:
         """Plan `names`; the block writes them, then the previous run's leftovers go. A failure removes what this
         run created and is one WriteFailed line (a full disk, ...)."""
         try:
-            self.begin(names)
-            yield self
-            self.finish()
+            self._make()
+            with lock.hold_lock(self.out, f"{self.kind} directory"):  # one writer: a second one is refused
+                self._check_unchanged()
+                self.begin(names)
+                yield self
+                self.finish()
+        except BadInput:
+            self.abandon()
+            raise
         except OSError as err:
             self.abandon()
             if not isinstance(err, WriteFailed):
                 raise self._fail("", err) from None
             raise
+
+    def _make(self) -> None:
+        try:
+            if not self.out.exists():
+                self.out.mkdir(parents=True)
+                self.created = True
+        except OSError as err:
+            raise self._fail("", err) from None
+
+    def _check_unchanged(self) -> None:
+        """Under the lock: the directory is as claim_output found it. Another riskplan of this kind that wrote into
+        it meanwhile would otherwise have its files mixed with this one's, or lost."""
+        files, dirs = _entries(self.out)
+        if self.claimed is None:
+            changed = bool([f for f in files if not _is_temp(f)] or dirs)
+        else:
+            manifest = read_manifest(self.out)
+            listed = manifest.get("files") if isinstance(manifest, dict) else None
+            changed = not isinstance(listed, list) or {f for f in listed if _safe(f)} != set(self.claimed)
+        if changed:
+            raise BadInput(
+                str(self.out),
+                f"was written by another riskplan {self.kind} while this one ran; run the command again (it "
+                f"replaces that output) or give another directory",
+            )
 
     def finish(self) -> None:
         """Remove files of the previous run that this one did not write again; the manifest lists this run's."""
@@ -209,11 +245,14 @@ class Output:
         self._manifest(sorted(self.planned))
 
     def abandon(self) -> None:
-        """After a failure: a directory this run created and left empty is removed."""
+        """After a failure: a directory this run created and left empty is removed (its lock, and a manifest with
+        no file, too)."""
         if self.created:
             with contextlib.suppress(OSError):
-                for name in (MANIFEST,) if set(os.listdir(self.out)) == {MANIFEST} else ():
-                    (self.out / name).unlink()
+                left = set(os.listdir(self.out))
+                if left <= {MANIFEST, lock.LOCK}:
+                    for name in left:
+                        (self.out / name).unlink()
                 self.out.rmdir()
 
 

@@ -29,6 +29,7 @@ from riskplan.experiments.exporting import (
 from riskplan.experiments.reporting.collect import flatten
 from riskplan.experiments.sweep_worker import config_sha
 from riskplan.run.foxglove_layout import LAYOUT_FILE, layout, panels, topics, write_layout
+from riskplan.util.lock import LOCK
 
 runner = CliRunner()
 
@@ -235,6 +236,11 @@ def test_an_mlflow_experiment_name_it_would_refuse_is_bad_input_before_the_store
 
 
 # ------------------------------------------------------------------------------------------- TensorBoard
+def exported(logdir: Path) -> list[Path]:
+    """The log directory's entries but its writers' lock."""
+    return [p for p in logdir.iterdir() if p.name != LOCK]
+
+
 def accumulator(directory: Path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -250,7 +256,7 @@ def test_tensorboard_scalars_per_step_equal_the_run_within_float32(runs, tmp_pat
     result = invoke(str(runs), "--to", "tensorboard", "--uri", str(logdir))
     assert result.exit_code == 0, result.output
     assert "3 exported, 0 replaced, 0 unchanged, 1 skipped" in result.stdout
-    assert sorted(p.name for p in logdir.iterdir()) == sorted(tensorboard_name((runs / n).resolve()) for n in GOOD)
+    assert sorted(p.name for p in exported(logdir)) == sorted(tensorboard_name((runs / n).resolve()) for n in GOOD)
     for name in GOOD:
         acc = accumulator(logdir / tensorboard_name((runs / name).resolve()))
         series = expected_series(runs / name)
@@ -277,7 +283,7 @@ def test_a_run_repeating_another_config_and_seed_is_exported_once(runs, tmp_path
     assert result.stderr.splitlines() == [
         f"duplicate {copies / 'b'}: the same config and seed as {copies / 'a'}; not exported (one sample)"
     ]
-    assert sorted(p.name for p in logdir.iterdir()) == sorted(
+    assert sorted(p.name for p in exported(logdir)) == sorted(
         tensorboard_name((copies / n).resolve()) for n in ("a", "c")
     )
 
@@ -296,7 +302,7 @@ def test_tensorboard_reexport_replaces_one_subdirectory_per_run(runs, tmp_path):
     (mine / "team" / "summary.json").write_text(json.dumps(s))
     third = invoke(str(mine), "--to", "tensorboard", "--uri", str(logdir))
     assert "0 exported, 1 replaced, 0 unchanged" in third.stdout
-    (only,) = list(logdir.iterdir())  # no duplicate, no temp directory left
+    (only,) = exported(logdir)  # no duplicate, no temp directory left
     assert len(list(only.glob("events.out.tfevents.*"))) == 1
     assert [e.value for e in accumulator(only).Scalars("summary/mean")] == [1234.5]
 
@@ -323,7 +329,7 @@ def test_a_write_failure_is_one_line_exit_1_and_keeps_the_previous_export(runs, 
         f"error: tensorboard {logdir}: could not be written (OSError: [Errno 28] No space left on device)"
     ]
     assert {p.name: p.read_bytes() for p in logdir.rglob("*") if p.is_file()} == before
-    assert not [p for p in logdir.iterdir() if p.name.startswith(".")]
+    assert not [p for p in logdir.iterdir() if p.name.startswith(".") and p.name != LOCK]  # its writers' lock stays
 
 
 @pytest.mark.slow  # the `runs` fixture: three runs and a killed one, then an export
@@ -455,3 +461,32 @@ def test_every_targets_default_destination_is_under_outputs_or_in_each_run(tmp_p
     assert {to: check_uri(to, None) for to in TARGETS} == {**stores, "foxglove": "", "ros2": ""}
     ignored = (Path(__file__).resolve().parents[2] / ".gitignore").read_text().splitlines()
     assert "/outputs/*" in ignored
+
+
+@pytest.mark.slow  # a run, then an export
+def test_an_export_into_a_directory_another_export_writes_is_refused_naming_it(tmp_path):
+    """Two exports into one TensorBoard log directory failed on each other's temp folders, and into one MLflow file
+    store made two experiments of one name: the destination has one writer at a time."""
+    import subprocess
+    import sys
+    import time
+
+    from riskplan.util.lock import holder
+
+    run, logdir = tmp_path / "run", tmp_path / "tb"
+    train(compose(TINY), run)
+    logdir.mkdir()
+    code = f"from riskplan.util.lock import hold_lock\nwith hold_lock({str(logdir)!r}):\n input()"
+    other = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE)
+    try:
+        deadline = time.time() + 30
+        while holder(logdir) != other.pid and time.time() < deadline:
+            time.sleep(0.05)
+        result = invoke(str(run), "--to", "tensorboard", "--uri", str(logdir))
+        assert result.exit_code == 2 and result.stderr.strip() == (
+            f"error: {logdir}: is in use by another riskplan process (pid {other.pid}); one process writes a "
+            f"tensorboard export destination at a time: wait for it to end or stop it"
+        )
+        assert exported(logdir) == []
+    finally:
+        other.communicate(b"\n", timeout=30)

@@ -12,6 +12,8 @@ import json
 import os
 import shutil
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +26,9 @@ import riskplan
 from riskplan.cli import app
 from riskplan.experiments.landscape import compute_landscape
 from riskplan.run.results import load_run
+from riskplan.util import lock
 from riskplan.util.errors import BadInput
+from riskplan.util.lock import LOCK
 
 LAND = ["--points", "3", "--episodes", "20"]
 MANIFEST = ".riskplan-manifest.json"  # riskplan.experiments.output_manifest.MANIFEST
@@ -58,8 +62,13 @@ def snapshot(root: Path) -> dict[str, bytes | None]:
 
 
 def bad_files(root: Path) -> list[str]:
-    """Temp files and empty files below root (an interrupted or failed write would leave them)."""
-    return [str(p) for p in root.rglob("*") if p.is_file() and (p.name.endswith(".tmp") or p.stat().st_size == 0)]
+    """Temp files and empty files below root (an interrupted or failed write would leave them); a writers' lock
+    is empty where its pid could not be written, which is no half-written output."""
+    return [
+        str(p)
+        for p in root.rglob("*")
+        if p.is_file() and p.name != LOCK and (p.name.endswith(".tmp") or p.stat().st_size == 0)
+    ]
 
 
 # ------------------------------------------------------------------------------------------------ broken configs
@@ -151,13 +160,13 @@ def test_report_reruns_into_its_own_output_and_drops_its_stale_files(done, tmp_p
     out = tmp_path / "report"
     invoke("report", done, "--out", out, "--format", "png,svg", code=0)
     manifest = json.loads((out / MANIFEST).read_text())
-    assert manifest["kind"] == "report" and set(manifest["files"]) == {p.name for p in out.iterdir()} - {MANIFEST}
+    assert manifest["kind"] == "report" and set(manifest["files"]) == {p.name for p in out.iterdir()} - {MANIFEST, LOCK}
     assert (out / "fig2_cvar.svg").is_file()
 
     invoke("report", done, "--out", out, "--format", "pdf", code=0)  # its own directory: accepted
     names = {p.name for p in out.iterdir()}
     assert "fig2_cvar.pdf" in names and not any(n.endswith((".png", ".svg")) for n in names)
-    assert set(json.loads((out / MANIFEST).read_text())["files"]) == names - {MANIFEST}
+    assert set(json.loads((out / MANIFEST).read_text())["files"]) == names - {MANIFEST, LOCK}
 
     (out / "notes.md").write_text("added by hand")  # a foreign file in it: refused, left alone
     before = snapshot(out)
@@ -406,3 +415,50 @@ def test_missing_values_are_empty_cells_or_na_never_nan_or_inf(done, tmp_path):
     cells = [c.lower() for c in pd.Series(html.split("<td")).str.extract(r"^[^>]*>(.*?)</td>")[0].dropna()]
     assert not any(c in ("nan", "inf", "-inf", "none") or "nan" in c.split() for c in cells)
     assert "<td>n/a</td>" in html
+
+
+# ------------------------------------------------------------------------------------------------ two writers
+@pytest.mark.slow  # renders reports
+def test_a_report_written_into_its_directory_by_another_meanwhile_is_refused_not_mixed(done, tmp_path):
+    """Two reports into one --out: each had claimed the directory empty, then both wrote, leaving one's PDFs beside
+    the other's PNGs under a manifest of one. The second to write now finds the directory changed, under the
+    writers' lock, and stops in one line; the first's report stays whole."""
+    from riskplan.experiments.reporting import write_report
+
+    out = tmp_path / "report"
+    other = {}
+
+    def meanwhile(phase, done_, total):
+        if phase == "making figures" and not other:  # after this report's claim, before it writes
+            other["page"] = write_report([done], out, ["pdf"]).page
+
+    with pytest.raises(BadInput) as refused:
+        write_report([done], out, ["png"], progress=meanwhile)
+    assert str(refused.value) == (
+        f"{out}: was written by another riskplan report while this one ran; run the command again (it replaces that "
+        f"output) or give another directory"
+    )
+    listed = set(json.loads((out / ".riskplan-manifest.json").read_text())["files"])
+    assert listed == {p.name for p in out.iterdir()} - {".riskplan-manifest.json", LOCK}
+    assert not any(name.endswith(".png") for name in listed) and "fig2_cvar.pdf" in listed
+
+
+def test_a_report_into_a_directory_another_process_writes_is_refused_naming_it(done, tmp_path):
+    out = tmp_path / "report"
+    out.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", f"from riskplan.util.lock import hold_lock\nwith hold_lock({str(out)!r}):\n input()"],
+        stdin=subprocess.PIPE,
+    )
+    try:
+        deadline = time.time() + 30
+        while lock.holder(out) != holder.pid and time.time() < deadline:
+            time.sleep(0.05)
+        line = one_error_line(invoke("report", done, "--out", out, "--format", "png", code=2))
+        assert line == (
+            f"error: {out}: is in use by another riskplan process (pid {holder.pid}); one process writes a report "
+            f"directory at a time: wait for it to end or stop it"
+        )
+        assert sorted(p.name for p in out.iterdir()) == [LOCK]
+    finally:
+        holder.communicate(b"\n", timeout=30)
