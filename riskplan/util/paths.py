@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import errno
 import json
 import os
 import shutil
@@ -40,6 +41,7 @@ def check_output_dir(path: Path | str, key: str) -> Path:
     if not text.strip() or "\x00" in text:
         raise BadInput(key, f"got {text!r}; give a directory path")
     resolved = Path(os.path.abspath(os.path.expanduser(text)))
+    _check_links(resolved, text, key)
     resolved = Path(os.path.realpath(resolved))
     if resolved == Path(resolved.anchor):
         raise BadInput(key, f"{text} is the filesystem root; give a directory of its own, e.g. outputs/runs/mine")
@@ -72,6 +74,24 @@ def file_path(text: str | Path, key: str, ending: str) -> Path:
     if text.endswith(("/", os.sep)):
         raise BadInput(key, f"{text} ends in '/', which names a folder; give a file path ending {ending}")
     return Path(text)
+
+
+def _check_links(path: Path, text: str, key: str) -> None:
+    """BadInput for a symbolic link on the path that leads nowhere (its target is gone) or round in a loop: a
+    directory could not be made there, and the error would read 'File exists'."""
+    for part in (path, *path.parents):
+        if not part.is_symlink():
+            continue
+        try:
+            part.resolve(strict=True)
+        except (RuntimeError, OSError) as err:  # a loop: RuntimeError before Python 3.13, ELOOP since
+            if isinstance(err, RuntimeError) or err.errno == errno.ELOOP:
+                raise BadInput(key, f"{text}: {part} is a symbolic link in a loop; give a directory path") from None
+            raise BadInput(
+                key,
+                f"{text}: {part} is a symbolic link to {os.readlink(part)}, which does not exist; give a directory "
+                f"path, or make the link's target first",
+            ) from None
 
 
 def check_output_file(text: str | Path, key: str, ending: str) -> Path:
