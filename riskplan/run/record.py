@@ -35,6 +35,7 @@ import io
 import json
 import math
 import os
+import stat
 import threading
 import time as _time
 from collections.abc import Iterable, Mapping
@@ -391,7 +392,11 @@ class _Scan:
 
 
 def _read_bytes(path: Path | str) -> bytes:
+    """The file's bytes; a run's log is a regular file, never a device or a pipe (a link to /dev/zero would be read
+    until memory ran out, a FIFO until someone wrote to it)."""
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):  # before opening it: opening a FIFO would wait for a writer
+            raise BadInput(str(path), "is not a regular file (a device, a pipe or a folder); a run's log is a file")
         return Path(path).read_bytes()
     except OSError as e:
         raise BadInput(str(path), f"cannot read MCAP file: {e.strerror or e}") from None

@@ -8,6 +8,7 @@ import hashlib
 import itertools
 import json
 import math
+import os
 import signal
 import subprocess
 import sys
@@ -640,3 +641,13 @@ def test_a_tables_numpy_columns_are_written_as_their_python_values_were():
         assert _json_table({"columns": {name: encoded}}) == _json({"columns": {name: as_python}}), name
     assert isinstance(_encode_column(columns["float64"])[1], np.ndarray)
     assert isinstance(_encode_column(columns["float32"])[1], list)
+
+
+@pytest.mark.parametrize("kind", ["device", "fifo", "folder"])
+def test_a_log_that_is_no_regular_file_is_refused_before_it_is_read(tmp_path, kind):
+    """run.mcap linked to /dev/zero was read until memory ran out (13 GB in 30 s), and a FIFO waited for a writer."""
+    path = tmp_path / "run.mcap"
+    {"device": lambda: path.symlink_to("/dev/zero"), "fifo": lambda: os.mkfifo(path), "folder": path.mkdir}[kind]()
+    with pytest.raises(BadInput) as refused:
+        read_log(path)
+    assert str(refused.value) == f"{path}: is not a regular file (a device, a pipe or a folder); a run's log is a file"
