@@ -14,6 +14,8 @@ from riskplan.commands import bench, check, export, report, reproduce, sweep, tr
 from riskplan.commands.common import OneLineErrors
 from riskplan.util.blas_threads import single_threaded_blas
 from riskplan.util.collector import command_line_process
+from riskplan.util.errors import BadInput
+from riskplan.util.limits import check_numba_threads
 
 app = typer.Typer(
     cls=OneLineErrors,
@@ -38,6 +40,11 @@ _register_commands()
 def main() -> None:
     """Entry point of the `riskplan` script and `python -m riskplan`."""
     single_threaded_blas()  # before numpy loads: riskplan.util.blas_threads
+    try:
+        check_numba_threads()  # before numba loads, which would fail with a traceback
+    except BadInput as err:
+        typer.echo(f"error: {err}", err=True)
+        raise SystemExit(2) from None
     command_line_process()
     app(prog_name="riskplan")
 

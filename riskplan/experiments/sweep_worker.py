@@ -407,14 +407,14 @@ def job_threads() -> int | None:
     CPUs would otherwise run every job on every core of the node), nor OMP_NUM_THREADS (which joblib's workers and
     Ray's tasks get); results do not depend on it."""
     explicit = os.environ.get(THREADS_ENV, "")
-    if explicit.isdigit():
+    if explicit.isascii() and explicit.isdigit() and int(explicit) > 0:  # '²' is a digit int() refuses
         return int(explicit)
     limits = []
     if hasattr(os, "sched_getaffinity"):
         limits.append(len(os.sched_getaffinity(0)))
     for name in GRANTED:
         value = os.environ.get(name, "")
-        if value.isdigit() and int(value) > 0:
+        if value.isascii() and value.isdigit() and int(value) > 0:
             limits.append(int(value))
     return min(limits) if limits else None
 

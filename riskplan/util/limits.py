@@ -14,6 +14,7 @@ from riskplan.util.errors import BadInput
 MEMORY_ENV = "RISKPLAN_MEMORY_GB"
 HOURS_ENV = "RISKPLAN_MAX_HOURS"
 JOBS_ENV = "RISKPLAN_MAX_JOBS"
+NUMBA_THREADS_ENV = "NUMBA_NUM_THREADS"
 DEFAULT_HOURS = 24.0
 DEFAULT_JOBS = 10_000
 STEPS_PER_SECOND = 20e6  # conservative trajectory-steps/s of the kernel on 2 cores, below riskplan bench's rollout row
@@ -31,6 +32,16 @@ def _env_number(name: str, default: float) -> float:
     if not (math.isfinite(value) and value > 0):
         raise BadInput(name, f"got '{text}'; expected a positive number")
     return value
+
+
+def check_numba_threads() -> None:
+    """NUMBA_NUM_THREADS, which numba reads when it loads: 0 or -1 failed every command with numba's traceback, and
+    'abc' printed a warning holding one. A whole number >= 1, or unset (numba then takes every core)."""
+    text = os.environ.get(NUMBA_THREADS_ENV)
+    if text is not None and not (text.strip().isascii() and text.strip().isdigit() and int(text) >= 1):
+        raise BadInput(
+            NUMBA_THREADS_ENV, f"got '{text}'; expected a whole number of threads >= 1, or unset it (every core)"
+        )
 
 
 def cpu_count() -> int:
@@ -67,7 +78,10 @@ def time_budget() -> float:
 
 def job_budget() -> int:
     """Jobs a sweep may hold."""
-    return int(_env_number(JOBS_ENV, DEFAULT_JOBS))
+    value = _env_number(JOBS_ENV, DEFAULT_JOBS)
+    if value != int(value):  # 0.5 jobs would read as 0, 1.9 as 1
+        raise BadInput(JOBS_ENV, f"got '{os.environ[JOBS_ENV].strip()}'; expected a whole number of jobs >= 1")
+    return int(value)
 
 
 def size(value: float) -> str:
@@ -83,6 +97,8 @@ def size(value: float) -> str:
 def duration(seconds: float) -> str:
     """Seconds as a short human string."""
     seconds = float(min(seconds, 1e300))
+    if seconds < 1:
+        return f"{seconds:.2g} s"  # a limit of 1e-7 hours is 0.00036 s, not "0 s"
     if seconds < 120:
         return f"{seconds:.0f} s"
     if seconds < 7200:

@@ -42,7 +42,7 @@ WORKERS_ENV = "RISKPLAN_REPORT_WORKERS"
 def workers() -> int:
     """Processes to share the work between (this one included)."""
     text = os.environ.get(WORKERS_ENV, "").strip()
-    if text and not (text.isdigit() and int(text) >= 1):
+    if text and not (text.isascii() and text.isdigit() and int(text) >= 1):  # '²' is a digit int() refuses
         raise BadInput(WORKERS_ENV, f"got '{text}'; expected a whole number >= 1 (1: all in this process)")
     if not sys.platform.startswith("linux"):
         return 1

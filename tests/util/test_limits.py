@@ -1,0 +1,51 @@
+"""The environment variables riskplan reads for its limits and threads: each bad value is one line naming it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from riskplan.experiments.reporting.parallel import WORKERS_ENV, workers
+from riskplan.util.errors import BadInput
+from riskplan.util.limits import JOBS_ENV, check_numba_threads, duration, job_budget
+
+
+@pytest.mark.parametrize("value", ["0.5", "1.9"])
+def test_a_job_limit_is_a_whole_number(monkeypatch, value):
+    """0.5 read as 0 ('2 jobs, more than the 0 allowed') and 1.9 as 1."""
+    monkeypatch.setenv(JOBS_ENV, value)
+    with pytest.raises(BadInput, match=rf"^{JOBS_ENV}: got '{value}'; expected a whole number of jobs >= 1$"):
+        job_budget()
+    monkeypatch.setenv(JOBS_ENV, "2.0")
+    assert job_budget() == 2
+
+
+def test_a_duration_below_a_second_keeps_its_digits():
+    assert [duration(s) for s in (0.00036, 0.5, 1.0, 90.0)] == ["0.00036 s", "0.5 s", "1 s", "90 s"]
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "abc", "", "²", "1.5"])
+def test_numba_threads_that_numba_would_fail_on_are_one_line(monkeypatch, value):
+    monkeypatch.setenv("NUMBA_NUM_THREADS", value)
+    with pytest.raises(BadInput, match=r"^NUMBA_NUM_THREADS: got '.*'; expected a whole number of threads >= 1"):
+        check_numba_threads()
+
+
+def test_the_command_line_says_so_before_numba_loads(tmp_path):
+    env = {"NUMBA_NUM_THREADS": "0", "PATH": "/usr/bin:/bin"}
+    done = subprocess.run(
+        [sys.executable, "-m", "riskplan", "check"], cwd=tmp_path, env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr == (
+        "error: NUMBA_NUM_THREADS: got '0'; expected a whole number of threads >= 1, or unset it (every core)\n"
+    )
+
+
+def test_report_workers_take_ascii_digits_only(monkeypatch):
+    """'²' passes str.isdigit but not int(): it raised a ValueError traceback."""
+    monkeypatch.setenv(WORKERS_ENV, "²")
+    with pytest.raises(BadInput, match=rf"^{WORKERS_ENV}: got '²'; expected a whole number >= 1"):
+        workers()
