@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 from typer.core import TyperGroup
 
+from riskplan.config.user_files import check_config_files
 from riskplan.util.errors import BadInput, remedy
 from riskplan.util.paths import hydra_quote
 
@@ -106,6 +107,7 @@ def with_config_dirs(args: list[str]) -> list[str]:
                 f"{value} is not a directory; give the folder that holds your config groups "
                 f"(e.g. my_configs, with my_configs/experiment/mine.yaml)",
             )
+        check_config_files(path)
         dirs.append(hydra_quote(f"file://{path}"))
     if not dirs:
         return rest

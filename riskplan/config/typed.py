@@ -166,10 +166,21 @@ def choice_problem(err: Exception) -> tuple[str, str] | None:
 
 
 def explain(err: Exception) -> tuple[str, str]:
-    """One line naming the key behind a composition error and what would be valid."""
+    """One line naming the key behind a composition error and what would be valid. An error in a config file Hydra
+    reports as "In 'experiment/mine': ConfigKeyError raised while composing config:" with the error on the lines
+    below: that error is explained, and the file named after it."""
     cause = err.__cause__ if isinstance(err.__cause__, OmegaConfBaseException) else err
     key = getattr(cause, "full_key", None) or ""
     text = str(cause).strip()
+    in_file = re.match(r"In '([^']+)': \w+ raised while composing config:\n(.+)", text, re.S)
+    if in_file:
+        found = re.search(r"full_key: (\S+)", in_file.group(2))
+        where, problem = _explained(err, cause, found.group(1) if found else key, in_file.group(2).strip())
+        return where, f"{problem} (in the config file {in_file.group(1)}.yaml)"
+    return _explained(err, cause, key, text)
+
+
+def _explained(err: Exception, cause: Exception, key: str, text: str) -> tuple[str, str]:
     message = text.splitlines()[0] if text else type(cause).__name__
     where = f"key '{_dotted(key)}'"
     choice = choice_problem(err)

@@ -53,7 +53,7 @@ from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
 from riskplan.util import lock
 from riskplan.util.checks import require_installed
 from riskplan.util.errors import BadInput, did_you_mean, one_line
-from riskplan.util.names import unique
+from riskplan.util.names import mlflow_keys
 from riskplan.util.paths import check_output_dir, is_marked, replace_marked_dir, write_atomic
 
 TARGETS = ("mlflow", "tensorboard", "foxglove", "ros2")
@@ -407,19 +407,6 @@ class MlflowTarget:
             self.client.set_terminated(run_id, "FAILED")
 
 
-def mlflow_key(key: str) -> str:
-    """A param or metric name as MLflow takes it: ASCII letters, digits and _-./ and spaces; any other character of
-    a user's name (a source called 'sáfe 😀') becomes '_', as the TensorBoard and ROS 2 names do."""
-    return re.sub(r"[^A-Za-z0-9_\-./ ]", "_", key)
-
-
-def mlflow_keys(keys: dict) -> dict[str, str]:
-    """Each key's MLflow name, distinct: sources named 'x?' and 'x!' are source_reached.x_ and source_reached.x__1,
-    not one metric holding both."""
-    taken: set[str] = set()
-    return {key: unique(mlflow_key(key), taken) for key in keys}
-
-
 # ------------------------------------------------------------------------------------------- TensorBoard
 def tensorboard_name(path: Path) -> str:
     """The run's subdirectory of the log directory: its name (file-name safe) and a hash of its full path."""
@@ -546,27 +533,15 @@ def prepare(to: str | None, uri: str | None) -> tuple[str, str]:
     return target, destination
 
 
-@contextlib.contextmanager
-def _one_writer(target: str, destination: str):
+def _one_writer(target: str, destination: str) -> contextlib.AbstractContextManager:
     """The destination directory's writers' lock, held while the runs are exported (a TensorBoard log directory, the
     bags' folder, an MLflow file store): two exports at once made two experiments of one name in a store, or failed
     on each other's temp folders. A server store locks itself; each run directory has its own lock."""
     uri = urlparse(destination) if target == "mlflow" else None
     if not destination or (uri is not None and uri.scheme != "file"):  # into each run directory, or a server
-        yield
-        return
+        return contextlib.nullcontext()
     directory = Path(unquote(uri.path)) if uri is not None else Path(destination)
-    made = not directory.exists()
-    directory.mkdir(parents=True, exist_ok=True)
-    try:
-        with lock.hold_lock(directory, f"{target} export destination"):
-            yield
-    except BadInput:
-        if made:
-            with contextlib.suppress(OSError):
-                (directory / lock.LOCK).unlink(missing_ok=True)
-                directory.rmdir()
-        raise
+    return lock.hold_lock(directory, f"{target} export destination", make=True)
 
 
 def export_runs(

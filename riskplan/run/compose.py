@@ -207,7 +207,11 @@ def _compose(overrides, validate: bool, with_hydra: bool) -> tuple[DictConfig, R
     except ValueError as err:  # Hydra's defaults list rejects some values outside its grammar
         raise BadInput("config", f"{_first_line(err)}; {GRAMMAR}") from None
     except RecursionError:
-        raise BadInput("config", "is nested too deeply; reward programs may nest at most 32 levels") from None
+        raise BadInput(
+            "config",
+            "is nested too deeply: a config file whose defaults include itself, or values nested past Python's limit "
+            "(reward programs may nest at most 32 levels)",
+        ) from None
     finally:
         GlobalHydra.instance().clear()
     check_hydra_node(cfg, [o for o in parsed if o.is_hydra_override()])

@@ -50,9 +50,23 @@ def _read_pid(fd: int, proc_only: bool = False) -> str | None:
 
 
 @contextlib.contextmanager
-def hold_lock(directory: Path | str, what: str = "run directory"):
-    """Hold DIR's lock for the `with` block; BadInput naming the holder's pid when another process has it."""
+def hold_lock(directory: Path | str, what: str = "run directory", make: bool = False):
+    """Hold DIR's lock for the `with` block; BadInput naming the holder's pid when another process has it. `make`:
+    DIR is made if missing, and removed again if the block is refused (BadInput) before writing anything else."""
     directory = Path(directory)
+    if make and not directory.exists():
+        try:
+            directory.mkdir(parents=True)
+        except OSError as err:
+            raise BadInput(str(directory), f"cannot be made ({err.strerror}); give a {what} you can write") from None
+        try:
+            with hold_lock(directory, what):
+                yield
+        except BadInput:
+            with contextlib.suppress(OSError):
+                directory.rmdir()
+            raise
+        return
     key = _key(directory)
     if key in _held:  # this process holds it already
         _held[key][1] += 1

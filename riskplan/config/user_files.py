@@ -1,0 +1,95 @@
+"""A user's config folder (`-cd DIR`) read as YAML before Hydra composes it: a file Hydra would fail on with a
+traceback, or expand without end, is one line naming the file, its line and what is wrong."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from riskplan.util.errors import BadInput
+
+MAX_BYTES = 10_000_000  # a config file's size: far above any experiment, far below what composes in minutes
+MAX_NODES = 1_000_000  # values a file holds once its aliases (*name) are expanded: a "billion laughs" holds 9^9
+CODE_TAGS = "tag:yaml.org,2002:python/"  # !!python/object and the like: constructors that run code
+
+
+def check_config_files(folder: Path) -> None:
+    """BadInput for the first YAML file under `folder` that is not UTF-8, not valid YAML, gives a key twice, holds a
+    tag that makes Python objects, or expands (through its aliases) past MAX_NODES values."""
+    for path in sorted(folder.rglob("*.yaml")):
+        if path.is_file():
+            _check_file(path)
+
+
+def _check_file(path: Path) -> None:
+    size = path.stat().st_size
+    if size > MAX_BYTES:
+        raise BadInput(str(path), f"is {size / 1e6:.0f} MB; a config file holds at most {MAX_BYTES / 1e6:.0f} MB")
+    data = path.read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = data[: err.start].count(b"\n") + 1
+        raise BadInput(
+            str(path), f"is not UTF-8 text (byte 0x{data[err.start]:02x} on line {line}); save it as UTF-8"
+        ) from None
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)  # the node graph: aliases shared, nothing expanded
+    except yaml.MarkedYAMLError as err:
+        mark = err.problem_mark or err.context_mark
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise BadInput(str(path), f"is not valid YAML{at}: {err.problem or err.context}") from None
+    except RecursionError:  # PyYAML's composer recurses once per level
+        raise BadInput(str(path), "is nested too deeply to read (thousands of levels); flatten it") from None
+    if root is not None and not isinstance(root, yaml.MappingNode):
+        what = "a list" if isinstance(root, yaml.SequenceNode) else "a single value"
+        raise BadInput(str(path), f"holds {what} at its top level; a config file is a mapping of keys, e.g. seed: 3")
+    if root is not None:
+        _check_nodes(root, path)
+
+
+def _check_nodes(root: yaml.Node, path: Path) -> None:
+    """Duplicate keys, code tags and the expanded size, each node visited once (an alias is a shared node)."""
+    sizes: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:  # post-order without recursion: a file nested 100,000 deep is no RecursionError
+        node, children_done = stack.pop()
+        if id(node) in sizes:
+            continue
+        if node.tag.startswith(CODE_TAGS):
+            raise BadInput(
+                str(path),
+                f"line {node.start_mark.line + 1}: the tag {node.tag.replace('tag:yaml.org,2002:', '!!')} makes a "
+                f"Python object; a config file holds plain values",
+            )
+        children = _children(node, path)
+        if not children_done:
+            stack.append((node, True))
+            stack.extend((child, False) for child in children if id(child) not in sizes)
+            continue
+        sizes[id(node)] = 1 + sum(sizes[id(child)] for child in children)
+        if sizes[id(node)] > MAX_NODES:
+            raise BadInput(
+                str(path),
+                f"line {node.start_mark.line + 1}: expands to more than {MAX_NODES:,} values through its aliases "
+                f"(*name); write the values out, or use fewer aliases",
+            )
+
+
+def _children(node: yaml.Node, path: Path) -> list[yaml.Node]:
+    if isinstance(node, yaml.MappingNode):
+        seen: dict[object, int] = {}
+        for key, _ in node.value:
+            if isinstance(key, yaml.ScalarNode) and key.tag != "tag:yaml.org,2002:merge":
+                if key.value in seen:
+                    raise BadInput(
+                        str(path),
+                        f"line {key.start_mark.line + 1}: the key '{key.value}' is given twice (first on line "
+                        f"{seen[key.value]}); give it once",
+                    )
+                seen[key.value] = key.start_mark.line + 1
+        return [child for pair in node.value for child in pair]
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    return []
