@@ -462,3 +462,28 @@ def test_a_report_into_a_directory_another_process_writes_is_refused_naming_it(d
         assert sorted(p.name for p in out.iterdir()) == [LOCK]
     finally:
         holder.communicate(b"\n", timeout=30)
+
+
+def test_a_run_that_still_trains_is_said_to_be_running_not_truncated(done, tmp_path):
+    """Its log is cut short because the run has not finished: the report says so, naming the process."""
+    from riskplan.experiments.reporting.collect import collect
+
+    run = tmp_path / "run"
+    shutil.copytree(done, run)
+    log = (run / "run.mcap").read_bytes()
+    (run / "run.mcap").write_bytes(log[: len(log) // 2])
+    (run / "summary.json").unlink()
+    trainer = subprocess.Popen(
+        [sys.executable, "-c", f"from riskplan.util.lock import hold_lock\nwith hold_lock({str(run)!r}):\n input()"],
+        stdin=subprocess.PIPE,
+    )
+    try:
+        deadline = time.time() + 30
+        while lock.holder(run) != trainer.pid and time.time() < deadline:
+            time.sleep(0.05)
+        (broken,) = collect([run]).broken
+        assert broken.reason.startswith(f"is still running (pid {trainer.pid}): truncated after iteration ")
+    finally:
+        trainer.communicate(b"\n", timeout=30)
+    (broken,) = collect([run]).broken  # the process gone: a log cut short, as a kill leaves it
+    assert broken.reason.startswith("truncated after iteration ")

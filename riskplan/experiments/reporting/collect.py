@@ -38,6 +38,7 @@ from riskplan.experiments.sweep_worker import HOW_KEYS, distinct
 from riskplan.run.metrics_rows import AVERAGE
 from riskplan.run.results import Run, find_runs, load_run
 from riskplan.run.run_files import STATUS, TABLES, table_file
+from riskplan.util import lock
 from riskplan.util.errors import BadInput
 
 # Keys that never define a condition: the seeds of one condition are pooled.
@@ -316,7 +317,8 @@ def collect(paths: list[Path], progress: Progress | None = None) -> Collection:
             continue
         info, problem = results[path]
         if info is None:
-            broken.append(Broken(path, problem))
+            writer = lock.holder(path)  # a log cut short while its run still trains is no damage
+            broken.append(Broken(path, f"is still running (pid {writer}): {problem}" if writer else problem))
         else:
             loaded.append((info, study_of(path, folders)))
     pools: dict[str | None, list[RunInfo]] = {}  # the paper's runs (None) and each study's, pooled apart
