@@ -7,11 +7,13 @@ Test files import it as `from support import ...`: pytest puts tests/ on sys.pat
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +35,7 @@ from riskplan.run.compose import compose
 from riskplan.run.log_reader import read_log
 from riskplan.run.recorder import STOP_ENV
 from riskplan.util.errors import BadInput
+from riskplan.util.lock import holder
 
 # ------------------------------------------------------------------------------------------------ run configs
 # The fastest overrides that still make a meaningful run: a few iterations, every output written (a checkpoint, the
@@ -205,6 +208,21 @@ def train_cli(overrides: list[str], out: Path, **env: str) -> subprocess.Complet
 def resume_cli(out: Path, *overrides: str, **env: str) -> subprocess.CompletedProcess:
     """`riskplan train --resume <out> [overrides]` in a subprocess."""
     return run_cli(["train", "--resume", str(out), *overrides], out.parent, **env)
+
+
+@contextlib.contextmanager
+def held_by_another_process(directory: Path):
+    """Another process holds DIR's writers' lock (riskplan.util.lock) for the block, as a running riskplan would;
+    yields its pid."""
+    code = f"from riskplan.util.lock import hold_lock\nwith hold_lock({str(directory)!r}):\n input()"
+    other = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE)
+    try:
+        deadline = time.time() + 30
+        while holder(directory) != other.pid and time.time() < deadline:
+            time.sleep(0.05)
+        yield other.pid
+    finally:
+        other.communicate(b"\n", timeout=30)
 
 
 def kill_after_iteration(overrides: list[str], out: Path, iteration: int) -> int:

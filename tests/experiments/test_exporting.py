@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from support import TINY
+from support import TINY, held_by_another_process
 from typer.testing import CliRunner
 
 from riskplan import compose, train
@@ -467,26 +467,13 @@ def test_every_targets_default_destination_is_under_outputs_or_in_each_run(tmp_p
 def test_an_export_into_a_directory_another_export_writes_is_refused_naming_it(tmp_path):
     """Two exports into one TensorBoard log directory failed on each other's temp folders, and into one MLflow file
     store made two experiments of one name: the destination has one writer at a time."""
-    import subprocess
-    import sys
-    import time
-
-    from riskplan.util.lock import holder
-
     run, logdir = tmp_path / "run", tmp_path / "tb"
     train(compose(TINY), run)
     logdir.mkdir()
-    code = f"from riskplan.util.lock import hold_lock\nwith hold_lock({str(logdir)!r}):\n input()"
-    other = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE)
-    try:
-        deadline = time.time() + 30
-        while holder(logdir) != other.pid and time.time() < deadline:
-            time.sleep(0.05)
+    with held_by_another_process(logdir) as pid:
         result = invoke(str(run), "--to", "tensorboard", "--uri", str(logdir))
         assert result.exit_code == 2 and result.stderr.strip() == (
-            f"error: {logdir}: is in use by another riskplan process (pid {other.pid}); one process writes a "
+            f"error: {logdir}: is in use by another riskplan process (pid {pid}); one process writes a "
             f"tensorboard export destination at a time: wait for it to end or stop it"
         )
         assert exported(logdir) == []
-    finally:
-        other.communicate(b"\n", timeout=30)

@@ -12,21 +12,18 @@ import json
 import os
 import shutil
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
-from support import TINY
+from support import TINY, held_by_another_process
 from typer.testing import CliRunner
 
 import riskplan
 from riskplan.cli import app
 from riskplan.experiments.landscape import compute_landscape
 from riskplan.run.results import load_run
-from riskplan.util import lock
 from riskplan.util.errors import BadInput
 from riskplan.util.lock import LOCK
 
@@ -446,22 +443,13 @@ def test_a_report_written_into_its_directory_by_another_meanwhile_is_refused_not
 def test_a_report_into_a_directory_another_process_writes_is_refused_naming_it(done, tmp_path):
     out = tmp_path / "report"
     out.mkdir()
-    holder = subprocess.Popen(
-        [sys.executable, "-c", f"from riskplan.util.lock import hold_lock\nwith hold_lock({str(out)!r}):\n input()"],
-        stdin=subprocess.PIPE,
-    )
-    try:
-        deadline = time.time() + 30
-        while lock.holder(out) != holder.pid and time.time() < deadline:
-            time.sleep(0.05)
+    with held_by_another_process(out) as pid:
         line = one_error_line(invoke("report", done, "--out", out, "--format", "png", code=2))
         assert line == (
-            f"error: {out}: is in use by another riskplan process (pid {holder.pid}); one process writes a report "
+            f"error: {out}: is in use by another riskplan process (pid {pid}); one process writes a report "
             f"directory at a time: wait for it to end or stop it"
         )
         assert sorted(p.name for p in out.iterdir()) == [LOCK]
-    finally:
-        holder.communicate(b"\n", timeout=30)
 
 
 def test_a_run_that_still_trains_is_said_to_be_running_not_truncated(done, tmp_path):
@@ -473,17 +461,8 @@ def test_a_run_that_still_trains_is_said_to_be_running_not_truncated(done, tmp_p
     log = (run / "run.mcap").read_bytes()
     (run / "run.mcap").write_bytes(log[: len(log) // 2])
     (run / "summary.json").unlink()
-    trainer = subprocess.Popen(
-        [sys.executable, "-c", f"from riskplan.util.lock import hold_lock\nwith hold_lock({str(run)!r}):\n input()"],
-        stdin=subprocess.PIPE,
-    )
-    try:
-        deadline = time.time() + 30
-        while lock.holder(run) != trainer.pid and time.time() < deadline:
-            time.sleep(0.05)
+    with held_by_another_process(run) as pid:
         (broken,) = collect([run]).broken
-        assert broken.reason.startswith(f"is still running (pid {trainer.pid}): truncated after iteration ")
-    finally:
-        trainer.communicate(b"\n", timeout=30)
+        assert broken.reason.startswith(f"is still running (pid {pid}): truncated after iteration ")
     (broken,) = collect([run]).broken  # the process gone: a log cut short, as a kill leaves it
     assert broken.reason.startswith("truncated after iteration ")
