@@ -125,15 +125,16 @@ def _check_logged_config(path: Path, logged: Any, config: dict) -> None:
         )
 
 
-def _differing(a: Any, b: Any, key: str = "") -> list[str]:
-    """The dotted keys where two plain configs differ."""
-    if isinstance(a, dict) and isinstance(b, dict):
+def _differing(logged: Any, config: Any, key: str = "") -> list[str]:
+    """The dotted keys of the logged config whose values `config` does not share. A key the log lacks is one a
+    later riskplan added, with the default the run had in effect: it is no difference."""
+    if isinstance(logged, dict) and isinstance(config, dict):
         return [
             k
-            for name in sorted(set(a) | set(b), key=str)
-            for k in _differing(a.get(name), b.get(name), f"{key}.{name}".lstrip("."))
+            for name in sorted(logged, key=str)
+            for k in _differing(logged[name], config.get(name), f"{key}.{name}".lstrip("."))
         ]
-    return [] if a == b else [key or "(the whole config)"]
+    return [] if logged == config else [key or "(the whole config)"]
 
 
 def write_finished(

@@ -30,6 +30,7 @@ from support import (
     resume_cli,
     riskplan_command,
     run_cli,
+    setup_of,
     train_cli,
 )
 from typer.testing import CliRunner
@@ -328,3 +329,15 @@ def test_summary_json_holds_no_nan_or_infinity(finished):
     assert summary["throughput_episodes_per_s"] > 0
     with pytest.raises(NumericalTrouble):
         engine_step.check_finite("x", np.array([1.0, np.nan]))
+
+
+def test_a_key_a_later_riskplan_added_is_no_difference_from_the_logged_config(tmp_path):
+    """A run logged before a key existed resumes: the key's default is what it ran with. A changed value is not."""
+    from riskplan.run.run_directory import _check_logged_config
+
+    config = setup_of(*RUN).config
+    older = {name: value for name, value in config.items() if name != "engine"}  # as if logged before `engine`
+    _check_logged_config(tmp_path / "run.mcap", older, config)
+    changed = {**older, "train": {**older["train"], "samples": older["train"]["samples"] + 1}}
+    with pytest.raises(BadInput, match=r"differs from the config run.mcap recorded for this run in train.samples;"):
+        _check_logged_config(tmp_path / "run.mcap", changed, config)
