@@ -32,7 +32,7 @@ BOMB = (
             "line 3: the tag !!python/object/apply:os.system makes",
         ),
         (BOMB, "line 9: expands to more than 1,000,000 values through its aliases (*name); write the values out"),
-        (HEAD + "junk: " + "[" * 5000 + "]" * 5000 + "\n", "is nested too deeply to read (thousands of levels)"),
+        (HEAD + "junk: " + "[" * 2000 + "]" * 2000 + "\n", "is nested too deeply to read (thousands of levels)"),
         ("- seed\n- 3\n", "holds a list at its top level; a config file is a mapping of keys, e.g. seed: 3"),
         (b"# @package _global_\nexperiment: m\xe9\n", "is not UTF-8 text (byte 0xe9 on line 2); save it as UTF-8"),
     ],
