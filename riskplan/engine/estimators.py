@@ -52,6 +52,8 @@ def cvar(z: np.ndarray, beta: float) -> np.ndarray | float:
     z = as_sample(z)
     with np.errstate(over="ignore", invalid="ignore"):
         value = np.asarray(_cvar(z, beta))
+    if np.isfinite(value).all():  # the common case: no second pass over z
+        return value[()]
     overflowed = ~np.isfinite(value) & np.isfinite(z).all(axis=-1)
     if overflowed.any():
         scale = 2.0 ** (2 + math.ceil(math.log2(z.shape[-1])))
