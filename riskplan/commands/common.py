@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import os
 import sys
 from pathlib import Path
 
@@ -11,7 +12,7 @@ from typer.core import TyperGroup
 
 from riskplan.config.user_files import check_config_files
 from riskplan.util.errors import BadInput, remedy
-from riskplan.util.paths import hydra_quote
+from riskplan.util.paths import check_decoded, hydra_quote
 
 # typer vendors click in recent releases and depends on it in older ones: find click's base exception either way
 ClickException = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
@@ -22,7 +23,11 @@ class OneLineErrors(TyperGroup):
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         try:
+            _check_decoded_arguments(sys.argv[1:] if args is None else args)
             code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except BadInput as err:
+            typer.echo(f"error: {err}", err=True)
+            code = 2
         except ClickException as err:
             if type(err).__name__ == "NoArgsIsHelpError":  # bare `riskplan`: the help, as click shows it
                 err.show()
@@ -37,6 +42,14 @@ class OneLineErrors(TyperGroup):
         if not standalone_mode:
             return code
         sys.exit(code if isinstance(code, int) else 0)
+
+
+def _check_decoded_arguments(args: list[str]) -> None:
+    """BadInput for an argument, or the working directory (where outputs/ goes), that holds bytes the locale could
+    not decode: found before anything is written, not when a path reaches a UTF-8 file at a run's end."""
+    for arg in args:
+        check_decoded(arg, "argument")
+    check_decoded(os.getcwd(), "the working directory")
 
 
 PASS_THROUGH = {"allow_extra_args": True, "ignore_unknown_options": True}

@@ -94,3 +94,6 @@ def _print_export(result, experiment: str) -> None:
         f"{result.count('replaced')} replaced, {result.count('unchanged')} unchanged, "
         f"{len(result.skipped)} skipped{repeats} -> {where}"
     )
+    if result.skipped and not result.done:  # every run skipped: an export of nothing is no success
+        typer.echo(f"error: no run was exported: each of the {len(result.skipped)} was skipped (see above)", err=True)
+        raise typer.Exit(1)

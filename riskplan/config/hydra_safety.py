@@ -9,14 +9,17 @@ launchers and sweepers, the standard logging handlers and formatters, and riskpl
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 import re
 from typing import Any
 
+import yaml
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import InterpolationToMissingValueError, MissingMandatoryValue, OmegaConfBaseException
 
+from riskplan.config.schema import CONF_DIR
 from riskplan.util.errors import BadInput
 
 # Modules whose classes may be named by _target_ (checked as exact classes of these modules, see _allowed_class).
@@ -63,7 +66,32 @@ def check_hydra_node(cfg: DictConfig, hydra_overrides: list) -> None:
         check_path_setting(key, value)
     hydra = OmegaConf.to_container(cfg.hydra, resolve=False)
     check_composed_paths(hydra)
+    check_directories(hydra, {override.key_or_group for override in hydra_overrides})
     check_callables(hydra, "hydra")
+
+
+DIRECTORIES = {"hydra.run.dir": ("run", "dir"), "hydra.sweep.dir": ("sweep", "dir")}
+
+
+def check_directories(hydra: dict, typed: set[str]) -> None:
+    """BadInput for a run's or a sweep's directory set in a config file (of -cd DIR): riskplan claims a fresh one
+    itself or takes the one typed on the command line (`typed`: the Hydra keys given there), and the file's was
+    silently ignored."""
+    for key, (section, name) in DIRECTORIES.items():
+        value = (hydra.get(section) or {}).get(name)
+        if key not in typed and value != _defaults()[key]:
+            raise BadInput(
+                f"key '{key}'",
+                f"got {value!r} from a config file; riskplan chooses where a run or sweep goes (a fresh folder under "
+                f"outputs/): drop it from the file, or give it on the command line, {key}=DIR",
+            )
+
+
+@functools.cache
+def _defaults() -> dict[str, str]:
+    """riskplan's own hydra.run.dir and hydra.sweep.dir, as conf/config.yaml writes them."""
+    hydra = yaml.safe_load((CONF_DIR / "config.yaml").read_text())["hydra"]
+    return {key: hydra[section][name] for key, (section, name) in DIRECTORIES.items()}
 
 
 def check_composed_paths(hydra: dict) -> None:

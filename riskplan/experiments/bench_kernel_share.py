@@ -31,6 +31,7 @@ from riskplan.engine.step import RunSetup, TrainState, batch_episodes, batch_key
 from riskplan.experiments.bench_sweep import MORE_BETAS, grid, sweep
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import load_checkpoint
+from riskplan.run.columns import read_parquet
 from riskplan.run.evaluation import evaluate, sample_paths, summarize
 from riskplan.run.results import run_config
 from riskplan.run.run_files import table_file
@@ -51,7 +52,7 @@ def kernel_share_row(seeds: int, iterations: int) -> dict:
     args = grid(MORE_BETAS, seeds, iterations)
     with tempfile.TemporaryDirectory() as tmp:
         wall, _ = sweep(args, Path(tmp) / "batched", ["--batch"])
-        runs = pd.read_parquet(Path(tmp) / "batched" / "summary.parquet")
+        runs = read_parquet(Path(tmp) / "batched" / "summary.parquet")
         done = runs[runs["status"] == "done"]
         floor = replay([Path(path) for path in done["path"]])
     share = floor.episodes / wall
@@ -133,7 +134,7 @@ def _logged(path: Path) -> _Logged:
     with warnings.catch_warnings():  # a config's warnings (a step size outside Assumption 6) were its run's to give
         warnings.simplefilter("ignore", UserWarning)
         setup = build_setup(run_config(path), needs_ray=False)
-    metrics = pd.read_parquet(path / table_file("metrics"))
+    metrics = read_parquet(path / table_file("metrics"))
     rows = metrics[metrics["robot"] >= 0].sort_values(["iteration", "robot"])  # the team average's row is not a robot's
     names = [f"theta_{j}" for j in range(len(setup.theta0))]
     thetas = rows[names].to_numpy().reshape(-1, setup.robots, len(names))

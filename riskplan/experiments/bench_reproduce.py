@@ -15,6 +15,7 @@ import pandas as pd
 
 from riskplan.experiments.bench_kernel_share import replay, replayed
 from riskplan.experiments.bench_meters import riskplan_command, user_env
+from riskplan.run.columns import read_parquet
 from riskplan.util.limits import cpu_count
 
 TARGET = 30.0  # seconds for reproduce --quick on 2 idle cores, the kernels cached
@@ -85,7 +86,7 @@ def read_reproduction(out: Path) -> tuple[float, dict[str, pd.DataFrame]]:
     each of its sweeps, by folder."""
     total = json.loads((out / "reproduce.json").read_text())["breakdown"]["total"]
     numbers = {
-        summary.parent.name: pd.read_parquet(summary)[COMPARED].reset_index(drop=True)
+        summary.parent.name: read_parquet(summary)[COMPARED].reset_index(drop=True)
         for summary in sorted(out.glob("*/summary.parquet"))
     }
     return float(total), numbers

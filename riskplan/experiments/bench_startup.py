@@ -11,12 +11,11 @@ import tempfile
 from pathlib import Path
 from typing import NamedTuple
 
-import pandas as pd
-
 from riskplan.engine import rng
 from riskplan.engine.rollout import simulate
 from riskplan.experiments.bench_meters import wall
 from riskplan.run.build import build_setup
+from riskplan.run.columns import read_parquet
 from riskplan.run.compose import compose
 
 
@@ -148,7 +147,7 @@ def _best_walls(cli: list[str], runs: int) -> _Walls:
         for k in range(runs + 1):  # the first run writes the bytecode caches; it is not timed
             seconds = wall([*cli, "train", f"hydra.run.dir={Path(tmp) / f'whole{k}'}"], Path(tmp))
             summary = json.loads((Path(tmp) / f"whole{k}" / "summary.json").read_text())
-            compute = float(pd.read_parquet(Path(tmp) / f"whole{k}" / "metrics.parquet").seconds.sum())
+            compute = float(read_parquet(Path(tmp) / f"whole{k}" / "metrics.parquet").seconds.sum())
             if k:
                 whole.append(seconds)
                 loops.append((summary["wall_time"], compute))

@@ -33,6 +33,7 @@ from riskplan.experiments.bench_meters import riskplan_command
 from riskplan.experiments.sweeping.batched import prepare_job, prepare_jobs
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.run.build import build_setup
+from riskplan.run.columns import read_parquet
 from riskplan.run.compose import CONF_DIR, compose
 from riskplan.util.limits import cpu_count
 
@@ -68,7 +69,7 @@ def sweep(args: list[str], folder: Path, extra: list[str]) -> tuple[float, pd.Da
     started = time.perf_counter()
     subprocess.run(command, cwd=folder.parent, capture_output=True, check=True)
     wall = time.perf_counter() - started
-    return wall, pd.read_parquet(folder / "summary.parquet")[COMPARED].reset_index(drop=True)
+    return wall, read_parquet(folder / "summary.parquet")[COMPARED].reset_index(drop=True)
 
 
 def jobs_row(seeds: int, iterations: int) -> dict:

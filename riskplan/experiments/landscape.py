@@ -28,6 +28,7 @@ from riskplan.engine.rollout import simulate
 from riskplan.engine.step import logit_bound
 from riskplan.experiments.output_manifest import Output, claim_output
 from riskplan.run.build import build_setup
+from riskplan.run.columns import frame_to_parquet, read_parquet
 from riskplan.run.provenance import provenance
 from riskplan.run.results import run_config
 from riskplan.util.errors import BadInput
@@ -112,7 +113,7 @@ def load_landscape(path: Path) -> Landscape:
     path = Path(path)
     if not (path / TABLE).is_file():
         raise ValueError(f"no {TABLE} (the landscape did not finish)")
-    table = pd.read_parquet(path / TABLE)
+    table = read_parquet(path / TABLE)
     summary = json.loads((path / "summary.json").read_text()) if (path / "summary.json").is_file() else {}
     if not isinstance(summary, dict):
         raise ValueError("summary.json is not a JSON object (it was not written by riskplan)")
@@ -291,7 +292,7 @@ def compute_landscape(
         (output.out / "status.json").unlink(missing_ok=True)  # until the end: this landscape is not done
         output.write(".hydra/config.yaml", OmegaConf.to_yaml(OmegaConf.create(config)))
         output.write(".hydra/overrides.yaml", yaml.safe_dump(list(overrides or [])))
-        output.write_with(TABLE, lambda tmp: table.to_parquet(tmp, index=False))
+        output.write_with(TABLE, lambda tmp: frame_to_parquet(table, tmp))
         output.write("summary.json", finite_json(summary))
         output.write("status.json", finite_json({"status": "done", "error": None}))
     return output.out

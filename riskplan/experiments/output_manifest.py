@@ -186,7 +186,7 @@ class Output:
                 tmp.write_bytes(data)
 
     def write_with(self, name: str, writer: Callable[[Path], object]) -> None:
-        """Write `name` by calling writer(temp path), e.g. lambda p: table.to_parquet(p)."""
+        """Write `name` by calling writer(temp path), e.g. lambda p: frame_to_parquet(table, p)."""
         with self.path(name) as tmp:
             writer(tmp)
 

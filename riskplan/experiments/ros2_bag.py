@@ -30,11 +30,11 @@ import re
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import yaml
 from mcap.writer import CompressionType, Writer
 
 from riskplan.run.build import build_setup
+from riskplan.run.columns import read_parquet
 from riskplan.run.maps import geometry
 from riskplan.util.errors import BadInput
 from riskplan.util.names import unique
@@ -269,7 +269,7 @@ def _final_paths(run_dir: Path) -> dict[int, list[list[tuple[int, int]]]]:
     path = run_dir / "trajectories.parquet"
     if not path.is_file():
         return {}
-    table = pd.read_parquet(path, columns=["policy", "robot", "episode", "step", "x", "y"])
+    table = read_parquet(path, columns=["policy", "robot", "episode", "step", "x", "y"])
     table = table.loc[(table.policy == "final") & (table.robot >= 0)].sort_values(["robot", "episode", "step"])
     out: dict[int, list[list[tuple[int, int]]]] = {}
     for (robot, _episode), rows in table.groupby(["robot", "episode"], sort=True):

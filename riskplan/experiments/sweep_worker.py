@@ -336,9 +336,12 @@ def end_job(start: JobStart, record: dict) -> float | None:
     return record.get("cvar")
 
 
-def interrupt_job(start: JobStart, stop: Interrupted) -> None:
-    """A job a signal stopped after its checkpoint: no result, so that a requeued or re-run job resumes it."""
-    write_status(start.out, {"status": "interrupted", "error": str(stop), **start.base, "resumed": start.resume})
+def interrupt_job(start: JobStart, stop: Interrupted, error: str | None = None) -> None:
+    """A job a signal stopped after its checkpoint (or before it trained: `error` says so): no result, so that a
+    requeued or re-run job resumes it."""
+    write_status(
+        start.out, {"status": "interrupted", "error": error or str(stop), **start.base, "resumed": start.resume}
+    )
 
 
 def outcome(summary: dict) -> dict:

@@ -21,6 +21,7 @@ import pandas as pd
 import typer
 
 from riskplan.run import cost
+from riskplan.run.columns import read_parquet
 from riskplan.run.run_files import STATUS, SUMMARY, table_file
 from riskplan.util.paths import write_atomic
 
@@ -195,7 +196,7 @@ def sweep_timing(outcome, tic: float, toc: float) -> dict:
         own = sorted((j for j in jobs if j["pid"] == pid), key=lambda j: j["started"])
         load = None
         try:
-            seconds = pd.read_parquet(Path(own[0]["path"]) / table_file("metrics"), columns=["iteration", "seconds"])
+            seconds = read_parquet(Path(own[0]["path"]) / table_file("metrics"), columns=["iteration", "seconds"])
             per = seconds.groupby("iteration").seconds.first()
             if len(per) > 1:
                 load = max(0.0, float(per.iloc[0] - per.iloc[1:].median()))

@@ -1,6 +1,10 @@
 """A run's tables while it is written: columns, an ordered dict of equal-length numpy arrays, and their parquet
 files written by pyarrow. `riskplan train` builds, logs and writes its tables without pandas (a quarter of a
-second to import); `load_run` reads the files back as DataFrames, with the dtypes pandas gave them before."""
+second to import); `load_run` reads the files back as DataFrames, with the dtypes pandas gave them before.
+
+Every parquet file is read and written through an open file (`read_parquet`, `write_parquet`, `frame_to_parquet`):
+arrow encodes a path it is given as UTF-8, which fails for a folder whose name the system's locale decoded with
+escapes (a non-ASCII name under LC_ALL=C without UTF-8 mode); Python's open() takes every name the system gave."""
 
 from __future__ import annotations
 
@@ -47,14 +51,29 @@ def write_parquet(table: Mapping[str, np.ndarray], path: Path) -> None:
     (dictionaries and snappy). The values are the same either way."""
     names = list(table)
     integers = [name for name in names if table[name].dtype.kind in "iu"]
-    pq.write_table(
-        pa.Table.from_arrays([_arrow(values) for values in table.values()], names=names),
-        path,
-        compression="zstd",
-        compression_level=1,
-        use_dictionary=[name for name in names if name not in integers],  # a delta-encoded column has none
-        column_encoding=dict.fromkeys(integers, "DELTA_BINARY_PACKED"),
-    )
+    with open(path, "wb") as handle:
+        pq.write_table(
+            pa.Table.from_arrays([_arrow(values) for values in table.values()], names=names),
+            handle,
+            compression="zstd",
+            compression_level=1,
+            use_dictionary=[name for name in names if name not in integers],  # a delta-encoded column has none
+            column_encoding=dict.fromkeys(integers, "DELTA_BINARY_PACKED"),
+        )
+
+
+def read_parquet(path: Path, columns: list[str] | None = None):
+    """A parquet file as a pandas DataFrame (only `columns`, when given), read through an open file."""
+    import pandas as pd  # `riskplan train` never reads a table back
+
+    with open(path, "rb") as handle:
+        return pd.read_parquet(handle, columns=columns)
+
+
+def frame_to_parquet(frame, path: Path) -> None:
+    """A pandas DataFrame as a parquet file, without its index, written through an open file."""
+    with open(path, "wb") as handle:
+        frame.to_parquet(handle, index=False)
 
 
 def _arrow(values: np.ndarray) -> pa.Array:

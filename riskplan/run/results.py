@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
@@ -14,9 +15,11 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from riskplan.config.typed import register_metres
+from riskplan.run.columns import read_parquet
 from riskplan.run.log_reader import read_log
 from riskplan.run.run_files import CONFIG, RUN_LOG, SUMMARY, TABLES, is_run_dir, table_file
 from riskplan.util.errors import BadInput
+from riskplan.util.paths import shown_bytes, undecoded
 
 SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's when PyYAML has it: in C, as safe
 
@@ -92,7 +95,14 @@ def find_runs(paths: list[Path]) -> list[Path]:
                 "holds no run (no run.mcap or .hydra/config.yaml below it); "
                 "give a directory written by riskplan train, sweep or reproduce",
             )
-        found.extend(here)
+        for path in [p for p in here if undecoded(p)]:  # renamed by hand: such a path cannot go into UTF-8 tables
+            warnings.warn(
+                f"skipped {shown_bytes(path)}: its name holds bytes this system's locale cannot decode", stacklevel=1
+            )
+        readable = [p for p in here if not undecoded(p)]
+        if not readable:
+            raise BadInput(str(root), "holds no run whose folder name this system's locale decodes (see above)")
+        found.extend(readable)
     return sorted(dict.fromkeys(found))
 
 
@@ -140,7 +150,7 @@ def load_run(path: str | Path) -> Run:
 
 def finished_run(path: Path, config: dict, summary: dict) -> Run:
     """The Run of a finished run directory: its config and summary as given, its tables from the parquet files."""
-    tables = {name: pd.read_parquet(path / table_file(name)) for name in TABLES}
+    tables = {name: read_parquet(path / table_file(name)) for name in TABLES}
     return Run(path, config, tables["metrics"], tables["eval"], tables["trajectories"], summary, True)
 
 

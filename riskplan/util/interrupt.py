@@ -52,6 +52,7 @@ class StopSignals(contextlib.AbstractContextManager):
         self._previous: dict[int, object] = {}
 
     def __enter__(self) -> StopSignals:
+        self.received = pending_signal()  # one that came before (a sweep's driver setting jobs up) stops this too
         if threading.current_thread() is threading.main_thread():
             for signum in SIGNALS:
                 self._previous[signum] = signal.signal(signum, self._note)
@@ -79,6 +80,14 @@ class StopSignals(contextlib.AbstractContextManager):
         nothing. (A SIGUSR2 goes on to its job runner's handler from there: Interrupted.end.)"""
         if self.received is not None:
             raise Interrupted(self.received, finished)
+
+
+def pending_signal() -> int | None:
+    """The signal an active StopSignals of this process has noted and not yet acted on (None: none)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    owner = getattr(signal.getsignal(signal.SIGINT), "__self__", None)
+    return owner.received if isinstance(owner, StopSignals) else None
 
 
 class DriverSignals(StopSignals):

@@ -15,6 +15,29 @@ from riskplan.util.errors import BadInput
 VIRTUAL = ("/proc", "/sys", "/dev")  # kernel filesystems: writing results there is never what a user meant
 
 
+def undecoded(text: str | Path) -> bool:
+    """Whether a name holds bytes the system's locale could not decode (Python keeps them as lone surrogates, e.g.
+    a UTF-8 name under LC_ALL=C without UTF-8 mode, or a Latin-1 one): riskplan writes paths into UTF-8 files
+    (configs, logs, tables), where such a name cannot go."""
+    return any("\udc80" <= ch <= "\udcff" for ch in str(text))
+
+
+def shown_bytes(text: str | Path) -> str:
+    """A name as its bytes, undecodable ones escaped (\\xc3): printable on any terminal, whatever its locale."""
+    return os.fsencode(str(text)).decode("ascii", "backslashreplace")
+
+
+def check_decoded(text: str | Path, what: str) -> None:
+    """BadInput naming `what` when `text` holds bytes the locale could not decode (`undecoded`)."""
+    if undecoded(text):
+        shown, label = shown_bytes(text), shown_bytes(what)  # `what` may be the path itself (the Python API's key)
+        raise BadInput(
+            shown if label == shown else f"{label} {shown}",
+            "holds bytes this system's locale cannot decode, and riskplan writes its paths into UTF-8 files; run "
+            "under a UTF-8 locale (LC_ALL=C.UTF-8, or PYTHONUTF8=1) or use an ASCII name",
+        )
+
+
 def claim_dir(root: Path, suffix: str = "") -> Path:
     """Create root/<YYYY-MM-DD_HH-MM-SS><suffix>, or with _1, _2, ... when taken: mkdir is the lock."""
     check_output_dir(root, str(root))
@@ -34,13 +57,14 @@ def claim_dir(root: Path, suffix: str = "") -> Path:
 def check_output_dir(path: Path | str, key: str) -> Path:
     """A directory riskplan may write into (existing or to be made): BadInput naming `key` otherwise.
 
-    Refused: an empty or blank path, the filesystem root, /proc, /sys and /dev, a path through a .hydra folder, a file
+    Refused: an empty or blank path, a name the locale could not decode, the filesystem root, /proc, /sys and /dev, a path through a .hydra folder, a file
     (or a path through one), and a directory on a read-only filesystem or without write permission.
     """
     text = str(path)
     if not text.strip() or "\x00" in text:
         raise BadInput(key, f"got {text!r}; give a directory path")
     resolved = Path(os.path.abspath(os.path.expanduser(text)))
+    check_decoded(resolved, key)  # the Python API's paths too (the command line's are checked on arrival)
     _check_links(resolved, text, key)
     resolved = Path(os.path.realpath(resolved))
     if resolved == Path(resolved.anchor):

@@ -130,3 +130,26 @@ def test_hydra_file_settings_in_a_config_file_are_held_to_the_command_lines_rule
         assert result.exit_code == 2, result.output
         assert result.stderr.startswith(f"error: key '{key}': got ") and result.stderr.count("\n") == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
+
+
+@pytest.mark.parametrize(("section", "key"), [("run", "hydra.run.dir"), ("sweep", "hydra.sweep.dir")])
+def test_a_run_or_sweep_directory_set_in_a_config_file_is_refused_not_ignored(tmp_path, monkeypatch, section, key):
+    """riskplan claims a fresh folder under outputs/ itself, or takes the one typed on the command line; a file's
+    hydra.run.dir (even '/') or hydra.sweep.dir was silently ignored. It is refused, before anything is made, and
+    the same directory typed on the command line is taken."""
+    folder = tmp_path / "mine"
+    (folder / "experiment").mkdir(parents=True)
+    (folder / "experiment" / "odd.yaml").write_text(
+        f"# @package _global_\ndefaults:\n  - paper_single\nhydra:\n  {section}:\n    dir: {tmp_path / 'chosen'}\n"
+    )
+    monkeypatch.chdir(tmp_path)
+    expected = (
+        f"error: key '{key}': got '{tmp_path / 'chosen'}' from a config file; riskplan chooses where a run or sweep "
+        f"goes (a fresh folder under outputs/): drop it from the file, or give it on the command line, {key}=DIR\n"
+    )
+    for command in (["check"], ["train"], ["sweep", "seed=0,1"]):
+        result = runner.invoke(app, [command[0], "-cd", str(folder), "experiment=odd", *command[1:]])
+        assert (result.exit_code, result.stderr) == (2, expected), result.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
+    typed = ["-cd", str(folder), "experiment=odd", f"{key}={tmp_path / 'chosen'}"]
+    assert runner.invoke(app, ["check", *typed]).exit_code == 0

@@ -173,8 +173,8 @@ def test_exporting_again_leaves_the_bags_alone_and_the_default_is_inside_each_ru
 
 def test_a_bag_and_a_tensorboard_log_never_replace_each_other(bags, tmp_path):
     """Both targets name a run's folder <run>-<hash>: pointed at the same directory, neither replaces the other's
-    (the run is skipped, with the reason, and the other's folder left whole); a file URI names the TensorBoard
-    directory itself."""
+    (the run is skipped, with the reason, and the other's folder left whole; with no run exported, exit code 1); a
+    file URI names the TensorBoard directory itself."""
     runs, *_ = bags
     shared = tmp_path / "shared"
     assert runner.invoke(app, ["export", str(runs / "one"), "--to", "ros2", "--out", str(shared)]).exit_code == 0
@@ -182,6 +182,8 @@ def test_a_bag_and_a_tensorboard_log_never_replace_each_other(bags, tmp_path):
     before = {p: p.read_bytes() for p in bag.rglob("*") if p.is_file()}
     done = runner.invoke(app, ["export", str(runs / "one"), "--to", "tensorboard", "--uri", shared.as_uri()])
     assert "is not a TensorBoard log of riskplan export's" in done.output, done.output
+    assert done.exit_code == 1  # nothing exported is no success
+    assert done.stderr.endswith("error: no run was exported: each of the 1 was skipped (see above)\n")
     assert {p: p.read_bytes() for p in bag.rglob("*") if p.is_file()} == before
     assert not (Path.cwd() / "file:").exists()
 
@@ -191,6 +193,7 @@ def test_a_bag_and_a_tensorboard_log_never_replace_each_other(bags, tmp_path):
     before = {p: p.read_bytes() for p in log.rglob("*") if p.is_file()}
     done = runner.invoke(app, ["export", str(runs / "one"), "--to", "ros2", "--out", str(logs)])
     assert "1 skipped" in done.output and "is not a ROS 2 bag of riskplan export's" in done.output, done.output
+    assert done.exit_code == 1
     assert {p: p.read_bytes() for p in log.rglob("*") if p.is_file()} == before
 
 

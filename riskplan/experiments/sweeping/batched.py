@@ -48,7 +48,7 @@ from riskplan.run.build import build_setup
 from riskplan.run.cost import run_bytes
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
-from riskplan.util.interrupt import Interrupted
+from riskplan.util.interrupt import Interrupted, pending_signal
 from riskplan.util.limits import cpu_count, memory_budget
 from riskplan.util.paths import write_atomic
 
@@ -82,9 +82,20 @@ def launch_batches(launcher, job_overrides, initial_job_idx: int) -> list[JobRet
         waiting = [p for _, p in returns if p is not None and p.setup is not None]
         limit = launcher.memory_gb * 1e9 if launcher.memory_gb else memory_budget()[0]
         total = sum(p.setup.params.train.iterations for p in waiting)
+        stop: Interrupted | None = None
         for number, chunks in enumerate(side_by_side(plan_chunks(waiting, limit), limit)):
+            signum = stop.signum if stop else pending_signal()  # Ctrl-C while the jobs were set up, or a round ago
+            if signum is not None:
+                stop = stop or Interrupted(signum, 0)
+                _not_trained([job for chunk in chunks for job in chunk], stop)
+                continue
             workers = launcher.workers or workers_for([job for chunk in chunks for job in chunk])
-            train_chunks(chunks, sweep_dir / f"{PROGRESS}.{number}", total, workers)
+            try:
+                train_chunks(chunks, sweep_dir / f"{PROGRESS}.{number}", total, workers)
+            except Interrupted as err:  # its jobs checkpointed and marked; the later rounds' are marked above
+                stop = err
+        if stop is not None:
+            raise stop
     for done, prepared in returns:
         if prepared is not None:
             done.return_value = prepared.value
@@ -246,6 +257,14 @@ def train_chunks(chunks: list[list[Prepared]], progress: Path, total: int, worke
                 job.value = _record(job.start, {**record, "seconds": job.seconds + record.get("seconds", 0.0)})
     if stopped is not None:
         raise Interrupted(stopped, min(r.get("finished", 0) for records in results for r in records))
+
+
+def _not_trained(jobs: list[Prepared], stop: Interrupted) -> None:
+    """Jobs set up but left untrained by a signal: marked interrupted (not running), each to start or resume when
+    the sweep runs again."""
+    for job in jobs:
+        _log(job.out, f"=== interrupted by {stop.name} before it trained")
+        interrupt_job(job.start, stop, f"interrupted by {stop.name} before it trained")
 
 
 def train_part(

@@ -18,6 +18,7 @@ from rich.table import Table
 from riskplan.experiments.sweep_worker import is_finished, read_status, repeats_line
 from riskplan.experiments.sweeping.grid import ParsedOnce
 from riskplan.experiments.sweeping.jobs import SUMMARY, Job, Outcome
+from riskplan.run.columns import frame_to_parquet
 from riskplan.run.evaluation import degenerate_findings
 from riskplan.run.run_files import SUMMARY as RUN_SUMMARY
 from riskplan.util import lock
@@ -139,7 +140,7 @@ def _override_columns(overrides: list[str], parse: ParsedOnce | None = None) -> 
 def write_summary(frame, path: Path) -> None:
     """Write summary.parquet atomically (no half file, and no temp file left on a full disk)."""
     with atomic_path(path) as tmp:
-        frame.to_parquet(tmp, index=False)
+        frame_to_parquet(frame, tmp)
 
 
 def varying_columns(frame) -> list[str]:
