@@ -3,6 +3,7 @@ traceback, or expand without end, is one line naming the file, its line and what
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import yaml
@@ -12,6 +13,8 @@ from riskplan.util.errors import BadInput
 MAX_BYTES = 10_000_000  # a config file's size: far above any experiment, far below what composes in minutes
 MAX_NODES = 1_000_000  # values a file holds once its aliases (*name) are expanded: a "billion laughs" holds 9^9
 CODE_TAGS = "tag:yaml.org,2002:python/"  # !!python/object and the like: constructors that run code
+HEADER = re.compile(r"\s*#\s*@")  # Hydra's header line, `# @package world`
+PACKAGE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")  # _global_, _group_, world.sources
 
 
 def check_config_files(folder: Path) -> None:
@@ -34,6 +37,7 @@ def _check_file(path: Path) -> None:
         raise BadInput(
             str(path), f"is not UTF-8 text (byte 0x{data[err.start]:02x} on line {line}); save it as UTF-8"
         ) from None
+    _check_header(text, path)
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)  # the node graph: aliases shared, nothing expanded
     except yaml.MarkedYAMLError as err:
@@ -47,6 +51,24 @@ def _check_file(path: Path) -> None:
         raise BadInput(str(path), f"holds {what} at its top level; a config file is a mapping of keys, e.g. seed: 3")
     if root is not None:
         _check_nodes(root, path)
+
+
+def _check_header(text: str, path: Path) -> None:
+    """The `# @package` header, read as Hydra reads it (the `# @key value` lines before anything else): a value
+    that is no package (`../../etc`) failed later as "Key '' not in 'RiskplanConf'"."""
+    for line in text.splitlines():
+        line = line.strip()
+        if not line:
+            continue
+        if not HEADER.match(line):
+            return  # Hydra's header ends at the first other line
+        words = line.lstrip("#").split()
+        if words[0] == "@package" and not (len(words) == 2 and PACKAGE.fullmatch(words[1])):
+            raise BadInput(
+                str(path),
+                f"has the header '{line}'; a package is _global_, _group_ or a dotted key such as world.sources "
+                f"(e.g. # @package _global_)",
+            )
 
 
 def _check_nodes(root: yaml.Node, path: Path) -> None:

@@ -35,6 +35,10 @@ BOMB = (
         (HEAD + "junk: " + "[" * 2000 + "]" * 2000 + "\n", "is nested too deeply to read (thousands of levels)"),
         ("- seed\n- 3\n", "holds a list at its top level; a config file is a mapping of keys, e.g. seed: 3"),
         (b"# @package _global_\nexperiment: m\xe9\n", "is not UTF-8 text (byte 0xe9 on line 2); save it as UTF-8"),
+        # Hydra took these for a package: "Key '' not in 'RiskplanConf'", or its own ValueError
+        ("# @package ../../etc\nseed: 3\n", "has the header '# @package ../../etc'; a package is _global_, _group_"),
+        ("\n# @package\nseed: 3\n", "has the header '# @package'; a package is"),
+        ("# @package _global_ world\nseed: 3\n", "has the header '# @package _global_ world'; a package is"),
     ],
 )
 def test_a_file_hydra_would_fail_on_is_one_line_naming_it(tmp_path, text, problem):
@@ -44,6 +48,12 @@ def test_a_file_hydra_would_fail_on_is_one_line_naming_it(tmp_path, text, proble
     with pytest.raises(BadInput) as refused:
         check_config_files(tmp_path)
     assert refused.value.where == str(path) and refused.value.problem.startswith(problem)
+
+
+@pytest.mark.parametrize("header", ["# @package _global_", "#@package world.sources", "# @package _group_", "# plain"])
+def test_a_package_hydra_knows_passes_and_the_header_ends_at_the_first_other_line(tmp_path, header):
+    (tmp_path / "mine.yaml").write_text(f"{header}\nseed: 3\n# @package ../not/a/header/any/more\n")
+    check_config_files(tmp_path)
 
 
 def test_files_of_plain_values_and_a_few_aliases_pass(tmp_path):
