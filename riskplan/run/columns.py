@@ -64,7 +64,7 @@ def write_parquet(table: Mapping[str, np.ndarray], path: Path) -> None:
 
 def read_parquet(path: Path, columns: list[str] | None = None):
     """A parquet file as a pandas DataFrame (only `columns`, when given), read through an open file."""
-    import pandas as pd  # `riskplan train` never reads a table back
+    import pandas as pd  # lazy: `riskplan train` never reads a table back (pandas takes a quarter of a second)
 
     with open(path, "rb") as handle:
         return pd.read_parquet(handle, columns=columns)
