@@ -44,6 +44,7 @@ def train(config, out_dir, progress: bool = True):
     """Train, evaluate and record one experiment into out_dir; returns its Run (riskplan.run.training.train).
 
     With `progress`, a live bar on a terminal or in a Jupyter notebook (nothing is printed elsewhere)."""
+    from riskplan.config.hydra_safety import check_resolvers
     from riskplan.run.run_directory import check_new_run_dir
     from riskplan.run.training import train as _train
     from riskplan.util.api_args import a_path
@@ -53,6 +54,7 @@ def train(config, out_dir, progress: bool = True):
 
     if config is None or isinstance(config, (str, bytes, list, tuple)):
         raise BadInput("config", f"got {config!r}; give a composed config, e.g. riskplan.compose(['risk=neutral'])")
+    check_resolvers(config)  # a value edited in after compose: ${oc.env:...} would not read back as it ran
     out = check_output_dir(a_path(out_dir, "out_dir"), "out_dir")
     check_new_run_dir(out, "out_dir")  # a run never writes among other files; `riskplan train --resume` resumes
     with TrainingBar() if progress else silent() as bar:

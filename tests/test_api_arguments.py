@@ -10,6 +10,13 @@ import riskplan
 from riskplan import BadInput
 
 
+def _edited(**values):
+    config = riskplan.compose(TINY)
+    for key, value in values.items():
+        config[key] = value
+    return config
+
+
 @pytest.mark.parametrize(
     "call, words",
     [
@@ -30,6 +37,9 @@ from riskplan import BadInput
         (lambda: riskplan.report([]), ["paths", "is empty"]),
         (lambda: riskplan.report(None), ["paths", "got None"]),
         (lambda: riskplan.report(["missing"], out_dir=3), ["out_dir", "got 3"]),
+        # a value edited in after compose, which the command line refuses (rows 80, 250): not read back as it ran
+        (lambda: riskplan.train(_edited(seed="${oc.env:HOME}"), "out", progress=False), ["key 'seed'", "oc.env"]),
+        (lambda: riskplan.train(_edited(seed="${now:%S}"), "out", progress=False), ["key 'seed'", "${now:...}"]),
     ],
 )
 def test_a_wrong_argument_is_one_line_naming_it(tmp_path, monkeypatch, call, words):

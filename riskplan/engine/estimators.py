@@ -26,6 +26,8 @@ from riskplan.util.errors import BadInput
 
 def tail_count(beta: float, n: int) -> int:
     """m = ceil(beta * n), guarded against float error (0.07 * 100 gives 7, not 8)."""
+    if isinstance(beta, (bool, np.bool_)) or not isinstance(beta, (int, float, np.integer, np.floating)):
+        raise BadInput("beta", f"must be a number in (0, 1], got {beta!r}")  # a bool or "0.1" is no level
     if not 0.0 < beta <= 1.0:
         raise BadInput("beta", f"must be in (0, 1], got {beta}")
     if n < 1:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from measure_cases import measure_cases
 
-from riskplan.risk import cvar, cvar_gradient, mean_gradient, risk_spec, tail_count, value_at_risk
+from riskplan.risk import cvar, cvar_gradient, mean_gradient, objective, risk_spec, tail_count, value_at_risk
 from riskplan.util.errors import BadInput
 
 
@@ -126,6 +126,12 @@ def test_every_measures_gradient_on_the_normal_family_is_its_closed_forms_deriva
         (lambda z, s: cvar(z, 0.0), "beta: must be in (0, 1], got 0.0"),
         (lambda z, s: value_at_risk(z, 1.5), "beta: must be in (0, 1], got 1.5"),
         (lambda z, s: cvar_gradient(z, s, -0.1), "beta: must be in (0, 1], got -0.1"),
+        # a TypeError of a comparison or of round(), or (True) beta = 1 in silence
+        (lambda z, s: cvar(z, None), "beta: must be a number in (0, 1], got None"),
+        (lambda z, s: cvar(z, "0.1"), "beta: must be a number in (0, 1], got '0.1'"),
+        (lambda z, s: cvar(z, np.array([0.1])), "beta: must be a number in (0, 1], got array([0.1])"),
+        (lambda z, s: value_at_risk(z, True), "beta: must be a number in (0, 1], got True"),
+        (lambda z, s: objective(z, "cvar"), "risk: got 'cvar'; give a risk node, a mapping such as"),
     ],
 )
 def test_arrays_of_the_wrong_shape_are_one_line_naming_them(call, words):

@@ -346,6 +346,50 @@ def test_bad_actions_are_refused():
         SensorPlanningEnv(["world.horizon=12"]).step(STAY)
 
 
+@pytest.mark.parametrize(
+    ("starts", "problem"),
+    [
+        ([10**7], "starts: cell 10000000 is off the grid; give cell indices 0..143"),  # a segfault in the kernel
+        ([0, 144], "starts: cell 144 is off the grid"),
+        ([-1], "starts: cell -1 is off the grid"),  # read as the last cell
+        ([1.5], "starts: got [1.5]; give cell indices, whole numbers 0..143"),  # read as cell 1
+        ([True], "starts: got [True]; give cell indices"),
+    ],
+)
+def test_start_cells_off_the_grid_or_not_whole_are_refused(starts, problem):
+    with pytest.raises(ValueError) as refused:
+        Worlds(make_setup(None).world, starts)
+    assert str(refused.value).startswith(problem)
+
+
+def test_run_episodes_takes_one_free_start_cell():
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match=r"^start: cell 65 \(5, 5\) is an obstacle; start on a free cell$"):
+        run_episodes(["world.obstacles=[[5,5]]"], TRAINED, 3, rng, start=65)
+    with pytest.raises(ValueError, match=r"^start: got \(3, 3\); give one start cell"):
+        run_episodes(None, TRAINED, 3, rng, start=(3, 3))
+    episodes = run_episodes(None, TRAINED, 50, rng, start=np.int64(13))  # (1, 1): 20 moves from both sources
+    assert episodes.steps.min() >= 1 and episodes.total_reward.shape == (50,)
+
+
+@pytest.mark.parametrize("seed", [-1, 2**63, 2**64 + 5, True, 1.0])
+def test_a_seed_out_of_range_is_refused_never_reduced(seed):
+    """Seeds are never reduced modulo 2^64 (docs/robustness.md): 2^64 + 5 gave seed 5's streams."""
+    worlds = Worlds(make_setup(None).world, [0])
+    with pytest.raises(ValueError, match=r"^seed: got .*; give a whole number 0 <= seed < 2\^63"):
+        worlds.reset(seed)
+    worlds.reset(2**63 - 1)  # the largest
+
+
+def test_a_theta_whose_logits_overflow_is_refused_not_nan():
+    """Probabilities of NaN picked East every time, and run_episodes returned finite rewards of that policy."""
+    with pytest.raises(ValueError, match=r"^theta: the softmax logits theta \. f\(x, u\) overflow to infinity at this"):
+        SoftmaxPolicy([1e308, 1e308]).probabilities(np.ones((5, 2)))
+    with pytest.raises(ValueError, match=r"^theta: the softmax logits .* overflow to infinity; give a smaller"):
+        run_episodes(None, [1e308, 1e308], 5, np.random.default_rng(0))
+    assert SoftmaxPolicy([1e300, 0.0]).probabilities(np.array([[1.0, 0.0]] + [[0.0, 0.0]] * 4))[0] == 1.0
+
+
 @pytest.mark.parametrize("theta", [[], [math.nan, 1.0], [math.inf, 0.0]])
 def test_a_policy_takes_finite_thetas_of_the_observations_length(theta):
     with pytest.raises(ValueError, match="theta must be one or more finite numbers"):

@@ -5,6 +5,7 @@ scans the installed packages). A risk node resolves here to its measure and chec
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from enum import Enum
 from typing import Any, NamedTuple
 
@@ -93,6 +94,8 @@ def risk_spec(risk: Any, where: str = "risk") -> RiskSpec:
     """The measure and checked parameters of a risk node: a mapping ({"measure": "wang", "eta": 0.75},
     {"measure": "power", "params": {"gamma": 0.5}}) or an object with attributes (a RiskConf). BadInput names the
     first bad key below `where`."""
+    if not isinstance(risk, Mapping) and not hasattr(risk, "measure"):  # "cvar" alone read as a node of no measure
+        raise BadInput(where, f"got {risk!r}; give a risk node, a mapping such as {{'measure': 'cvar', 'beta': 0.1}}")
     measure = lookup(field(risk, "measure"), f"{where}.measure")
     return RiskSpec(measure, measure.params_of(risk, where))
 

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from omegaconf import DictConfig
 
+from riskplan.config.hydra_safety import check_resolvers
 from riskplan.engine.dynamics import step_robots
 from riskplan.engine.policy import Policy, move_features, probabilities, tabular_probabilities
 from riskplan.engine.rng import ENVIRONMENT, SEED_LIMIT, episode_states, stream_key
@@ -48,6 +49,7 @@ def make_setup(config: Any = None) -> RunSetup:
         return build_setup(compose(list(config), validate=False))
     if not isinstance(config, (Mapping, DictConfig)):
         raise BadInput("config", f"got {config!r}; give overrides (a list of key=value), a config or a RunSetup")
+    check_resolvers(config)  # as an override of such a value is refused
     return build_setup(config)
 
 
@@ -87,7 +89,7 @@ class Worlds:
 
     def __init__(self, world: World, starts: np.ndarray, group: np.ndarray | None = None, seed: int = 0):
         self.world = world
-        self.starts = np.asarray(starts, dtype=np.int64).reshape(-1)
+        self.starts = start_cells(world, starts, "starts")
         self.group = np.arange(len(self.starts)) if group is None else np.asarray(group, dtype=np.int64)
         if self.group.shape != self.starts.shape or (len(self.group) and self.group.min() < 0):
             raise ValueError("group must give a copy index >= 0 for every robot")
@@ -108,7 +110,13 @@ class Worlds:
         episode B + g. Without, the episodes go on drawing from the streams they had."""
         b = self.robots
         if seed is not None:
-            states = episode_states(np.uint64(stream_key(seed, ENVIRONMENT)), b + self.groups)
+            if isinstance(seed, (bool, np.bool_)) or not (
+                isinstance(seed, (int, np.integer)) and 0 <= seed < SEED_LIMIT
+            ):
+                raise BadInput(
+                    "seed", f"got {seed!r}; give a whole number 0 <= seed < 2^63 (or None: the streams go on)"
+                )
+            states = episode_states(np.uint64(stream_key(int(seed), ENVIRONMENT)), b + self.groups)
             self._states, self._walk_states = states[:b], states[b:]
         self.cell = self.starts.copy()
         self.sources = np.tile(self.world.source_cells, (self.groups, 1))  # (G, M) current source cells
@@ -174,6 +182,28 @@ class Worlds:
         return out
 
 
+def start_cells(world: World, starts, key: str) -> np.ndarray:
+    """Start cells as the kernel takes them (B,): whole numbers 0..C-1, none an obstacle; BadInput naming `key`
+    otherwise (the kernel would read past its tables: a crash, not an error)."""
+    cells = np.asarray(starts)
+    if cells.dtype.kind not in "iu":
+        raise BadInput(key, f"got {starts!r}; give cell indices, whole numbers 0..{world.cells - 1}")
+    cells = cells.astype(np.int64).reshape(-1)
+    off = cells[(cells < 0) | (cells >= world.cells)]
+    if len(off):
+        raise BadInput(
+            key, f"cell {int(off[0])} is off the grid; give cell indices 0..{world.cells - 1} (x * height + y)"
+        )
+    blocked = cells[world.obstacle[cells]]
+    if len(blocked):
+        x, y = world.xy(int(blocked[0]))
+        raise BadInput(key, f"cell {int(blocked[0])} ({int(x)}, {int(y)}) is an obstacle; start on a free cell")
+    return cells
+
+
+OVERFLOW = "the softmax logits theta . f(x, u) overflow to infinity"  # probabilities would be NaN
+
+
 class SoftmaxPolicy:
     """The softmax policy (2)-(3) on the environments' observations: mu(u | x) ∝ exp(theta . f(x, u)).
 
@@ -202,6 +232,8 @@ class SoftmaxPolicy:
             raise ValueError(
                 f"theta has {self.theta.size} entries; the config's {policy.kind} policy has {policy.size} ({shown})"
             )
+        if not np.isfinite(policy.logit_bound(self.theta[None])):
+            raise BadInput("theta", f"{OVERFLOW}; give a smaller theta (training refuses this one too)")
         if policy.tabular:
             self._table = tabular_probabilities(self.theta, self._setup.world.cells)  # (C, 5)
         elif policy.features == ("signals",):
@@ -242,7 +274,10 @@ class SoftmaxPolicy:
                 raise ValueError(
                     f"theta has {self.theta.size} entries; the observation gives {feats.shape[-1]} features"
                 )
-            probs = probabilities(feats[None] if one else feats, self.theta)
+            with np.errstate(over="ignore", invalid="ignore"):  # said just below, in one line
+                probs = probabilities(feats[None] if one else feats, self.theta)
+            if not np.isfinite(probs).all():  # the paper's policy: its bound needs the observation
+                raise BadInput("theta", f"{OVERFLOW} at this observation; give a smaller theta")
         return probs[0] if one else probs
 
     def act(
@@ -295,8 +330,10 @@ def run_episodes(
     table). `start`: the start cell (default: the first robot's).
     """
     setup = make_setup(config)
-    cell = robot_starts(setup)[0] if start is None else start
-    worlds = Worlds(setup.world, np.full(episodes, cell, dtype=np.int64), seed=new_seed(rng))
+    cell = robot_starts(setup)[0] if start is None else start_cells(setup.world, start, "start")
+    if len(np.atleast_1d(cell)) != 1:
+        raise BadInput("start", f"got {start!r}; give one start cell (an index 0..{setup.world.cells - 1})")
+    worlds = Worlds(setup.world, np.full(episodes, np.atleast_1d(cell)[0], dtype=np.int64), seed=new_seed(rng))
     policy = SoftmaxPolicy(theta, setup)
     while not worlds.done.all():
         position = worlds.positions() if policy.needs_position else None
