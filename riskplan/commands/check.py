@@ -58,7 +58,7 @@ def check(
     typer.echo("")
     typer.echo(_describe_world(setup))
     power = cfg.train.step_size.power
-    holds = 0.5 < power <= 1.0
+    holds = 0.5 < power <= 1.0 and cfg.train.step_size.initial > 0  # eps = 0: the sum of the steps is 0
     typer.echo(
         f"Assumption 6 (sum eps = inf, sum eps^2 < inf): {'holds' if holds else 'FAILS'} "
         f"(eps_l = {cfg.train.step_size.initial} / (1 + l/{cfg.train.step_size.decay})^{power})"

@@ -202,6 +202,8 @@ def check_train(train: TrainConf) -> None:
     require(math.isfinite(step.power) and step.power >= 0, keys.step_size.power, f"got {step.power}; expected >= 0")
     if not 0.5 < step.power <= 1.0:
         warnings.warn(f"{keys.step_size.power}={step.power} breaks Assumption 6 (needs 0.5 < power <= 1)", stacklevel=3)
+    if step.initial == 0:  # allowed (the initial policy's own figures), but nothing is learnt
+        warnings.warn(f"{keys.step_size.initial}=0 breaks Assumption 6 (sum eps = 0: theta never moves)", stacklevel=3)
     require(train.eval_episodes >= 1, keys.eval_episodes, f"got {train.eval_episodes}; expected >= 1")
     require(train.paths >= 0, keys.paths, f"got {train.paths}; expected >= 0")
     require(train.checkpoint_every >= 1, keys.checkpoint_every, f"got {train.checkpoint_every}; expected >= 1")

@@ -516,7 +516,9 @@ class _Places:
         pixel = self.frame.pixel_of(*point)
         x, y = pixel[0] // self.frame.cell, pixel[1] // self.frame.cell
         shown = f"{{metres: [{_m(point[0])}, {_m(point[1])}]}}"
-        if not self.frame.on_map(pixel):
+        if max(abs(pixel[0]), abs(pixel[1])) >= FAR:  # pixel_of caps it there: no cell number to show
+            problem = f"{shown} is far off the map (beyond {FAR:,.0f} pixels), off the {self.width}x{self.height} grid"
+        elif not self.frame.on_map(pixel):
             problem = f"{shown} is off the map: it falls in cell ({x}, {y}), off the {self.width}x{self.height} grid"
         elif free and self.obstacle[x * self.height + y]:
             problem = f"{shown} is cell ({x}, {y}), which {self.occupied}"

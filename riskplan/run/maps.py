@@ -276,11 +276,9 @@ def merge(pixels: np.ndarray, k: int) -> np.ndarray:
     """(w, h) booleans to (ceil(w/k), ceil(h/k)) cells: a cell is set if any of its k x k pixels is."""
     if k == 1:
         return pixels.astype(bool, copy=True)
-    w, h = pixels.shape
-    wide, high = -(-w // k), -(-h // k)
-    padded = np.zeros((wide * k, high * k), dtype=bool)
-    padded[:w, :h] = pixels
-    return padded.reshape(wide, k, high, k).any(axis=(1, 3))
+    w, h = pixels.shape  # each block's OR by reduceat, not by padding to a multiple of k (a huge k: gigabytes)
+    columns = np.logical_or.reduceat(pixels.astype(bool), np.arange(0, w, k), axis=0)
+    return np.logical_or.reduceat(columns, np.arange(0, h, k), axis=1)
 
 
 def _frozen(array: np.ndarray) -> np.ndarray:

@@ -69,9 +69,7 @@ def check_output_dir(path: Path | str, key: str) -> Path:
     resolved = Path(os.path.realpath(resolved))
     if resolved == Path(resolved.anchor):
         raise BadInput(key, f"{text} is the filesystem root; give a directory of its own, e.g. outputs/runs/mine")
-    for virtual in VIRTUAL:
-        if resolved == Path(virtual) or Path(virtual) in resolved.parents:
-            raise BadInput(key, f"{text} is under {virtual}, a kernel filesystem; give a directory on a disk")
+    _check_on_disk(resolved, text, key, "a directory")
     if ".hydra" in resolved.parts:  # Hydra's record of a run's config: jobs written there are taken for it
         raise BadInput(
             key, f"{text} is inside a .hydra folder, where Hydra keeps a run's config; give another directory"
@@ -100,6 +98,13 @@ def file_path(text: str | Path, key: str, ending: str) -> Path:
     return Path(text)
 
 
+def _check_on_disk(resolved: Path, text: str, key: str, what: str) -> None:
+    """BadInput when a resolved path lies in a kernel filesystem (VIRTUAL): /dev/full.png was written."""
+    for virtual in VIRTUAL:
+        if resolved == Path(virtual) or Path(virtual) in resolved.parents:
+            raise BadInput(key, f"{text} is under {virtual}, a kernel filesystem; give {what} on a disk")
+
+
 def _check_links(path: Path, text: str, key: str) -> None:
     """BadInput for a symbolic link on the path that leads nowhere (its target is gone) or round in a loop: a
     directory could not be made there, and the error would read 'File exists'."""
@@ -123,6 +128,7 @@ def check_output_file(text: str | Path, key: str, ending: str) -> Path:
     and it is not a folder itself (nor named as one, with a trailing '/'); checked before the work that writes it.
     `ending` names the file types, for the message."""
     path = file_path(text, key, ending)
+    _check_on_disk(Path(os.path.realpath(os.path.abspath(os.path.expanduser(path)))), str(path), key, "a file")
     folder = path.parent if str(path.parent) else Path(".")
     if path.is_dir():
         raise BadInput(key, f"{path} is a folder; give a file path ending {ending}")

@@ -27,6 +27,13 @@ def test_check_warns_when_assumption_6_fails(in_tmp):
     assert "Assumption 6" in result.output and "FAILS" in result.output
 
 
+def test_a_step_size_of_zero_fails_assumption_6(in_tmp):
+    """sum eps = 0, not infinity: check said "holds" for a run that learns nothing."""
+    with pytest.warns(UserWarning, match=r"train.step_size.initial=0 breaks Assumption 6 \(sum eps = 0"):
+        result = runner.invoke(app, ["check", "train.step_size.initial=0"])
+    assert result.exit_code == 0 and "Assumption 6 (sum eps = inf, sum eps^2 < inf): FAILS" in result.output
+
+
 def test_check_describes_the_order(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     exact = runner.invoke(app, ["check", "experiment=paper_team", "team.order=gradient_tracking"])

@@ -146,11 +146,14 @@ def test_the_nearest_free_cell_is_the_closest(room_map):
     )
 
 
-def test_a_point_too_far_to_count_its_pixels_is_off_the_map(room_map):
-    # 1e308 m is 1e309 pixels, beyond any integer a float turns into: taken as FAR (2**31) pixels, cell 2**30
-    err = bad_input(*on_map(room_map, "${metres:1e308,1.75}"))
-    assert err.where == "world.start" and f"off the map: it falls in cell ({2**30}, 1)" in err.problem
-    assert "the nearest free cell is (19, 1)" in err.problem
+@pytest.mark.parametrize("far", ["1e308", "1e12", "-1e308"])
+def test_a_point_too_far_to_count_its_pixels_is_off_the_map(room_map, far):
+    """1e308 m is 1e309 pixels, beyond any integer a float turns into: taken as FAR (2**31) pixels, whose cell
+    (2**30) the message showed as if it were the point's; it says far off the map instead."""
+    err = bad_input(*on_map(room_map, f"${{metres:{far},1.75}}"))
+    assert err.where == "world.start"
+    assert "is far off the map (beyond 2,147,483,648 pixels), off the 20x15 grid" in err.problem
+    assert "falls in cell" not in err.problem and "the nearest free cell is (" in err.problem
 
 
 def test_metres_without_a_map_or_malformed_are_one_line(room_map):

@@ -11,7 +11,7 @@ from support import TINY, bad_input, setup_of
 from typer.testing import CliRunner
 
 from riskplan.cli import app
-from riskplan.run.maps import geometry
+from riskplan.run.maps import geometry, merge
 from riskplan.util.errors import BadInput
 
 # A 4 x 3 map as map_saver writes it: 0 occupied, 254 free, 205 unknown. Row 0 is the top row (y = 2).
@@ -154,6 +154,19 @@ def test_map_cell_merges_k_by_k_pixels_from_the_lower_left(tmp_path):
         "train.theta0=[20]",
     ).world
     assert cells(blocked.obstacle, blocked) == {(0, 0), (2, 1), (1, 0)}
+
+
+def test_merge_is_each_k_by_k_blocks_or_whatever_k(tmp_path):
+    """merge against the definition, block by block, on random pixels; a k far past the image is one cell, not a
+    padded array of k x k pixels (world.map_cell=1e11 allocated terabytes: a traceback)."""
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        w, h, k = (int(v) for v in rng.integers(1, 20, 3))
+        pixels = rng.random((w, h)) < 0.1
+        expected = [[pixels[i : i + k, j : j + k].any() for j in range(0, h, k)] for i in range(0, w, k)]
+        assert merge(pixels, k).tolist() == expected
+    assert merge(np.eye(3, dtype=bool), 10**11).tolist() == [[True]]
+    assert merge(np.zeros((3, 4), dtype=bool), 10**11).tolist() == [[False]]
 
 
 def test_a_mask_region_holds_the_dark_pixels_of_its_image(tmp_path, small_map):

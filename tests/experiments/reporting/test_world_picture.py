@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -190,6 +191,17 @@ def test_a_wandering_source_is_drawn_where_its_walk_begins():
     assert "2 'risky' (3, 9, a random walk from here): 12 moves from (0, 0)" in labels
 
 
+@pytest.mark.parametrize(("size", "source"), [("[1,12]", "[0,5]"), ("[12,1]", "[5,0]")])
+def test_a_world_one_cell_wide_is_drawn_without_contours(size, source):
+    """matplotlib's contour needs 2 x 2 values: `check --draw` of such a world was a traceback, and in a report it
+    took the world figure of every other run with it."""
+    _, _, ax = drawn(f"world.size={size}", f"world.sources=[{{position:{source},reward:1}}]", "world.regions=[]",
+                     "train.theta0=[1]")  # fmt: skip
+    x, y = (float(v) for v in source.strip("[]").split(","))
+    assert markers(ax, "*") == [(x, y)]
+    assert [type(c).__name__ for c in ax.collections] == ["LineCollection"]  # the grid's lines, no QuadContourSet
+
+
 def test_a_turned_map_has_no_metre_axes(room_map):
     """With a yaw in the map's origin, the frame's x and y do not run along the cells: no metre axes, said so."""
     room_map.write_text(room_map.read_text().replace("origin: [-3.0, 1.5, 0.0]", "origin: [-3.0, 1.5, 0.5]"))
@@ -271,6 +283,8 @@ def test_check_imports_matplotlib_only_to_draw(tmp_path):
         ("notes.txt/world.png", "notes.txt/world.png cannot be written: notes.txt is a file, not a folder; give a"),
         ("gone/world.png", "gone/world.png cannot be written: no folder gone; give a path in an existing folder"),
         ("folder.png", "folder.png is a folder; give a file path ending .png, .svg or .pdf"),
+        ("/dev/full.png", "/dev/full.png is under /dev, a kernel filesystem; give a file on a disk"),  # was written
+        ("/dev/shm/../w.png", "/dev/shm/../w.png is under /dev, a kernel filesystem"),
     ],
 )
 def test_bad_draw_paths_are_one_line_and_exit_2_leaving_nothing(in_tmp, path, problem):
@@ -326,6 +340,20 @@ def test_the_report_draws_each_distinct_world_of_its_runs(tmp_path):
     assert '<figure id="world">' in html and '<figure id="world_2">' in html
     assert html.index("<h2>The worlds</h2>") < html.index('<figure id="world">') < html.index("Configurations that")
     assert (tmp_path / "report" / "world.png").read_bytes().startswith(b"\x89PNG")
+
+
+@pytest.mark.slow
+def test_a_thin_world_with_one_sure_reward_beside_the_papers_is_reported_whole(tmp_path):
+    """A world one cell wide (no contours: its figure failed, and took the paper world's with it) whose episodes
+    all pay the same (the distribution's tail panel had equal limits: matplotlib's warning on stderr)."""
+    thin = ["world.size=[12,1]", "world.sources=[{position:[5,0],reward:1}]", "world.regions=[]", "train.theta0=[1]"]
+    riskplan.train(riskplan.compose([*TINY, *thin]), tmp_path / "runs" / "thin", progress=False)
+    riskplan.train(riskplan.compose(TINY), tmp_path / "runs" / "paper", progress=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no figure fails, and matplotlib says nothing
+        specs, skipped = make_figures(collect([tmp_path / "runs"]))
+    assert not [reason for reason in skipped.values() if reason.startswith("failed")], skipped
+    assert {"world", "world_2", "reward_distribution"} <= {spec.name for spec in specs}
 
 
 @pytest.mark.slow

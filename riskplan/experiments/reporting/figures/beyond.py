@@ -137,9 +137,11 @@ def fig_distribution(collected: Collection) -> FigureSpec | str:
             ax.xaxis.set_major_locator(MaxNLocator(5))
         full.set_ylabel(r"empirical CDF  $P(Z \leq z)$")
         tail.set_ylim(0, top)
-        tail.set_xlim(
-            min([c for c in lows if np.isfinite(c)] + [float(np.quantile(zs, 0.001))]), float(np.quantile(zs, top))
-        )
+        low = min([c for c in lows if np.isfinite(c)] + [float(np.quantile(zs, 0.001))])
+        high = float(np.quantile(zs, top))
+        if not high > low:  # every episode of the tail paid the same: the point with a margin (matplotlib warned)
+            low, high = low - max(1.0, abs(low)) * 0.05, high + max(1.0, abs(high)) * 0.05
+        tail.set_xlim(low, high)
         full.set_title("all episodes")
         tail.set_title(f"lower tail (P ≤ {top:g})")
         what = "; the right panel zooms into the lower tail that CVaR averages (dots mark (VaR, β))."

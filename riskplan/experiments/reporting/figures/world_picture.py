@@ -294,7 +294,7 @@ def _draw_sources(ax, picture: Picture, k: int) -> list:
     handles = []
     for j, name in enumerate(world.source_names):
         colour = SOURCE_COLOURS[j % len(SOURCE_COLOURS)]
-        if world.source_amplitude[j] != 0:
+        if world.source_amplitude[j] != 0 and min(len(xs), len(ys)) > 1:  # a grid one cell wide has no contours
             share = (signals[:, j] / world.source_amplitude[j]).reshape(world.width, world.height)[::k, ::k].T
             levels = [math.exp(-(n**2) / 2) for n in SIGMAS]
             ax.contour(xs, ys, share, levels=levels[::-1], colors=colour, linewidths=0.9,
