@@ -51,15 +51,29 @@ def cvar(z: np.ndarray, beta: float) -> np.ndarray | float:
 
     A finite row whose tail sum overflows (samples near the largest float) is measured again on z / 2^k, exact for
     such numbers, and scaled back: CVaR is positively homogeneous, and lies within the row's range."""
-    z = as_sample(z)
+    return _without_overflow(lambda rows: _cvar(rows, beta), as_sample(z))
+
+
+def mean(z: np.ndarray) -> np.ndarray | float:
+    """The mean along the last axis; a finite row whose sum overflows (samples near the largest float) is its mean
+    still, as for `cvar`."""
+    return _without_overflow(lambda rows: rows.mean(axis=-1), as_sample(z))
+
+
+def _without_overflow(measure, z: np.ndarray) -> np.ndarray | float:
+    """measure(z) along the last axis. A finite row whose sums (or squares) overflow is measured again on z / 2^k,
+    2^k the power of two just below its largest |z| (an exact division: every value within (-2, 2)), and scaled
+    back: the measure is positively homogeneous, and within the row's range (or, for the std, half its width)."""
     with np.errstate(over="ignore", invalid="ignore"):
-        value = np.asarray(_cvar(z, beta))
+        value = np.asarray(measure(z))
     if np.isfinite(value).all():  # the common case: no second pass over z
         return value[()]
     overflowed = ~np.isfinite(value) & np.isfinite(z).all(axis=-1)
     if overflowed.any():
-        scale = 2.0 ** (2 + math.ceil(math.log2(z.shape[-1])))
-        value = np.where(overflowed, np.asarray(_cvar(z / scale, beta)) * scale, value)
+        peak = np.abs(np.where(np.isfinite(z), z, 0.0)).max(axis=-1, keepdims=True)
+        scale = np.ldexp(1.0, np.frexp(np.maximum(peak, 1.0))[1] - 1)  # 2^(e-1) for peak = m 2^e, m in [0.5, 1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            value = np.where(overflowed, np.asarray(measure(z / scale)) * scale[..., 0], value)
     return value[()]
 
 
@@ -102,7 +116,7 @@ def mean_gradient(z: np.ndarray, scores: np.ndarray, baseline: bool = True, *, p
         centre = reductions.row_sums(rows) / z.shape[-1] if baseline else np.zeros(len(rows))
         grads = reductions.centred_products(rows, table, centre)
         return grads.reshape(scores.shape[:-2] + scores.shape[-1:]) / z.shape[-1]
-    centred = z - z.mean(axis=-1, keepdims=True) if baseline else z
+    centred = z - np.expand_dims(mean(z), -1) if baseline else z
     return np.einsum("...w,...wm->...m", centred, scores) / z.shape[-1]
 
 
@@ -114,11 +128,13 @@ def summary_stats(z: np.ndarray, beta: float, *, parallel: bool = False) -> dict
     if parallel and z.ndim >= 1 and z.shape[-1] >= reductions.PARALLEL_SAMPLES:
         return _summary_rows(z, beta)
     v = _quantile(z, beta)
-    return {
-        "mean": z.mean(axis=-1),
-        "cvar": v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1]),
+    with np.errstate(over="ignore", invalid="ignore"):
+        tail = v + _tail_weights(z, v).sum(axis=-1) / (beta * z.shape[-1])
+    return {  # samples near the largest float: each measured again without overflow, as `cvar` and `mean` are
+        "mean": mean(z),
+        "cvar": tail if np.isfinite(tail).all() else cvar(z, beta),
         "value_at_risk": v,
-        "std": z.std(axis=-1),
+        "std": _without_overflow(lambda rows: rows.std(axis=-1), z),
     }
 
 

@@ -9,7 +9,16 @@ import numpy as np
 import pytest
 from measure_cases import measure_cases
 
-from riskplan.risk import cvar, cvar_gradient, mean_gradient, objective, risk_spec, tail_count, value_at_risk
+from riskplan.risk import (
+    cvar,
+    cvar_gradient,
+    mean_gradient,
+    objective,
+    risk_spec,
+    summary_stats,
+    tail_count,
+    value_at_risk,
+)
 from riskplan.util.errors import BadInput
 
 
@@ -165,3 +174,19 @@ def test_cvar_of_samples_near_the_largest_float_is_their_tail_mean_not_inf(z, be
     value = cvar(np.array(z), beta)
     assert np.isfinite(value) and value == pytest.approx(expected, rel=1e-12, abs=1e292)
     assert cvar(np.array([z, [1.0] * len(z)]), beta)[1] == 1.0  # a batch: only the overflowing row is measured again
+
+
+@pytest.mark.parametrize("z", [[1.7e308] * 10, [1e308, 1e308, -1e308], [-0.9e308] * 4 + [0.9e308]])
+def test_the_mean_and_its_gradient_near_the_largest_float_do_not_overflow(z):
+    """The mean is CVaR_1: the objective of risk=neutral, summary_stats' mean and the baseline of mean_gradient
+    were inf (its gradient -inf, where the exact one is 0) where cvar(z, 1) was finite."""
+    z = np.array(z)
+    expected = cvar(z, 1.0)
+    assert objective(z, {"measure": "neutral"}) == pytest.approx(expected, rel=1e-12)
+    stats = summary_stats(z, 0.5)
+    assert stats["mean"] == pytest.approx(expected, rel=1e-12) and stats["cvar"] == pytest.approx(cvar(z, 0.5))
+    half_range = z.max() / 2 - z.min() / 2  # (numpy's ptp overflows here)
+    assert 0 <= stats["std"] <= half_range + 1e-15 * np.abs(z).max()  # finite: at most half the range
+    # equal scores: the centred rewards sum to 0 up to rounding (relative to the rewards' size), never to -inf
+    grads = mean_gradient(z, np.ones((len(z), 2)))
+    assert np.all(np.abs(grads) <= 1e-15 * np.abs(z).max())

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from riskplan.engine.estimators import as_sample, as_scores, mean_gradient
+from riskplan.engine.estimators import as_sample, as_scores, mean, mean_gradient
 from riskplan.engine.measures.base import Measure, Params, Statistics
 from riskplan.engine.measures.spectral import Spectral
 
@@ -17,7 +17,7 @@ class Neutral(Spectral):
     built_in = True
 
     def objective(self, z: np.ndarray, params: Params) -> np.ndarray | float:
-        return as_sample(z).mean(axis=-1)[()]
+        return mean(z)
 
     def gradient(self, z: np.ndarray, scores: np.ndarray, params: Params, *, baseline: bool = True) -> np.ndarray:
         z = as_sample(z)
