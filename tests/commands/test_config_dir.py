@@ -132,6 +132,7 @@ def test_hydra_file_settings_in_a_config_file_are_held_to_the_command_lines_rule
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
 
 
+@pytest.mark.slow  # four commands composing a config each: over a second
 @pytest.mark.parametrize(("section", "key"), [("run", "hydra.run.dir"), ("sweep", "hydra.sweep.dir")])
 def test_a_run_or_sweep_directory_set_in_a_config_file_is_refused_not_ignored(tmp_path, monkeypatch, section, key):
     """riskplan claims a fresh folder under outputs/ itself, or takes the one typed on the command line; a file's

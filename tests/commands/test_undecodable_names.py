@@ -61,6 +61,7 @@ def test_the_python_api_refuses_such_an_output_directory_before_training(tmp_pat
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow  # a run, then two reports: about 3 s
 def test_report_skips_a_run_folder_renamed_with_undecoded_bytes(tmp_path):
     good = tmp_path / "runs" / "good"
     train(compose(TINY), good)

@@ -189,6 +189,7 @@ def test_the_sample_gradient_of_a_table_matches_the_exact_enumeration(tiny):
 # -- mobile sources -------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # rollouts of two worlds (near a second)
 def test_a_table_with_mobile_sources_ignores_where_they_are():
     """Same table, static and walking sources: the moves' law is the table's either way; the sources still pay."""
     walking = build_setup(compose(["policy.kind=tabular", *MOBILE]))

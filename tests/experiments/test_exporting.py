@@ -226,6 +226,7 @@ def test_names_mlflow_would_merge_stay_apart_and_a_run_it_refuses_is_skipped_alo
     assert reached["x?"] != reached["x!"]  # two counts, which one key had merged
 
 
+@pytest.mark.slow  # imports MLflow's name rules (near a second)
 def test_an_mlflow_experiment_name_it_would_refuse_is_bad_input_before_the_store(tmp_path):
     pytest.importorskip("mlflow")
     store = tmp_path / "mlruns"

@@ -116,6 +116,7 @@ def test_a_cache_path_that_is_a_file_costs_only_the_calibration(tmp_path, monkey
     assert cost.model().runs == 0
 
 
+@pytest.mark.slow  # a whole run (near a second)
 def test_a_finished_run_records_its_estimated_steps(cache, tmp_path):
     config = compose(TINY)
     train_summary(config, tmp_path / "warm")  # numba's kernels compiled or loaded: the next run compiles nothing

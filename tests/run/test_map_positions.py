@@ -156,6 +156,7 @@ def test_a_point_too_far_to_count_its_pixels_is_off_the_map(room_map, far):
     assert "falls in cell" not in err.problem and "the nearest free cell is (" in err.problem
 
 
+@pytest.mark.slow  # composes a dozen configs (near a second)
 def test_metres_without_a_map_or_malformed_are_one_line(room_map):
     err = bad_input("world.start=${metres:1,2}")
     assert err.where == "world.start" and "a position in metres needs world.map" in err.problem

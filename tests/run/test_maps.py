@@ -82,6 +82,7 @@ def test_occupied_pixels_are_exactly_the_obstacles_and_unknown_ones_too_by_defau
     assert free.next_cell[1 * 3 + 2, 1] == 1 * 3 + 2
 
 
+@pytest.mark.slow  # builds the world of four image formats (near a second)
 def test_p2_p5_16_bit_and_png_images_give_the_same_world(tmp_path, small_map):
     from PIL import Image
 
@@ -95,6 +96,7 @@ def test_p2_p5_16_bit_and_png_images_give_the_same_world(tmp_path, small_map):
         assert cells(world.obstacle, world) == reference, image
 
 
+@pytest.mark.slow  # builds a map's world several times (near a second)
 def test_numbers_written_as_ros_writes_them_are_numbers(tmp_path, small_map):
     """25e-2 and 1e0 are numbers to ROS's YAML 1.2 reader, strings to PyYAML's 1.1: the map takes them as ROS does,
     the same world as 0.25 and 1.0 give; a word stays an error naming the key."""
@@ -222,6 +224,7 @@ def test_a_bad_map_yaml_is_one_line_naming_the_file(tmp_path, small_map, make, w
     assert words in err.problem
 
 
+@pytest.mark.slow  # reads a dozen damaged images (near a second)
 def test_truncated_and_corrupt_images_are_one_line(tmp_path):
     from PIL import Image
 
