@@ -47,7 +47,7 @@ def train(config, out_dir, progress: bool = True):
     from riskplan.config.hydra_safety import check_resolvers
     from riskplan.run.run_directory import check_new_run_dir
     from riskplan.run.training import train as _train
-    from riskplan.util.api_args import a_path
+    from riskplan.util.api_args import a_flag, a_path
     from riskplan.util.errors import BadInput
     from riskplan.util.paths import check_output_dir
     from riskplan.util.progress import TrainingBar, silent
@@ -56,6 +56,7 @@ def train(config, out_dir, progress: bool = True):
         raise BadInput("config", f"got {config!r}; give a composed config, e.g. riskplan.compose(['risk=neutral'])")
     check_resolvers(config)  # a value edited in after compose: ${oc.env:...} would not read back as it ran
     out = check_output_dir(a_path(out_dir, "out_dir"), "out_dir")
+    a_flag(progress, "progress")
     check_new_run_dir(out, "out_dir")  # a run never writes among other files; `riskplan train --resume` resumes
     with TrainingBar() if progress else silent() as bar:
         return _train(config, out, progress=bar)
@@ -93,9 +94,9 @@ def report(paths, out_dir=None, formats=("png", "pdf")):
     """Figures, tables and report.html from the finished runs below `paths`, as `riskplan report` does; into
     `out_dir` (default: PATH/report for one path, else outputs/reports/<timestamp>/). Returns the page's path
     (riskplan.experiments.reporting.build_report)."""
-    from riskplan.experiments.reporting import build_report, default_out
+    from riskplan.experiments.reporting import build_report, check_formats, default_out
     from riskplan.util.api_args import a_path, formats_list, paths_list
 
     inputs = paths_list(paths, "paths")
     out = a_path(out_dir, "out_dir") if out_dir is not None else default_out(inputs)
-    return build_report(inputs, out, formats_list(formats))
+    return build_report(inputs, out, check_formats(formats_list(formats), "formats"))

@@ -37,6 +37,9 @@ def _edited(**values):
         (lambda: riskplan.report([]), ["paths", "is empty"]),
         (lambda: riskplan.report(None), ["paths", "got None"]),
         (lambda: riskplan.report(["missing"], out_dir=3), ["out_dir", "got 3"]),
+        (lambda: riskplan.compose({"seed": 3}), ["overrides", "got a mapping", "['seed=3']"]),  # was "malformed"
+        (lambda: riskplan.train(riskplan.compose(TINY), "out", progress="no"), ["progress", "give True or False"]),
+        (lambda: riskplan.report(["missing"], formats=["gif"]), ["formats: got gif"]),  # named --format
         # a value edited in after compose, which the command line refuses (rows 80, 250): not read back as it ran
         (lambda: riskplan.train(_edited(seed="${oc.env:HOME}"), "out", progress=False), ["key 'seed'", "oc.env"]),
         (lambda: riskplan.train(_edited(seed="${now:%S}"), "out", progress=False), ["key 'seed'", "${now:...}"]),

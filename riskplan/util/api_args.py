@@ -3,6 +3,7 @@ argument, as the CLI's bad input is, never a TypeError from deep inside Hydra or
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,9 @@ def overrides_list(value: Any, name: str = "overrides") -> list[str]:
     would be taken character by character."""
     if isinstance(value, (str, bytes)):
         raise BadInput(name, f"got the string {value!r}; give a list of overrides, e.g. [{value!r}]")
+    if isinstance(value, Mapping):  # its keys alone would be taken for overrides
+        shown = [f"{key}={item}" for key, item in value.items()][:2]
+        raise BadInput(name, f"got a mapping {value!r}; give a list of overrides key=value, e.g. {shown}")
     try:
         items = list(value)
     except TypeError:
@@ -60,6 +64,13 @@ def optional_flag(value: Any, name: str) -> bool | None:
     if value is None or isinstance(value, bool):
         return value
     raise BadInput(name, f"got {value!r}; give True, False or None")
+
+
+def a_flag(value: Any, name: str) -> bool:
+    """True or False (a string such as 'no' is not taken for true)."""
+    if isinstance(value, bool):
+        return value
+    raise BadInput(name, f"got {value!r}; give True or False")
 
 
 def formats_list(value: Any, name: str = "formats") -> list[str]:

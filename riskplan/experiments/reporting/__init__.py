@@ -66,15 +66,15 @@ def default_out(paths: list[Path]) -> Path:
     return REPORTS_ROOT / dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
 
 
-def check_formats(formats: list[str] | str) -> list[str]:
-    """Normalise and validate figure formats ('png,pdf' or a list)."""
+def check_formats(formats: list[str] | str, key: str = "--format") -> list[str]:
+    """Normalise and validate figure formats ('png,pdf' or a list); `key` names them in a message."""
     if isinstance(formats, str):
         formats = formats.split(",")
     out = [f.strip().lower().lstrip(".") for f in formats if f.strip()]
     bad = [f for f in out if f not in FORMATS]
     if bad or not out:
         raise BadInput(
-            "--format",
+            key,
             f"got {','.join(formats) or 'nothing'}; expected a comma-separated subset of "
             f"{','.join(FORMATS)}, e.g. png,pdf",
         )
