@@ -57,8 +57,9 @@ def claim_dir(root: Path, suffix: str = "") -> Path:
 def check_output_dir(path: Path | str, key: str) -> Path:
     """A directory riskplan may write into (existing or to be made): BadInput naming `key` otherwise.
 
-    Refused: an empty or blank path, a name the locale could not decode, the filesystem root, /proc, /sys and /dev, a path through a .hydra folder, a file
-    (or a path through one), and a directory on a read-only filesystem or without write permission.
+    Refused: an empty or blank path, a name the locale could not decode, the filesystem root, /proc, /sys and
+    /dev, a path through a .hydra folder, a file (or a path through one), and a directory on a read-only filesystem
+    or without write permission.
     """
     text = str(path)
     if not text.strip() or "\x00" in text:

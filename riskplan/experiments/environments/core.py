@@ -330,10 +330,10 @@ def run_episodes(
     table). `start`: the start cell (default: the first robot's).
     """
     setup = make_setup(config)
-    cell = robot_starts(setup)[0] if start is None else start_cells(setup.world, start, "start")
-    if len(np.atleast_1d(cell)) != 1:
+    cell = robot_starts(setup)[:1] if start is None else start_cells(setup.world, start, "start")
+    if len(cell) != 1:
         raise BadInput("start", f"got {start!r}; give one start cell (an index 0..{setup.world.cells - 1})")
-    worlds = Worlds(setup.world, np.full(episodes, np.atleast_1d(cell)[0], dtype=np.int64), seed=new_seed(rng))
+    worlds = Worlds(setup.world, np.full(episodes, cell[0], dtype=np.int64), seed=new_seed(rng))
     policy = SoftmaxPolicy(theta, setup)
     while not worlds.done.all():
         position = worlds.positions() if policy.needs_position else None
