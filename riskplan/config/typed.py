@@ -233,16 +233,33 @@ def _unknown_key(err: Exception, cause: Exception, key: str) -> tuple[str, str]:
     parent, _, name = _dotted(key).rpartition(".")
     valid = valid_keys(parent)
     entry, override = getattr(cause, "object_type", None), re.match(r"Could not override '(.+?)'", str(err))
+    item = ""
     if not parent and override and dataclasses.is_dataclass(entry) and entry is not schema.RiskplanConf:
         # a mapping in a list (world.regions=[{nme: a}]): OmegaConf names its key without the list's path
         parent, valid = override.group(1), [f.name for f in dataclasses.fields(entry)]
+        index = _item_holding(str(err), name)
+        item = "" if index is None else f"{index}."
     if valid is None:
         return f"key '{_dotted(key)}'", "unknown key; this node takes no new keys"
     return (
-        f"key '{parent + '.' if parent else ''}{name}'",
+        f"key '{parent + '.' if parent else ''}{item}{name}'",
         f"unknown key '{name}'; valid keys under '{parent or 'top level'}': {', '.join(valid)}"
         + did_you_mean(name, valid),
     )
+
+
+def _item_holding(text: str, name: str) -> int | None:
+    """The index of the first mapping that holds the key `name` in the list an override gave, read back from
+    Hydra's "To append to your config use +key=[...]" (OmegaConf's own error names no index); None when unknown."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser  # lazy: a rare error's path
+
+    given = re.search(r"use \+(.+)$", text)
+    try:
+        value = OverridesParser.create().parse_override(given.group(1)).value() if given else None
+    except Exception:  # a value Hydra parsed once already: anything odd just names no index
+        return None
+    items = value if isinstance(value, list) else []
+    return next((i for i, item in enumerate(items) if isinstance(item, dict) and name in item), None)
 
 
 def _no_option(group: str, option: str, text: str) -> tuple[str, str]:

@@ -35,8 +35,13 @@ runner = CliRunner()
         (["check", "wrld.size=[3,3]"], r"key 'wrld': unknown key 'wrld'; valid keys under 'top level': .*", "world"),
         (
             ["check", "world.regions=[{nme:a}]"],  # OmegaConf names a list's mapping's key without the list
-            r"key 'world\.regions\.nme': unknown key 'nme'; valid keys under 'world\.regions': name, .*",
+            r"key 'world\.regions\.0\.nme': unknown key 'nme'; valid keys under 'world\.regions': name, .*",
             "name",
+        ),
+        (
+            ["check", "team.robots=2", "team.risk=[{measure: cvar, beta: 0.1}, {betta: 0.3}]"],  # its item's index
+            r"key 'team\.risk\.1\.betta': unknown key 'betta'; valid keys under 'team\.risk': measure, .*",
+            "beta",
         ),
         (["check", "risk.measure=cvr"], r"risk\.measure: got 'cvr'; expected a built-in measure \(cvar, .*\)", "cvar"),
         (
