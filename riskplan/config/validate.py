@@ -35,6 +35,7 @@ from riskplan.util.checks import finite, integer_at_least, require, require_inst
 SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias under the 64-bit stream keys
 NAME_LENGTH = 64  # characters of a name: the experiment's (a folder's), a source's or region's (a metric's)
 HIDDEN = ("Cc", "Cf", "Zl", "Zp", "Cs")  # Unicode categories a name may not hold: controls, format marks, breaks
+MIN_RESAMPLES = 40  # bootstrap resamples for a 95% percentile interval: 2.5% of them is at least one
 BYZANTINE_LIMIT = 1e100  # largest |value| and scale a byzantine robot sends (team.faults): squares stay finite
 
 # The values that need an optional extra: (key, value) -> (the module that provides it, what it is, the extra, a
@@ -208,6 +209,12 @@ def check_train(train: TrainConf) -> None:
     require(train.paths >= 0, keys.paths, f"got {train.paths}; expected >= 0")
     require(train.checkpoint_every >= 1, keys.checkpoint_every, f"got {train.checkpoint_every}; expected >= 1")
     require(train.bootstrap >= 1, keys.bootstrap, f"got {train.bootstrap}; expected >= 1 resamples")
+    if train.bootstrap < MIN_RESAMPLES:  # allowed (quick tests), but the 2.5% tails hold no resample of their own
+        warnings.warn(
+            f"{keys.bootstrap}={train.bootstrap} is too few resamples for a 95% interval (its bounds are the "
+            f"extreme resamples); use >= {MIN_RESAMPLES} (default 1000)",
+            stacklevel=3,
+        )
 
 
 def check_world(world: WorldConf) -> None:

@@ -66,8 +66,12 @@ def available_memory() -> float:
 
 def memory_budget() -> tuple[float, str]:
     """(bytes a run may use, how that limit was set)."""
-    if os.environ.get(MEMORY_ENV, "").strip():
-        return _env_number(MEMORY_ENV, 0) * 1e9, f"{MEMORY_ENV}"
+    text = os.environ.get(MEMORY_ENV, "").strip()
+    if text:
+        gigabytes = _env_number(MEMORY_ENV, 0)
+        if gigabytes < 1e-9:  # below one byte: a limit no run could meet, shown as "1e-311 B"
+            raise BadInput(MEMORY_ENV, f"got '{text}'; expected at least 1e-9 GB (one byte), or unset it")
+        return gigabytes * 1e9, f"{MEMORY_ENV}"
     return 0.8 * available_memory(), "80% of this machine's available memory"
 
 

@@ -4,6 +4,8 @@ that needs them (tests/engine/test_world.py, tests/engine/team/test_network.py, 
 
 from __future__ import annotations
 
+import warnings
+
 import pytest
 from support import bad_input, setup_of
 
@@ -20,6 +22,14 @@ def test_seeds_outside_0_to_2_63_are_bad_input(seed):
 
 def test_the_largest_seed_is_accepted():
     assert setup_of(f"seed={2**63 - 1}").config["seed"] == 2**63 - 1
+
+
+def test_too_few_bootstrap_resamples_for_a_95_percent_interval_warn():
+    with pytest.warns(UserWarning, match=r"^train.bootstrap=39 is too few resamples for a 95% interval .* use >= 40"):
+        compose(["train.bootstrap=39"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        compose(["train.bootstrap=40"])
 
 
 def test_unknown_order_is_bad_input():

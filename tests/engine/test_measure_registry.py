@@ -84,6 +84,25 @@ def test_a_config_selects_and_checks_a_packages_measure(installed):
 
 
 @pytest.mark.parametrize(
+    ("node", "message"),
+    [
+        (
+            {"measure": "wang", "eta": 0.75, "betta": 0.3},
+            r"^risk\.betta: not a key of a risk node; .*did you mean 'beta'\?$",
+        ),
+        ({"measure": "cvar", "gamma": 0.5}, r"^risk\.gamma: not a key .*under params\)$"),
+    ],
+)
+def test_a_mistyped_key_of_a_risk_mapping_is_refused_not_ignored(node, message):
+    """The measure ran at its default eta with 'betta' dropped; an unused key of the schema (beta for wang) is fine,
+    as in a config."""
+    z = np.random.default_rng(0).normal(size=1000)
+    with pytest.raises(BadInput, match=message):
+        objective(z, node)
+    assert objective(z, {"measure": "wang", "eta": 0.75, "beta": 0.3}) == objective(z, {"measure": "wang", "eta": 0.75})
+
+
+@pytest.mark.parametrize(
     ("module", "points", "message"),
     [
         (

@@ -9,7 +9,7 @@ import pytest
 
 from riskplan.experiments.reporting.parallel import WORKERS_ENV, workers
 from riskplan.util.errors import BadInput
-from riskplan.util.limits import JOBS_ENV, check_numba_threads, duration, job_budget
+from riskplan.util.limits import JOBS_ENV, MEMORY_ENV, check_numba_threads, duration, job_budget, memory_budget
 
 
 @pytest.mark.parametrize("value", ["0.5", "1.9"])
@@ -20,6 +20,15 @@ def test_a_job_limit_is_a_whole_number(monkeypatch, value):
         job_budget()
     monkeypatch.setenv(JOBS_ENV, "2.0")
     assert job_budget() == 2
+
+
+@pytest.mark.parametrize("value", ["1e-320", "1e-10"])
+def test_a_memory_limit_below_one_byte_is_refused_not_shown_as_1e_311_bytes(monkeypatch, value):
+    monkeypatch.setenv(MEMORY_ENV, value)
+    with pytest.raises(BadInput, match=rf"^{MEMORY_ENV}: got '{value}'; expected at least 1e-9 GB \(one byte\)"):
+        memory_budget()
+    monkeypatch.setenv(MEMORY_ENV, "1e-9")
+    assert memory_budget() == (1.0, MEMORY_ENV)
 
 
 def test_a_duration_below_a_second_keeps_its_digits():

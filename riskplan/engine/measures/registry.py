@@ -5,11 +5,12 @@ scans the installed packages). A risk node resolves here to its measure and chec
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from enum import Enum
 from typing import Any, NamedTuple
 
-from riskplan.config.schema import RiskplanConf
+from riskplan.config.schema import RiskConf, RiskplanConf
 from riskplan.engine.measures.base import Measure, Params, field
 from riskplan.engine.measures.cvar import CVaR
 from riskplan.engine.measures.entropic import Entropic
@@ -96,8 +97,19 @@ def risk_spec(risk: Any, where: str = "risk") -> RiskSpec:
     first bad key below `where`."""
     if not isinstance(risk, Mapping) and not hasattr(risk, "measure"):  # "cvar" alone read as a node of no measure
         raise BadInput(where, f"got {risk!r}; give a risk node, a mapping such as {{'measure': 'cvar', 'beta': 0.1}}")
+    if isinstance(risk, Mapping):  # a mistyped key ('betta') was ignored: the measure ran at its default
+        for key in risk:
+            if key not in NODE_KEYS:
+                raise BadInput(
+                    f"{where}.{key}",
+                    f"not a key of a risk node; expected one of {', '.join(NODE_KEYS)} (a package's measure takes "
+                    f"its parameters under params){did_you_mean(key, NODE_KEYS)}",
+                )
     measure = lookup(field(risk, "measure"), f"{where}.measure")
     return RiskSpec(measure, measure.params_of(risk, where))
+
+
+NODE_KEYS = tuple(f.name for f in dataclasses.fields(RiskConf))  # measure, beta, eta, weight, schedule, params
 
 
 def check_risk_nodes(params: RiskplanConf) -> None:
