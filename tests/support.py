@@ -41,7 +41,7 @@ from riskplan.util.lock import holder
 # The fastest overrides that still make a meaningful run: a few iterations, every output written (a checkpoint, the
 # evaluation, the bootstrap intervals, one path per policy). A test that needs other numbers adds them after it
 # ([*TINY, "train.iterations=12", ...]: the last value of a key wins), so the differences are visible.
-TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=10", "train.paths=1"]
+TINY = ["train.iterations=3", "train.samples=200", "train.eval_episodes=200", "train.bootstrap=40", "train.paths=1"]
 # A little more of everything (the `fast_overrides` fixture): the CLI, sweep, report and reproduce tests, whose
 # assertions know these numbers (5 iterations, 500 samples per robot).
 FAST = ["train.iterations=5", "train.samples=500", "train.eval_episodes=2000", "train.bootstrap=50", "train.paths=3"]

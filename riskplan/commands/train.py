@@ -279,8 +279,14 @@ def summary_line(summary: dict, out: Path) -> str:
         if resumed
         else f"{summary['iterations']} iterations in {summary['wall_time']:.2f} s"
     )
+    own_measures = [r["objective_at_average"].get("measure") for r in summary.get("robots") or []]
+    mixed = (  # team.risk: the robots' own measures and their sum, beside the measure the figures report
+        f" (own measures: {', '.join(map(str, own_measures))}; team objective {fig('team_objective')})"
+        if set(own_measures) - {summary["risk"]}
+        else ""
+    )
     return (
-        f"{summary['experiment']} risk={summary['risk']}{trained} robots={robots}: {loop} | eval "
+        f"{summary['experiment']} risk={summary['risk']}{trained} robots={robots}{mixed}: {loop} | eval "
         f"{summary['eval_episodes']} episodes: {objective}mean {fig('mean')}, CVaR_{beta} {fig('cvar')}, "
         f"VaR_{beta} {fig('value_at_risk')} | P(risky) {summary['risky_fraction']:.1%} | reached {reached} -> {out}"
     )

@@ -18,7 +18,7 @@ from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 from riskplan.run.training import train_summary
 
-SMALL_EVALUATION = ["train.eval_episodes=1000", "train.bootstrap=10", "train.paths=2"]  # the loop is what is timed
+SMALL_EVALUATION = ["train.eval_episodes=1000", "train.bootstrap=40", "train.paths=2"]  # the loop is what is timed
 TARGET = 1.0  # the recorded loop at most this many times the plain loop's time
 
 

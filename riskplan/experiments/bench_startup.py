@@ -67,7 +67,7 @@ def first(self, *args):
         sys.__stderr__.flush()
     return update(self, *args)
 progress.TrainingBar.update = first
-sys.argv = ["riskplan", "train", "train.iterations=3", "train.eval_episodes=1000", "train.bootstrap=10",
+sys.argv = ["riskplan", "train", "train.iterations=3", "train.eval_episodes=1000", "train.bootstrap=40",
             "train.paths=1"]
 import runpy
 runpy.run_module("riskplan", run_name="__main__")  # python -m riskplan train ...

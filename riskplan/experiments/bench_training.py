@@ -22,7 +22,7 @@ def bench_training(quick: bool) -> list[dict]:
     """200 iterations at W = 6000 with logging and checkpoints, evaluation excluded; memory over import."""
     import_rss = rss_mb()
     cfg = compose(
-        ["train.eval_episodes=1000", "train.bootstrap=10", "train.paths=2"] + (["train.iterations=50"] if quick else [])
+        ["train.eval_episodes=1000", "train.bootstrap=40", "train.paths=2"] + (["train.iterations=50"] if quick else [])
     )
     reset_peak()
     with tempfile.TemporaryDirectory() as tmp:
@@ -62,7 +62,7 @@ def bench_checkpoints(quick: bool) -> list[dict]:
         "train.samples=20",
         f"train.iterations={iterations}",
         "train.eval_episodes=100",
-        "train.bootstrap=5",
+        "train.bootstrap=40",
         "train.paths=1",
     ]
     walls = {}

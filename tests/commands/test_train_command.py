@@ -132,10 +132,21 @@ def test_the_run_line_names_beta_only_where_it_was_trained_and_the_level_of_ever
     cvar = summary_line(EXAMPLE, Path("out"))
     assert f"risk=cvar beta=0.1 robots=1: 200 iterations in {EXAMPLE['wall_time']:.2f} s" in cvar
     assert "CVaR_0.1 1442.4 [1440.6, 1444.1]" in cvar and "VaR_0.1 1504.9" in cvar
-    neutral = summary_line(
-        {**EXAMPLE, "risk": "neutral", "objective": {**EXAMPLE["objective"], "measure": "neutral"}}, "o"
-    )
+    objective = {**EXAMPLE["objective"], "measure": "neutral"}
+    robots = [{**EXAMPLE["robots"][0], "objective_at_average": objective}]
+    neutral = summary_line({**EXAMPLE, "risk": "neutral", "objective": objective, "robots": robots}, "o")
     assert "risk=neutral robots=1:" in neutral and "beta=" not in neutral and "CVaR_0.1 " in neutral
+
+
+def test_a_team_of_its_own_measures_says_them_and_its_team_objective_beside_the_reported_measure():
+    from riskplan.commands.train import summary_line
+
+    own = [{"objective_at_average": {**EXAMPLE["objective"], "measure": m}} for m in ("cvar", "wang")]
+    team = {"value": 2458.87, "low": 1988.94, "high": 2864.64}
+    line = summary_line({**EXAMPLE, "robots": own, "team_objective": team}, "o")
+    assert "risk=cvar beta=0.1 robots=1 (own measures: cvar, wang; team objective 2458.9 [1988.9, 2864.6]): " in line
+    same = [{"objective_at_average": EXAMPLE["objective"]}] * 2
+    assert "own measures" not in summary_line({**EXAMPLE, "robots": same, "team_objective": team}, "o")
 
 
 def test_a_resumed_run_line_says_which_part_its_time_is():

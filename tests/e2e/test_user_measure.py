@@ -24,7 +24,7 @@ from riskplan.run.build import build_setup
 
 POWER = ["risk.measure=power", "risk.params.gamma=0.5"]
 SAMPLES = 200_000  # the first step's episodes: 16 batches of 12,500 give its standard error
-QUICK = ["train.eval_episodes=1000", "train.bootstrap=20", "train.paths=1"]
+QUICK = ["train.eval_episodes=1000", "train.bootstrap=40", "train.paths=1"]
 runner = CliRunner()
 
 

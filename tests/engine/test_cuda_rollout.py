@@ -107,7 +107,7 @@ TRAIN = [
     "train.samples=24",
     "train.eval_episodes=40",
     "train.paths=2",
-    "train.bootstrap=20",
+    "train.bootstrap=40",
     "train.checkpoint_every=2",
     "seed=4",
 ]

@@ -49,7 +49,7 @@ from riskplan.util.errors import BadInput, MissingExtra
 
 HAVE_RAY = importlib.util.find_spec("ray") is not None
 needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="ray is not installed here (pip install 'riskplan[distributed]')")
-SMALL = ["train.samples=400", "train.eval_episodes=1000", "train.bootstrap=20", "train.paths=1"]
+SMALL = ["train.samples=400", "train.eval_episodes=1000", "train.bootstrap=40", "train.paths=1"]
 TIMEOUT = 600
 
 
@@ -495,7 +495,7 @@ LONG = [
     f"train.iterations={LONG_ITERATIONS}",
     "train.samples=3000",
     "train.eval_episodes=1000",
-    "train.bootstrap=20",
+    "train.bootstrap=40",
     "train.paths=1",
     "train.checkpoint_every=5",
     "team.speeds=[40,40,40]",  # an iteration sleeps 39x its compute: a signal lands mid-run however loaded the machine

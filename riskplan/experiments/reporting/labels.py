@@ -4,6 +4,7 @@ collect` groups the runs and labels them here)."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from typing import Any, Protocol
@@ -92,6 +93,7 @@ def _describe(group: Group, keys: list[str], single: bool = False) -> str:
     keys = list(keys)
     handled = {KEYS.risk.measure, KEYS.risk.beta, KEYS.team.robots}
     risk = _risk(group)
+    measure_named = False
     if (
         {KEYS.risk.measure, KEYS.risk.beta} & set(keys)
         or single
@@ -100,12 +102,16 @@ def _describe(group: Group, keys: list[str], single: bool = False) -> str:
         # the measure's own label (riskplan.engine.measures), with a reporting β where it tells groups apart
         beta = group.beta if KEYS.risk.beta in keys and KEYS.risk.measure not in keys else None
         parts.append(label(risk, beta=beta))  # CVaR's β always: one name in every report
+        measure_named = True
         handled |= {KEYS.risk.eta, KEYS.risk.weight} | {k for k in keys if k.startswith(f"{KEYS.risk.params}.")}
     if KEYS.team.robots in keys or single:
         parts.append(team_name(group))
     if {KEYS.policy.kind, KEYS.policy.features} & set(keys):
         parts.append(policy_name(group))
         handled |= {KEYS.policy.kind, KEYS.policy.features}
+    if KEYS.team.risk in keys or (single and group.team_conf.get("risk")):
+        parts.append(team_risk_name(group, named=measure_named))
+        handled.add(KEYS.team.risk)
     if {KEYS.team.faults, KEYS.team.aggregate, KEYS.team.trim} & set(keys):
         parts.append(fault_name(group))
         handled |= {KEYS.team.faults, KEYS.team.aggregate, KEYS.team.trim}
@@ -137,6 +143,20 @@ def measure_name(group: Group, beta: bool = True) -> str:
 def team_name(group: Group) -> str:
     """'centralized', or 'distributed N=3': a group's team as labels and the figures' names say it."""
     return f"distributed N={group.robots}" if group.team else "centralized"
+
+
+def team_risk_name(group: Group, named: bool = False) -> str:
+    """The robots' own measures (team.risk), in the robots' order, a run of equal ones counted: 'own measures:
+    risk-averse (CVaR β=0.2) ×2 | Wang (η=0.5)'; without team.risk, 'one measure for all: Wang (η=0.5)' (its name
+    left out when the label `named` it already)."""
+    nodes = group.team_conf.get("risk")
+    if not nodes:
+        return "one measure for all" if named else f"one measure for all: {measure_name(group)}"
+    names = [label(node) for node in nodes]
+    return "own measures: " + " | ".join(
+        f"{name} ×{count}" if count > 1 else name
+        for name, count in ((name, len(list(run))) for name, run in itertools.groupby(names))
+    )
 
 
 def _risk(group: Group) -> dict:

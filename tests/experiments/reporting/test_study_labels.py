@@ -127,6 +127,24 @@ def test_policies_and_faults_are_labelled_by_what_they_are():
     assert free.label == "fault-free, mean"
 
 
+def test_teams_of_their_own_measures_are_labelled_by_them_not_by_the_reported_one():
+    """Groups that differed in team.risk alone were labelled by its JSON cut at 40 characters."""
+    cvar, wang = {"measure": "cvar", "beta": 0.2}, {"measure": "wang", "eta": 0.5}
+    teams = [
+        {"team": {"robots": 3, "risk": [cvar, cvar, wang]}, **risk("cvar")},
+        {"team": {"robots": 3, "risk": [wang, cvar, cvar]}, **risk("cvar")},
+        {"team": {"robots": 3, "risk": None}, **risk("cvar")},
+    ]
+    groups, _ = group_runs([fake_run(c) for c in teams])
+    assert sorted(g.label for g in groups) == [
+        "one measure for all: risk-averse (CVaR β=0.1)",
+        "own measures: Wang (η=0.5) | risk-averse (CVaR β=0.2) ×2",
+        "own measures: risk-averse (CVaR β=0.2) ×2 | Wang (η=0.5)",
+    ]
+    (lone,), _ = group_runs([fake_run(teams[0])])
+    assert lone.label.endswith(", own measures: risk-averse (CVaR β=0.2) ×2 | Wang (η=0.5)")
+
+
 def test_a_tabular_theta_is_summarised_in_the_runs_table():
     assert theta_text([46.4676, -0.45859]) == "46.468 -0.459"
     assert theta_text([float(v) for v in range(720)]) == "720 values in [0.000, 719.000]"

@@ -168,7 +168,7 @@ def test_runs_that_share_their_world_config_share_the_built_world(compositions):
     assert build.build_setup(wider.params).world is not first.world
 
 
-SMALL = ["train.iterations=2", "train.samples=40", "train.eval_episodes=50", "train.bootstrap=5", "train.paths=2"]
+SMALL = ["train.iterations=2", "train.samples=40", "train.eval_episodes=50", "train.bootstrap=40", "train.paths=2"]
 ARGS = ["seed=0,1", "risk.beta=0.1,1", *SMALL]
 LISTS = [  # lists, typed entries with a Choice, a mapping merged into the key's own
     "experiment=paper_team",
