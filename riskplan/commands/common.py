@@ -36,9 +36,13 @@ class OneLineErrors(TyperGroup):
                 message = " ".join(err.format_message().split())
                 typer.echo(f"error: {where}: {message} (see {where} --help)", err=True)
             code = err.exit_code
-        except typer.Abort:
-            typer.echo("aborted", err=True)
-            code = 1
+        except typer.Abort as err:
+            if isinstance(err.__cause__, KeyboardInterrupt):  # click's answer to Ctrl-C: the shell's code for it
+                typer.echo("error: interrupted by SIGINT", err=True)
+                code = 130
+            else:
+                typer.echo("aborted", err=True)
+                code = 1
         if not standalone_mode:
             return code
         sys.exit(code if isinstance(code, int) else 0)

@@ -36,6 +36,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import shlex
+import signal
 import sys
 import time
 import warnings
@@ -68,6 +69,7 @@ from riskplan.run.build import build_setup
 from riskplan.run.compose import check_extras, check_groups, compose, parse_overrides
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
+from riskplan.util.interrupt import StopSignals
 from riskplan.util.limits import JOBS_ENV, STEPS_PER_SECOND, check_time, cpu_count, job_budget
 from riskplan.util.paths import check_output_dir, claim_dir, write_atomic
 from riskplan.util.progress import PhaseBars
@@ -267,25 +269,36 @@ def schedule_of(
 
 def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict | None = None, warmed=None) -> int:
     """The reproduction into `target`, whose lock this process holds (`clock`: when reproduce() was entered and
-    when its checks ended, for the time breakdown; `warmed`: waits for the warmed-up workers, see _warm_workers)."""
+    when its checks ended, for the time breakdown; `warmed`: waits for the warmed-up workers, see _warm_workers).
+
+    Ctrl-C (or SIGTERM) stops it: a sweep checkpoints its jobs and ends, and no later stage starts; during the
+    report, the report stops. Either way one line says how to resume (finished jobs are skipped)."""
     started = time.time()
     warm_up: dict = {}
     record = _start(target, options, schedule)
-    code, outcomes = _run_sweeps(target, options, schedule, record, _waiter(warmed, warm_up))
-    if warm_up:
-        record["warm_up"] = warm_up
-    stop_workers()  # before the report, which may fork: no idle workers, nor their threads, in this process
-    if not options.paper_only:
-        typer.echo(f"\n{schedule.header('landscape')}")
-        tic = time.time()
-        record["parts"]["landscape"] = _landscape(target / "landscape", options.quick, list(options.overrides))
-        schedule.finished("landscape", time.time() - tic, whole="skipped" not in record["parts"]["landscape"])
+    with StopSignals() as stop:  # a signal between or inside the stages is noted; each stage is checked below
+        code, outcomes, stage = _run_sweeps(target, options, schedule, record, _waiter(warmed, warm_up), stop)
+        if warm_up:
+            record["warm_up"] = warm_up
+        stop_workers()  # before the report, which may fork: no idle workers, nor their threads, in this process
+        if stop.received is None and not options.paper_only:
+            typer.echo(f"\n{schedule.header('landscape')}")
+            tic = time.time()
+            stage = "landscape"
+            record["parts"]["landscape"] = _landscape(target / "landscape", options.quick, list(options.overrides))
+            schedule.finished("landscape", time.time() - tic, whole="skipped" not in record["parts"]["landscape"])
+        signum = stop.received
+    if signum is not None:
+        return _stopped(target, options, record, signal.Signals(signum), stage, outcomes)
     tic = time.time()
     _print_comparison(outcomes)
     record["parts"]["comparison"] = {"seconds": round(time.time() - tic, 2)}
     typer.echo(f"\n{schedule.header('report')}")
     tic = time.time()
-    code = max(code, _report(target, options, record))
+    try:
+        code = max(code, _report(target, options, record))
+    except KeyboardInterrupt:  # the report's forked children ignore Ctrl-C; this process stops drawing
+        return _stopped(target, options, record, signal.SIGINT, "report", outcomes)
     schedule.finished("report", time.time() - tic, whole=code == 0)
     record["seconds"] = round(time.time() - started, 2)
     total = _breakdown(record, clock or {}, started, options)
@@ -298,6 +311,21 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
             err=True,
         )
     return code
+
+
+def _stopped(target: Path, options: Options, record: dict, signum: signal.Signals, stage: str, outcomes) -> int:
+    """A reproduction a signal stopped during `stage`: reproduce.json says so, one line says what is kept and how to
+    resume; the shell's code for the signal (130 for Ctrl-C)."""
+    unfinished = sum(len(outcome.failed) for outcome in outcomes if outcome.interrupted is not None)
+    kept = f": {unfinished} job{'s' if unfinished != 1 else ''} did not finish (each keeps its last checkpoint)"
+    record["interrupted"] = {"signal": signum.name, "stage": stage}
+    write_atomic(target / RECORD, json.dumps(record, indent=2))
+    typer.echo(
+        f"error: interrupted by {signum.name} during {stage}{kept if unfinished else ''}; resume with riskplan "
+        f"reproduce {_again(target, options)} (finished jobs are skipped)",
+        err=True,
+    )
+    return 128 + signum
 
 
 def _waiter(warmed, warm_up: dict):
@@ -338,12 +366,19 @@ def _start(target: Path, options: Options, schedule: Schedule) -> dict:
     }
 
 
-def _run_sweeps(target: Path, options: Options, schedule: Schedule, record: dict, before_launch) -> tuple[int, list]:
-    """Every experiment's sweep into its folder, each noted in record["parts"]; the exit code and the outcomes."""
+def _run_sweeps(
+    target: Path, options: Options, schedule: Schedule, record: dict, before_launch, stop: StopSignals
+) -> tuple[int, list, str]:
+    """Every experiment's sweep into its folder, each noted in record["parts"], until a signal stops one (`stop`
+    noted it, or the sweep was interrupted); the exit code, the outcomes and the last stage started."""
     code = 0
     outcomes = []
     seeds = options.seeds
+    stage = "the start"
     for folder, what, experiment, most in options.experiments:
+        if stop.received is not None:
+            break
+        stage = f"{folder}/"
         args = [*experiment, f"seed=range(0,{min(seeds, most or seeds)})", *_not_set_by(experiment, options.extra)]
         typer.echo(f"\n{schedule.header(folder)}\n{what}\n  riskplan sweep {' '.join(_shell(a) for a in args)}")
         tic = time.time()
@@ -370,7 +405,9 @@ def _run_sweeps(target: Path, options: Options, schedule: Schedule, record: dict
             "wall": round(toc - tic, 2),
             "timing": sweep_timing(outcome, tic, toc),
         }
-    return code, outcomes
+        if outcome.interrupted is not None and stop.received is None:
+            stop.received = outcome.interrupted  # the sweep's own handler took the signal
+    return code, outcomes, stage
 
 
 def _report(target: Path, options: Options, record: dict) -> int:
@@ -382,8 +419,9 @@ def _report(target: Path, options: Options, record: dict) -> int:
             page = build_report([target], target / "report", options.formats, progress=progress)
         typer.echo(f"report: {page}")
         record["parts"]["report"] = {"seconds": round(time.time() - tic, 2), "page": str(page)}
-    except BadInput:
-        raise
+    except BadInput as err:  # what the runs left cannot be reported (none finished): the input was fine, exit 1
+        typer.echo(f"error: no report: {err}", err=True)
+        return 1
     except Exception as err:
         typer.echo(
             f"error: the report failed: {type(err).__name__}: {err} "

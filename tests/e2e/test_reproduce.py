@@ -4,15 +4,19 @@ and sizes beyond the limits are refused before anything runs."""
 from __future__ import annotations
 
 import json
+import os
 import re
+import signal
 
 import pandas as pd
 import pytest
-from support import FAST, riskplan_cli
+from support import FAST, TINY, riskplan_cli
 from typer.testing import CliRunner
 
 from riskplan.cli import app
+from riskplan.experiments import reproduction
 from riskplan.experiments.bench_reproduce import read_reproduction
+from riskplan.experiments.sweeping import batched
 
 pytestmark = pytest.mark.slow
 runner = CliRunner()
@@ -160,3 +164,64 @@ def test_reproduce_seeds_are_bounded(in_tmp, monkeypatch):
         result = runner.invoke(app, ["reproduce", "--seeds", "3"])
     assert result.exit_code == 2 and "RISKPLAN_MAX_HOURS" in result.stderr and len(result.stderr.splitlines()) == 1
     assert not (in_tmp / "outputs").exists()
+
+
+# Ctrl-C and failures in this process (typer's runner): a signal sent to this process is the user's Ctrl-C
+FIGURES = ["mean", "cvar", "value_at_risk"]
+
+
+def _reproduce_args(out) -> list[str]:
+    return ["reproduce", "--quick", "--paper-only", "--seeds", "1", "--format", "png", "--out", str(out), *TINY]
+
+
+def test_ctrl_c_in_a_stage_stops_the_reproduction_there_and_it_resumes_to_the_same_numbers(tmp_path, monkeypatch):
+    """Ctrl-C stopped only the sweep training at the time: the later stages and the report ran on, and the last
+    line said to resume with `riskplan sweep`."""
+    plain = runner.invoke(app, _reproduce_args(tmp_path / "plain"))
+    assert plain.exit_code == 0, plain.stderr
+    prepare = batched.prepare_jobs
+
+    def prepare_then_ctrl_c(*args, **kwargs):
+        prepared = prepare(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)  # as single/'s jobs are set up
+        return prepared
+
+    monkeypatch.setattr(batched, "prepare_jobs", prepare_then_ctrl_c)
+    stopped = runner.invoke(app, _reproduce_args(tmp_path / "r"))
+    assert stopped.exit_code == 130, stopped.stderr
+    last = stopped.stderr.splitlines()[-1]
+    assert last.startswith("error: interrupted by SIGINT during single/: 2 jobs did not finish (each keeps its last ")
+    assert f"resume with riskplan reproduce --out {tmp_path / 'r'} --quick --paper-only --seeds 1 " in last
+    assert "riskplan sweep" not in stopped.stderr
+    assert not (tmp_path / "r" / "team").exists() and not (tmp_path / "r" / "report").exists()  # nothing after it
+    record = json.loads((tmp_path / "r" / "reproduce.json").read_text())
+    assert record["interrupted"] == {"signal": "SIGINT", "stage": "single/"}
+
+    monkeypatch.setattr(batched, "prepare_jobs", prepare)
+    again = runner.invoke(app, _reproduce_args(tmp_path / "r"))
+    assert again.exit_code == 0, again.stderr
+    assert "interrupted" not in json.loads((tmp_path / "r" / "reproduce.json").read_text())
+    for folder in ("single", "team"):
+        figures = [
+            pd.read_parquet(root / folder / "summary.parquet")[FIGURES] for root in (tmp_path / "plain", tmp_path / "r")
+        ]
+        pd.testing.assert_frame_equal(*figures)
+
+
+def test_ctrl_c_in_the_report_stops_it_with_one_line(tmp_path, monkeypatch):
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt  # what Ctrl-C raises in this process while it draws
+
+    monkeypatch.setattr(reproduction, "build_report", ctrl_c)
+    stopped = runner.invoke(app, _reproduce_args(tmp_path / "r"))
+    assert stopped.exit_code == 130
+    assert stopped.stderr.splitlines()[-1].startswith("error: interrupted by SIGINT during report; resume with ")
+    assert "Traceback" not in stopped.stderr
+
+
+def test_a_reproduction_whose_every_job_failed_exits_1_not_2(tmp_path):
+    """Its report stage found no run to report and said so as bad input (exit 2), though the input was fine."""
+    failed = runner.invoke(app, [*_reproduce_args(tmp_path / "r"), "train.step_size.initial=1.7e308"])
+    assert failed.exit_code == 1, failed.stderr
+    assert "error: no report: " in failed.stderr and "theta or its gradient is not finite" in failed.stderr
+    assert failed.stderr.splitlines()[-1].startswith("to retry what did not finish (finished jobs are skipped): ")

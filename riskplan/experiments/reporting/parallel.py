@@ -30,6 +30,7 @@ import gc
 import multiprocessing
 import multiprocessing.connection
 import os
+import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
@@ -207,5 +208,8 @@ def _share(
 
 
 def _child(function: Callable[[Any], Any], items: Sequence, order: list[int], counter, finished, send) -> None:
+    # Ctrl-C reaches the whole process group: the parent stops the report; a child's KeyboardInterrupt would only
+    # print its traceback ("Process ForkProcess-4: ...") before the parent's one line
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     send.send(_share(function, items, order, counter, finished))
     send.close()

@@ -207,7 +207,8 @@ def print_table(frame, title: str, limit: int = 40) -> None:
 
 
 def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) -> int:
-    """Print the summary table and the failures; return the exit code (0, or 1 when a job failed)."""
+    """Print the summary table and the failures; return the exit code (0, or 1 when a job failed, 128 + the
+    signal when one stopped the sweep). `hint`: say how to retry or resume (the caller does otherwise)."""
     print_table(outcome.summary, f"{title}: {outcome.sweep_dir}")
     repeats = outcome.summary["duplicate_of"].notna().sum() if "duplicate_of" in outcome.summary else 0
     if repeats:
@@ -228,6 +229,8 @@ def report_outcome(outcome: Outcome, title: str = "sweep", hint: bool = True) ->
     )
     if outcome.best:
         typer.echo(outcome.best)
+    if outcome.interrupted is not None and not hint:  # the caller says how to resume (riskplan reproduce)
+        return 128 + outcome.interrupted
     if outcome.interrupted is not None:  # one line: what stopped it, and the command that resumes it
         stopped = sum(1 for _, error in outcome.failed)
         typer.echo(
