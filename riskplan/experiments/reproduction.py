@@ -476,7 +476,7 @@ def _check_overrides(overrides: list[str], quick: bool) -> tuple[list[str], dict
                 f"override '{override.input_line}'",
                 "is set by reproduce; use --seeds N, or riskplan sweep for other experiments",
             )
-    extra = [*(QUICK if quick else []), *overrides]
+    extra = [*_not_set_by(overrides, QUICK if quick else []), *overrides]  # the user's value over --quick's
     configs, own = {}, {}
     for _, _, experiment, _ in EXPERIMENTS:  # each set-up once, not per experiment: its plain overrides
         setup = setup_of(experiment)

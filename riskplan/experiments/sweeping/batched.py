@@ -16,6 +16,7 @@ import functools
 import json
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -280,7 +281,9 @@ def train_part(
     arrive()  # in a worker process: it ends with the driver
     started = time.perf_counter()
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-    setups = [s if isinstance(s, RunSetup) else build_setup(s) for s in setups]
+    with warnings.catch_warnings():  # a config's warnings are the driver's to give: it printed them as it planned
+        warnings.simplefilter("ignore", UserWarning)
+        setups = [s if isinstance(s, RunSetup) else build_setup(s) for s in setups]
     runs = [BatchRun(setup, Path(out), resume) for setup, out, resume in zip(setups, outs, resumes)]
     freed = FreedCores(threads, list(siblings))
     shown = {"at": 0.0, "done": 0}

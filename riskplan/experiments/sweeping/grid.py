@@ -580,3 +580,19 @@ class JobConfigs:
     def compose(self, overrides: list[str]):
         """The sweep config of these overrides, composed by Hydra."""
         return self.loader.load_sweep_config(self.master, overrides)
+
+
+def check_repeats(overrides: list) -> None:
+    """A swept key given again later: Hydra keeps the last, so `seed=1,2 seed=3` dropped a dimension of the sweep
+    unsaid. A plain value given again is Hydra's "the last wins" (a base list of overrides, then the sweep)."""
+    swept: dict[str, str] = {}
+    for o in overrides:
+        key = o.key_or_group
+        if key in swept:
+            raise BadInput(
+                key,
+                f"swept by '{swept[key]}', then given again as '{o.input_line}', which would replace the sweep; give "
+                f"it once, with every value to sweep: {key}=a,b,c",
+            )
+        if o.is_sweep_override():
+            swept[key] = o.input_line

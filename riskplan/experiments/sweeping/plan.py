@@ -14,6 +14,7 @@ from riskplan.experiments.sweeping.grid import (
     add_naming_and_logging,
     check_duplicates,
     check_hydra,
+    check_repeats,
     check_size,
     check_subdir,
     constant_keys,
@@ -53,6 +54,7 @@ def plan_sweep(
     _check_options(args)
     args = expand_shorthands(args)  # risk.schedule=none,linear -> risk.schedule.kind=none,linear
     parsed = parse_overrides(args)
+    check_repeats(parsed)
     hydra_ovs = [o for o in parsed if o.is_hydra_override()]
     task_ovs = [o for o in parsed if not o.is_hydra_override()]
     _check_hydra_overrides(hydra_ovs)
@@ -63,6 +65,8 @@ def plan_sweep(
     batch = default_batch(hydra_keys, jobs) if batch is None else batch
     launcher = _launcher(hydra_keys, jobs, batch)
     memory = batch_memory(hydra_keys) if launcher == BATCH_LAUNCHER else None
+    if launcher == BATCH_LAUNCHER:
+        check_batch_workers(hydra_keys)
     tasks = task_size(hydra_keys, jobs, launcher) if batch and launcher in CLUSTER_BATCHES else None
     explicit_dir = _explicit_dir(hydra_keys, sweep_dir)
     if sweep_dir is not None:  # a reproduction's study
@@ -242,7 +246,23 @@ def batch_memory(hydra_keys: dict) -> tuple[float, str] | None:
         gb = math.nan
     if isinstance(value, bool) or not (math.isfinite(gb) and gb > 0):
         raise BadInput(MEMORY_KEY, f"got {value!r}; expected a positive number of GB that a batch may use, e.g. 4")
+    if gb < 1e-9:  # below one byte: no batch fits, and the plan said "within the 0.001 B memory budget"
+        raise BadInput(MEMORY_KEY, f"got {value!r}; expected at least 1e-9 GB (one byte) that a batch may use, e.g. 4")
     return gb * 1e9, MEMORY_KEY
 
 
+def check_batch_workers(hydra_keys: dict) -> None:
+    """hydra.launcher.workers, the processes a batch is split over: a whole number >= 1 when given (0 and -1 passed
+    unnoticed, as the default)."""
+    if WORKERS_KEY not in hydra_keys:
+        return
+    value = hydra_keys[WORKERS_KEY].value()
+    if value is None or (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+        return
+    raise BadInput(
+        WORKERS_KEY, f"got {value!r}; expected a whole number of processes >= 1, or null (one per core for large work)"
+    )
+
+
 MEMORY_KEY = "hydra.launcher.memory_gb"
+WORKERS_KEY = "hydra.launcher.workers"

@@ -5,6 +5,7 @@ and batches cut to the memory budget."""
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -12,7 +13,7 @@ import numba
 import pandas as pd
 import pytest
 import yaml
-from support import FAST, assert_same_outputs, riskplan_cli
+from support import FAST, TINY, assert_same_outputs, riskplan_cli
 from test_sweep_command import job_dirs, sweep_dir_of
 
 from riskplan import compose, train
@@ -179,6 +180,29 @@ def test_a_memory_limit_that_is_not_a_positive_number_is_bad_input(tmp_path, mon
     assert not (tmp_path / "outputs").exists()
 
 
+@pytest.mark.parametrize(
+    "override, expected",
+    [
+        ("hydra.launcher.memory_gb=1e-12", "got 1e-12; expected at least 1e-9 GB (one byte) that a batch may use"),
+        ("hydra.launcher.workers=0", "got 0; expected a whole number of processes >= 1, or null"),
+        ("hydra.launcher.workers=-1", "got -1; expected a whole number of processes >= 1, or null"),
+        ("hydra.launcher.workers=1.5", "got 1.5; expected a whole number of processes >= 1, or null"),
+    ],
+)
+def test_batch_settings_no_batch_could_use_are_bad_input(tmp_path, monkeypatch, override, expected):
+    """A limit below one byte planned "within the 0.001 B memory budget"; workers 0 and -1 ran as the default."""
+    from typer.testing import CliRunner
+
+    from riskplan.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["sweep", "seed=0,1", *FAST, "--batch", override])
+    assert result.exit_code == 2, result.output
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith(f"error: {override.partition('=')[0]}: {expected}")
+    assert not (tmp_path / "outputs").exists()
+
+
 def test_a_batched_job_gets_its_own_share_of_its_part():
     """A finished run's own seconds, plus an equal share of what the part spent on no run alone; a failed run
     (no own seconds) gets only that share; together they are the part's time."""
@@ -246,3 +270,17 @@ def test_a_part_whose_siblings_finished_evaluates_on_both_cores_to_the_same_numb
     assert threads == [1, 1, 2, 2]
     for seed in (0, 1):
         assert_same_outputs(tmp_path / "freed" / f"seed={seed}", tmp_path / "alone" / f"seed={seed}")
+
+
+def test_a_part_built_in_a_worker_leaves_its_configs_warnings_to_the_driver(tmp_path):
+    """A worker's part printed Python's raw warning (path, line, source) for each run, after the driver's own line."""
+    config = compose([*TINY, "train.step_size.power=0.3"])  # the driver's planning warned here
+    before = numba.get_num_threads()  # train_part sets this thread's: put back after
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            (record,) = train_part([config], [tmp_path / "job"], [False], 1, tmp_path / "progress.0.json", 3)
+    finally:
+        numba.set_num_threads(before)
+    assert record["status"] == "done"
+    assert not [w for w in caught if issubclass(w.category, UserWarning)]

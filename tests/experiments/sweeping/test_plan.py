@@ -4,6 +4,7 @@ claims no directory. The same sweeps run through the CLI in test_sweep_command.p
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -48,3 +49,14 @@ def test_bad_input_claims_no_directory(in_tmp, args):
     with pytest.raises(BadInput):
         plan_sweep([*args, *TINY])
     assert not (in_tmp / "outputs").exists()
+
+
+@pytest.mark.parametrize("args", [["seed=1,2", "seed=3"], ["seed=range(0,2)", "seed=range(0,2)"]])
+def test_a_swept_key_given_again_is_refused_not_replaced(in_tmp, args):
+    """Hydra keeps the last value: `seed=1,2 seed=3` ran seed 3 alone, a dimension of the sweep gone unsaid."""
+    with pytest.raises(BadInput, match=rf"^seed: swept by '{re.escape(args[0])}', then given again as "):
+        plan_sweep([*args, *TINY], jobs=1)
+    assert not Path("outputs").exists()
+    plan = plan_sweep([*TINY, "train.iterations=2,3", "seed=4", "seed=5"], jobs=1)  # a plain value: the last wins
+    assert [job.folder for job in plan.jobs] == ["train.iterations=2", "train.iterations=3"]
+    assert all("seed=5" in job.overrides for job in plan.jobs)
