@@ -17,6 +17,7 @@ from riskplan.experiments.sweeping.grid import (
     add_naming_and_logging,
     check_hydra,
     check_subdir,
+    first_line,
     launcher_workers,
     ray_init_overrides,
     runs_here,
@@ -108,20 +109,25 @@ def _check_samples(search: list, fixed: list, samples: dict) -> tuple[list[str],
     it rejects. Returns the first sample's overrides and the warnings."""
     base = [o.input_line for o in fixed] + [f"{o.get_key_element()}={samples[o.key_or_group][0]}" for o in search]
     combos = [base]
+    varying: dict[str, list[int]] = {}  # each swept key's combos: the base and those that vary it alone
     for i, o in enumerate(search):
+        varying[o.key_or_group] = [0]
         for value in samples[o.key_or_group][1:]:
             combo = list(base)
             combo[len(fixed) + i] = f"{o.get_key_element()}={value}"
+            varying[o.key_or_group].append(len(combos))
             combos.append(combo)
     try:
         sample_jobs, notes = validate(combos)
     except BadInput as err:  # name the search-space override whose sample does not compose
         for o in search:
             if err.where in (f"key '{o.key_or_group}'", o.key_or_group) and not o.is_choice_sweep():
+                # Hydra's interval() has float bounds whatever is typed: a whole-number key needs int(interval(...))
+                whole = "; for whole numbers write int(interval(...))" if o.is_interval_sweep() else ""
                 raise BadInput(
                     err.where,
                     f"{err.problem} (from override '{o.input_line}', composed with the "
-                    f"sample value {samples[o.key_or_group][0]})",
+                    f"sample value {samples[o.key_or_group][0]}){whole if 'whole number' in err.problem else ''}",
                 ) from None
         raise
     searched = {o.key_or_group for o in search}
@@ -129,6 +135,14 @@ def _check_samples(search: list, fixed: list, samples: dict) -> tuple[list[str],
     if rejected and len(rejected) == len(sample_jobs) and rejected[0].partition(": ")[0] not in searched:
         where, _, problem = rejected[0].partition(": ")
         raise BadInput(where, f"{problem} (in every trial; nothing was run)")
+    for o in search:  # a choice's samples are all its values: every one rejected for itself, no trial can run
+        errors = [sample_jobs[k].invalid or "" for k in varying[o.key_or_group]]
+        if o.is_choice_sweep() and all(e.partition(": ")[0] == o.key_or_group for e in errors):
+            others = f", and the other {len(errors) - 1} values likewise" if len(errors) > 1 else ""
+            raise BadInput(
+                f"override '{o.input_line}'",
+                f"every value is rejected ({errors[0].partition(': ')[2]}{others}); no trial could run",
+            )
     for job, error in zip(sample_jobs, (j.invalid for j in sample_jobs)):
         if error:
             tried = ",".join(job.overrides[len(fixed) :])
@@ -202,6 +216,8 @@ def check_optimiser(sweeper: str, settings: dict, search: list) -> tuple[int | N
     rate = settings.get("max_failure_rate")
     if not isinstance(rate, (int, float)) or isinstance(rate, bool) or not 0 <= rate <= 1:
         raise BadInput("hydra.sweeper.max_failure_rate", f"got {rate!r}; expected a number from 0 to 1")
+    _check_storage(settings.get("storage"))
+    _check_sampler(settings.get("sampler") or {})
     sampler = str((settings.get("sampler") or {}).get("_target_", ""))
     for o in search:
         if sampler.endswith("GridSampler") and o.is_interval_sweep():
@@ -210,6 +226,44 @@ def check_optimiser(sweeper: str, settings: dict, search: list) -> tuple[int | N
                 "the grid sampler takes choice(...), comma lists or range(...), not interval(...)",
             )
     return trials, batch
+
+
+def _check_storage(storage) -> None:
+    """hydra.sweeper.storage: a database URL Optuna can open, checked here, for it failed only at launch (exit 1,
+    a sweep folder left behind)."""
+    if storage is None:
+        return
+    from sqlalchemy.engine import make_url  # optuna's dependency: with the optuna extra
+
+    key = "hydra.sweeper.storage"
+    try:
+        url = make_url(str(storage))
+    except Exception as err:
+        raise BadInput(key, f"got {storage!r}: {first_line(err)}; expected a database URL, e.g. sqlite:///study.db")
+    if url.get_backend_name() == "sqlite" and url.database not in (None, "", ":memory:"):
+        folder = Path(url.database).expanduser().absolute().parent
+        if not folder.is_dir():
+            raise BadInput(key, f"got {storage!r}: {folder} is not a directory; give a database file in one")
+
+
+def _check_sampler(sampler: dict) -> None:
+    """hydra.sweeper.sampler made as Optuna's sweeper will make it (an Optuna class, hydra_safety checked that):
+    settings another sampler's class does not take (`sampler._target_=optuna.samplers.RandomSampler` over TPE's
+    settings) failed only at launch."""
+    target = str(sampler.get("_target_", ""))
+    if not target.startswith("optuna.samplers."):
+        return
+    from hydra.utils import instantiate
+
+    try:
+        instantiate(sampler)
+    except Exception as err:
+        cause = err.__cause__ or err
+        raise BadInput(
+            "hydra.sweeper.sampler",
+            f"{target} cannot be made from these settings: {type(cause).__name__}: {first_line(cause)}; pick a sampler "
+            f"with its own settings, e.g. hydra/sweeper/sampler=random",
+        ) from None
 
 
 def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, echo) -> Outcome:
@@ -248,6 +302,8 @@ def run_optimiser(plan: Plan, args: list[str], jobs: int | None, title: str, ech
         summary.insert(1, "trial", [job.trial for job in trials])
     write_summary(summary, plan.sweep_dir / SUMMARY)
     failed = [(row.job, row.error or row.status) for row in summary.itertuples() if row.status != "done"]
+    if failed and len(failed) == len(trials) and "No trials are completed yet" in (launcher_error or ""):
+        launcher_error = None  # optuna's answer to "the best trial" when every trial failed: the failures say why
     if plan.trials and len(trials) < plan.trials and launcher_error is None:
         launcher_error = f"the sweeper ran {len(trials)} of {plan.trials} trials (see {plan.sweep_dir / 'sweep.log'})"
     resume = (

@@ -60,3 +60,30 @@ def test_a_sweeper_without_trial_settings_is_planned_with_a_worker_per_core(in_t
     ConfigStore.instance().store(group="hydra/sweeper", name="other_test_sweeper", node=OtherSweeperConf)
     plan = plan_sweep(["hydra/sweeper=other_test_sweeper", "seed=0,1", "train.iterations=2"])
     assert plan.sweeper == "other_test_sweeper" and plan.workers == cpu_count()
+
+
+@pytest.mark.parametrize(
+    "settings, where, problem",
+    [
+        (["hydra.sweeper.storage=notaurl"], "hydra.sweeper.storage", "Could not parse SQLAlchemy URL"),
+        (["hydra.sweeper.storage=sqlite:////no/such/dir/x.db"], "hydra.sweeper.storage", "/no/such/dir is not a dir"),
+        (
+            ["hydra.sweeper.sampler._target_=optuna.samplers.RandomSampler"],  # over TPE's settings
+            "hydra.sweeper.sampler",
+            "RandomSampler cannot be made from these settings: TypeError: ",
+        ),
+        (["risk.beta=choice(0,2,-1)"], "override 'risk.beta=choice(0,2,-1)'", "the other 2 values likewise); no trial"),
+        (["train.iterations=interval(2,4)"], "key 'train.iterations'", "; for whole numbers write int(interval(...))"),
+    ],
+)
+def test_optuna_settings_that_fail_only_at_launch_are_bad_input_before_it(in_tmp, settings, where, problem):
+    """A bad storage or sampler failed at launch (exit 1, a sweep folder left), and a choice of only rejected values
+    ran every trial to fail; interval(2,4) is Hydra's float interval, which a whole-number key refuses."""
+    pytest.importorskip("hydra_plugins.hydra_optuna_sweeper", reason="the optuna extra is not installed")
+    from riskplan.experiments.sweeping.plan import plan_sweep
+
+    search = [] if any("=choice" in s or "=interval" in s for s in settings) else ["risk.beta=interval(0.1,1)"]
+    with pytest.raises(BadInput) as err:
+        plan_sweep(["hydra/sweeper=optuna", "hydra.sweeper.n_trials=2", *search, *settings])
+    assert err.value.where == where and problem in err.value.problem
+    assert not (in_tmp / "outputs").exists()
