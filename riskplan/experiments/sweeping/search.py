@@ -239,7 +239,9 @@ def _check_storage(storage) -> None:
     try:
         url = make_url(str(storage))
     except Exception as err:
-        raise BadInput(key, f"got {storage!r}: {first_line(err)}; expected a database URL, e.g. sqlite:///study.db")
+        raise BadInput(
+            key, f"got {storage!r}: {first_line(err)}; expected a database URL, e.g. sqlite:///study.db"
+        ) from None
     if url.get_backend_name() == "sqlite" and url.database not in (None, "", ":memory:"):
         folder = Path(url.database).expanduser().absolute().parent
         if not folder.is_dir():
