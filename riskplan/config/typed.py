@@ -7,6 +7,7 @@ Every problem is BadInput naming the key path (`key 'risk.beta': got 'abc'; expe
 from __future__ import annotations
 
 import collections
+import collections.abc
 import dataclasses
 import json
 import re
@@ -239,7 +240,10 @@ def _unknown_key(err: Exception, cause: Exception, key: str) -> tuple[str, str]:
         parent, valid = override.group(1), [f.name for f in dataclasses.fields(entry)]
         index = _item_holding(str(err), name)
         item = "" if index is None else f"{index}."
-    if valid is None:
+    node = getattr(cause, "parent_node", None)
+    if valid is None and isinstance(node, collections.abc.Mapping):  # a node of Hydra's config: its own keys
+        valid = sorted(str(k) for k in node.keys())
+    if not valid:
         return f"key '{_dotted(key)}'", "unknown key; this node takes no new keys"
     return (
         f"key '{parent + '.' if parent else ''}{item}{name}'",

@@ -82,7 +82,7 @@ QUICK_LANDSCAPE = {"points": 31, "episodes": 1000, "ranges": ((-30.0, 60.0), (-3
 
 
 PAPER = ("single", "team")  # the folders of Section V itself (--paper-only): Figs. 1-4
-RECORD = "reproduce.json"  # what a reproduction did, written when it ends
+RECORD = "reproduce.json"  # a reproduction's settings when it starts; what it did when it ends
 
 
 def chosen(paper_only: bool) -> tuple:
@@ -127,7 +127,7 @@ def reproduce(
         fmts = check_formats(formats)
         report_workers()  # a bad RISKPLAN_REPORT_WORKERS is bad input now, not after the sweeps
         if out is not None:
-            check_reproduction_dir(out)
+            check_reproduction_dir(out, quick, list(overrides or []))
     except BadInput:
         stop_workers()
         raise
@@ -144,12 +144,16 @@ def reproduce(
         )
 
 
-def check_reproduction_dir(out: Path) -> None:
+def check_reproduction_dir(out: Path, quick: bool, overrides: list[str]) -> None:
     """--out: a directory riskplan may write, new, empty or a reproduction's own (its record, its experiments'
-    sweeps, landscape and report), which it completes; never a folder of other files, which its sweeps would join."""
+    sweeps, landscape and report), which it completes with the same --quick and overrides; never a folder of other
+    files, which its sweeps would join."""
     check_output_dir(out, "--out")
     path = Path(out)
-    if not path.is_dir() or (path / RECORD).is_file():
+    if not path.is_dir():
+        return
+    if (path / RECORD).is_file():
+        _check_same_settings(out, quick, overrides)
         return
     own = {folder for folder, *_ in EXPERIMENTS} | {"landscape", "report", lock.LOCK}
     foreign = sorted(e.name for e in path.iterdir() if e.name not in own and not e.name.startswith(f".{RECORD}"))
@@ -159,6 +163,24 @@ def check_reproduction_dir(out: Path) -> None:
             "--out",
             f"{out} holds files that are not a reproduction's ({foreign[0]}{more}); give a new or empty directory, "
             f"or a reproduction's own to complete it",
+        )
+
+
+def _check_same_settings(out: Path, quick: bool, overrides: list[str]) -> None:
+    """A reproduction is completed only with the settings it was started with (its jobs' configs): another --quick
+    or other overrides were found only once its first sweep met its jobs, after the plan, and the line said to
+    give a new hydra.sweep.dir."""
+    try:
+        record = json.loads((Path(out) / RECORD).read_text())
+        settings = (bool(record["quick"]), list(record["overrides"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        return  # a record riskplan did not write whole: its sweeps' own checks judge the jobs
+    if settings != (quick, overrides):
+        again = shlex.join([*(["--quick"] if settings[0] else []), *settings[1]]) or "no overrides"
+        raise BadInput(
+            "--out",
+            f"{out} holds a reproduction started with other settings ({again}); give a new --out, or those "
+            f"settings to complete it",
         )
 
 
@@ -349,12 +371,12 @@ def _waiter(warmed, warm_up: dict):
 
 
 def _start(target: Path, options: Options, schedule: Schedule) -> dict:
-    """Say what runs where and how long it should take; the record reproduce.json starts from."""
+    """Say what runs where and how long it should take; the record reproduce.json starts from, written now."""
     what = ("quick" if options.quick else "full") + (", Section V only" if options.paper_only else "")
     typer.echo(f"reproduction directory: {target} ({what}, {options.seeds} seeds)")
     workers = None if options.batch else _workers(options.jobs, options.seeds, options.experiments)
     typer.echo(plan_line(schedule, workers))
-    return {
+    record = {
         "quick": options.quick,
         "paper_only": options.paper_only,
         "batched": options.batch,
@@ -364,6 +386,8 @@ def _start(target: Path, options: Options, schedule: Schedule) -> dict:
         "estimate": {stage.name: round(stage.estimate, 1) for stage in schedule.stages},
         "parts": {},
     }
+    write_atomic(target / RECORD, json.dumps(record, indent=2))  # its settings, should it stop before the end
+    return record
 
 
 def _run_sweeps(

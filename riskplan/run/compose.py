@@ -65,6 +65,8 @@ def unquoted_problem(text: str) -> str | None:
     if not equals or value[:1] in ("'", '"'):
         return None
     outside = list(dict.fromkeys(c for c in value if c not in UNQUOTED))
+    if not outside and "=" in value[1:] and value[:1] not in ("=", "{", "["):  # a=b=c, not a==b or a mapping
+        outside = ["="]
     if not outside:
         return None
     shown = ", ".join(f"'{c}'" for c in outside)

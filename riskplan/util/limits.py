@@ -141,6 +141,7 @@ def check_jobs(key: str, jobs: int) -> None:
     if jobs > budget:
         raise BadInput(
             key,
-            f"expands to {jobs} jobs, more than the {budget} allowed; sweep fewer values, or raise "
+            f"expands to {jobs if jobs < 10**15 else f'about 10^{len(str(jobs)) - 1}'} jobs, more than the {budget} allowed; sweep fewer "
+            f"values, or raise "
             f"the limit with {JOBS_ENV}=<jobs>",
         )

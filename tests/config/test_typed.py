@@ -43,3 +43,26 @@ def test_an_unknown_key_in_an_optional_list_of_nodes_is_named_with_its_path():
         "key 'team.risk.2.bta': unknown key 'bta'; valid keys under 'team.risk.2': measure, beta, eta, weight, "
         "schedule, params; did you mean 'beta'?"
     )
+
+
+@pytest.mark.parametrize(
+    "override, where, problem",
+    [
+        (  # Hydra's own nodes: they said "unknown key; this node takes no new keys", naming none
+            "hydra.job.chdirr=true",
+            "key 'hydra.job.chdirr'",
+            "unknown key 'chdirr'; valid keys under 'hydra.job': chdir, config, config_name, env_copy, env_set, id, "
+            "name, num, override_dirname; did you mean 'chdir'?",
+        ),
+        (  # a path with '=' in it: "malformed" said nothing of quotes
+            "hydra.run.dir=/x/seed=0",
+            "override 'hydra.run.dir=/x/seed=0'",
+            "the value holds '=', which Hydra's override grammar takes only inside quotes; write "
+            "hydra.run.dir='/x/seed=0'",
+        ),
+    ],
+)
+def test_a_hydra_key_mistyped_or_unquoted_is_told_how_to_write_it(override, where, problem):
+    with pytest.raises(BadInput) as err:
+        compose([override])
+    assert err.value.where == where and err.value.problem.startswith(problem)

@@ -4,9 +4,11 @@ tests/e2e/test_reproduce.py."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
-from riskplan.experiments.reproduction import EXPERIMENTS, check_seeds, experiment_jobs
+from riskplan.experiments.reproduction import EXPERIMENTS, check_reproduction_dir, check_seeds, experiment_jobs
 from riskplan.util.errors import BadInput
 
 PAPER = ["single", "team", "wander", "soft_risk", "frontier"]
@@ -29,3 +31,19 @@ def test_more_jobs_than_the_limit_is_bad_input(monkeypatch):
     with pytest.raises(BadInput) as err:
         check_seeds(3)
     assert err.value.where == "--seeds" and "69 jobs, more than the 50 allowed" in err.value.problem
+
+
+def test_a_reproduction_is_completed_only_with_the_settings_it_started_with(tmp_path):
+    """Other settings were found by the first sweep, after the plan, and the line said to give a new
+    hydra.sweep.dir (reproduce has --out)."""
+    out = tmp_path / "r"
+    out.mkdir()
+    (out / "reproduce.json").write_text(json.dumps({"quick": True, "overrides": ["train.samples=300"]}))
+    check_reproduction_dir(out, True, ["train.samples=300"])  # the same: it completes
+    for quick, overrides in ((False, ["train.samples=300"]), (True, []), (True, ["train.samples=400"])):
+        with pytest.raises(BadInput) as err:
+            check_reproduction_dir(out, quick, overrides)
+        assert err.value.where == "--out" and err.value.problem == (
+            f"{out} holds a reproduction started with other settings (--quick train.samples=300); give a new --out, "
+            f"or those settings to complete it"
+        )

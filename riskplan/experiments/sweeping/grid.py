@@ -21,7 +21,7 @@ from hydra._internal.config_loader_impl import ConfigLoaderImpl, get_overrides_d
 from hydra._internal.utils import create_config_search_path
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.core.override_parser.types import ChoiceSweep, Override, OverrideType, RangeSweep, ValueType
+from hydra.core.override_parser.types import ChoiceSweep, Glob, Override, OverrideType, RangeSweep, ValueType
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -236,10 +236,29 @@ def expand(task_ovs: list, args: list[str]) -> list[list[str]]:
     try:
         combos = combinations(parser.parse_overrides([o.input_line for o in task_ovs]))
     except (HydraException, ValueError, TypeError, ArithmeticError) as err:
-        raise BadInput("sweep", f"{first_line(err)}; use comma lists, range(...), choice(...) or glob(...)") from None
+        raise _unexpandable(parser, task_ovs, err) from None
     if not combos or (task_ovs and any(not job for job in combos)):
+        for o in parser.parse_overrides([o.input_line for o in task_ovs]):
+            if o.is_sweep_override() and not list(o.sweep_string_iterator()):
+                what = "matches no option of its group" if isinstance(o.value(), Glob) else "holds no value"
+                raise BadInput(f"override '{o.input_line}'", f"{what}, so the sweep has no job; give it a value")
         raise BadInput("sweep", f"'{' '.join(args)}' expands to no job; check empty range(...) values")
     return combos
+
+
+def _unexpandable(parser, task_ovs: list, err: Exception) -> BadInput:
+    """The override a grid cannot expand, named: Hydra's own words (such as 'Unexpected type annotation: Set[str]'
+    for a range inside a comma list) said neither which override nor why."""
+    hint = "use comma lists, range(...), choice(...) or glob(...)"
+    for o in task_ovs:
+        try:
+            combinations(parser.parse_overrides([o.input_line]))
+        except (HydraException, ValueError, TypeError, ArithmeticError) as own:
+            # a list whose items are sweeps (seed=1,range(1,2)): Hydra fails on the item's type
+            nested = "Unexpected type annotation" in str(own)
+            why = "a range(...), interval(...) or glob(...) cannot be an item of a list" if nested else first_line(own)
+            return BadInput(f"override '{o.input_line}'", f"{why}; {hint}")
+    return BadInput("sweep", f"{first_line(err)}; {hint}")
 
 
 def combinations(overrides: list) -> list[list[str]]:

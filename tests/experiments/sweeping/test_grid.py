@@ -8,6 +8,7 @@ import re
 import pytest
 
 from riskplan.experiments.sweeping import constant_keys, expand, sweep_size
+from riskplan.experiments.sweeping.grid import check_size
 from riskplan.run.compose import parse_overrides
 from riskplan.util.errors import BadInput
 
@@ -66,3 +67,22 @@ def test_a_sweep_is_counted_without_expanding_it(args, count):
 def test_a_range_without_an_end_or_a_step_is_bad_input(arg):
     with pytest.raises(BadInput, match=re.escape(f"override '{arg}': has a range")):
         sweep_size(parse_overrides([arg]))
+
+
+@pytest.mark.parametrize(
+    "args, where, problem",
+    [
+        (["seed=1,range(1,2)"], "override 'seed=1,range(1,2)'", "cannot be an item of a list"),  # was Set[str]
+        (["seed=0,1", "risk=glob(nomatch*)"], "override 'risk=glob(nomatch*)'", "matches no option of its group"),
+        (["seed=range(3,3)"], "override 'seed=range(3,3)'", "holds no value, so the sweep has no job"),
+    ],
+)
+def test_a_grid_that_cannot_expand_names_its_override_and_why(args, where, problem):
+    with pytest.raises(BadInput) as err:
+        expand(parse_overrides(args), args)
+    assert err.value.where == where and problem in err.value.problem
+
+
+def test_a_job_count_of_hundreds_of_digits_is_said_as_a_power_of_ten():
+    with pytest.raises(BadInput, match=r"expands to about 10\^311 jobs, more than the "):
+        check_size(parse_overrides(["seed=range(0,1000000000000)", "risk.beta=range(0,1,1e-300)"]))
