@@ -69,10 +69,16 @@ def export(
 def _destination(to: str | None, uri: str | None, experiment: str, out: str | None) -> str | None:
     """The options checked together; the URI to export to (ros2 takes --out for it, the others --uri)."""
     if not experiment.strip():
-        raise BadInput("--experiment", "got ''; give an MLflow experiment name, e.g. riskplan")
-    ros2 = (to or "").strip().lower() == "ros2"
+        raise BadInput("--experiment", f"got {experiment!r}; give an MLflow experiment name, e.g. riskplan")
+    target = (to or "").strip().lower()
+    ros2 = target == "ros2"
     if out is not None and not ros2:
-        raise BadInput("--out", "only --to ros2 writes into --out; mlflow and tensorboard take --uri")
+        others = (
+            "--to foxglove writes into each run directory"
+            if target == "foxglove"
+            else "mlflow and tensorboard take --uri"
+        )
+        raise BadInput("--out", f"only --to ros2 writes into --out; {others}")
     if ros2 and uri is not None:
         raise BadInput("--uri", "--to ros2 writes its bags into --out DIR (default: each run directory)")
     return str(path_option(out, "--out")) if ros2 and out is not None else uri

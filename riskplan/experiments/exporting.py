@@ -23,7 +23,9 @@ summary and metrics) is left as it is ("unchanged", its group tags refreshed), a
 written anew ("replaced"). TensorBoard gets one subdirectory per run, `<run name>-<hash of its path>`, with a
 `riskplan-export.json` marker; it is replaced as a whole (written beside it, then renamed into place).
 
-Broken, killed and failed runs are skipped with their reason, as in the report; never fatal.
+Broken, killed and failed runs are skipped with their reason, as in the report; never fatal. So is a run whose
+export fails (a folder in its way, a table riskplan did not write); a full or read-only disk, or an MLflow store's
+error, would fail every run the same way and stops the export (ExportFailed).
 A run whose config and seed repeat another's (`riskplan.experiments.sweep_worker.run_identity`, as in the report)
 is the same sample: it is exported once, as the first of them by path, and the others are listed as duplicates
 (`ExportResult.duplicates`), not exported, so that no tracker counts a seed twice.
@@ -32,13 +34,18 @@ is the same sample: it is exported once, as the first of them by path, and the o
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import errno
 import hashlib
 import json
 import math
 import os
 import re
+import socket
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 from urllib.parse import unquote, urlparse
@@ -54,7 +61,15 @@ from riskplan.util import lock
 from riskplan.util.checks import require_installed
 from riskplan.util.errors import BadInput, did_you_mean, one_line
 from riskplan.util.names import mlflow_keys
-from riskplan.util.paths import check_output_dir, is_marked, replace_marked_dir, write_atomic
+from riskplan.util.paths import (
+    MARKER,
+    check_output_dir,
+    check_output_file,
+    check_outside_runs,
+    is_marked,
+    replace_marked_dir,
+    write_atomic,
+)
 
 TARGETS = ("mlflow", "tensorboard", "foxglove", "ros2")
 DEFAULT_URI = {"mlflow": Path("outputs") / "mlruns", "tensorboard": Path("outputs") / "tensorboard"}
@@ -90,6 +105,7 @@ class Record:
     end: float
     fingerprint: str
     group: str
+    trajectories: pd.DataFrame  # as loaded: rebuilt from run.mcap when trajectories.parquet is damaged
 
 
 @dataclass
@@ -238,7 +254,7 @@ def run_record(info: RunInfo) -> Record:
     provenance = (run.summary or {}).get("provenance")
     if isinstance(provenance, dict):
         tags.update({f"riskplan.provenance.{k}": param_value(v) for k, v in flatten(provenance).items()})
-    return Record(path, path.name, run.config, params, tags, points, start, end, fingerprint, group)
+    return Record(path, path.name, run.config, params, tags, points, start, end, fingerprint, group, run.trajectories)
 
 
 # ------------------------------------------------------------------------------------------- destinations
@@ -267,21 +283,97 @@ def check_uri(to: str, uri: str | None) -> str:
     if uri is None:
         uri = str(DEFAULT_URI[to])
     text = str(uri)
-    if to == "mlflow" and URI_SCHEME.match(text) and not text.startswith("file:"):
-        return text  # sqlite:///..., http://..., databricks: MLflow checks these itself
+    if URI_SCHEME.match(text) and not text.startswith("file:"):
+        if to == "tensorboard":  # its writer takes any text for a folder: http://x/tb became ./http:/x/tb
+            raise BadInput(
+                "--uri", f"{text}: TensorBoard writes a local folder, not a URI: give its path, e.g. /data/tb"
+            )
+        return check_tracking_uri(text)
     if text.startswith("file:"):  # a file URI names a directory, for TensorBoard as for MLflow
-        text = unquote(urlparse(text).path) if text.startswith("file://") else text[len("file:") :]
+        text = _file_uri_path(text)
     check_output_dir(text, "--uri")
     directory = Path(os.path.abspath(os.path.expanduser(text)))
-    if to == "tensorboard":
-        return str(directory)
-    if directory.is_dir() and any(p.name != lock.LOCK for p in directory.iterdir()) and not _is_mlflow_store(directory):
+    ours, what, example = {
+        "mlflow": (_is_mlflow_store, "an MLflow file store", "an MLflow store (e.g. outputs/mlruns)"),
+        "tensorboard": (
+            _is_tensorboard_export,
+            "a TensorBoard export",
+            "one riskplan export wrote (e.g. outputs/tensorboard)",
+        ),
+    }[to]
+    if directory.is_dir() and any(p.name != lock.LOCK for p in directory.iterdir()) and not ours(directory):
+        raise BadInput("--uri", f"{uri} holds files that are not {what}; give a new or empty directory, or {example}")
+    return str(directory) if to == "tensorboard" else directory.as_uri()
+
+
+def _parsed(uri: str):
+    """urlparse of --uri, and its port read: BadInput for what it refuses (an unclosed '[', a port past 65535)."""
+    try:
+        parts = urlparse(uri)
+        parts.port  # noqa: B018 - read to check it
+    except ValueError as err:
+        raise BadInput(
+            "--uri", f"{uri} is not a valid URI ({err}); e.g. http://localhost:5000 or file:///data/mlruns"
+        ) from None
+    return parts
+
+
+def _file_uri_path(uri: str) -> str:
+    """The local path of a file: URI; BadInput for one naming another host, whose path would be written here."""
+    parts = _parsed(uri)
+    if not uri.startswith("file://"):
+        return uri[len("file:") :]
+    if parts.netloc not in ("", "localhost"):
+        raise BadInput(
+            "--uri", f"{uri} names the host {parts.netloc}; give a local path, e.g. file:///data/mlruns (three slashes)"
+        )
+    return unquote(parts.path)
+
+
+# MLflow's own tracking URI schemes (its tracking store registry); a database's may add a driver: mysql+pymysql
+DATABASES = ("sqlite", "postgresql", "mysql", "mssql")
+TRACKING_SCHEMES = ("http", "https", "databricks", "databricks-uc", "uc", *DATABASES)
+CONNECT_TIMEOUT = 5.0  # s: a server that does not accept a connection in this long is taken for absent
+
+
+def check_tracking_uri(uri: str) -> str:
+    """An MLflow tracking URI other than a file store, checked before MLflow gets it (which would retry for minutes,
+    or take any text): a scheme MLflow or a plugin knows, a server that accepts a connection, a SQLite database file
+    that can be written."""
+    parts = _parsed(uri)
+    scheme = parts.scheme.lower()
+    schemes = {*TRACKING_SCHEMES, *(e.name for e in entry_points(group="mlflow.tracking_store"))}
+    if scheme not in schemes and scheme.split("+")[0] not in DATABASES:
         raise BadInput(
             "--uri",
-            f"{uri} holds files that are not an MLflow file store; give a new or empty "
-            f"directory, or an MLflow store (e.g. outputs/mlruns)",
+            f"{uri}: MLflow knows no scheme '{scheme}'; give a folder, http://host:5000 or sqlite:///mlflow.db"
+            f"{did_you_mean(scheme, schemes)}",
         )
-    return directory.as_uri()
+    if scheme in ("http", "https"):
+        _check_reachable(uri, parts)
+    elif scheme.split("+")[0] == "sqlite":
+        database = parts.path[1:]  # SQLAlchemy's sqlite:///relative.db, sqlite:////absolute.db
+        if database in ("", ":memory:"):
+            raise BadInput(
+                "--uri", f"{uri} is a database in memory, gone when the export ends; give a file: sqlite:///mlflow.db"
+            )
+        check_output_file(database, "--uri", "in .db")
+    return uri
+
+
+def _check_reachable(uri: str, parts) -> None:
+    """BadInput unless the server of an http(s) URI accepts a TCP connection within CONNECT_TIMEOUT."""
+    if not parts.hostname:
+        raise BadInput("--uri", f"{uri} names no server; e.g. http://localhost:5000")
+    port = parts.port or (443 if parts.scheme.lower() == "https" else 80)
+    try:
+        socket.create_connection((parts.hostname, port), timeout=CONNECT_TIMEOUT).close()
+    except OSError as err:
+        raise BadInput(
+            "--uri",
+            f"{uri}: no server answers at {parts.hostname}:{port} ({err.strerror or err}); start the MLflow server "
+            f"(mlflow server --port {port}) or give another --uri",
+        ) from None
 
 
 def check_experiment(name: str) -> None:
@@ -303,6 +395,15 @@ def _is_mlflow_store(directory: Path) -> bool:
     return (directory / ".trash").is_dir() or any(p.is_file() for p in directory.glob("*/meta.yaml"))
 
 
+def _is_tensorboard_export(directory: Path) -> bool:
+    """A TensorBoard log directory: riskplan's run folders (with their marker), or another writer's event files."""
+    return any(
+        p.is_file()
+        for pattern in (f"*/{MARKER}", "events.out.tfevents.*", "*/events.out.tfevents.*")
+        for p in directory.glob(pattern)
+    )
+
+
 def check_installed(to: str) -> None:
     """The optional package a target needs; MissingExtra (bad input) naming the pip install when it is missing."""
     if to in EXTRA:
@@ -310,17 +411,26 @@ def check_installed(to: str) -> None:
         require_installed(module, f"--to {to}", f"the {package} package", to)
 
 
+def _mlflow_settings(uri: str) -> dict[str, str]:
+    """MLflow's settings for an export to `uri`: its file store allowed (MLflow >= 3.7 refuses it otherwise), and a
+    server that stops answering given up on in about a minute (MLflow's defaults retry for minutes, silently)."""
+    if uri.startswith("file:"):
+        return {"MLFLOW_ALLOW_FILE_STORE": "true"}
+    if uri.startswith(("http:", "https:")):
+        return {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "1", "MLFLOW_HTTP_REQUEST_TIMEOUT": "30"}
+    return {}
+
+
 @contextlib.contextmanager
-def file_store_allowed(uri: str):
-    """MLflow >= 3.7 refuses its file store unless MLFLOW_ALLOW_FILE_STORE is set: set it while we write one."""
-    if not uri.startswith("file:") or os.environ.get("MLFLOW_ALLOW_FILE_STORE"):
-        yield
-        return
-    os.environ["MLFLOW_ALLOW_FILE_STORE"] = "true"
+def mlflow_settings(uri: str):
+    """_mlflow_settings in the environment while an export writes, each where the user set none."""
+    added = {k: v for k, v in _mlflow_settings(uri).items() if k not in os.environ}
+    os.environ.update(added)
     try:
         yield
     finally:
-        os.environ.pop("MLFLOW_ALLOW_FILE_STORE", None)
+        for key in added:
+            os.environ.pop(key, None)
 
 
 # ------------------------------------------------------------------------------------------- MLflow
@@ -328,15 +438,28 @@ class MlflowTarget:
     """An MLflow tracking store: one experiment, one MLflow run per riskplan run."""
 
     def __init__(self, uri: str, experiment: str = EXPERIMENT) -> None:
+        self.uri = uri
+        self.by_dir: dict[str, list] = {}
+        try:
+            self._open(experiment)
+        except Exception as err:
+            if not uri.startswith("file:") or isinstance(err, OSError):  # a server's, a disk's: ExportFailed
+                raise
+            raise BadInput(  # its files are the user's to mend: MLflow reads them as it goes, any way they break
+                "--uri",
+                f"{unquote(urlparse(uri).path)} is a damaged MLflow file store ({_error_text(err)}); repair or move "
+                f"it, or give another --uri",
+            ) from None
+
+    def _open(self, experiment: str) -> None:
+        """The experiment (made, or restored from deleted) and its runs by their riskplan.run_dir tag."""
         from mlflow.tracking import MlflowClient  # optional: the mlflow extra
 
-        self.uri = uri
-        self.client = MlflowClient(tracking_uri=uri)
+        self.client = MlflowClient(tracking_uri=self.uri)
         found = self.client.get_experiment_by_name(experiment)
         if found is not None and found.lifecycle_stage != "active":
             self.client.restore_experiment(found.experiment_id)
         self.experiment_id = found.experiment_id if found is not None else self.client.create_experiment(experiment)
-        self.by_dir: dict[str, list] = {}
         token = None
         while True:
             page = self.client.search_runs([self.experiment_id], max_results=1000, page_token=token)
@@ -420,6 +543,9 @@ def _text_table(tags: dict[str, str]) -> str:
     return f"| tag | value |\n| --- | --- |\n{rows}\n"
 
 
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
 class TensorboardTarget:
     """A TensorBoard log directory: one subdirectory of event files per run."""
 
@@ -441,6 +567,17 @@ class TensorboardTarget:
             lambda: Skip(f"{target} exists and is not a TensorBoard log of riskplan export's; move it away"),
         ):
             return Exported(rec.path, "unchanged", str(target))
+        beyond = sorted({key for key, _, value, _ in rec.points if abs(value) > FLOAT32_MAX})
+        if beyond:  # a scalar is a float32 in TensorBoard: these would read as inf
+            kept = " and ".join(
+                sorted({"summary.json" if k.startswith("summary/") else "metrics.parquet" for k in beyond})
+            )
+            warnings.warn(
+                f"{rec.path}: {', '.join(beyond)} left out of TensorBoard at the steps beyond float32's range "
+                f"(±3.4e38), which it would show as inf; the exact values stay in {kept}",
+                stacklevel=2,
+            )
+            rec = dataclasses.replace(rec, points=[p for p in rec.points if abs(p[2]) <= FLOAT32_MAX])
         status = replace_marked_dir(target, marker, lambda tmp: self._events(tmp, name, rec))
         return Exported(rec.path, status, str(target))
 
@@ -509,7 +646,9 @@ class Ros2Target:
 
     def write(self, rec: Record) -> Exported:
         try:
-            action, where = ros2_bag.write_run(rec.path, rec.config, self.out, rec.start, rec.fingerprint)
+            action, where = ros2_bag.write_run(
+                rec.path, rec.config, rec.trajectories, self.out, rec.start, rec.fingerprint
+            )
         except BadInput as err:  # its world cannot be rebuilt (a map moved), or the bag's folder is someone else's
             raise Skip(str(err)) from None
         return Exported(rec.path, action, str(where))
@@ -517,12 +656,35 @@ class Ros2Target:
 
 # ------------------------------------------------------------------------------------------- the command's work
 def _store_errors(target: str) -> tuple[type[BaseException], ...]:
-    """What a failure to write the destination raises: OSError, and MLflow's own exception."""
+    """What a failure of the whole destination raises: a full or read-only disk, and MLflow's own exception (a
+    server, a damaged store)."""
     if target == "mlflow":
         from mlflow.exceptions import MlflowException  # optional: the mlflow extra
 
         return OSError, MlflowException, ImportError  # ImportError: a store that needs the full mlflow
     return (OSError,)
+
+
+# a disk that cannot take any more: every other run would fail the same way, so the export stops
+WHOLE_DISK = (errno.ENOSPC, errno.EDQUOT, errno.EROFS)
+
+
+def _stops_export(err: Exception, target: str) -> bool:
+    """Whether a failure to export one run is the destination's, which stops the export; any other (a folder in
+    the way, a table not written by riskplan) is that run's own, which is skipped."""
+    if isinstance(err, OSError):
+        return err.errno in WHOLE_DISK
+    return isinstance(err, _store_errors(target))
+
+
+def _error_text(err: BaseException) -> str:
+    """'Type: its first line', as one line."""
+    text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+    return f"{type(err).__name__}: {one_line(text)}"
+
+
+def _failure(err: BaseException) -> str:
+    return f"could not be written ({_error_text(err)})"
 
 
 def prepare(to: str | None, uri: str | None) -> tuple[str, str]:
@@ -533,14 +695,23 @@ def prepare(to: str | None, uri: str | None) -> tuple[str, str]:
     return target, destination
 
 
+def _written_path(target: str, destination: str) -> Path | None:
+    """The local folder (or SQLite file) an export writes into; None for each run directory or a server."""
+    if target in ("tensorboard", "ros2"):
+        return Path(destination) if destination else None
+    parts = urlparse(destination)
+    if parts.scheme == "file":
+        return Path(unquote(parts.path))
+    return Path(parts.path[1:]) if parts.scheme.split("+")[0] == "sqlite" else None
+
+
 def _one_writer(target: str, destination: str) -> contextlib.AbstractContextManager:
     """The destination directory's writers' lock, held while the runs are exported (a TensorBoard log directory, the
     bags' folder, an MLflow file store): two exports at once made two experiments of one name in a store, or failed
-    on each other's temp folders. A server store locks itself; each run directory has its own lock."""
-    uri = urlparse(destination) if target == "mlflow" else None
-    if not destination or (uri is not None and uri.scheme != "file"):  # into each run directory, or a server
+    on each other's temp folders. A server or database store locks itself; each run directory has its own lock."""
+    directory = _written_path(target, destination)
+    if directory is None or (target == "mlflow" and not destination.startswith("file:")):
         return contextlib.nullcontext()
-    directory = Path(unquote(uri.path)) if uri is not None else Path(destination)
     return lock.hold_lock(directory, f"{target} export destination", make=True)
 
 
@@ -565,6 +736,10 @@ def export_runs(
             f"give one or more run, sweep or reproduce directories, e.g. riskplan export outputs/runs --to {target}",
         )
     collected = collect([Path(p) for p in paths], progress)
+    written = _written_path(target, destination)
+    if written is not None:
+        found = [*collected.runs, *collected.broken, *collected.duplicates, *collected.landscapes]
+        check_outside_runs(written, [Path(r.path) for r in found], "--out" if target == "ros2" else "--uri")
     result = ExportResult(target, destination or "each run directory")
     result.skipped = list(collected.broken) + [
         Broken(Path(scan.path), "a landscape, not a training run") for scan in collected.landscapes
@@ -573,7 +748,7 @@ def export_runs(
     if not collected.runs:
         return result
     try:
-        with file_store_allowed(destination), _one_writer(target, destination):
+        with mlflow_settings(destination), _one_writer(target, destination):
             writer = {
                 "mlflow": lambda: MlflowTarget(destination, experiment),
                 "tensorboard": lambda: TensorboardTarget(destination),
@@ -586,12 +761,14 @@ def export_runs(
                 except Skip as err:
                     result.skipped.append(Broken(info.path, str(err)))
                     continue
+                except Exception as err:  # one run's failure is reported, the others go on
+                    if _stops_export(err, target):
+                        raise
+                    result.skipped.append(Broken(info.path, _failure(err)))
+                    continue
                 result.done.append(done)
                 if echo is not None:
                     echo(done)
     except _store_errors(target) as err:  # the store failed (disk full, permissions, a server): one line
-        text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise ExportFailed(
-            f"{target} {destination or ''}: could not be written ({type(err).__name__}: {text})".replace("  ", " ")
-        ) from None
+        raise ExportFailed(f"{' '.join(filter(None, (target, destination)))}: {_failure(err)}") from None
     return result

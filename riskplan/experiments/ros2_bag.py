@@ -1,7 +1,7 @@
 """`riskplan export --to ros2`: one rosbag2 directory per run, `metadata.yaml` and an MCAP file of CDR messages with
 `ros2msg` schemas, written by mcap-ros2-support (the `ros2` extra) without a ROS installation.
 
-    write_run(run_dir, config, out_dir=None, start=0.0, fingerprint="") -> (action, bag directory)
+    write_run(run_dir, config, trajectories, out_dir=None, start=0.0, fingerprint="") -> (action, bag directory)
 
 Topics, all in the frame `map` (cell (x, y) at its centre: the map's origin, plus (x + 1/2, y + 1/2) cells of
 resolution x world.map_cell metres, turned by the origin's yaw; 1 m cells from (0, 0) without a map):
@@ -12,7 +12,7 @@ resolution x world.map_cell metres, turned by the origin's yaw; 1 m cells from (
   0 elsewhere; a name is made a valid ROS name (other characters as `_`);
 - `/sources` (visualization_msgs/msg/MarkerArray): a sphere and a label per source, at its first cell;
 - `/robot_<i>/path` (nav_msgs/msg/Path): one message per sampled episode of robot i's final policy
-  (trajectories.parquet), the k-th pose stamped k steps after the bag's start;
+  (the run's trajectories table: trajectories.parquet, or rebuilt from run.mcap), the k-th pose stamped k steps after the bag's start;
 - `/robot_<i>/pose` (geometry_msgs/msg/PoseStamped): along the first of those episodes, one per step, facing
   the way it moves.
 
@@ -30,11 +30,11 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import yaml
 from mcap.writer import CompressionType, Writer
 
 from riskplan.run.build import build_setup
-from riskplan.run.columns import read_parquet
 from riskplan.run.maps import geometry
 from riskplan.util.errors import BadInput
 from riskplan.util.names import unique
@@ -45,6 +45,7 @@ FOREIGN = "exists and is not a ROS 2 bag of riskplan export's; move it away or g
 FRAME = "map"
 STEP_NS = 500_000_000  # one move of an episode: half a second of the bag's time
 OCCUPIED, FREE = 100, 0
+PATH_COLUMNS = ("policy", "robot", "episode", "step", "x", "y")  # what the paths are read from
 INFINITE = {"sec": 9223372036, "nsec": 854775807}  # rosbag2's "no deadline / lifespan"
 
 # The ROS 2 message definitions (Humble's; Jazzy's only add a Marker constant), each type's own fields: a schema is
@@ -123,15 +124,21 @@ def bag_dir(run_dir: Path, out_dir: Path | None) -> Path:
 
 
 def write_run(
-    run_dir: Path, config: dict, out_dir: Path | None = None, start: float = 0.0, fingerprint: str = ""
+    run_dir: Path,
+    config: dict,
+    trajectories: pd.DataFrame,
+    out_dir: Path | None = None,
+    start: float = 0.0,
+    fingerprint: str = "",
 ) -> tuple[str, Path]:
-    """Write one run's bag: ("exported" | "replaced" | "unchanged", its directory). BadInput when its world cannot
-    be rebuilt from its config (a map file moved), before anything is written."""
+    """Write one run's bag: ("exported" | "replaced" | "unchanged", its directory). `trajectories`: the run's table
+    as loaded (riskplan.run.results.load_run). BadInput when its world cannot be rebuilt from its config (a map file
+    moved) or the table lacks a column, before anything is written."""
     target = bag_dir(run_dir, out_dir)
     marker = {"run_dir": str(run_dir), "fingerprint": fingerprint, "format": "rosbag2 mcap", "version": 1}
     if is_marked(target, marker, lambda: BadInput(str(target), FOREIGN)):
         return "unchanged", target
-    messages = run_messages(run_dir, config, round(start * 1e9))
+    messages = run_messages(config, trajectories, round(start * 1e9))
     status = replace_marked_dir(target, marker, lambda tmp: write_bag(tmp, target.name, messages))
     return status, target
 
@@ -139,7 +146,7 @@ def write_run(
 Message = tuple[str, str, int, dict]  # (topic, type, log time in ns, the message as a dict)
 
 
-def run_messages(run_dir: Path, config: dict, t0: int) -> list[Message]:
+def run_messages(config: dict, trajectories: pd.DataFrame, t0: int) -> list[Message]:
     """Every message of a run's bag, in time order (stable: the static topics first)."""
     setup = build_setup(config)
     world = setup.world
@@ -154,7 +161,7 @@ def run_messages(run_dir: Path, config: dict, t0: int) -> list[Message]:
         grid = grid_message(inside, size, origin, stamp)
         messages.append((f"/regions/{topic_name(name, taken)}", GRID, t0, grid))
     messages.append(("/sources", MARKERS, t0, source_markers(world, place, stamp, size)))
-    paths = _final_paths(run_dir)
+    paths = _final_paths(trajectories)
     for robot, episodes in paths.items():
         for e, cells in enumerate(episodes):
             poses = [_pose_stamped(place(cells, k), _stamp(t0 + k * STEP_NS)) for k in range(len(cells))]
@@ -264,12 +271,16 @@ def _placer(size: float, origin):
     return place
 
 
-def _final_paths(run_dir: Path) -> dict[int, list[list[tuple[int, int]]]]:
-    """Each robot's sampled episodes of its final policy as (x, y) cells (trajectories.parquet), robots 0, 1, ..."""
-    path = run_dir / "trajectories.parquet"
-    if not path.is_file():
-        return {}
-    table = read_parquet(path, columns=["policy", "robot", "episode", "step", "x", "y"])
+def _final_paths(table: pd.DataFrame) -> dict[int, list[list[tuple[int, int]]]]:
+    """Each robot's sampled episodes of its final policy as (x, y) cells, robots 0, 1, ...; BadInput naming the
+    columns a table not written by riskplan lacks."""
+    missing = [c for c in PATH_COLUMNS if c not in table.columns]
+    if missing:
+        raise BadInput(
+            "trajectories table",
+            f"lacks the column(s) {', '.join(missing)}: it was not written by riskplan; remove trajectories.parquet "
+            "and the run's tables are rebuilt from run.mcap",
+        )
     table = table.loc[(table.policy == "final") & (table.robot >= 0)].sort_values(["robot", "episode", "step"])
     out: dict[int, list[list[tuple[int, int]]]] = {}
     for (robot, _episode), rows in table.groupby(["robot", "episode"], sort=True):

@@ -88,6 +88,16 @@ def check_output_dir(path: Path | str, key: str) -> Path:
     return Path(text)
 
 
+def check_outside_runs(path: Path | str, runs: list[Path], key: str) -> None:
+    """BadInput when `path` is one of the run folders `runs`, or inside one: what is written there changes the run,
+    and a later read of its folder takes it for one of the run's files, or for a run of its own."""
+    resolved = Path(os.path.realpath(os.path.abspath(os.path.expanduser(str(path)))))
+    for run in runs:
+        run = Path(os.path.realpath(run))
+        if resolved == run or run in resolved.parents:
+            raise BadInput(key, f"{path} is inside the run folder {run}; give a folder outside the runs")
+
+
 def file_path(text: str | Path, key: str, ending: str) -> Path:
     """A file's path as typed, not empty and not named as a folder (a trailing '/'), which typer's Path would read as
     '.' and as the file without the '/'. `ending` names the file types, for the message."""
