@@ -22,6 +22,7 @@ def test_each_experiment_has_a_folder_of_its_own():
     assert all(folder.isidentifier() and folder.islower() for folder in FOLDERS)
 
 
+@pytest.mark.slow  # every study's every job built (about 3 s in all); tests/e2e/test_reproduce.py runs them too
 @pytest.mark.parametrize("experiment", EXPERIMENTS, ids=FOLDERS)
 def test_each_job_of_the_experiments_sweep_is_a_valid_run(experiment):
     assert experiment.seeds is None or experiment.seeds >= 1

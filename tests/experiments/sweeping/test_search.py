@@ -76,6 +76,7 @@ def test_a_sweeper_without_trial_settings_is_planned_with_a_worker_per_core(in_t
         (["train.iterations=interval(2,4)"], "key 'train.iterations'", "; for whole numbers write int(interval(...))"),
     ],
 )
+@pytest.mark.slow  # imports optuna and SQLAlchemy: about a second a worker
 def test_optuna_settings_that_fail_only_at_launch_are_bad_input_before_it(in_tmp, settings, where, problem):
     """A bad storage or sampler failed at launch (exit 1, a sweep folder left), and a choice of only rejected values
     ran every trial to fail; interval(2,4) is Hydra's float interval, which a whole-number key refuses."""
