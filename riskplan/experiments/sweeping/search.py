@@ -219,12 +219,15 @@ def check_optimiser(sweeper: str, settings: dict, search: list) -> tuple[int | N
     _check_storage(settings.get("storage"))
     _check_sampler(settings.get("sampler") or {})
     sampler = str((settings.get("sampler") or {}).get("_target_", ""))
-    for o in search:
-        if sampler.endswith("GridSampler") and o.is_interval_sweep():
-            raise BadInput(
-                f"override '{o.input_line}'",
-                "the grid sampler takes choice(...), comma lists or range(...), not interval(...)",
-            )
+    if sampler.endswith("GridSampler"):
+        for o in search:
+            if o.is_interval_sweep():
+                raise BadInput(
+                    f"override '{o.input_line}'",
+                    "the grid sampler takes choice(...), comma lists or range(...), not interval(...)",
+                )
+        # optuna ends the study once every point of the grid ran: more trials asked for are not run, not failed
+        trials = min(trials, math.prod(len(list(o.sweep_string_iterator())) for o in search))
     return trials, batch
 
 

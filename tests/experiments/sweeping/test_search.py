@@ -88,3 +88,20 @@ def test_optuna_settings_that_fail_only_at_launch_are_bad_input_before_it(in_tmp
         plan_sweep(["hydra/sweeper=optuna", "hydra.sweeper.n_trials=2", *search, *settings])
     assert err.value.where == where and problem in err.value.problem
     assert not (in_tmp / "outputs").exists()
+
+
+@pytest.mark.slow  # imports optuna
+def test_the_grid_sampler_runs_at_most_its_grid(in_tmp):
+    """3 trials over a grid of 2 points ran 2 and said 'the sweeper ran 2 of 3 trials' (exit 1): optuna ends a grid
+    study once every point ran."""
+    pytest.importorskip("hydra_plugins.hydra_optuna_sweeper", reason="the optuna extra is not installed")
+    from riskplan.experiments.sweeping.plan import plan_sweep
+
+    plan = plan_sweep(
+        ["hydra/sweeper=optuna", "hydra/sweeper/sampler=grid", "risk.beta=choice(0.1,0.5)", "hydra.sweeper.n_trials=3"]
+    )
+    assert plan.trials == 2
+    plan = plan_sweep(
+        ["hydra/sweeper=optuna", "hydra/sweeper/sampler=grid", "seed=range(0,4)", "hydra.sweeper.n_trials=3"]
+    )
+    assert plan.trials == 3
