@@ -74,7 +74,7 @@ from riskplan.util.paths import (
 TARGETS = ("mlflow", "tensorboard", "foxglove", "ros2")
 DEFAULT_URI = {"mlflow": Path("outputs") / "mlruns", "tensorboard": Path("outputs") / "tensorboard"}
 EXPERIMENT = "riskplan"
-EXPORT_VERSION = 1  # part of the fingerprint: a change of what an export writes replaces older exports
+EXPORT_VERSION = 2  # part of the fingerprint: a change of what an export writes replaces older exports
 EXTRA = {
     "mlflow": ("mlflow", "mlflow-skinny"),
     "tensorboard": ("tensorboard", "tensorboard"),
@@ -220,6 +220,15 @@ def _start_time(path: Path) -> float:
     return 0.0
 
 
+def _table_sha(table: pd.DataFrame | None) -> str:
+    """A table's columns and every value (pandas' row hashes): a number changed by hand is a change to export; its
+    row count and last iteration alone said "unchanged"."""
+    if table is None:
+        return ""
+    rows = pd.util.hash_pandas_object(table, index=False).to_numpy()
+    return hashlib.sha256(json.dumps([str(c) for c in table.columns]).encode() + rows.tobytes()).hexdigest()
+
+
 def run_record(info: RunInfo) -> Record:
     """A loaded, complete run as metrics, params and tags."""
     run = info.run
@@ -237,9 +246,8 @@ def run_record(info: RunInfo) -> Record:
             "version": EXPORT_VERSION,
             "config": run.config,
             "summary": run.summary,
-            "rows": len(run.metrics),
-            "columns": [str(c) for c in run.metrics.columns],
-            "last": last,
+            "metrics": _table_sha(run.metrics),
+            "trajectories": _table_sha(run.trajectories),  # the ROS 2 bags' paths
         }
     )
     tags = {

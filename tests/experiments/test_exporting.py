@@ -173,6 +173,12 @@ def test_mlflow_reexport_is_idempotent_and_replaces_a_changed_run(runs, tmp_path
     assert len(after) == 1 and after["single_0"].info.run_id != first["single_0"].info.run_id
     assert after["single_0"].data.metrics["summary/cvar"] == s["cvar"]["value"]
 
+    metrics = pd.read_parquet(mine / "single_0" / "metrics.parquet")  # a value changed, rows and columns alike
+    metrics.loc[0, "mean"] *= 2.0  # was "unchanged": the fingerprint held the row count and last iteration only
+    metrics.to_parquet(mine / "single_0" / "metrics.parquet")
+    fourth = invoke(str(mine), "--to", "mlflow", "--uri", f"file:{store}")
+    assert fourth.exit_code == 0 and "0 exported, 1 replaced, 0 unchanged" in fourth.stdout
+
 
 @pytest.mark.slow  # a run, then an export
 def test_a_source_name_mlflow_refuses_is_exported_under_a_safe_key(tmp_path, file_store):
