@@ -25,7 +25,7 @@ def test_the_command_table_shows_every_command_with_its_real_options(page):
     """Each row `riskplan NAME [--option ...]` of the page's command table: every command has one, its options are
     exactly the command's (no stale one, none left out) and export's --to lists exactly its targets."""
     from riskplan.cli import app
-    from riskplan.experiments.exporting import TARGETS
+    from riskplan.experiments.export_destinations import TARGETS
 
     rows = dict(re.findall(r"^\| `riskplan (\w+)([^`]*)` \|", (ROOT / page).read_text(), flags=re.M))
     commands = typer.main.get_command(app).commands

@@ -43,15 +43,12 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-import pandas as pd
 import typer
-from rich.console import Console
-from rich.table import Table
 
-from riskplan.config.keys import KEYS
 from riskplan.experiments.landscape import compute_landscape
 from riskplan.experiments.reporting import REPRODUCE_ROOT, build_report, check_formats
 from riskplan.experiments.reporting.parallel import workers as report_workers
+from riskplan.experiments.seed_comparison import print_comparison
 from riskplan.experiments.study_registry import EXPERIMENTS
 from riskplan.experiments.sweeping import as_job, report_outcome, run_sweep, sweep_size, warm_workers
 from riskplan.experiments.timing import (
@@ -313,7 +310,7 @@ def _reproduce(target: Path, options: Options, schedule: Schedule, clock: dict |
     if signum is not None:
         return _stopped(target, options, record, signal.Signals(signum), stage, outcomes)
     tic = time.time()
-    _print_comparison(outcomes)
+    print_comparison(outcomes)
     record["parts"]["comparison"] = {"seconds": round(time.time() - tic, 2)}
     typer.echo(f"\n{schedule.header('report')}")
     tic = time.time()
@@ -563,61 +560,6 @@ def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
     args = ["experiment=paper_single", *overrides]
     compute_landscape(compose(args), out, overrides=args, **grid)
     return {"seconds": round(time.time() - tic, 2), **grid}
-
-
-def _print_comparison(outcomes) -> None:
-    """Across seeds: the mean and CVaR of each condition (the paper's claims in four lines)."""
-    frames = []
-    for outcome in outcomes:
-        frame = outcome.summary.copy()
-        frame["sweep"] = outcome.sweep_dir.name
-        # the conditions of a study's sweep beyond risk and beta (the paper's sweeps have none)
-        swept = [c for c in CONDITION_KEYS if c in frame and frame[c].astype(str).nunique() > 1]
-        frame["condition"] = frame[swept].astype(str).agg(", ".join, axis=1) if swept else ""
-        frames.append(frame)
-    if not frames:
-        return
-    data = pd.concat(frames, ignore_index=True)
-    data = data[data.status == "done"]
-    if data.empty:
-        return
-    if "risk" not in data:
-        data["risk"] = "cvar"
-    data["risk"] = data["risk"].fillna("cvar")
-    table = Table(
-        title="Section V across seeds (mean ± sd of the per-seed figures on the evaluation episodes)",
-        title_justify="left",
-        show_edge=False,
-        pad_edge=False,
-    )
-    for column in ("set-up", "objective", "seeds", "mean", "CVaR", "VaR"):
-        table.add_column(column, justify="left" if column in ("set-up", "objective") else "right")
-    for (sweep, risk, beta, condition), group in data.groupby(["sweep", "risk", "beta", "condition"], sort=False):
-        setup = {
-            "team": "3 robots, line graph",
-            "wander": "1 robot, θ0 = (0, 0)",
-            "soft_risk": "1 robot, θ0 = (0, 0), soft risk (linear)",
-            "policies": "1 robot, θ0 = (0, 0)",
-            "tabular": "1 robot, θ0 = (0, 0), tabular policy",
-            "hetero_team": "8 robots from 8 starts, ring",
-            "hetero_central": "8 robots from 8 starts, complete graph (centralized)",
-            "faults": "7 robots, complete graph, robot 6 Byzantine",
-            "faults_free": "7 robots, complete graph, fault-free",
-            "floor_plan": "1 robot on the floor plan",
-        }.get(sweep, "1 robot (centralized)")
-        table.add_row(
-            setup + (f", {condition}" if condition else ""),
-            {"cvar": f"CVaR_{beta:g}", "neutral": "mean (risk-neutral)"}.get(risk, str(risk)),
-            str(len(group)),
-            *(
-                f"{group[c].mean():.1f} ± {group[c].std(ddof=1) if len(group) > 1 else 0:.1f}"
-                for c in ("mean", "cvar", "value_at_risk")
-            ),
-        )
-    (Console() if sys.stdout.isatty() else Console(width=250)).print(table)
-
-
-CONDITION_KEYS = (KEYS.policy.features, KEYS.policy.kind, KEYS.team.order, KEYS.team.aggregate)  # swept by the studies
 
 
 def stop_workers() -> None:

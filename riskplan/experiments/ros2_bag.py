@@ -12,7 +12,8 @@ resolution x world.map_cell metres, turned by the origin's yaw; 1 m cells from (
   0 elsewhere; a name is made a valid ROS name (other characters as `_`);
 - `/sources` (visualization_msgs/msg/MarkerArray): a sphere and a label per source, at its first cell;
 - `/robot_<i>/path` (nav_msgs/msg/Path): one message per sampled episode of robot i's final policy
-  (the run's trajectories table: trajectories.parquet, or rebuilt from run.mcap), the k-th pose stamped k steps after the bag's start;
+  (the run's trajectories table: trajectories.parquet, or rebuilt from run.mcap), the k-th pose stamped k steps
+  after the bag's start;
 - `/robot_<i>/pose` (geometry_msgs/msg/PoseStamped): along the first of those episodes, one per step, facing
   the way it moves.
 

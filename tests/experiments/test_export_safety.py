@@ -20,7 +20,8 @@ from typer.testing import CliRunner
 
 from riskplan import compose, train
 from riskplan.cli import app
-from riskplan.experiments.exporting import check_tracking_uri, check_uri, mlflow_settings, tensorboard_name
+from riskplan.experiments.export_destinations import check_tracking_uri, check_uri, mlflow_settings
+from riskplan.experiments.exporting import tensorboard_name
 from riskplan.run.foxglove_layout import LAYOUT_FILE
 from riskplan.util.lock import LOCK
 

@@ -458,7 +458,7 @@ def test_every_targets_default_destination_is_under_outputs_or_in_each_run(tmp_p
     """Without --uri or --out an export writes under outputs/, which .gitignore leaves out (the trackers' stores),
     or into each run directory (the Foxglove layout, the ROS 2 bags): from a repository's root it adds nothing
     that git would list."""
-    from riskplan.experiments.exporting import TARGETS, check_uri
+    from riskplan.experiments.export_destinations import TARGETS, check_uri
 
     monkeypatch.chdir(tmp_path)
     stores = {

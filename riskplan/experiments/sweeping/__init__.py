@@ -23,8 +23,8 @@ checked with sample values instead of every combination, each trial runs as a sw
 returns its CVaR (None when it failed, which optuna records as a failed trial), and summary.parquet has one row
 per trial.
 
-Modules: jobs (what a job is and where it is) -> grid (checks and expansion) -> launch, summary, view ->
-search (optimising sweepers) -> plan -> run.
+Modules: jobs (what a job is and where it is) -> grid (checks and expansion), launcher_settings (the launcher's
+workers and Ray's init arguments) -> launch, summary, view -> search (optimising sweepers) -> plan -> run.
 """
 
 from __future__ import annotations

@@ -30,17 +30,16 @@ from omegaconf.errors import OmegaConfBaseException
 from riskplan.config import schema
 from riskplan.config.hydra_safety import check_hydra_node, check_resolvers
 from riskplan.config.typed import choice_problem
-from riskplan.config.validate import check_extra
 from riskplan.engine.step import batch_key
 from riskplan.experiments.sweep_worker import HOW_KEYS, config_sha, folder_name
 from riskplan.experiments.sweeping.as_data import Composition, JobConfig, shared
-from riskplan.experiments.sweeping.jobs import LOCAL, SWEEPS_ROOT, Job
+from riskplan.experiments.sweeping.jobs import SWEEPS_ROOT, Job
 from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, explain, parse_overrides
 from riskplan.run.compose import compose as riskplan_compose
 from riskplan.run.cost import run_bytes, setup_steps
 from riskplan.util.errors import BadInput, MissingExtra
-from riskplan.util.limits import check_jobs, cpu_count
+from riskplan.util.limits import check_jobs
 from riskplan.util.paths import claim_dir, hydra_quote
 from riskplan.util.progress import PhaseBars
 
@@ -495,82 +494,6 @@ def split_bad(message: str, count: int) -> tuple[str, str]:
 def first_line(err: Exception) -> str:
     text = str(err).strip()
     return text.splitlines()[0] if text else type(err).__name__
-
-
-def launcher_workers(argv: list[str], launcher: str, hydra_keys: dict, jobs: int | None, most: int | None):
-    """The workers riskplan gives the launcher, added to `argv`: joblib's n_jobs (--jobs, or one per core), SLURM's
-    array parallelism (--jobs), never more than `most` (the jobs, or an optimiser's trials at once). Returns the
-    workers and the index in argv of the n_jobs riskplan added (None when the user gave it)."""
-    limit = [most] if most else []
-    if launcher == "joblib":
-        workers = min([jobs or cpu_count(), *limit])  # more workers than jobs would idle
-        if "hydra.launcher.n_jobs" in hydra_keys:
-            return workers, None
-        argv.append(f"hydra.launcher.n_jobs={workers}")
-        return workers, len(argv) - 1
-    if jobs is None:
-        return None, None
-    if launcher != "submitit_slurm":
-        raise BadInput(
-            "--jobs", f"applies to the joblib and submitit_slurm launchers, not to hydra/launcher={launcher}"
-        )
-    workers = min([jobs, *limit])
-    argv.append(f"hydra.launcher.array_parallelism={workers}")
-    return workers, None
-
-
-RAY_INIT = "hydra.launcher.ray.init."
-# what ray.init refuses when it connects to an existing cluster (the nodes were sized by `ray start` on each node)
-RAY_CONNECT_REFUSES = (
-    "num_cpus",
-    "num_gpus",
-    "resources",
-    "labels",
-    "object_store_memory",
-    "_system_config",
-    "_enable_object_reconstruction",
-    "_node_name",
-)
-
-
-def ray_connects(launcher: str, hydra_keys: dict) -> bool:
-    """Whether a Ray launcher connects to an existing cluster (init.address set: auto or host:port) rather than
-    starting a Ray instance of its own."""
-    address = hydra_keys.get(RAY_INIT + "address")
-    if address is not None and not address.is_delete():
-        return address.value() is not None
-    return launcher == "ray_cluster"
-
-
-def runs_here(launcher: str, hydra_keys: dict) -> bool:
-    """Whether the launcher's jobs run on this machine below the driver, and so end with it (driver_watch)."""
-    return launcher in LOCAL or (launcher == "ray" and not ray_connects(launcher, hydra_keys))
-
-
-def ray_init_overrides(launcher: str, hydra_keys: dict) -> list[str]:
-    """Only the ray.init arguments that fit the case. hydra-ray-launcher 1.2 adds object_store_memory (75 MiB)
-    before ray.init(**init): right for a local instance, refused by ray.init when it connects to an existing
-    cluster (init.address set: auto or host:port). There riskplan sets it to null (the nodes keep the object store
-    `ray start` gave them) and refuses, as bad input, the other arguments ray.init would refuse."""
-    if launcher not in ("ray", "ray_cluster"):
-        return []
-    check_extra("hydra/launcher", launcher)  # Hydra's Ray launcher, an extra of its own
-
-    def given(key: str):
-        override = hydra_keys.get(RAY_INIT + key)
-        return override if override is not None and not override.is_delete() else None
-
-    if not ray_connects(launcher, hydra_keys):
-        return []
-    for key in RAY_CONNECT_REFUSES:
-        override = given(key)
-        if override is not None and override.value() is not None:
-            raise BadInput(
-                f"override '{override.input_line}'",
-                "ray.init does not take it when it connects to an existing Ray cluster (hydra.launcher.ray.init."
-                "address is set): `ray start` sizes each node; CPUs per job: +hydra.launcher.ray.remote.num_cpus=N",
-            )
-    return ["++hydra.launcher.ray.init.object_store_memory=null"] if launcher == "ray" else []
 
 
 class JobConfigs:

@@ -88,7 +88,7 @@ class Plan:
     trials: int | None = None  # how many jobs such a sweeper runs, when known
     search: list[str] = field(default_factory=list)  # the keys it searches
     memory: tuple[float, str] | None = None  # a batched sweep's hydra.launcher.memory_gb: (bytes, where it was set)
-    local: bool = False  # its jobs run on this machine below the driver (grid.runs_here), and end with it
+    local: bool = False  # its jobs run on this machine below the driver (launcher_settings.runs_here), and end with it
     batch: bool = False  # --batch: its jobs train as batches, in this process or a chunk per cluster task
     tasks: object = None  # on a cluster, what a task may hold (sweeping.cluster_batches.TaskSize)
 

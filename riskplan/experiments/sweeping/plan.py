@@ -19,10 +19,7 @@ from riskplan.experiments.sweeping.grid import (
     check_subdir,
     constant_keys,
     expand,
-    launcher_workers,
     name_folders,
-    ray_init_overrides,
-    runs_here,
     split_bad,
     target_dir,
     unnamed_key,
@@ -37,6 +34,7 @@ from riskplan.experiments.sweeping.jobs import (
     Plan,
     check_sweep_dir,
 )
+from riskplan.experiments.sweeping.launcher_settings import launcher_workers, ray_init_overrides, runs_here
 from riskplan.experiments.sweeping.search import plan_optimiser
 from riskplan.run.compose import check_groups, expand_shorthands, parse_overrides
 from riskplan.util.errors import BadInput

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import yaml
 from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, RangeSweep
+from hydra.utils import instantiate
 
 from riskplan.experiments.driver_watch import name_driver
 from riskplan.experiments.sweep_worker import THREADS_ENV, TRIAL_SUBDIR, read_status
@@ -18,9 +19,6 @@ from riskplan.experiments.sweeping.grid import (
     check_hydra,
     check_subdir,
     first_line,
-    launcher_workers,
-    ray_init_overrides,
-    runs_here,
     target_dir,
     validate,
 )
@@ -35,6 +33,7 @@ from riskplan.experiments.sweeping.jobs import (
     override_files,
 )
 from riskplan.experiments.sweeping.launch import launch
+from riskplan.experiments.sweeping.launcher_settings import launcher_workers, ray_init_overrides, runs_here
 from riskplan.experiments.sweeping.summary import summarize, write_summary
 from riskplan.experiments.sweeping.view import SweepView
 from riskplan.util.errors import BadInput
@@ -236,7 +235,7 @@ def _check_storage(storage) -> None:
     a sweep folder left behind)."""
     if storage is None:
         return
-    from sqlalchemy.engine import make_url  # optuna's dependency: with the optuna extra
+    from sqlalchemy.engine import make_url  # optional: optuna's dependency, with the optuna extra
 
     key = "hydra.sweeper.storage"
     try:
@@ -258,8 +257,6 @@ def _check_sampler(sampler: dict) -> None:
     target = str(sampler.get("_target_", ""))
     if not target.startswith("optuna.samplers."):
         return
-    from hydra.utils import instantiate
-
     try:
         instantiate(sampler)
     except Exception as err:
