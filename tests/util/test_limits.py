@@ -12,23 +12,25 @@ from riskplan.util.errors import BadInput
 from riskplan.util.limits import JOBS_ENV, MEMORY_ENV, check_numba_threads, duration, job_budget, memory_budget
 
 
-@pytest.mark.parametrize("value", ["0.5", "1.9"])
-def test_a_job_limit_is_a_whole_number(monkeypatch, value):
-    """0.5 read as 0 ('2 jobs, more than the 0 allowed') and 1.9 as 1."""
-    monkeypatch.setenv(JOBS_ENV, value)
-    with pytest.raises(BadInput, match=rf"^{JOBS_ENV}: got '{value}'; expected a whole number of jobs >= 1$"):
-        job_budget()
-    monkeypatch.setenv(JOBS_ENV, "2.0")
-    assert job_budget() == 2
-
-
-@pytest.mark.parametrize("value", ["1e-320", "1e-10"])
-def test_a_memory_limit_below_one_byte_is_refused_not_shown_as_1e_311_bytes(monkeypatch, value):
-    monkeypatch.setenv(MEMORY_ENV, value)
-    with pytest.raises(BadInput, match=rf"^{MEMORY_ENV}: got '{value}'; expected at least 1e-9 GB \(one byte\)"):
-        memory_budget()
-    monkeypatch.setenv(MEMORY_ENV, "1e-9")
-    assert memory_budget() == (1.0, MEMORY_ENV)
+@pytest.mark.parametrize(
+    "env, value, problem, good, budget, expected",
+    [
+        # 0.5 read as 0 ('2 jobs, more than the 0 allowed') and 1.9 as 1
+        (JOBS_ENV, "0.5", "expected a whole number of jobs >= 1$", "2.0", job_budget, 2),
+        (JOBS_ENV, "1.9", "expected a whole number of jobs >= 1$", "2.0", job_budget, 2),
+        # a limit below one byte was shown as "more than the 1e-311 B allowed"
+        (MEMORY_ENV, "1e-320", r"expected at least 1e-9 GB \(one byte\)", "1e-9", memory_budget, (1.0, MEMORY_ENV)),
+        (MEMORY_ENV, "1e-10", r"expected at least 1e-9 GB \(one byte\)", "1e-9", memory_budget, (1.0, MEMORY_ENV)),
+    ],
+)
+def test_a_limit_no_run_could_meet_is_refused_naming_its_variable(
+    monkeypatch, env, value, problem, good, budget, expected
+):
+    monkeypatch.setenv(env, value)
+    with pytest.raises(BadInput, match=rf"^{env}: got '{value}'; {problem}"):
+        budget()
+    monkeypatch.setenv(env, good)
+    assert budget() == expected
 
 
 def test_a_duration_below_a_second_keeps_its_digits():

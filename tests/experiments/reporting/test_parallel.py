@@ -42,12 +42,13 @@ def test_work_no_worker_delivered_is_done_in_this_process(monkeypatch):
 @linux_only
 def test_the_block_runs_while_the_children_work_and_its_failure_ends_them(monkeypatch):
     monkeypatch.setenv(WORKERS_ENV, "3")
+    before = set(multiprocessing.active_children())  # an earlier test's sweep workers (loky's, kept for reuse)
     with sharing(lambda x: x * x, list(range(7)), cost=float) as results:
         assert results == []  # filled on leaving the block, this process joining in
-    assert results == [x * x for x in range(7)] and not multiprocessing.active_children()
+    assert results == [x * x for x in range(7)] and set(multiprocessing.active_children()) <= before
     with pytest.raises(RuntimeError, match="tables"), sharing(lambda x: x * x, list(range(7)), cost=float) as results:
         raise RuntimeError("tables")
-    assert results == [] and not multiprocessing.active_children()
+    assert results == [] and set(multiprocessing.active_children()) <= before
 
 
 @pytest.mark.parametrize("workers", ["1", "3"])
