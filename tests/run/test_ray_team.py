@@ -486,9 +486,10 @@ def test_gradient_tracking_keeps_its_sum_with_real_messages(local_ray, tmp_path)
     np.testing.assert_allclose(held, want, rtol=1e-12, atol=1e-9)
 
 
-# 20 iterations: the signal or kill lands after the first checkpoint (iteration 5) with 15 slowed iterations to spare,
-# and the resume, which runs every iteration left at the same slowed speed, has only those 15 to finish
-LONG_ITERATIONS = 20
+# 40 iterations: the signal or kill lands after the first checkpoint (iteration 5) with 35 slowed iterations to spare
+# (with 15, a loaded CI machine once let a robot reach the last before SIGTERM was handled), and the resume, which runs
+# every iteration left at the same slowed speed, has at most those 35 to finish
+LONG_ITERATIONS = 40
 LONG = [
     "experiment=paper_team",
     "team.backend=ray",
