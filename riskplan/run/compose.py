@@ -19,7 +19,7 @@ from riskplan.config.typed import explain, typed
 from riskplan.config.validate import EXTRAS, check_extra
 from riskplan.engine.step import RunSetup
 from riskplan.run.build import build_setup
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, first_line
 
 __all__ = [
     "CONF_DIR",
@@ -207,7 +207,7 @@ def _compose(overrides, validate: bool, with_hydra: bool) -> tuple[DictConfig, R
     except (HydraException, OmegaConfBaseException) as err:
         raise BadInput(*explain(err)) from None
     except ValueError as err:  # Hydra's defaults list rejects some values outside its grammar
-        raise BadInput("config", f"{_first_line(err)}; {GRAMMAR}") from None
+        raise BadInput("config", f"{first_line(err)}; {GRAMMAR}") from None
     except RecursionError:
         raise BadInput(
             "config",
@@ -242,8 +242,3 @@ def check_hydra_args(args: list[str]) -> None:
         if not arg.startswith("-"):
             overrides.append(arg)
     compose(overrides, validate=False)
-
-
-def _first_line(err: Exception) -> str:
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__

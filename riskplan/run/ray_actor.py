@@ -34,7 +34,7 @@ import numba
 from riskplan.config.schema import TeamConf
 from riskplan.run.build import build_setup
 from riskplan.run.ray_robot import Message, RobotCore
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, first_line
 from riskplan.version import __version__
 
 EXTRA = "riskplan[distributed]"
@@ -157,12 +157,6 @@ def _larger(a: float, b: float) -> float:
     return b if math.isnan(a) else a if math.isnan(b) else max(a, b)
 
 
-def first_line(err: BaseException) -> str:
-    """An error's first line, at most 200 characters (its type's name when it says nothing)."""
-    text = str(err).strip().splitlines()
-    return text[0][:200] if text else type(err).__name__
-
-
 # --------------------------------------------------------------------------------------------- Ray itself
 def placements(ray, robots: int) -> list:
     """Where each robot's actor goes: round robin over the cluster's alive nodes that offer CPUs (all alive nodes
@@ -249,4 +243,4 @@ def ray_runtime(team: TeamConf) -> Iterator[Any]:
             signal.signal(signal.SIGTERM, handler)
 
 
-__all__ = ["RobotActor", "first_line", "import_ray", "placements", "ray_runtime"]
+__all__ = ["RobotActor", "import_ray", "placements", "ray_runtime"]

@@ -58,12 +58,12 @@ from riskplan.run.checkpoint import TeamCheckpoint, load_team_checkpoint, save_t
 from riskplan.run.columns import Columns, from_rows, sorted_by
 from riskplan.run.evaluation import evaluate, sample_paths, summarize
 from riskplan.run.metrics_rows import AVERAGE, average_row
-from riskplan.run.ray_actor import RobotActor, first_line, placements, ray_runtime
+from riskplan.run.ray_actor import RobotActor, placements, ray_runtime
 from riskplan.run.ray_robot import consistent_cut, in_neighbours, initial_state, out_neighbours, tracking_balance
 from riskplan.run.record import RunLog
 from riskplan.run.run_directory import logged_rows, reopen_log, start_log, write_finished
 from riskplan.run.run_files import RUN_LOG, has_finished
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, first_line
 from riskplan.util.interrupt import Interrupted, StopSignals
 from riskplan.version import __version__
 

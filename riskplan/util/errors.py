@@ -23,6 +23,13 @@ def one_line(text: str) -> str:
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
+def first_line(err: BaseException) -> str:
+    """An error's first line for a one-line message, at most 200 characters (its type's name when it says nothing):
+    a library's error may run to a page."""
+    text = str(err).strip().splitlines()
+    return text[0][:200] if text else type(err).__name__
+
+
 class MissingExtra(BadInput):
     """An optional package that a chosen value needs (team.backend=ray: Ray) is not installed: bad input, whose line
     ends with the one `pip install` that fixes it. A sweep refuses it as a whole, before any job or folder."""

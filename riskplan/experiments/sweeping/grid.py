@@ -38,7 +38,7 @@ from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, explain, parse_overrides
 from riskplan.run.compose import compose as riskplan_compose
 from riskplan.run.cost import run_bytes, setup_steps
-from riskplan.util.errors import BadInput, MissingExtra
+from riskplan.util.errors import BadInput, MissingExtra, first_line
 from riskplan.util.limits import check_jobs
 from riskplan.util.paths import claim_dir, hydra_quote
 from riskplan.util.progress import PhaseBars
@@ -489,11 +489,6 @@ def split_bad(message: str, count: int) -> tuple[str, str]:
     if count > 1:
         problem = f"{problem} (in every one of the {count} combinations; nothing was run)"
     return where, problem
-
-
-def first_line(err: Exception) -> str:
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
 
 
 class JobConfigs:

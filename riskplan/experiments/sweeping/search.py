@@ -18,7 +18,6 @@ from riskplan.experiments.sweeping.grid import (
     add_naming_and_logging,
     check_hydra,
     check_subdir,
-    first_line,
     target_dir,
     validate,
 )
@@ -36,7 +35,7 @@ from riskplan.experiments.sweeping.launch import launch
 from riskplan.experiments.sweeping.launcher_settings import launcher_workers, ray_init_overrides, runs_here
 from riskplan.experiments.sweeping.summary import summarize, write_summary
 from riskplan.experiments.sweeping.view import SweepView
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, first_line
 from riskplan.util.limits import check_jobs, cpu_count
 from riskplan.util.paths import hydra_quote
 
