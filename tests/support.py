@@ -29,6 +29,7 @@ from riskplan.engine.policy import probabilities
 from riskplan.engine.rollout import simulate
 from riskplan.engine.team.mixer import Mixer
 from riskplan.engine.team.network import Network, build_network
+from riskplan.experiments.driver_watch import ENV as DRIVER_ENV
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import CHECKPOINT, CRASH_ENV
 from riskplan.run.compose import compose
@@ -187,8 +188,9 @@ def riskplan_command() -> list[str]:
 
 
 def child_env(**extra: str) -> dict[str, str]:
-    """The test's environment without the fault-injection variables, plus `extra`."""
-    env = {k: v for k, v in os.environ.items() if k not in (CRASH_ENV, STOP_ENV)}
+    """The test's environment without the fault-injection variables, plus `extra`; nor the name of a sweep driver
+    that a sweep run in this test process gave itself (its workers' variable: a child would take itself for one)."""
+    env = {k: v for k, v in os.environ.items() if k not in (CRASH_ENV, STOP_ENV, DRIVER_ENV)}
     env.update(extra)
     return env
 

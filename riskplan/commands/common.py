@@ -12,6 +12,7 @@ from typer.core import TyperGroup
 
 from riskplan.config.user_files import check_config_files
 from riskplan.util.errors import BadInput, remedy
+from riskplan.util.interrupt import Interrupted
 from riskplan.util.paths import check_decoded, hydra_quote
 
 # typer vendors click in recent releases and depends on it in older ones: find click's base exception either way
@@ -36,16 +37,25 @@ class OneLineErrors(TyperGroup):
                 message = " ".join(err.format_message().split())
                 typer.echo(f"error: {where}: {message} (see {where} --help)", err=True)
             code = err.exit_code
-        except typer.Abort as err:
-            if isinstance(err.__cause__, KeyboardInterrupt):  # click's answer to Ctrl-C: the shell's code for it
-                typer.echo("error: interrupted by SIGINT", err=True)
-                code = 130
-            else:
-                typer.echo("aborted", err=True)
-                code = 1
+        except typer.Abort:
+            typer.echo("aborted", err=True)
+            code = 1
         if not standalone_mode:
             return code
         sys.exit(code if isinstance(code, int) else 0)
+
+    def invoke(self, ctx):
+        """A signal that stopped a command which did not answer it itself (a benchmark's scratch run, a Ctrl-C
+        while it computes): one line and the shell's code for the signal, not a traceback (click answers Ctrl-C
+        with a bare Abort, recent typer with a silent exit 130)."""
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:
+            typer.echo("error: interrupted by SIGINT", err=True)
+            raise typer.Exit(130) from None
+        except Interrupted as stop:
+            typer.echo(f"error: interrupted by {stop.name}", err=True)
+            raise typer.Exit(stop.exit_code) from None
 
 
 def _check_decoded_arguments(args: list[str]) -> None:

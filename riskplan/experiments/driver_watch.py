@@ -30,6 +30,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -122,6 +123,38 @@ def arrive() -> str | None:
         _die_with_parent()
     exit_if_orphaned()  # after prctl: a driver that died just before it is caught here
     return name
+
+
+_working: list[bool] = []  # whether this local worker is in a job now (nested: a job and its set-up)
+
+
+@contextlib.contextmanager
+def working():
+    """In a local worker's main thread, a job: while the block runs, Ctrl-C raises KeyboardInterrupt in it (handlers
+    of its own, a training's, take over from this one); outside it, the idle worker ends at once and quietly, as
+    its driver is stopping too (Python's default printed a traceback from loky's loop). Elsewhere it does nothing.
+    The driver spawned the worker with SIGINT blocked (`launch.start_workers`): see `take_interrupts`."""
+    local = driver() is not None and threading.current_thread() is threading.main_thread()
+    if local:
+        signal.signal(signal.SIGINT, _stop_or_end)
+    _working.append(local)
+    try:
+        yield
+    finally:
+        _working.pop()
+
+
+def take_interrupts() -> None:
+    """In a local worker's main thread, once its job handles SIGINT (`working`, or a StopSignals): let SIGINT in. A
+    Ctrl-C that came while the worker started, held back since, is taken here."""
+    if driver() is not None and threading.current_thread() is threading.main_thread():
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+def _stop_or_end(signum: int, frame) -> None:
+    if _working:
+        raise KeyboardInterrupt
+    os._exit(128 + signum)
 
 
 def _die_with_parent() -> None:

@@ -33,12 +33,10 @@ import hashlib
 import json
 import math
 import os
-import signal
 import socket
 import string
 import sys
 import tempfile
-import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable
@@ -51,7 +49,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from riskplan.engine.step import NumericalTrouble
-from riskplan.experiments.driver_watch import arrive, exit_if_orphaned
+from riskplan.experiments.driver_watch import arrive, exit_if_orphaned, take_interrupts, working
 from riskplan.run.compose import compose
 from riskplan.run.run_files import CHECKPOINT, JOB_LOG, STATUS, has_finished, remove_stale
 from riskplan.run.training import prepare_resume, train_summary
@@ -220,19 +218,15 @@ def sweep_job(cfg: DictConfig, out: Path) -> float | None:
     """
     out = Path(out)
     watched = arrive()
-    if watched and threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, _stop_or_end)
-    with contextlib.ExitStack() as stack:
+    with working(), contextlib.ExitStack() as stack:
         if not _lock_folder(stack, out):
             return None
-        _in_job.append(out)
         try:
+            take_interrupts()  # a Ctrl-C from this worker's start on stops this job's set-up
             return _locked_job(cfg, out, watched)
         except KeyboardInterrupt:  # Ctrl-C in the job's set-up, before its training's own handler took over
             _mark_interrupted(out)
             raise
-        finally:
-            _in_job.clear()
 
 
 def _mark_interrupted(out: Path) -> None:
@@ -240,19 +234,6 @@ def _mark_interrupted(out: Path) -> None:
     status = read_status(out)
     if status is not None and status.get("status") == "running" and status.get("pid") == os.getpid():
         write_status(out, {**status, "status": "interrupted", "error": "interrupted by SIGINT before its training"})
-
-
-_in_job: list[Path] = []  # the job this local worker runs now (none between jobs)
-
-
-def _stop_or_end(signum: int, frame) -> None:
-    """SIGINT (Ctrl-C reaches the driver's whole process group) in a local worker: a job's set-up stops with
-    KeyboardInterrupt and is marked interrupted (its training has a handler of its own, which checkpoints first);
-    between jobs the worker ends at once and quietly, as its driver is stopping too. Left to Python, an idle
-    worker printed a traceback from loky's loop."""
-    if _in_job:
-        raise KeyboardInterrupt
-    os._exit(128 + signum)
 
 
 def _lock_folder(stack: contextlib.ExitStack, out: Path) -> bool:
@@ -390,7 +371,8 @@ def warm_up() -> tuple[int, float]:
     jobs start at once. Returns (this worker's pid, seconds taken)."""
     started = time.time()
     arrive()
-    with tempfile.TemporaryDirectory(prefix="riskplan-warm-up-") as scratch:
+    with working(), tempfile.TemporaryDirectory(prefix="riskplan-warm-up-") as scratch:
+        take_interrupts()
         for number, experiment in enumerate(WARM_UP):
             train_summary(compose([*experiment, *WARM_UP_SIZE]), Path(scratch) / str(number), progress=False)
     return os.getpid(), time.time() - started

@@ -82,6 +82,19 @@ class StopSignals(contextlib.AbstractContextManager):
             raise Interrupted(self.received, finished)
 
 
+@contextlib.contextmanager
+def sigint_blocked():
+    """SIGINT held back in this thread while the block runs. A process started in the block inherits the mask: a
+    Ctrl-C while it starts (seconds of imports, before it handles signals) waits for it to let SIGINT in, instead of
+    printing a traceback from the middle of an import. This process still takes a Ctrl-C: in another thread, or in
+    this one as the block ends."""
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
 def pending_signal() -> int | None:
     """The signal an active StopSignals of this process has noted and not yet acted on (None: none)."""
     if threading.current_thread() is not threading.main_thread():

@@ -4,12 +4,17 @@ code 2; a file that cannot be written at run time (a full disk) is one line and 
 from __future__ import annotations
 
 import errno
+import signal
 
 import pytest
 import typer
+from typer.testing import CliRunner
 
+import riskplan.run.compose as compose_module
+from riskplan.cli import app
 from riskplan.commands.common import bad_input_exits
 from riskplan.util.errors import BadInput
+from riskplan.util.interrupt import Interrupted
 
 
 def failing(error: Exception):
@@ -60,3 +65,22 @@ def test_a_failure_is_one_line_with_its_exit_code(capsys, error, code, line):
     assert stop.value.exit_code == code
     captured = capsys.readouterr()
     assert captured.err.splitlines() == [line] and captured.out == ""
+
+
+@pytest.mark.parametrize(
+    "stop, code, line",
+    [
+        (KeyboardInterrupt(), 130, "error: interrupted by SIGINT"),  # Ctrl-C where no handler of riskplan's ran
+        (Interrupted(signal.SIGTERM, 7), 143, "error: interrupted by SIGTERM"),  # a scratch run a signal stopped
+    ],
+)
+def test_a_signal_that_stops_a_command_is_one_line_with_the_shells_code(monkeypatch, stop, code, line):
+    """typer answers Ctrl-C with a silent exit 130 (click with "Aborted!"), and a benchmark's scratch run stopped
+    by a signal printed a traceback ending in Interrupted."""
+
+    def stopped(*args, **kwargs):
+        raise stop
+
+    monkeypatch.setattr(compose_module, "compose", stopped)
+    result = CliRunner().invoke(app, ["check"])
+    assert (result.exit_code, result.stderr) == (code, line + "\n")

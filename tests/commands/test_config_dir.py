@@ -23,7 +23,7 @@ train:
   iterations: 3
   samples: 200
   eval_episodes: 300
-  bootstrap: 20
+  bootstrap: 40
   paths: 2
 """
 

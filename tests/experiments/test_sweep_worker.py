@@ -5,11 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import subprocess
-import sys
-
-import pytest
 
 from riskplan.experiments import sweep_worker
 from riskplan.experiments.sweep_worker import NAME_MAX, config_sha, folder_name, trial_folder, write_status
@@ -77,32 +72,10 @@ def test_status_json_is_strict_json_and_leaves_no_temp_file(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["status.json"]
 
 
-def test_ctrl_c_ends_an_idle_local_worker_quietly_and_stops_a_job_in_its_set_up(tmp_path):
-    """Ctrl-C reaches every local worker (the driver's process group): one between jobs ends at once, with the
-    signal's exit code and without loky's traceback; one in a job's set-up stops it, and the job's status.json then
-    says interrupted (a status another process wrote is left alone)."""
-    idle = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            "import os, signal, time\n"
-            "from riskplan.experiments import sweep_worker\n"
-            "signal.signal(signal.SIGINT, sweep_worker._stop_or_end)\n"
-            "os.kill(os.getpid(), signal.SIGINT)\n"
-            "time.sleep(10)\n",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert (idle.returncode, idle.stderr) == (128 + signal.SIGINT, "")
-
-    sweep_worker._in_job.append(tmp_path)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            sweep_worker._stop_or_end(signal.SIGINT, None)
-    finally:
-        sweep_worker._in_job.clear()
+def test_a_job_stopped_in_its_set_up_is_marked_interrupted_only_where_this_process_began_it(tmp_path):
+    """Ctrl-C in a job's set-up (driver_watch.working raises KeyboardInterrupt there; the worker's signal handling
+    is tested in sweeping/test_signal_at_spawn.py): its status.json then says interrupted, and a status another
+    process wrote is left alone."""
     mine, theirs = tmp_path / "mine", tmp_path / "theirs"
     for folder, pid in ((mine, os.getpid()), (theirs, os.getpid() + 1)):
         folder.mkdir()

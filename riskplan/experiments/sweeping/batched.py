@@ -29,7 +29,7 @@ from omegaconf import DictConfig, open_dict
 from riskplan.config.backends import BACKENDS
 from riskplan.config.schema import Backend
 from riskplan.engine.step import RunSetup, batch_key
-from riskplan.experiments.driver_watch import arrive
+from riskplan.experiments.driver_watch import arrive, take_interrupts, working
 from riskplan.experiments.sweep_worker import (
     JOB_LOG,
     JobStart,
@@ -42,14 +42,14 @@ from riskplan.experiments.sweep_worker import (
 )
 from riskplan.experiments.sweeping.grid import JobConfigs
 from riskplan.experiments.sweeping.job_setup import JobSetup
-from riskplan.experiments.sweeping.launch import local_pool, pool_started
+from riskplan.experiments.sweeping.launch import pool_started, start_workers
 from riskplan.run import cost
 from riskplan.run.batch import BatchRun, train_batch
 from riskplan.run.build import build_setup
 from riskplan.run.cost import run_bytes
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
-from riskplan.util.interrupt import Interrupted, pending_signal
+from riskplan.util.interrupt import Interrupted, StopSignals, pending_signal
 from riskplan.util.limits import cpu_count, memory_budget
 from riskplan.util.paths import write_atomic
 
@@ -246,7 +246,7 @@ def train_chunks(chunks: list[list[Prepared]], progress: Path, total: int, worke
     if workers == 1:
         results = [call(*args, **kwargs) for call, args, kwargs in work]
     else:
-        results = local_pool(workers)(work)
+        results = list(start_workers(workers, work))
     stopped = None
     for part, records in zip(parts, results):
         for job, record in zip(part, records):
@@ -297,7 +297,9 @@ def train_part(
             freed.take()
 
     try:
-        train_batch(runs, progress, locked=True, between=freed.take)
+        with working(), StopSignals():  # a Ctrl-C from this worker's start on stops the batch (which takes it up)
+            take_interrupts()
+            train_batch(runs, progress, locked=True, between=freed.take)
     except Interrupted as stop:
         return [
             outcome(run.summary)

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import typer
+from joblib import delayed
 
 from riskplan.experiments.driver_watch import end_leftovers, name_driver
 from riskplan.experiments.sweep_worker import THREADS_ENV, is_finished
@@ -24,7 +25,7 @@ from riskplan.experiments.sweeping.jobs import (
     check_job_folders,
     locate,
 )
-from riskplan.experiments.sweeping.launch import launch
+from riskplan.experiments.sweeping.launch import in_background, launch, pool_started, start_workers
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.experiments.sweeping.search import run_optimiser
 from riskplan.experiments.sweeping.summary import summarize, write_summary
@@ -108,6 +109,8 @@ def _launch(plan: Plan, waiting: list, finished: set[int], title: str, before_la
         SweepView(plan.sweep_dir, plan.jobs, finished, title, batch_progress=PROGRESS if plan.batch else None),
         DriverSignals(plan.launcher not in LOCAL) as stop,
     ):
+        if plan.workers_arg is not None and plan.workers > 1 and not pool_started(plan.workers):
+            in_background(lambda: start_workers(plan.workers, [delayed(os.getpid)()]))  # spawned with SIGINT held back
         try:
             launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log", [job.overrides for job in waiting])
         except Interrupted as batch_stop:  # a batch trains here: it checkpointed and marked its jobs

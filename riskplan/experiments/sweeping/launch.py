@@ -1,5 +1,5 @@
 """Hydra's multirun, launched in this process, its printed output going to sweep.log; and the local workers
-started ahead of it (`warm_workers`)."""
+started ahead of it (`warm_workers`, `start_workers`)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,11 @@ import dataclasses
 import json
 import os
 import re
+import signal
 import threading
 import traceback
+from collections.abc import Callable, Iterator
+from multiprocessing import resource_tracker
 from pathlib import Path
 
 import numba
@@ -20,6 +23,7 @@ from riskplan.experiments.driver_watch import name_driver, recorded
 from riskplan.experiments.hydra_app import run_multirun
 from riskplan.experiments.sweep_worker import THREADS_ENV, warm_up
 from riskplan.experiments.sweeping.jobs import TASKS
+from riskplan.util.interrupt import StopSignals, sigint_blocked
 from riskplan.util.limits import cpu_count
 from riskplan.util.paths import hydra_quote, write_atomic
 
@@ -100,10 +104,11 @@ def _launcher_error(log_file: Path, launched: list[str]) -> str:
 WARMED = 1  # workers warmed up: one takes the core the planning leaves idle; more would slow the planning down
 
 
-def warm_workers(workers: int):
+def warm_workers(workers: int) -> Callable[[], list[tuple[int, float]]]:
     """Spawn the `workers` joblib (loky) processes of the local sweeps to come now, and warm WARMED of them up
-    (imports and numba's cache: riskplan.experiments.sweep_worker.warm_up), on a background thread. Returns a function that waits
-    for them and gives [(pid, seconds)], or [] when the warm-up failed (the sweeps then start workers of their own).
+    (imports and numba's cache: riskplan.experiments.sweep_worker.warm_up), on a background thread. Returns a
+    function that waits for them and gives [(pid, seconds)], or [] when the warm-up failed (the sweeps then start
+    workers of their own).
 
     One warmed worker shortens `reproduce`; warming every worker lengthened it, since they compete with the
     planning for the cores (docs/benchmarks.md has the figures).
@@ -112,26 +117,48 @@ def warm_workers(workers: int):
     settings, and the environment `_run_plan` gives a sweep's workers is set before they are spawned."""
     os.environ[THREADS_ENV] = str(max(1, cpu_count() // workers))
     name_driver(True)
-    warmed: list[tuple[int, float]] = []
-    # Spawned here, not on the thread below: a worker dies with the thread that spawned it (driver_watch), and
-    # that thread ends with the warm-up. The generator dispatches the first tasks, and so spawns, in this call.
+    with StopSignals() as stop:  # a Ctrl-C while they spawn stops this process once a thread holds the results
+        wait = in_background(lambda: start_workers(workers, [delayed(warm_up)() for _ in range(WARMED)]))
+    if stop.received is not None:
+        signal.raise_signal(stop.received)  # as it would have come, now that nothing is left half done
+    return wait
+
+
+def start_workers(workers: int, tasks: list) -> Iterator:
+    """Hand `tasks` to the `workers` local worker processes, spawning them (all at once) if they are not up yet;
+    returns their results as they come, in order. Spawned here, in the calling thread, not on a thread that ends
+    first: a worker dies with the thread that spawned it (driver_watch); and with SIGINT blocked, which the workers
+    inherit until their first job lets it in (driver_watch.take_interrupts): a Ctrl-C while they import printed a
+    traceback from each. The generator dispatches the first tasks, and so spawns, in this call."""
+    # The workers' semaphores start Python's resource tracker on first use; starting it unblocks SIGINT in the
+    # thread (SIG_UNBLOCK, not the mask it found), so it starts first.
+    resource_tracker.ensure_running()
+    with sigint_blocked():
+        return local_pool(workers, return_as="generator")(tasks)
+
+
+def in_background(start: Callable[[], Iterator]) -> Callable[[], list]:
+    """Results that `start` begins here, collected on a background thread (a generator joblib hands back aborts
+    its tasks when dropped unread). Returns a function that waits for them: [] when they failed, a Ctrl-C in a
+    worker included (the driver stops on its own)."""
+    collected: list = []
     try:
-        results = local_pool(workers, return_as="generator")(delayed(warm_up)() for _ in range(WARMED))
+        results = start()
     except Exception:
         results = iter(())
 
     def run() -> None:
         try:
-            warmed.extend(results)
-        except Exception:
-            warmed.clear()
+            collected.extend(results)
+        except (Exception, KeyboardInterrupt):
+            collected.clear()
 
-    thread = threading.Thread(target=run, name="riskplan-warm-up", daemon=True)
+    thread = threading.Thread(target=run, name="riskplan-workers-start", daemon=True)
     thread.start()
 
-    def wait() -> list[tuple[int, float]]:
+    def wait() -> list:
         thread.join()
-        return list(warmed)
+        return list(collected)
 
     return wait
 
