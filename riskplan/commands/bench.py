@@ -11,6 +11,7 @@ from pathlib import Path
 import typer
 
 from riskplan.commands.common import bad_input_exits
+from riskplan.util.errors import BadInput
 
 SCALING_PLOT = "outputs/bench/scaling.png"
 PLOT_TYPES = (".png", ".pdf", ".svg")  # what the scaling plot's writer takes (with its metadata)
@@ -36,7 +37,13 @@ def bench(
         "trajectory-steps/s and bytes per sample against grid size, horizon, sources, source motion and robots, "
         "each against the paper world (about 1 minute, 30 s with --quick).",
     ),
-    plot: str = typer.Option(SCALING_PLOT, "--plot", metavar="PNG", help="With --scaling: the plot's file."),
+    plot: str | None = typer.Option(
+        None,
+        "--plot",
+        metavar="PNG",
+        show_default=False,
+        help=f"With --scaling: the plot's file [default: {SCALING_PLOT}].",
+    ),
     csv_out: str | None = typer.Option(None, "--csv", help="With --scaling: also write the rows as CSV."),
     sweep: bool = _instead(
         "--sweep",
@@ -62,7 +69,14 @@ def bench(
     import numba
     from rich.console import Console
 
-    json_out, csv_out, plot = _check_outputs(json_out, csv_out, plot if scaling else None)  # before, not after
+    _check_modes({"--scaling": scaling, "--sweep": sweep, "--reproduce": reproduce, "--threads": threads})
+    if not scaling:
+        for flag, given in (("--plot", plot), ("--csv", csv_out)):
+            if given is not None:
+                raise BadInput(
+                    flag, f"got {given}; it applies with --scaling only (riskplan bench --scaling {flag} ...)"
+                )
+    json_out, csv_out, plot = _check_outputs(json_out, csv_out, (plot or SCALING_PLOT) if scaling else None)
 
     console = Console(soft_wrap=True)  # one line per figure, also in a log file
     console.print(
@@ -83,14 +97,22 @@ def bench(
     console.print(f"{met} of {len(rows)} targets met (load average {_load():.2f} at the end, {os.cpu_count()} cores)")
     if met < len(rows) and _busy():
         console.print(f"warning: {_busy()}", style="yellow")
-    if json_out:
-        json_out.write_text(json.dumps(rows, indent=2, default=float))
+    if json_out:  # "ok" as JSON's true or false, whichever type its measure gave
+        json_out.write_text(json.dumps([{**row, "ok": bool(row["ok"])} for row in rows], indent=2, default=float))
+
+
+def _check_modes(modes: dict[str, bool]) -> None:
+    """BadInput for two benchmarks asked at once: each runs instead of the targets, one per run."""
+    chosen = [flag for flag, on in modes.items() if on]
+    if len(chosen) > 1:
+        raise BadInput(
+            chosen[1], f"given with {chosen[0]}; each runs instead of the targets: give one of {', '.join(modes)}"
+        )
 
 
 def _check_outputs(json_out: str | None, csv_out: str | None, plot: str | None) -> tuple[Path | None, ...]:
     """The files the bench will write, as paths: each in a writable folder and not a folder itself, and the plot a
     type its writer takes. BadInput (one line, exit 2) naming the option otherwise."""
-    from riskplan.util.errors import BadInput
     from riskplan.util.paths import check_output_dir, check_output_file, file_path
 
     json_path = None if json_out is None else check_output_file(json_out, "--json", ".json")

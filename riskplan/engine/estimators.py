@@ -42,7 +42,11 @@ def value_at_risk(z: np.ndarray, beta: float) -> np.ndarray | float:
     """beta-VaR (eq. 5/8): the ceil(beta W)-th smallest sample, along the last axis; NaN for a row holding a NaN,
     as `cvar` and the mean give (numpy's partition would sort the NaN last and ignore it)."""
     z = as_sample(z)
-    v = _quantile(z, beta)
+    return _nan_where_nan(z, _quantile(z, beta))
+
+
+def _nan_where_nan(z: np.ndarray, v: np.ndarray | float) -> np.ndarray | float:
+    """v with NaN for each row of z that holds a NaN."""
     return np.where(np.isnan(z).any(axis=-1), np.nan, v)[()]
 
 
@@ -133,7 +137,7 @@ def summary_stats(z: np.ndarray, beta: float, *, parallel: bool = False) -> dict
     return {  # samples near the largest float: each measured again without overflow, as `cvar` and `mean` are
         "mean": mean(z),
         "cvar": tail if np.isfinite(tail).all() else cvar(z, beta),
-        "value_at_risk": v,
+        "value_at_risk": _nan_where_nan(z, v),
         "std": _without_overflow(lambda rows: rows.std(axis=-1), z),
     }
 

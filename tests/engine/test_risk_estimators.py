@@ -159,6 +159,10 @@ def test_a_nan_sample_gives_nan_from_value_at_risk_as_from_cvar_and_the_mean():
     assert np.isnan(value_at_risk(z, 0.5)[0]) and np.isnan(cvar(z, 0.5)[0]) and np.isnan(z.mean(axis=-1)[0])
     assert value_at_risk(z, 0.5)[1] == 2.0 and cvar(z, 0.5)[1] == 1.5
     assert np.isnan(value_at_risk([np.nan], 1.0)) and np.isnan(cvar([np.nan], 1.0))
+    stats = summary_stats(z, 0.5)  # all four at once, as a report's table takes them
+    assert all(np.isnan(stats[name][0]) for name in ("mean", "cvar", "value_at_risk", "std"))
+    assert (stats["value_at_risk"][1], stats["cvar"][1]) == (2.0, 1.5)
+    assert np.isnan(summary_stats(np.array([1.0, np.nan]), 0.1)["value_at_risk"])
 
 
 @pytest.mark.parametrize(

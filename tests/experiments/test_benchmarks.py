@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -415,6 +416,10 @@ def _paper_call():
         (["--json", "nodir/x.json"], "error: --json: nodir/x.json cannot be written: no folder nodir"),
         (["--scaling", "--csv", "adir"], "error: --csv: adir is a folder; give a file path ending .csv"),
         (["--scaling", "--plot", "x.jpg"], "error: --plot: got x.jpg; give a file path ending .png, .pdf, .svg"),
+        (["--csv", "x.csv"], "error: --csv: got x.csv; it applies with --scaling only"),  # was ignored
+        (["--plot", "x.png"], "error: --plot: got x.png; it applies with --scaling only"),
+        (["--scaling", "--sweep"], "error: --sweep: given with --scaling; each runs instead of the targets: give one"),
+        (["--threads", "--reproduce"], "error: --threads: given with --reproduce;"),  # only the first ran
     ],
 )
 def test_the_files_bench_writes_are_checked_before_it_measures(tmp_path, monkeypatch, args, line):
@@ -428,3 +433,14 @@ def test_the_files_bench_writes_are_checked_before_it_measures(tmp_path, monkeyp
     assert result.exit_code == 2 and result.stderr.splitlines()[0].startswith(line), result.output
     assert len(result.stderr.splitlines()) == 1 and measured == []
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"]
+
+
+def test_bench_json_says_ok_as_true_or_false_whatever_type_a_measure_gave(tmp_path, monkeypatch):
+    """The rollout and team-memory rows computed "ok" as numpy floats (0.0, 1.0), written as numbers."""
+    rows = [
+        {**_row(name, ok), "note": ""} for name, ok in (("a", np.float64(1.0)), ("b", np.bool_(False)), ("c", True))
+    ]
+    monkeypatch.setattr("riskplan.commands.bench._sections", lambda *a, **k: (lambda: rows,))
+    result = CliRunner().invoke(app, ["bench", "--json", str(tmp_path / "b.json")])
+    assert result.exit_code == 0, result.output
+    assert [row["ok"] for row in json.loads((tmp_path / "b.json").read_text())] == [True, False, True]
