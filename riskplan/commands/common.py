@@ -33,7 +33,7 @@ class OneLineErrors(TyperGroup):
             if type(err).__name__ == "NoArgsIsHelpError":  # bare `riskplan`: the help, as click shows it
                 err.show()
             else:
-                where = err.ctx.command_path if getattr(err, "ctx", None) else prog_name or "riskplan"
+                where = err.ctx.command_path if getattr(err, "ctx", None) else self._path(prog_name, args)
                 message = " ".join(err.format_message().split())
                 typer.echo(f"error: {where}: {message} (see {where} --help)", err=True)
             code = err.exit_code
@@ -43,6 +43,12 @@ class OneLineErrors(TyperGroup):
         if not standalone_mode:
             return code
         sys.exit(code if isinstance(code, int) else 0)
+
+    def _path(self, prog_name: str | None, args: list[str] | None) -> str:
+        """The command an error without click's context belongs to ('riskplan bench' for `bench --quick=3`)."""
+        args = sys.argv[1:] if args is None else list(args)
+        name = prog_name or "riskplan"
+        return f"{name} {args[0]}" if args and args[0] in self.commands else name
 
     def invoke(self, ctx):
         """A signal that stopped a command which did not answer it itself (a benchmark's scratch run, a Ctrl-C

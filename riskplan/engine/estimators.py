@@ -302,8 +302,8 @@ def as_count(n: Any) -> int:
 
 
 def as_sample(z: Any) -> np.ndarray:
-    """z as a float array (..., W) with W >= 1."""
-    z = np.asarray(z, dtype=float)
+    """z as a float array (..., W) with W >= 1: real numbers (a complex or text sample is refused, not cast)."""
+    z = _real_array(z, "z")
     if z.ndim < 1 or z.shape[-1] < 1:
         raise BadInput("z", f"must have shape (..., W) with W >= 1 samples, got shape {z.shape}")
     return z
@@ -311,10 +311,25 @@ def as_sample(z: Any) -> np.ndarray:
 
 def as_scores(z: np.ndarray, scores: Any) -> np.ndarray:
     """scores as a float array of shape z.shape + (M,)."""
-    scores = np.asarray(scores, dtype=float)
+    scores = _real_array(scores, "scores")
     if scores.ndim != z.ndim + 1 or scores.shape[:-1] != z.shape:
         raise BadInput("scores", f"must have shape {(*z.shape, 'M')} for z of shape {z.shape}, got {scores.shape}")
     return scores
+
+
+def _real_array(values: Any, key: str) -> np.ndarray:
+    """values as a float array; BadInput naming `key` for values that are not real numbers (numpy would drop a
+    complex number's imaginary part with a warning, or fail on text with a line that names no argument)."""
+    array = np.asarray(values)
+    if array.dtype.kind in "biuf":  # bool, integers, floats
+        return array.astype(float, copy=False)
+    if array.dtype.kind == "O":  # Python objects: real numbers among them are fine
+        try:
+            return array.astype(float)
+        except (TypeError, ValueError):
+            pass
+    what = "complex numbers" if array.dtype.kind == "c" else f"values of dtype {array.dtype}"
+    raise BadInput(key, f"got {what}; expected real numbers")
 
 
 @njit(cache=True)

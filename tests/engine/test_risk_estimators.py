@@ -141,6 +141,10 @@ def test_every_measures_gradient_on_the_normal_family_is_its_closed_forms_deriva
         (lambda z, s: cvar(z, np.array([0.1])), "beta: must be a number in (0, 1], got array([0.1])"),
         (lambda z, s: value_at_risk(z, True), "beta: must be a number in (0, 1], got True"),
         (lambda z, s: objective(z, "cvar"), "risk: got 'cvar'; give a risk node, a mapping such as"),
+        # numpy cast these: a complex sample lost its imaginary part with a warning, text failed naming no argument
+        (lambda z, s: cvar(z + 1j, 0.1), "z: got complex numbers; expected real numbers"),
+        (lambda z, s: value_at_risk(np.array(["a", "b"]), 0.5), "z: got values of dtype <U1; expected real numbers"),
+        (lambda z, s: cvar_gradient(z, s * 1j, 0.1), "scores: got complex numbers; expected real numbers"),
     ],
 )
 def test_arrays_of_the_wrong_shape_are_one_line_naming_them(call, words):
