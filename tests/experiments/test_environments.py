@@ -342,6 +342,8 @@ def test_bad_actions_are_refused():
         team.step({"robot_0": STAY, "robot_1": STAY, "robot_2": STAY, "robot_99": STAY})
     with pytest.raises(ValueError, match="no robot 'bogus'"):
         team.observation_space("bogus")
+    with pytest.raises(TypeError, match=r"^actions: got list; give a dict of robot to move, e\.g\. \{'robot_0': 4, "):
+        team.step([STAY, STAY, STAY])  # its moves were taken for robots' names: "no robot 4"
     with pytest.raises(RuntimeError, match=r"call reset\(\) before step\(\)"):
         SensorPlanningEnv(["world.horizon=12"]).step(STAY)
 

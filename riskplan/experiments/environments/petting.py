@@ -12,6 +12,7 @@ A robot leaves `agents` when its episode ends; the environment is over when ever
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -70,6 +71,9 @@ class SensorTeamEnv(ParallelEnv):
     def step(self, actions: dict[str, int]):
         if not self.agents:
             raise RuntimeError("every robot's episode has ended; call reset()")
+        if not isinstance(actions, Mapping):  # a list's items would be taken for robots' names
+            example = ", ".join(f"'{a}': 4" for a in self.agents)
+            raise TypeError(f"actions: got {type(actions).__name__}; give a dict of robot to move, e.g. {{{example}}}")
         for agent in actions:
             self._known(agent)
         missing = [a for a in self.agents if a not in actions]
