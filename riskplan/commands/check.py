@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import typer
 
 from riskplan.commands.common import (
@@ -44,7 +47,7 @@ def check(
         from riskplan.experiments.reporting.figures.world_picture import draw_format
 
         draw = check_output_file(draw, "--draw", ".png, .svg or .pdf")
-        draw_format(draw)
+        _check_replaceable(draw, draw_format(draw))
     cfg = compose(args, validate=False)
     try:
         setup = build_setup(cfg)
@@ -70,6 +73,38 @@ def check(
         write_picture(picture_of(setup), draw)
         typer.echo(f"world drawn: {draw}")
     typer.echo("config OK")
+
+
+# How a picture of each --draw format begins, and what its first KB holds: a file riskplan could have drawn
+SIGNATURES = {"png": (b"\x89PNG\r\n\x1a\n", b""), "pdf": (b"%PDF-", b""), "svg": (b"<", b"<svg")}
+
+
+def _check_replaceable(path: Path, fmt: str) -> None:
+    """BadInput for a --draw path riskplan would not write over: a symbolic link (the picture is renamed into place,
+    so it would replace the link, not write its target), and a file that is not a picture of the path's format,
+    which would be lost. A new path, an empty file and a picture (one drawn before) are written."""
+    if path.is_symlink():
+        raise BadInput(
+            "--draw",
+            f"{path} is a symbolic link (to {os.readlink(path)}); the picture would replace the link, not write its "
+            f"target: give the target's own path",
+        )
+    if not path.exists():
+        return
+    if path.is_file():  # not a FIFO or a socket, whose opening would wait for a writer
+        try:
+            with path.open("rb") as file:
+                head = file.read(1024)
+        except OSError as err:
+            raise BadInput("--draw", f"{path} cannot be read ({err.strerror}); give a new path") from None
+        start, marker = SIGNATURES[fmt]
+        if not head or (head.startswith(start) and marker in head):
+            return
+    raise BadInput(
+        "--draw",
+        f"{path} exists and is not a {fmt.upper()} picture; --draw replaces only a picture (one it drew before): "
+        f"give a new path, or move the file",
+    )
 
 
 def _describe_world(setup) -> str:

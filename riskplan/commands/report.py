@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 import json
+import math
 from pathlib import Path
 
 import typer
@@ -114,16 +115,22 @@ def landscape(
         "-20,60", "--range", help="LO,HI for both axes, or LO,HI,LO,HI. Write --range=-20,60 when LO is negative."
     ),
     axes: str = typer.Option(
-        "0,1", "--axes", help="The two theta components to vary; the others stay at train.theta0."
+        "0,1",
+        "--axes",
+        help="The two theta components to vary, by index in theta, which lists a weight per entry of "
+        "policy.features in its order (signals: one per source); the others stay at train.theta0.",
     ),
 ) -> None:
-    """Evaluate mean and CVaR of the total reward on a grid of theta (common random numbers, seeded)."""
+    """Evaluate mean and CVaR of the total reward on a grid of two theta components of a features policy (common
+    random numbers, seeded)."""
     from riskplan.experiments.landscape import LANDSCAPES_ROOT, check_grid, compute_landscape
     from riskplan.run.build import build_setup
-    from riskplan.run.compose import compose
+    from riskplan.run.compose import compose, parse_overrides
 
     args = list(overrides or [])
     reject_hydra_flags(args, "riskplan check prints the composed config")
+    _check_options(args)
+    _check_no_hydra_dirs(parse_overrides(args))
     if points < 2:
         raise BadInput("--points", f"got {points}; expected at least 2 grid points per axis")
     if episodes < 1:
@@ -132,7 +139,7 @@ def landscape(
         claim_output(out, "landscape", "--out")  # early: a bad --out is refused before the config is composed
     cfg = compose(args)
     ranges, pair = _theta_ranges(theta_range), _theta_axes(axes)
-    check_grid(build_setup(cfg), points, episodes, ranges, pair)  # memory, time
+    check_grid(build_setup(cfg), points, episodes, ranges, pair, typed=theta_range)  # the policy, memory, time
     target = (
         Path(out) if out is not None else (LANDSCAPES_ROOT / f"{dt.datetime.now():%Y-%m-%d_%H-%M-%S}_{cfg.experiment}")
     )
@@ -145,10 +152,35 @@ def landscape(
     typer.echo(_landscape_line(json.loads((path / "summary.json").read_text()), points, episodes, path))
 
 
+def _check_options(args: list[str]) -> None:
+    """An option riskplan landscape does not know: typer passes it on among the overrides (PASS_THROUGH)."""
+    for arg in args:
+        if arg.startswith("-"):
+            raise BadInput(
+                f"option '{arg}'",
+                "is not known to riskplan landscape; give Hydra overrides (key=value) and --out, --points, "
+                "--episodes, --range, --axes",
+            )
+
+
+def _check_no_hydra_dirs(parsed: list) -> None:
+    """hydra.run.dir and hydra.sweep.dir: a landscape runs no Hydra job, and --out says where it goes."""
+    for override in parsed:
+        key = override.key_or_group
+        if key.split(".")[:2] in (["hydra", "run"], ["hydra", "sweep"]):
+            raise BadInput(
+                key,
+                "riskplan landscape writes where --out says (default outputs/landscapes/<timestamp>_<experiment>/), "
+                "not into Hydra's directories; give --out DIR",
+            )
+
+
 def _theta_ranges(text: str) -> tuple[tuple[float, float], tuple[float, float]]:
-    """--range: LO,HI for both axes or LO,HI,LO,HI, with LO < HI on each."""
+    """--range: LO,HI for both axes or LO,HI,LO,HI, finite, with LO < HI on each."""
     bounds = parse_floats(text, "--range", (2, 4))
     ranges = ((bounds[0], bounds[1]), (bounds[-2], bounds[-1]))
+    if not all(math.isfinite(v) for v in bounds):
+        raise BadInput("--range", f"got '{text}'; expected finite numbers, e.g. --range=-20,60")
     if not all(lo < hi for lo, hi in ranges):
         raise BadInput("--range", f"got '{text}'; expected LO < HI on each axis, e.g. --range=-20,60")
     return ranges
@@ -157,8 +189,8 @@ def _theta_ranges(text: str) -> tuple[tuple[float, float], tuple[float, float]]:
 def _theta_axes(text: str) -> tuple[int, int]:
     """--axes: two whole theta indices."""
     pair = parse_floats(text, "--axes", (2,))
-    if any(v != int(v) for v in pair):
-        raise BadInput("--axes", f"got '{text}'; expected two whole source indices, e.g. 0,1")
+    if any(not math.isfinite(v) or v != int(v) for v in pair):
+        raise BadInput("--axes", f"got '{text}'; expected two whole theta indices, e.g. 0,1")
     return int(pair[0]), int(pair[1])
 
 

@@ -24,6 +24,8 @@ from riskplan.util.interrupt import Interrupted
 from riskplan.util.lock import hold_lock
 from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote, write_atomic
 
+OVERRIDES = ".hydra/overrides.yaml"  # Hydra's record of a run's overrides (riskplan train writes it through Hydra)
+
 
 def register(app: typer.Typer) -> None:
     """Add `train` to the riskplan app."""
@@ -102,6 +104,8 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
 
 def run_dir_override(parsed: list) -> Path | None:
     """The hydra.run.dir=... the user typed, if any, as a plain path."""
+    from riskplan.run.run_directory import check_name_lengths
+
     for override in parsed:
         if override.key_or_group == "hydra.run.dir":
             value = str(override.value())
@@ -111,6 +115,7 @@ def run_dir_override(parsed: list) -> Path | None:
                     f"got '{value}'; give a plain path (without it, riskplan train "
                     f"uses outputs/runs/<timestamp>_<experiment>)",
                 )
+            check_name_lengths(value, "hydra.run.dir")  # first: a name too long fails even to be looked up
             check_output_dir(value, "hydra.run.dir")
             return Path(value)
     return None
@@ -118,27 +123,71 @@ def run_dir_override(parsed: list) -> Path | None:
 
 def _resume(run_dir: Path, args: list[str]) -> None:
     """`train --resume RUN_DIR [train.iterations=N]`."""
-    from riskplan.run.compose import parse_overrides
-    from riskplan.run.run_files import CHECKPOINT, CONFIG, is_run_dir
+    from riskplan.run.run_files import CHECKPOINT, CONFIG, is_run_dir, other_output
 
+    other = other_output(run_dir) if run_dir.is_dir() else None
+    if other is not None:
+        raise BadInput(
+            str(run_dir), f"holds {other}, not a run; give the directory of a riskplan train run to --resume"
+        )
     if not run_dir.is_dir() or not is_run_dir(run_dir):
         raise BadInput(str(run_dir), "holds no run; give the directory of a riskplan train run to --resume")
-    for override in parse_overrides(args):
-        if override.key_or_group != "train.iterations" or override.is_sweep_override():
-            raise BadInput(
-                f"override '{override.input_line}'", "cannot change a resumed run; only train.iterations=N may be given"
-            )
+    _refuse_sweep_job(run_dir)
+    flags = sorted(HYDRA_FLAGS & set(args))
+    if flags:
+        raise BadInput(
+            f"option '{flags[0]}'",
+            f"riskplan train --resume passes no Hydra flag through; the run's config is {run_dir / CONFIG}",
+        )
+    change = _resumed_change(args)
     check_output_dir(run_dir, str(run_dir))
     with hold_lock(run_dir):  # before anything is read: another process may be writing it
         if not (run_dir / CONFIG).is_file():
             raise BadInput(str(run_dir / CONFIG), "is missing; a run cannot be resumed without its config")
-        _resume_locked(run_dir, args, restart=not (run_dir / CHECKPOINT).is_file())
+        _resume_locked(run_dir, change, restart=not (run_dir / CHECKPOINT).is_file())
 
 
-def _resume_locked(run_dir: Path, args: list[str], restart: bool = False) -> None:
-    """The resume itself, under the run directory's lock. `restart`: the run stopped before its first checkpoint, so
-    it trains again from its start, in its directory: nothing of it was kept, and the same config and seed give the
-    numbers of an uninterrupted run."""
+def _refuse_sweep_job(run_dir: Path) -> None:
+    """A sweep's job folder is the sweep's: its status.json holds the sweep's fingerprint of the job (config_sha),
+    which a resume here would drop, and the sweep would then refuse the folder. Re-running the sweep resumes it."""
+    from riskplan.run.run_files import STATUS
+
+    try:
+        status = json.loads((run_dir / STATUS).read_text())
+    except (OSError, ValueError):
+        return
+    if isinstance(status, dict) and "config_sha" in status:
+        raise BadInput(
+            str(run_dir),
+            f"is a job of the sweep in {run_dir.parent}, which resumes its own jobs: run riskplan sweep again with "
+            f"that sweep's overrides and hydra.sweep.dir={run_dir.parent} (it skips the finished jobs and resumes "
+            f"the others)",
+        )
+
+
+def _resumed_change(args: list[str]) -> dict:
+    """The train.iterations=N a resume was given, as a config to merge (empty without one), its value as Hydra
+    reads it for a fresh run (040 is 40, not YAML's octal 32); BadInput for any other override."""
+    from riskplan.run.compose import parse_overrides
+
+    change: dict = {}
+    for override in parse_overrides(args):
+        line = f"override '{override.input_line}'"
+        if override.key_or_group != "train.iterations" or override.is_sweep_override():
+            raise BadInput(line, "cannot change a resumed run; only train.iterations=N may be given")
+        if override.is_delete():
+            raise BadInput(line, "cannot delete a key of a resumed run; only train.iterations=N may be given")
+        if override.is_add():  # ++ sets the key whether it is there or not, as = does here
+            raise BadInput(line, "+ adds a key, and train.iterations is in every run's config: give train.iterations=N")
+        change = {"train": {"iterations": override.value()}}
+    return change
+
+
+def _resume_locked(run_dir: Path, change: dict, restart: bool = False) -> None:
+    """The resume itself, under the run directory's lock, with the `change` of its config (train.iterations=N).
+    `restart`: the run has no checkpoint (it stopped before its first one, or it was removed), so it trains again
+    from its start, in its directory: nothing of it can be continued, and the same config and seed give the
+    numbers of an uninterrupted run, those it logged included."""
     import yaml
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
@@ -152,21 +201,31 @@ def _resume_locked(run_dir: Path, args: list[str], restart: bool = False) -> Non
 
     try:
         cfg = OmegaConf.load(run_dir / CONFIG)
-        cfg.merge_with(OmegaConf.from_dotlist(args))
+        longer = cfg.copy()
+        longer.merge_with(change)
+        extended = OmegaConf.select(longer, "train.iterations") != OmegaConf.select(cfg, "train.iterations")
     except (OmegaConfBaseException, ValueError, OSError, RecursionError, yaml.YAMLError) as err:
         raise BadInput(
             str(run_dir / CONFIG),
             f"cannot be read as a config ({type(err).__name__}); it was not written by riskplan: start the run again",
         ) from None
+    if extended and not restart:  # a restart trains every iteration with the new value
+        _refuse_following_keys(cfg, longer, run_dir)
+    cfg = longer
     if restart:
-        setup, finished = _restart_setup(cfg, run_dir), False
-    else:
-        setup, finished = prepare_resume(cfg, run_dir)  # every check of config and checkpoint, before any write
+        (setup, logged), finished = _restart_setup(cfg, run_dir), False
+    else:  # every check of config and checkpoint, before any write
+        (setup, finished), logged = prepare_resume(cfg, run_dir), 0
     if finished:  # nothing to do: a finished run is left exactly as it is
         typer.echo(f"already finished: {run_dir}")
         _closing_lines(json.loads((run_dir / SUMMARY).read_text()), run_dir)
         return
-    typer.echo(f"restarting (no checkpoint yet): {run_dir}" if restart else f"resuming: {run_dir}")
+    if extended:
+        _record_iterations(run_dir, setup.params.train.iterations)
+    start = f"restarting (no checkpoint yet): {run_dir}" if restart else f"resuming: {run_dir}"
+    if logged:  # a checkpoint removed by hand, or none written yet: what becomes of the iterations logged
+        start += f"; the {logged} iterations its run.mcap holds are trained again from the start, to the same numbers"
+    typer.echo(start)
     try:
         write_run_status(run_dir, "running", None)
         with TrainingBar() as progress:
@@ -183,21 +242,71 @@ def _resume_locked(run_dir: Path, args: list[str], restart: bool = False) -> Non
     _finish(run_dir)
 
 
+def _refuse_following_keys(cfg, longer, run_dir: Path) -> None:
+    """BadInput when a key of the run's config follows train.iterations (risk.schedule.iterations:
+    ${train.iterations}), so that `longer`, the config extended, has another value of it: the run would go on with
+    a value its trained iterations did not have (the schedule stretched), a run of neither config, so it cannot be
+    extended; a new run can have the new value."""
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    from riskplan.config.typed import register_metres
+    from riskplan.run.run_directory import differing
+    from riskplan.run.run_files import CONFIG
+
+    register_metres()  # a run placed in metres saved ${metres:x,y}
+    try:
+        follows = differing(OmegaConf.to_container(cfg, resolve=True), OmegaConf.to_container(longer, resolve=True))
+    except (OmegaConfBaseException, ValueError, KeyError, TypeError, RecursionError):  # the build names what fails
+        return
+    follows = [key for key in follows if key != "train.iterations"]
+    if follows:
+        more = f" (and {len(follows) - 1} more)" if len(follows) > 1 else ""
+        raise BadInput(
+            follows[0],
+            f"follows train.iterations in {run_dir / CONFIG}{more}, so extending the run would change it for the "
+            f"iterations trained already; this run cannot be extended: train a new run with "
+            f"train.iterations={longer.train.iterations}",
+        )
+
+
+def _record_iterations(run_dir: Path, iterations: int) -> None:
+    """An extended run's .hydra/overrides.yaml says its new train.iterations (older values of it dropped), as its
+    config does: replayed, the overrides give the run's config. The Python API's runs have none; Hydra's file is
+    left as it is where it is not the list Hydra writes."""
+    import yaml
+
+    path = run_dir / OVERRIDES
+    try:
+        listed = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return
+    if not isinstance(listed, list) or not all(isinstance(item, str) for item in listed):
+        return
+    kept = [item for item in listed if item.split("=", 1)[0].lstrip("+~") != "train.iterations"]
+    write_atomic(path, yaml.safe_dump([*kept, f"train.iterations={iterations}"], default_flow_style=False))
+
+
 def _restart_setup(cfg, run_dir: Path):
     """The RunSetup of a run to train again from its start, its own files of the first attempt removed (its config,
-    status and log stay). A backend with checkpoints of its own (team.backend=ray) is not restarted here."""
+    status and log stay), and how many iterations its log held. A backend with checkpoints of its own
+    (team.backend=ray) is not restarted here."""
     from omegaconf import OmegaConf
 
     from riskplan.config.backends import BACKENDS
     from riskplan.run.build import build_setup
-    from riskplan.run.run_files import CONFIG, remove_stale
+    from riskplan.run.record import log_header
+    from riskplan.run.run_directory import check_same_map
+    from riskplan.run.run_files import CONFIG, RUN_LOG, remove_stale
 
     setup = build_setup(cfg, needs_ray=False)
     if BACKENDS[setup.params.team.backend].resume_check is not None:
         raise BadInput(str(run_dir), "has no checkpoint yet (stopped before its first one); remove it and start again")
+    metadata, logged = log_header(run_dir / RUN_LOG) if (run_dir / RUN_LOG).is_file() else ({}, 0)
+    check_same_map(run_dir, setup, metadata)  # its logged iterations are of that map: a restart trains them again
     remove_stale(run_dir)
     write_atomic(run_dir / CONFIG, OmegaConf.to_yaml(cfg))  # with any new train.iterations
-    return setup
+    return setup, logged
 
 
 def _stopped(stop: Interrupted, out: Path) -> None:

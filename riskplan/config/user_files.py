@@ -3,6 +3,7 @@ traceback, or expand without end, is one line naming the file, its line and what
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -15,14 +16,52 @@ MAX_NODES = 1_000_000  # values a file holds once its aliases (*name) are expand
 CODE_TAGS = "tag:yaml.org,2002:python/"  # !!python/object and the like: constructors that run code
 HEADER = re.compile(r"\s*#\s*@")  # Hydra's header line, `# @package world`
 PACKAGE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")  # _global_, _group_, world.sources
+MAX_FOLDERS = 2_000  # folders a -cd DIR may hold outside those skipped: a config folder holds a few, `-cd /` millions
+OUTPUTS = "outputs"  # riskplan's runs and sweeps, written beside a project's configs
+ENVIRONMENT = ("pyvenv.cfg", "conda-meta")  # what a virtualenv's or a conda environment's folder holds
 
 
 def check_config_files(folder: Path) -> None:
-    """BadInput for the first YAML file under `folder` that is not UTF-8, not valid YAML, gives a key twice, holds a
-    tag that makes Python objects, or expands (through its aliases) past MAX_NODES values."""
-    for path in sorted(folder.rglob("*.yaml")):
-        if path.is_file():
-            _check_file(path)
+    """BadInput for the first YAML file Hydra could load from `folder` (`config_files`) that is not UTF-8, not
+    valid YAML, gives a key twice, holds a tag that makes Python objects, or expands (through its aliases) past
+    MAX_NODES values."""
+    for path in config_files(folder):
+        _check_file(path)
+
+
+def config_files(folder: Path) -> list[Path]:
+    """The `*.yaml` files of `folder` that Hydra could load from it as a search-path entry, sorted by folder.
+
+    Hydra loads DIR/<group>/<option>.yaml for a group at any depth (`experiment=sub/mine`, `+mine=x`) and DIR's own
+    top-level files through a defaults list (`- /name`), so every folder is walked (through links, each once)
+    except those that are never config groups: hidden ones (Hydra's run records in .hydra, .git, .venv), outputs/
+    and Python environments. More than MAX_FOLDERS left is BadInput: not a config folder (`-cd /`, a home)."""
+    found, seen = [], set()
+    for root, dirs, files in os.walk(folder, followlinks=True):
+        here = _folder_id(root)
+        if here is None or here in seen or any(mark in files or mark in dirs for mark in ENVIRONMENT):
+            dirs.clear()  # gone, a link back to a folder walked already, or a Python environment
+            continue
+        seen.add(here)
+        if len(seen) > MAX_FOLDERS:
+            raise BadInput(
+                str(folder),
+                f"holds more than {MAX_FOLDERS:,} folders (besides hidden ones, {OUTPUTS}/ and Python environments), "
+                f"and Hydra could load a config from any of them; give the folder that holds your config groups "
+                f"(e.g. my_configs, with my_configs/experiment/mine.yaml)",
+            )
+        dirs[:] = sorted(name for name in dirs if not name.startswith(".") and name != OUTPUTS)
+        found += [Path(root, name) for name in sorted(files) if name.endswith(".yaml") and Path(root, name).is_file()]
+    return found
+
+
+def _folder_id(path: str) -> tuple[int, int] | None:
+    """(device, inode) of a folder, the same through every link to it; None once it is gone (a process's in /proc)."""
+    try:
+        info = os.stat(path)
+    except OSError:
+        return None
+    return info.st_dev, info.st_ino
 
 
 def _check_file(path: Path) -> None:

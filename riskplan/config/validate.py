@@ -37,6 +37,7 @@ NAME_LENGTH = 64  # characters of a name: the experiment's (a folder's), a sourc
 HIDDEN = ("Cc", "Cf", "Zl", "Zp", "Cs")  # Unicode categories a name may not hold: controls, format marks, breaks
 MIN_RESAMPLES = 40  # bootstrap resamples for a 95% percentile interval: 2.5% of them is at least one
 BYZANTINE_LIMIT = 1e100  # largest |value| and scale a byzantine robot sends (team.faults): squares stay finite
+MIN_BETA = 1e-9  # below it CVaR's tail, ceil(beta W) of W episodes, is one (a zero gradient) unless W > 10^9 (80 GB)
 
 # The values that need an optional extra: (key, value) -> (the module that provides it, what it is, the extra, a
 # note). A missing one is bad input (MissingExtra) in check, train and sweep, before anything is written.
@@ -125,7 +126,8 @@ def check_source_names(names: list[str]) -> None:
 
 def check_label(value: str, key: Key) -> None:
     """A source's or region's name: text that reaches figures, tables, logs and trackers' metric names, so at most
-    NAME_LENGTH characters and none that would break a line, a CSV row or an SVG (control and format characters)."""
+    NAME_LENGTH characters, none that would break a line, a CSV row or an SVG (control and format characters), and
+    not whitespace alone (an empty name is the default, source_<j> or region_<r>)."""
     hidden = next((c for c in value if unicodedata.category(c) in HIDDEN), None)
     require(
         hidden is None,
@@ -134,6 +136,12 @@ def check_label(value: str, key: Key) -> None:
         f"characters would break the logs, tables and figures it appears in)",
     )
     require(len(value) <= NAME_LENGTH, key, f"is {len(value)} characters long; give a name of at most {NAME_LENGTH}")
+    require(
+        not value.isspace(),
+        key,
+        f"got {value!r}, only whitespace, which names nothing a reader can see; give a name, or leave it empty for "
+        f"the default name",
+    )
 
 
 def check_risk(risk: RiskConf, key: Key = KEYS.risk) -> None:
@@ -141,6 +149,12 @@ def check_risk(risk: RiskConf, key: Key = KEYS.risk) -> None:
     measure or the schedule's kind to change; a sweep over measures keeps one schedule, which moves the CVaR level
     of cvar and mean_cvar and leaves the others alone). `key` names the node: risk, or team.risk.<i>."""
     require(0.0 < risk.beta <= 1.0, key.beta, f"got {risk.beta}; expected 0 < beta <= 1")
+    require(
+        risk.beta >= MIN_BETA,
+        key.beta,
+        f"got {risk.beta:g}; expected {MIN_BETA:g} <= beta <= 1: CVaR's tail holds ceil(beta x W) of an iteration's "
+        f"W episodes, which below {MIN_BETA:g} is one (a zero gradient) unless W is over 10^9",
+    )
     require(
         math.isfinite(risk.eta) and risk.eta > 0,
         key.eta,

@@ -5,7 +5,9 @@ point replays the same episode streams (one stream key for the whole grid), so d
 differences between policies, not between random draws; the surface is smooth and its optima are comparable.
 
 A landscape directory is run-like: `.hydra/config.yaml`, `landscape.parquet` (one row per grid point),
-`summary.json` with `"kind": "landscape"` (the marker the report recognises) and `status.json`.
+`summary.json` with `"kind": "landscape"` (the marker the report recognises) and `status.json`, placed last: the
+report reads a landscape only when it says done. Any two components of a features policy's theta can be varied
+(`summary.json` says what each weighs); a tabular policy's logits cannot.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from riskplan.run.build import build_setup
 from riskplan.run.columns import frame_to_parquet, read_parquet
 from riskplan.run.provenance import provenance
 from riskplan.run.results import run_config
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, one_line
 from riskplan.util.limits import STEPS_PER_SECOND, check_memory, check_time
 
 LANDSCAPES_ROOT = Path("outputs") / "landscapes"  # where riskplan landscape claims its folders
@@ -57,6 +59,14 @@ class Landscape:
     def axes(self) -> tuple[int, int]:
         a = self.summary.get("axes", [0, 1])
         return int(a[0]), int(a[1])
+
+    @property
+    def axis_labels(self) -> tuple[str, str]:
+        """What the two varied components weigh (landscapes from before the labels varied two source weights)."""
+        labels = self.summary.get("axis_labels")
+        if isinstance(labels, list) and len(labels) == 2 and all(isinstance(x, str) for x in labels):
+            return labels[0], labels[1]
+        return tuple(f"weight of source {i + 1}" for i in self.axes)
 
     @property
     def beta(self) -> float:
@@ -113,6 +123,7 @@ def load_landscape(path: Path) -> Landscape:
     path = Path(path)
     if not (path / TABLE).is_file():
         raise ValueError(f"no {TABLE} (the landscape did not finish)")
+    _check_done(path)
     table = read_parquet(path / TABLE)
     summary = json.loads((path / "summary.json").read_text()) if (path / "summary.json").is_file() else {}
     if not isinstance(summary, dict):
@@ -122,6 +133,20 @@ def load_landscape(path: Path) -> Landscape:
     if not needed <= set(table.columns) or len(_theta_columns(table)) < 2:
         raise ValueError(f"{TABLE} lacks columns {sorted(needed - set(table.columns))} or theta columns")
     return Landscape(path, config or {}, table, summary)
+
+
+def _check_done(path: Path) -> None:
+    """BadInput naming status.json unless it says done: it is written last and set aside first, so without it the
+    other files may be a landscape that stopped, or one stopped while the next replaced it."""
+    file = path / "status.json"
+    try:
+        status = json.loads(file.read_text()).get("status")
+    except FileNotFoundError:
+        raise BadInput(str(file), "not found, so the landscape did not finish writing") from None
+    except (OSError, ValueError, AttributeError) as err:
+        raise BadInput(str(file), f"cannot be read ({one_line(str(err))})") from None
+    if status != "done":
+        raise BadInput(str(file), f"says {status!r}, not 'done'")
 
 
 def _theta_columns(table: pd.DataFrame) -> list[str]:
@@ -189,32 +214,55 @@ def evaluate_grid(setup, thetas: np.ndarray, episodes: int, beta: float, seed: i
     return pd.concat(parts, ignore_index=True)
 
 
-def check_grid(setup, points: int, episodes: int, ranges, axes) -> tuple[tuple, tuple[int, int]]:
-    """Validate the grid options against the world; BadInput naming the option otherwise."""
-    sources = setup.world.sources
-    if sources < 2:
-        raise BadInput("world.sources", f"has {sources} source; the landscape needs at least 2 (one theta per axis)")
+def check_grid(
+    setup, points: int, episodes: int, ranges, axes, typed: str | None = None
+) -> tuple[tuple, tuple[int, int]]:
+    """Validate the grid options against the world and policy; BadInput naming the option otherwise. `typed` is
+    --range as the user wrote it, for the message (else the ranges are shown as given)."""
+    policy = setup.policy
+    if policy.tabular:  # its theta is a logit per (cell, move): two of them say nothing of the objective
+        raise BadInput(
+            "policy.kind",
+            f"got 'tabular'; the landscape varies two weights of a features policy (eq. 3), not two of a table's "
+            f"{policy.size} logits: give policy.kind=features (policy.features chooses the weights)",
+        )
+    size = policy.size
+    if size < 2:
+        raise BadInput(
+            "policy.features",
+            f"gives theta one weight on this world ({policy.names[0]}); the landscape varies two: add a source, or "
+            f"a feature (e.g. policy.features=[signals,risky])",
+        )
     a, b = (int(axes[0]), int(axes[1]))
-    if not (0 <= a < sources and 0 <= b < sources and a != b):
-        raise BadInput("--axes", f"got {a},{b}; expected two different source indices in 0..{sources - 1}")
+    if not (0 <= a < size and 0 <= b < size and a != b):
+        components = ", ".join(f"{i} {name}" for i, name in enumerate(policy.names))
+        raise BadInput("--axes", f"got {a},{b}; expected two different theta components of {components}")
     if points < 2:
         raise BadInput("--points", f"got {points}; expected at least 2 grid points per axis")
     if episodes < 1:
         raise BadInput("--episodes", f"got {episodes}; expected at least 1 episode per grid point")
     ranges = tuple(tuple(float(v) for v in r) for r in ranges) if ranges is not None else (DEFAULT_RANGE, DEFAULT_RANGE)
-    text = ",".join(f"{v:g}" for r in ranges for v in r)
+    text = typed if typed is not None else ",".join(f"{v:g}" for r in ranges for v in r)
     if len(ranges) != 2 or any(not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) for lo, hi in ranges):
-        raise BadInput("--range", f"got {text}; expected LO,HI (both axes) or LO,HI,LO,HI, finite, with LO < HI")
+        raise BadInput("--range", f"got '{text}'; expected LO,HI (both axes) or LO,HI,LO,HI, finite, with LO < HI")
     spans = all(math.isfinite(hi - lo) for lo, hi in ranges)  # else the grid's step overflows: theta NaN
     corners = grid_thetas(setup.theta0, (a, b), ranges, 2) if spans else None  # |logits| peak at the corners
-    if not (spans and math.isfinite(logit_bound(setup.world, corners, setup.policy))):
+    if not (spans and math.isfinite(logit_bound(setup.world, corners, policy))):
         raise BadInput(
             "--range",
-            f"got {text}; a theta that far overflows the softmax (theta . features is not finite), as riskplan train "
-            f"refuses it: give a narrower range, e.g. -20,20",
+            f"got '{text}'; a theta that far overflows the softmax (theta . features is not finite), as riskplan "
+            f"train refuses it: give a narrower range, e.g. -20,20",
         )
-    check_size(points, episodes, sources, setup.kernel.tables.horizon)
+    check_size(points, episodes, setup.world.sources, setup.kernel.tables.horizon)
     return ranges, (a, b)
+
+
+def axis_label(setup, index: int) -> str:
+    """What theta[index] of a features policy weighs: a source's signal or another feature (the figure's axes)."""
+    policy = setup.policy
+    name = policy.names[index]
+    signal = policy.signal_at >= 0 and 0 <= index - policy.signal_at < setup.world.sources
+    return f"weight of source {name}" if signal else f"weight of feature {name}"
 
 
 def estimate(points: int, episodes: int, sources: int, horizon: int) -> tuple[float, float, float]:
@@ -255,46 +303,50 @@ def compute_landscape(
     """Evaluate mean and CVaR on a points x points grid of (theta_a, theta_b) into a run-like directory.
 
     Everything is checked before anything runs (BadInput: the options, the grid's memory and time, out_dir, which
-    must be new, empty or a previous landscape's; `key` names it); the grid is evaluated, then every file written
-    atomically (WriteFailed, an OSError, when one cannot be: the previous files stay whole).
+    must be new, empty or a previous landscape's and not in use; `key` names it). out_dir's lock is held from then
+    on; the grid is evaluated, then the files are written as one set (WriteFailed, an OSError, when one cannot be:
+    the previous landscape stays whole, see output_manifest).
     """
     setup = build_setup(cfg)
     config = setup.config
     ranges, (a, b) = check_grid(setup, points, episodes, ranges, axes)
     beta, seed = setup.params.risk.beta, setup.params.seed
-    previous = claim_output(out_dir, KIND, key)
-
-    started = time.perf_counter()
-    thetas = grid_thetas(setup.theta0, (a, b), ranges, points)
-    table = evaluate_grid(setup, thetas, episodes, beta, seed)
-    seconds = time.perf_counter() - started
-    scan = Landscape(Path(out_dir), config, table, {"axes": [a, b]})
-    summary = {
-        "kind": KIND,
-        "schema_version": SCHEMA_VERSION,
-        "experiment": config.get("experiment"),
-        "axes": [a, b],
-        "ranges": [list(r) for r in ranges],
-        "points": points,
-        "episodes": episodes,
-        "beta": beta,
-        "seed": seed,
-        "theta_fixed": setup.theta0.tolist(),
-        "common_random_numbers": True,
-        "best": {"mean": scan.best("mean"), "cvar": scan.best("cvar"), "value_at_risk": scan.best("value_at_risk")},
-        "seconds": seconds,
-        "episodes_per_s": points * points * episodes / seconds if seconds > 0 else None,
-        "provenance": provenance(),
-    }
-
-    output = Output(out_dir, KIND, previous)
-    with output.writing(sorted(FILES)):
-        (output.out / "status.json").unlink(missing_ok=True)  # until the end: this landscape is not done
-        output.write(".hydra/config.yaml", OmegaConf.to_yaml(OmegaConf.create(config)))
-        output.write(".hydra/overrides.yaml", yaml.safe_dump(list(overrides or [])))
-        output.write_with(TABLE, lambda tmp: frame_to_parquet(table, tmp))
-        output.write("summary.json", finite_json(summary))
-        output.write("status.json", finite_json({"status": "done", "error": None}))
+    output = Output(out_dir, KIND, claim_output(out_dir, KIND, key))
+    with output.locked():  # from the start: a second landscape into out_dir is refused now, not after this work
+        started = time.perf_counter()
+        thetas = grid_thetas(setup.theta0, (a, b), ranges, points)
+        table = evaluate_grid(setup, thetas, episodes, beta, seed)
+        seconds = time.perf_counter() - started
+        scan = Landscape(Path(out_dir), config, table, {"axes": [a, b]})
+        summary = {
+            "kind": KIND,
+            "schema_version": SCHEMA_VERSION,
+            "experiment": config.get("experiment"),
+            "axes": [a, b],
+            "axis_labels": [axis_label(setup, a), axis_label(setup, b)],
+            "theta_names": list(setup.theta_names),
+            "ranges": [list(r) for r in ranges],
+            "points": points,
+            "episodes": episodes,
+            "beta": beta,
+            "seed": seed,
+            "theta_fixed": setup.theta0.tolist(),
+            "common_random_numbers": True,
+            "best": {
+                "mean": scan.best("mean"),
+                "cvar": scan.best("cvar"),
+                "value_at_risk": scan.best("value_at_risk"),
+            },
+            "seconds": seconds,
+            "episodes_per_s": points * points * episodes / seconds if seconds > 0 else None,
+            "provenance": provenance(),
+        }
+        with output.writing(list(FILES)):  # status.json last: placed only once the rest of the set is
+            output.write(".hydra/config.yaml", OmegaConf.to_yaml(OmegaConf.create(config)))
+            output.write(".hydra/overrides.yaml", yaml.safe_dump(list(overrides or [])))
+            output.write_with(TABLE, lambda tmp: frame_to_parquet(table, tmp))
+            output.write("summary.json", finite_json(summary))
+            output.write("status.json", finite_json({"status": "done", "error": None}))
     return output.out
 
 

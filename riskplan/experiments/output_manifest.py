@@ -10,9 +10,11 @@ interrupted half-way still owns its directory and can be re-run into it.
 A directory written before manifests existed is refused like any other that holds files: nothing in it is
 overwritten or removed, and the command writes into a new directory instead.
 
-Atomicity. Every file is written through riskplan.util.paths.atomic_path: a reader (or a full disk) sees the old file or
-the new one, never half of one, and a failed write leaves no temp file. A failed write raises WriteFailed, one line
-naming the file (the CLI prints it and exits 1).
+Atomicity. The files are written as one set: each is staged in a synced temp file beside its target, and only
+when all are written are they renamed into place, the files they replace set aside first and put back if a rename
+fails. So a full disk, a read-only file or an error half-way leaves the previous set whole (never one file of the
+new set beside the old ones) and no temp file; the failure is WriteFailed, one line naming the file (the CLI prints
+it and exits 1). A killed writer may leave temp files, which the next run into the directory tolerates.
 """
 
 from __future__ import annotations
@@ -24,13 +26,14 @@ import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
+from riskplan.run.run_files import OUTPUT_MANIFEST
 from riskplan.util import lock
 from riskplan.util.errors import BadInput, remedy
-from riskplan.util.paths import atomic_path, check_output_dir
+from riskplan.util.paths import check_output_dir, temp_name, write_atomic
 from riskplan.version import __version__
 
-MANIFEST = ".riskplan-manifest.json"
-TEMP = re.compile(r"\..+\.\d+\.tmp")  # what paths.atomic_path leaves behind when the process is killed
+MANIFEST = OUTPUT_MANIFEST  # named where a run directory tells itself from another command's output
+TEMP = re.compile(r"\..+\.\d+\.tmp")  # paths.temp_name: what a killed writer leaves behind (staged or set aside)
 
 
 class WriteFailed(OSError):
@@ -139,12 +142,16 @@ def _examples(names: list[str]) -> str:
 
 
 class Output:
-    """Atomic writes into an output directory claimed by `claim`, under a manifest.
+    """A claimed output directory, written as one set of files under a manifest.
 
-    output = Output(out, "report", previous)   # previous: what claim_output() returned
-    output.begin(["report.html", ...])          # writes the manifest (old and new files) first
-    output.write("report.html", text)           # atomically, WriteFailed on failure
-    output.finish()                             # drops files of the previous run not written again
+    output = Output(out, "report", previous)    # previous: what claim_output() returned
+    with output.writing(["report.html", ...]):  # the lock, then the manifest (old and new files) first
+        output.write("report.html", text)       # staged: a synced temp file beside its target
+    # leaving the block commits the set: the files it replaces are set aside, the staged ones renamed into place,
+    # then the previous run's leftovers go; a failure puts the previous files back, so they stay whole
+
+    `locked()` holds the directory's lock around a longer block (a landscape's computation), so that a second
+    writer is refused when it starts rather than after its work.
     """
 
     def __init__(self, out: Path | str, kind: str, previous: list[str] | None):
@@ -153,13 +160,16 @@ class Output:
         self.claimed = previous  # what claim_output saw: None for a new or empty directory
         self.previous = list(previous or [])
         self.planned: list[str] = []
+        self.staged: dict[str, Path] = {}  # name -> its synced temp file, renamed into place by _commit
+        self.folders: list[Path] = []  # folders made for staged files, removed again on a failure
         self.created = False
+        self.begun = False
 
     def _fail(self, name: str, err: OSError) -> WriteFailed:
         why = err.strerror or str(err) or type(err).__name__
         return WriteFailed(
-            f"{self.out / name}: could not be written ({why}); files written before are complete, "
-            f"none is half-written; {remedy(err)}, then run the command again"
+            f"{self.out / name}: could not be written ({why}); nothing was replaced: the files there before stay as "
+            f"they were; {remedy(err)}, then run the command again"
         )
 
     def begin(self, planned: Iterable[str]) -> None:
@@ -167,16 +177,21 @@ class Output:
         self.planned = list(dict.fromkeys(planned))
         self._make()
         self._manifest(sorted(set(self.previous) | set(self.planned)))
+        self.begun = True
 
     def _manifest(self, files: list[str]) -> None:
+        """The manifest, written at once (not staged): it claims the directory before any other file changes."""
         data = json.dumps(
             {"kind": self.kind, "written_by": f"riskplan {self.kind} {__version__}", "files": files}, indent=1
         )
-        self.write(MANIFEST, data)
+        try:
+            write_atomic(self.out / MANIFEST, data)
+        except OSError as err:
+            raise self._fail(MANIFEST, err) from None
 
     def path(self, name: str) -> contextlib.AbstractContextManager[Path]:
-        """Context manager yielding a temp path to write `name` to (renamed into place at the end)."""
-        return _guarded(self, name)
+        """Context manager yielding a temp path to write `name` to (renamed into place when the set is committed)."""
+        return _staged(self, name)
 
     def write(self, name: str, data: str | bytes) -> None:
         with self.path(name) as tmp:
@@ -191,24 +206,34 @@ class Output:
             writer(tmp)
 
     @contextlib.contextmanager
-    def writing(self, names: list[str]):
-        """Plan `names`; the block writes them, then the previous run's leftovers go. A failure removes what this
-        run created and is one WriteFailed line (a full disk, ...)."""
+    def locked(self):
+        """Hold the directory's lock for the block (making the directory when missing; re-entrant): another writer
+        is refused from now on, naming this process. The directory must still be as claim_output found it. On a
+        failure, a directory this command made is removed again when it holds nothing else."""
         try:
             self._make()
-            with lock.hold_lock(self.out, f"{self.kind} directory"):  # one writer: a second one is refused
+            with lock.hold_lock(self.out, f"{self.kind} directory"):
                 self._check_unchanged()
+                yield self
+        except BaseException:
+            self.abandon()
+            raise
+
+    @contextlib.contextmanager
+    def writing(self, names: list[str]):
+        """Plan `names`, which the block writes; then commit them as one set and drop the previous run's leftovers.
+        A failure leaves the directory as it was, and is one WriteFailed line (a full disk, ...)."""
+        with self.locked():
+            try:
                 self.begin(names)
                 yield self
-                self.finish()
-        except BadInput:
-            self.abandon()
-            raise
-        except OSError as err:
-            self.abandon()
-            if not isinstance(err, WriteFailed):
-                raise self._fail("", err) from None
-            raise
+                self._commit()
+            except BaseException as err:
+                self._discard()
+                if isinstance(err, OSError) and not isinstance(err, WriteFailed):
+                    raise self._fail("", err) from None
+                raise
+            self.finish()
 
     def _make(self) -> None:
         try:
@@ -235,6 +260,55 @@ class Output:
                 f"replaces that output) or give another directory",
             )
 
+    def _commit(self) -> None:
+        """Every staged file renamed into place, once every file it replaces has been set aside (the last file
+        written, such as a landscape's status.json, is placed last). A reader meanwhile finds old files or new
+        ones, never both; on a failure the new ones go and the old ones come back."""
+        aside: list[tuple[Path, Path]] = []  # (target, where its previous file was set aside)
+        placed: list[Path] = []
+        name = ""
+        try:
+            for name in self.staged:
+                target = self.out / name
+                if target.exists() or target.is_symlink():
+                    backup = target.with_name(temp_name(f"{target.name}.old", os.getpid()))
+                    os.replace(target, backup)
+                    aside.append((target, backup))
+            for name, tmp in self.staged.items():
+                os.replace(tmp, self.out / name)
+                placed.append(self.out / name)
+        except BaseException as err:
+            for target in placed:
+                with contextlib.suppress(OSError):
+                    target.unlink()
+            for target, backup in reversed(aside):
+                with contextlib.suppress(OSError):
+                    os.replace(backup, target)
+            if isinstance(err, OSError):
+                raise self._fail(name, err) from None
+            raise
+        self.staged.clear()
+        for _, backup in aside:
+            with contextlib.suppress(OSError):
+                backup.unlink()
+
+    def _discard(self) -> None:
+        """After a failure: the staged files and the folders made for them removed, and the manifest as it was
+        (none where there was none)."""
+        for tmp in self.staged.values():
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        self.staged.clear()
+        for folder in reversed(self.folders):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        if self.begun:
+            with contextlib.suppress(OSError):
+                if self.claimed is None:
+                    (self.out / MANIFEST).unlink()
+                else:
+                    self._manifest(sorted(self.claimed))
+
     def finish(self) -> None:
         """Remove files of the previous run that this one did not write again; the manifest lists this run's."""
         for name in set(self.previous) - set(self.planned):
@@ -242,7 +316,8 @@ class Output:
             if _safe(name) and target.is_file() and not target.is_symlink():
                 with contextlib.suppress(OSError):
                     target.unlink()
-        self._manifest(sorted(self.planned))
+        with contextlib.suppress(OSError):  # the new set is in place; a manifest listing more still claims it
+            self._manifest(sorted(self.planned))
 
     def abandon(self) -> None:
         """After a failure: a directory this run created and left empty is removed (its lock, and a manifest with
@@ -257,13 +332,23 @@ class Output:
 
 
 @contextlib.contextmanager
-def _guarded(output: Output, name: str):
+def _staged(output: Output, name: str):
+    """A temp path beside `name`'s target, synced when the block succeeds and kept for Output._commit; removed
+    when it fails (WriteFailed naming the file)."""
     target = output.out / name
+    tmp = target.with_name(temp_name(target.name, os.getpid()))
     try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(target) as tmp:
-            yield tmp
-    except OSError as err:
-        if isinstance(err, WriteFailed):
-            raise
-        raise output._fail(name, err) from None
+        missing = [p for p in target.parents if output.out in p.parents and not p.exists()]
+        for folder in reversed(missing):
+            folder.mkdir()
+            output.folders.append(folder)
+        yield tmp
+        with open(tmp, "rb+") as handle:
+            os.fsync(handle.fileno())
+    except BaseException as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        if isinstance(err, OSError) and not isinstance(err, WriteFailed):
+            raise output._fail(name, err) from None
+        raise
+    output.staged[name] = tmp

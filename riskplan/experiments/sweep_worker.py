@@ -362,7 +362,13 @@ def _locked_job(cfg: DictConfig, out: Path, watched: str | None = None) -> float
 
 
 WARM_UP = (["experiment=paper_single"],)  # loads the kernels every job runs (a team's own few load in its job)
-WARM_UP_SIZE = ["train.iterations=2", "train.samples=8", "train.eval_episodes=8", "train.bootstrap=40", "train.paths=1"]
+WARM_UP_SIZE = [
+    "train.iterations=2",
+    "train.samples=11",
+    "train.eval_episodes=8",
+    "train.bootstrap=40",
+    "train.paths=1",
+]
 
 
 def warm_up() -> tuple[int, float]:

@@ -7,16 +7,18 @@ import dataclasses
 import math
 import re
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 from omegaconf import DictConfig
 
 from riskplan.config.backends import DEVICES, load
-from riskplan.config.schema import Choice, RiskplanConf
+from riskplan.config.schema import Choice, RiskConf, RiskplanConf, ScheduleKind
 from riskplan.config.typed import as_dict, typed
 from riskplan.config.validate import validate
 from riskplan.engine import rng
-from riskplan.engine.measures.registry import check_risk_nodes
+from riskplan.engine.estimators import mean_gradient, tail_count
+from riskplan.engine.measures.registry import check_risk_nodes, risk_spec
 from riskplan.engine.policy import Policy, make_policy
 from riskplan.engine.reachability import source_distances
 from riskplan.engine.rollout import KernelArrays, make_kernel
@@ -35,6 +37,7 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool = True) -
     params = typed(cfg)  # types, unknown keys, Choices, interpolations: the frozen config everything below reads
     validate(params, needs_ray)  # every range, once
     check_risk_nodes(params)  # each risk node's measure (built in or a package's) and its parameters
+    warn_single_episode_tail(params)
     check_device(params)  # engine.device=cuda: a GPU numba-cuda can use
     # Sizes first: nothing big is allocated before the memory and time estimates pass (a map's from its header).
     found = maps.read_map(params.world)
@@ -71,6 +74,7 @@ def _world_and_policy(params: RiskplanConf, found: maps.MapFile | None) -> tuple
     layout = None if found is None else maps.load_layout(params.world, found)
     given = None if params.team.starts is None else list(params.team.starts)
     world = build_world(params.world, given, layout)
+    check_starts(world, per_robot=given is not None)
     check_reach(world, source_distances(world, np.unique(world.starts)))
     policy = make_policy(world, params.policy.kind, params.policy.features)
     built = (world, policy, make_kernel(world, policy))
@@ -104,6 +108,66 @@ def _plain_config(params: RiskplanConf) -> dict:
 
 PLAIN_MEMO = 64
 _PLAIN: collections.OrderedDict[int, tuple] = collections.OrderedDict()
+
+
+class SingleTail(NamedTuple):
+    """A risk node whose gradient's CVaR tail holds one of train.samples episodes."""
+
+    where: str  # risk, or team.risk.<i>
+    shown: str  # its level as the warning shows it: risk.beta=0.1
+    level: float
+    vanishes: bool  # the whole gradient is zero, not only a CVaR part of it (mean_cvar's)
+    lifted: bool  # soft risk or train.samples_growth lift the tail in some iterations
+
+
+def warn_single_episode_tail(params: RiskplanConf) -> None:
+    """A warning (one `warning:` line from the CLI) when a risk node's gradient takes CVaR at a level whose tail,
+    ceil(beta W) of an iteration's train.samples W episodes, holds the worst episode alone: its total is the VaR v,
+    so every (z - v) 1{z <= v} of eq. 9 is 0, and that gradient is zero in every iteration, silently. Only a measure
+    with a CVaR level below 1 (`Measure.level`: cvar, mean_cvar's CVaR part) has such a tail; the other measures
+    weigh every episode. Soft risk's higher beta_l and train.samples_growth's larger W_l lift some iterations."""
+    samples, team = params.train.samples, params.team.risk
+    nodes = [("risk", params.risk)] if team is None else [(f"team.risk.{i}", node) for i, node in enumerate(team)]
+    found = [tail for where, node in nodes if (tail := _single_tail(node, where, params)) is not None]
+    if not found:
+        return
+    first, lowest = found[0], min(tail.level for tail in found)
+    least = math.floor(1.0 / lowest) + 1  # the fewest episodes whose tail holds two
+    while tail_count(lowest, least) < 2:  # 1 / lowest rounded down
+        least += 1
+    whose = "the gradient" if team is None else f"robot {first.where.rsplit('.', 1)[1]}'s gradient"
+    if len(found) == len(nodes) and all(tail.vanishes for tail in found):  # no robot's gradient moves it
+        effect = ("the gradient" if team is None else "every robot's gradient") + " is zero: theta never moves"
+    elif first.vanishes:
+        effect = f"{whose} is zero (its theta moves only by consensus)"
+    else:
+        effect = f"{whose}'s CVaR part is zero"
+    if first.lifted:
+        effect += " (except in iterations where soft risk or train.samples_growth raise beta_l x W_l above 1)"
+    more = f" (and {len(found) - 1} more of team.risk's nodes)" if len(found) > 1 else ""
+    warnings.warn(
+        f"{first.shown}{more} with train.samples={samples}: CVaR's tail holds ceil({first.level:g} x {samples}) = 1 "
+        f"episode, the worst, so every (z - v) of eq. 9 is 0 and {effect}; use train.samples >= {least}",
+        stacklevel=2,
+    )
+
+
+def _single_tail(node: RiskConf, where: str, params: RiskplanConf) -> SingleTail | None:
+    """The SingleTail of a risk node whose gradient takes CVaR at a level whose tail holds one of train.samples
+    episodes; None for any other node (no CVaR level, a tail of two or more, or no weight on its CVaR)."""
+    samples = params.train.samples
+    measure, values = risk_spec(node, where)
+    level = measure.level(values)
+    if level is None or level >= 1.0 or tail_count(level, samples) > 1:
+        return None
+    ranks = np.arange(min(samples, 2), dtype=float)  # a tail of 1 at W = 2 too (level <= 1 / W <= 1/2)
+    probe = measure.gradient(ranks, ranks[:, None], values)  # distinct totals and scores: a tail of 2 gives > 0
+    if np.array_equal(probe, mean_gradient(ranks, ranks[:, None])):  # no weight on CVaR (mean_cvar's weight=0)
+        return None
+    scheduled = measure.scheduled and node.schedule.kind != ScheduleKind.none
+    lifted = params.train.samples_growth > 0 or (scheduled and tail_count(node.schedule.start, samples) > 1)
+    shown = f"{measure.key('beta', where)}={level:g}" if "beta" in values else f"{where}'s CVaR level {level:g}"
+    return SingleTail(where, shown, level, not probe.any(), lifted)
 
 
 def check_device(params: RiskplanConf) -> None:
@@ -176,6 +240,22 @@ def initial_theta(world: World, policy: Policy, given: list) -> np.ndarray:
 
 REACH_EPISODES = 1000  # theta0's episodes per distinct start behind the reach warning: 1% is about 10 of them
 RARE = 0.01  # a source reached by fewer of theta0's episodes than this gets a warning
+
+
+def check_starts(world: World, per_robot: bool) -> None:
+    """BadInput for a start on a source's (initial) cell: an episode reaches a source when a move ends on it, so one
+    that started there would count as not reaching it at step 0, while reach_lines said 0 moves. `per_robot`: the
+    starts are team.starts' (each robot's own), not world.start."""
+    sources = world.source_cells.tolist()
+    for robot, cell in enumerate(world.starts.tolist()):
+        if cell in sources:
+            j = sources.index(cell)
+            x, y = world.xy(cell)
+            raise BadInput(
+                f"team.starts.{robot}" if per_robot else "world.start",
+                f"({x}, {y}) is the cell of world.sources.{j} '{world.source_names[j]}'; an episode reaches a source "
+                f"when a move ends on it, never where it starts: choose a start off the sources",
+            )
 
 
 def check_reach(world: World, moves: np.ndarray) -> None:

@@ -104,15 +104,24 @@ def sample_paths(setup: RunSetup, thetas: np.ndarray) -> Columns:
     return concat(frames)
 
 
-def summarize(setup: RunSetup, state: TrainState, evaluation: Columns, metrics: Columns, train_seconds: float) -> dict:
-    """summary.json: headline policy's figures with intervals, per-policy basics, timing, provenance."""
+def summarize(
+    setup: RunSetup,
+    state: TrainState,
+    evaluation: Columns,
+    metrics: Columns,
+    train_seconds: float,
+    trained_from: int = 0,
+) -> dict:
+    """summary.json: headline policy's figures with intervals, per-policy basics, timing, provenance. The loop
+    took `train_seconds` over the iterations from `trained_from` (where a resumed run went on), so the throughput
+    counts their episodes alone."""
     params = setup.params
     headline = AVERAGE if setup.team else 0
     z = evaluation["total_reward"][evaluation["robot"] == headline]
     check_finite("the evaluation's total reward", evaluation["total_reward"])
     figures = bootstrap_intervals(z, params.risk.beta, params.train.bootstrap, params.seed)
     check_finite("the summary's figures", *[v for f in figures.values() for v in f.values()])
-    steps = float(metrics["samples"][metrics["robot"] >= 0].sum())
+    steps = float(metrics["samples"][(metrics["robot"] >= 0) & (metrics["iteration"] >= trained_from)].sum())
     per_policy = {}
     for robot in np.unique(evaluation["robot"]):
         group = rows_where(evaluation, evaluation["robot"] == robot)
@@ -150,7 +159,7 @@ def summarize(setup: RunSetup, state: TrainState, evaluation: Columns, metrics: 
         "eval_episodes": params.train.eval_episodes,
         "wall_time": train_seconds,
         "deterministic": BACKENDS[params.team.backend].deterministic,  # ray: the wall clock orders the messages
-        "throughput_episodes_per_s": steps / train_seconds if train_seconds > 0 else None,
+        "throughput_episodes_per_s": steps / train_seconds if steps and train_seconds > 0 else None,
         "provenance": provenance(),
     }
 

@@ -25,11 +25,15 @@ channel) belong to the region, and a cell belongs to it when any of its pixels d
 Every problem is one BadInput naming the key and the file: a missing or unreadable file, a YAML key missing or out
 of range, an image that is not a PGM (P2, P5) or PNG or is truncated, a mask of another size, a map too large for the
 memory budget. Maps read are remembered (by path, size and modification time): a sweep's plan builds every job.
+
+`map_record` identifies a world's map files (each one's resolved path and SHA-256): run.mcap records it when a run
+starts, and a resume compares it, since world.map=maps/x.yaml may name another file from another directory.
 """
 
 from __future__ import annotations
 
 import collections
+import hashlib
 import math
 import re
 from dataclasses import dataclass
@@ -244,6 +248,34 @@ def load_layout(world: WorldConf, found: MapFile) -> Layout:
 
 
 _LAYOUTS: collections.OrderedDict[tuple, Layout] = collections.OrderedDict()
+
+
+def map_record(world: WorldConf) -> list[dict] | None:
+    """What identifies a world's map: its YAML, its image and each region's mask, in that order, each as
+    {"key", "path" (resolved), "sha256"}; None without a map."""
+    found = read_map(world)
+    if found is None:
+        return None
+    files = [(KEYS.world.map, found.yaml, found.shown), (KEYS.world.map, found.image, f"the image of {found.shown}")]
+    files += [
+        (KEYS.world.regions.at(r).mask, _mask_path(found, region.mask, r), f"the mask {region.mask}")
+        for r, region in enumerate(world.regions)
+        if region.mask is not None
+    ]
+    return [{"key": key, "path": str(path.resolve()), "sha256": _digest(path, what, key)} for key, path, what in files]
+
+
+def _digest(path: Path, what: str, where: str) -> str:
+    """The file's SHA-256 (remembered by file identity: a sweep's runs share their map)."""
+    key = _identity(path)
+    if key not in _DIGESTS:
+        _DIGESTS[key] = hashlib.sha256(_open(path, what, where)).hexdigest()
+        while len(_DIGESTS) > 4 * MEMO:
+            _DIGESTS.popitem(last=False)
+    return _DIGESTS[key]
+
+
+_DIGESTS: collections.OrderedDict[tuple, str] = collections.OrderedDict()
 
 
 def classify(

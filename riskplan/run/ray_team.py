@@ -351,7 +351,8 @@ def train_ray(setup: RunSetup, out: Path, resume: bool, progress) -> dict:
             metrics = _metrics_table(team.rows)
             evaluation = evaluate(setup, thetas)
             trajectories = sample_paths(setup, thetas)
-            summary = summarize(setup, TrainState(total, thetas, {}), evaluation, metrics, train_seconds)
+            resumed_at = checkpoint.iteration if checkpoint is not None else 0  # the throughput's: this run's part
+            summary = summarize(setup, TrainState(total, thetas, {}), evaluation, metrics, train_seconds, resumed_at)
             stop.check(total)  # before the final files: a resumed run evaluates again
             log.trajectories(trajectories)
             log.evaluation(evaluation)

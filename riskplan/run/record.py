@@ -472,6 +472,14 @@ def _iteration_messages(msgs: Iterable[_Raw]) -> tuple[dict[str, list[tuple[_Raw
     return by_topic, done
 
 
+def log_header(path: Path | str) -> tuple[dict[str, Any], int]:
+    """run.mcap's metadata records, decoded (a later record of a name replaces an earlier one), and how many
+    iterations it holds whole: what a resume checks before it reads the rows."""
+    scan = _scan(_read_bytes(path), str(path))
+    _, done = _iteration_messages(scan.messages)
+    return {name: _decode_metadata(m) for name, m in scan.metadata}, len(done)
+
+
 def resume_log(src: Path | str, dst: Path | str, last_iteration: int) -> RunLog:
     """A RunLog on `dst` holding `src`'s metadata, world map and iterations <= last_iteration, open for appending.
 
@@ -522,4 +530,4 @@ def resume_log(src: Path | str, dst: Path | str, last_iteration: int) -> RunLog:
     return log
 
 
-__all__ = ["BATCH_ROWS", "RunLog", "resume_log"]
+__all__ = ["BATCH_ROWS", "RunLog", "log_header", "resume_log"]

@@ -81,7 +81,7 @@ class Driver:
         metrics = sorted_by(from_rows(self.rows), "iteration", "robot")
         evaluation = evaluate(setup, state.thetas)
         trajectories = sample_paths(setup, state.thetas)
-        summary = summarize(setup, state, evaluation, metrics, train_seconds)
+        summary = summarize(setup, state, evaluation, metrics, train_seconds, self.resumed_at)
         if self.resumed_at:  # wall_time is this process's part of the loop; the run line says so
             summary["resumed_at"] = self.resumed_at
         self.results = (metrics, evaluation, trajectories, summary)

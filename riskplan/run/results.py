@@ -17,7 +17,7 @@ from omegaconf.errors import OmegaConfBaseException
 from riskplan.config.typed import register_metres
 from riskplan.run.columns import read_parquet
 from riskplan.run.log_reader import read_log
-from riskplan.run.run_files import CONFIG, RUN_LOG, SUMMARY, TABLES, is_run_dir, table_file
+from riskplan.run.run_files import CONFIG, RUN_LOG, SUMMARY, TABLES, is_run_dir, other_output, table_file
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import shown_bytes, undecoded
 
@@ -109,6 +109,9 @@ def find_runs(paths: list[Path]) -> list[Path]:
 def load_run(path: str | Path) -> Run:
     """Load a run: parquet tables when all are there, else rebuilt from run.mcap (a killed run included)."""
     path = Path(path)
+    other = other_output(path) if path.is_dir() else None
+    if other is not None:
+        raise BadInput(str(path), f"holds {other}, not a run; give a run directory")
     if not path.is_dir() or not is_run_dir(path):
         raise BadInput(str(path), "holds no run (no run.mcap or .hydra/config.yaml); give a run directory")
     config = run_config(path)

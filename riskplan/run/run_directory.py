@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -18,12 +19,28 @@ from riskplan.engine.team.network import network_metadata
 from riskplan.engine.world import world_map
 from riskplan.run.columns import Columns, write_parquet
 from riskplan.run.foxglove_layout import write_layout
+from riskplan.run.maps import map_record
 from riskplan.run.provenance import provenance
-from riskplan.run.record import RunLog, resume_log
-from riskplan.run.run_files import CONFIG, ENDS, RECORDS, RUN_LOG, SUMMARY, TABLES, is_run_dir, table_file
+from riskplan.run.record import RunLog, log_header, resume_log
+from riskplan.run.run_files import (
+    CONFIG,
+    ENDS,
+    FILES,
+    RECORDS,
+    RUN_LOG,
+    SUMMARY,
+    TABLES,
+    is_run_dir,
+    other_output,
+    remove_temps,
+    table_file,
+)
 from riskplan.util.errors import BadInput
 from riskplan.util.lock import LOCK, holder
-from riskplan.util.paths import atomic_path, write_atomic
+from riskplan.util.paths import atomic_path, temp_name, write_atomic
+
+# a run's longest path inside its directory: a killed atomic write's temp file, with a pid of up to 7 digits
+INSIDE = max(len(temp_name(Path(f.name).name, "1234567")) + len(Path(f.name).parent.as_posix()) for f in FILES) + 1
 
 
 def check_new_run_dir(out: Path, key: str) -> None:
@@ -40,11 +57,40 @@ def check_new_run_dir(out: Path, key: str) -> None:
             f"is in use by another riskplan process (pid {pid or 'unknown'}); one process "
             f"writes a run directory at a time: wait for it to end or stop it",
         )
+    other = other_output(out)
+    if other is not None:
+        raise BadInput(key, f"{out} holds {other}, not a run; give a new or empty directory")
     if is_run_dir(out):
         raise BadInput(
             key, f"{out} already holds a run; resume it with riskplan train --resume {out}, or give a new directory"
         )
     raise BadInput(key, f"{out} is not empty and holds no run; give a new or empty directory")
+
+
+def check_name_lengths(path: Path | str, key: str) -> None:
+    """BadInput for a directory the filesystem would refuse to make (a name over its NAME_MAX bytes, or a path that
+    leaves no room for the run's files under PATH_MAX), found before anything is made or even looked up."""
+    full = Path(os.path.abspath(os.path.expanduser(str(path))))
+    made = current = Path(full.anchor)  # `made`: the deepest folder that exists, which the limits are asked of
+    for part in full.parts[1:]:
+        limit = os.pathconf(made, "PC_NAME_MAX")
+        size = len(os.fsencode(part))
+        if size > limit:
+            raise BadInput(
+                key,
+                f"names a folder of {size} bytes ({part[:24]}...); this filesystem takes names of at most {limit} "
+                f"bytes: give a shorter one",
+            )
+        current = current / part
+        if made == current.parent and os.path.isdir(current):  # never raises, however long
+            made = current
+    limit = os.pathconf(made, "PC_PATH_MAX")
+    if len(os.fsencode(str(full))) + INSIDE > limit:
+        raise BadInput(
+            key,
+            f"is {len(os.fsencode(str(full)))} bytes long as an absolute path; this filesystem takes paths of at most "
+            f"{limit} bytes, with the run's files inside: give a shorter one",
+        )
 
 
 def refuse_existing_run(out: Path, setup: RunSetup) -> None:
@@ -64,6 +110,9 @@ def start_log(out: Path, setup: RunSetup) -> RunLog:
     _write_config(out, setup.config)
     log = RunLog(out / RUN_LOG)
     log.metadata("config", setup.config)
+    files = map_record(setup.params.world)
+    if files is not None:  # what a resume checks: world.map may name another file from another directory
+        log.metadata("map", {"files": files})
     log.metadata("provenance", provenance())
     log.metadata("policy", {"kind": str(setup.policy.kind), "theta_names": list(setup.theta_names)})
     log.network(network_metadata(setup.network))
@@ -74,15 +123,41 @@ def start_log(out: Path, setup: RunSetup) -> RunLog:
 def reopen_log(out: Path, setup: RunSetup, iteration: int) -> tuple[RunLog, list[dict]]:
     """run.mcap cut back to a checkpoint at `iteration`, and its metrics rows before it. An extended run
     (`--resume ... train.iterations=N`) gets its new config written and logged, and is not finished until it
-    finishes again."""
-    log = resume_log(out / RUN_LOG, out / RUN_LOG, iteration - 1)
+    finishes again. Every check comes before the first write."""
+    check_same_map(out, setup)
     rows = logged_rows(out / RUN_LOG, iteration, setup.robots, setup.config)
+    log = resume_log(out / RUN_LOG, out / RUN_LOG, iteration - 1)
     if _config_changed(out, setup.config):
         _write_config(out, setup.config, replace=True)
         log.metadata("config", setup.config)
     for name in ENDS:
         (out / name).unlink(missing_ok=True)
+    remove_temps(out)  # a SIGKILL's leftovers: the files they were to become are written again
     return log, rows
+
+
+def check_same_map(out: Path, setup: RunSetup, metadata: dict | None = None) -> None:
+    """BadInput when the run's map files are not those run.mcap recorded as it started (`metadata`: its records,
+    read here when not given): world.map=maps/x.yaml resolved from another working directory, or a map edited in
+    place, would go on training the run in another world. A run recorded before riskplan kept its map's identity
+    is not checked."""
+    if metadata is None:
+        metadata = log_header(out / RUN_LOG)[0] if (out / RUN_LOG).is_file() else {}
+    recorded = metadata.get("map")
+    files = recorded.get("files") if isinstance(recorded, dict) else None
+    if not isinstance(files, list):
+        return
+    for was, now in zip(files, map_record(setup.params.world) or [], strict=False):
+        if not isinstance(was, dict) or was.get("sha256") == now["sha256"]:
+            continue
+        if was.get("path") == now["path"]:
+            what = f"{now['path']} has changed since the run started (not the content {RUN_LOG} recorded); restore it"
+        else:
+            what = (
+                f"{now['path']} is not the file the run started with ({was.get('path')}), and its content differs; "
+                f"resume from the directory the run was started in"
+            )
+        raise BadInput(now["key"], f"{what}, or train a new run")
 
 
 def logged_rows(path: Path, iterations: int, robots: int, config: dict) -> list[dict]:
@@ -115,7 +190,7 @@ def _check_logged_config(path: Path, logged: Any, config: dict) -> None:
     the run under another config, a result of neither."""
     if not isinstance(logged, dict):
         return
-    changed = [key for key in _differing(logged, config) if key != "train.iterations"]
+    changed = [key for key in differing(logged, config) if key != "train.iterations"]
     if changed:
         more = f" and {len(changed) - 1} more" if len(changed) > 1 else ""
         raise BadInput(
@@ -125,14 +200,14 @@ def _check_logged_config(path: Path, logged: Any, config: dict) -> None:
         )
 
 
-def _differing(logged: Any, config: Any, key: str = "") -> list[str]:
+def differing(logged: Any, config: Any, key: str = "") -> list[str]:
     """The dotted keys of the logged config whose values `config` does not share. A key the log lacks is one a
     later riskplan added, with the default the run had in effect: it is no difference."""
     if isinstance(logged, dict) and isinstance(config, dict):
         return [
             k
             for name in sorted(logged, key=str)
-            for k in _differing(logged[name], config.get(name), f"{key}.{name}".lstrip("."))
+            for k in differing(logged[name], config.get(name), f"{key}.{name}".lstrip("."))
         ]
     return [] if logged == config else [key or "(the whole config)"]
 

@@ -11,6 +11,7 @@ No pandas here: `riskplan train` checks its directory with these before it start
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +46,9 @@ SUMMARY = "summary.json"
 LAYOUT = "foxglove_layout.json"
 STATUS = "status.json"
 JOB_LOG = "job.log"
+# How riskplan report and landscape own their --out (riskplan.experiments.output_manifest): never in a run's folder,
+# though a landscape's holds a .hydra/config.yaml
+OUTPUT_MANIFEST = ".riskplan-manifest.json"
 
 FILES = (  # a fresh start removes the checkpoint first: a job cut short there never resumes half a run
     RunFile(CONFIG, "the run's config (Hydra writes it for the CLI, the run for the Python API)", output=True),
@@ -88,8 +92,31 @@ def table_file(name: str) -> str:
 
 
 def is_run_dir(path: Path) -> bool:
-    """A run directory holds a run.mcap or a .hydra/config.yaml."""
-    return (path / RUN_LOG).is_file() or (path / CONFIG).is_file()
+    """A run directory holds a run.mcap or a .hydra/config.yaml, and is not another command's output."""
+    return ((path / RUN_LOG).is_file() or (path / CONFIG).is_file()) and other_output(path) is None
+
+
+def other_output(path: Path) -> str | None:
+    """What `path` holds instead of a run, as a message says it ('the output of riskplan landscape'), or None: the
+    manifest riskplan report and landscape write into their output."""
+    file = path / OUTPUT_MANIFEST
+    if not file.exists() and not file.is_symlink():
+        return None
+    try:
+        kind = json.loads(file.read_text(encoding="utf-8")).get("kind")
+    except (OSError, ValueError, AttributeError):  # damaged: still not a run
+        kind = None
+    if isinstance(kind, str) and kind.isidentifier():
+        return f"the output of riskplan {kind}"
+    return f"the output of another riskplan command ({OUTPUT_MANIFEST})"
+
+
+def remove_temps(out: Path) -> None:
+    """Remove what a killed atomic write of a run's own files left (.eval.parquet.<pid>.tmp), as a fresh start or a
+    resume does: the caller holds the directory's lock, so no writer is using them."""
+    for name in STALE:
+        for left in out.glob(temp_name(name, "*")):
+            left.unlink(missing_ok=True)
 
 
 def has_finished(out: Path) -> bool:
@@ -103,5 +130,4 @@ def remove_stale(out: Path) -> None:
     rewritten or appended to)."""
     for name in STALE:
         (out / name).unlink(missing_ok=True)
-        for left in out.glob(temp_name(name, "*")):
-            left.unlink(missing_ok=True)
+    remove_temps(out)

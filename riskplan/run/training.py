@@ -21,7 +21,7 @@ from riskplan.engine.team.kernels import Links, mix_linked
 from riskplan.run.build import build_setup
 from riskplan.run.checkpoint import load_checkpoint
 from riskplan.run.recorder import Driver, Recorder
-from riskplan.run.run_directory import logged_rows
+from riskplan.run.run_directory import check_same_map, logged_rows
 from riskplan.run.run_files import CONFIG, has_finished
 from riskplan.util.collector import resume_collection
 from riskplan.util.errors import BadInput
@@ -96,6 +96,7 @@ def prepare_resume(config, out: Path) -> tuple[RunSetup, bool]:
         if own.is_symlink():
             raise BadInput(str(own), "is a symbolic link; a run keeps its own config: copy the run rather than link it")
     setup = build_setup(config, needs_ray=False)
+    check_same_map(out, setup)  # first: a tabular policy's checkpoint would not fit another map's cells either
     check = BACKENDS[setup.params.team.backend].resume_check
     if check is not None:  # checkpoints of its own (ray: one per robot; Ray only if a robot has iterations left)
         return setup, load(check)(setup, out)

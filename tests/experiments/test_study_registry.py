@@ -14,7 +14,7 @@ from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
 
 FOLDERS = [experiment.folder for experiment in EXPERIMENTS]
-SMALL = ["train.iterations=1", "train.samples=8", "train.eval_episodes=8", "train.bootstrap=40", "train.paths=1"]
+SMALL = ["train.iterations=1", "train.samples=21", "train.eval_episodes=8", "train.bootstrap=40", "train.paths=1"]
 
 
 def test_each_experiment_has_a_folder_of_its_own():

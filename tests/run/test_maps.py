@@ -115,7 +115,8 @@ def test_the_thresholds_and_negate_follow_map_server(tmp_path):
     write_pgm(tmp_path / "levels.pgm", [[89, 90, 205, 206]])
     plain = world_of(write_yaml(tmp_path / "a.yaml", "levels.pgm"), "world.map_unknown=free", *FOUR_BY_ONE)
     assert cells(plain.obstacle, plain) == {(0, 0)}
-    grid = world_of(write_yaml(tmp_path / "b.yaml", "levels.pgm"), *FOUR_BY_ONE_UNKNOWN)
+    write_pgm(tmp_path / "levels2.pgm", [[254, 254, 254, 254], [89, 90, 205, 206]])  # a free row for the source
+    grid = world_of(write_yaml(tmp_path / "b.yaml", "levels2.pgm"), *FOUR_BY_ONE_UNKNOWN)
     assert cells(grid.obstacle, grid) == {(0, 0), (1, 0), (2, 0)}
     # negate: p = v / 255, so 205 (0.804) and 206 (0.808) are occupied, 89 and 90 (0.35) unknown
     negated = world_of(write_yaml(tmp_path / "c.yaml", "levels.pgm", negate=1), "world.map_unknown=free", *NEG)
@@ -123,7 +124,7 @@ def test_the_thresholds_and_negate_follow_map_server(tmp_path):
 
 
 FOUR_BY_ONE = ["world.start=[3,0]", "world.sources=[{position:[1,0],reward:1}]", "train.theta0=[20]"]
-FOUR_BY_ONE_UNKNOWN = ["world.start=[3,0]", "world.sources=[{position:[3,0],reward:1}]", "train.theta0=[20]"]
+FOUR_BY_ONE_UNKNOWN = ["world.start=[3,0]", "world.sources=[{position:[3,1],reward:1}]", "train.theta0=[20]"]
 NEG = ["world.start=[0,0]", "world.sources=[{position:[1,0],reward:1}]", "train.theta0=[20]"]
 
 

@@ -158,7 +158,10 @@ def landscape_for(collected: Collection, group: Group):
     or None."""
     world = flat_world(group.config)
     for scan in collected.landscapes:
-        if flat_world(scan.config) == world and math.isclose(scan.beta, group.beta):
+        policy = scan.config.get("policy") or {}
+        features = list(policy.get("features") or ["signals"])
+        paper = policy.get("kind", "features") == "features" and features == ["signals"]  # not other features' weights
+        if paper and flat_world(scan.config) == world and math.isclose(scan.beta, group.beta):
             return scan
     return None
 

@@ -313,13 +313,18 @@ def runs_on(scan, collected: Collection) -> list[RunInfo]:
         team = r.config.get("team") or {}
         if team.get("starts") or team.get("risk") or team.get("faults"):
             shown = False  # a heterogeneous or faulty team climbs another objective than this world's from its start
-        if (
-            shown
-            and flat_world(r.config) == world
-            and len(r.final_theta()) == len(scan.summary.get("theta_fixed", [0, 0]))
-        ):
+        if shown and flat_world(r.config) == world and _same_theta(r, scan):
             out.append(r)
     return out
+
+
+def _same_theta(run: RunInfo, scan) -> bool:
+    """Whether the run's theta means what the landscape's does: the same names (its policy.features, in order),
+    or, where either predates theta_names, the same length."""
+    names, own = (run.run.summary or {}).get("theta_names"), scan.summary.get("theta_names")
+    if isinstance(names, list) and isinstance(own, list):
+        return names == own
+    return len(run.final_theta()) == len(scan.summary.get("theta_fixed", [0, 0]))
 
 
 def flat_world(config: dict) -> dict:
@@ -396,7 +401,7 @@ def landscape_table(collected: Collection) -> pd.DataFrame:
                     "group": label,
                     "seeds": len(runs),
                     "objective": target,
-                    "final_theta": f"({final[0]:.1f}, {final[1]:.1f})",
+                    "final_theta": pair_text(final),
                     "distance_to_optimum": float(np.linalg.norm(final - opt)),
                     "smoothed_optimum_theta": pair_text(smooth_theta),
                     "distance_to_smoothed_optimum": float(np.linalg.norm(final - smooth_theta)),
@@ -419,4 +424,10 @@ def _fmt_theta(theta: list[float] | None, a: int, b: int) -> str:
 def pair_text(pair) -> str:
     if not all(math.isfinite(v) for v in pair):
         return "n/a"
-    return f"({pair[0]:.1f}, {pair[1]:.1f})"
+    return f"({_coordinate(pair[0])}, {_coordinate(pair[1])})"
+
+
+def _coordinate(value: float) -> str:
+    """One decimal, as a reader compares thetas; a huge one (a --range=0,1e200 grid) in exponent form, not as the
+    hundreds of digits of its float."""
+    return f"{value:.1f}" if abs(value) < 1e6 else f"{value:.4g}"

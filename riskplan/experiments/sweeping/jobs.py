@@ -11,7 +11,7 @@ import yaml
 
 from riskplan.experiments.driver_watch import DRIVER_FILE
 from riskplan.experiments.sweep_worker import read_status
-from riskplan.run.run_files import is_run_dir
+from riskplan.run.run_files import is_run_dir, other_output
 from riskplan.util import lock
 from riskplan.util.errors import BadInput, one_line
 
@@ -158,6 +158,8 @@ def check_sweep_dir(path: Path, key: str) -> None:
         return
     if is_run_dir(path):
         raise BadInput(key, f"{path} holds a run of riskplan train, not a sweep; give a new directory")
+    if other_output(path):
+        raise BadInput(key, f"{path} holds {other_output(path)}, not a sweep; give a new directory")
     raise BadInput(key, f"{path} is not empty and holds no sweep; give a new or empty directory, or a sweep's own")
 
 

@@ -46,6 +46,7 @@ def test_sigint_blocked_holds_a_ctrl_c_back_until_the_block_ends():
         signal.signal(signal.SIGINT, previous)
 
 
+@pytest.mark.slow  # spawns a pool of workers
 def test_workers_start_with_sigint_blocked_and_the_driver_does_not():
     """Starting Python's resource tracker unblocks SIGINT in the spawning thread: start_workers starts it first, so
     every worker inherits the block; the driver's own mask is as it was."""

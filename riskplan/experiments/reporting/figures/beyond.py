@@ -428,7 +428,8 @@ def _landscape_panel(fig, ax, scan, column: str, name: str, runs: list) -> None:
     )
     ax.set_xlim(va[0] - da, va[-1] + da)
     ax.set_ylim(vb[0] - db, vb[-1] + db)
-    ax.set_xlabel(rf"$\theta_{{{a}}}$ (weight of source {a + 1})")
-    ax.set_ylabel(rf"$\theta_{{{b}}}$ (weight of source {b + 1})")
+    label_a, label_b = scan.axis_labels
+    ax.set_xlabel(rf"$\theta_{{{a}}}$ ({literal(label_a)})")
+    ax.set_ylabel(rf"$\theta_{{{b}}}$ ({literal(label_b)})")
     ax.grid(False)
     ax.set_title("(a) mean" if column == "mean" else "(b) CVaR")
