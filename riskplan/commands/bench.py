@@ -29,7 +29,9 @@ def _instead(flag: str, text: str):
 
 def bench(
     quick: bool = typer.Option(
-        False, "--quick", help="Fewer repeats and a shorter training run (about 30 s on 2 idle cores)."
+        False,
+        "--quick",
+        help="Fewer repeats and a shorter training run (about 45 s on 2 cores, most of it the cold-cache compiles it times).",
     ),
     json_out: str | None = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
     scaling: bool = _instead(

@@ -10,13 +10,15 @@ import warnings
 
 import numpy as np
 import pytest
+from support import TINY, train_cli
 from typer.testing import CliRunner
 
 from riskplan.cli import app
 from riskplan.engine.estimators import cvar_gradient
 from riskplan.run.build import build_setup
 from riskplan.run.compose import compose
-from tests.support import TINY, train_cli
+
+pytestmark = pytest.mark.slow  # many configs composed and checked: seconds in all (the quick tier stays under a minute)
 
 runner = CliRunner()
 ZERO = (

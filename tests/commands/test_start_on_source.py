@@ -5,11 +5,11 @@ Such a start is refused in one line, like two sources on one cell."""
 from __future__ import annotations
 
 import pytest
+from support import bad_input, setup_of
 from typer.testing import CliRunner
 
 from riskplan.cli import app
 from riskplan.engine.reachability import source_distances
-from tests.support import bad_input, setup_of
 
 runner = CliRunner()
 ON_SOURCE = "an episode reaches a source when a move ends on it, never where it starts: choose a start off the sources"

@@ -7,9 +7,11 @@ from __future__ import annotations
 import warnings
 
 import pytest
+from support import bad_input, setup_of
 
 from riskplan.config.validate import MIN_BETA
-from tests.support import bad_input, setup_of
+
+pytestmark = pytest.mark.slow  # many configs composed and checked: seconds in all (the quick tier stays under a minute)
 
 BLANK = "only whitespace, which names nothing a reader can see; give a name, or leave it empty for the default name"
 

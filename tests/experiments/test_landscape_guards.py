@@ -27,6 +27,8 @@ from riskplan.experiments.reporting.study_tables import landscape_for
 from riskplan.experiments.reporting.tables import pair_text, runs_on
 from riskplan.util.lock import LOCK, holder
 
+pytestmark = pytest.mark.slow  # many configs composed and checked: seconds in all (the quick tier stays under a minute)
+
 runner = CliRunner()
 GRID = ["--points", "2", "--episodes", "5"]
 

@@ -91,7 +91,7 @@ SLOW_START = """
 import os, pathlib, time
 if os.environ.get("RISKPLAN_SWEEP_DRIVER") and os.environ.get("SLOW_START_MARK"):
     pathlib.Path(os.environ["SLOW_START_MARK"]).touch()
-    time.sleep(3)
+    time.sleep(1.5)
 """
 ARGS = [*TINY, "seed=0,1,2"]
 FIGURES = ["mean", "cvar", "value_at_risk"]
