@@ -104,8 +104,6 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
 
 def run_dir_override(parsed: list) -> Path | None:
     """The hydra.run.dir=... the user typed, if any, as a plain path."""
-    from riskplan.run.run_directory import check_name_lengths
-
     for override in parsed:
         if override.key_or_group == "hydra.run.dir":
             value = str(override.value())
@@ -115,7 +113,6 @@ def run_dir_override(parsed: list) -> Path | None:
                     f"got '{value}'; give a plain path (without it, riskplan train "
                     f"uses outputs/runs/<timestamp>_<experiment>)",
                 )
-            check_name_lengths(value, "hydra.run.dir")  # first: a name too long fails even to be looked up
             check_output_dir(value, "hydra.run.dir")
             return Path(value)
     return None

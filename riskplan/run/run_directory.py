@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +24,6 @@ from riskplan.run.record import RunLog, log_header, resume_log
 from riskplan.run.run_files import (
     CONFIG,
     ENDS,
-    FILES,
     RECORDS,
     RUN_LOG,
     SUMMARY,
@@ -37,10 +35,7 @@ from riskplan.run.run_files import (
 )
 from riskplan.util.errors import BadInput
 from riskplan.util.lock import LOCK, holder
-from riskplan.util.paths import atomic_path, temp_name, write_atomic
-
-# a run's longest path inside its directory: a killed atomic write's temp file, with a pid of up to 7 digits
-INSIDE = max(len(temp_name(Path(f.name).name, "1234567")) + len(Path(f.name).parent.as_posix()) for f in FILES) + 1
+from riskplan.util.paths import atomic_path, write_atomic
 
 
 def check_new_run_dir(out: Path, key: str) -> None:
@@ -65,32 +60,6 @@ def check_new_run_dir(out: Path, key: str) -> None:
             key, f"{out} already holds a run; resume it with riskplan train --resume {out}, or give a new directory"
         )
     raise BadInput(key, f"{out} is not empty and holds no run; give a new or empty directory")
-
-
-def check_name_lengths(path: Path | str, key: str) -> None:
-    """BadInput for a directory the filesystem would refuse to make (a name over its NAME_MAX bytes, or a path that
-    leaves no room for the run's files under PATH_MAX), found before anything is made or even looked up."""
-    full = Path(os.path.abspath(os.path.expanduser(str(path))))
-    made = current = Path(full.anchor)  # `made`: the deepest folder that exists, which the limits are asked of
-    for part in full.parts[1:]:
-        limit = os.pathconf(made, "PC_NAME_MAX")
-        size = len(os.fsencode(part))
-        if size > limit:
-            raise BadInput(
-                key,
-                f"names a folder of {size} bytes ({part[:24]}...); this filesystem takes names of at most {limit} "
-                f"bytes: give a shorter one",
-            )
-        current = current / part
-        if made == current.parent and os.path.isdir(current):  # never raises, however long
-            made = current
-    limit = os.pathconf(made, "PC_PATH_MAX")
-    if len(os.fsencode(str(full))) + INSIDE > limit:
-        raise BadInput(
-            key,
-            f"is {len(os.fsencode(str(full)))} bytes long as an absolute path; this filesystem takes paths of at most "
-            f"{limit} bytes, with the run's files inside: give a shorter one",
-        )
 
 
 def refuse_existing_run(out: Path, setup: RunSetup) -> None:

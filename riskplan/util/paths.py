@@ -66,6 +66,7 @@ def check_output_dir(path: Path | str, key: str) -> Path:
         raise BadInput(key, f"got {text!r}; give a directory path")
     resolved = Path(os.path.abspath(os.path.expanduser(text)))
     check_decoded(resolved, key)  # the Python API's paths too (the command line's are checked on arrival)
+    _check_name_lengths(resolved, key)  # before a lookup: a name too long fails even to be looked up
     _check_links(resolved, text, key)
     resolved = Path(os.path.realpath(resolved))
     if resolved == Path(resolved.anchor):
@@ -153,6 +154,34 @@ def check_output_file(text: str | Path, key: str, ending: str) -> Path:
     except OSError as err:
         raise BadInput(key, f"{path} cannot be written ({err.strerror}); give a path in a writable folder") from None
     return path
+
+
+INSIDE = 64  # bytes left under PATH_MAX for the files a command writes inside (tests/run checks a run's fit)
+
+
+def _check_name_lengths(full: Path, key: str) -> None:
+    """BadInput for a directory the filesystem would refuse to make (a name over its NAME_MAX bytes, or a path that
+    leaves no room for the files inside under PATH_MAX): one line, not "File name too long" after work."""
+    made = current = Path(full.anchor)  # `made`: the deepest folder that exists, which the limits are asked of
+    for part in full.parts[1:]:
+        limit = os.pathconf(made, "PC_NAME_MAX")
+        size = len(os.fsencode(part))
+        if size > limit:
+            raise BadInput(
+                key,
+                f"names a folder of {size} bytes ({part[:24]}...); this filesystem takes names of at most {limit} "
+                f"bytes: give a shorter one",
+            )
+        current = current / part
+        if made == current.parent and os.path.isdir(current):  # never raises, however long
+            made = current
+    limit = os.pathconf(made, "PC_PATH_MAX")
+    if len(os.fsencode(str(full))) + INSIDE > limit:
+        raise BadInput(
+            key,
+            f"is {len(os.fsencode(str(full)))} bytes long as an absolute path; this filesystem takes paths of at most "
+            f"{limit} bytes, with the files inside: give a shorter one",
+        )
 
 
 def _read_only(path: Path) -> bool:

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from riskplan.run.run_files import FILES
 from riskplan.util.errors import BadInput
-from riskplan.util.paths import check_output_dir, claim_dir
+from riskplan.util.paths import INSIDE, check_output_dir, claim_dir, temp_name
 
 
 def test_two_sweeps_in_the_same_second_get_their_own_directories(tmp_path):
@@ -37,3 +38,24 @@ def test_a_dangling_link_or_a_loop_on_an_output_path_is_named(tmp_path, below):
     )
     (tmp_path / "nowhere").mkdir()  # the link's target made: a directory like any other
     assert check_output_dir(f"{tmp_path}/gone{below}", "--out") == Path(f"{tmp_path}/gone{below}")
+
+
+@pytest.mark.parametrize("key", ["--out", "hydra.sweep.dir", "hydra.run.dir"])
+def test_a_directory_name_too_long_for_the_filesystem_is_one_line_before_anything_is_made(tmp_path, key):
+    """Every output directory (report's and landscape's --out, a sweep's): "File name too long" came as exit 1
+    after the work, or once the command began writing."""
+    with pytest.raises(BadInput) as refused:
+        check_output_dir(tmp_path / "x" / ("a" * 300), key)
+    assert str(refused.value) == (
+        f"{key}: names a folder of 300 bytes ({'a' * 24}...); this filesystem takes names of at most 255 bytes: give "
+        f"a shorter one"
+    )
+    deep = tmp_path / "/".join(["b" * 200] * 21)  # each name allowed, the whole over PATH_MAX (4096) with its files
+    with pytest.raises(BadInput, match=r"bytes long as an absolute path; this filesystem takes paths of at most 4096"):
+        check_output_dir(deep, key)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_margin_for_files_inside_holds_a_runs_longest_temp_file():
+    longest = max(len(temp_name(Path(f.name).name, "1234567")) + len(Path(f.name).parent.as_posix()) for f in FILES)
+    assert longest + 1 <= INSIDE  # a killed atomic write's temp file, with a pid of up to 7 digits
