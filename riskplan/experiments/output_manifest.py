@@ -26,7 +26,7 @@ import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from riskplan.run.run_files import OUTPUT_MANIFEST
+from riskplan.run.run_files import OUTPUT_MANIFEST, output_manifest
 from riskplan.util import lock
 from riskplan.util.errors import BadInput, remedy
 from riskplan.util.paths import check_output_dir, temp_name, write_atomic
@@ -58,18 +58,10 @@ def _entries(root: Path) -> tuple[list[str], list[str]]:
 
 def read_manifest(out: Path) -> dict | None:
     """The manifest in out, or None when there is none; BadInput-free: a damaged one reads as {}."""
-    file = Path(out) / MANIFEST
-    if not file.exists() and not file.is_symlink():
+    data = output_manifest(out)
+    if data is None:
         return None
-    try:
-        data = json.loads(file.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    if not (
-        isinstance(data, dict)
-        and isinstance(data.get("files"), list)
-        and all(isinstance(f, str) for f in data["files"])
-    ):
+    if not (isinstance(data.get("files"), list) and all(isinstance(f, str) for f in data["files"])):
         return {}
     return data
 

@@ -96,16 +96,25 @@ def is_run_dir(path: Path) -> bool:
     return ((path / RUN_LOG).is_file() or (path / CONFIG).is_file()) and other_output(path) is None
 
 
-def other_output(path: Path) -> str | None:
-    """What `path` holds instead of a run, as a message says it ('the output of riskplan landscape'), or None: the
-    manifest riskplan report and landscape write into their output."""
-    file = path / OUTPUT_MANIFEST
+def output_manifest(path: Path) -> dict | None:
+    """The manifest riskplan report and landscape write into their output, as read: None where there is none, {}
+    where it cannot be read as a JSON object (damaged: still another command's output)."""
+    file = Path(path) / OUTPUT_MANIFEST
     if not file.exists() and not file.is_symlink():
         return None
     try:
-        kind = json.loads(file.read_text(encoding="utf-8")).get("kind")
-    except (OSError, ValueError, AttributeError):  # damaged: still not a run
-        kind = None
+        data = json.loads(file.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def other_output(path: Path) -> str | None:
+    """What `path` holds instead of a run, as a message says it ('the output of riskplan landscape'), or None."""
+    manifest = output_manifest(path)
+    if manifest is None:
+        return None
+    kind = manifest.get("kind")
     if isinstance(kind, str) and kind.isidentifier():
         return f"the output of riskplan {kind}"
     return f"the output of another riskplan command ({OUTPUT_MANIFEST})"
