@@ -61,7 +61,7 @@ from riskplan.experiments.export_destinations import (
     mlflow_settings,
 )
 from riskplan.experiments.reporting.collect import Broken, Duplicate, RunInfo, collect, flatten
-from riskplan.experiments.sweep_worker import config_sha
+from riskplan.experiments.sweep_worker import recorded_sha
 from riskplan.run.foxglove_layout import LAYOUT_FILE, layout_for
 from riskplan.util import lock
 from riskplan.util.errors import BadInput, one_line
@@ -246,7 +246,7 @@ def run_record(info: RunInfo) -> Record:
     )
     tags = {
         "riskplan.run_dir": str(path),
-        "riskplan.config_sha": config_sha(run.config),
+        "riskplan.config_sha": recorded_sha(run.path, run.config),
         "riskplan.group": group,
         "riskplan.group_sha": _sha({k: v for k, v in run.config.items() if k != "seed"}),
         "riskplan.seed": str(info.seed),

@@ -3,9 +3,9 @@
 Kept apart from `riskplan.experiments.sweeping` (the command side) so that workers import only what a job needs.
 
 A job's `status.json` says where it stands: "running" while it trains, then "done" or "failed" (with the error
-and the traceback). It also holds `config_sha`, a fingerprint of the job's resolved config: a re-run of the
-sweep recognises a finished job by that fingerprint and its output files, never by its job number, and skips it.
-The fingerprint is `run_identity`, riskplan's one rule for when two runs are the same sample (the same
+and the traceback). It also holds `config_sha`, a fingerprint of the job's resolved config and its map's files: a
+re-run of the sweep recognises a finished job by that fingerprint and its output files, never by its job number,
+and skips it. Its config part is `run_identity`, riskplan's one rule for when two runs are the same sample (the same
 config and seed, wherever they were written): the report, the export and the sweep summary count each once.
 A job that was killed while "running" resumes from its checkpoint when its config is unchanged.
 
@@ -48,9 +48,11 @@ import numba
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from riskplan.config.typed import typed
 from riskplan.engine.step import NumericalTrouble
 from riskplan.experiments.driver_watch import arrive, exit_if_orphaned, take_interrupts, working
 from riskplan.run.compose import compose
+from riskplan.run.maps import map_record
 from riskplan.run.run_files import CHECKPOINT, JOB_LOG, STATUS, has_finished, remove_stale
 from riskplan.run.training import prepare_resume, train_summary
 from riskplan.util import lock
@@ -86,7 +88,22 @@ def run_identity(config: DictConfig | dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-config_sha = run_identity  # the name status.json and the sweep's jobs give it
+def config_sha(config: DictConfig | dict, map_files: list[dict] | None = None) -> str:
+    """A sweep job's fingerprint, status.json's `config_sha`: its run_identity and, when world.map names a map, the
+    contents of the map's files (`map_files`: riskplan.run.maps.map_record's records; read now when not given). A
+    map edited in place leaves the config as it was, so without them a re-run of the sweep would take the jobs
+    trained in the old world as finished and train the rest in the new one. A map that cannot be read leaves the
+    config's part alone: the job fails in its training, naming world.map, and a failed job is never matched."""
+    identity = run_identity(config)
+    if (config.get("world") or {}).get("map") is None:
+        return identity
+    if map_files is None:
+        try:
+            map_files = map_record(typed(config).world) or []
+        except BadInput:
+            return identity
+    digests = [str(record.get("sha256")) for record in map_files]
+    return hashlib.sha256(json.dumps([identity, digests]).encode()).hexdigest()[:16]
 
 
 def distinct(items: Iterable[T], config_of: Callable[[T], DictConfig | dict]) -> tuple[list[T], list[tuple[T, T]]]:
@@ -172,6 +189,13 @@ def read_status(out: Path) -> dict | None:
         return json.loads((Path(out) / STATUS).read_text())
     except (OSError, ValueError):
         return None
+
+
+def recorded_sha(out: Path, config: dict) -> str:
+    """A run's fingerprint as it was trained: a sweep job's from its status.json (it covers the map's files as they
+    were then); a run trained alone has none, and its config's identity stands for it."""
+    recorded = (read_status(out) or {}).get("config_sha")
+    return recorded if isinstance(recorded, str) else run_identity(config)
 
 
 def is_finished(out: Path, sha: str, status: dict | None = None) -> bool:

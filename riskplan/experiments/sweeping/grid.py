@@ -38,6 +38,7 @@ from riskplan.run.build import build_setup
 from riskplan.run.compose import CONF_DIR, explain, parse_overrides
 from riskplan.run.compose import compose as riskplan_compose
 from riskplan.run.cost import run_bytes, setup_steps
+from riskplan.run.maps import map_record
 from riskplan.util.errors import BadInput, MissingExtra, first_line
 from riskplan.util.limits import check_jobs
 from riskplan.util.paths import claim_dir, hydra_quote
@@ -372,7 +373,8 @@ def validate(
                 for w in caught:
                     if str(w.message) not in notes:
                         notes.append(str(w.message))
-                sha = config_sha(cfg if as_data is None else as_data.plain)
+                plain = cfg if as_data is None else as_data.plain
+                sha = config_sha(plain, map_record(setup.params.world) if invalid is None else None)
                 jobs.append(Job(list(combo), sha, invalid, steps=steps, **shape))
     finally:
         GlobalHydra.instance().clear()

@@ -5,12 +5,16 @@ Each refusal is one line, exit code 2, with every file left as it was."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 from support import TINY, files
 from typer.testing import CliRunner
 
 from riskplan.cli import app
+from riskplan.config.schema import CONF_DIR
+from riskplan.experiments.sweep_worker import config_sha
+from riskplan.run.compose import compose
 
 pytestmark = pytest.mark.slow  # real sweeps, kept tiny
 runner = CliRunner()
@@ -90,3 +94,22 @@ def test_no_sweep_or_run_is_written_into_a_hydra_folder(tmp_path, monkeypatch, w
     refused(sweep("seed=0,1", f"hydra.sweep.dir={where}"), "hydra.sweep.dir", "inside a .hydra folder")
     refused(runner.invoke(app, ["train", *TINY, f"hydra.run.dir={where}"]), "hydra.run.dir", "inside a .hydra folder")
     assert files(tmp_path) == before
+
+
+@pytest.mark.parametrize("how", [[], ["--batch"]], ids=["jobs", "batch"])
+def test_a_rerun_after_its_map_was_edited_never_takes_the_old_worlds_jobs_as_finished(tmp_path, monkeypatch, how):
+    """The map's files are part of a job's fingerprint: edited in place, the config reads the same, but the jobs
+    trained in the old world are not finished jobs of this sweep (before, they were skipped and the rest trained in
+    the new world)."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(CONF_DIR / "maps", tmp_path / "maps")
+    floor_plan = [*how, "experiment=floor_plan", "hydra.sweep.dir=s"]
+    assert sweep("seed=0,1", *floor_plan).exit_code == 0
+    status = json.loads((tmp_path / "s" / "seed=0" / "status.json").read_text())
+    assert status["config_sha"] == config_sha(compose(["experiment=floor_plan", *TINY, "seed=0"]))
+    mask = tmp_path / "maps" / "floor_plan_watched.pgm"
+    mask.write_bytes(mask.read_bytes()[:-1] + b"\x00")  # one pixel of the watched corridor
+    assert config_sha(compose(["experiment=floor_plan", *TINY, "seed=0"])) != status["config_sha"]
+    before = files(tmp_path / "s")
+    refused(sweep("seed=0,1", *floor_plan), "s/seed=0", "holds a done run of another config", "and 1 more")
+    assert files(tmp_path / "s") == before
