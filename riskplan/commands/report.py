@@ -11,12 +11,14 @@ from pathlib import Path
 import typer
 
 from riskplan.commands.common import (
+    CONFIG_DIR_HELP,
     INPUT,
     OVERRIDES_HELP,
     PASS_THROUGH,
     bad_input_exits,
     path_option,
     reject_hydra_flags,
+    with_config_dirs,
 )
 from riskplan.experiments.output_manifest import WriteFailed, claim_output
 from riskplan.util.errors import BadInput, one_line
@@ -99,7 +101,7 @@ def _print_report(result) -> None:
 
 
 def landscape(
-    overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP, show_default=False),
+    overrides: list[str] | None = typer.Argument(None, help=OVERRIDES_HELP + CONFIG_DIR_HELP, show_default=False),
     out: str | None = typer.Option(
         None,
         "--out",
@@ -127,7 +129,7 @@ def landscape(
     from riskplan.run.build import build_setup
     from riskplan.run.compose import compose, parse_overrides
 
-    args = list(overrides or [])
+    args = with_config_dirs(list(overrides or []))
     reject_hydra_flags(args, "riskplan check prints the composed config")
     _check_options(args)
     _check_no_hydra_dirs(parse_overrides(args))
@@ -159,7 +161,7 @@ def _check_options(args: list[str]) -> None:
             raise BadInput(
                 f"option '{arg}'",
                 "is not known to riskplan landscape; give Hydra overrides (key=value) and --out, --points, "
-                "--episodes, --range, --axes",
+                "--episodes, --range, --axes, -cd",
             )
 
 

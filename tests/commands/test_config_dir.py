@@ -1,5 +1,5 @@
-"""Researchers' own experiment files: `--config-dir DIR` / `-cd DIR` on train, check and sweep (the same as
-hydra.searchpath), and values that Hydra's grammar takes only quoted."""
+"""Researchers' own experiment files: `--config-dir DIR` / `-cd DIR` on train, check, sweep and landscape (the
+same as hydra.searchpath), and values that Hydra's grammar takes only quoted."""
 
 from __future__ import annotations
 
@@ -154,3 +154,12 @@ def test_a_run_or_sweep_directory_set_in_a_config_file_is_refused_not_ignored(tm
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
     typed = ["-cd", str(folder), "experiment=odd", f"{key}={tmp_path / 'chosen'}"]
     assert runner.invoke(app, ["check", *typed]).exit_code == 0
+
+
+def test_landscape_evaluates_the_users_experiment(config_dir, tmp_path):
+    out = tmp_path / "landscape"
+    args = ["landscape", "-cd", str(config_dir), "experiment=mine", "--points", "2", "--episodes", "10"]
+    result = runner.invoke(app, [*args, "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "summary.json").read_text())["experiment"] == "mine"
+    assert "horizon: 24" in (out / ".hydra" / "config.yaml").read_text()
