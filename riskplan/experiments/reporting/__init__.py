@@ -139,6 +139,13 @@ def write_report(
     formats = check_formats(list(formats))
     find_runs([Path(p) for p in paths])  # the inputs first (a missing path, one without runs), then --out
     previous = claim_output(out_dir, "report", key)  # before reading any run: a bad --out is refused at once
+    output = Output(out_dir, "report", previous)
+    with output.locked():  # from the start: a second report into out_dir is refused now, not after its work
+        return _report(paths, output, formats, tell)
+
+
+def _report(paths: list[Path], output: Output, formats: list[str], tell: PhaseProgress) -> Report:
+    """The report's work into `output`, whose lock the caller holds."""
     collected = collect([Path(p) for p in paths], functools.partial(tell, PHASES[0]))
     check_reportable(collected, paths)
     if collected.duplicates:  # one line (the CLI shows warnings as `warning: ...`); runs.csv names each
@@ -156,7 +163,6 @@ def write_report(
     csvs = {"report.csv": comparison, "runs.csv": runs}  # always; the others where they hold rows
     optional = {"landscape.csv": landscapes, "soft_risk.csv": soft, **{f"{n}.csv": t for n, t in studies.items()}}
     csvs.update({name: table for name, table in optional.items() if not table.empty})
-    output = Output(out_dir, "report", previous)
     with output.writing(
         [f"{spec.name}.{fmt}" for spec, _ in figures for fmt in formats] + list(csvs) + ["report.html"]
     ):
