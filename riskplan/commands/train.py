@@ -25,6 +25,7 @@ from riskplan.util.lock import hold_lock
 from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote, write_atomic
 
 OVERRIDES = ".hydra/overrides.yaml"  # Hydra's record of a run's overrides (riskplan train writes it through Hydra)
+HYDRA_RECORD = ".hydra/hydra.yaml"  # Hydra's own config of the run, whose hydra.overrides.task lists them again
 
 
 def register(app: typer.Typer) -> None:
@@ -268,20 +269,33 @@ def _refuse_following_keys(cfg, longer, run_dir: Path) -> None:
 
 
 def _record_iterations(run_dir: Path, iterations: int) -> None:
-    """An extended run's .hydra/overrides.yaml says its new train.iterations (older values of it dropped), as its
-    config does: replayed, the overrides give the run's config. The Python API's runs have none; Hydra's file is
-    left as it is where it is not the list Hydra writes."""
+    """An extended run's .hydra/overrides.yaml and hydra.yaml's hydra.overrides.task say its new train.iterations
+    (older values of it dropped), as its config does: replayed, the overrides give the run's config. The Python
+    API's runs have none; Hydra's files are left as they are where they do not hold the lists Hydra writes."""
     import yaml
 
-    path = run_dir / OVERRIDES
-    try:
-        listed = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
-        return
-    if not isinstance(listed, list) or not all(isinstance(item, str) for item in listed):
-        return
-    kept = [item for item in listed if item.split("=", 1)[0].lstrip("+~") != "train.iterations"]
-    write_atomic(path, yaml.safe_dump([*kept, f"train.iterations={iterations}"], default_flow_style=False))
+    def read(name: str):
+        try:
+            return yaml.safe_load((run_dir / name).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            return None
+
+    def extended(listed) -> list[str] | None:
+        if not isinstance(listed, list) or not all(isinstance(item, str) for item in listed):
+            return None
+        kept = [item for item in listed if item.split("=", 1)[0].lstrip("+~") != "train.iterations"]
+        return [*kept, f"train.iterations={iterations}"]
+
+    overrides = extended(read(OVERRIDES))
+    if overrides is not None:
+        write_atomic(run_dir / OVERRIDES, yaml.safe_dump(overrides, default_flow_style=False))
+    record = read(HYDRA_RECORD)
+    hydra_node = record.get("hydra") if isinstance(record, dict) else None
+    hydra_overrides = hydra_node.get("overrides") if isinstance(hydra_node, dict) else None
+    task = extended(hydra_overrides.get("task")) if isinstance(hydra_overrides, dict) else None
+    if task is not None:
+        hydra_overrides["task"] = task
+        write_atomic(run_dir / HYDRA_RECORD, yaml.safe_dump(record, default_flow_style=False, sort_keys=False))
 
 
 def _restart_setup(cfg, run_dir: Path):

@@ -127,10 +127,15 @@ def test_plus_plus_sets_the_iterations_and_the_other_prefixes_are_said_plainly(t
 
 def test_an_extended_run_records_its_iterations_in_its_overrides(tmp_path):
     out = train(tmp_path / "run", "train.iterations=4")  # TINY's 3, then 4: both in overrides.yaml
+    hydra_before = yaml.safe_load((out / ".hydra" / "hydra.yaml").read_text())
     assert resume(out, "train.iterations=6").exit_code == 0
     overrides = yaml.safe_load((out / ".hydra" / "overrides.yaml").read_text())
     assert [o for o in overrides if "train.iterations" in o] == ["train.iterations=6"]
     assert overrides[: len(TINY) - 1] == [o for o in TINY if not o.startswith("train.iterations")]
+    hydra_after = yaml.safe_load((out / ".hydra" / "hydra.yaml").read_text())
+    assert hydra_after["hydra"]["overrides"]["task"] == overrides  # Hydra's own copy of the list says the same
+    hydra_after["hydra"]["overrides"]["task"] = hydra_before["hydra"]["overrides"]["task"]
+    assert hydra_after == hydra_before  # and nothing else of it changed
 
 
 def test_a_key_that_follows_the_iterations_keeps_the_run_from_being_extended(tmp_path):
