@@ -94,7 +94,7 @@ def bench(
     for section in _sections(console, quick, sweep, threads, reproduce):
         for row in section():  # printed as each section ends, not all at the end of a long benchmark
             _print_row(console, row)
-            rows.append(row)
+            rows.append({**row, "quick": quick, "load_average": _load()})  # what the JSON says it was measured at
     met = sum(bool(row["ok"]) for row in rows)
     console.print(f"{met} of {len(rows)} targets met (load average {_load():.2f} at the end, {os.cpu_count()} cores)")
     if met < len(rows) and _busy():

@@ -443,4 +443,9 @@ def test_bench_json_says_ok_as_true_or_false_whatever_type_a_measure_gave(tmp_pa
     monkeypatch.setattr("riskplan.commands.bench._sections", lambda *a, **k: (lambda: rows,))
     result = CliRunner().invoke(app, ["bench", "--json", str(tmp_path / "b.json")])
     assert result.exit_code == 0, result.output
-    assert [row["ok"] for row in json.loads((tmp_path / "b.json").read_text())] == [True, False, True]
+    written = json.loads((tmp_path / "b.json").read_text())
+    assert [row["ok"] for row in written] == [True, False, True]
+    # and how it was measured: not --quick, at the load average of its section's end
+    assert all(
+        row["quick"] is False and row["load_average"] == pytest.approx(os.getloadavg()[0], abs=2) for row in written
+    )
