@@ -77,14 +77,37 @@ def label_groups(groups: list[Group], differing: list[str]) -> None:
             break
     for g in groups:
         g.label = _describe(g, chosen)
-    # any residual duplicates (should not happen) get a suffix
-    seen: dict[str, int] = {}
+    _tell_apart(groups, chosen)
+    seen: dict[str, int] = {}  # labels still shared (values that differ only past what is shown) get a suffix
     for g in groups:
         if g.label in seen:
             seen[g.label] += 1
             g.label = f"{g.label} #{seen[g.label]}"
         else:
             seen[g.label] = 1
+
+
+def _tell_apart(groups: list[Group], chosen: list[str]) -> None:
+    """Groups that share a label (a long value such as world.sources, cut at 40 characters, or team.starts, shown
+    as its count) get each such key's value where the groups' values first differ: 'world.sources=…"name": "b"…'."""
+    sharing: dict[str, list[Group]] = {}
+    for g in groups:
+        sharing.setdefault(g.label, []).append(g)
+    for same in (same for same in sharing.values() if len(same) > 1):
+        for k in chosen:
+            texts = [str(g.settings.get(k, MISSING)) for g in same]
+            if len(set(texts)) == 1:
+                continue
+            first = next((i for i, chars in enumerate(zip(*texts)) if len(set(chars)) > 1), min(map(len, texts)))
+            start = max(0, first - CONTEXT)
+            for g, text in zip(same, texts, strict=True):
+                piece = text[start : start + 3 * CONTEXT]
+                piece = f"{'…' if start else ''}{piece}{'…' if start + 3 * CONTEXT < len(text) else ''}"
+                cut = f"={_short(g.settings.get(k, MISSING))}"  # as _describe showed it, if it did
+                g.label = g.label.replace(cut, f"={piece}", 1) if cut in g.label else f"{g.label}, {k}={piece}"
+
+
+CONTEXT = 12  # characters shown before the first difference of a value that tells groups apart (and twice after)
 
 
 def _describe(group: Group, keys: list[str], single: bool = False) -> str:

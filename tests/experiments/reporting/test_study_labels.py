@@ -217,3 +217,14 @@ def test_a_faulty_robot_is_left_out_of_the_disagreement():
     assert theta_disagreement(run) == pytest.approx(0.0, abs=1e-12)
     metrics.loc[metrics.robot == 2, "healthy"] = True
     assert math.isclose(theta_disagreement(fake_run({"team": {"robots": 3}}, metrics=metrics)), 50.0)
+
+
+def test_groups_whose_values_differ_past_what_a_label_shows_are_told_apart_by_where_they_differ():
+    """world.sources differing only in the second source's name: its JSON, cut at 40 characters, was the same in
+    both labels, which then ended '#2'. Each label now shows the value where the groups' values first differ."""
+    sources = [{"name": "north", "position": [3, 4], "mean": 100.0}, {"name": "b", "position": [9, 9], "mean": 50.0}]
+    renamed = [sources[0], {**sources[1], "name": "c"}]
+    groups, _ = group_runs([fake_run({"world": {"sources": s}}) for s in (sources, renamed)])
+    labels = sorted(g.label for g in groups)
+    assert len(set(labels)) == 2 and not any("#" in label for label in labels), labels
+    assert '"name": "b"' in labels[0] and '"name": "c"' in labels[1], labels
