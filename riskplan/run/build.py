@@ -290,10 +290,15 @@ def reach_lines(setup: RunSetup) -> list[str]:
         away = ", ".join("no path" if d < 0 else f"{d} moves" for d in moves[:, j].tolist())
         lines.append(f"  source {j} '{name}': {away}{walk}; theta0's episodes reach it in {shares[j]:.1%}")
         if shares[j] < RARE:
+            advice = (  # a policy that weighs no signal cannot be steered towards a source by its signal
+                f"raise its weight in train.theta0, widen its signal (world.sources.{j}.covariance)"
+                if setup.policy.signal_at >= 0
+                else "add signals to policy.features (the policy sees no source's signal)"
+            )
             warnings.warn(
                 f"source {j} '{name}' is reached by {shares[j]:.1%} of the initial policy's episodes (under "
-                f"{RARE:.0%} of {REACH_EPISODES * len(cells)} sampled): training will rarely see it; raise its "
-                f"weight in train.theta0, widen its signal (world.sources.{j}.covariance) or lengthen world.horizon",
+                f"{RARE:.0%} of {REACH_EPISODES * len(cells)} sampled): training will rarely see it; {advice} "
+                f"or lengthen world.horizon",
                 stacklevel=2,
             )
     return lines

@@ -69,6 +69,17 @@ def test_a_source_theta0_rarely_reaches_gets_one_warning_saying_what_to_change()
     assert "theta0's episodes reach it in 0.0%" in lines[1]
 
 
+def test_a_policy_that_sees_no_signal_is_not_told_to_weigh_one():
+    """Without signals in policy.features, theta0 holds no source's weight and a wider signal changes nothing."""
+    with pytest.warns(UserWarning) as caught:
+        reach_lines(setup_of("policy.features=[stay]", "train.theta0=[0]"))
+    (first, _) = [str(w.message) for w in caught]
+    assert first.endswith(
+        "training will rarely see it; add signals to policy.features (the policy sees no source's signal) or "
+        "lengthen world.horizon"
+    )
+
+
 @pytest.mark.parametrize("experiment", ["paper_single", "paper_team", "floor_plan"])
 def test_every_shipped_experiment_passes_without_a_warning(experiment):
     with warnings.catch_warnings():
