@@ -106,6 +106,24 @@ def test_the_entropic_bootstrap_is_each_resamples_measure_for_rewards_hundreds_a
     assert z.min() <= low <= high <= z.max()
 
 
+@pytest.mark.parametrize("eta", [1e-3, 1e-12, 1e-17, 1e-20, 1e-300])
+def test_the_entropic_bootstrap_of_a_small_aversion_is_each_resamples_measure_near_its_mean(eta):
+    """For eta (max z - min z) below about 1e-16, log of a mean of weights within 1e-16 of 1 rounded to 0 and every
+    resample was the sample's smallest z: risk.eta=1e-20 printed 'entropic 3594.3 [-1878.6, -1878.6]'. Each
+    resample is now its measure (which tends to its mean as eta -> 0), and the interval brackets the value."""
+    z = np.sort(np.random.default_rng(4).normal(2000.0, 2500.0, 400).round(1))
+    key, resamples = np.uint64(5), 200
+    out = np.full(resamples, np.nan)
+    _bootstrap_entropic(z, eta, key, out, 0, resamples)
+    for b in range(resamples):
+        drawn = np.repeat(z, resample_counts(key, b, z.size))
+        assert out[b] == pytest.approx(entropic(drawn, eta), rel=1e-12, abs=1e-9)
+        if eta <= 1e-12:  # mu - eta sigma^2 / 2 within rounding: the resample's mean
+            assert out[b] == pytest.approx(drawn.mean(), rel=1e-6)
+    low, high = np.percentile(out, [2.5, 97.5])
+    assert low < entropic(z, eta) < high
+
+
 def test_the_entropic_bootstrap_keeps_its_numbers_where_no_sum_underflowed():
     """Where every resample's sum is a normal float, the shared shift's numbers, bit for bit (the fingerprinted
     runs' case): the same as the plain formula with the sample's minimum as the shift."""

@@ -51,14 +51,20 @@ def _bootstrap_entropic(z_sorted, eta, key, out, begin, end):
     whose sum is below the smallest normal float is summed again, shifted by its own smallest z
     (`_resample_entropic`); the others keep the shared weights' numbers.
 
+    Where eta (max z - min z) < 1, the weights are summed as exp(x) - 1 (expm1) and the logarithm taken by log1p, as
+    riskplan.engine.estimators does: log(sum / n) of weights all within 1e-16 of 1 rounds to 0, which put every
+    resample at the smallest z for eta below about 1e-16 / (max z - min z). Every such weight is above 1/e, so no sum
+    underflows there.
+
     The exponentials are the sample's, the same for every resample: taken once, not once per draw. A count of 0
-    adds 0 * w = +0.0 (w is in [0, 1], the sum starts at +0.0), which leaves the sum as skipping it did, so there
-    is no branch, and LANES resamples are summed side by side (`lane_sums`): the same numbers as one at a time."""
+    adds 0 * w = +-0.0, which leaves the sum as skipping it did (x + -0.0 is x), so there is no branch, and LANES
+    resamples are summed side by side (`lane_sums`): the same numbers as one at a time."""
     n = z_sorted.size
     shift = z_sorted[0]
+    near = eta * (z_sorted[n - 1] - shift) < 1.0  # every weight above 1/e: summed less one, for log1p
     weights = np.empty(n)
     for i in range(n):
-        weights[i] = math.exp(-eta * (z_sorted[i] - shift))
+        weights[i] = math.expm1(-eta * (z_sorted[i] - shift)) if near else math.exp(-eta * (z_sorted[i] - shift))
     lanes = np.zeros((LANES, n), dtype=np.int32)  # reused from one group to the next; an unused lane's sum is dropped
     drawn = np.empty(n, dtype=np.uint32)
     for first in range(begin, end, LANES):
@@ -66,7 +72,9 @@ def _bootstrap_entropic(z_sorted, eta, key, out, begin, end):
         count_lanes(key, first, used, lanes, drawn)
         totals = lane_sums(lanes, weights)
         for lane in range(used):
-            if totals[lane] >= _TINY:
+            if near:
+                out[first + lane] = shift - math.log1p(totals[lane] / n) / eta
+            elif totals[lane] >= _TINY:
                 out[first + lane] = shift - math.log(totals[lane] / n) / eta
             else:  # the resample misses the sample's lowest z's, and its weights underflow (eta dz > 708)
                 out[first + lane] = _resample_entropic(z_sorted, lanes[lane], eta)
