@@ -33,11 +33,21 @@ from riskplan.util.errors import BadInput
 
 def build_setup(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool = True) -> RunSetup:
     """Type and validate the config once, then build the run's objects; raises BadInput on the first problem
-    (`needs_ray`: see config.validate.validate)."""
+    (`needs_ray`: see config.validate.validate). The config's warnings are given once it is built: bad input is
+    one line, with no warning about the config before it."""
+    with warnings.catch_warnings(record=True) as caught:
+        setup = _build(cfg, needs_ray)
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+    return setup
+
+
+def _build(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool) -> RunSetup:
     params = typed(cfg)  # types, unknown keys, Choices, interpolations: the frozen config everything below reads
     validate(params, needs_ray)  # every range, once
     check_risk_nodes(params)  # each risk node's measure (built in or a package's) and its parameters
     warn_single_episode_tail(params)
+    warn_single_sample(params)
     check_device(params)  # engine.device=cuda: a GPU numba-cuda can use
     # Sizes first: nothing big is allocated before the memory and time estimates pass (a map's from its header).
     found = maps.read_map(params.world)
@@ -148,6 +158,27 @@ def warn_single_episode_tail(params: RiskplanConf) -> None:
     warnings.warn(
         f"{first.shown}{more} with train.samples={samples}: CVaR's tail holds ceil({first.level:g} x {samples}) = 1 "
         f"episode, the worst, so every (z - v) of eq. 9 is 0 and {effect}; use train.samples >= {least}",
+        stacklevel=2,
+    )
+
+
+def warn_single_sample(params: RiskplanConf) -> None:
+    """A warning when train.samples=1 leaves every risk node's gradient zero: a baseline compares an episode with
+    the iteration's others (the mean's, entropic's 1/W), and a CVaR tail of one holds the VaR itself, so with one
+    episode theta never moves, silently. REINFORCE without its baseline (train.baseline=false) still moves it."""
+    if params.train.samples != 1:
+        return
+    team = params.team.risk
+    nodes = [("risk", params.risk)] if team is None else [(f"team.risk.{i}", node) for i, node in enumerate(team)]
+    one = np.array([1.0])
+    for where, node in nodes:
+        measure, values = risk_spec(node, where)
+        if measure.gradient(one, one[:, None], values, baseline=params.train.baseline).any():
+            return
+    lifted = " (until train.samples_growth raises W_l above 1)" if params.train.samples_growth > 0 else ""
+    warnings.warn(
+        f"train.samples=1: one episode per iteration, and every gradient compares it with the iteration's others, so "
+        f"it is zero and theta never moves{lifted}; use train.samples >= 2",
         stacklevel=2,
     )
 

@@ -10,7 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
-from support import TINY, train_cli
+from support import TINY, run_cli, train_cli
 from typer.testing import CliRunner
 
 from riskplan.cli import app
@@ -106,3 +106,39 @@ def test_train_warns_once_and_its_theta_indeed_never_moves(tmp_path):
     assert [line for line in result.stderr.splitlines() if "CVaR's tail" in line] == [f"warning: {ZERO}"]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["theta_final"] == [20.0, 20.0]
+
+
+ONE = (
+    "train.samples=1: one episode per iteration, and every gradient compares it with the iteration's others, so it is "
+    "zero and theta never moves; use train.samples >= 2"
+)
+
+
+def all_warnings(*overrides: str) -> list[str]:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        build_setup(compose([*TINY, *overrides], validate=False))
+    return [str(w.message) for w in caught]
+
+
+@pytest.mark.parametrize("measure", ["cvar", "neutral", "entropic", "wang", "mean_cvar"])
+def test_one_sample_per_iteration_warns_that_theta_never_moves(measure):
+    """W = 1: the mean's baseline is the episode itself, entropic's weight less 1/W is 0, a CVaR tail of one is the
+    VaR: each gradient is zero, which trained nothing without a word."""
+    assert all_warnings(f"risk={measure}", "train.samples=1").count(ONE) == 1
+
+
+def test_one_sample_without_the_baseline_still_moves_theta_and_is_not_warned():
+    assert ONE not in all_warnings("risk=neutral", "train.samples=1", "train.baseline=false")
+    assert ONE not in all_warnings("train.samples=2", "risk=neutral")
+
+
+def test_bad_input_is_one_line_with_no_warning_about_the_config_before_it(tmp_path):
+    """The config's warnings (a one-episode tail, too few resamples) came before the error line: two lines or more.
+    Bad input is now the error alone; a config that builds still gives its warnings."""
+    result = run_cli(["check", "train.samples=5", "train.bootstrap=1", "team.robots=0"], tmp_path)
+    assert result.returncode == 2 and result.stderr == (
+        "error: team.robots: is 0; the number of robots must be an integer >= 1\n"
+    ), result.stderr
+    result = run_cli(["check", "train.samples=5"], tmp_path)
+    assert result.returncode == 0 and f"warning: {ZERO}" in result.stderr
