@@ -51,7 +51,7 @@ def _nan_where_nan(z: np.ndarray, v: np.ndarray | float) -> np.ndarray | float:
 
 
 def cvar(z: np.ndarray, beta: float) -> np.ndarray | float:
-    """beta-CVaR, Rockafellar-Uryasev form at the empirical quantile (last axis); cvar(z, 1) == mean(z).
+    """beta-CVaR, Rockafellar-Uryasev form at the empirical quantile (last axis); cvar(z, 1) is mean(z) up to rounding.
 
     A finite row whose tail sum overflows (samples near the largest float) is measured again on z / 2^k, exact for
     such numbers, and scaled back: CVaR is positively homogeneous, and lies within the row's range."""
