@@ -183,15 +183,19 @@ def diagnose(setup: RunSetup, objective_figure: dict, reached_none: float) -> di
     """summary.json's `diagnosis`: whether the run learned something degenerate, each finding with its likely
     cause, and theta0's objective it is judged against. Findings: `reached_no_source`, the headline policy's
     evaluation reached no source at all; `below_initial`, its objective's 95% interval lies wholly below theta0's
-    (apart, not merely lower: noise alone rarely parts two 95% intervals)."""
+    (apart, not merely lower: noise alone rarely parts two 95% intervals), judged from JUDGED episodes on: the
+    bootstrap interval of one episode is that episode, and two single episodes are apart by chance."""
     params = setup.params
     initial = initial_objective(setup)
     findings = []
     if reached_none == 1.0:
         findings.append({"check": "reached_no_source", "message": _no_source(params, initial)})
-    if objective_figure["high"] < initial["low"]:
+    if params.train.eval_episodes >= JUDGED and objective_figure["high"] < initial["low"]:
         findings.append({"check": "below_initial", "message": _below_initial(params, objective_figure, initial)})
     return {"degenerate": bool(findings), "findings": findings, "initial_objective": initial}
+
+
+JUDGED = 30  # evaluation episodes from which two 95% bootstrap intervals apart say more than chance
 
 
 def degenerate_findings(summary: dict) -> list[dict]:

@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from riskplan.cli import app
 from riskplan.engine.measures.registry import risk_spec
 from riskplan.run.compose import compose
-from riskplan.run.evaluation import diagnose, evaluate, initial_objective
+from riskplan.run.evaluation import JUDGED, diagnose, evaluate, initial_objective
 from riskplan.run.intervals import objective_interval
 from riskplan.run.training import train_summary
 
@@ -60,6 +60,20 @@ def test_a_final_objective_whose_interval_lies_below_the_initial_one_is_below_in
         "findings": [],
         "initial_objective": initial,
     }
+
+
+def test_intervals_of_too_few_evaluation_episodes_are_not_judged_apart():
+    """train.eval_episodes=1: each interval is one episode's total, so two are 'apart' by chance, and a run was
+    called degenerate (below the initial policy) from one episode against another."""
+    setup = setup_of("train.eval_episodes=1")
+    initial = initial_objective(setup)
+    assert initial["episodes"] == 1 and initial["low"] == initial["high"]
+    below = {"measure": "cvar", "value": initial["low"] - 50, "low": initial["low"] - 50, "high": initial["low"] - 50}
+    assert diagnose(setup, below, reached_none=0.0)["findings"] == []
+    judged = setup_of(f"train.eval_episodes={JUDGED}")
+    initial = initial_objective(judged)
+    below = {"measure": "cvar", "value": initial["low"] - 50, "low": initial["low"] - 80, "high": initial["low"] - 1}
+    assert [f["check"] for f in diagnose(judged, below, reached_none=0.0)["findings"]] == ["below_initial"]
 
 
 def test_a_policy_that_learned_to_reach_nothing_where_the_initial_did_is_told_apart():
