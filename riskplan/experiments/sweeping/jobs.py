@@ -83,7 +83,7 @@ class Plan:
     launcher: str
     workers: int | None
     warnings: list[str] = field(default_factory=list)
-    workers_arg: int | None = None  # index in argv of the hydra.launcher.n_jobs=... riskplan added
+    workers_arg: int | None = None  # index in argv of the hydra.launcher.n_jobs=... riskplan sized (its pool)
     sweeper: str = GRID_SWEEPER  # an optimiser (optuna) chooses the jobs as it goes: `jobs` is empty until they ran
     trials: int | None = None  # how many jobs such a sweeper runs, when known
     search: list[str] = field(default_factory=list)  # the keys it searches

@@ -12,14 +12,23 @@ from riskplan.util.limits import cpu_count
 def launcher_workers(argv: list[str], launcher: str, hydra_keys: dict, jobs: int | None, most: int | None):
     """The workers riskplan gives the launcher, added to `argv`: joblib's n_jobs (--jobs, or one per core), SLURM's
     array parallelism (--jobs), never more than `most` (the jobs, or an optimiser's trials at once). Returns the
-    workers and the index in argv of the n_jobs riskplan added (None when the user gave it)."""
+    workers and the index in argv of the n_jobs riskplan sized (None when the launcher's pool is not riskplan's to
+    start: the user set other joblib settings, or n_jobs to what is not a count)."""
     limit = [most] if most else []
     if launcher == "joblib":
         workers = min([jobs or cpu_count(), *limit])  # more workers than jobs would idle
-        if "hydra.launcher.n_jobs" in hydra_keys:
+        given = hydra_keys.get(N_JOBS)
+        if given is None:
+            argv.append(f"{N_JOBS}={workers}")
+            return workers, len(argv) - 1
+        value = given.value()
+        others = [key for key in hydra_keys if key.startswith("hydra.launcher.") and key != N_JOBS]
+        if others or isinstance(value, bool) or not isinstance(value, int) or value < 1:
             return workers, None
-        argv.append(f"hydra.launcher.n_jobs={workers}")
-        return workers, len(argv) - 1
+        # n_jobs alone: the pool riskplan would start, of the user's size, so it is started as riskplan's is
+        where = next(i for i, arg in enumerate(argv) if arg.split("=", 1)[0].lstrip("+~") == N_JOBS)
+        argv[where] = f"{N_JOBS}={min([value, *limit])}"
+        return min([value, *limit]), where
     if jobs is None:
         return None, None
     if launcher != "submitit_slurm":
@@ -31,6 +40,7 @@ def launcher_workers(argv: list[str], launcher: str, hydra_keys: dict, jobs: int
     return workers, None
 
 
+N_JOBS = "hydra.launcher.n_jobs"  # joblib's workers
 RAY_INIT = "hydra.launcher.ray.init."
 # what ray.init refuses when it connects to an existing cluster (the nodes were sized by `ray start` on each node)
 RAY_CONNECT_REFUSES = (

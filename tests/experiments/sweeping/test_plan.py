@@ -32,6 +32,21 @@ def test_a_grid_is_planned_job_by_job_before_anything_runs(in_tmp):
     assert "hydra/sweeper=riskplan" in plan.argv  # riskplan's sweeper launches the planned jobs
 
 
+def test_joblib_workers_given_by_hand_are_a_pool_riskplan_starts_unless_other_joblib_settings_come_with_them(in_tmp):
+    """hydra.launcher.n_jobs alone is the pool riskplan would start, of the user's size (pre-started with SIGINT held
+    back, so an early Ctrl-C prints no worker's traceback); with other joblib settings the pool is Hydra's to make."""
+    plan = plan_sweep(["seed=0,1,2", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", *TINY])
+    assert plan.workers == 2 and plan.argv[plan.workers_arg] == "hydra.launcher.n_jobs=2"
+    plan = plan_sweep(
+        ["seed=0,1", "hydra/launcher=joblib", "hydra.launcher.n_jobs=8", *TINY]
+    )  # no more workers than jobs
+    assert plan.workers == 2 and plan.argv[plan.workers_arg] == "hydra.launcher.n_jobs=2"
+    plan = plan_sweep(
+        ["seed=0,1,2", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "hydra.launcher.verbose=1", *TINY]
+    )
+    assert plan.workers_arg is None and "hydra.launcher.n_jobs=2" in plan.argv
+
+
 @pytest.mark.parametrize("typed", ["basic", "riskplan"])
 def test_a_typed_grid_sweeper_is_riskplans_and_sweeper_settings_are_refused(in_tmp, typed):
     plan = plan_sweep(["seed=0,1", f"hydra/sweeper={typed}", *TINY])

@@ -98,12 +98,15 @@ FIGURES = ["mean", "cvar", "value_at_risk"]
 
 
 @pytest.mark.slow  # three tiny sweeps, one with workers slowed to start
-def test_ctrl_c_while_the_workers_start_prints_no_traceback_and_the_sweep_resumes(tmp_path):
+@pytest.mark.parametrize(
+    "workers", [["--jobs", "2"], ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2"]], ids=["jobs", "n_jobs"]
+)
+def test_ctrl_c_while_the_workers_start_prints_no_traceback_and_the_sweep_resumes(tmp_path, workers):
     (tmp_path / "site").mkdir()
     (tmp_path / "site" / "sitecustomize.py").write_text(SLOW_START)
     mark = tmp_path / "started"
     env = child_env(PYTHONPATH=os.pathsep.join([str(tmp_path / "site"), os.environ.get("PYTHONPATH", "")]))
-    sweep = [*riskplan_command(), "sweep", *ARGS, "--jobs", "2"]
+    sweep = [*riskplan_command(), "sweep", *ARGS, *workers]
     plain = subprocess.run(
         [*sweep, f"hydra.sweep.dir={tmp_path / 'plain'}"], env=env, capture_output=True, text=True, timeout=300
     )
