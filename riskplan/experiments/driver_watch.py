@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import ctypes
 import os
 import signal
 import socket
@@ -35,13 +34,13 @@ import time
 import warnings
 from pathlib import Path
 
+from riskplan.util.interrupt import die_with_parent
 from riskplan.util.paths import write_atomic
 
 ENV = "RISKPLAN_SWEEP_DRIVER"  # pid:start-time@host of the driver, in its local workers' environment
 DRIVER_FILE = ".driver"  # the same, in the sweep folder while a launch lasts
 WATCH_SECONDS = 0.1  # how often the watchdog checks the driver
 GONE_SECONDS = 5.0  # how long a re-run waits for the leftovers it killed to be gone
-PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 _guardian: list[subprocess.Popen] = []  # the guardian of this process, once it named itself
 
@@ -120,7 +119,7 @@ def arrive() -> str | None:
     if name is None:
         return None
     if os.getppid() == _pid(name):
-        _die_with_parent()
+        die_with_parent()
     exit_if_orphaned()  # after prctl: a driver that died just before it is caught here
     return name
 
@@ -155,12 +154,6 @@ def _stop_or_end(signum: int, frame) -> None:
     if _working:
         raise KeyboardInterrupt
     os._exit(128 + signum)
-
-
-def _die_with_parent() -> None:
-    """SIGKILL for this process when the thread that spawned it ends (Linux; elsewhere the guardian does it)."""
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
 
 
 @contextlib.contextmanager

@@ -7,6 +7,7 @@ that handler (`Interrupted.end`)."""
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import signal
 import threading
@@ -122,6 +123,17 @@ class DriverSignals(StopSignals):
                     os.kill(pid, signal.SIGTERM)
         if first and self.raise_at_once:
             raise KeyboardInterrupt
+
+
+def die_with_parent() -> None:
+    """SIGKILL for this process when the thread that forked or spawned it ends, however it ended (Linux's
+    PR_SET_PDEATHSIG; elsewhere nothing): a child must never outlive its parent, waiting on a pipe no one reads.
+    The caller checks its parent afterwards, for one that died just before."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+
+
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
 def descendants(pid: int) -> list[int]:

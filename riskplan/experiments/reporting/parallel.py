@@ -11,7 +11,8 @@ send back only their results; every file is still written by this process. Items
 a shared counter, costliest first, so whoever finishes first takes the next and the cheap ones at the end even out
 the finish (the figures' costs differ threefold). Whatever a child did not deliver (it died) is computed here
 afterwards: the result never depends on the children. `function` should not raise (return the failure instead): an
-exception ends a child, and its items then raise here.
+exception ends a child, and its items then raise here. The children die with this process, however it dies (a
+SIGTERM or SIGKILL runs no clean-up here): none is left waiting on a pipe no one reads.
 
 While the items are shared, what existed before (the runs, the figures) is out of the garbage collector's full
 passes (gc.freeze): they walked every object, in this process and into each child's copy.
@@ -36,6 +37,7 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from riskplan.util.errors import BadInput
+from riskplan.util.interrupt import die_with_parent
 
 WORKERS_ENV = "RISKPLAN_REPORT_WORKERS"
 
@@ -180,7 +182,9 @@ def _fork(
     started = []
     for _ in range(children):
         receive, send = context.Pipe(duplex=False)
-        child = context.Process(target=_child, args=(function, items, order, counter, finished, send), daemon=True)
+        child = context.Process(
+            target=_child, args=(function, items, order, counter, finished, send, os.getpid()), daemon=True
+        )
         try:
             child.start()
         except (AssertionError, OSError):  # no fork here (a daemonic process, no memory or pids left): fewer hands
@@ -207,9 +211,15 @@ def _share(
         finished.add(order[position])
 
 
-def _child(function: Callable[[Any], Any], items: Sequence, order: list[int], counter, finished, send) -> None:
+def _child(
+    function: Callable[[Any], Any], items: Sequence, order: list[int], counter, finished, send, parent: int
+) -> None:
     # Ctrl-C reaches the whole process group: the parent stops the report; a child's KeyboardInterrupt would only
     # print its traceback ("Process ForkProcess-4: ...") before the parent's one line
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # a parent killed (SIGTERM, SIGKILL) runs no `except`: its children would wait forever to send their results
+    die_with_parent()
+    if os.getppid() != parent:  # it died before the line above
+        os._exit(1)
     send.send(_share(function, items, order, counter, finished))
     send.close()

@@ -6,13 +6,17 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
+import subprocess
 import sys
 import time
 
 import pytest
+from support import alive
 
 from riskplan.experiments.reporting.parallel import WORKERS_ENV, shared_map, sharing
 from riskplan.util.errors import BadInput
+from riskplan.util.interrupt import descendants
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="worker processes are forked on Linux")
 
@@ -82,3 +86,30 @@ def test_progress_stays_within_the_total_when_a_child_dies(monkeypatch):
         x * x for x in range(7)
     ]
     assert heard[-1] == (7, 7) and all(d <= t == 7 for d, t in heard)
+
+
+PARENT = """
+import os, sys, time
+from riskplan.experiments.reporting.parallel import shared_map
+shared_map(lambda item: time.sleep(60), list(range(4)), cost=lambda item: 1.0)
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL])
+def test_children_end_with_a_parent_killed_while_they_work(tmp_path, signum):
+    """A report or export killed by SIGTERM or SIGKILL runs no `except`: its forked children outlived it, each
+    blocked for good on the pipe no one would read. Now the kernel ends them with it (PR_SET_PDEATHSIG)."""
+    parent = subprocess.Popen(
+        [sys.executable, "-c", PARENT], env={**os.environ, WORKERS_ENV: "3"}, stderr=subprocess.DEVNULL
+    )
+    deadline = time.time() + 30
+    while len(descendants(parent.pid)) < 2 and time.time() < deadline:
+        time.sleep(0.05)
+    children = descendants(parent.pid)
+    assert len(children) == 2
+    parent.send_signal(signum)
+    parent.wait(timeout=30)
+    deadline = time.time() + 10
+    while any(alive(pid) for pid in children) and time.time() < deadline:
+        time.sleep(0.05)
+    assert not any(alive(pid) for pid in children)
