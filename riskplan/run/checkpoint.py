@@ -3,6 +3,7 @@ and read back only after every check that it can be this run's."""
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import json
 import math
@@ -28,13 +29,9 @@ T = TypeVar("T")
 def _write_durably(out: Path, payload: dict) -> None:
     """The checkpoint file replaced atomically: temp file, fsync, rename, fsync the directory (CRASH_ENV: SIGKILL
     before the rename at that iteration, for the tests)."""
-    tmp = out / CHECKPOINT_TMP
-    with open(tmp, "w") as handle:
-        handle.write(_text(payload))
-        handle.flush()
-        os.fsync(handle.fileno())
+    _write_temp(out, payload, durable=True)
     _crash_point(payload["iteration"])
-    os.replace(tmp, out / CHECKPOINT)
+    os.replace(out / CHECKPOINT_TMP, out / CHECKPOINT)
     directory = os.open(out, os.O_RDONLY)
     try:
         os.fsync(directory)
@@ -63,7 +60,13 @@ def save_checkpoints(outs: list[Path], states: list[TrainState], logs: list) -> 
         _attempt(lambda out=out, state=state: _write_temp(out, _payload(state))) for out, state in zip(outs, states)
     ]
     written = [k for k, error in enumerate(errors) if error is None]
-    sync_file_systems([outs[k] for k in written])
+    try:
+        sync_file_systems([outs[k] for k in written])
+    except OSError as err:  # not durable: no temp file is renamed, nor left behind
+        for k in written:
+            (outs[k] / CHECKPOINT_TMP).unlink(missing_ok=True)
+            errors[k] = err
+        return errors
     for k in written:
         _crash_point(states[k].iteration)
         errors[k] = _attempt(lambda k=k: os.replace(outs[k] / CHECKPOINT_TMP, outs[k] / CHECKPOINT))
@@ -80,10 +83,20 @@ def _payload(state: TrainState) -> dict:
     }
 
 
-def _write_temp(out: Path, payload: dict) -> None:
-    """The checkpoint's temp file, written to the system (synced by the caller)."""
-    with open(out / CHECKPOINT_TMP, "w") as handle:
-        handle.write(_text(payload))
+def _write_temp(out: Path, payload: dict, durable: bool = False) -> None:
+    """The checkpoint's temp file, written to the system (synced by the caller, or here when `durable`); one that
+    could not be written whole (a full disk) is removed, and the previous checkpoint stays the run's."""
+    tmp = out / CHECKPOINT_TMP
+    try:
+        with open(tmp, "w") as handle:
+            handle.write(_text(payload))
+            if durable:
+                handle.flush()
+                os.fsync(handle.fileno())
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 def _text(payload: dict) -> str:
