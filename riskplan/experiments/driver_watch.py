@@ -34,7 +34,7 @@ import time
 import warnings
 from pathlib import Path
 
-from riskplan.util.interrupt import die_with_parent
+from riskplan.util.interrupt import die_with_parent, repeated
 from riskplan.util.paths import write_atomic
 
 ENV = "RISKPLAN_SWEEP_DRIVER"  # pid:start-time@host of the driver, in its local workers' environment
@@ -152,8 +152,14 @@ def take_interrupts() -> None:
 
 def _stop_or_end(signum: int, frame) -> None:
     if _working:
+        if _stopped and repeated(signum, signal.SIGINT, _stopped[-1]):
+            return  # the driver passing on the Ctrl-C this job stops by already
+        _stopped.append(time.monotonic())
         raise KeyboardInterrupt
     os._exit(128 + signum)
+
+
+_stopped: list[float] = []  # when this worker's Ctrl-C's stopped a job (time.monotonic)
 
 
 @contextlib.contextmanager
@@ -201,7 +207,10 @@ def end(name: str) -> list[int]:
 
 
 def guard(name: str) -> None:
-    """The guardian's life: wait for the driver `name` to end, then end what it left running."""
+    """The guardian's life: wait for the driver `name` to end, then end what it left running. The signals that
+    stop a sweep, which its driver passes on to the processes below it, are not the guardian's to stop by."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
     while identity(_pid(name)) == name:
         time.sleep(WATCH_SECONDS)
     end(name)

@@ -1,6 +1,7 @@
 """Stopping cleanly on SIGINT or SIGTERM (Ctrl-C, a scheduler's preemption or requeue): the signal is noted, the
 run finishes the iteration in progress, writes a checkpoint and stops with `Interrupted`; a second signal stops at
-once, as the signal would have without riskplan. Where a job runner handles SIGUSR2 itself (submitit requeues a
+once, as the signal would have without riskplan (the same signal again within REPEAT_SECONDS is the same stop: a
+terminal's Ctrl-C reaches a sweep's worker both directly and through its driver). Where a job runner handles SIGUSR2 itself (submitit requeues a
 SLURM job on it before its time limit), riskplan checkpoints and records the job first, then hands the signal to
 that handler (`Interrupted.end`)."""
 
@@ -11,9 +12,11 @@ import ctypes
 import os
 import signal
 import threading
+import time
 import typing
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
+REPEAT_SECONDS = 1.0  # the same signal again within it is one stop, not a second (a person presses again later)
 HANDED_ON = signal.SIGUSR2  # caught only while a Python handler (submitit's) has it: that handler runs after
 
 
@@ -51,9 +54,11 @@ class StopSignals(contextlib.AbstractContextManager):
     def __init__(self) -> None:
         self.received: int | None = None
         self._previous: dict[int, object] = {}
+        self._at = 0.0  # when `received` came (time.monotonic)
 
     def __enter__(self) -> StopSignals:
         self.received = pending_signal()  # one that came before (a sweep's driver setting jobs up) stops this too
+        self._at = time.monotonic()
         if threading.current_thread() is threading.main_thread():
             for signum in SIGNALS:
                 self._previous[signum] = signal.signal(signum, self._note)
@@ -63,7 +68,9 @@ class StopSignals(contextlib.AbstractContextManager):
 
     def _note(self, signum: int, frame) -> None:
         if self.received is None:
-            self.received = signum
+            self.received, self._at = signum, time.monotonic()
+            return
+        if repeated(signum, self.received, self._at):
             return
         self._restore()  # a second signal: what it would have done without riskplan, now
         os.kill(os.getpid(), signum)
@@ -81,6 +88,11 @@ class StopSignals(contextlib.AbstractContextManager):
         nothing. (A SIGUSR2 goes on to its job runner's handler from there: Interrupted.end.)"""
         if self.received is not None:
             raise Interrupted(self.received, finished)
+
+
+def repeated(signum: int, first: int, at: float) -> bool:
+    """Whether `signum` repeats the signal `first` noted at `at` (time.monotonic) closely enough to be the same stop."""
+    return signum == first and time.monotonic() - at < REPEAT_SECONDS
 
 
 @contextlib.contextmanager
@@ -106,21 +118,23 @@ def pending_signal() -> int | None:
 
 class DriverSignals(StopSignals):
     """StopSignals for a process that waits on others (a sweep's driver). The first SIGINT or SIGTERM is noted; a
-    SIGTERM (meant for the driver alone) is passed on to its local workers, which checkpoint and stop, so the
-    launch ends by itself; with `raise_at_once` (jobs on a cluster, which go on without the driver) the driver
+    SIGTERM, and with `passes_sigint` a SIGINT (to workers of riskplan's own pools, which take a repeat for the same
+    stop: a terminal's Ctrl-C reaches them directly too), is passed on to its local workers, which checkpoint and
+    stop, so the launch ends by itself; a SIGINT sent to the driver's pid alone stops them as well. With `raise_at_once` (jobs on a cluster, which go on without the driver) the driver
     stops waiting at once (KeyboardInterrupt). A second signal stops the driver at once."""
 
-    def __init__(self, raise_at_once: bool) -> None:
+    def __init__(self, raise_at_once: bool, passes_sigint: bool = False) -> None:
         super().__init__()
         self.raise_at_once = raise_at_once
+        self.passed = SIGNALS if passes_sigint else (signal.SIGTERM,)
 
     def _note(self, signum: int, frame) -> None:
         first = self.received is None
         super()._note(signum, frame)
-        if first and signum == signal.SIGTERM:
+        if first and signum in self.passed:
             for pid in descendants(os.getpid()):
                 with contextlib.suppress(OSError):
-                    os.kill(pid, signal.SIGTERM)
+                    os.kill(pid, signum)
         if first and self.raise_at_once:
             raise KeyboardInterrupt
 

@@ -15,7 +15,8 @@ from support import CHECKPOINTED, TIMEOUT, assert_same_outputs, child_env, resum
 
 from riskplan.run.checkpoint import CHECKPOINT
 from riskplan.run.recorder import STOP_ENV
-from riskplan.util.interrupt import Interrupted, StopSignals
+from riskplan.util import interrupt
+from riskplan.util.interrupt import REPEAT_SECONDS, Interrupted, StopSignals
 
 
 def test_a_signal_is_noted_and_raised_where_stopping_loses_nothing():
@@ -29,13 +30,21 @@ def test_a_signal_is_noted_and_raised_where_stopping_loses_nothing():
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the previous handlers are back
 
 
-def test_a_second_sigint_stops_at_once():
+def test_a_second_sigint_stops_at_once_and_a_repeat_at_once_is_the_same_stop(monkeypatch):
+    """A worker of a sweep gets a terminal's Ctrl-C twice, directly and passed on by its driver, within
+    milliseconds: one stop. A person pressing Ctrl-C again, later, stops at once."""
     # Python's own Ctrl-C handler, as in a terminal: a shell starts a background job with SIGINT ignored (conftest
     # puts the disposition back after the test)
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    now = [100.0]
+    monkeypatch.setattr(interrupt.time, "monotonic", lambda: now[0])
     with pytest.raises(KeyboardInterrupt), StopSignals() as stop:
         os.kill(os.getpid(), signal.SIGINT)
         assert stop.received == signal.SIGINT
+        now[0] += REPEAT_SECONDS / 2
+        os.kill(os.getpid(), signal.SIGINT)  # the driver's copy of the same Ctrl-C
+        assert stop.received == signal.SIGINT
+        now[0] += REPEAT_SECONDS
         os.kill(os.getpid(), signal.SIGINT)  # what Ctrl-C does without riskplan: KeyboardInterrupt, now
 
 
@@ -104,7 +113,12 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_result(tmp_path, uninte
 
 
 @pytest.mark.slow
-def test_an_interrupted_sweep_stops_its_jobs_checkpointed_and_resumes_to_the_same_numbers(tmp_path, uninterrupted):
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_an_interrupted_sweep_stops_its_jobs_checkpointed_and_resumes_to_the_same_numbers(
+    tmp_path, uninterrupted, signum, code
+):
+    """The signal sent to the driver's pid alone (`kill`, `timeout -s INT`): the driver passes it on to its workers.
+    A SIGINT was not passed on (a terminal's reaches every worker), so the jobs trained to their end."""
     overrides = [*CHECKPOINTED, "seed=0,1"]
     sweep = tmp_path / "sweep"
     proc = subprocess.Popen(
@@ -118,18 +132,19 @@ def test_an_interrupted_sweep_stops_its_jobs_checkpointed_and_resumes_to_the_sam
     try:
         statuses = [sweep / f"seed={seed}" / "status.json" for seed in (0, 1)]
         stopped = _wait_until_stopped(proc.pid, count=2)
-        proc.send_signal(signal.SIGTERM)  # for the driver alone: it passes SIGTERM on to its workers
+        proc.send_signal(signum)  # for the driver alone: it passes the signal on to its workers
         for pid in stopped:
-            _wait_until_pending(pid, signal.SIGTERM)  # passed on while the worker is stopped: a known iteration
+            _wait_until_pending(pid, signum)  # passed on while the worker is stopped: a known iteration
             os.kill(pid, signal.SIGCONT)
         _, err = proc.communicate(timeout=TIMEOUT)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 143, err
+    assert proc.returncode == code, err
     lines = [line for line in err.splitlines() if line.startswith("error:")]
-    assert len(lines) == 1 and lines[0].startswith("error: interrupted by SIGTERM: 2 jobs did not finish"), err
+    name = signal.Signals(signum).name
+    assert len(lines) == 1 and lines[0].startswith(f"error: interrupted by {name}: 2 jobs did not finish"), err
     for status in statuses:
         record = json.loads(status.read_text())
         assert record["status"] == "interrupted", record

@@ -18,6 +18,7 @@ from riskplan.experiments.sweeping.jobs import (
     BATCH_LAUNCHER,
     GRID_SWEEPER,
     LOCAL,
+    POOLS,
     SUMMARY,
     TASKS,
     Outcome,
@@ -107,7 +108,7 @@ def _launch(plan: Plan, waiting: list, finished: set[int], title: str, before_la
     launcher_error, interrupted = None, None
     with (
         SweepView(plan.sweep_dir, plan.jobs, finished, title, batch_progress=PROGRESS if plan.batch else None),
-        DriverSignals(plan.launcher not in LOCAL) as stop,
+        DriverSignals(plan.launcher not in LOCAL, passes_sigint=plan.launcher in POOLS) as stop,
     ):
         if plan.workers_arg is not None and plan.workers > 1 and not pool_started(plan.workers):
             in_background(lambda: start_workers(plan.workers, [delayed(os.getpid)()]))  # spawned with SIGINT held back

@@ -26,6 +26,7 @@ JOB_OWN = (lock.LOCK, "job.log", ".hydra")  # what a job's folder holds before i
 DEFAULT_LAUNCHER = "joblib"
 BATCH_LAUNCHER = "riskplan_batch"  # riskplan sweep --batch (hydra_plugins.riskplan_batch_launcher)
 LOCAL = ("joblib", "submitit_local", "basic", BATCH_LAUNCHER)  # launchers whose jobs run below the driver
+POOLS = ("joblib", BATCH_LAUNCHER)  # those of riskplan's own worker pools, which take a repeated signal as one stop
 # --batch on a cluster: each task of the launcher trains a chunk of the sweep as one batch; the launcher's own
 # config, with riskplan's class as its _target_ (hydra_plugins.riskplan_batch_launcher)
 CLUSTER_BATCHES = {
