@@ -416,13 +416,38 @@ def test_missing_values_are_empty_cells_or_na_never_nan_or_inf(done, tmp_path):
 
 # ------------------------------------------------------------------------------------------------ two writers
 @pytest.mark.slow  # renders reports
-def test_a_second_report_into_a_directory_a_report_is_writing_is_refused_at_once(done, tmp_path):
-    """Two reports into one --out: each had claimed the directory empty, then both wrote, leaving one's PDFs beside
-    the other's PNGs under a manifest of one. A report now holds the writers' lock from its start, so the second is
-    refused in one line before it reads a run, and the first's report is whole."""
+def test_a_report_written_into_its_directory_by_another_meanwhile_is_refused_not_mixed(done, tmp_path):
+    """Two reports into one new --out: each had claimed the directory empty, then both wrote, leaving one's PDFs
+    beside the other's PNGs under a manifest of one. The second to write now finds the directory changed, under the
+    writers' lock, and stops in one line; the first's report stays whole."""
     from riskplan.experiments.reporting import write_report
 
     out = tmp_path / "report"
+    other = {}
+
+    def meanwhile(phase, done_, total):
+        if phase == "making figures" and not other:  # after this report's claim, before it writes
+            other["page"] = write_report([done], out, ["pdf"]).page
+
+    with pytest.raises(BadInput) as refused:
+        write_report([done], out, ["png"], progress=meanwhile)
+    assert str(refused.value) == (
+        f"{out}: was written by another riskplan report while this one ran; run the command again (it replaces that "
+        f"output) or give another directory"
+    )
+    listed = set(json.loads((out / ".riskplan-manifest.json").read_text())["files"])
+    assert listed == {p.name for p in out.iterdir()} - {".riskplan-manifest.json", LOCK}
+    assert not any(name.endswith(".png") for name in listed) and "fig2_cvar.pdf" in listed
+
+
+def test_a_second_report_into_a_directory_a_report_is_writing_is_refused_at_once(done, tmp_path):
+    """Two reports into one --out: each had claimed the directory empty, then both wrote, leaving one's PDFs beside
+    the other's PNGs under a manifest of one. A report into a directory that exists holds the writers' lock from its
+    start, so the second is refused in one line before it reads a run, and the first's report is whole."""
+    from riskplan.experiments.reporting import write_report
+
+    out = tmp_path / "report"
+    out.mkdir()
     other = {}
 
     def meanwhile(phase, done_, total):

@@ -140,7 +140,10 @@ def write_report(
     find_runs([Path(p) for p in paths])  # the inputs first (a missing path, one without runs), then --out
     previous = claim_output(out_dir, "report", key)  # before reading any run: a bad --out is refused at once
     output = Output(out_dir, "report", previous)
-    with output.locked():  # from the start: a second report into out_dir is refused now, not after its work
+    # An existing out_dir is locked from the start: a second report into it is refused now, not after its work. A
+    # new one is made (and locked) only as the report writes, so bad input leaves the inputs untouched; a second
+    # report into it meanwhile is refused then, its files never mixed (Output's check under the lock).
+    with output.locked() if Path(out_dir).is_dir() else contextlib.nullcontext():
         return _report(paths, output, formats, tell)
 
 
