@@ -16,6 +16,7 @@ from riskplan.util.checks import is_whole, require
 from riskplan.util.errors import BadInput
 
 KEYS = ("robot", "kind", "from", "value", "scale")
+START_LIMIT = 1 << 63  # iterations are int64 in the engine
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,11 @@ def faults_of(team: TeamConf) -> tuple[Fault, ...]:
             f"got {kind!r}; expected one of {', '.join(FaultKind.names())}",
         )
         start = entry.get("from", 0)
-        require(is_whole(start) and start >= 0, f"{where}.from", f"got {start!r}; expected an iteration >= 0")
+        require(
+            is_whole(start) and 0 <= start < START_LIMIT,
+            f"{where}.from",
+            f"got {start!r}; expected the iteration it starts at, a whole number 0 <= from < 2^63, e.g. 50",
+        )
         faults.append(_with_payload(entry, where, int(robot), FaultKind(kind), int(start)))
     if faults:
         require(

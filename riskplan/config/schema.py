@@ -175,7 +175,11 @@ class RiskConf(Frozen):
     (Algorithm 1, eq. 9), neutral (the mean, eq. 4), wang, mean_cvar, entropic, or one an installed package adds.
     """
 
-    measure: str = "cvar"
+    # `valid`: what a message says the key takes, where its type cannot (the registry checks the name at build)
+    measure: str = field(
+        default="cvar",
+        metadata={"valid": "a measure's name: cvar, neutral, wang, mean_cvar, entropic or one from a package"},
+    )
     beta: float = 0.1  # the CVaR level: optimised by cvar and mean_cvar, and the level CVaR is reported at
     eta: float = 0.5  # wang: the distortion's shift (in standard deviations); entropic: aversion per unit of reward
     weight: float = 0.5  # mean_cvar: lambda, the weight of CVaR_beta against the mean, in [0, 1]

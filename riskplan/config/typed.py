@@ -9,11 +9,14 @@ from __future__ import annotations
 import collections
 import collections.abc
 import dataclasses
+import functools
+import itertools
 import json
 import re
 import types
 import typing
 
+from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
@@ -131,10 +134,9 @@ def resolved(cfg: DictConfig) -> dict:
 
 def _unknown_keys(data: typing.Any, node: typing.Any, path: str) -> None:
     """BadInput naming the first key of `data` that the schema type `node` does not have (lists descended)."""
-    while typing.get_origin(node) in (typing.Union, types.UnionType):  # Optional[X], X | None
-        node = next(a for a in typing.get_args(node) if a is not type(None))
+    node = _unwrapped(node)
     if dataclasses.is_dataclass(node) and isinstance(data, dict):
-        hints = typing.get_type_hints(node)
+        hints = _hints(node)
         for key, value in data.items():
             here = f"{path}.{key}" if path else str(key)
             if key not in hints:
@@ -145,7 +147,7 @@ def _unknown_keys(data: typing.Any, node: typing.Any, path: str) -> None:
                     + did_you_mean(key, valid),
                 )
             _unknown_keys(value, hints[key], here)
-    elif typing.get_origin(node) in (list, list) and isinstance(data, list) and typing.get_args(node):
+    elif typing.get_origin(node) is list and isinstance(data, list) and typing.get_args(node):
         for i, item in enumerate(data):
             _unknown_keys(item, typing.get_args(node)[0], f"{path}.{i}")
 
@@ -188,7 +190,11 @@ def _explained(err: Exception, cause: Exception, key: str, text: str) -> tuple[s
     if choice:
         return choice
     if "Cannot merge DictConfig with ListConfig" in text:
-        return _mapping_over_list(text, key)
+        return _container_mismatch(text, key)
+    if re.match(r"field '.*' is not Optional", message) and key:
+        return where, f"got null; expected {expected_at(_dotted(key))}"
+    if "is incompatible with type hint" in message and key:  # an item of a typed list: team.edges=[[0.5, 1]]
+        return where, f"got {shown(getattr(cause, 'value', '?'))}; expected {expected_at(_dotted(key))}"
     sweep = re.match(r"(?:Ambiguous value for argument|Sweep parameters) '(.+?)'", message)
     if sweep:
         return (
@@ -208,7 +214,7 @@ def _explained(err: Exception, cause: Exception, key: str, text: str) -> tuple[s
         return _not_a_mapping(cause, key)
     if "not in struct" in message or (" not in '" in message and key):
         return _unknown_key(err, cause, key)
-    missing = re.search(r"Could not find '([\w/]+)/([^']+)'", message)
+    missing = re.search(r"Could not find '([\w/]+?)/(/[^']*|[^'/]+)'", message)  # an option that is a path: //
     if missing:
         return _no_option(*missing.groups(), text)
     if "Could not override" in message:
@@ -267,11 +273,17 @@ def _item_holding(text: str, name: str) -> int | None:
 
 
 def _no_option(group: str, option: str, text: str) -> tuple[str, str]:
-    """A config group's option that does not exist: the group's options, riskplan's or (hydra/...) Hydra's."""
+    """A config group's option that does not exist: the group's options, riskplan's or (hydra/...) Hydra's. An
+    option that is an absolute path reaches Hydra only through an interpolation (experiment=${oc.env:HOME})."""
     listed = re.search(r"Available options in '[^']*':\n((?:\t.*(?:\n|$))+)", text)
     options = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))  # riskplan's own (not the schema's)
     if group.startswith("hydra/") and listed:  # Hydra's and its plugins' groups (with riskplan's additions)
         options = [o.strip() for o in listed.group(1).splitlines() if o.strip()]
+    if option.startswith("/"):
+        return f"key '{group}'", (
+            f"got {option!r}, a path out of its folder (an interpolation gives one); give one of its options by "
+            f"name: {', '.join(options)}, or your own with -cd DIR"
+        )
     available = f"available: {', '.join(options) or 'none'}{did_you_mean(option, options)}"
     return f"key '{group}'", f"no option '{option}'; {available}"
 
@@ -279,10 +291,16 @@ def _no_option(group: str, option: str, text: str) -> tuple[str, str]:
 METRES_HINT = "a position in metres over an [x, y] is written ${metres:X,Y}, which stands for {metres: [X, Y]}"
 
 
-def _mapping_over_list(text: str, key: str) -> tuple[str, str]:
-    """A mapping given where an earlier config has a list (world.start={metres: [x, y]} over [0, 0]): OmegaConf
-    merges the two and cannot; the line says so and how to write a position in metres instead."""
+def _container_mismatch(text: str, key: str) -> tuple[str, str]:
+    """A list given where the schema has a mapping (risk.schedule=[linear]), or a mapping where it has a list
+    (world.size={a: 1}): what the key takes. A mapping over a position an earlier config gives as [x, y]
+    (world.start={metres: [x, y]}), which OmegaConf merges into the list and cannot: how to write metres instead."""
     if key:
+        hint = hint_at(_dotted(key))
+        if dataclasses.is_dataclass(hint):
+            return f"key '{_dotted(key)}'", f"got a list; expected {expected(hint)}"
+        if typing.get_origin(hint) is list:
+            return f"key '{_dotted(key)}'", f"got a mapping; expected {expected(hint)}"
         return f"key '{_dotted(key)}'", f"a mapping cannot replace the list an earlier config gives it; {METRES_HINT}"
     source = re.match(r"In '([^']+)'", text)
     where = f"In '{source.group(1)}': " if source else ""
@@ -308,18 +326,143 @@ register_metres()
 
 def valid_keys(path: str) -> list[str] | None:
     """Field names of the schema node at a dotted path (list indices allowed), or None if it is not a dataclass."""
+    node = hint_at(path)
+    return [f.name for f in dataclasses.fields(node)] if dataclasses.is_dataclass(node) else None
+
+
+def hint_at(path: str) -> typing.Any:
+    """The schema's type at a dotted path (list indices allowed, Optional unwrapped); None where it has none."""
     node: typing.Any = schema.RiskplanConf
     for part in filter(None, path.split(".")):
-        if part.isdigit():
-            node = typing.get_args(node)[0] if typing.get_args(node) else None
-        elif dataclasses.is_dataclass(node):
-            hints = typing.get_type_hints(node)
-            node = hints.get(part)
-            while typing.get_origin(node) in (typing.Union, types.UnionType):  # Optional[X], X | None
-                node = next(a for a in typing.get_args(node) if a is not type(None))
+        if part.isdigit() and typing.get_origin(node) is list:
+            node = _unwrapped(typing.get_args(node)[0])
+        elif dataclasses.is_dataclass(node) and not part.isdigit():
+            node = _unwrapped(_hints(node).get(part))
         else:
             return None
-    return [f.name for f in dataclasses.fields(node)] if dataclasses.is_dataclass(node) else None
+    return node
+
+
+@functools.cache
+def _hints(node: type) -> dict[str, typing.Any]:
+    return typing.get_type_hints(node)
+
+
+def _unwrapped(hint: typing.Any) -> typing.Any:
+    """X of Optional[X] (X | None); any other type as it is."""
+    while typing.get_origin(hint) in (typing.Union, types.UnionType):
+        hint = next(a for a in typing.get_args(hint) if a is not type(None))
+    return hint
+
+
+SCALARS = {bool: "true or false", int: "a whole number", float: "a number", str: "a string"}
+PLURAL = {bool: "true or false values", int: "whole numbers", float: "numbers", str: "strings"}
+
+
+def expected(hint: typing.Any, plural: bool = False) -> str:
+    """What a value of a schema type is, as a message says it: "a list of whole numbers", "one of line, ring"."""
+    hint = _unwrapped(hint)
+    if typing.get_origin(hint) is list:
+        return f"{'lists' if plural else 'a list'} of {expected(typing.get_args(hint)[0], plural=True)}"
+    if dataclasses.is_dataclass(hint):
+        return (
+            f"{'mappings' if plural else 'a mapping'} with keys {', '.join(f.name for f in dataclasses.fields(hint))}"
+        )
+    if isinstance(hint, type) and issubclass(hint, schema.Choice):
+        return f"{'names from' if plural else 'one of'} {', '.join(hint.names())}"
+    return (PLURAL if plural else SCALARS).get(hint, "values" if plural else "a value")
+
+
+def expected_at(path: str) -> str:
+    """What the key at a dotted path takes: its field's own words (metadata `valid`), else its type's."""
+    parent, _, name = path.rpartition(".")
+    owner = hint_at(parent)
+    if dataclasses.is_dataclass(owner):
+        valid = next((f.metadata.get("valid") for f in dataclasses.fields(owner) if f.name == name), None)
+        if valid:
+            return valid
+    return expected(hint_at(path))
+
+
+def shown(value: typing.Any) -> str:
+    """A value as a config writes it ([[1], [2]], {a: 1}, [signals]), not as Python prints it."""
+    if isinstance(value, collections.abc.Mapping):
+        return "{" + ", ".join(f"{k}: {shown(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, collections.abc.Sequence) and not isinstance(value, (str, bytes)):  # a ListConfig too
+        return "[" + ", ".join(shown(v) for v in value) + "]"
+    if isinstance(value, bool) or value is None:
+        return {True: "true", False: "false", None: "null"}[value]
+    return str(value)  # a Choice as its value
+
+
+def check_flat_lists(node: typing.Any, path: str = "") -> None:
+    """BadInput naming the first list of scalars of a typed config (train.theta0, world.size, policy.features,
+    team.speeds, ...) that holds a list or a mapping: OmegaConf's typed lists take one as an item (theta0=[[1],[2]]),
+    and the code that reads them would fail on it. Lists of lists (world.obstacles) OmegaConf checks itself."""
+    for f in dataclasses.fields(node):
+        value, hint, here = getattr(node, f.name), _unwrapped(_hints(type(node))[f.name]), f"{path}{f.name}"
+        if dataclasses.is_dataclass(value):
+            check_flat_lists(value, f"{here}.")
+        elif isinstance(value, list) and typing.get_origin(hint) is list:
+            item = _unwrapped(typing.get_args(hint)[0])
+            for i, entry in enumerate(value):
+                if dataclasses.is_dataclass(entry):
+                    check_flat_lists(entry, f"{here}.{i}.")
+                elif _scalar(item) and isinstance(entry, (list, dict)):
+                    raise BadInput(here, f"got {shown(value)}; expected {expected(hint)}")
+
+
+def _scalar(hint: typing.Any) -> bool:
+    """A number, string, bool or Choice: what a flat list holds."""
+    return hint in SCALARS or (isinstance(hint, type) and issubclass(hint, schema.Choice))
+
+
+FLAG_NUMBERS = (0, 1)  # the integers a boolean key takes (OmegaConf takes any, and 5 or -1 is surely a slip)
+
+
+def check_flags(overrides: list) -> None:
+    """BadInput for a parsed override that gives a boolean key an integer other than 0 or 1 (`train.baseline=5`), or
+    one inside the list or mapping it sets (`world.regions=[{risky: 2, ...}]`); a sweep's values each. OmegaConf
+    would turn it into true before any later check could see it, so this looks at the override itself."""
+    for override in overrides:
+        hint = None if override.is_delete() or override.is_hydra_override() else hint_at(override.key_or_group)
+        if not _holds_flag(hint):  # most keys: nothing to enumerate (a sweep's range may have no end)
+            continue
+        try:
+            values = override.sweep_iterator() if override.is_sweep_override() else [override.value()]
+            for value in itertools.islice(values, FLAGS_CHECKED):
+                _check_flag(value, hint, override.key_or_group)
+        except HydraException:  # glob(...) and interval(...) enumerate nothing here; no boolean key takes them
+            continue
+
+
+FLAGS_CHECKED = 10_000  # a sweep's values checked at most (a range of a boolean key past 1 fails at its 3rd)
+
+
+def _holds_flag(hint: typing.Any) -> bool:
+    """Whether a value of the schema type `hint` is or holds a boolean."""
+    hint = _unwrapped(hint)
+    if hint is bool:
+        return True
+    if dataclasses.is_dataclass(hint):
+        return any(_holds_flag(h) for h in _hints(hint).values())
+    return typing.get_origin(hint) is list and _holds_flag(typing.get_args(hint)[0])
+
+
+def _check_flag(value: typing.Any, hint: typing.Any, key: str) -> None:
+    """check_flags for one value of the schema type `hint`, descending into the lists and mappings it holds."""
+    if hint is bool:
+        number = value if isinstance(value, int) and not isinstance(value, bool) else None
+        if isinstance(value, str) and re.fullmatch(r"[+-]?\d+", value.strip()):
+            number = int(value)  # OmegaConf reads a string of digits as its integer
+        if number is not None and number not in FLAG_NUMBERS:
+            raise BadInput(f"key '{key}'", f"got {value!r}; expected true or false (or 1 or 0)")
+    elif dataclasses.is_dataclass(hint) and isinstance(value, collections.abc.Mapping):
+        for name, item in value.items():
+            _check_flag(item, _unwrapped(_hints(hint).get(name)), f"{key}.{name}")
+    elif typing.get_origin(hint) is list and isinstance(value, list):
+        for i, item in enumerate(value):
+            _check_flag(item, _unwrapped(typing.get_args(hint)[0]), f"{key}.{i}")
 
 
 def _dotted(key: str) -> str:

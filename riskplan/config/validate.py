@@ -7,6 +7,7 @@ weights of Assumption 5) is checked by the engine when it builds those, once. Ev
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import unicodedata
 import warnings
@@ -18,7 +19,9 @@ from riskplan.config.keys import KEYS, Key
 from riskplan.config.schema import (
     NO_SOURCE,
     Aggregate,
+    Backend,
     Feature,
+    Graph,
     MotionKind,
     Order,
     PolicyConf,
@@ -27,9 +30,11 @@ from riskplan.config.schema import (
     RiskplanConf,
     TeamConf,
     TrainConf,
+    WeightRule,
     WorldConf,
     source_names,
 )
+from riskplan.config.typed import check_flat_lists, shown
 from riskplan.util.checks import finite, integer_at_least, require, require_installed
 
 SEED_LIMIT = 1 << 63  # seeds are whole numbers 0 <= seed < 2^63: none alias under the 64-bit stream keys
@@ -77,6 +82,7 @@ def validate(params: RiskplanConf, needs_ray: bool = True) -> None:
     """BadInput naming the first key outside its range; a warning where only a theorem's assumption breaks; and
     MissingExtra for a value whose optional package is not installed, before the run: not a failed run directory.
     `needs_ray=False`: a resumed Ray run, which needs Ray only if a robot has iterations left (run.ray_team)."""
+    check_flat_lists(params)
     check_name(params.experiment, KEYS.experiment, "the run directory's name")
     check_risk(params.risk)
     check_policy(params.policy)
@@ -86,6 +92,7 @@ def validate(params: RiskplanConf, needs_ray: bool = True) -> None:
     if needs_ray:
         check_extra(KEYS.team.backend, params.team.backend)
     check_extra(KEYS.engine.device, params.engine.device)
+    warn_unused(params)
     seed = params.seed if abs(params.seed) < 10**30 else f"about 2^{params.seed.bit_length()}"
     require(
         0 <= params.seed < SEED_LIMIT,
@@ -93,6 +100,56 @@ def validate(params: RiskplanConf, needs_ray: bool = True) -> None:
         f"got {seed}; expected a whole number 0 <= seed < 2^63 (9223372036854775808); seeds are not reduced "
         f"modulo 2^64",
     )
+
+
+# A key only some variants use: (the node that holds it, the key, the key choosing the variant, the variants that use
+# it). Set away from its default under another variant, it is ignored: a warning says so (warn_unused).
+VARIANT_KEYS = (
+    ("team", "edges", "graph", (Graph.edges,)),
+    ("team", "matrix", "weights", (WeightRule.matrix,)),
+    ("team", "trim", "aggregate", (Aggregate.trimmed_mean, Aggregate.wmsr)),  # median takes no F
+    ("team", "speeds", "backend", (Backend.ray,)),
+    ("team", "address", "backend", (Backend.ray,)),
+    ("world.sources.*.motion", "prob", "kind", (MotionKind.random_walk,)),
+)
+
+
+class IgnoredKey(UserWarning):
+    """A key set where the chosen variant ignores it; `chooser` is the key that chose the variant. A sweep over the
+    chooser sets the key for the variants that use it (team.aggregate=mean,trimmed_mean team.trim=1): no warning."""
+
+    def __init__(self, message: str, chooser: str) -> None:
+        super().__init__(message)
+        self.chooser = chooser
+
+
+def warn_unused(params: RiskplanConf) -> None:
+    """One warning per key of VARIANT_KEYS set (not its default) where the chosen variant ignores it."""
+    for where, key, chooser, users in VARIANT_KEYS:
+        for path, node in _nodes(params, where.split(".")):
+            value, default = getattr(node, key), _default(type(node), key)
+            if value != default and getattr(node, chooser) not in users:
+                message = (
+                    f"{path}.{key}={shown(value)} is ignored with {path}.{chooser}={getattr(node, chooser)}: only "
+                    f"{path}.{chooser}={' or '.join(str(u) for u in users)} uses it; drop it"
+                )
+                warnings.warn(IgnoredKey(message, f"{path}.{chooser}"), stacklevel=3)
+
+
+def _nodes(node: object, parts: list[str], path: str = "") -> list[tuple[str, object]]:
+    """The config nodes at a dotted path, with their paths; `*` stands for every item of a list."""
+    if not parts:
+        return [(path, node)]
+    head, rest = parts[0], parts[1:]
+    if head == "*":
+        return [found for i, item in enumerate(node) for found in _nodes(item, rest, f"{path}.{i}")]
+    return _nodes(getattr(node, head), rest, f"{path}.{head}" if path else head)
+
+
+def _default(kind: type, key: str) -> object:
+    """A schema field's default value."""
+    spec = next(f for f in dataclasses.fields(kind) if f.name == key)
+    return spec.default_factory() if spec.default is dataclasses.MISSING else spec.default
 
 
 def check_name(value: str, key: Key, meaning: str) -> None:

@@ -83,7 +83,7 @@ def parse(data: Any, where: str = "reward", level: int = 1) -> Dist:
         raise BadInput(where, f"'{kind}' takes no 'of'")
     if kind in LEAVES:
         return _leaf(kind, value, where)
-    items = _list(value, f"{where}.{kind}")
+    items = _list(value, f"{where}.{kind}", SHAPES[kind])
     if kind == "sum":
         return Dist("sum", (), tuple(parse(item, f"{where}.sum.{i}", level + 1) for i, item in enumerate(items)))
     return _mixture(items, where, level)
@@ -296,17 +296,23 @@ def pack_programs(dists: list[Dist]) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 def _pair(value: Any, where: str) -> tuple[float, float]:
     """Two finite floats, or BadInput."""
-    items = _list(value, where)
+    items = _list(value, where, "a pair [a, b]")
     if len(items) != 2:
         raise BadInput(where, f"got {list(items)!r}; expected a pair [a, b]")
     return finite(items[0], where), finite(items[1], where)
 
 
-def _list(value: Any, where: str) -> list:
-    """A non-empty list, or BadInput."""
+SHAPES = {  # what the list of a sum or a mixture holds, for its messages
+    "sum": "[<distribution>, ...] with at least one entry",
+    "mixture": "[{weight: w, of: <distribution>}, ...] with at least one entry",
+}
+
+
+def _list(value: Any, where: str, shape: str) -> list:
+    """A non-empty list, or BadInput saying what it should be (`shape`)."""
     if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__iter__"):
-        raise BadInput(where, f"got {value!r}; expected a list")
+        raise BadInput(where, f"got {value!r}; expected {shape}")
     items = list(value)
     if not items:
-        raise BadInput(where, "got an empty list")
+        raise BadInput(where, f"got an empty list; expected {shape}")
     return items

@@ -22,6 +22,7 @@ MOVES = np.array([[1, 0], [-1, 0], [0, 0], [0, 1], [0, -1]], dtype=np.int64)  # 
 MOVE_NAMES = ("E", "W", "Stay", "N", "S")
 MAX_STACK = 64  # stack slots of the kernel's reward-program interpreter
 SIGNAL_LIMIT = 1e100  # largest peak |signal| w / (2 pi sqrt(det Sigma)): keeps logits and scores finite
+PEAK_BEYOND = f"beyond the limit of {SIGNAL_LIMIT:g} that keeps logits and scores finite"
 PRECISION_LIMIT = 1e150  # largest |entry| of Sigma^-1: the quadratic form stays finite on any allowed grid
 EDGE = 1e-9  # pixels a point may fall short of a pixel's edge by rounding and still be on it (Frame.pixel_of)
 FAR = 2.0**31  # pixels: a point farther off the map is taken as this far, so its pixel stays a finite int64
@@ -142,10 +143,9 @@ class Layout:
 
 def build_world(world: WorldConf, starts: list | None = None, layout: Layout | None = None) -> World:
     """Build a World from a validated `world` config (and optional per-robot starts), checking what needs the grid:
-    cells on it, obstacles, reachability, covariances, reward programs and their bounds.
-
-    With a `layout` (world.map), the grid's size is the map's, its occupied cells are obstacles beside
-    world.obstacles, its unknown cells follow world.map_unknown, and `mask` regions take their cells from it."""
+    cells on it, obstacles, reachability, covariances, reward programs and their bounds. With a `layout`
+    (world.map), the grid's size is the map's, its occupied cells are obstacles beside world.obstacles, its unknown
+    cells follow world.map_unknown, and `mask` regions take their cells from it."""
     width, height = grid_size(world.size) if layout is None else layout.size
     obstacle, occupied = _obstacles(world, layout, width, height)
     places = _Places(width, height, obstacle, None if layout is None else layout.frame, occupied)
@@ -242,9 +242,8 @@ def _signal_shape(source: Any, here: str) -> tuple[float, tuple[float, float, fl
     if not (math.isfinite(det) and np.all(np.isfinite(inv)) and np.max(np.abs(inv)) <= PRECISION_LIMIT):
         raise BadInput(
             f"{here}.covariance",
-            f"{cov.tolist()} is too extreme: its determinant or inverse "
-            f"overflows (inverse entries must stay below {PRECISION_LIMIT:g}); "
-            f"give entries between about 1e-100 and 1e100",
+            f"{cov.tolist()} is too extreme: its determinant or inverse overflows (inverse entries must stay below "
+            f"{PRECISION_LIMIT:g}); give entries between about 1e-100 and 1e100",
         )
     if source.scale is None:
         peak = 1.0  # w = 2 pi sqrt(det Sigma): exactly 1, even where sqrt(det) would round
@@ -253,12 +252,14 @@ def _signal_shape(source: Any, here: str) -> tuple[float, tuple[float, float, fl
         if not math.isfinite(scale):
             raise BadInput(f"{here}.scale", f"got {source.scale!r}; expected a finite number or null (peak 1)")
         peak = scale / (2.0 * math.pi * math.sqrt(det))
-        if not abs(peak) <= SIGNAL_LIMIT:
+        faint = abs(peak) < 1 / SIGNAL_LIMIT  # too faint to sense; |peak|: a negative w is read with its sign
+        if faint or not abs(peak) <= SIGNAL_LIMIT:
+            limit = f"below {1 / SIGNAL_LIMIT:g}, where the policy cannot sense the source" if faint else PEAK_BEYOND
+            larger = "a larger |scale|" if faint else "a smaller scale"
             raise BadInput(
                 f"{here}.scale",
-                f"got {scale:g}; the signal would peak at about {abs(peak):.3g}, "
-                f"beyond the limit of {SIGNAL_LIMIT:g} that keeps logits and scores "
-                f"finite; give a smaller scale, or null for a peak of 1",
+                f"got {scale:g}; the signal would peak at about {abs(peak):.3g}, {limit}; give {larger}, or null for "
+                f"a peak of 1",
             )
     return peak, (inv[0, 0], inv[0, 1], inv[1, 1])
 
@@ -351,11 +352,8 @@ def _check_total_reward(sources: list[Dist], regions: list[Dist], horizon: int, 
     """No episode's total reward can exceed REWARD_LIMIT in size (each program was bounded when parsed)."""
     limit = distributions.REWARD_LIMIT
     first = lambda pair: pair[0]
-    region = max(
-        ((distributions.bound(d), f"world.regions.{r}.reward") for r, d in enumerate(regions)),
-        default=(0.0, ""),
-        key=first,
-    )
+    bounds = [(distributions.bound(d), f"world.regions.{r}.reward") for r, d in enumerate(regions)]
+    region = max(bounds, default=(0.0, ""), key=first)
     source = max(((distributions.bound(d), f"world.sources.{j}.reward") for j, d in enumerate(sources)), key=first)
     source_steps = 1.0 if stop_at_source else float(horizon)
     total = float(horizon) * region[0] + source_steps * source[0]
@@ -436,10 +434,7 @@ def _region_cells(region: Any, places: _Places, where: str, mask: np.ndarray | N
         return np.asarray(mask, dtype=bool).ravel()
     x, y = np.divmod(np.arange(width * height), height)
     if given[0] == "rect":
-        rect = places.rect(region.rect, f"{where}.rect")
-        if len(rect) != 4:
-            raise BadInput(f"{where}.rect", f"got {rect}; expected [x0, y0, x1, y1] (inclusive corners)")
-        x0, y0, x1, y1 = rect
+        x0, y0, x1, y1 = rect = places.rect(region.rect, f"{where}.rect")
         if x0 > x1 or y0 > y1:
             raise BadInput(f"{where}.rect", f"got {rect}; need x0 <= x1 and y0 <= y1")
         return (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
@@ -481,7 +476,7 @@ class _Places:
         """A rect's [x0, y0, x1, y1]: as given, or from two opposite corners in metres (each on the map)."""
         metres = self._metres(value, where, "[x0, y0, x1, y1]")
         if metres is None:
-            return list(value)
+            return _whole(value, 4, where, "[x0, y0, x1, y1]")
         (ax, ay), (bx, by) = self._locate(metres[:2], where, free=False), self._locate(metres[2:], where, free=False)
         cells = [min(ax, bx), min(ay, by), max(ax, bx), max(ay, by)]
         self.placed.append(Placement(where, metres, tuple(cells)))
@@ -558,13 +553,18 @@ def grid_size(size: Any) -> tuple[int, int]:
 
 def _cell(cell: Any, width: int, height: int, where: str) -> tuple[int, int]:
     """A validated on-grid (x, y)."""
-    values = list(cell) if isinstance(cell, (list, tuple)) else [cell]
-    if len(values) != 2 or any(not isinstance(v, int) or isinstance(v, bool) for v in values):
-        raise BadInput(where, f"got {cell!r}; expected [x, y] of whole numbers")
-    x, y = values
+    x, y = _whole(cell, 2, where, "[x, y]")
     if not (0 <= x < width and 0 <= y < height):
         raise BadInput(where, f"({x}, {y}) is off the {width}x{height} grid; need 0 <= x < {width}, 0 <= y < {height}")
     return x, y
+
+
+def _whole(value: Any, count: int, where: str, shape: str) -> list[int]:
+    """`count` whole numbers (a cell's [x, y], a rect's corners; 0.5 is no cell), or BadInput."""
+    values = list(value) if isinstance(value, (list, tuple)) else [value]
+    if len(values) != count or any(not isinstance(v, int) or isinstance(v, bool) for v in values):
+        raise BadInput(where, f"got {value!r}; expected {shape} of whole numbers")
+    return values
 
 
 def _covariance(cov: Any, where: str) -> np.ndarray:

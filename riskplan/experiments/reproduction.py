@@ -63,7 +63,7 @@ from riskplan.experiments.timing import (
 )
 from riskplan.run import cost, maps
 from riskplan.run.build import build_setup
-from riskplan.run.compose import check_extras, check_groups, compose, parse_overrides
+from riskplan.run.compose import check_extras, check_override_values, compose, parse_overrides
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import StopSignals
@@ -517,7 +517,7 @@ def _set_up(overrides: list[str]):
     """A set-up's config, typed and checked (its RunSetup built), as a sweep's planning makes a job's: its keys set
     as data on its groups' composition, which the sweeps reuse (sweeping.as_job). Through compose() when that
     needs Hydra or finds the config bad: compose() names what is wrong."""
-    check_groups(parse_overrides(overrides))
+    check_override_values(parse_overrides(overrides))
     check_extras(overrides)
     job = as_job(overrides)
     if job is not None:

@@ -15,7 +15,7 @@ from omegaconf.errors import OmegaConfBaseException
 from riskplan.config import schema
 from riskplan.config.hydra_safety import check_hydra_node, check_resolvers
 from riskplan.config.schema import CONF_DIR
-from riskplan.config.typed import explain, typed
+from riskplan.config.typed import check_flags, explain, typed
 from riskplan.config.validate import EXTRAS, check_extra
 from riskplan.engine.step import RunSetup
 from riskplan.run.build import build_setup
@@ -82,10 +82,13 @@ def _short(text: str, limit: int = 60) -> str:
     return text if len(text) <= limit else text[:limit] + "..."
 
 
-def check_groups(parsed: list) -> None:
-    """A config group set to null (`experiment=null`) is bad input naming the group's options, not a crash; so is
-    an option given as a path out of the group's folder (`risk=../experiment/paper_team`, `experiment=/etc/x`),
-    which Hydra would load from elsewhere. A sweep's values are checked each."""
+def check_override_values(parsed: list) -> None:
+    """What the parsed overrides give that composing would turn into something else, as bad input: a boolean key
+    given an integer other than 0 or 1 (check_flags: OmegaConf makes it true); a config group set to null
+    (`experiment=null`), naming the group's options, not a crash; an option given as a path out of the group's
+    folder (`risk=../experiment/paper_team`, `experiment=/etc/x`), which Hydra would load from elsewhere. A sweep's
+    values are checked each."""
+    check_flags(parsed)
     for override in parsed:
         group = override.key_or_group
         if override.is_delete() or group_options(group) is None:
@@ -190,7 +193,7 @@ def _compose(overrides, validate: bool, with_hydra: bool) -> tuple[DictConfig, R
     """compose(), and the RunSetup it built to validate (None without `validate`)."""
     overrides = list(overrides)
     parsed = parse_overrides(overrides)
-    check_groups(parsed)
+    check_override_values(parsed)
     check_extras(overrides)  # before composing: Hydra would only say that a plugin's option does not exist
     for override in parsed:
         if override.key_or_group == "hydra.mode":

@@ -133,13 +133,21 @@ def condition(adjacency: np.ndarray, aggregate: Aggregate, trim: int, faults: Se
     """Whether the graph and the faults meet the resilience condition of `aggregate` with F = `trim`, and the text.
 
     For trimmed_mean, median and wmsr: the graph is (2F+1)-robust, and each healthy robot has at most F faulty
-    in-neighbours (the F-local model). For mean with faults: no condition (the mean has no resilience), said so."""
+    in-neighbours (the F-local model). The median drops nothing and takes no team.trim: its F is the most faulty
+    in-neighbours a healthy robot has. For mean with faults: no condition (the mean has no resilience), said so."""
     a = _adjacency(adjacency)
     n = len(a)
     aggregate = Aggregate(aggregate)
     faulty = {f.robot for f in faults}
+    counts = faulty_neighbours(a, faults)
+    healthy = [i for i in range(n) if i not in faulty]
+    worst = max((int(counts[i]) for i in healthy), default=0)
+    named, given = f"team.trim={trim}", f"team.trim=F={trim}"
+    if aggregate == Aggregate.median:
+        trim, named = worst, f"F={worst}"
+        given = f"{named} (the most faulty in-neighbours of a healthy robot; median takes no team.trim)"
     listed = ", ".join(_fault_text(f) for f in faults) or "none"
-    lines = [f"resilience: team.aggregate={aggregate}, team.trim=F={trim}; faults: {listed}"]
+    lines = [f"resilience: team.aggregate={aggregate}, {given}; faults: {listed}"]
     if aggregate == Aggregate.mean:
         lines.append(
             "  team.aggregate=mean has no resilience: each faulty robot's value enters its neighbours' mix with its "
@@ -160,9 +168,6 @@ def condition(adjacency: np.ndarray, aggregate: Aggregate, trim: int, faults: Se
         found += "; strongly connected, so 1-robust" if robust else ""
     verdict = {True: "holds", False: "FAILS", None: "unknown"}[robust]
     lines.append(f"  (2F+1)-robustness: needs {r}-robust; {found}: {verdict}")
-    counts = faulty_neighbours(a, faults)
-    healthy = [i for i in range(n) if i not in faulty]
-    worst = max((int(counts[i]) for i in healthy), default=0)
     local = worst <= trim
     lines.append(
         f"  F-local faults: at most {worst} faulty in-neighbour{'s' if worst != 1 else ''} per healthy robot "
@@ -184,7 +189,7 @@ def condition(adjacency: np.ndarray, aggregate: Aggregate, trim: int, faults: Se
         if not local:
             broken.append(f"a healthy robot has {worst} faulty in-neighbours")
         warning = (
-            f"team.aggregate={aggregate} with team.trim={trim}: {' and '.join(broken)}, so resilient consensus is not "
+            f"team.aggregate={aggregate} with {named}: {' and '.join(broken)}, so resilient consensus is not "
             f"guaranteed (needs (2F+1)-robustness and at most F faulty in-neighbours per robot; riskplan check says "
             f"more)"
         )

@@ -30,6 +30,7 @@ from omegaconf.errors import OmegaConfBaseException
 from riskplan.config import schema
 from riskplan.config.hydra_safety import check_hydra_node, check_resolvers
 from riskplan.config.typed import choice_problem
+from riskplan.config.validate import IgnoredKey
 from riskplan.engine.step import batch_key
 from riskplan.experiments.sweep_worker import HOW_KEYS, config_sha, folder_name
 from riskplan.experiments.sweeping.as_data import Composition, JobConfig, shared
@@ -308,15 +309,20 @@ def constant_keys(combos: list[list[str]], swept: set[str] = frozenset(), parse:
     """The override keys left out of job folder names: the engine's (engine.device: how a run computes, never what),
     and those with one value in every job that were not typed as a sweep (`seed=range(0,1)` keeps its key), as
     long as some key remains."""
-    parse = parse or ParsedOnce()
-    values: dict[str, set[str]] = {}
-    for combo in combos:
-        for o in parse(combo):
-            values.setdefault(o.key_or_group, set()).add(o.input_line)
+    values = _given(combos, parse or ParsedOnce())
     unnamed = [k for k in values if unnamed_key(k)]
     named = {k: v for k, v in values.items() if k not in unnamed}
     constant = [k for k, v in named.items() if len(v) == 1 and k not in swept]
     return unnamed + (constant if len(constant) < len(named) else [])
+
+
+def _given(combos: list[list[str]], parse: ParsedOnce) -> dict[str, set[str]]:
+    """Each override key of the combinations, with the overrides that set it (one: the same in every job)."""
+    values: dict[str, set[str]] = {}
+    for combo in combos:
+        for o in parse(combo):
+            values.setdefault(o.key_or_group, set()).add(o.input_line)
+    return values
 
 
 def unnamed_key(key: str) -> bool:
@@ -336,6 +342,7 @@ def validate(
     bases: dict[tuple[str, ...], Composition] = {}
     jobs: list[Job] = []
     notes: list[str] = []
+    varying = {key for key, given in _given(combos, parse).items() if len(given) > 1}
     try:
         with (
             initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"),
@@ -371,6 +378,8 @@ def validate(
                     except BadInput as err:
                         steps, invalid, shape = 0.0, str(err), {}
                 for w in caught:
+                    if isinstance(w.message, IgnoredKey) and w.message.chooser in varying:
+                        continue  # the key is set for the sweep's variants that use it
                     if str(w.message) not in notes:
                         notes.append(str(w.message))
                 plain = cfg if as_data is None else as_data.plain

@@ -36,7 +36,7 @@ from riskplan.experiments.sweeping.jobs import (
 )
 from riskplan.experiments.sweeping.launcher_settings import launcher_workers, ray_init_overrides, runs_here
 from riskplan.experiments.sweeping.search import plan_optimiser
-from riskplan.run.compose import check_groups, expand_shorthands, parse_overrides
+from riskplan.run.compose import check_override_values, expand_shorthands, parse_overrides
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import check_output_dir, hydra_quote
 
@@ -56,7 +56,7 @@ def plan_sweep(
     hydra_ovs = [o for o in parsed if o.is_hydra_override()]
     task_ovs = [o for o in parsed if not o.is_hydra_override()]
     _check_hydra_overrides(hydra_ovs)
-    check_groups(task_ovs)
+    check_override_values(task_ovs)
     for override in task_ovs:  # the jobs take them as data, not through compose's check of the whole config
         check_resolvers(override.input_line.partition("=")[2], override.key_or_group)
     hydra_keys = {o.key_or_group: o for o in hydra_ovs}

@@ -135,7 +135,7 @@ def test_a_graph_that_is_not_robust_enough_warns_once_when_the_network_is_built(
 
 def test_too_many_faulty_neighbours_break_the_f_local_condition():
     faults = [{"robot": 0, "kind": "crash", "from": 0}, {"robot": 1, "kind": "stuck", "from": 0}]
-    conf = team(robots=7, graph="complete", aggregate="median", trim=1, faults=faults)
+    conf = team(robots=7, graph="complete", aggregate="trimmed_mean", trim=1, faults=faults)
     with pytest.warns(UserWarning, match="a healthy robot has 2 faulty in-neighbours"):
         network = build_network(conf, 2, 0)
     text = describe(network, conf)
