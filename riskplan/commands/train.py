@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
@@ -19,10 +21,13 @@ from riskplan.commands.common import (
     with_config_dirs,
 )
 from riskplan.util.collector import pause_collection, resume_collection
-from riskplan.util.errors import BadInput, remedy
+from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
-from riskplan.util.lock import hold_lock
+from riskplan.util.lock import LOCK, hold_lock
 from riskplan.util.paths import check_output_dir, claim_dir, hydra_quote, write_atomic
+
+if TYPE_CHECKING:  # the run's outcome, imported with the run itself
+    from riskplan.experiments.hydra_app import SingleRun
 
 OVERRIDES = ".hydra/overrides.yaml"  # Hydra's record of a run's overrides (riskplan train writes it through Hydra)
 HYDRA_RECORD = ".hydra/hydra.yaml"  # Hydra's own config of the run, whose hydra.overrides.task lists them again
@@ -55,7 +60,7 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
     """The train command, for its overrides and --resume."""
     from omegaconf import open_dict
 
-    from riskplan.experiments.hydra_app import RunFailed, run_composed, run_hydra
+    from riskplan.experiments.hydra_app import RunFailed, SingleRun, run_composed, run_hydra
     from riskplan.run.build import reach_lines
     from riskplan.run.compose import check_hydra_args, compose_run, parse_overrides
     from riskplan.run.run_directory import check_new_run_dir
@@ -92,15 +97,55 @@ def _train_or_resume(overrides: list[str], resume: Path | None) -> None:
             typer.echo(f"run directory: {out}")
             typer.echo("\n".join(reach_lines(setup)))
             try:
-                run = run_composed(cfg, setup)
-            except RunFailed as err:
-                typer.echo(f"error: run failed: {err} (see {out})", err=True)
-                raise typer.Exit(1) from None
+                run, started = run_composed(cfg, setup), True
+            except RunFailed as err:  # before the task: Hydra could not write the run's .hydra/ (a full disk)
+                run, started = SingleRun(failure=str(err), write_error=err.write_error), False
+            if run.failure and (not started or run.write_error) and _untrained(out):  # nothing of it to keep
+                _undo_start(out, made)
+                typer.echo(f"error: run failed: {_start_failure(run, out, made)}", err=True)
+                raise typer.Exit(1)
             _finish(out, run.failure, run.interrupted)
     except BadInput:
         if made:
             shutil.rmtree(out, ignore_errors=True)
         raise
+
+
+def _untrained(out: Path) -> bool:
+    """Whether a run that failed trained nothing: no checkpoint, and no iteration whole in its run.mcap."""
+    from riskplan.run.record import log_header
+    from riskplan.run.run_files import CHECKPOINT, RUN_LOG
+
+    if (out / CHECKPOINT).exists():
+        return False
+    try:
+        return not (out / RUN_LOG).is_file() or log_header(out / RUN_LOG)[1] == 0
+    except BadInput:  # cut short inside its magic bytes
+        return True
+
+
+def _undo_start(out: Path, made: bool) -> None:
+    """Remove what a run that trained nothing wrote, so that no half-written run is left: the directory this
+    command made, or what it wrote into the empty one it was given (the writers' lock file aside)."""
+    if made:
+        shutil.rmtree(out, ignore_errors=True)
+        return
+    for entry in out.iterdir():
+        with contextlib.suppress(OSError):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            elif entry.name != LOCK:
+                entry.unlink()
+
+
+def _start_failure(run: SingleRun, out: Path, made: bool) -> str:
+    """Why a run that trained nothing failed, and that its files are gone: what to do is to train it again."""
+    from riskplan.experiments.hydra_app import write_failure
+
+    gone = f"nothing was trained, so {out} was {'removed' if made else 'emptied again'}"
+    if run.write_error is not None:
+        return f"{write_failure(run.write_error, out, 'riskplan train again')} ({gone})"
+    return f"{run.failure} ({gone})"
 
 
 def run_dir_override(parsed: list) -> Path | None:
@@ -191,7 +236,7 @@ def _resume_locked(run_dir: Path, change: dict, restart: bool = False) -> None:
     from omegaconf.errors import OmegaConfBaseException
 
     from riskplan.engine.step import NumericalTrouble
-    from riskplan.experiments.hydra_app import write_run_status
+    from riskplan.experiments.hydra_app import write_failure, write_run_status
     from riskplan.run.run_files import CONFIG, SUMMARY
     from riskplan.run.training import prepare_resume
     from riskplan.run.training import train as train_run
@@ -207,6 +252,8 @@ def _resume_locked(run_dir: Path, change: dict, restart: bool = False) -> None:
             str(run_dir / CONFIG),
             f"cannot be read as a config ({type(err).__name__}); it was not written by riskplan: start the run again",
         ) from None
+    if not cfg:  # Hydra writes it in place: a full disk or a kill as the run began left it empty
+        raise BadInput(str(run_dir / CONFIG), "is empty: the run never started; remove the directory and train again")
     if extended and not restart:  # a restart trains every iteration with the new value
         _refuse_following_keys(cfg, longer, run_dir)
     cfg = longer
@@ -232,7 +279,8 @@ def _resume_locked(run_dir: Path, change: dict, restart: bool = False) -> None:
         _try_status(run_dir, str(stop), "interrupted")
         _stopped(stop, run_dir)
     except (NumericalTrouble, OSError) as err:
-        message = str(err) if isinstance(err, NumericalTrouble) else _os_error(err, run_dir)
+        kept = f"riskplan train --resume {run_dir} (the last checkpoint is kept)"
+        message = str(err) if isinstance(err, NumericalTrouble) else write_failure(err, run_dir, kept)
         _try_status(run_dir, message)
         typer.echo(f"error: {message}", err=True)
         raise typer.Exit(1) from None
@@ -352,15 +400,6 @@ def _closing_lines(summary: dict, out: Path) -> None:
     typer.echo(summary_line(summary, out))
     for finding in degenerate_findings(summary):
         typer.echo(f"warning: degenerate run: {finding['message']}", err=True)
-
-
-def _os_error(err: OSError, out: Path) -> str:
-    """One line for a failure to write at run time (a full disk, a vanished directory)."""
-    where = f" {err.filename}" if err.filename else ""
-    return (
-        f"cannot write{where}: {err.strerror or err}; the last checkpoint is kept: {remedy(err)}, then riskplan "
-        f"train --resume {out}"
-    )
 
 
 def _try_status(out: Path, message: str, status: str = "failed") -> None:

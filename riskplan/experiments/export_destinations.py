@@ -1,10 +1,13 @@
 """Where `riskplan export` writes, checked before anything is written: the target (--to), its destination (--uri:
 an MLflow store, file or database or server; a TensorBoard folder), the MLflow experiment's name, the optional
-package a target needs, and MLflow's settings while it writes. Each refusal is one line (BadInput)."""
+package a target needs, and MLflow's settings while it writes. Each refusal is one line (BadInput). Then, as it
+writes: the folder it writes into and its writers' lock, and which failures are the destination's (they stop the
+export) rather than one run's."""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import socket
@@ -200,3 +203,49 @@ def mlflow_settings(uri: str):
     finally:
         for key in added:
             os.environ.pop(key, None)
+
+
+def file_store(uri: str) -> Path | None:
+    """The folder of an MLflow file store (file:///data/mlruns), None for a server's or database's store."""
+    parts = urlparse(uri)
+    return Path(unquote(parts.path)) if parts.scheme == "file" else None
+
+
+def written_path(target: str, destination: str) -> Path | None:
+    """The local folder (or SQLite file) an export writes into; None for each run directory or a server."""
+    if target in ("tensorboard", "ros2"):
+        return Path(destination) if destination else None
+    parts = urlparse(destination)
+    return file_store(destination) or (Path(parts.path[1:]) if parts.scheme.split("+")[0] == "sqlite" else None)
+
+
+def one_writer(target: str, destination: str) -> contextlib.AbstractContextManager:
+    """The destination directory's writers' lock, held while the runs are exported (a TensorBoard log directory, the
+    bags' folder, an MLflow file store): two exports at once made two experiments of one name in a store, or failed
+    on each other's temp folders. A server or database store locks itself; each run directory has its own lock."""
+    directory = written_path(target, destination)
+    if directory is None or (target == "mlflow" and file_store(destination) is None):
+        return contextlib.nullcontext()
+    return lock.hold_lock(directory, f"{target} export destination", make=True)
+
+
+def store_errors(target: str) -> tuple[type[BaseException], ...]:
+    """What a failure of the whole destination raises: a full or read-only disk, and MLflow's own exception (a
+    server, a damaged store)."""
+    if target == "mlflow":
+        from mlflow.exceptions import MlflowException  # optional: the mlflow extra
+
+        return OSError, MlflowException, ImportError  # ImportError: a store that needs the full mlflow
+    return (OSError,)
+
+
+# a disk that cannot take any more: every other run would fail the same way, so the export stops
+WHOLE_DISK = (errno.ENOSPC, errno.EDQUOT, errno.EROFS)
+
+
+def stops_export(err: Exception, target: str) -> bool:
+    """Whether a failure to export one run is the destination's, which stops the export; any other (a folder in
+    the way, a table not written by riskplan) is that run's own, which is skipped."""
+    if isinstance(err, OSError):
+        return err.errno in WHOLE_DISK
+    return isinstance(err, store_errors(target))

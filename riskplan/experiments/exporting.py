@@ -36,18 +36,17 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import errno
 import hashlib
 import json
 import math
 import os
 import re
+import shutil
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-from urllib.parse import unquote, urlparse
 
 import numpy as np
 import pandas as pd
@@ -58,7 +57,12 @@ from riskplan.experiments.export_destinations import (
     check_installed,
     check_target,
     check_uri,
+    file_store,
     mlflow_settings,
+    one_writer,
+    stops_export,
+    store_errors,
+    written_path,
 )
 from riskplan.experiments.reporting.collect import Broken, Duplicate, RunInfo, collect, flatten
 from riskplan.experiments.sweep_worker import recorded_sha
@@ -260,21 +264,32 @@ def run_record(info: RunInfo) -> Record:
 
 
 # ------------------------------------------------------------------------------------------- MLflow
+REMOVED = "; what it had begun in the store was removed"  # a file store's, after a failure
+
+
 class MlflowTarget:
     """An MLflow tracking store: one experiment, one MLflow run per riskplan run."""
 
     def __init__(self, uri: str, experiment: str = EXPERIMENT) -> None:
         self.uri = uri
         self.by_dir: dict[str, list] = {}
+        self.store = file_store(uri)
+        self.before = set(os.listdir(self.store)) if self.store is not None else set()  # the store's, not this export's
+        self.kept: set[str] = set()  # the experiment folder's runs this export keeps: there before it, or finished
+        self.finished = 0  # runs this export wrote whole
+        self.left = ""  # what a failure left in the store, for its line
         try:
             self._open(experiment)
+            if self.store is not None:
+                self.kept = set(os.listdir(self.store / self.experiment_id))
         except Exception as err:
-            if not uri.startswith("file:") or isinstance(err, OSError):  # a server's, a disk's: ExportFailed
+            if self.store is None or isinstance(err, OSError):  # a server's, a disk's: ExportFailed
+                self._undo()
                 raise
             raise BadInput(  # its files are the user's to mend: MLflow reads them as it goes, any way they break
                 "--uri",
-                f"{unquote(urlparse(uri).path)} is a damaged MLflow file store ({_error_text(err)}); repair or move "
-                f"it, or give another --uri",
+                f"{self.store} is a damaged MLflow file store ({_error_text(err)}); repair or move it, or give "
+                f"another --uri",
             ) from None
 
     def _open(self, experiment: str) -> None:
@@ -324,9 +339,10 @@ class MlflowTarget:
         for r in old:
             self.client.delete_run(r.info.run_id)
         tags = {k: v[:MAX_TAG_VAL_LENGTH] for k, v in rec.tags.items() if k != "riskplan.fingerprint"}
-        run = self.client.create_run(self.experiment_id, start_time=int(rec.start * 1000), tags=tags, run_name=rec.name)
-        run_id = run.info.run_id
+        run_id = None
         try:
+            start = int(rec.start * 1000)
+            run_id = self.client.create_run(self.experiment_id, start, tags=tags, run_name=rec.name).info.run_id
             params = [Param(key, rec.params[k][:MAX_PARAM_VAL_LENGTH]) for k, key in mlflow_keys(rec.params).items()]
             for i in range(0, len(params), MAX_PARAMS_TAGS_PER_BATCH):
                 self.client.log_batch(run_id, params=params[i : i + MAX_PARAMS_TAGS_PER_BATCH])
@@ -336,6 +352,7 @@ class MlflowTarget:
                 self.client.log_batch(run_id, metrics=metrics[i : i + MAX_METRICS_PER_BATCH])
             # the fingerprint last: a run cut short by an error is never taken for a finished export
             self.client.set_tag(run_id, "riskplan.fingerprint", rec.fingerprint)
+            self.client.set_terminated(run_id, "FINISHED", end_time=round(rec.end * 1000))
         except MlflowException as err:
             if err.error_code != "INVALID_PARAMETER_VALUE":  # the store's fault (disk, server): the export stops
                 self._failed(run_id)
@@ -346,14 +363,38 @@ class MlflowTarget:
         except BaseException:
             self._failed(run_id)
             raise
-        self.client.set_terminated(run_id, "FINISHED", end_time=round(rec.end * 1000))
         self.by_dir[rec.tags["riskplan.run_dir"]] = []
+        self.kept.add(run_id)
+        self.finished += 1
         return Exported(rec.path, "replaced" if old else "exported", f"mlflow run {run_id}")
 
-    def _failed(self, run_id: str) -> None:
-        """A run cut short: not left RUNNING, but marked failed, and replaced by the next export."""
-        with contextlib.suppress(Exception):
-            self.client.set_terminated(run_id, "FAILED")
+    def _failed(self, run_id: str | None) -> None:
+        """A run the store's failure cut short (`run_id`: None where it failed to be made): in a file store, its
+        folder, however far it got, is removed with what else this export began there (a meta.yaml left empty by
+        a full disk broke the store for every later export); in a server's or database's store, whose client
+        removes nothing, it is marked failed, not left running."""
+        if self.store is not None:
+            folder = self.store / self.experiment_id
+            with contextlib.suppress(OSError):
+                for name in set(os.listdir(folder)) - self.kept:
+                    shutil.rmtree(folder / name, ignore_errors=True)
+            self._undo()
+            if run_id is None or not (folder / run_id).exists():
+                self.left = REMOVED
+                return
+        if run_id is not None:
+            with contextlib.suppress(Exception):
+                self.client.set_terminated(run_id, "FAILED")
+            self.left = f"; its partial run {run_id} is left marked FAILED, and the next export replaces it"
+
+    def _undo(self) -> None:
+        """Remove from a file store what this export made there before the store failed, unless it finished a run:
+        the experiment's folder (its meta.yaml left empty by a full disk broke the store for every later export)."""
+        if self.store is None or self.finished:
+            return
+        for name in set(os.listdir(self.store)) - self.before - {lock.LOCK, ".trash"}:  # an empty store stays one
+            shutil.rmtree(self.store / name, ignore_errors=True)
+        self.left = REMOVED
 
 
 # ------------------------------------------------------------------------------------------- TensorBoard
@@ -413,39 +454,38 @@ class TensorboardTarget:
         from tensorboard.compat.proto.summary_pb2 import Summary  # optional: the tensorboard extra
         from tensorboard.plugins.hparams import summary_v2 as hparams  # optional: the tensorboard extra
         from tensorboard.plugins.text import summary_v2 as text  # optional: the tensorboard extra
-        from tensorboard.summary.writer.event_file_writer import EventFileWriter  # optional: the tensorboard extra
+        from tensorboard.summary.writer.record_writer import RecordWriter  # optional: the tensorboard extra
 
-        writer = EventFileWriter(str(directory), max_queue_size=1024, flush_secs=3600)
-        try:
-            values = {
-                k: (v if isinstance(v, (bool, int, float, str)) else json.dumps(v))
-                for k, v in flatten(rec.config).items()
-            }
-            values["riskplan.group"] = rec.group
-            writer.add_event(
+        values = {
+            k: (v if isinstance(v, (bool, int, float, str)) else json.dumps(v)) for k, v in flatten(rec.config).items()
+        }
+        values["riskplan.group"] = rec.group
+        by_step: dict[int, list] = {}
+        for key, step, value, t in rec.points:
+            by_step.setdefault(step, []).append((key, value, t))
+        events = [
+            Event(wall_time=rec.start, file_version="brain.Event:2"),  # what TensorBoard's writers begin with
+            Event(
+                wall_time=rec.start,
+                step=0,
+                summary=hparams.hparams_pb(values, trial_id=name, start_time_secs=int(rec.start)),
+            ),
+            Event(wall_time=rec.start, step=0, summary=text.text_pb("riskplan/run", _text_table(rec.tags))),
+            *(
                 Event(
-                    wall_time=rec.start,
-                    step=0,
-                    summary=hparams.hparams_pb(values, trial_id=name, start_time_secs=int(rec.start)),
+                    wall_time=max(t for _, _, t in items),
+                    step=step,
+                    summary=Summary(value=[Summary.Value(tag=key, simple_value=value) for key, value, _ in items]),
                 )
-            )
-            writer.add_event(
-                Event(wall_time=rec.start, step=0, summary=text.text_pb("riskplan/run", _text_table(rec.tags)))
-            )
-            by_step: dict[int, list] = {}
-            for key, step, value, t in rec.points:
-                by_step.setdefault(step, []).append((key, value, t))
-            for step in sorted(by_step):
-                items = by_step[step]
-                writer.add_event(
-                    Event(
-                        wall_time=max(t for _, _, t in items),
-                        step=step,
-                        summary=Summary(value=[Summary.Value(tag=key, simple_value=value) for key, value, _ in items]),
-                    )
-                )
-        finally:
-            writer.close()
+                for step, items in sorted(by_step.items())
+            ),
+        ]
+        # written in this thread (TensorBoard's EventFileWriter writes in a thread of its own, which printed a full
+        # disk's traceback beside the export's one line)
+        with open(directory / f"events.out.tfevents.{int(rec.start):010d}.riskplan", "wb") as handle:
+            records = RecordWriter(handle)
+            for event in events:
+                records.write(event.SerializeToString())
 
 
 # ------------------------------------------------------------------------------------------- Foxglove
@@ -481,28 +521,6 @@ class Ros2Target:
 
 
 # ------------------------------------------------------------------------------------------- the command's work
-def _store_errors(target: str) -> tuple[type[BaseException], ...]:
-    """What a failure of the whole destination raises: a full or read-only disk, and MLflow's own exception (a
-    server, a damaged store)."""
-    if target == "mlflow":
-        from mlflow.exceptions import MlflowException  # optional: the mlflow extra
-
-        return OSError, MlflowException, ImportError  # ImportError: a store that needs the full mlflow
-    return (OSError,)
-
-
-# a disk that cannot take any more: every other run would fail the same way, so the export stops
-WHOLE_DISK = (errno.ENOSPC, errno.EDQUOT, errno.EROFS)
-
-
-def _stops_export(err: Exception, target: str) -> bool:
-    """Whether a failure to export one run is the destination's, which stops the export; any other (a folder in
-    the way, a table not written by riskplan) is that run's own, which is skipped."""
-    if isinstance(err, OSError):
-        return err.errno in WHOLE_DISK
-    return isinstance(err, _store_errors(target))
-
-
 def _error_text(err: BaseException) -> str:
     """'Type: its first line', as one line."""
     text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
@@ -519,26 +537,6 @@ def prepare(to: str | None, uri: str | None) -> tuple[str, str]:
     destination = check_uri(target, uri)
     check_installed(target)
     return target, destination
-
-
-def _written_path(target: str, destination: str) -> Path | None:
-    """The local folder (or SQLite file) an export writes into; None for each run directory or a server."""
-    if target in ("tensorboard", "ros2"):
-        return Path(destination) if destination else None
-    parts = urlparse(destination)
-    if parts.scheme == "file":
-        return Path(unquote(parts.path))
-    return Path(parts.path[1:]) if parts.scheme.split("+")[0] == "sqlite" else None
-
-
-def _one_writer(target: str, destination: str) -> contextlib.AbstractContextManager:
-    """The destination directory's writers' lock, held while the runs are exported (a TensorBoard log directory, the
-    bags' folder, an MLflow file store): two exports at once made two experiments of one name in a store, or failed
-    on each other's temp folders. A server or database store locks itself; each run directory has its own lock."""
-    directory = _written_path(target, destination)
-    if directory is None or (target == "mlflow" and not destination.startswith("file:")):
-        return contextlib.nullcontext()
-    return lock.hold_lock(directory, f"{target} export destination", make=True)
 
 
 def export_runs(
@@ -562,7 +560,7 @@ def export_runs(
             f"give one or more run, sweep or reproduce directories, e.g. riskplan export outputs/runs --to {target}",
         )
     collected = collect([Path(p) for p in paths], progress)
-    written = _written_path(target, destination)
+    written = written_path(target, destination)
     if written is not None:
         found = [*collected.runs, *collected.broken, *collected.duplicates, *collected.landscapes]
         check_outside_runs(written, [Path(r.path) for r in found], "--out" if target == "ros2" else "--uri")
@@ -573,8 +571,9 @@ def export_runs(
     result.duplicates = list(collected.duplicates)  # one sample: exported once, as the run each repeats
     if not collected.runs:
         return result
+    writer = None
     try:
-        with mlflow_settings(destination), _one_writer(target, destination):
+        with mlflow_settings(destination), one_writer(target, destination):
             writer = {
                 "mlflow": lambda: MlflowTarget(destination, experiment),
                 "tensorboard": lambda: TensorboardTarget(destination),
@@ -588,13 +587,14 @@ def export_runs(
                     result.skipped.append(Broken(info.path, str(err)))
                     continue
                 except Exception as err:  # one run's failure is reported, the others go on
-                    if _stops_export(err, target):
+                    if stops_export(err, target):
                         raise
                     result.skipped.append(Broken(info.path, _failure(err)))
                     continue
                 result.done.append(done)
                 if echo is not None:
                     echo(done)
-    except _store_errors(target) as err:  # the store failed (disk full, permissions, a server): one line
-        raise ExportFailed(f"{' '.join(filter(None, (target, destination)))}: {_failure(err)}") from None
+    except store_errors(target) as err:  # the store failed (disk full, permissions, a server): one line
+        left = getattr(writer, "left", "")  # MLflow's: what became of the run it was writing
+        raise ExportFailed(f"{' '.join(filter(None, (target, destination)))}: {_failure(err)}{left}") from None
     return result

@@ -58,6 +58,7 @@ class SingleRun:
     value: float | None = None
     failure: str | None = None  # the error, also when status.json could not take it (a full disk)
     interrupted: Interrupted | None = None  # the signal that stopped it, checkpointed
+    write_error: OSError | None = None  # what stopped it when it could not write its files (a full disk)
 
 
 def single_run(out: Path, setup, stderr) -> SingleRun:
@@ -74,21 +75,26 @@ def single_run(out: Path, setup, stderr) -> SingleRun:
         except (BadInput, NumericalTrouble) as err:
             return _failed(out, str(err))
         except OSError as err:  # a full disk, a directory removed under the run
-            where = f" {err.filename}" if err.filename else ""
-            return _failed(
-                out, f"cannot write{where}: {err.strerror or err}; {remedy(err)}, then riskplan train --resume {out}"
-            )
+            return _failed(out, write_failure(err, out, f"riskplan train --resume {out}"), write_error=err)
         except Exception as err:  # any other error: its status records why
             return _failed(out, f"{type(err).__name__}: {err}", traceback.format_exc())
         write_run_status(out, "done", None)
     return SingleRun(value=summary["cvar"]["value"])
 
 
-def _failed(out: Path, error: str, trace: str | None = None) -> SingleRun:
+def _failed(out: Path, error: str, trace: str | None = None, write_error: OSError | None = None) -> SingleRun:
     """A single run's failure: in status.json if the disk takes it, and for the CLI in any case."""
     with contextlib.suppress(OSError):
         write_run_status(out, "failed", error, trace)
-    return SingleRun(failure=error)
+    return SingleRun(failure=error, write_error=write_error)
+
+
+def write_failure(err: OSError, out: Path, then: str) -> str:
+    """One line for a failure to write into the run directory `out` at run time (a full disk, a directory removed):
+    the file (an error at the close of a file names none: then the directory), the cause, its fix, and `then`, what
+    to run once it is fixed."""
+    where = err.filename or f"into {out}"
+    return f"cannot write {where}: {err.strerror or err}; {remedy(err)}, then {then}"
 
 
 def run_hydra(args: list[str], capture: bool = False):
@@ -149,7 +155,7 @@ def run_composed(config: DictConfig, setup) -> SingleRun:
     built from it (riskplan.run.compose.compose_run): what `Hydra.run` does after composing, so the config is
     neither composed nor built a second time. The run's directory is hydra.run.dir; `.hydra/`, logging and
     callbacks are Hydra's. A failure outside the task (Hydra cannot write `.hydra/`: a full disk) is RunFailed,
-    one line."""
+    one line, with the OSError naming the file."""
     with open_dict(config.hydra):
         config.hydra.mode = RunMode.RUN
     stderr = sys.stderr  # the terminal's, for the progress bar, whatever Hydra does with its own output
@@ -171,6 +177,12 @@ def run_composed(config: DictConfig, setup) -> SingleRun:
         )
         callbacks.on_run_end(config=config, config_name="config", job_return=done)
         return done.return_value  # raises what the task raised (it records its own failures)
+    except OSError as err:  # Hydra's own writes before the task: app.log, then .hydra/'s files
+        if not err.filename:  # a write to an open file: the last of .hydra/'s files begun (run_job's order)
+            files = Path(str(config.hydra.run.dir)) / str(config.hydra.output_subdir)
+            begun = [files / name for name in HYDRA_FILES if (files / name).exists()]
+            err = OSError(err.errno, err.strerror, str(begun[-1] if begun else files))
+        raise RunFailed(f"{type(err).__name__}: {err}", err) from None
     except Exception as err:
         raise RunFailed(f"{type(err).__name__}: {err}") from None
     finally:
@@ -227,8 +239,16 @@ def _restore_logging(state: dict) -> None:
         logger.propagate = propagate
 
 
+HYDRA_FILES = ("config.yaml", "hydra.yaml", "overrides.yaml")  # in the order run_job writes them, in place
+
+
 class RunFailed(RuntimeError):
-    """Hydra stopped a single run outside the task (it could not write the run directory)."""
+    """Hydra stopped a single run outside the task (it could not write the run directory); `write_error`: the
+    OSError that stopped it, naming the file, where it was one."""
+
+    def __init__(self, message: str, write_error: OSError | None = None) -> None:
+        super().__init__(message)
+        self.write_error = write_error
 
 
 def _last_error(text: str) -> str:

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import errno
+import io
 import json
+import os
 import re
+import stat
 import warnings
 from dataclasses import dataclass, field
 from html import escape
@@ -11,12 +15,17 @@ from pathlib import Path
 
 import pandas as pd
 import yaml
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import Footer, Metadata, MetadataIndex, SummaryOffset
+from mcap.stream_reader import StreamReader
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from riskplan.config.typed import register_metres
 from riskplan.run.columns import read_parquet
 from riskplan.run.log_reader import read_log
+from riskplan.run.record import MAGIC
 from riskplan.run.run_files import CONFIG, RUN_LOG, SUMMARY, TABLES, is_run_dir, other_output, table_file
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import shown_bytes, undecoded
@@ -85,7 +94,7 @@ def find_runs(paths: list[Path]) -> list[Path]:
     for root in paths:
         root = Path(root)
         if not root.exists():
-            raise BadInput(str(root), "does not exist; give a run, sweep or reproduce directory")
+            raise BadInput(str(root), f"{_absent(root)}; give a run, sweep or reproduce directory")
         here = sorted(
             {p.parent for p in root.rglob(RUN_LOG)} | {p.parent.parent for p in root.rglob(CONFIG)}  # .hydra/'s
         )
@@ -106,6 +115,40 @@ def find_runs(paths: list[Path]) -> list[Path]:
     return sorted(dict.fromkeys(found))
 
 
+def _absent(root: Path) -> str:
+    """Why a path given to read does not exist: a symbolic link on it that loops or leads nowhere, or nothing."""
+    for part in (root, *root.parents):
+        if part.is_symlink() and not part.exists():
+            where = "is" if part == root else f"passes through {part},"
+            try:
+                os.stat(part)
+            except OSError as err:
+                if err.errno == errno.ELOOP:
+                    return f"{where} a symbolic link in a loop"
+            return f"{where} a symbolic link to {os.readlink(part)}, which does not exist"
+    return "does not exist"
+
+
+FILE_KINDS = (
+    (stat.S_ISDIR, "a folder"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISFIFO, "a pipe"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def _not_a_file(path: Path) -> str:
+    """What a path that should be a file is instead: 'a symbolic link to /dev/zero, a character device'."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as err:
+        what = "in a loop" if err.errno == errno.ELOOP else "to nothing"
+        return f"a symbolic link {what}"
+    kind = next((name for test, name in FILE_KINDS if test(mode)), "not a regular file")
+    return f"a symbolic link to {os.readlink(path)}, {kind}" if path.is_symlink() else kind
+
+
 def load_run(path: str | Path) -> Run:
     """Load a run: parquet tables when all are there, else rebuilt from run.mcap (a killed run included)."""
     path = Path(path)
@@ -114,6 +157,9 @@ def load_run(path: str | Path) -> Run:
         raise BadInput(str(path), f"holds {other}, not a run; give a run directory")
     if not path.is_dir() or not is_run_dir(path):
         raise BadInput(str(path), "holds no run (no run.mcap or .hydra/config.yaml); give a run directory")
+    log_file = path / RUN_LOG
+    if (log_file.exists() or log_file.is_symlink()) and not log_file.is_file():
+        raise BadInput(str(log_file), f"is {_not_a_file(log_file)}; a run's log is a regular file")
     config = run_config(path)
     summary_file = path / SUMMARY
     if all((path / table_file(name)).is_file() for name in TABLES) and summary_file.is_file():
@@ -183,8 +229,8 @@ def run_config(path: Path) -> dict:
         at = f" at line {where.line + 1}, column {where.column + 1}" if where is not None else ""
         problem = getattr(err, "problem", None) or type(err).__name__
         raise BadInput(str(file), f"is not valid YAML ({problem}{at})") from None
-    if data is None:
-        return {}
+    if data is None:  # Hydra writes it in place: a full disk or a kill as the run began left it empty
+        raise BadInput(str(file), "is empty: the run never started; remove the directory and train again")
     if not isinstance(data, dict):
         raise BadInput(str(file), f"holds a {_yaml_kind(data)}, not a mapping of config keys")
     if _nodes(data) > CONFIG_NODES:
@@ -206,6 +252,49 @@ def run_config(path: Path) -> dict:
             str(file), f"has a value that cannot be resolved{f' at {key}' if key else ''} ({text})"
         ) from None
     return resolved if isinstance(resolved, dict) else {}
+
+
+def logged_config(path: Path) -> dict | None:
+    """The config run.mcap recorded last (an extended run records its new one after the first), read through the
+    summary section's index of its metadata: the footer, the summary offsets, the metadata index group and that one
+    record, a few small reads whatever the log's size. None for a log without that index (a killed run's has no
+    footer: read_log reads it whole), without a config record, or that is not a regular file."""
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):  # a pipe would block the open
+            return None
+        with open(path, "rb") as f:
+            footer_at = f.seek(0, io.SEEK_END) - len(MAGIC) - FOOTER_BYTES
+            footer = _record_at(f, footer_at)
+            if not isinstance(footer, Footer) or f.read() != MAGIC:
+                return None
+            start, end = footer.summary_start, footer.summary_offset_start or footer_at
+            for offset in _records(f, footer.summary_offset_start, footer_at):  # the index's group, if listed
+                if isinstance(offset, SummaryOffset) and offset.group_opcode == Opcode.METADATA_INDEX:
+                    start, end = offset.group_start, offset.group_start + offset.group_length
+            indexed = [r.offset for r in _records(f, start, end) if isinstance(r, MetadataIndex) and r.name == "config"]
+            record = _record_at(f, max(indexed)) if indexed else None
+            data = json.loads(record.metadata["json"]) if isinstance(record, Metadata) else None
+    except (OSError, ValueError, KeyError, RuntimeError, McapError):  # damaged: as if it had no index
+        return None
+    return data if isinstance(data, dict) else None
+
+
+FOOTER_BYTES = 29  # the footer record: its opcode, length and three fields
+
+
+def _record_at(f, offset: int):
+    """The MCAP record that starts at byte `offset` of the open file."""
+    f.seek(offset)
+    return next(StreamReader(f, skip_magic=True).records)
+
+
+def _records(f, start: int, end: int):
+    """The MCAP records from byte `start` to byte `end` of the open file (none for a `start` of 0: no section)."""
+    position = start
+    while start and position < end:
+        record = _record_at(f, position)
+        position = f.tell()
+        yield record
 
 
 CONFIG_BYTES = 1_000_000  # a run's config is a few KB

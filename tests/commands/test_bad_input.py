@@ -18,6 +18,7 @@ from riskplan import compose
 from riskplan.cli import app
 from riskplan.run.checkpoint import CHECKPOINT
 from riskplan.run.training import train
+from riskplan.util.lock import LOCK
 
 README = Path(__file__).resolve().parents[2] / "docs" / "robustness.md"
 BEGIN, END = "<!-- bad-input-table: begin -->", "<!-- bad-input-table: end -->"
@@ -76,6 +77,12 @@ def template(tmp_path_factory) -> Path:
     for name in ("summary.json", "metrics.parquet", "eval.parquet", "trajectories.parquet"):
         (killed / name).unlink(missing_ok=True)
     (root / "notes.txt").write_text("not a run\n")
+    never = runs / "never"  # a run whose start a full disk cut short: Hydra had begun its config, in place
+    (never / ".hydra").mkdir(parents=True)
+    (never / ".hydra" / "config.yaml").write_text("")
+    (never / "app.log").write_text("")
+    (never / LOCK).write_text("")  # its lock, which it took first
+    (root / "loop").symlink_to("loop")  # a symbolic link to itself
     # checkpoints and configs that cannot be this run's (resume validates them)
     for name, edit in (
         ("nan_theta", lambda c: {**c, "thetas": [[float("nan"), 1.0]]}),
@@ -107,7 +114,7 @@ def snapshot(root: Path) -> dict[str, tuple[int, int, bytes]]:
     return {
         str(p.relative_to(root)): (
             p.stat().st_size if p.is_file() else -1,
-            p.stat().st_mtime_ns,
+            p.lstat().st_mtime_ns,  # a link's own (one is a loop)
             p.read_bytes() if p.is_file() else b"",
         )
         for p in sorted(root.rglob("*"))
@@ -122,7 +129,7 @@ def pattern(expected: str) -> re.Pattern:
 @pytest.mark.parametrize("number, what, argv, expected", ROWS, ids=[f"{r[0]}-{r[1]}" for r in ROWS])
 def test_bad_input(template, tmp_path, monkeypatch, number, what, argv, expected):
     scratch = tmp_path / "scratch"
-    shutil.copytree(template, scratch)
+    shutil.copytree(template, scratch, symlinks=True)  # links as links (one is a loop)
     monkeypatch.chdir(scratch)
     before = snapshot(scratch)
 

@@ -96,6 +96,20 @@ def test_a_sweep_job_is_left_to_its_sweep(tmp_path):
     assert files(job) == before
 
 
+def test_a_run_whose_config_is_empty_never_started_and_says_so(tmp_path):
+    """What Hydra leaves when the disk is full as a run begins (it writes .hydra/ in place): an empty config, which
+    read as {} gave `world.sources: no sources; ...`."""
+    out = tmp_path / "never"
+    (out / ".hydra").mkdir(parents=True)
+    (out / ".hydra" / "config.yaml").write_text("")
+    (out / "app.log").write_text("")
+    before = files(out)
+    assert refused(resume(out)) == (
+        f"{out / '.hydra' / 'config.yaml'}: is empty: the run never started; remove the directory and train again"
+    )
+    assert files(out) == before
+
+
 # ------------------------------------------------------------------------------ the overrides of a resume
 def test_iterations_are_read_as_a_fresh_train_reads_them(tmp_path):
     """010 is 10, as Hydra reads it for `riskplan train train.iterations=010`, not YAML 1.1's octal 8."""

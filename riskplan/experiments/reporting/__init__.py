@@ -116,14 +116,9 @@ def check_reportable(collected, paths: list[Path]) -> None:
         return
     first = collected.broken[0]
     more = f" ({len(collected.broken) - 1} more skipped)" if len(collected.broken) > 1 else ""
-    again = (
-        "compute it again (riskplan landscape --out DIR)"
-        if first.reason.startswith("landscape: ")
-        else "resume it (riskplan train --resume DIR) or let it finish"
-    )
+    again = f"; {first.remedy}, then report it" if first.remedy else ""  # a damaged run's reason says what to do
     raise BadInput(
-        ", ".join(str(p) for p in paths),
-        f"holds no run that can be reported: {first.path} {first.reason}{more}; {again}, then report it",
+        ", ".join(str(p) for p in paths), f"holds no run that can be reported: {first.path} {first.reason}{more}{again}"
     )
 
 

@@ -34,10 +34,11 @@ from riskplan.experiments.landscape import is_landscape_dir, load_landscape
 from riskplan.experiments.reporting.labels import MISSING, hashable, label_groups
 from riskplan.experiments.reporting.parallel import Progress, shared_map
 from riskplan.experiments.study_registry import STUDIES
-from riskplan.experiments.sweep_worker import HOW_KEYS, distinct
+from riskplan.experiments.sweep_worker import HOW_KEYS, distinct, read_status
 from riskplan.run.metrics_rows import AVERAGE
-from riskplan.run.results import Run, find_runs, load_run
-from riskplan.run.run_files import STATUS, TABLES, table_file
+from riskplan.run.results import Run, find_runs, load_run, logged_config
+from riskplan.run.run_directory import differing
+from riskplan.run.run_files import CONFIG, RUN_LOG, STATUS, TABLES, table_file
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
 
@@ -48,6 +49,7 @@ MEASURE_ORDER = MEASURES
 # Okabe-Ito palette (colour-blind safe); the paper's pair is blue (risk-neutral) and black (risk-averse).
 PALETTE = ("#0072B2", "#000000", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#E69F00", "#999999")
 SCHEDULE_DEFAULTS = {f"risk.schedule.{k}": v for k, v in dataclasses.asdict(ScheduleConf()).items()}
+RESUME = "resume it (riskplan train --resume DIR) or let it finish"  # what makes a run cut short reportable
 
 
 @dataclass
@@ -107,10 +109,11 @@ class RunInfo:
 
 @dataclass
 class Broken:
-    """A run directory that could not be used, and why."""
+    """A run directory that could not be used, why, and what would make it usable ('' where the reason says)."""
 
     path: Path
     reason: str
+    remedy: str = ""
 
 
 @dataclass
@@ -313,12 +316,15 @@ def collect(paths: list[Path], progress: Progress | None = None) -> Collection:
             try:
                 landscapes.append(load_landscape(path))
             except Exception as err:
-                broken.append(Broken(path, f"landscape: {_reason(err, path)}"))
+                broken.append(
+                    Broken(path, f"landscape: {_reason(err, path)}", "compute it again (riskplan landscape --out DIR)")
+                )
             continue
-        info, problem = results[path]
+        info, problem, unfinished = results[path]
         if info is None:
             writer = lock.holder(path)  # a log cut short while its run still trains is no damage
-            broken.append(Broken(path, f"is still running (pid {writer}): {problem}" if writer else problem))
+            reason = f"is still running (pid {writer}): {problem}" if writer else problem
+            broken.append(Broken(path, reason, _remedy(path) if unfinished or writer else ""))
         else:
             loaded.append((info, study_of(path, folders)))
     pools: dict[str | None, list[RunInfo]] = {}  # the paper's runs (None) and each study's, pooled apart
@@ -376,29 +382,39 @@ def study_of(path: Path, folders: dict[Path, str]) -> str | None:
     return None
 
 
-def _load(path: Path) -> tuple[RunInfo | None, str]:
-    """Load one run; (None, reason) when it is broken, partial or failed."""
+def _remedy(path: Path) -> str:
+    """What makes a run that stopped short reportable: a sweep's job (its status.json holds the sweep's fingerprint
+    of it, config_sha) is resumed by its sweep, as `riskplan train --resume` says when it refuses one."""
+    status = read_status(path)
+    if isinstance(status, dict) and "config_sha" in status:
+        return f"let its sweep finish, or run the sweep again with hydra.sweep.dir={path.parent} (it resumes its jobs)"
+    return RESUME
+
+
+def _load(path: Path) -> tuple[RunInfo | None, str, bool]:
+    """Load one run; (None, reason, unfinished) when it is broken, partial or failed, `unfinished` when a resume
+    could finish it (killed, still running or failed, rather than damaged)."""
     failed = _failed_status(path)
     try:
         run = load_run(path)
     except Exception as err:
-        return None, failed or _reason(err, path)
+        return None, failed or _reason(err, path), bool(failed)
     if not run.complete:
         reason = run.problem or "incomplete run"
-        return None, f"{failed}; {reason}" if failed else reason
+        return None, f"{failed}; {reason}" if failed else reason, True
     if failed:
-        return None, failed
+        return None, failed, True
     missing = [name for name in ("metrics", "eval") if getattr(run, name) is None or getattr(run, name).empty]
     if missing:
         what = {"metrics": "metrics table (no iterations)", "eval": "eval table (no evaluation episodes)"}
-        return None, "empty " + " and ".join(what[m] for m in missing)
+        return None, "empty " + " and ".join(what[m] for m in missing), False
     if not run.config:
-        return None, "no config (.hydra/config.yaml missing and none in run.mcap)"
+        return None, "no config (.hydra/config.yaml missing and none in run.mcap)", False
     if run.summary is not None and not isinstance(run.summary, dict):
-        return None, "summary.json is not a JSON object (it was not written by riskplan)"
-    problem = config_problem(run.config)
+        return None, "summary.json is not a JSON object (it was not written by riskplan)", False
+    problem = config_problem(run.config) or _edited(path, run.config)  # a typo's own line first: the key it names
     if problem:
-        return None, problem
+        return None, problem, False
     rebuilt = not all((path / table_file(name)).is_file() for name in TABLES) or bool(
         run.problem and "rebuilt" in run.problem
     )
@@ -410,13 +426,13 @@ def _load(path: Path) -> tuple[RunInfo | None, str]:
         run.eval = info.eval_of()
         usable = not run.eval.empty and not info.metrics_of().empty
     except (AttributeError, KeyError) as err:
-        return None, f"tables lack a column: {err}"
+        return None, f"tables lack a column: {err}", False
     if not usable:
-        return None, f"no metrics or evaluation rows for the headline policy (robot {info.headline})"
-    return info, ""
+        return None, f"no metrics or evaluation rows for the headline policy (robot {info.headline})", False
+    return info, "", False
 
 
-def _load_all(paths: list[Path], progress: Progress | None = None) -> dict[Path, tuple[RunInfo | None, str]]:
+def _load_all(paths: list[Path], progress: Progress | None = None) -> dict[Path, tuple[RunInfo | None, str, bool]]:
     """_load of each run directory, on all CPUs (reading the tables and checking the configs is a fifth of a
     reproduction's report): a condition's seeds at a time, so that one process checks their config once."""
     conditions: dict[tuple, list[Path]] = {}
@@ -446,6 +462,28 @@ def _size(path: Path) -> int:
         return sum(file.stat().st_size for file in path.iterdir() if file.is_file())
     except OSError:
         return 0
+
+
+def _edited(path: Path, config: dict) -> str:
+    """Why a run's .hydra/config.yaml is not the config its run.mcap recorded last (edited or damaged since: its run
+    would be reported as another condition's, or as another seed), or ''. A key the log lacks is one a later
+    riskplan added, no difference (riskplan.run.run_directory.differing, as a resume checks it)."""
+    logged = logged_config(path / RUN_LOG) if (path / CONFIG).is_file() and (path / RUN_LOG).is_file() else None
+    changed = differing(logged, config) if logged is not None else []
+    if not changed:
+        return ""
+    key, more = changed[0], f" (and {len(changed) - 1} more)" if len(changed) > 1 else ""
+    return (
+        f"{CONFIG}: differs from the config {RUN_LOG} recorded for this run in {key} ({_at(config, key)!r} here, "
+        f"{_at(logged, key)!r} recorded){more}; restore it, or train a new run"
+    )
+
+
+def _at(config: Any, key: str) -> Any:
+    """The value at a dotted key of a nested config (None where it is missing)."""
+    for part in key.split("."):
+        config = config.get(part) if isinstance(config, dict) else None
+    return config
 
 
 def _failed_status(path: Path) -> str:
