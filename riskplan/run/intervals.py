@@ -14,15 +14,18 @@ REPORT_BETAS = (0.05, 0.1, 0.2)
 
 
 def bootstrap_intervals(z: np.ndarray, beta: float, resamples: int, seed: int) -> dict[str, dict[str, float]]:
-    """Point value and 95% percentile-bootstrap interval of mean, VaR_beta, CVaR_beta and CVaR at REPORT_BETAS."""
-    z = np.sort(np.asarray(z, dtype=float))
+    """Point value and 95% percentile-bootstrap interval of mean, VaR_beta, CVaR_beta and CVaR at REPORT_BETAS. The
+    point values are of z in its order, bit for bit those riskplan.risk and numpy give of the episodes (eval.parquet,
+    the report): summed sorted, they differed in the last digit."""
+    given = np.asarray(z, dtype=float)
+    z = np.sort(given)
     if not 0 < z.size < 2**31:  # int32 counts, 32-bit index draws
         raise ValueError(f"bootstrap needs 1 to 2^31 - 1 values, got {z.size}")
     betas = np.array([beta, *REPORT_BETAS])
     tails = np.array([tail_count(b, z.size) for b in betas], dtype=np.int64)
     stats = np.empty((resamples, 2 + len(betas)))
     _bootstrap(z, betas, tails, np.uint64(stream_key(seed, BOOTSTRAP)), stats)
-    point = [float(z.mean()), value_at_risk(z, beta)] + [cvar(z, b) for b in betas]
+    point = [float(given.mean()), value_at_risk(given, beta)] + [cvar(given, b) for b in betas]
     low, high = np.percentile(stats, [2.5, 97.5], axis=0)
     names = ["mean", "value_at_risk", "cvar"] + [f"cvar_{b:g}" for b in REPORT_BETAS]
     return {name: {"value": point[i], "low": float(low[i]), "high": float(high[i])} for i, name in enumerate(names)}
