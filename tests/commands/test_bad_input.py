@@ -82,6 +82,8 @@ def template(tmp_path_factory) -> Path:
     (never / ".hydra" / "config.yaml").write_text("")
     (never / "app.log").write_text("")
     (never / LOCK).write_text("")  # its lock, which it took first
+    (runs / "claimed").mkdir()  # a run killed as it claimed its directory: its lock alone
+    (runs / "claimed" / LOCK).write_text("")
     (root / "loop").symlink_to("loop")  # a symbolic link to itself
     # checkpoints and configs that cannot be this run's (resume validates them)
     for name, edit in (
