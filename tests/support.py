@@ -213,6 +213,21 @@ def resume_cli(out: Path, *overrides: str, **env: str) -> subprocess.CompletedPr
 
 
 @contextlib.contextmanager
+def mounted(target: Path, *options: str):
+    """A real mount at target (tmpfs or a read-only bind), unmounted afterwards; skip when mounting is refused."""
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs or a read-only bind needs root")
+    target.mkdir(parents=True, exist_ok=True)
+    done = subprocess.run(["mount", *options, str(target)], capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.skip(f"mount refused here: {done.stderr.strip()}")
+    try:
+        yield target
+    finally:
+        subprocess.run(["umount", "-l", str(target)], capture_output=True)
+
+
+@contextlib.contextmanager
 def held_by_another_process(directory: Path):
     """Another process holds DIR's writers' lock (riskplan.util.lock) for the block, as a running riskplan would;
     yields its pid."""

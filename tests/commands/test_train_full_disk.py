@@ -7,12 +7,11 @@ The mounts need root; without it the tests are skipped, saying why."""
 from __future__ import annotations
 
 import contextlib
-import os
 import subprocess
 from pathlib import Path
 
 import pytest
-from support import TINY, files, train_cli
+from support import TINY, files, mounted, train_cli
 
 pytestmark = pytest.mark.slow  # `riskplan train` in subprocesses, on a mounted tmpfs
 
@@ -20,17 +19,9 @@ pytestmark = pytest.mark.slow  # `riskplan train` in subprocesses, on a mounted 
 @contextlib.contextmanager
 def full_tmpfs(target: Path):
     """A 300k tmpfs at target, filled to the last byte by a file `fill`; unmounted afterwards."""
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root")
-    target.mkdir(parents=True, exist_ok=True)
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=300k", "tmpfs", str(target)], capture_output=True)
-    if done.returncode != 0:
-        pytest.skip(f"mount refused here: {done.stderr.decode().strip()}")
-    try:
+    with mounted(target, "-t", "tmpfs", "-o", "size=300k", "tmpfs"):
         subprocess.run(["dd", "if=/dev/zero", f"of={target / 'fill'}", "bs=4k"], capture_output=True)
         yield target
-    finally:
-        subprocess.run(["umount", "-l", str(target)], capture_output=True)
 
 
 def test_a_full_disk_at_the_start_is_the_write_errors_line_and_leaves_no_run(tmp_path):

@@ -6,14 +6,13 @@ space is freed the same export finishes. The mounts need root; without it the te
 
 from __future__ import annotations
 
-import contextlib
 import os
 import re
 import subprocess
 from pathlib import Path
 
 import pytest
-from support import TINY, run_cli
+from support import TINY, mounted, run_cli
 from typer.testing import CliRunner
 
 from riskplan import compose, train
@@ -33,18 +32,8 @@ def runs(tmp_path_factory) -> Path:
     return root
 
 
-@contextlib.contextmanager
 def tmpfs(target: Path, size: str):
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root")
-    target.mkdir(parents=True, exist_ok=True)
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(target)], capture_output=True)
-    if done.returncode != 0:
-        pytest.skip(f"mount refused here: {done.stderr.decode().strip()}")
-    try:
-        yield target
-    finally:
-        subprocess.run(["umount", "-l", str(target)], capture_output=True)
+    return mounted(target, "-t", "tmpfs", "-o", f"size={size}", "tmpfs")
 
 
 def free(disk: Path) -> int:

@@ -9,7 +9,6 @@ tests/config/test_hydra_safety.py.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import shutil
@@ -27,6 +26,7 @@ from support import (
     child_env,
     files,
     kill_after_iteration,
+    mounted,
     resume_cli,
     riskplan_command,
     run_cli,
@@ -59,21 +59,6 @@ def strict_json(text: str):
         raise ValueError(f"non-finite number {token} in JSON")
 
     return json.loads(text, parse_constant=refuse)
-
-
-@contextlib.contextmanager
-def mounted(target: Path, *options: str):
-    """A real mount at target (tmpfs or a read-only bind), unmounted afterwards; skip when mounting is refused."""
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs or a read-only bind needs root")
-    target.mkdir(parents=True, exist_ok=True)
-    done = subprocess.run(["mount", *options, str(target)], capture_output=True, text=True)
-    if done.returncode != 0:
-        pytest.skip(f"mount refused here: {done.stderr.strip()}")
-    try:
-        yield target
-    finally:
-        subprocess.run(["umount", "-l", str(target)], capture_output=True)
 
 
 @pytest.fixture(scope="module")
