@@ -276,7 +276,7 @@ def test_hydra_directories_are_refused_pointing_to_out(tmp_path, monkeypatch, ke
         (
             ["--resume", "x"],
             "error: option '--resume': is not known to riskplan landscape; give Hydra overrides (key=value) and "
-            "--out, --points, --episodes, --range, --axes",
+            "--out, --points, --episodes, --range, --axes, -cd",
         ),
     ],
 )
