@@ -173,7 +173,7 @@ def _resume(run_dir: Path, args: list[str]) -> None:
         raise BadInput(
             str(run_dir), f"holds {other}, not a run; give the directory of a riskplan train run to --resume"
         )
-    if run_dir.is_dir() and {entry.name for entry in run_dir.iterdir()} <= {LOCK}:  # killed as it claimed it
+    if run_dir.is_dir() and {entry.name for entry in run_dir.iterdir()} == {LOCK}:  # killed as it claimed it
         raise BadInput(
             str(run_dir),
             f"holds no run: its run was stopped before it wrote its config, so there is nothing to resume; train it "
