@@ -21,6 +21,7 @@ from riskplan.commands.common import (
     with_config_dirs,
 )
 from riskplan.experiments.output_manifest import WriteFailed, claim_output
+from riskplan.run.run_files import RUN_LOG
 from riskplan.util.errors import BadInput, one_line
 
 
@@ -89,6 +90,12 @@ def _print_report(result) -> None:
     for r in collected.runs:
         if r.rebuilt:
             typer.echo(f"rebuilt tables of {r.path} from run.mcap")
+        if r.log_cut:
+            typer.echo(
+                f"warning: {r.path / RUN_LOG} is cut short (it lacks the end every finished log has); the run is "
+                f"reported from its tables, but Foxglove cannot open the log whole",
+                err=True,
+            )
     for name, why in result.skipped.items():  # a figure that failed is a fault to see here, not only in the page
         if why.startswith("failed:"):
             typer.echo(one_line(f"warning: figure {name} {why}"), err=True)

@@ -426,12 +426,12 @@ def check_flags(overrides: list) -> None:
     would turn it into true before any later check could see it, so this looks at the override itself."""
     for override in overrides:
         hint = None if override.is_delete() or override.is_hydra_override() else hint_at(override.key_or_group)
-        if not _holds_flag(hint):  # most keys: nothing to enumerate (a sweep's range may have no end)
+        if not holds_flag(hint):  # most keys: nothing to enumerate (a sweep's range may have no end)
             continue
         try:
             values = override.sweep_iterator() if override.is_sweep_override() else [override.value()]
             for value in itertools.islice(values, FLAGS_CHECKED):
-                _check_flag(value, hint, override.key_or_group)
+                check_flag(value, hint, override.key_or_group)
         except HydraException:  # glob(...) and interval(...) enumerate nothing here; no boolean key takes them
             continue
 
@@ -439,17 +439,17 @@ def check_flags(overrides: list) -> None:
 FLAGS_CHECKED = 10_000  # a sweep's values checked at most (a range of a boolean key past 1 fails at its 3rd)
 
 
-def _holds_flag(hint: typing.Any) -> bool:
+def holds_flag(hint: typing.Any) -> bool:
     """Whether a value of the schema type `hint` is or holds a boolean."""
     hint = _unwrapped(hint)
     if hint is bool:
         return True
     if dataclasses.is_dataclass(hint):
-        return any(_holds_flag(h) for h in _hints(hint).values())
-    return typing.get_origin(hint) is list and _holds_flag(typing.get_args(hint)[0])
+        return any(holds_flag(h) for h in _hints(hint).values())
+    return typing.get_origin(hint) is list and holds_flag(typing.get_args(hint)[0])
 
 
-def _check_flag(value: typing.Any, hint: typing.Any, key: str) -> None:
+def check_flag(value: typing.Any, hint: typing.Any, key: str) -> None:
     """check_flags for one value of the schema type `hint`, descending into the lists and mappings it holds."""
     if hint is bool:
         number = value if isinstance(value, int) and not isinstance(value, bool) else None
@@ -459,10 +459,10 @@ def _check_flag(value: typing.Any, hint: typing.Any, key: str) -> None:
             raise BadInput(f"key '{key}'", f"got {value!r}; expected true or false (or 1 or 0)")
     elif dataclasses.is_dataclass(hint) and isinstance(value, collections.abc.Mapping):
         for name, item in value.items():
-            _check_flag(item, _unwrapped(_hints(hint).get(name)), f"{key}.{name}")
+            check_flag(item, _unwrapped(_hints(hint).get(name)), f"{key}.{name}")
     elif typing.get_origin(hint) is list and isinstance(value, list):
         for i, item in enumerate(value):
-            _check_flag(item, _unwrapped(typing.get_args(hint)[0]), f"{key}.{i}")
+            check_flag(item, _unwrapped(typing.get_args(hint)[0]), f"{key}.{i}")
 
 
 def _dotted(key: str) -> str:

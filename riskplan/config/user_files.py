@@ -9,6 +9,7 @@ from pathlib import Path
 
 import yaml
 
+from riskplan.config.typed import check_flag, hint_at, holds_flag
 from riskplan.util.errors import BadInput
 
 MAX_BYTES = 10_000_000  # a config file's size: far above any experiment, far below what composes in minutes
@@ -26,7 +27,7 @@ def check_config_files(folder: Path) -> None:
     valid YAML, gives a key twice, holds a tag that makes Python objects, or expands (through its aliases) past
     MAX_NODES values."""
     for path in config_files(folder):
-        _check_file(path)
+        _check_file(path, folder)
 
 
 def config_files(folder: Path) -> list[Path]:
@@ -64,7 +65,7 @@ def _folder_id(path: str) -> tuple[int, int] | None:
     return info.st_dev, info.st_ino
 
 
-def _check_file(path: Path) -> None:
+def _check_file(path: Path, folder: Path) -> None:
     size = path.stat().st_size
     if size > MAX_BYTES:
         raise BadInput(str(path), f"is {size / 1e6:.0f} MB; a config file holds at most {MAX_BYTES / 1e6:.0f} MB")
@@ -90,6 +91,7 @@ def _check_file(path: Path) -> None:
         raise BadInput(str(path), f"holds {what} at its top level; a config file is a mapping of keys, e.g. seed: 3")
     if root is not None:
         _check_nodes(root, path)
+        _check_flags(root, path, _package(text, path, folder))
 
 
 def _check_header(text: str, path: Path) -> None:
@@ -108,6 +110,34 @@ def _check_header(text: str, path: Path) -> None:
                 f"has the header '{line}'; a package is _global_, _group_ or a dotted key such as world.sources "
                 f"(e.g. # @package _global_)",
             )
+
+
+def _package(text: str, path: Path, folder: Path) -> str:
+    """The dotted key the file's values land under, as Hydra places them: its `# @package` header, else its group
+    (`world/mine.yaml` -> world); a file at the folder's top level is global."""
+    group = ".".join(path.parent.relative_to(folder).parts)
+    for line in filter(None, map(str.strip, text.splitlines())):
+        if not HEADER.match(line):
+            break
+        words = line.lstrip("#").split()
+        if words[0] == "@package":
+            return {"_global_": "", "_group_": group}.get(words[1], words[1])
+    return group
+
+
+def _check_flags(root: yaml.MappingNode, path: Path, package: str) -> None:
+    """A boolean key given an integer other than 0 or 1 (`stop_at_source: 2`), as for an override (check_flags):
+    Hydra's merge onto the schema would make it true."""
+    for key, value in root.value:
+        if not isinstance(key, yaml.ScalarNode) or key.value == "defaults":
+            continue
+        full = f"{package}.{key.value}" if package else key.value
+        hint = hint_at(full)
+        if holds_flag(hint):
+            try:
+                check_flag(yaml.safe_load(yaml.serialize(value)), hint, full)
+            except BadInput as err:
+                raise BadInput(str(path), f"line {key.start_mark.line + 1}: {err.where}: {err.problem}") from None
 
 
 def _check_nodes(root: yaml.Node, path: Path) -> None:

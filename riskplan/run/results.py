@@ -279,6 +279,21 @@ def logged_config(path: Path) -> dict | None:
     return data if isinstance(data, dict) else None
 
 
+def log_cut_short(path: Path) -> bool:
+    """Whether a run's log lacks the MCAP magic that ends every closed log: a finished run's log cut short since (a
+    copy or a disk that failed), whose tables still hold the run but which Foxglove cannot open whole."""
+    try:
+        with open(path, "rb") as f:
+            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode) or f.seek(0, io.SEEK_END) < len(MAGIC):
+                return True
+            f.seek(-len(MAGIC), io.SEEK_END)
+            return f.read() != MAGIC
+    except FileNotFoundError:  # a run reported from its tables alone: no log to open
+        return False
+    except OSError:
+        return True
+
+
 FOOTER_BYTES = 29  # the footer record: its opcode, length and three fields
 
 

@@ -85,6 +85,8 @@ def template(tmp_path_factory) -> Path:
     (runs / "claimed").mkdir()  # a run killed as it claimed its directory: its lock alone
     (runs / "claimed" / LOCK).write_text("")
     (root / "loop").symlink_to("loop")  # a symbolic link to itself
+    (root / "slips" / "world").mkdir(parents=True)  # a -cd folder whose world file gives a boolean key 2
+    (root / "slips" / "world" / "slip.yaml").write_text("stop_at_source: 2\n")
     # checkpoints and configs that cannot be this run's (resume validates them)
     for name, edit in (
         ("nan_theta", lambda c: {**c, "thetas": [[float("nan"), 1.0]]}),

@@ -85,3 +85,42 @@ def test_the_command_line_names_the_file_and_composition_errors_name_the_file_to
     result = CliRunner().invoke(app, ["check", "-cd", str(folder), "experiment=odd"])
     assert result.exit_code == 2 and result.stderr.startswith("error: key 'train.lr': unknown key 'lr'; valid keys ")
     assert result.stderr.endswith(" (in the config file experiment/odd.yaml)\n")
+
+
+@pytest.mark.parametrize(
+    ("file", "text", "problem"),
+    [
+        ("world/mine.yaml", "stop_at_source: 2\n", "line 1: key 'world.stop_at_source': got 2; expected true or false"),
+        ("experiment/mine.yaml", HEAD + "train:\n  baseline: -1\n", "line 3: key 'train.baseline': got -1;"),
+        ("mine.yaml", "defaults:\n  - _self_\ntrain: {baseline: '7'}\n", "line 3: key 'train.baseline': got '7';"),
+        (
+            "places/mine.yaml",
+            "# @package world\nregions:\n  - {rect: [0, 0, 1, 1], risky: 2}\n",
+            "line 2: key 'world.regions.0.risky': got 2;",
+        ),
+    ],
+)
+def test_a_boolean_given_another_integer_in_a_file_is_refused_as_on_the_command_line(tmp_path, file, text, problem):
+    # Hydra's merge onto the schema turns any integer into true, so the file is the last place the slip shows
+    path = tmp_path / file
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(text)
+    with pytest.raises(BadInput) as refused:
+        check_config_files(tmp_path)
+    assert refused.value.where == str(path) and refused.value.problem.startswith(problem)
+
+
+@pytest.mark.parametrize(
+    ("file", "text"),
+    [
+        ("world/mine.yaml", "stop_at_source: 0\nsize: [5, 5]\n"),
+        ("experiment/mine.yaml", HEAD + "train: {baseline: 1}\n"),
+        ("experiment/other.yaml", "train: {baseline: 5}\n"),  # lands under experiment, a string key: not a flag
+        ("risk/mine.yaml", "# @package _global_\nworld: {stop_at_source: false}\n"),
+    ],
+)
+def test_booleans_written_as_hydra_reads_them_pass(tmp_path, file, text):
+    path = tmp_path / file
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(text)
+    check_config_files(tmp_path)

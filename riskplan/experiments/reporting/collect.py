@@ -36,7 +36,7 @@ from riskplan.experiments.reporting.parallel import Progress, shared_map
 from riskplan.experiments.study_registry import STUDIES
 from riskplan.experiments.sweep_worker import HOW_KEYS, distinct, read_status
 from riskplan.run.metrics_rows import AVERAGE
-from riskplan.run.results import Run, find_runs, load_run, logged_config
+from riskplan.run.results import Run, find_runs, load_run, log_cut_short, logged_config
 from riskplan.run.run_directory import differing
 from riskplan.run.run_files import CONFIG, RUN_LOG, STATUS, TABLES, table_file
 from riskplan.util import lock
@@ -60,6 +60,7 @@ class RunInfo:
     flat: dict[str, Any]
     rebuilt: bool  # tables were rebuilt from run.mcap
     group: Group | None = None
+    log_cut: bool = False  # a finished run's run.mcap was cut short since: its tables are what is reported
 
     @property
     def path(self) -> Path:
@@ -419,7 +420,7 @@ def _load(path: Path) -> tuple[RunInfo | None, str, bool]:
         run.problem and "rebuilt" in run.problem
     )
     flat = {k: v for k, v in flatten(as_compared(run.config)).items() if k not in IGNORED_KEYS}
-    info = RunInfo(run, flat, rebuilt)
+    info = RunInfo(run, flat, rebuilt, log_cut=not rebuilt and log_cut_short(path / RUN_LOG))
     try:
         # the report reads the headline policy's evaluation alone: a team's other robots' episodes (eight times
         # as many rows) are left on disk, not held and sent between the processes that load the runs

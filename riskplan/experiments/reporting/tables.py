@@ -34,6 +34,7 @@ from riskplan.experiments.reporting.labels import measure_name
 from riskplan.experiments.reporting.stats import seed_interval, wilson
 from riskplan.run.evaluation import degenerate_findings
 from riskplan.run.intervals import bootstrap_intervals, objective_interval
+from riskplan.run.run_files import RUN_LOG
 
 FIGURES = ("mean", "cvar", "value_at_risk")
 MAX_BOOTSTRAP = 1000
@@ -201,7 +202,7 @@ def used_row(r, group: str) -> dict:
         "status": "used",
         "group": group,
         "seed": r.seed,
-        "note": "tables rebuilt from run.mcap" if r.rebuilt else "",
+        "note": "tables rebuilt from run.mcap" if r.rebuilt else f"{RUN_LOG} cut short" if r.log_cut else "",
         "iterations": int(r.run.metrics.iteration.max()) + 1,
         "mean": v["mean"],
         "cvar": v["cvar"],

@@ -2,7 +2,8 @@
 .hydra/config.yaml edited or damaged since its run.mcap recorded the run's config (a β=0.1 run reported as β=0.3, a
 seed changed past the duplicate check), one left empty by a run that never started, a run.mcap that links to a
 device, an input that is a symbolic link in a loop, and a sweep's job cut short (its remedy is its sweep, not
-`riskplan train --resume`). Each is skipped, or refused, in one line. run.mcap's config is read through its
+`riskplan train --resume`). Each is skipped, or refused, in one line; a finished run's run.mcap cut short since is
+reported from its tables, with a warning. run.mcap's config is read through its
 summary's metadata index: a few small reads, the last config record (an extended run's) included."""
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import os
 import shutil
 from pathlib import Path
 
+import pandas as pd
 import pytest
 from support import TINY, files
 from typer.testing import CliRunner
@@ -154,3 +156,17 @@ def test_the_config_read_from_the_log_is_its_last_record(mine):
     assert logged_config(run / "run.mcap")["train"]["iterations"] == 4  # the extension re-recorded it
     (listed,) = collect_module.collect([run]).runs
     assert listed.config["train"]["iterations"] == 4
+    assert not listed.log_cut  # the extension closed its log as a first run does
+
+
+def test_a_finished_runs_log_cut_short_since_is_reported_from_its_tables_with_a_warning(mine, tmp_path):
+    log = mine / "seed=1" / "run.mcap"
+    log.write_bytes(log.read_bytes()[:-100])  # a copy or a disk that failed: the tables are whole
+    result = report(str(mine), "--out", str(tmp_path / "report"))
+    assert result.exit_code == 0, result.output
+    assert result.stderr.splitlines() == [
+        f"warning: {log} is cut short (it lacks the end every finished log has); the run is reported from its "
+        f"tables, but Foxglove cannot open the log whole"
+    ]
+    notes = pd.read_csv(tmp_path / "report" / "runs.csv").set_index("path").note.fillna("")
+    assert notes.to_dict() == {str(mine / "seed=0"): "", str(mine / "seed=1"): "run.mcap cut short"}
