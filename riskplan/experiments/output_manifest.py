@@ -205,10 +205,14 @@ class Output:
         try:
             self._make()
             with lock.hold_lock(self.out, f"{self.kind} directory"):
-                self._check_unchanged()
-                yield self
+                try:
+                    self._check_unchanged()
+                    yield self
+                except BaseException:
+                    self.abandon()  # under the lock: its file is this process's to remove
+                    raise
         except BaseException:
-            self.abandon()
+            self.abandon()  # outside the lock (refused, say): a lock file there is another's, and stays
             raise
 
     @contextlib.contextmanager
@@ -232,6 +236,9 @@ class Output:
             if not self.out.exists():
                 self.out.mkdir(parents=True)
                 self.created = True
+        except FileExistsError as err:  # another writer made it meanwhile: its lock then refuses one of the two
+            if not self.out.is_dir():
+                raise self._fail("", err) from None
         except OSError as err:
             raise self._fail("", err) from None
 
@@ -312,15 +319,22 @@ class Output:
             self._manifest(sorted(self.planned))
 
     def abandon(self) -> None:
-        """After a failure: a directory this run created and left empty is removed (its lock, and a manifest with
-        no file, too)."""
-        if self.created:
-            with contextlib.suppress(OSError):
-                left = set(os.listdir(self.out))
-                if left <= {MANIFEST, lock.LOCK}:
-                    for name in left:
-                        (self.out / name).unlink()
-                self.out.rmdir()
+        """After a failure: a directory this run created and left empty is removed, with what this run wrote there:
+        its manifest, and the lock file only while this process holds it. A writer that made the directory but lost
+        its lock to another (two runs into one new --out) leaves it, with the winner's lock and manifest, alone."""
+        if not self.created:
+            return
+        self.created = False  # once: later, the directory may be another writer's
+        mine = {MANIFEST} if self.begun else set()
+        with contextlib.suppress(OSError):
+            left = set(os.listdir(self.out))
+            if left - mine - {lock.LOCK}:
+                return
+            if lock.LOCK in left and not lock.remove_held(self.out):
+                return  # another process's lock: the directory is its now
+            for name in left & mine:
+                (self.out / name).unlink()
+            self.out.rmdir()
 
 
 @contextlib.contextmanager

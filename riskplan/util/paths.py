@@ -204,6 +204,8 @@ def atomic_path(path: Path | str, durable: bool = True):
     Readers see the old file or the new one, never half of one; a failed write (a full disk) leaves no temp file.
     `durable=False` skips the fsync: for a file that is written again whenever it is needed (a job's `.hydra/`
     files, a starting job's status), where a power cut may lose it but a crash of the process cannot tear it.
+    An OSError that names no file (a write, close or fsync that fails: a full disk) is given `path` as its
+    filename, so that its one line names the file, not only the directory.
     """
     path = Path(path)
     tmp = path.with_name(temp_name(path.name, os.getpid()))
@@ -213,9 +215,11 @@ def atomic_path(path: Path | str, durable: bool = True):
             with open(tmp, "rb+") as handle:
                 os.fsync(handle.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as err:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        if isinstance(err, OSError) and err.filename is None and err.errno is not None:
+            err.filename = str(path)  # not without an errno: str(err) would read "[Errno None] None: ..."
         raise
 
 
@@ -263,7 +267,12 @@ def replace_marked_dir(target: Path, marker: dict, fill) -> str:
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir()
         fill(tmp)
-        write_atomic(tmp / MARKER, json.dumps(marker, indent=2) + "\n")
+        try:
+            write_atomic(tmp / MARKER, json.dumps(marker, indent=2) + "\n")
+        except OSError as err:
+            if err.filename == str(tmp / MARKER):  # atomic_path named it in tmp, which goes; the caller names target
+                raise OSError(err.errno, err.strerror) from None  # (a filename once set prints even as None)
+            raise
         if existed:
             os.replace(target, trash)
         os.replace(tmp, target)

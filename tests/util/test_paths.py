@@ -1,15 +1,27 @@
-"""Output directories (riskplan.util.paths): directories claimed in the same second never collide. Read-only and
-full disks are in tests/run/test_run_safety.py and tests/experiments/test_output_safety.py."""
+"""Output directories (riskplan.util.paths): directories claimed in the same second never collide; a failed atomic
+write names its file. Read-only and full disks are in tests/run/test_run_safety.py and
+tests/experiments/test_output_safety.py."""
 
 from __future__ import annotations
 
+import errno
+import os
 from pathlib import Path
 
 import pytest
 
+from riskplan.experiments.hydra_app import write_failure
 from riskplan.run.run_files import FILES
 from riskplan.util.errors import BadInput
-from riskplan.util.paths import INSIDE, check_output_dir, claim_dir, temp_name
+from riskplan.util.paths import (
+    INSIDE,
+    atomic_path,
+    check_output_dir,
+    claim_dir,
+    replace_marked_dir,
+    temp_name,
+    write_atomic,
+)
 
 
 def test_two_sweeps_in_the_same_second_get_their_own_directories(tmp_path):
@@ -59,3 +71,50 @@ def test_a_directory_name_too_long_for_the_filesystem_is_one_line_before_anythin
 def test_the_margin_for_files_inside_holds_a_runs_longest_temp_file():
     longest = max(len(temp_name(Path(f.name).name, "1234567")) + len(Path(f.name).parent.as_posix()) for f in FILES)
     assert longest + 1 <= INSIDE  # a killed atomic write's temp file, with a pid of up to 7 digits
+
+
+def _no_space(*args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # as close() or fsync() raise it: naming no file
+
+
+@pytest.mark.parametrize("fails", ["close", "fsync"])
+def test_a_write_that_fails_at_close_or_fsync_names_the_file(tmp_path, monkeypatch, fails):
+    """Its one line names the file, not only the directory (`cannot write into DIR`)."""
+    target = tmp_path / "summary.json"
+    if fails == "close":
+        written = Path.write_text
+
+        def write_then_fail(self, *args, **kwargs):
+            written(self, *args, **kwargs)
+            _no_space()
+
+        monkeypatch.setattr(Path, "write_text", write_then_fail)
+    else:
+        monkeypatch.setattr(os, "fsync", _no_space)
+    with pytest.raises(OSError) as caught:
+        write_atomic(target, "{}")
+    assert caught.value.filename == str(target) and caught.value.errno == errno.ENOSPC
+    assert list(tmp_path.iterdir()) == []  # no temp file left
+    line = write_failure(caught.value, tmp_path, "run it again")
+    assert line.startswith(f"cannot write {target}: No space left on device; free space"), line
+
+
+def test_an_error_that_names_a_file_keeps_it_and_one_without_an_errno_is_left_alone(tmp_path):
+    other = tmp_path / "elsewhere"
+    with pytest.raises(OSError) as named:
+        with atomic_path(tmp_path / "a.json"):
+            raise FileNotFoundError(errno.ENOENT, "No such file or directory", str(other))
+    assert named.value.filename == str(other)
+    with pytest.raises(OSError) as bare:
+        with atomic_path(tmp_path / "a.json"):
+            raise OSError("no errno")
+    assert bare.value.filename is None and str(bare.value) == "no errno"
+
+
+def test_a_marked_directory_whose_marker_fails_leaves_the_naming_to_its_caller(tmp_path, monkeypatch):
+    """The marker is written in a temp sibling that goes on the failure: the exporter's line names the target."""
+    monkeypatch.setattr(os, "fsync", _no_space)
+    with pytest.raises(OSError) as caught:
+        replace_marked_dir(tmp_path / "tb", {"format": "x"}, lambda tmp: None)
+    assert caught.value.filename is None and str(caught.value) == "[Errno 28] No space left on device"
+    assert list(tmp_path.iterdir()) == []
