@@ -64,6 +64,7 @@ def check_output_dir(path: Path | str, key: str) -> Path:
     text = str(path)
     if not text.strip() or "\x00" in text:
         raise BadInput(key, f"got {text!r}; give a directory path")
+    _check_no_detour(text, key)
     resolved = Path(os.path.abspath(os.path.expanduser(text)))
     check_decoded(resolved, key)  # the Python API's paths too (the command line's are checked on arrival)
     _check_name_lengths(resolved, key)  # before a lookup: a name too long fails even to be looked up
@@ -87,6 +88,21 @@ def check_output_dir(path: Path | str, key: str) -> Path:
         why = "is on a read-only filesystem" if _read_only(existing) else "is not writable"
         raise BadInput(key, f"{text} {why}; give a directory you can write")
     return Path(text)
+
+
+def _check_no_detour(text: str, key: str) -> None:
+    """BadInput for a '..' that leaves a folder which does not exist (`a/../b`): making the path would make that
+    folder, then leave it empty behind."""
+    here = Path(os.path.expanduser(text))
+    walked = Path(here.anchor)
+    for part in here.parts[1:] if here.anchor else here.parts:
+        if part == ".." and not walked.exists():
+            raise BadInput(
+                key,
+                f"{text} goes into {walked} and back out with '..', but {walked} does not exist (making the path would "
+                f"leave it behind, empty); give {os.path.normpath(text)}",
+            )
+        walked = walked / part
 
 
 def check_outside_runs(path: Path | str, runs: list[Path], key: str) -> None:

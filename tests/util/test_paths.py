@@ -118,3 +118,21 @@ def test_a_marked_directory_whose_marker_fails_leaves_the_naming_to_its_caller(t
         replace_marked_dir(tmp_path / "tb", {"format": "x"}, lambda tmp: None)
     assert caught.value.filename is None and str(caught.value) == "[Errno 28] No space left on device"
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("relative", [True, False])
+def test_a_detour_through_a_missing_folder_is_refused_and_one_through_an_existing_folder_passes(
+    tmp_path, monkeypatch, relative
+):
+    monkeypatch.chdir(tmp_path)
+    root = "" if relative else f"{tmp_path}/"
+    with pytest.raises(BadInput) as refused:
+        check_output_dir(f"{root}a/../b", "hydra.run.dir")
+    assert str(refused.value) == (
+        f"hydra.run.dir: {root}a/../b goes into {root}a and back out with '..', but {root}a does not exist (making "
+        f"the path would leave it behind, empty); give {root}b"
+    )
+    assert list(tmp_path.iterdir()) == []  # nothing made
+    (tmp_path / "a").mkdir()
+    check_output_dir(f"{root}a/../b", "hydra.run.dir")
+    check_output_dir(f"{root}../{tmp_path.name}/c", "hydra.run.dir")  # up from where one stands: it exists
