@@ -21,8 +21,10 @@ tracking) or None. Calls to a threaded actor may run out of order; the stamps so
 Mixing, one row (the rules of `engine.team.mixer.Mixer`, for robot i alone). Robot i keeps, per round and
 in-neighbour j, the newest message received (`latest`), the newest one that arrived since its last mix
 (`pending`, stale=arrival; a message no newer than one already mixed never replaces anything) and, for gradient
-tracking, rho^{ij}, the newest S^j taken in. A link mixes its candidate (stale=arrival: pending; stale=latest:
-latest) only if that message's iteration is >= l - team.staleness; a link with nothing to offer hands its weight
+tracking, rho^{ij}, the newest S^j taken in. A link mixes its candidate (stale=arrival: round r's pending;
+stale=latest: the newest message of any round, stamped t R + r' as the Mixer's latest_stamp, so with R >= 2 rounds
+round 1 of iteration l may mix round 0's message of l rather than round 1's of l - 1) only if that message's
+iteration is >= l - team.staleness; a link with nothing to offer hands its weight
 a^{ij} to robot i itself (`kernels.mix_numpy`'s rule); team.aggregate other than mean goes through
 `resilience.aggregate_row` with the same own weight. Gradient tracking mixes a^{ii} [y, v] + sum_j a^{ij} (S^j -
 rho^{ij}) over the links holding a newer S^j: late mass is never lost nor counted twice (`tracking_balance` checks
@@ -146,10 +148,11 @@ class RobotCore:
         self.order = Order(team.order)
         self.latest_rule = team.stale == Stale.latest
         self.staleness = int(team.staleness)
-        self.aggregate, self.trim = Aggregate(team.aggregate), int(team.trim)
+        faults = setup.mixer.faults
+        self.aggregate = Aggregate(team.aggregate)
+        self.trim = resilience.rule_f(self.aggregate, team.trim, network.adjacency, faults)  # median: from faults
         self.own_weight = np.array(network.weights[robot, robot], dtype=float)  # (M,) a^{ii}
         self.in_weights = np.array(network.weights[robot, self.ins], dtype=float).reshape(len(self.ins), self.m)
-        faults = setup.mixer.faults
         self.fault = next((f for f in faults if f.robot == robot), None)
         self.crash_from = {f.robot: f.start for f in faults if f.kind == FaultKind.crash and f.robot in self.slot}
         self.risk = robot_risks(params)[robot]
@@ -260,8 +263,14 @@ class RobotCore:
         """Its row of round r: (mixed value, mixed tracker or None, the largest staleness l - t it mixed or NaN)."""
         s = self.s
         floor = l - self.staleness
-        sent = np.array(s["latest_sent"][r] if self.latest_rule else s["pending_sent"][r])  # a copy: cleared below
-        values = s["latest"][r] if self.latest_rule else s["pending"][r]
+        if self.latest_rule:  # per link, the newest message of any round, by its slot stamp t R + r' (as the Mixer)
+            slots = s["latest_sent"] * self.rounds + np.arange(self.rounds)[:, None]
+            stamps = np.where(s["latest_sent"] >= 0, slots, -1)
+            newest = stamps.argmax(axis=0)  # (K,): the round of each link's newest message
+            links = np.arange(len(self.ins))
+            sent, values = s["latest_sent"][newest, links], s["latest"][newest, links]
+        else:
+            sent, values = np.array(s["pending_sent"][r]), s["pending"][r]  # a copy: cleared below
         use = (sent >= 0) & (sent >= floor)
         own_weight = self.own_weight + self.in_weights[~use].sum(axis=0)  # idle links' weights go to robot i
         if self.aggregate == Aggregate.mean:

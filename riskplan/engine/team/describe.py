@@ -71,8 +71,15 @@ def describe(network: Network, team: TeamConf) -> str:
     lines.append(describe_order(team))
     faults = faults_of(team)
     if team.aggregate != Aggregate.mean or faults:
-        lines.extend(robustness.condition(network.adjacency, team.aggregate, team.trim, faults).lines)
+        lines.extend(robustness.condition(network.adjacency, team.aggregate, team.trim, faults, unreliable(team)).lines)
     return "\n".join(lines)
+
+
+def unreliable(team: TeamConf) -> tuple[str, ...]:
+    """The settings under which a consensus round may hear fewer links than the graph has."""
+    settings = [f"team.drop={team.drop:g}"] if team.drop else []
+    settings += [f"team.delay.max={team.delay.max}"] if team.delay.max else []
+    return (*settings, "team.switching") if team.switching.enabled else tuple(settings)
 
 
 def describe_order(team: TeamConf) -> str:

@@ -283,7 +283,8 @@ class Mixer:
             if not 0 <= fault.robot < network.robots:
                 raise ValueError(f"fault of robot {fault.robot}, but the network has robots 0..{network.robots - 1}")
         check_value_size(self.faults, network.n_params)
-        self.aggregate, self.trim = Aggregate(team.aggregate), int(team.trim)
+        self.aggregate = Aggregate(team.aggregate)
+        self.trim = resilience.rule_f(self.aggregate, team.trim, network.adjacency, self.faults)  # median's from faults
         if team.order == Order.gradient_tracking and (self.faults or self.aggregate != Aggregate.mean):
             key = "team.faults" if self.faults else "team.aggregate"
             raise BadInput(

@@ -12,7 +12,12 @@ under team.aggregate=mean. Then, per coordinate:
 - and for both, the weight a^{ij}_m of every dropped link goes to robot i itself, so the row stays stochastic:
   out = (a^{ii} + idle + dropped) own + sum over kept links of a^{ij} value^{ij};
 - median: the median of the robot's own value and the received ones, unweighted (the mean of the two middle values,
-  as 0.5 a + 0.5 b, when their count is even).
+  as 0.5 a + 0.5 b, when their count is even); but a robot that received fewer than 2F values keeps its own value.
+  F is the bound on faulty in-neighbours (`rule_f`: for median, the most faulty in-neighbours of a healthy robot,
+  not team.trim). Why 2F: with K >= 2F received values, at most F of them faulty, the healthy ones (its own among
+  them) are a majority of the K + 1 pooled, so the middle values lie within the healthy ones; with K < 2F
+  (drops, delays, switching) F faulty values could be a middle one, e.g. its own and one byzantine value would
+  average halfway to the byzantine value.
 
 Ties are broken by sender index: among equal values the link from the lower-indexed robot counts as the smaller
 (a stable sort of the received values in order of j). Sums run own term first, then the kept links in order of j,
@@ -20,16 +25,19 @@ so with F = 0 trimmed_mean and wmsr equal mean up to rounding, not bit for bit. 
 
 `aggregate_row` is the rule for ONE robot (what a robot that owns only its row, e.g. a Ray actor, calls);
 `aggregate_team` runs it for every robot in numba and agrees with it exactly. `row_inputs` cuts a team's arrays
-down to one robot's row.
+down to one robot's row. `rule_f` is the F a rule runs with.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numba import njit, prange
 
+from riskplan.config.faults import Fault
 from riskplan.config.schema import Aggregate
-from riskplan.engine.team import kernels
+from riskplan.engine.team import kernels, robustness
 
 CODES = {Aggregate.trimmed_mean: 1, Aggregate.median: 2, Aggregate.wmsr: 3}
 _TRIMMED, _MEDIAN, _WMSR = 1, 2, 3
@@ -45,6 +53,16 @@ def _code(rule: Aggregate | str) -> int:
     return CODES[rule]
 
 
+def rule_f(rule: Aggregate | str, trim: int, adjacency: np.ndarray, faults: Sequence[Fault]) -> int:
+    """The F that `aggregate_row` and `aggregate_team` take for `rule`: team.trim for trimmed_mean and wmsr; for
+    median (which takes no team.trim) the most faulty in-neighbours of a healthy robot on the full graph, the F
+    `riskplan check` judges it with (0 without faults: the plain median); 0 for mean (unused)."""
+    rule = Aggregate(rule)
+    if rule == Aggregate.median:
+        return robustness.most_faulty_neighbours(adjacency, faults)
+    return int(trim) if rule in CODES else 0
+
+
 def aggregate_row(
     rule: Aggregate | str,
     own: np.ndarray,
@@ -57,7 +75,7 @@ def aggregate_row(
 
     own: (M,) its own value; received: (K, M) the values of the K links it mixes this round, in order of the sender
     j; weights: (K, M) their a^{ij}_m; own_weight: (M,) a^{ii}_m plus the weights of its links that delivered
-    nothing (summed in order of j; `row_inputs`); trim: F >= 0. median uses neither weight."""
+    nothing (summed in order of j; `row_inputs`); trim: F >= 0 (`rule_f`). median uses neither weight."""
     code = _code(rule)
     own = np.asarray(own, dtype=float)
     received = np.asarray(received, dtype=float).reshape(-1, own.shape[0])
@@ -68,6 +86,9 @@ def aggregate_row(
     for k in range(own.shape[0]):
         x, values = float(own[k]), received[:, k]
         if code == _MEDIAN:
+            if count < 2 * trim:  # too few to outvote F faulty values (module docstring)
+                out[k] = x
+                continue
             pool = np.concatenate([[x], values])
             ranked = pool[np.argsort(pool, kind="stable")]
             half = len(ranked) // 2
@@ -176,6 +197,9 @@ def _aggregate_rows(code, weights, adjacency, use, neighbour, own, trim, out, fi
         for k in range(m):
             x = own[i, k]
             if code == _MEDIAN:
+                if count < 2 * trim:
+                    out[i, k] = x
+                    continue
                 pool[0] = x
                 for c in range(count):
                     pool[c + 1] = neighbour[i, links[c], k]

@@ -129,19 +129,38 @@ def faulty_neighbours(adjacency: np.ndarray, faults: Sequence[Fault]) -> np.ndar
     return (_adjacency(adjacency) & faulty[None, :]).sum(axis=1)
 
 
-def condition(adjacency: np.ndarray, aggregate: Aggregate, trim: int, faults: Sequence[Fault]) -> Condition:
+def most_faulty_neighbours(adjacency: np.ndarray, faults: Sequence[Fault]) -> int:
+    """The most in-neighbours listed in `faults` that a healthy robot (one not listed) has: median's F."""
+    faulty = {f.robot for f in faults}
+    counts = faulty_neighbours(adjacency, faults)
+    return max((int(counts[i]) for i in range(len(counts)) if i not in faulty), default=0)
+
+
+# What still holds, per rule, in rounds that hear fewer links than the graph has (`condition`'s `unreliable`).
+_SAFE = {
+    Aggregate.trimmed_mean: "a robot that hears 2F or fewer values keeps its own, and otherwise the values it keeps lie "
+    "within the healthy ones it heard",
+    Aggregate.wmsr: "W-MSR drops up to F values above and F below its own, however few it hears, so the values it "
+    "keeps lie within the healthy ones it heard",
+    Aggregate.median: "a robot that hears fewer than 2F values keeps its own, and otherwise the median of its own and "
+    "the heard values lies within the healthy ones",
+}
+
+
+def condition(
+    adjacency: np.ndarray, aggregate: Aggregate, trim: int, faults: Sequence[Fault], unreliable: Sequence[str] = ()
+) -> Condition:
     """Whether the graph and the faults meet the resilience condition of `aggregate` with F = `trim`, and the text.
 
     For trimmed_mean, median and wmsr: the graph is (2F+1)-robust, and each healthy robot has at most F faulty
     in-neighbours (the F-local model). The median drops nothing and takes no team.trim: its F is the most faulty
-    in-neighbours a healthy robot has. For mean with faults: no condition (the mean has no resilience), said so."""
+    in-neighbours a healthy robot has. For mean with faults: no condition (the mean has no resilience), said so.
+    `unreliable`: the settings under which a round may hear fewer links than the graph has ("team.drop=0.5", ...);
+    the verdict is still that of the full graph, and a line says what that does and does not cover."""
     a = _adjacency(adjacency)
     n = len(a)
     aggregate = Aggregate(aggregate)
-    faulty = {f.robot for f in faults}
-    counts = faulty_neighbours(a, faults)
-    healthy = [i for i in range(n) if i not in faulty]
-    worst = max((int(counts[i]) for i in healthy), default=0)
+    worst = most_faulty_neighbours(a, faults)
     named, given = f"team.trim={trim}", f"team.trim=F={trim}"
     if aggregate == Aggregate.median:
         trim, named = worst, f"F={worst}"
@@ -166,13 +185,25 @@ def condition(adjacency: np.ndarray, aggregate: Aggregate, trim: int, faults: Se
     else:
         found = f"the largest r is not computed above the enumeration limit of {LIMIT} robots (N = {n})"
         found += "; strongly connected, so 1-robust" if robust else ""
+    full = " on the full graph" if unreliable else ""
     verdict = {True: "holds", False: "FAILS", None: "unknown"}[robust]
-    lines.append(f"  (2F+1)-robustness: needs {r}-robust; {found}: {verdict}")
+    lines.append(f"  (2F+1)-robustness: needs {r}-robust; {found}: {verdict}{full}")
     local = worst <= trim
     lines.append(
         f"  F-local faults: at most {worst} faulty in-neighbour{'s' if worst != 1 else ''} per healthy robot "
-        f"(F = {trim}): {'holds' if local else 'FAILS'}"
+        f"(F = {trim}): {'holds' if local else 'FAILS'}{full}"
     )
+    if unreliable:
+        # A round's heard links are a subset of the graph's: no more faulty ones (safety survives), but the
+        # round's graph may be far from (2F+1)-robust (agreement does not).
+        lines.append(
+            f"  warning: with {', '.join(unreliable)} a round hears only the links that deliver in it, so a robot may "
+            f"hear fewer than 2F+1 values and the graph of a round need not be {r}-robust: the verdicts above judge "
+            f"the full graph, and consensus is not guaranteed (a robot may be left at its own value for many "
+            f"rounds). With at most F faulty in-neighbours, safety still holds: {_SAFE[aggregate]}, so each healthy "
+            f"robot's mix stays within the range of its own value and the healthy values it heard (under delays or "
+            f"stale=latest, possibly sent in earlier iterations)"
+        )
     lines.append(
         f"  (2F+1)-robustness with at most F faulty in-neighbours per robot is sufficient for W-MSR to reach "
         f"resilient asymptotic consensus ({REFERENCE}); the same counting argument covers trimmed_mean; for median "

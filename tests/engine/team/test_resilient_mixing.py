@@ -8,6 +8,7 @@ import numba
 import numpy as np
 import pytest
 
+from riskplan.config.faults import faults_of
 from riskplan.config.schema import TeamConf
 from riskplan.config.typed import typed
 from riskplan.config.validate import check_team
@@ -15,7 +16,7 @@ from riskplan.engine.team import kernels
 from riskplan.engine.team.convergence import consensus_error
 from riskplan.engine.team.mixer import Mixer
 from riskplan.engine.team.network import build_network
-from riskplan.engine.team.resilience import aggregate_row, aggregate_team, row_inputs
+from riskplan.engine.team.resilience import aggregate_row, aggregate_team, row_inputs, rule_f
 
 RULES = ["trimmed_mean", "median", "wmsr"]
 
@@ -88,6 +89,41 @@ def test_median_of_own_and_received_values_unweighted():
     assert row("median", 5.0, [1, 9], [0.125, 0.5], 0.375, 1)[0] == 5.0
     assert row("median", 5.0, [1, 2, 3, 100], [0.125] * 4, 0.5, 0)[0] == 3.0
     assert row("median", 5.0, [], [], 1.0, 1)[0] == 5.0
+
+
+def test_median_with_fewer_than_2f_values_keeps_the_robots_own():
+    """Too few received values to outvote F faulty ones: its own value, exactly (the even pool of its own and one
+    byzantine value would average halfway to it)."""
+    assert row("median", 5.0, [1e6], [0.5], 0.5, 1)[0] == 5.0  # was 0.5 * 5 + 0.5 * 1e6
+    assert row("median", 5.0, [1e6, 1e6, 6.0], [0.25] * 3, 0.25, 2)[0] == 5.0  # was 0.5 * 6 + 0.5 * 1e6
+    # 2F values and more: the median of the pool, within the healthy values
+    assert row("median", 5.0, [1e6, 6.0], [0.25] * 2, 0.5, 1)[0] == 6.0
+    assert row("median", 5.0, [1e6, 1e6, 6.0, 7.0], [0.125] * 4, 0.5, 2)[0] == 7.0
+    assert row("median", 5.0, [1e6, 6.0, 8.0], [0.25] * 3, 0.25, 1)[0] == 0.5 * 6 + 0.5 * 8  # even pool: 0.5a + 0.5b
+    assert row("median", 5.0, [1e6], [0.5], 0.5, 0)[0] == 0.5 * 5 + 0.5 * 1e6  # F = 0: the plain median
+
+
+def test_median_f_comes_from_the_faults_not_from_team_trim():
+    adjacency = ~np.eye(3, dtype=bool)
+    byzantine = faults_of(team(robots=3, faults=[{"robot": 2, "kind": "byzantine", "from": 0, "value": 1e6}]))
+    assert rule_f("median", 0, adjacency, byzantine) == 1
+    assert rule_f("median", 3, adjacency, ()) == 0
+    assert rule_f("trimmed_mean", 2, adjacency, byzantine) == 2 and rule_f("wmsr", 0, adjacency, byzantine) == 0
+    assert rule_f("mean", 2, adjacency, byzantine) == 0
+
+
+def test_a_median_robot_that_hears_only_the_byzantine_one_keeps_its_value():
+    """3 robots, complete graph, robot 2 byzantine (1e6, F = 1): robot 0's link from robot 1 delivered nothing, so it
+    hears one value, fewer than 2F: it keeps its value exactly; robot 1 hears both: the median of 2, 4 and 1e6."""
+    weights = np.full((3, 3, 1), 1.0 / 3.0)
+    adjacency = ~np.eye(3, dtype=bool)
+    use = adjacency.copy()
+    use[0, 1] = False
+    own = np.array([[4.0], [2.0], [1e6]])
+    neighbour = np.broadcast_to(own[None, :, :], (3, 3, 1)).copy()  # every link carries its sender's value
+    faults = faults_of(team(robots=3, faults=[{"robot": 2, "kind": "byzantine", "from": 0, "value": 1e6}]))
+    out = aggregate_team("median", weights, adjacency, use, neighbour, own, rule_f("median", 0, adjacency, faults))
+    assert out[0, 0] == 4.0 and out[1, 0] == 4.0  # robot 0 was 0.5 * 4 + 0.5 * 1e6
 
 
 def test_rows_are_per_coordinate():
@@ -195,7 +231,7 @@ def test_the_mixer_aggregates_exactly_the_values_its_links_would_mix(rule, stale
                 if j != i and sent[i, j] < 0:
                     idle += net.weights[i, j]  # the silent links' weights, summed in order of j, then the robot's
             own_weight = net.weights[i, i] + idle
-            expected = aggregate_row(rule, thetas[i], received, weights, own_weight, 1)
+            expected = aggregate_row(rule, thetas[i], received, weights, own_weight, mixer.trim)
             assert np.array_equal(mixed[i], expected), (iteration, i)
 
 

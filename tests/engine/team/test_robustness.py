@@ -169,3 +169,37 @@ def test_beyond_the_limit_check_says_unknown():
         network = build_network(conf, 2, 0)
     text = describe(network, conf)
     assert f"not computed above the enumeration limit of {LIMIT} robots (N = {n}): unknown" in text
+
+
+@pytest.mark.parametrize("aggregate,trim", [("trimmed_mean", 1), ("wmsr", 1), ("median", 0)])
+@pytest.mark.parametrize(
+    "lossy,named",
+    [
+        ({"drop": 0.5}, "team.drop=0.5"),
+        ({"delay": {"max": 2}}, "team.delay.max=2"),
+        ({"switching": {"enabled": True}}, "team.switching"),
+    ],
+)
+def test_with_drops_delays_or_switching_the_verdict_is_of_the_full_graph_and_a_round_may_hear_fewer(
+    aggregate, trim, lossy, named
+):
+    """`riskplan check` judges the static graph; a round under drops, delays or switching hears only some links,
+    so the verdict says so, and what still holds (the rule's safety) and what does not (consensus)."""
+    faults = [{"robot": 2, "kind": "byzantine", "from": 0, "scale": 100.0}]
+    conf = team(robots=5, graph="complete", aggregate=aggregate, trim=trim, faults=faults, **lossy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # median with the default team.trim=0 says nothing; fine either way
+        text = describe(build_network(conf, 2, 0), conf)
+    assert "the graph is 3-robust, not 4-robust (exact: enumeration, N = 5 <= 20): holds on the full graph" in text
+    assert "(F = 1): holds on the full graph" in text
+    warning = next(line for line in text.splitlines() if line.startswith("  warning: "))
+    assert f"with {named} a round hears only the links that deliver in it" in warning
+    assert "fewer than 2F+1 values" in warning and "consensus is not guaranteed" in warning
+    assert "safety still holds" in warning
+    safe = {"trimmed_mean": "2F or fewer values keeps its own", "wmsr": "however few", "median": "fewer than 2F values"}
+    assert safe[aggregate] in warning
+    reliable = team(robots=5, graph="complete", aggregate=aggregate, trim=trim, faults=faults)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        text = describe(build_network(reliable, 2, 0), reliable)
+    assert "warning:" not in text and "on the full graph" not in text and ": holds" in text
