@@ -140,7 +140,9 @@ def with_config_dirs(args: list[str]) -> list[str]:
                 f"{value} is not a directory; give the folder that holds your config groups "
                 f"(e.g. my_configs, with my_configs/experiment/mine.yaml)",
             )
-        check_config_files(path)
+        from riskplan.config.typed import check_file_value  # the schema imports Hydra, which --help does not
+
+        check_config_files(path, check_file_value)
         dirs.append(hydra_quote(f"file://{path}"))
     if not dirs:
         return rest

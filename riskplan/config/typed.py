@@ -436,6 +436,14 @@ def check_flags(overrides: list) -> None:
             continue
 
 
+def check_file_value(key: str, value: typing.Any) -> None:
+    """check_flags for a value a `-cd` config file puts at the dotted `key` (riskplan.config.user_files): Hydra's
+    merge onto the schema would make any integer of a boolean key true."""
+    hint = hint_at(key)
+    if holds_flag(hint):
+        check_flag(value, hint, key)
+
+
 FLAGS_CHECKED = 10_000  # a sweep's values checked at most (a range of a boolean key past 1 fails at its 3rd)
 
 

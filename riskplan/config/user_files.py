@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import yaml
 
-from riskplan.config.typed import check_flag, hint_at, holds_flag
 from riskplan.util.errors import BadInput
 
 MAX_BYTES = 10_000_000  # a config file's size: far above any experiment, far below what composes in minutes
@@ -22,12 +23,14 @@ OUTPUTS = "outputs"  # riskplan's runs and sweeps, written beside a project's co
 ENVIRONMENT = ("pyvenv.cfg", "conda-meta")  # what a virtualenv's or a conda environment's folder holds
 
 
-def check_config_files(folder: Path) -> None:
+def check_config_files(folder: Path, check_value: Callable[[str, Any], None] | None = None) -> None:
     """BadInput for the first YAML file Hydra could load from `folder` (`config_files`) that is not UTF-8, not
     valid YAML, gives a key twice, holds a tag that makes Python objects, or expands (through its aliases) past
-    MAX_NODES values."""
+    MAX_NODES values; then `check_value(key, value)` on each top-level value under the dotted key Hydra puts it at
+    (riskplan.config.typed.check_file_value: a boolean given another integer), its BadInput naming the file and
+    line. The caller passes it: the schema it reads imports Hydra, which `riskplan --help` does not."""
     for path in config_files(folder):
-        _check_file(path, folder)
+        _check_file(path, folder, check_value)
 
 
 def config_files(folder: Path) -> list[Path]:
@@ -65,7 +68,7 @@ def _folder_id(path: str) -> tuple[int, int] | None:
     return info.st_dev, info.st_ino
 
 
-def _check_file(path: Path, folder: Path) -> None:
+def _check_file(path: Path, folder: Path, check_value: Callable[[str, Any], None] | None) -> None:
     size = path.stat().st_size
     if size > MAX_BYTES:
         raise BadInput(str(path), f"is {size / 1e6:.0f} MB; a config file holds at most {MAX_BYTES / 1e6:.0f} MB")
@@ -91,7 +94,8 @@ def _check_file(path: Path, folder: Path) -> None:
         raise BadInput(str(path), f"holds {what} at its top level; a config file is a mapping of keys, e.g. seed: 3")
     if root is not None:
         _check_nodes(root, path)
-        _check_flags(root, path, _package(text, path, folder))
+        if check_value is not None:
+            _check_values(root, path, _package(text, path, folder), check_value)
 
 
 def _check_header(text: str, path: Path) -> None:
@@ -125,17 +129,13 @@ def _package(text: str, path: Path, folder: Path) -> str:
     return group
 
 
-def _check_flags(root: yaml.MappingNode, path: Path, package: str) -> None:
-    """A boolean key given an integer other than 0 or 1 (`stop_at_source: 2`), as for an override (check_flags):
-    Hydra's merge onto the schema would make it true."""
+def _check_values(root: yaml.MappingNode, path: Path, package: str, check_value: Callable[[str, Any], None]) -> None:
+    """check_value on each top-level value of the file (its defaults list aside), under its dotted key."""
     for key, value in root.value:
-        if not isinstance(key, yaml.ScalarNode) or key.value == "defaults":
-            continue
-        full = f"{package}.{key.value}" if package else key.value
-        hint = hint_at(full)
-        if holds_flag(hint):
+        if isinstance(key, yaml.ScalarNode) and key.value != "defaults":
+            full = f"{package}.{key.value}" if package else key.value
             try:
-                check_flag(yaml.safe_load(yaml.serialize(value)), hint, full)
+                check_value(full, yaml.safe_load(yaml.serialize(value)))
             except BadInput as err:
                 raise BadInput(str(path), f"line {key.start_mark.line + 1}: {err.where}: {err.problem}") from None
 

@@ -8,6 +8,7 @@ from typer.testing import CliRunner
 
 import riskplan.config.user_files as user_files
 from riskplan.cli import app
+from riskplan.config.typed import check_file_value
 from riskplan.config.user_files import check_config_files
 from riskplan.util.errors import BadInput
 
@@ -106,7 +107,7 @@ def test_a_boolean_given_another_integer_in_a_file_is_refused_as_on_the_command_
     path.parent.mkdir(exist_ok=True)
     path.write_text(text)
     with pytest.raises(BadInput) as refused:
-        check_config_files(tmp_path)
+        check_config_files(tmp_path, check_file_value)
     assert refused.value.where == str(path) and refused.value.problem.startswith(problem)
 
 
@@ -123,4 +124,4 @@ def test_booleans_written_as_hydra_reads_them_pass(tmp_path, file, text):
     path = tmp_path / file
     path.parent.mkdir(exist_ok=True)
     path.write_text(text)
-    check_config_files(tmp_path)
+    check_config_files(tmp_path, check_file_value)

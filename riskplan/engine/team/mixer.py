@@ -290,10 +290,8 @@ class Mixer:
             raise BadInput(
                 key, f"team.order={Order.gradient_tracking} mixes running sums: use team.aggregate=mean and no faults"
             )
-        self.network = network
-        self.seed = int(seed) & MASK
-        self.tracking = team.order == Order.gradient_tracking
-        self.rounds = team.consensus_rounds
+        self.network, self.seed = network, int(seed) & MASK
+        self.tracking, self.rounds = team.order == Order.gradient_tracking, team.consensus_rounds
         self.max_delay, self.drop, self.max_gap = team.delay.max, team.drop, team.max_gap
         self.latest_rule = team.stale == Stale.latest
         self.switching = team.switching
