@@ -10,7 +10,9 @@ config and seed, wherever they were written): the report, the export and the swe
 A job that was killed while "running" resumes from its checkpoint when its config is unchanged.
 
 One writer per job folder: a job holds the folder's lock (`riskplan.util.lock`) before it reads, deletes or writes
-anything there; a job whose folder is held by another process fails alone and leaves the folder as it was.
+anything there; a job whose folder is held by another process fails alone and leaves the folder as it was. Under the
+lock it checks the folder by the rule the sweep's plan applies (`foreign_run`): one that holds a run of another config
+that did not fail (another launch's, in use when this one was planned) fails the job alone, every file left as it is.
 
 A local worker (joblib's, submitit_local's, a local Ray instance's) ends with the `riskplan sweep` driver, however
 it died, and writes nothing after it (`riskplan.experiments.driver_watch`), so a killed sweep leaves no training
@@ -68,6 +70,8 @@ TRIAL_RESOLVER = "riskplan.trial"  # the same for the trials of an optimising sw
 TRIAL_SUBDIR = "${" + TRIAL_RESOLVER + ":${hydra.job.num},${hydra.job.override_dirname}}"
 SAFE = frozenset(string.ascii_letters + string.digits + "._=,+-")  # kept as they are in folder names
 NAME_MAX = 255  # bytes in a file name (ext4, xfs, NFS)
+JOB_OWN = (lock.LOCK, JOB_LOG, ".hydra")  # what a job's folder holds before its status.json (a launch killed early)
+SAME_CONFIGS = "a sweep goes on in its directory only with the same configs"
 
 
 OUTPUT_KEYS = ("hydra",)  # where a run was written (hydra.run.dir, hydra.sweep.dir and subdir, ...), never what ran
@@ -209,6 +213,35 @@ def is_finished(out: Path, sha: str, status: dict | None = None) -> bool:
     )
 
 
+def foreign_run(out: Path, sha: str, status: dict | None) -> str | None:
+    """What makes the job folder `out` not the job's (of config `sha`) to write over, as the sweep's line says it
+    ('holds a done run of another config'): a run of another config that did not fail (its status.json names
+    another config_sha, or none: a run of riskplan train), or files of no job's beside a missing status.json. None:
+    the folder is new, its own job's, or a failed run's, which the job replaces. `status`: its status.json, read.
+
+    The one rule of the plan's check (sweeping.jobs.check_job_folders) and of a job's start under its folder's lock
+    (`begin_job`): a folder another process held when the sweep was planned, or a task of an earlier launch that
+    starts after a later one, meets it there."""
+    if status is None:
+        if Path(out).is_dir() and any(entry.name not in JOB_OWN for entry in Path(out).iterdir()):
+            return "holds files that are not a sweep job's"
+        return None
+    if status.get("config_sha") == sha or status.get("status") == "failed":
+        return None
+    state = status.get("status")
+    if not (isinstance(state, str) and state.isidentifier()):
+        return "holds a run of another config"
+    return f"holds {'an' if state[0] in 'aeiouAEIOU' else 'a'} {state} run of another config"
+
+
+def refusal(out: Path, problem: str) -> str:
+    """A job's one line for a folder it leaves to another config's run (`problem`: foreign_run's)."""
+    return (
+        f"{out} {problem}; the job left it as it was: {SAME_CONFIGS}, so give a new hydra.sweep.dir "
+        f"(or remove that folder and run the sweep again)"
+    )
+
+
 def _finite(value):
     """The record with every non-finite float as None (status.json is strict JSON: no NaN, no Infinity)."""
     if isinstance(value, float):
@@ -238,7 +271,8 @@ def sweep_job(cfg: DictConfig, out: Path) -> float | None:
     """Run one sweep job in `out`: skip it if finished, resume it if killed, else train from scratch.
 
     The whole job holds the folder's lock; when another process holds it, the job returns None at once and
-    touches nothing in the folder (the sweep's summary reports it as running in that process).
+    touches nothing in the folder (the sweep's summary reports it as running in that process). So does a job whose
+    folder holds a run of another config that did not fail, its line on stderr (`begin_job`).
     """
     out = Path(out)
     watched = arrive()
@@ -280,6 +314,7 @@ class JobStart:
     resume: bool = False
     base: dict = field(default_factory=dict)
     unusable: str | None = None  # why its checkpoint could not be resumed, when it starts again instead
+    refused: str | None = None  # the job's one line when its folder holds another config's run: it does not run
 
     @property
     def opening(self) -> str:
@@ -294,12 +329,16 @@ class JobStart:
 
 def begin_job(cfg: DictConfig, out: Path) -> JobStart:
     """Where the job in `out` (whose lock the caller holds) stands: finished with this config, or a checkpoint to
-    resume (it was killed, or stopped by a signal), or a fresh start with the stale files of an older config
-    removed; then status.json says running."""
+    resume (it was killed, or stopped by a signal), or a fresh start with the stale files of a failed run of an
+    older config removed; then status.json says running. A folder holding another config's run that did not fail
+    (`foreign_run`) is refused: nothing written, the line in `refused`."""
     sha = config_sha(cfg)
     prior = read_status(out)
     if is_finished(out, sha, prior):
         return JobStart(out, finished=True, value=prior.get("cvar"))
+    problem = foreign_run(out, sha, prior)
+    if problem is not None:  # checked again here: the plan's check skips a folder another process holds
+        return JobStart(out, refused=refusal(out, problem))
     resume = (
         prior is not None
         and prior.get("status") in ("running", "interrupted")  # killed, or stopped by a signal (preempted)
@@ -330,6 +369,12 @@ def _unusable_checkpoint(cfg: DictConfig, out: Path) -> str | None:
     except (BadInput, OSError) as err:
         return f"its checkpoint could not be resumed: {one_line(str(err))}"
     return None
+
+
+def say_refused(start: JobStart) -> None:
+    """A refused job's line, on this process's stderr (the launcher's log of the job): its folder's job.log is the
+    other run's, never written."""
+    print(f"error: {start.refused}", file=sys.stderr, flush=True)
 
 
 def end_job(start: JobStart, record: dict) -> float | None:
@@ -367,6 +412,9 @@ def _locked_job(cfg: DictConfig, out: Path, watched: str | None = None) -> float
     if threads:
         numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     start = begin_job(cfg, out)
+    if start.refused is not None:
+        say_refused(start)
+        return None
     if start.finished:
         return start.value
     with job_output(out / JOB_LOG):

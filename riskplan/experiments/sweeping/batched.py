@@ -12,6 +12,7 @@ runs as it would under the basic launcher. A job that fails, fails alone.
 from __future__ import annotations
 
 import contextlib
+import copy
 import functools
 import json
 import os
@@ -24,7 +25,7 @@ import numba
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.utils import JobReturn, JobStatus, configure_log, run_job, setup_globals
 from joblib import delayed
-from omegaconf import DictConfig, open_dict
+from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from riskplan.config.backends import BACKENDS
 from riskplan.config.schema import Backend
@@ -34,10 +35,14 @@ from riskplan.experiments.sweep_worker import (
     JOB_LOG,
     JobStart,
     begin_job,
+    config_sha,
     end_job,
     failure,
+    foreign_run,
     interrupt_job,
     outcome,
+    read_status,
+    say_refused,
     sweep_job,
 )
 from riskplan.experiments.sweeping.grid import JobConfigs
@@ -54,6 +59,12 @@ from riskplan.util.limits import cpu_count, memory_budget
 from riskplan.util.paths import write_atomic
 
 PARALLEL_SECONDS = 20.0  # a batch's estimated work from which splitting it over worker processes pays
+NO_JOB_LOG = {  # the job logging of a job left out: nothing into its folder's job.log, another run's
+    "version": 1,
+    "handlers": {"null": {"class": "logging.NullHandler"}},
+    "root": {"handlers": ["null"]},
+    "disable_existing_loggers": False,
+}
 PROGRESS = ".batch_progress"  # <sweep>/.batch_progress.<chunk>.<part>.json: {"done", "total"} iterations, summed
 # over the files by the sweep's live view; the sweep removes them when the launch ends
 
@@ -140,6 +151,9 @@ def _run_job(context, prepare, sweep_config: DictConfig, number: int) -> JobRetu
     with open_dict(sweep_config):
         sweep_config.hydra.job.id = number
         sweep_config.hydra.job.num = number
+        if _holds_another_run(sweep_config):  # Hydra writes no .hydra/ over that run's, nor a log line into its
+            sweep_config.hydra.output_subdir = None  # job.log (a callback's): the job then refuses the folder
+            sweep_config.hydra.job_logging = NO_JOB_LOG
     return run_job(
         hydra_context=context,
         task_function=prepare,
@@ -149,17 +163,45 @@ def _run_job(context, prepare, sweep_config: DictConfig, number: int) -> JobRetu
     )
 
 
+def _holds_another_run(sweep_config: DictConfig) -> bool:
+    """Whether the folder run_job would set this job up in holds a run of another config that did not fail
+    (sweep_worker.foreign_run), as far as can be told before run_job: False when the folder or the job's config
+    cannot be made out here (its start still refuses such a folder, once Hydra has written its .hydra/)."""
+    try:
+        out = Path(str(OmegaConf.select(sweep_config, "hydra.sweep.dir"))) / str(
+            OmegaConf.select(sweep_config, "hydra.sweep.subdir")
+        )
+        if not out.is_dir():
+            return False
+        status = read_status(out)
+        if status is not None and status.get("status") == "failed":
+            return False
+        full = copy.deepcopy(sweep_config)  # set_config makes its hydra node read-only
+        HydraConfig.instance().set_config(full)  # as run_job sets it, for ${hydra:...} in the config
+        task = copy.deepcopy(full)  # the job's config as run_job hands it over: its hydra node removed
+        with read_write(task), open_dict(task):
+            del task["hydra"]
+        return foreign_run(out, config_sha(task), status) is not None
+    except Exception:  # an interpolation only the job resolves, say: Hydra writes as it always did
+        return False
+
+
 def prepare_job(cfg, plain, out: Path, held: contextlib.ExitStack) -> Prepared:
     """Take the job's folder (its lock into `held`), read where it stands, and build its run (`cfg`: its config;
     `plain`: the same as a DictConfig or plain dict, for its identity). A ray-backend job (`cfg` a DictConfig)
     trains now, as it would alone."""
     if not BACKENDS[Backend(cfg.team.backend)].batched:
         return Prepared(out, value=sweep_job(cfg, out))
-    try:
-        held.enter_context(lock.hold_lock(out, "sweep job folder"))
-    except BadInput:  # another process writes it: that process records it
-        return Prepared(out)
-    start = begin_job(plain, out)
+    with contextlib.ExitStack() as own:
+        try:
+            own.enter_context(lock.hold_lock(out, "sweep job folder"))
+        except BadInput:  # another process writes it: that process records it
+            return Prepared(out)
+        start = begin_job(plain, out)
+        if start.refused is not None:  # another config's run: left as it is, and its lock let go at once
+            say_refused(start)
+            return Prepared(out)
+        held.push(own.pop_all())
     if start.finished:
         return Prepared(out, start, value=start.value)
     try:

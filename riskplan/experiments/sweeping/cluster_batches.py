@@ -22,6 +22,10 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import re
+import shutil
+import subprocess
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -190,7 +194,7 @@ def launch_chunks(launcher, job_overrides, initial_job_idx: int) -> list[JobRetu
 def _on_submitit(launcher, chunks: list[list[Pending]], progress: list[str], total: int) -> list[list]:
     """The chunks as one job array through submitit, as Hydra's submitit launcher would submit them (its
     executor and parameters); each task's values, once all are done."""
-    executor = _executor(launcher.params, launcher.cluster)
+    executor = submitit_executor(launcher.params, launcher.cluster)
     cpus = int(launcher.params.get("cpus_per_task") or 1)  # what each task asked for (SLURM's default: 1)
     count = len(chunks)
     submitted = executor.map_array(ChunkTask(), chunks, progress, [total] * count, [cpus] * count)
@@ -216,7 +220,7 @@ def _chunk_task(jobs: list[Pending], progress: str, total: int, cpus: int) -> li
     return ChunkTask()(jobs, progress, total, cpus)
 
 
-def _executor(params: dict, cluster: str):
+def submitit_executor(params: dict, cluster: str):
     """submitit's executor for the launcher's parameters, set up as Hydra's submitit launcher sets it up."""
     import submitit  # optional: the slurm extra
     from hydra_plugins.hydra_submitit_launcher.config import BaseQueueConf  # optional: the slurm extra
@@ -262,3 +266,88 @@ class ChunkTask:
         import submitit  # optional: the slurm extra
 
         return submitit.helpers.DelayedSubmission(self, *args)
+
+
+LAUNCHER = "hydra.launcher."
+SBATCH_SECONDS = 5.0  # sbatch --test-only asks the controller once: quick on a cluster that answers at all
+# submitit's keys that never reach an #SBATCH line (its own settings), so never the cause of sbatch's refusal
+NOT_SBATCH = ("_target_", "submitit_folder", "max_num_timeout", "setup", "stderr_to_stdout")
+# sbatch could not ask the controller (no slurm.conf, the controller down): no verdict on the settings
+UNREACHABLE = re.compile(
+    r"fatal:|unable to contact slurm controller|socket timed out|zero bytes were transmitted|"
+    r"communication connection failure|connection refused|configuration source",
+    re.IGNORECASE,
+)
+
+
+def check_sbatch(launcher: str, hydra_keys: dict, timeout: float = SBATCH_SECONDS) -> None:
+    """submitit_slurm's settings as SLURM will judge them, before anything is written: the batch script submitit
+    would submit (its #SBATCH lines from the launcher's settings, as an array) goes to `sbatch --test-only`, which
+    submits nothing. A refusal is bad input naming the hydra.launcher keys without which sbatch accepts the rest
+    (else all the user gave) and sbatch's own reason; it also catches a request no node can ever meet
+    (cpus_per_task beyond every node), which would otherwise pend in silence. No check without sbatch on PATH, or
+    when sbatch cannot reach its controller or answer within `timeout` s: the submission says what is wrong then."""
+    if launcher != "submitit_slurm" or shutil.which("sbatch") is None:
+        return
+    params = slurm_params(hydra_keys)
+    refusal = None if params is None else sbatch_refusal(params, timeout)
+    if refusal is None:
+        return
+    defaults = slurm_params({})
+    given = list(dict.fromkeys(key[len(LAUNCHER) :].split(".")[0] for key in hydra_keys if key.startswith(LAUNCHER)))
+    given = [key for key in given if key not in NOT_SBATCH and key in defaults]
+    culprits = [key for key in given if sbatch_refusal({**params, key: defaults[key]}, timeout) is None]
+    where = ", ".join(LAUNCHER + key for key in culprits or given) or "hydra/launcher=submitit_slurm"
+    raise BadInput(
+        where,
+        f"sbatch refuses it: {refusal} (sbatch --test-only); give settings this cluster accepts (sinfo lists its "
+        f"partitions and nodes)",
+    )
+
+
+def slurm_params(hydra_keys: dict) -> dict | None:
+    """submitit_slurm's settings: Hydra's launcher defaults with the user's hydra.launcher overrides. None when they
+    do not apply cleanly (an unknown key, a bad type, a deletion, an interpolation) or the launcher is not
+    installed: Hydra refuses those in its own words, later in the plan."""
+    try:
+        from hydra_plugins.hydra_submitit_launcher.config import SlurmQueueConf  # optional: the slurm extra
+
+        conf = OmegaConf.structured(SlurmQueueConf)
+        for key, override in hydra_keys.items():
+            if key.startswith(LAUNCHER):
+                if override.is_delete():
+                    return None
+                OmegaConf.update(conf, key[len(LAUNCHER) :], override.value(), merge=True)
+        params = OmegaConf.to_container(conf, resolve=False)
+    except Exception:  # ImportError, OmegaConf's errors: no verdict here
+        return None
+    params.pop("_target_", None)
+    params["name"] = "riskplan"  # ${hydra.job.name}, resolved at launch; submitit_folder is set per check
+    if "${" in repr({key: value for key, value in params.items() if key != "submitit_folder"}):
+        return None
+    return params
+
+
+def sbatch_refusal(params: dict, timeout: float) -> str | None:
+    """sbatch's reason for refusing an array of submitit's batch script with these settings (sbatch --test-only,
+    in a scratch folder), or None when it accepts them or gives no verdict (unreachable, slow, not startable)."""
+    with tempfile.TemporaryDirectory(prefix="riskplan-sbatch-") as scratch:
+        try:
+            slurm = submitit_executor({**params, "submitit_folder": f"{scratch}/%j"}, "slurm")._executor
+            slurm.parameters["map_count"] = 2  # an array, as a sweep of more than one task is submitted
+            script = Path(scratch, "check.sh")
+            script.write_text(slurm._make_submission_file_text("true", "check"))
+            done = subprocess.run(
+                ["sbatch", "--test-only", str(script)],
+                capture_output=True,
+                text=True,
+                timeout=timeout,
+                cwd=scratch,
+                stdin=subprocess.DEVNULL,
+            )
+        except Exception:  # submitit's own errors come again at submission; a timeout or OSError: no verdict
+            return None
+    lines = [line.strip() for line in (done.stderr + "\n" + done.stdout).splitlines() if line.strip()]
+    if done.returncode == 0 or any(UNREACHABLE.search(line) for line in lines):
+        return None
+    return re.sub(r"^sbatch: (error: )?", "", lines[0]) if lines else f"sbatch exited {done.returncode}"

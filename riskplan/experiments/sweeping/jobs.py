@@ -10,7 +10,7 @@ from pathlib import Path
 import yaml
 
 from riskplan.experiments.driver_watch import DRIVER_FILE
-from riskplan.experiments.sweep_worker import read_status
+from riskplan.experiments.sweep_worker import SAME_CONFIGS, foreign_run, read_status
 from riskplan.run.run_files import is_run_dir, other_output
 from riskplan.util import lock
 from riskplan.util.errors import BadInput, one_line
@@ -20,7 +20,6 @@ SWEEPS_ROOT = Path("outputs") / "sweeps"
 
 SUMMARY = "summary.parquet"
 SWEEP_MARKS = ("sweep.log", "multirun.yaml", DRIVER_FILE)  # what a launch writes first: a sweep's directory
-JOB_OWN = (lock.LOCK, "job.log", ".hydra")  # what a job's folder holds before its status.json (a launch killed early)
 
 
 DEFAULT_LAUNCHER = "joblib"
@@ -121,12 +120,22 @@ class Outcome:
 
 
 def locate(sweep_dir: Path, jobs: list[Job]) -> None:
-    """Find each job's folder by the overrides Hydra recorded in it (whatever hydra.sweep.subdir is)."""
+    """Find each job's folder by the overrides Hydra recorded in it (whatever hydra.sweep.subdir is); a job whose
+    recorded overrides are nowhere, by the folder name Hydra gives it, where that folder exists (it holds another
+    launch's .hydra/: a run of another config, which the job left as it was)."""
     missing = {job.key: job for job in jobs if job.path is None}
     if not missing or not Path(sweep_dir).is_dir():
         return
+    _by_overrides(Path(sweep_dir), missing)
+    for job in missing.values():
+        if job.path is None and job.folder is not None and (Path(sweep_dir) / job.folder).is_dir():
+            job.path = Path(sweep_dir) / job.folder
+
+
+def _by_overrides(sweep_dir: Path, missing: dict[tuple[str, ...], Job]) -> None:
+    """locate's search of .hydra/overrides.yaml files for the `missing` jobs (by their keys)."""
     elsewhere: dict[tuple[str, ...], Path] = {}  # found, but not in the folder the job is named for
-    for file in override_files(Path(sweep_dir)):
+    for file in override_files(sweep_dir):
         try:
             overrides = yaml.safe_load(file.read_text()) or []
         except (OSError, yaml.YAMLError):
@@ -167,27 +176,26 @@ def check_sweep_dir(path: Path, key: str) -> None:
 def check_job_folders(sweep_dir: Path, jobs: list[Job]) -> None:
     """Before a launch (its jobs located): BadInput if a job would write over what is not its own: a folder holding a
     run of another config that did not fail (a re-run in a sweep's directory skips or resumes its own jobs, and
-    replaces failed ones), or a folder of files that are not a job's. A folder another process holds is left to its
-    job, which fails alone."""
+    replaces failed ones), or a folder of files that are not a job's (sweep_worker.foreign_run). A folder another
+    process holds is judged by its status.json (written whole), which names the config it trains (a task of an
+    earlier launch of other configs); one without it yet is left to its job, which checks it by the same rule once
+    it holds it, and fails alone touching nothing if it must."""
     clashes = []
     for job in jobs:
         folder = job.path if job.path is not None or job.folder is None else sweep_dir / job.folder
         if folder is None or not folder.is_dir():
             continue
-        if lock.holder(folder) is not None:  # another process's: the job fails alone, touching nothing
-            continue
         status = read_status(folder)
-        if status is None and any(entry.name not in JOB_OWN for entry in folder.iterdir()):
-            clashes.append((folder, "holds files that are not a sweep job's"))
-        elif status is not None and status.get("config_sha") != job.sha and status.get("status") != "failed":
-            clashes.append((folder, f"holds a {status.get('status')} run of another config"))
+        if status is None and lock.holder(folder) is not None:  # being set up: its files are in flux
+            continue
+        problem = foreign_run(folder, job.sha, status)
+        if problem is not None:
+            clashes.append((folder, problem))
     if clashes:
         folder, problem = clashes[0]
         more = f" (and {len(clashes) - 1} more job folders)" if len(clashes) > 1 else ""
         raise BadInput(
-            str(folder),
-            f"{problem}{more}; a sweep goes on in its directory only with the same configs: give a new "
-            f"hydra.sweep.dir, or remove what is there",
+            str(folder), f"{problem}{more}; {SAME_CONFIGS}: give a new hydra.sweep.dir, or remove what is there"
         )
 
 

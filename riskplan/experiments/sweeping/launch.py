@@ -23,7 +23,7 @@ from riskplan.experiments.driver_watch import name_driver, recorded
 from riskplan.experiments.hydra_app import run_multirun
 from riskplan.experiments.sweep_worker import THREADS_ENV, warm_up
 from riskplan.experiments.sweeping.jobs import TASKS
-from riskplan.util.interrupt import StopSignals, sigint_blocked
+from riskplan.util.interrupt import Interrupted, StopSignals, sigint_blocked
 from riskplan.util.limits import cpu_count
 from riskplan.util.paths import hydra_quote, write_atomic
 
@@ -41,6 +41,7 @@ def launch(argv: list[str], log_file: Path, jobs: list[list[str]] | None = None)
         listed = (log_file.parent / JOB_LIST).resolve()
         write_atomic(listed, json.dumps(jobs))
         argv = [*argv, f"hydra.sweeper.jobs={hydra_quote(listed)}"]
+    ours = _sigterm_handler()
     try:
         with (
             recorded(log_file.parent),
@@ -51,6 +52,9 @@ def launch(argv: list[str], log_file: Path, jobs: list[list[str]] | None = None)
             try:
                 run_multirun(argv[1:])  # argv[0] is -m
             except SystemExit as stop:  # Hydra prints an exception in the launcher, then exits 1
+                if stop.code == signal.SIGTERM and _sigterm_handler() != ours:
+                    # ray.init's handler took SIGTERM from the driver's (sys.exit(15)): the sweep was interrupted
+                    raise Interrupted(signal.SIGTERM, 0) from None
                 if stop.code not in (0, None):
                     return _launcher_error(log_file, _task_names(log_file.parent, jobs or []))
             except KeyboardInterrupt:
@@ -62,10 +66,22 @@ def launch(argv: list[str], log_file: Path, jobs: list[list[str]] | None = None)
     finally:
         if jobs is not None:
             listed.unlink(missing_ok=True)
+        if ours is not None and _sigterm_handler() != ours and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, ours)  # the driver's handler again, for the summary that follows
+
+
+def _sigterm_handler():
+    """This process's SIGTERM handler (a library may replace it: ray.init does)."""
+    return signal.getsignal(signal.SIGTERM)
 
 
 # submitit's word for a SLURM job that ended without a result: its id, its task index and the state SLURM gave it
 UNCOMPLETED = re.compile(r"UncompletedJobError: Job (\S+) \(task: \d+\).*?\(state: ([A-Z_]+)", re.DOTALL)
+# its word from inside a job it did not requeue (out of requeues: max_num_timeout), raised in the job and handed
+# back with the job's log paths, whose folder is the job's id (.submitit/<array job>_<index>/)
+NOT_REQUEUED = re.compile(
+    r"UncompletedJobError: Job not requeued because: ([^\n]*?)\.?\n(?:.*?\.submitit/([0-9]+(?:_[0-9]+)?)/)?", re.DOTALL
+)
 
 
 def _task_names(sweep_dir: Path, jobs: list[list[str]]) -> list[str]:
@@ -87,18 +103,31 @@ def _launcher_error(log_file: Path, launched: list[str]) -> str:
     uncompleted = UNCOMPLETED.findall(text)
     if uncompleted:
         job, state = uncompleted[-1]
-        index = job.partition("_")[2]  # <array job>_<index>; a sweep of one job is a plain job, not an array
-        task = int(index) if index.isdigit() else (0 if len(launched) == 1 else -1)
-        overrides = launched[task] if 0 <= task < len(launched) else f"job {job}"
         return (
-            f"the launcher stopped: SLURM job {job} ({overrides}) ended {state} without a result (submitit's "
-            f"UncompletedJobError; see {log_file})"
+            f"the launcher stopped: SLURM job {job} ({_ran(job, launched)}) ended {state} without a result "
+            f"(submitit's UncompletedJobError; see {log_file})"
+        )
+    not_requeued = NOT_REQUEUED.findall(text)
+    if not_requeued:
+        reason, job = not_requeued[-1]
+        named = f"SLURM job {job} ({_ran(job, launched)})" if job else "a SLURM job"
+        return (
+            f"the launcher stopped: {named} ended without a result, not requeued: {reason} "
+            f"(hydra.launcher.max_num_timeout; submitit's UncompletedJobError; see {log_file})"
         )
     lines = [line.strip() for line in text.splitlines() if line.strip()]
     errors = [line for line in lines if "Error" in line.split(":")[0] or "Exception" in line.split(":")[0]]
     errors = [line for line in errors if not line.startswith("Error stream produced")] or errors
-    last = errors[-1] if errors else (lines[-1] if lines else "no message")
-    return f"the launcher stopped: {last[:300]} (see {log_file})"
+    # never a line that is not an error: Ray's last INFO line ("Connected to Ray cluster.") read as the cause
+    last = errors[-1] if errors else next((line for line in reversed(lines) if "rror" in line), None)
+    return f"the launcher stopped: {(last or 'no error message')[:300]} (see {log_file})"
+
+
+def _ran(job: str, launched: list[str]) -> str:
+    """What SLURM job `job` (<array job>_<index>, or a plain job for a sweep of one task) ran: its task's jobs."""
+    index = job.partition("_")[2]
+    task = int(index) if index.isdigit() else (0 if len(launched) == 1 else -1)
+    return launched[task] if 0 <= task < len(launched) else f"job {job}"
 
 
 WARMED = 1  # workers warmed up: one takes the core the planning leaves idle; more would slow the planning down

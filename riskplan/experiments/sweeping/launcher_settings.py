@@ -1,11 +1,17 @@
 """The launcher's settings riskplan adds to a sweep's command line: its workers (joblib's n_jobs, SLURM's array
-parallelism), and the ray.init arguments that fit a local Ray instance or a connection to a cluster."""
+parallelism), and the ray.init arguments that fit a local Ray instance or a connection to a cluster. And the Ray
+settings a cluster would refuse only once the sweep had begun, checked at plan time (`check_ray`: the address
+answers, ray.remote knows the options; SLURM's are cluster_batches.check_sbatch's)."""
 
 from __future__ import annotations
 
+import os
+import re
+import socket
+
 from riskplan.config.validate import check_extra
 from riskplan.experiments.sweeping.jobs import LOCAL
-from riskplan.util.errors import BadInput
+from riskplan.util.errors import BadInput, first_line
 from riskplan.util.limits import cpu_count
 
 
@@ -82,6 +88,7 @@ def ray_init_overrides(launcher: str, hydra_keys: dict) -> list[str]:
         override = hydra_keys.get(RAY_INIT + key)
         return override if override is not None and not override.is_delete() else None
 
+    check_ray(launcher, hydra_keys)
     if not ray_connects(launcher, hydra_keys):
         return []
     for key in RAY_CONNECT_REFUSES:
@@ -93,3 +100,104 @@ def ray_init_overrides(launcher: str, hydra_keys: dict) -> list[str]:
                 "address is set): `ray start` sizes each node; CPUs per job: +hydra.launcher.ray.remote.num_cpus=N",
             )
     return ["++hydra.launcher.ray.init.object_store_memory=null"] if launcher == "ray" else []
+
+
+RAY_REMOTE = "hydra.launcher.ray.remote"
+CONNECT_SECONDS = 5.0  # a Ray head answers a TCP connection at once; an address that does not is a mistake
+# ray.remote's options for a task (ray._common.ray_option_utils.task_options of Ray 2.60), where Ray is not importable
+RAY_TASK_OPTIONS = (
+    "accelerator_type", "memory", "name", "num_cpus", "num_gpus", "object_store_memory", "placement_group",
+    "placement_group_bundle_index", "placement_group_capture_child_tasks", "resources", "runtime_env",
+    "scheduling_strategy", "enable_task_events", "label_selector", "fallback_strategy", "_labels", "max_calls",
+    "max_retries", "num_returns", "retry_exceptions", "_generator_backpressure_num_objects",
+    "_num_objects_per_yield", "concurrency_groups", "enable_tensor_transport",
+)  # fmt: skip
+
+
+def check_ray(launcher: str, hydra_keys: dict, environ=os.environ, timeout: float = CONNECT_SECONDS) -> None:
+    """What Ray would refuse, or wait on forever, once the sweep had begun: ray.remote options it does not know
+    (or values it rejects), an address that is not host:port, and an address where nothing answers (ray.init
+    retried it for ever, printing warnings, with the sweep directory written)."""
+    check_ray_remote(hydra_keys)
+    address, key = ray_address(launcher, hydra_keys, environ)
+    if address is None:
+        return
+    host, port = parse_ray_address(address, key)
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as err:
+        why = "no answer" if isinstance(err, socket.timeout) else (err.strerror or str(err) or type(err).__name__)
+        raise BadInput(
+            key,
+            f"no Ray cluster answers at {address} ({why}); start one there (ray start --head --port={port}) or "
+            f"give the address of the head node's `ray start`",
+        ) from None
+
+
+def ray_address(launcher: str, hydra_keys: dict, environ=os.environ) -> tuple[str | None, str]:
+    """The address ray.init will connect to and the key it comes from: init.address, else (unset, null or auto)
+    RAY_ADDRESS, as ray.init reads it. None for a Ray instance of the sweep's own (local) or one that `auto` finds
+    on this machine (nothing to reach)."""
+    key = RAY_INIT + "address"
+    override = hydra_keys.get(key)
+    given = override is not None and not override.is_delete()
+    value = override.value() if given else ("auto" if launcher == "ray_cluster" else None)
+    if value is None or value == "auto":
+        if environ.get("RAY_ADDRESS"):
+            value, key = environ["RAY_ADDRESS"], "RAY_ADDRESS"
+    if value is None or value in ("auto", "local"):
+        return None, key
+    return str(value), key
+
+
+def parse_ray_address(address: str, key: str) -> tuple[str, int]:
+    """(host, port) of host:port, [ipv6]:port or ray://host:port; bad input otherwise (ray.init's 'Invalid address
+    format')."""
+    match = re.fullmatch(r"(?:ray://)?(?:\[([0-9A-Fa-f:.]+)\]|([^\s:/\[\]]+)):(\d{1,5})", address)
+    port = int(match.group(3)) if match else 0
+    if not match or not 0 < port < 65536:
+        raise BadInput(
+            key,
+            f"got {address!r}; expected HOST:PORT of a Ray cluster's head (e.g. 10.0.0.1:6379), ray://HOST:PORT, "
+            f"auto or local",
+        )
+    return match.group(1) or match.group(2), port
+
+
+def check_ray_remote(hydra_keys: dict) -> None:
+    """hydra.launcher.ray.remote's options, as ray.remote checks them (Ray's own list and checks where Ray is
+    importable, else RAY_TASK_OPTIONS): an unknown option or a value Ray rejects is bad input, not a ValueError
+    from the launcher once the sweep is written."""
+    given: dict[str, tuple[str, object]] = {}
+    for key, override in hydra_keys.items():
+        if override.is_delete() or not (key == RAY_REMOTE or key.startswith(RAY_REMOTE + ".")):
+            continue
+        value = override.value()
+        if key == RAY_REMOTE:
+            items = value.items() if isinstance(value, dict) else ()
+            given.update({str(k): (f"{RAY_REMOTE}.{k}", v) for k, v in items})
+        elif key.count(".") == RAY_REMOTE.count(".") + 1:  # deeper keys (resources.GPU) belong to an option
+            given[key.rsplit(".", 1)[1]] = (key, value)
+        else:
+            given.setdefault(key[len(RAY_REMOTE) + 1 :].split(".")[0], (key, None))
+    options = _ray_task_options()
+    known = list(options) if options is not None else list(RAY_TASK_OPTIONS)
+    for name, (key, value) in given.items():
+        if name not in known:
+            raise BadInput(key, f"ray.remote has no option '{name}'; valid options: {', '.join(sorted(known))}")
+        if options is not None and value is not None:
+            try:
+                options[name].validate(name, value)
+            except (ValueError, TypeError) as err:
+                raise BadInput(key, f"got {value!r}; ray.remote refuses it: {first_line(err)}") from None
+
+
+def _ray_task_options() -> dict | None:
+    """Ray's own table of ray.remote's task options (each with its `validate`), or None where Ray is not installed
+    or keeps it elsewhere."""
+    for module in ("ray._common.ray_option_utils", "ray._private.ray_option_utils"):
+        try:
+            return dict(__import__(module, fromlist=["task_options"]).task_options)
+        except Exception:  # not installed, or another Ray's layout
+            continue
+    return None

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from riskplan.config.hydra_safety import check_resolvers
 from riskplan.experiments.sweep_worker import SUBDIR
-from riskplan.experiments.sweeping.cluster_batches import task_size
+from riskplan.experiments.sweeping.cluster_batches import check_sbatch, task_size
 from riskplan.experiments.sweeping.grid import (
     ParsedOnce,
     add_naming_and_logging,
@@ -34,12 +34,17 @@ from riskplan.experiments.sweeping.jobs import (
     Plan,
     check_sweep_dir,
 )
-from riskplan.experiments.sweeping.launcher_settings import launcher_workers, ray_init_overrides, runs_here
+from riskplan.experiments.sweeping.launcher_settings import (
+    launcher_workers,
+    ray_init_overrides,
+    runs_here,
+)
 from riskplan.experiments.sweeping.search import plan_optimiser
 from riskplan.run.compose import check_override_values, expand_shorthands, parse_overrides
 from riskplan.util.errors import BadInput
 from riskplan.util.paths import check_output_dir, hydra_quote
 
+SUBMITIT = ("submitit_slurm", "submitit_local")  # Hydra's submitit launchers: timeout_min, cpus_per_task, mem_gb
 REQUEUES = 3  # submitit_slurm: times a job that reaches its time limit is requeued (it resumes from its checkpoint)
 
 
@@ -65,7 +70,12 @@ def plan_sweep(
     memory = batch_memory(hydra_keys) if launcher == BATCH_LAUNCHER else None
     if launcher == BATCH_LAUNCHER:
         check_batch_workers(hydra_keys)
-    tasks = task_size(hydra_keys, jobs, launcher) if batch and launcher in CLUSTER_BATCHES else None
+    on_cluster = batch and launcher in CLUSTER_BATCHES
+    # a task's numbers (timeout_min, cpus_per_task, mem_gb) checked for every submitit launch, not only --batch's:
+    # SLURM reads timeout_min=0 as no limit, and sbatch's refusal of mem_gb=-1 came after the folders were written
+    size = task_size(hydra_keys, jobs, launcher) if on_cluster or launcher in SUBMITIT else None
+    tasks = size if on_cluster else None
+    check_sbatch(launcher, hydra_keys)  # what SLURM refuses, asked before anything is written
     explicit_dir = _explicit_dir(hydra_keys, sweep_dir)
     if sweep_dir is not None:  # a reproduction's study
         check_sweep_dir(Path(sweep_dir), str(sweep_dir))

@@ -15,7 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from riskplan.experiments.sweep_worker import is_finished, read_status, repeats_line
+from riskplan.experiments.sweep_worker import foreign_run, is_finished, read_status, refusal, repeats_line
 from riskplan.experiments.sweeping.grid import ParsedOnce
 from riskplan.experiments.sweeping.jobs import SUMMARY, Job, Outcome
 from riskplan.run.columns import frame_to_parquet
@@ -76,7 +76,10 @@ def _job_state(job: Job) -> tuple[str, str | None, dict | None, dict | None]:
     if job.path is None or status is None:
         return "not run", job.invalid or "not started: the sweep stopped before it", status, None
     if status.get("config_sha") != job.sha:
-        return "not run", "its folder holds a run of another config", status, None
+        problem = foreign_run(job.path, job.sha, status)
+        if problem is not None:  # the job left the folder to that run: a failure of this launch's
+            return "failed", refusal(job.path, problem), status, None
+        return "not run", "its folder holds a failed run of another config", status, None
     if status.get("status") == "done" and is_finished(job.path, job.sha, status):
         try:
             return "done", None, status, json.loads((job.path / RUN_SUMMARY).read_text())

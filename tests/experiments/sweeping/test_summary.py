@@ -32,13 +32,15 @@ def test_every_job_gets_a_row_with_why_it_did_not_finish(tmp_path):
     frame = summarize(jobs)
     assert frame.job.tolist() == [f"seed={s}" for s in range(5)] and frame.seed.tolist() == [0, 1, 2, 3, 4]
     assert (frame["risk.beta"] == 0.1).all()
-    assert frame.status.tolist() == ["not run", "not run", "failed", "interrupted", "not run"]
+    assert frame.status.tolist() == ["not run", "not run", "failed", "interrupted", "failed"]
     assert frame.error.tolist() == [
         "not started: the sweep stopped before it",
         "risk.beta: got 1.5",
         "boom",
         "killed while running; re-run the sweep to resume it",
-        "its folder holds a run of another config",
+        f"{tmp_path / 'seed=4'} holds a done run of another config; the job left it as it was: a sweep goes on in its "
+        "directory only with the same configs, so give a new hydra.sweep.dir (or remove that folder and run the "
+        "sweep again)",
     ]
     assert frame[["mean", "cvar_low", "value_at_risk_high", "wall_time"]].isna().all().all()
     assert frame.path[:2].isna().all() and frame.path[2] == str(tmp_path / "seed=2")
