@@ -20,6 +20,7 @@ def test_check_reports_team_assumptions(in_tmp):
     assert not (in_tmp / "outputs").exists()
 
 
+@pytest.mark.slow  # over half a second (the quick tier stays under a minute)
 def test_check_warns_when_assumption_6_fails(in_tmp):
     with pytest.warns(UserWarning, match="Assumption 6"):
         result = runner.invoke(app, ["check", "train.step_size.power=2"])

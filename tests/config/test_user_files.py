@@ -33,7 +33,11 @@ BOMB = (
             "line 3: the tag !!python/object/apply:os.system makes",
         ),
         (BOMB, "line 9: expands to more than 1,000,000 values through its aliases (*name); write the values out"),
-        (HEAD + "junk: " + "[" * 2000 + "]" * 2000 + "\n", "is nested too deeply to read (thousands of levels)"),
+        pytest.param(
+            HEAD + "junk: " + "[" * 2000 + "]" * 2000 + "\n",
+            "is nested too deeply to read (thousands of levels)",
+            marks=pytest.mark.slow,  # a second: PyYAML recurses until Python stops it
+        ),
         ("- seed\n- 3\n", "holds a list at its top level; a config file is a mapping of keys, e.g. seed: 3"),
         (b"# @package _global_\nexperiment: m\xe9\n", "is not UTF-8 text (byte 0xe9 on line 2); save it as UTF-8"),
         # Hydra took these for a package: "Key '' not in 'RiskplanConf'", or its own ValueError

@@ -42,6 +42,7 @@ def _wrap(children):
 distributions = st.recursive(leaves, _wrap, max_leaves=8)
 
 
+@pytest.mark.slow  # over half a second (the quick tier stays under a minute)
 @given(distributions)
 def test_parser_round_trips(data):
     dist = D.parse(data)

@@ -89,6 +89,7 @@ def test_a_run_alone_is_the_engine_step_iterated():
 @pytest.mark.parametrize(
     "measure", [name if name == "cvar" else pytest.param(name, marks=pytest.mark.slow) for name in names()]
 )
+@pytest.mark.slow  # over half a second (the quick tier stays under a minute)
 def test_a_run_in_a_mixed_batch_is_bit_for_bit_the_run_alone(measure):
     first = setup_of("seed=11", *registered(measure))
     setups = [first, *(setup_of(*overrides) for overrides in OTHERS.values())]

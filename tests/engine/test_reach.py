@@ -21,6 +21,7 @@ def cells_within(world, starts, moves: int) -> set[tuple[int, int]]:
     return {tuple(int(v) for v in world.xy(c)) for c in seen}
 
 
+@pytest.mark.slow  # over half a second (the quick tier stays under a minute)
 def test_the_reach_is_the_cells_within_horizon_minus_one_moves():
     near = ["world.sources.0.position=[0,3]", "world.sources.1.position=[1,2]"]  # within the horizon's reach
     setup = setup_of("world.horizon=4", "world.obstacles=[[1,0],[1,1]]", *near)

@@ -440,6 +440,7 @@ def test_a_report_written_into_its_directory_by_another_meanwhile_is_refused_not
     assert not any(name.endswith(".png") for name in listed) and "fig2_cvar.pdf" in listed
 
 
+@pytest.mark.slow  # about a second: a first report is started and held mid-way
 def test_a_second_report_into_a_directory_a_report_is_writing_is_refused_at_once(done, tmp_path):
     """Two reports into one --out: each had claimed the directory empty, then both wrote, leaving one's PDFs beside
     the other's PNGs under a manifest of one. A report into a directory that exists holds the writers' lock from its

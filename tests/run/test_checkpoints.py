@@ -40,6 +40,7 @@ def states(count: int):
     return setups, [step(setup, initial_state(setup))[0] for setup in setups]
 
 
+@pytest.mark.slow  # over half a second (the quick tier stays under a minute)
 @pytest.mark.parametrize("syncfs", [True, False], ids=["group commit", "run by run"])
 def test_the_group_writes_what_each_run_alone_writes(tmp_path, monkeypatch, syncfs):
     if not syncfs:

@@ -135,6 +135,7 @@ def test_a_point_off_the_map_or_on_an_obstacle_names_its_cell_and_the_nearest_fr
     assert "the nearest free cell is" in err.problem
 
 
+@pytest.mark.slow  # over half a second (the quick tier stays under a minute)
 def test_the_nearest_free_cell_is_the_closest(room_map):
     assert (
         "the nearest free cell is (15, 7), {metres: [1.1, 3]}"

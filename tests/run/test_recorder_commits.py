@@ -75,6 +75,7 @@ def test_a_fault_of_the_whole_commit_is_every_runs(tmp_path, monkeypatch):
     assert [r for r, _ in errors] == [0, 1] and all(isinstance(e, RuntimeError) for _, e in errors)
 
 
+@pytest.mark.slow  # two runs
 @pytest.mark.parametrize("every", [1, 2])
 def test_the_last_checkpoint_is_on_disk_when_a_run_finishes(tmp_path, every):
     """Every iteration (a commit each, the one before waited for) or a commit then the last: the loop's end waits

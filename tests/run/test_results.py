@@ -36,6 +36,7 @@ def test_a_config_is_what_omegaconf_resolves(tmp_path, name):
         assert run_config(tmp_path)["train"]["paths"] == 7
 
 
+@pytest.mark.slow  # over half a second (the quick tier stays under a minute)
 @pytest.mark.parametrize("text", ["NaN", "[1, 2]", '"done"'])
 def test_a_summary_that_is_not_an_object_is_rebuilt_from_the_log(tmp_path, text):
     """summary.json holding JSON that is not an object (riskplan writes none) is a damaged file: load_run reads the

@@ -4,6 +4,7 @@ test_report_contents.py."""
 
 from __future__ import annotations
 
+import pytest
 from support import TINY
 
 from riskplan import compose, train
@@ -11,6 +12,7 @@ from riskplan import compose, train
 TEAM = ["experiment=paper_team", *TINY]
 
 
+@pytest.mark.slow  # over half a second (the quick tier stays under a minute)
 def test_report_draws_the_consensus_error_of_each_order(tmp_path):
     from riskplan.experiments.reporting.collect import collect
     from riskplan.experiments.reporting.figures import fig_orders

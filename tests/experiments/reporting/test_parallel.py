@@ -95,6 +95,7 @@ shared_map(lambda item: time.sleep(60), list(range(4)), cost=lambda item: 1.0)
 """
 
 
+@pytest.mark.slow  # a second each: the children are given time to start working
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL])
 def test_children_end_with_a_parent_killed_while_they_work(tmp_path, signum):
     """A report or export killed by SIGTERM or SIGKILL runs no `except`: its forked children outlived it, each

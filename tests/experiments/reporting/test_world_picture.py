@@ -191,6 +191,7 @@ def test_a_wandering_source_is_drawn_where_its_walk_begins():
     assert "2 'risky' (3, 9, a random walk from here): 12 moves from (0, 0)" in labels
 
 
+@pytest.mark.slow  # over half a second (the quick tier stays under a minute)
 @pytest.mark.parametrize(("size", "source"), [("[1,12]", "[0,5]"), ("[12,1]", "[5,0]")])
 def test_a_world_one_cell_wide_is_drawn_without_contours(size, source):
     """matplotlib's contour needs 2 x 2 values: `check --draw` of such a world was a traceback, and in a report it

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import numba
+import pytest
 from joblib import delayed
 
 from riskplan.experiments.reproduction import stop_workers
 from riskplan.experiments.sweeping.launch import NUMBA_THREADS_ENV, local_pool
 
 
+@pytest.mark.slow  # a worker process started
 def test_a_local_worker_keeps_numbas_whole_pool_of_threads(monkeypatch):
     """joblib would start each of 2 workers with numba's pool capped at cores // 2 threads for its whole life; the
     local pool's workers keep this process's pool, so that a part of a batch can take the cores its finished

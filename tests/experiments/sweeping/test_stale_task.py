@@ -77,6 +77,7 @@ def test_the_mirrored_case_an_older_launchs_job_meets_the_newer_configs_run(tmp_
     assert "holds a done run of another config" in capfd.readouterr().err
 
 
+@pytest.mark.slow  # over half a second (the quick tier stays under a minute)
 def test_a_batched_job_leaves_it_too_and_lets_its_lock_go(tmp_path, capfd):
     out = tmp_path / "seed=1"
     before = finished_run(out, A)
@@ -186,6 +187,7 @@ def test_the_job_by_job_sweep_leaves_the_runs_own_files(tmp_path, monkeypatch):
     assert after == before and result.exit_code == 1, result.output
 
 
+@pytest.mark.slow  # a job through Hydra's run_job
 def test_a_batched_job_set_up_through_run_job_has_hydra_write_no_files_over_another_run(tmp_path):
     """_run_job's check before Hydra's run_job writes .hydra/: the folder it would set the job up in, by the sweep's
     keys, holds a run of another config (Hydra is then told hydra.output_subdir=null)."""
