@@ -11,7 +11,7 @@ import socket
 
 from riskplan.config.validate import check_extra
 from riskplan.experiments.sweeping.jobs import LOCAL
-from riskplan.util.errors import BadInput, first_line
+from riskplan.util.errors import BadInput
 from riskplan.util.limits import cpu_count
 
 
@@ -104,7 +104,7 @@ def ray_init_overrides(launcher: str, hydra_keys: dict) -> list[str]:
 
 RAY_REMOTE = "hydra.launcher.ray.remote"
 CONNECT_SECONDS = 5.0  # a Ray head answers a TCP connection at once; an address that does not is a mistake
-# ray.remote's options for a task (ray._common.ray_option_utils.task_options of Ray 2.60), where Ray is not importable
+# ray.remote's options for a task (ray._common.ray_option_utils.task_options of Ray 2.60; Ray is not imported here)
 RAY_TASK_OPTIONS = (
     "accelerator_type", "memory", "name", "num_cpus", "num_gpus", "object_store_memory", "placement_group",
     "placement_group_bundle_index", "placement_group_capture_child_tasks", "resources", "runtime_env",
@@ -165,39 +165,19 @@ def parse_ray_address(address: str, key: str) -> tuple[str, int]:
 
 
 def check_ray_remote(hydra_keys: dict) -> None:
-    """hydra.launcher.ray.remote's options, as ray.remote checks them (Ray's own list and checks where Ray is
-    importable, else RAY_TASK_OPTIONS): an unknown option or a value Ray rejects is bad input, not a ValueError
-    from the launcher once the sweep is written."""
-    given: dict[str, tuple[str, object]] = {}
+    """hydra.launcher.ray.remote's option names (RAY_TASK_OPTIONS): an unknown one is bad input, not a ValueError
+    from the launcher once the sweep is written. Ray itself is not imported here: imported in the driver before
+    the launcher's ray.init, it keeps that call's lines out of sweep.log (the values are Ray's to check)."""
     for key, override in hydra_keys.items():
         if override.is_delete() or not (key == RAY_REMOTE or key.startswith(RAY_REMOTE + ".")):
             continue
-        value = override.value()
         if key == RAY_REMOTE:
-            items = value.items() if isinstance(value, dict) else ()
-            given.update({str(k): (f"{RAY_REMOTE}.{k}", v) for k, v in items})
-        elif key.count(".") == RAY_REMOTE.count(".") + 1:  # deeper keys (resources.GPU) belong to an option
-            given[key.rsplit(".", 1)[1]] = (key, value)
+            value = override.value()
+            names = [(str(k), f"{RAY_REMOTE}.{k}") for k in value] if isinstance(value, dict) else []
         else:
-            given.setdefault(key[len(RAY_REMOTE) + 1 :].split(".")[0], (key, None))
-    options = _ray_task_options()
-    known = list(options) if options is not None else list(RAY_TASK_OPTIONS)
-    for name, (key, value) in given.items():
-        if name not in known:
-            raise BadInput(key, f"ray.remote has no option '{name}'; valid options: {', '.join(sorted(known))}")
-        if options is not None and value is not None:
-            try:
-                options[name].validate(name, value)
-            except (ValueError, TypeError) as err:
-                raise BadInput(key, f"got {value!r}; ray.remote refuses it: {first_line(err)}") from None
-
-
-def _ray_task_options() -> dict | None:
-    """Ray's own table of ray.remote's task options (each with its `validate`), or None where Ray is not installed
-    or keeps it elsewhere."""
-    for module in ("ray._common.ray_option_utils", "ray._private.ray_option_utils"):
-        try:
-            return dict(__import__(module, fromlist=["task_options"]).task_options)
-        except Exception:  # not installed, or another Ray's layout
-            continue
-    return None
+            names = [(key[len(RAY_REMOTE) + 1 :].split(".")[0], key)]  # deeper keys (resources.GPU): an option's
+        for name, where in names:
+            if name not in RAY_TASK_OPTIONS:
+                raise BadInput(
+                    where, f"ray.remote has no option '{name}'; valid options: {', '.join(sorted(RAY_TASK_OPTIONS))}"
+                )
