@@ -57,11 +57,10 @@ def train_batch(
         if active:
             load_kernels(active[0].setup, active[0].driver.state)
         resume_collection()  # the start-up is over (riskplan.util.collector), as for a run alone
-        recorder = stack.enter_context(Recorder([run.driver for run in active], stop, isolate=True, progress=progress))
+        recorder = Recorder([run.driver for run in active], stop, isolate=True, progress=progress)
         unopened = sum(run.setup.params.train.iterations for run in runs if run.driver is None)
         recorder.done, recorder.total = recorder.done + unopened, recorder.total + unopened
         make_train([run.setup for run in active])([run.driver.state for run in active], recorder)
-        recorder.drain()  # the last checkpoints' failures are the runs'
         grouped = can_sync_file_systems() and len(active) > 1  # the finished files synced once, not run by run
         for run, error, seconds in zip(active, recorder.errors, recorder.seconds):
             run.error = error

@@ -48,14 +48,12 @@ def save_checkpoints(outs: list[Path], states: list[TrainState], logs: list) -> 
     """Many runs' checkpoints, each after its run.mcap, as one group commit (a batch's round): every temp file
     written, one sync of each file system they lie on (the logs, already written to the system at each iteration's
     end, and the temp files become durable together), every rename, one more sync. Two syncs per file system
-    instead of three fsyncs per run. Where the system cannot sync a file system alone (syncfs is Linux's), or for
-    one run: each run's log.fsync() and save_checkpoint in turn. Each run's error, or None; a run whose files fail
-    keeps its checkpoint before. It reads `states` and fsyncs `logs` alone (RunLog.fsync), so it may run in a
-    thread of its own while the loop goes on (riskplan.run.recorder.Commits), given states that the loop does not
-    change (detached)."""
+    instead of three fsyncs per run. Where the system cannot sync a file system alone (syncfs is Linux's): each
+    run's log.sync() and save_checkpoint in turn. Each run's error, or None; a run whose files fail keeps its
+    checkpoint before."""
     if _SYNCFS is None or len(outs) < 2:
         return [
-            _attempt(lambda out=out, state=state, log=log: (log.fsync(), save_checkpoint(out, state)))
+            _attempt(lambda out=out, state=state, log=log: (log.sync(), save_checkpoint(out, state)))
             for out, state, log in zip(outs, states, logs)
         ]
     errors = [
@@ -74,11 +72,6 @@ def save_checkpoints(outs: list[Path], states: list[TrainState], logs: list) -> 
         errors[k] = _attempt(lambda k=k: os.replace(outs[k] / CHECKPOINT_TMP, outs[k] / CHECKPOINT))
     sync_file_systems([outs[k] for k, error in enumerate(errors) if error is None])
     return errors
-
-
-def detached(state: TrainState) -> TrainState:
-    """A copy of the state that shares no array with the loop's (its mixer's buffers may be reused in place)."""
-    return TrainState(state.iteration, state.thetas.copy(), {k: np.array(v, copy=True) for k, v in state.mixer.items()})
 
 
 def _payload(state: TrainState) -> dict:

@@ -347,15 +347,10 @@ class RunLog:
         self._durable()
 
     def sync(self) -> None:
-        """Make everything written so far survive a power cut (fsync)."""
+        """Make everything written so far survive a power cut (fsync). Training calls it before each checkpoint,
+        so a checkpoint on disk never gets ahead of the log that resume needs."""
         self._check_open()
         self._durable()
-        self.fsync()
-
-    def fsync(self) -> None:
-        """fsync what is written to the system already, as every iteration's rows are (`rows`); it touches only the
-        file descriptor, never the writer, so a checkpoint's commit thread may call it while the loop writes on.
-        Each checkpoint calls it first, so a checkpoint on disk never gets ahead of the log that resume needs."""
         os.fsync(self._fh.fileno())
 
     def close(self, durable: bool = True) -> None:

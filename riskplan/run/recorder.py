@@ -5,19 +5,12 @@ A `Driver` is one run's files around the loop: run.mcap opened fresh or at its c
 checkpoints, then the evaluation and the finished files. The `Recorder` hands each iteration to its run's Driver,
 keeps each run's share of the loop's time, and between rounds checkpoints every live run and stops when a signal
 came. A run alone lets its failure stop the command; a batch (`isolate`) keeps each failure with its run.
-
-A checkpoint's commit (its fsyncs, the rename) runs in a thread of its own while the loop computes the next
-iterations (`Commits`): an fsync is a millisecond on a local disk and tens on a cluster's network file system, and
-the loop need not wait for it. One commit is in flight at a time; the next one, a signal's stop, a test's pause and
-the end of the loop (`Recorder.drain`) wait for it first, so what a kill leaves is always a checkpoint whose log is
-on disk (the one before, at worst), as before.
 """
 
 from __future__ import annotations
 
 import os
 import signal
-import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -26,7 +19,7 @@ import numba
 
 from riskplan.engine.step import RunSetup, Statistics, TrainState, initial_state
 from riskplan.run import cost
-from riskplan.run.checkpoint import detached, load_checkpoint, save_checkpoints
+from riskplan.run.checkpoint import load_checkpoint, save_checkpoints
 from riskplan.run.columns import from_rows, sorted_by
 from riskplan.run.evaluation import evaluate, sample_paths, summarize
 from riskplan.run.metrics_rows import statistics_rows
@@ -116,38 +109,6 @@ class Driver:
         return summary
 
 
-class Commits:
-    """The recorder's checkpoints committed in a background thread, one commit at a time (save_checkpoints reads
-    detached states and fsyncs the logs' descriptors alone, so the loop may write on meanwhile)."""
-
-    def __init__(self):
-        self._thread: threading.Thread | None = None
-        self._runs: list[int] = []
-        self._errors: list[Exception | None] = []
-
-    def start(self, runs: list[int], drivers: list[Driver]) -> None:
-        """Commit the drivers' checkpoints (of `runs`) in the background; the caller waited for the one before."""
-        outs, logs, states = [d.out for d in drivers], [d.log for d in drivers], [detached(d.state) for d in drivers]
-
-        def commit() -> None:
-            try:
-                self._errors = save_checkpoints(outs, states, logs)
-            except Exception as err:  # save_checkpoints gives each run its own; this is a fault of the whole commit
-                self._errors = [err] * len(outs)
-
-        self._runs, self._errors = runs, [None] * len(runs)
-        self._thread = threading.Thread(target=commit, name="riskplan-checkpoint", daemon=True)
-        self._thread.start()
-
-    def wait(self) -> list[tuple[int, Exception]]:
-        """Wait for the commit in flight; the runs whose checkpoint it could not write, with their errors."""
-        if self._thread is None:
-            return []
-        self._thread.join()
-        self._thread = None
-        return [(r, error) for r, error in zip(self._runs, self._errors) if error is not None]
-
-
 class Recorder:
     """The loop's one way out for a set of runs (riskplan.engine.loop.Recorder): run r's iterations go to
     drivers[r]; `seconds[r]` is its share of the loop's time; `errors[r]` what stopped it (with `isolate`; a run
@@ -166,14 +127,6 @@ class Recorder:
         self.errors: list[BaseException | None] = [None] * len(self.drivers)
         self.done = sum(driver.state.iteration for driver in self.drivers)
         self.total = sum(driver.total for driver in self.drivers)
-        self.commits = Commits()
-
-    def __enter__(self) -> Recorder:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        """Never leave a commit running past the loop (a failure or a signal leaves it the run's checkpoint)."""
-        self.commits.wait()
 
     def iteration(self, run: int, state: TrainState, statistics: Statistics, seconds: float) -> None:
         self.seconds[run] += seconds
@@ -193,41 +146,32 @@ class Recorder:
         the batch."""
         failed = self._checkpoint([r for r in runs if self.drivers[r].due])
         if any(self.drivers[r].pauses_for_tests for r in runs):
-            failed += self.drain()  # the test finds the checkpoint of the iteration it stopped at on disk
             os.kill(os.getpid(), signal.SIGSTOP)
             # a signal the test sent while this process stood still may reach one of numba's threads, whose
             # handler call lets the main thread look later than this round: it is taken before the check below
             time.sleep(SETTLE_SECONDS)
         if self.stop.received is not None:
             failed += self._checkpoint([r for r in runs if r not in failed and not self._saved(r)])
-            failed += self.drain()
             self.stop.check(min((states[r].iteration for r in runs if r not in failed), default=0))
         return failed
 
-    def drain(self) -> list[int]:
-        """Wait for the checkpoint commit in flight (the loop's end calls it before the runs' final files); the runs
-        whose checkpoint failed, each handed to `failed` (a run alone raises its error)."""
-        return self._failed(self.commits.wait())
-
     def _checkpoint(self, runs: list[int]) -> list[int]:
-        """Checkpoint the runs, each after its log, in the background (Commits): a batch's as one group commit
-        (riskplan.run.checkpoint.save_checkpoints: two syncs of the disk for all of them, not three fsyncs each).
-        First the commit before is waited for: the runs it failed (each handed to `failed`) are returned, and leave
-        the batch with the checkpoint before theirs."""
-        if not runs:  # the commit in flight goes on under the next iterations
-            return []
-        failed = self.drain()
-        runs = [r for r in runs if r not in failed]
-        if runs:
-            self.commits.start(runs, [self.drivers[r] for r in runs])
-            for r in runs:  # saved as far as the loop is concerned: a failure is handed over when it is known
-                self.drivers[r].saved = self.drivers[r].state.iteration
-        return failed
-
-    def _failed(self, errors: list[tuple[int, Exception]]) -> list[int]:
-        for r, error in errors:
-            self.failed(r, error)
-        return [r for r, _ in errors]
+        """Checkpoint the runs; those that failed (each handed to `failed`)."""
+        errors = self._checkpoints(runs)
+        for r, error in zip(runs, errors):
+            if error is not None:
+                self.failed(r, error)
+        return [r for r, error in zip(runs, errors) if error is not None]
 
     def _saved(self, run: int) -> bool:
         return self.drivers[run].saved == self.drivers[run].state.iteration
+
+    def _checkpoints(self, runs: list[int]) -> list[Exception | None]:
+        """Checkpoint the runs, each after its log: a batch's as one group commit (riskplan.run.checkpoint.
+        save_checkpoints: two syncs of the disk for all of them, not three fsyncs each). Each run's error, or None."""
+        drivers = [self.drivers[r] for r in runs]
+        errors = save_checkpoints([d.out for d in drivers], [d.state for d in drivers], [d.log for d in drivers])
+        for driver, error in zip(drivers, errors):
+            if error is None:
+                driver.saved = driver.state.iteration
+        return errors

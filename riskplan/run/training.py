@@ -71,11 +71,9 @@ def _train_locked(setup: RunSetup, out: Path, resume: bool, progress) -> dict:
     load_kernels(setup, run.state)  # numba's cache, before the loop: wall_time is the loop's own
     resume_collection()  # the start-up is over: a command that paused the collector for it gets it back here
     wall = time.perf_counter()
-    # SIGINT or SIGTERM: checkpoint the iteration in progress, then Interrupted
-    with run.log, StopSignals() as stop, Recorder([run], stop) as recorder:
-        make_train([setup])([run.state], recorder)
-        run.evaluate(time.perf_counter() - wall)  # while the last checkpoint commits
-        recorder.drain()
+    with run.log, StopSignals() as stop:  # SIGINT or SIGTERM: checkpoint the iteration in progress, then Interrupted
+        make_train([setup])([run.state], Recorder([run], stop))
+        run.evaluate(time.perf_counter() - wall)
         stop.check(run.state.iteration)  # before the final files: a resumed run evaluates again
         run.log_results()
     return run.finish()

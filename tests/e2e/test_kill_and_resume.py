@@ -166,9 +166,7 @@ def test_resume_with_more_iterations_extends_a_finished_run(tmp_path, monkeypatc
 
 def test_power_cut_state_resumes_each_checkpoint_is_backed_by_a_synced_log(tmp_path, monkeypatch, baseline):
     """Simulate a power cut: only fsynced bytes survive. At every checkpoint rename, the checkpoint and the log as
-    of its last fsync must be enough to resume; resuming from one such state gives the uninterrupted run. The
-    commit runs beside the loop (riskplan.run.recorder.Commits), so the log may hold a few iterations past the
-    checkpoint, as after a kill between two checkpoints: resume drops them and trains them again."""
+    of its last fsync must be enough to resume; resuming from one such state gives the uninterrupted run."""
     out = tmp_path / "run"
     synced: dict[str, bytes] = {}
     states: dict[int, tuple[bytes, bytes]] = {}  # checkpoint iteration -> (checkpoint bytes, synced log bytes)
@@ -194,8 +192,7 @@ def test_power_cut_state_resumes_each_checkpoint_is_backed_by_a_synced_log(tmp_p
     assert sorted(states) == [5, 10, 15, 20, 25, 30]
     for iteration, (_, log) in states.items():
         (tmp_path / "synced.mcap").write_bytes(log)
-        logged = list(read_log(tmp_path / "synced.mcap").metrics.iteration)
-        assert logged[:iteration] == list(range(iteration)) and logged == list(range(len(logged)))
+        assert list(read_log(tmp_path / "synced.mcap").metrics.iteration) == list(range(iteration))
 
     cut = tmp_path / "cut"  # the disk after a power cut just after checkpoint 15
     (cut / ".hydra").mkdir(parents=True)

@@ -31,7 +31,7 @@ class Log:
     def __init__(self):
         self.syncs = 0
 
-    def fsync(self):
+    def sync(self):
         self.syncs += 1
 
 
