@@ -234,6 +234,17 @@ def foreign_run(out: Path, sha: str, status: dict | None) -> str | None:
     return f"holds {'an' if state[0] in 'aeiouAEIOU' else 'a'} {state} run of another config"
 
 
+def holds_another_run(out: Path, config: DictConfig | dict) -> bool:
+    """Whether the job folder `out` holds a run of another config that did not fail (foreign_run), for the job of
+    `config`: a folder in use when the sweep was planned, whose files the job's set-up must leave as they are. The
+    config's fingerprint is taken only where a status.json may name another."""
+    if not Path(out).is_dir():
+        return False
+    status = read_status(out)
+    differs = status is not None and status.get("status") != "failed"
+    return foreign_run(out, config_sha(config) if differs else "", status) is not None
+
+
 def refusal(out: Path, problem: str) -> str:
     """A job's one line for a folder it leaves to another config's run (`problem`: foreign_run's)."""
     return (

@@ -35,13 +35,11 @@ from riskplan.experiments.sweep_worker import (
     JOB_LOG,
     JobStart,
     begin_job,
-    config_sha,
     end_job,
     failure,
-    foreign_run,
+    holds_another_run,
     interrupt_job,
     outcome,
-    read_status,
     say_refused,
     sweep_job,
 )
@@ -173,15 +171,12 @@ def _holds_another_run(sweep_config: DictConfig) -> bool:
         )
         if not out.is_dir():
             return False
-        status = read_status(out)
-        if status is not None and status.get("status") == "failed":
-            return False
         full = copy.deepcopy(sweep_config)  # set_config makes its hydra node read-only
         HydraConfig.instance().set_config(full)  # as run_job sets it, for ${hydra:...} in the config
         task = copy.deepcopy(full)  # the job's config as run_job hands it over: its hydra node removed
         with read_write(task), open_dict(task):
             del task["hydra"]
-        return foreign_run(out, config_sha(task), status) is not None
+        return holds_another_run(out, task)
     except Exception:  # an interpolation only the job resolves, say: Hydra writes as it always did
         return False
 

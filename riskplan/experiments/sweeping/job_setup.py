@@ -22,7 +22,7 @@ from hydra._internal.config_loader_impl import get_overrides_dirname
 from omegaconf import DictConfig, OmegaConf
 
 from riskplan.config.backends import BACKENDS
-from riskplan.experiments.sweep_worker import SUBDIR, config_sha, folder_name, foreign_run, read_status
+from riskplan.experiments.sweep_worker import SUBDIR, folder_name, holds_another_run
 from riskplan.experiments.sweeping.as_data import Composition, JobConfig, yaml_ready
 from riskplan.experiments.sweeping.grid import JobConfigs, ParsedOnce
 from riskplan.experiments.sweeping.jobs import TRAVELS
@@ -67,7 +67,7 @@ class JobSetup:
         naming = hydra["job"]["config"]["override_dirname"]
         dirname = get_overrides_dirname(parsed, list(naming["exclude_keys"]), naming["item_sep"], naming["kv_sep"])
         out = self.sweep_dir / folder_name(dirname)
-        if _holds_another_run(out, config.plain):  # its .hydra/ is that run's: the job refuses the folder
+        if holds_another_run(out, config.plain):  # its .hydra/ is that run's: the job refuses the folder
             return JobFolder(out, config)
         node = {
             **hydra,
@@ -97,18 +97,6 @@ class JobSetup:
             return None
         composition = Composition(cfg)
         return None if composition.params is None else (composition, hydra)
-
-
-def _holds_another_run(out: Path, plain: dict) -> bool:
-    """Whether the job folder `out` holds a run of another config that did not fail (sweep_worker.foreign_run): a
-    folder in use when the sweep was planned, which the plan could not check. Its files are left as they are; the
-    job, once it holds the folder's lock, fails alone. The config's fingerprint only where a status.json may differ."""
-    if not out.is_dir():
-        return False
-    status = read_status(out)
-    if status is not None and status.get("status") == "failed":
-        return False
-    return foreign_run(out, config_sha(plain) if status is not None else "", status) is not None
 
 
 def _as_run_job_would(cfg: DictConfig, hydra: dict) -> bool:
