@@ -8,7 +8,9 @@ other slow tests carry the mark themselves. Shared helpers and the run configs (
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import signal
 import sys
 import tempfile
@@ -34,8 +36,11 @@ TESTS = Path(__file__).resolve().parent
 DONT_WRITE_BYTECODE = sys.dont_write_bytecode
 sys.dont_write_bytecode = False
 # Runs record their cost for the time estimates (riskplan.run.cost): the tests' runs go to a folder of their own,
-# not into the user's cache, and a test that checks the calibration sets its own.
-os.environ.setdefault("RISKPLAN_CACHE_DIR", tempfile.mkdtemp(prefix="riskplan-tests-cache-"))
+# not into the user's cache, and a test that checks the calibration sets its own. The process that made the folder
+# (the xdist workers inherit its variable) removes it as it exits.
+if "RISKPLAN_CACHE_DIR" not in os.environ:
+    os.environ["RISKPLAN_CACHE_DIR"] = tempfile.mkdtemp(prefix="riskplan-tests-cache-")
+    atexit.register(shutil.rmtree, os.environ["RISKPLAN_CACHE_DIR"], ignore_errors=True)
 SLOW_FOLDERS = ("e2e", "clusters")  # whole runs through the CLI, and real clusters
 
 
