@@ -2,8 +2,9 @@
 # The Ray launcher check, in an environment of its own: hydra-ray-launcher needs cloudpickle<3, and joblib 1.6
 # needs cloudpickle>=3, so the Ray environment keeps joblib<1.6 (the `ray` extra of pyproject.toml pins both).
 # It runs the Ray launcher's tests, which the main suite skips because the main environment has no Ray launcher:
-# a sweep on a local Ray instance, and the Ray commands of docs/clusters.md run as written, on a local instance and on
-# a two-node Ray cluster started from this venv's `ray` (tests/clusters/ray_cluster.py; about a minute).
+# `auto` refused at plan time where it finds no Ray instance, a sweep on a local Ray instance, and the Ray commands
+# of docs/clusters.md run as written, on a local instance and on a two-node Ray cluster started from this venv's
+# `ray` (tests/clusters/ray_cluster.py; about a minute).
 # Usage: bash tests/ray_check.sh        (RAY_VENV=DIR to choose where the venv lives; it is reused when present)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -17,5 +18,6 @@ fi
 "$RAY_VENV/bin/python" -c "import hydra_plugins.hydra_ray_launcher, ray, cloudpickle, joblib; \
 print(f'ray {ray.__version__}, cloudpickle {cloudpickle.__version__}, joblib {joblib.__version__}')"
 export RAY_USAGE_STATS_ENABLED=0
-"$RAY_VENV/bin/python" -m pytest -q -p no:cacheprovider tests/experiments/sweeping/test_ray_launcher.py \
-  tests/clusters/test_ray_sweeps.py
+# test_ray_bad_settings.py first: `auto` finding no Ray instance needs a machine where no test's Ray is running
+"$RAY_VENV/bin/python" -m pytest -q -p no:cacheprovider tests/clusters/test_ray_bad_settings.py \
+  tests/experiments/sweeping/test_ray_launcher.py tests/clusters/test_ray_sweeps.py

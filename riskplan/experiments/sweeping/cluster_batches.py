@@ -280,23 +280,33 @@ UNREACHABLE = re.compile(
 )
 
 
-def check_sbatch(launcher: str, hydra_keys: dict, timeout: float = SBATCH_SECONDS) -> None:
+def check_sbatch(launcher: str, hydra_keys: dict, timeout: float = SBATCH_SECONDS, tasks: int | None = None) -> None:
     """submitit_slurm's settings as SLURM will judge them, before anything is written: the batch script submitit
-    would submit (its #SBATCH lines from the launcher's settings, as an array) goes to `sbatch --test-only`, which
-    submits nothing. A refusal is bad input naming the hydra.launcher keys without which sbatch accepts the rest
-    (else all the user gave) and sbatch's own reason; it also catches a request no node can ever meet
-    (cpus_per_task beyond every node), which would otherwise pend in silence. No check without sbatch on PATH, or
-    when sbatch cannot reach its controller or answer within `timeout` s: the submission says what is wrong then."""
+    would submit (its #SBATCH lines from the launcher's settings; an array of `tasks` tasks, one job alone without
+    --array as submitit submits it, an array of 2 when the count is not known yet) goes to `sbatch --test-only`,
+    which submits nothing. A refusal is bad input naming the hydra.launcher keys without which sbatch accepts the
+    rest (else all the user gave) and sbatch's own reason, or the array's size when sbatch takes a smaller one
+    (MaxArraySize, 1001 by default); it also catches a request no node can ever meet (cpus_per_task beyond every
+    node), which would otherwise pend in silence. No check without sbatch on PATH, or when sbatch cannot reach its
+    controller or answer within `timeout` s: the submission says what is wrong then."""
     if launcher != "submitit_slurm" or shutil.which("sbatch") is None:
         return
+    tasks = 2 if tasks is None else tasks
     params = slurm_params(hydra_keys)
-    refusal = None if params is None else sbatch_refusal(params, timeout)
+    refusal = None if params is None else sbatch_refusal(params, timeout, tasks)
     if refusal is None:
         return
+    if tasks > 2 and sbatch_refusal(params, timeout, 2) is None:
+        raise BadInput(
+            "hydra/launcher=submitit_slurm",
+            f"sbatch refuses a job array of {tasks} tasks, one a job: {refusal} (sbatch --test-only), and takes a "
+            f"smaller one (the cluster's MaxArraySize: scontrol show config); sweep fewer jobs at once, or give "
+            f"--batch (a task per chunk of jobs)",
+        )
     defaults = slurm_params({})
     given = list(dict.fromkeys(key[len(LAUNCHER) :].split(".")[0] for key in hydra_keys if key.startswith(LAUNCHER)))
     given = [key for key in given if key not in NOT_SBATCH and key in defaults]
-    culprits = [key for key in given if sbatch_refusal({**params, key: defaults[key]}, timeout) is None]
+    culprits = [key for key in given if sbatch_refusal({**params, key: defaults[key]}, timeout, tasks) is None]
     where = ", ".join(LAUNCHER + key for key in culprits or given) or "hydra/launcher=submitit_slurm"
     raise BadInput(
         where,
@@ -328,13 +338,15 @@ def slurm_params(hydra_keys: dict) -> dict | None:
     return params
 
 
-def sbatch_refusal(params: dict, timeout: float) -> str | None:
-    """sbatch's reason for refusing an array of submitit's batch script with these settings (sbatch --test-only,
-    in a scratch folder), or None when it accepts them or gives no verdict (unreachable, slow, not startable)."""
+def sbatch_refusal(params: dict, timeout: float, tasks: int) -> str | None:
+    """sbatch's reason for refusing submitit's batch script with these settings for `tasks` tasks (sbatch
+    --test-only, in a scratch folder), or None when it accepts them or gives no verdict (unreachable, slow, not
+    startable)."""
     with tempfile.TemporaryDirectory(prefix="riskplan-sbatch-") as scratch:
         try:
             slurm = submitit_executor({**params, "submitit_folder": f"{scratch}/%j"}, "slurm")._executor
-            slurm.parameters["map_count"] = 2  # an array, as a sweep of more than one task is submitted
+            if tasks > 1:  # an array, as submitit submits more than one task (one alone: a plain job)
+                slurm.parameters["map_count"] = tasks
             script = Path(scratch, "check.sh")
             script.write_text(slurm._make_submission_file_text("true", "check"))
             done = subprocess.run(

@@ -1,13 +1,15 @@
 """The launcher's settings riskplan adds to a sweep's command line: its workers (joblib's n_jobs, SLURM's array
 parallelism), and the ray.init arguments that fit a local Ray instance or a connection to a cluster. And the Ray
 settings a cluster would refuse only once the sweep had begun, checked at plan time (`check_ray`: the address
-answers, ray.remote knows the options; SLURM's are cluster_batches.check_sbatch's)."""
+answers, `auto` finds a Ray instance, ray.remote knows the options; SLURM's are cluster_batches.check_sbatch's)."""
 
 from __future__ import annotations
 
 import os
 import re
 import socket
+import sys
+import tempfile
 
 from riskplan.config.validate import check_extra
 from riskplan.experiments.sweeping.jobs import LOCAL
@@ -104,6 +106,7 @@ def ray_init_overrides(launcher: str, hydra_keys: dict) -> list[str]:
 
 RAY_REMOTE = "hydra.launcher.ray.remote"
 CONNECT_SECONDS = 5.0  # a Ray head answers a TCP connection at once; an address that does not is a mistake
+PROC = "/proc"  # the process table where Ray looks for a raylet (auto)
 # ray.remote's options for a task (ray._common.ray_option_utils.task_options of Ray 2.60; Ray is not imported here)
 RAY_TASK_OPTIONS = (
     "accelerator_type", "memory", "name", "num_cpus", "num_gpus", "object_store_memory", "placement_group",
@@ -114,12 +117,18 @@ RAY_TASK_OPTIONS = (
 )  # fmt: skip
 
 
-def check_ray(launcher: str, hydra_keys: dict, environ=os.environ, timeout: float = CONNECT_SECONDS) -> None:
+def check_ray(
+    launcher: str, hydra_keys: dict, environ=os.environ, timeout: float = CONNECT_SECONDS, proc: str = PROC
+) -> None:
     """What Ray would refuse, or wait on forever, once the sweep had begun: ray.remote options it does not know
-    (or values it rejects), an address that is not host:port, and an address where nothing answers (ray.init
-    retried it for ever, printing warnings, with the sweep directory written)."""
+    (or values it rejects), an address that is not host:port, an address where nothing answers (ray.init retried
+    it for ever, printing warnings, with the sweep directory written), and `auto` where it finds no Ray instance
+    (ray.init's ConnectionError, with the sweep directory written). `environ` and `proc` are where Ray looks."""
     check_ray_remote(hydra_keys)
     address, key = ray_address(launcher, hydra_keys, environ)
+    found = ""
+    if address == "auto":
+        address, found = auto_address(key, ray_temp_dir(hydra_keys, environ), proc)
     if address is None:
         return
     host, port = parse_ray_address(address, key)
@@ -129,15 +138,15 @@ def check_ray(launcher: str, hydra_keys: dict, environ=os.environ, timeout: floa
         why = "no answer" if isinstance(err, socket.timeout) else (err.strerror or str(err) or type(err).__name__)
         raise BadInput(
             key,
-            f"no Ray cluster answers at {address} ({why}); start one there (ray start --head --port={port}) or "
-            f"give the address of the head node's `ray start`",
+            f"no Ray cluster answers at {address} ({why}{found}); start one there (ray start --head --port={port}) "
+            f"or give the address of the head node's `ray start`",
         ) from None
 
 
 def ray_address(launcher: str, hydra_keys: dict, environ=os.environ) -> tuple[str | None, str]:
     """The address ray.init will connect to and the key it comes from: init.address, else (unset, null or auto)
-    RAY_ADDRESS, as ray.init reads it. None for a Ray instance of the sweep's own (local) or one that `auto` finds
-    on this machine (nothing to reach)."""
+    RAY_ADDRESS, as ray.init reads it; "auto" when Ray is to look for one on this machine (auto_address). None for
+    a Ray instance of the sweep's own (local, or hydra/launcher=ray's unset address)."""
     key = RAY_INIT + "address"
     override = hydra_keys.get(key)
     given = override is not None and not override.is_delete()
@@ -145,9 +154,73 @@ def ray_address(launcher: str, hydra_keys: dict, environ=os.environ) -> tuple[st
     if value is None or value == "auto":
         if environ.get("RAY_ADDRESS"):
             value, key = environ["RAY_ADDRESS"], "RAY_ADDRESS"
-    if value is None or value in ("auto", "local"):
+    if value is None or value == "local":
         return None, key
     return str(value), key
+
+
+def auto_address(key: str, temp_dir: str, proc: str) -> tuple[str | None, str]:
+    """The address ray.init(address="auto") takes on this machine, found as Ray finds it (ray._private.services.
+    get_ray_address_from_environment), and a note of where: the one the last `ray start` here wrote to
+    <temp_dir>/ray_current_cluster, else the GCS address of a raylet running here. None where the processes cannot
+    be listed (no /proc): Ray may still find one there. Bad input when there is neither."""
+    current = os.path.join(temp_dir, "ray_current_cluster")
+    try:
+        with open(current) as recorded:
+            return recorded.read().strip(), f"; auto read it from {current}"
+    except OSError:  # no `ray start` recorded here (`ray stop` removes the file)
+        pass
+    raylets = raylet_addresses(proc)
+    if raylets is None:
+        return None, ""
+    if raylets:
+        return raylets[0], "; auto took it from a running raylet's --gcs-address"
+    raise BadInput(
+        key,
+        f"auto found no running Ray instance on this machine (no {current}, no raylet process); start one "
+        f"(ray start --head) or give HOST:PORT of a cluster's head (or RAY_ADDRESS)",
+    )
+
+
+def ray_temp_dir(hydra_keys: dict, environ=os.environ) -> str:
+    """Where `ray start` records the cluster it started: ray.init's _temp_dir, else Ray's default (ray._common.
+    utils.get_default_ray_temp_dir: RAY_TMPDIR, else TMPDIR on Linux, else /tmp, then ray/)."""
+    given = hydra_keys.get(RAY_INIT + "_temp_dir")
+    if given is not None and not given.is_delete() and given.value() is not None:
+        return str(given.value())
+    if "RAY_TMPDIR" in environ:
+        base = environ["RAY_TMPDIR"]
+    elif sys.platform.startswith("linux") and "TMPDIR" in environ:
+        base = environ["TMPDIR"]
+    else:
+        base = "/tmp" if sys.platform.startswith(("linux", "darwin")) else tempfile.gettempdir()
+    return os.path.join(base, "ray")
+
+
+def raylet_addresses(proc: str = PROC) -> list[str] | None:
+    """The --gcs-address of every raylet running on this machine, sorted, from <proc>/PID/cmdline as Ray reads the
+    command lines (services._find_address_from_flag, through psutil, which this environment may lack); None
+    without a process table to read."""
+    try:
+        pids = [name for name in os.listdir(proc) if name.isdigit()]
+    except OSError:
+        return None
+    found = set()
+    for pid in pids:
+        try:
+            with open(os.path.join(proc, pid, "cmdline"), "rb") as cmdline:
+                args = cmdline.read().decode(errors="replace").rstrip("\0").split("\0")
+        except OSError:  # ended since, or not ours to read
+            continue
+        if len(args) == 1:
+            args = args[0].split(" ")  # a process that rewrote its title, as psutil splits it
+        if "raylet" not in os.path.basename(args[0]):
+            continue
+        for arg in " ".join(args).split(" "):
+            flag, _, value = arg.partition("=")
+            if flag == "--gcs-address" and value not in ("", "None"):
+                found.add(value)
+    return sorted(found)
 
 
 def parse_ray_address(address: str, key: str) -> tuple[str, int]:

@@ -75,12 +75,12 @@ def plan_sweep(
     # SLURM reads timeout_min=0 as no limit, and sbatch's refusal of mem_gb=-1 came after the folders were written
     size = task_size(hydra_keys, jobs, launcher) if on_cluster or launcher in SUBMITIT else None
     tasks = size if on_cluster else None
-    check_sbatch(launcher, hydra_keys)  # what SLURM refuses, asked before anything is written
     explicit_dir = _explicit_dir(hydra_keys, sweep_dir)
     if sweep_dir is not None:  # a reproduction's study
         check_sweep_dir(Path(sweep_dir), str(sweep_dir))
     sweeper = str(hydra_keys["hydra/sweeper"].value()) if "hydra/sweeper" in hydra_keys else GRID_SWEEPER
     if sweeper not in ("basic", GRID_SWEEPER):  # an optimiser: it chooses the jobs as it goes
+        check_sbatch(launcher, hydra_keys)  # what SLURM refuses, asked before anything is written
         return plan_optimiser(args, task_ovs, hydra_ovs, launcher, sweeper, jobs, sweep_dir, explicit_dir)
     _check_grid(task_ovs, hydra_ovs)
     check_size(task_ovs)
@@ -94,6 +94,9 @@ def plan_sweep(
     check_duplicates(job_list, task_ovs)
     if all(job.invalid for job in job_list):
         raise BadInput(*split_bad(job_list[0].invalid, len(job_list)))
+    # what SLURM refuses, asked before anything is written: job by job, the array of the valid jobs (at most: those
+    # finished already are left out at launch); under --batch a task per chunk, counted only at launch
+    check_sbatch(launcher, hydra_keys, tasks=None if on_cluster else sum(not job.invalid for job in job_list))
 
     argv = ["-m", *args]
     if "hydra/sweeper" in hydra_keys:  # basic or riskplan, typed: riskplan's sweeper launches the planned grid

@@ -5,9 +5,12 @@ answers --test-only, and a closed local port stands for an unreachable Ray head.
 
 from __future__ import annotations
 
+import os
 import signal
 import socket
 import stat
+import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -17,7 +20,13 @@ from riskplan.cli import app
 from riskplan.experiments.sweeping import launch as launch_module
 from riskplan.experiments.sweeping.cluster_batches import check_sbatch
 from riskplan.experiments.sweeping.launch import _launcher_error, _task_names
-from riskplan.experiments.sweeping.launcher_settings import check_ray, parse_ray_address, ray_address
+from riskplan.experiments.sweeping.launcher_settings import (
+    check_ray,
+    parse_ray_address,
+    ray_address,
+    ray_temp_dir,
+    raylet_addresses,
+)
 from riskplan.experiments.sweeping.plan import plan_sweep
 from riskplan.run.compose import parse_overrides
 from riskplan.util.errors import BadInput
@@ -25,7 +34,8 @@ from riskplan.util.interrupt import Interrupted
 
 pytest.importorskip("hydra_plugins.hydra_submitit_launcher", reason="the slurm extra (submitit) is not installed")
 
-# a stand-in for sbatch: --test-only refuses two settings as Slurm 22.05 words it, accepts the rest; each script
+# a stand-in for sbatch: --test-only refuses two settings and arrays over 1001 tasks as Slurm 22.05 words it
+# (seen on the test cluster), accepts the rest; each script
 # it was given is kept (scripts.log) so that a test can read the #SBATCH lines
 FAKE_SBATCH = """#!/bin/sh
 [ "$1" = "--test-only" ] || { echo "sbatch: error: this fake takes --test-only only" >&2; exit 9; }
@@ -36,6 +46,10 @@ if grep -q -- "--partition=nosuch" "$2"; then
 fi
 if grep -q -- "--cpus-per-task=64" "$2"; then
   echo "allocation failure: Requested node configuration is not available" >&2; exit 1
+fi
+last=$(sed -n 's/^#SBATCH --array=0-//p' "$2" | cut -d% -f1)
+if [ -n "$last" ] && [ "$last" -gt 1000 ]; then  # MaxArraySize=1001, Slurm's default
+  echo "allocation failure: Invalid job array specification" >&2; exit 1
 fi
 echo "sbatch: Job 7 to start at 2026-01-01T00:00:00 using 1 processors on nodes n1 in partition debug" >&2
 """
@@ -94,6 +108,31 @@ def test_settings_sbatch_accepts_pass(tmp_path, monkeypatch):
     check_sbatch("submitit_slurm", overrides("hydra.launcher.partition=debug", "hydra.launcher.cpus_per_task=2"))
     check_sbatch("submitit_slurm", {})
     check_sbatch("submitit_local", overrides("hydra.launcher.partition=nosuch"))  # no SLURM: not sbatch's
+
+
+def test_sbatch_judges_the_array_the_sweep_submits(tmp_path, monkeypatch):
+    folder = fake_sbatch(tmp_path, monkeypatch)
+    check_sbatch("submitit_slurm", {}, tasks=1)  # one job: submitit submits it without --array
+    assert "--array" not in (folder / "scripts.log").read_text()
+    check_sbatch("submitit_slurm", {}, tasks=1001)
+    assert "#SBATCH --array=0-1000%256" in (folder / "scripts.log").read_text()  # array_parallelism's default
+    with pytest.raises(BadInput) as refused:
+        check_sbatch("submitit_slurm", overrides("hydra.launcher.partition=debug"), tasks=1002)
+    assert str(refused.value) == (
+        "hydra/launcher=submitit_slurm: sbatch refuses a job array of 1002 tasks, one a job: allocation failure: "
+        "Invalid job array specification (sbatch --test-only), and takes a smaller one (the cluster's MaxArraySize: "
+        "scontrol show config); sweep fewer jobs at once, or give --batch (a task per chunk of jobs)"
+    )
+    with pytest.raises(BadInput, match=r"^hydra\.launcher\.partition: sbatch refuses it: invalid partition"):
+        check_sbatch("submitit_slurm", overrides("hydra.launcher.partition=nosuch"), tasks=1002)  # not the size
+
+
+@pytest.mark.parametrize(("sweep", "array"), [("seed=0,1,2", "--array=0-2%3"), ("seed=0", None)])
+def test_the_plan_asks_sbatch_about_the_array_of_its_jobs(tmp_path, monkeypatch, sweep, array):
+    folder = fake_sbatch(tmp_path, monkeypatch)
+    plan_sweep([sweep, "hydra/launcher=submitit_slurm"])
+    script = (folder / "scripts.log").read_text()
+    assert (f"#SBATCH {array}" in script) if array else ("--array" not in script)
 
 
 @pytest.mark.parametrize("text", [UNREACHABLE_SBATCH, None], ids=["no controller", "no sbatch"])
@@ -188,11 +227,102 @@ def test_a_reachable_ray_address_passes():
         check_ray("ray_cluster", {}, environ={"RAY_ADDRESS": f"127.0.0.1:{port}"})
 
 
-def test_a_local_ray_instance_has_no_address_to_check():
+def test_a_local_ray_instance_has_no_address_to_check(tmp_path):
     assert ray_address("ray", {}, {}) == (None, "hydra.launcher.ray.init.address")
-    assert ray_address("ray_cluster", {}, {})[0] is None  # auto: the cluster `ray start` started on this node
     assert ray_address("ray", overrides("+hydra.launcher.ray.init.address=local"), {"RAY_ADDRESS": "x:1"})[0] is None
-    check_ray("ray", {}, environ={})
+    assert ray_address("ray_cluster", {}, {}) == ("auto", "hydra.launcher.ray.init.address")  # looked for here
+    check_ray("ray", {}, environ={"RAY_TMPDIR": str(tmp_path)}, proc=str(fake_proc(tmp_path)))  # nothing runs
+
+
+# `auto` (ray_cluster's default) without RAY_ADDRESS: Ray's temp dir (RAY_TMPDIR) and process table (proc) faked
+
+
+def fake_proc(tmp_path: Path, *cmdlines: bytes) -> Path:
+    """A process table holding these command lines (NUL-separated, as Linux writes them), and a shell's."""
+    proc = tmp_path / "proc"
+    for pid, cmdline in enumerate((b"/bin/bash\0-l\0", *cmdlines), start=100):
+        (proc / str(pid)).mkdir(parents=True)
+        (proc / str(pid) / "cmdline").write_bytes(cmdline)
+    (proc / "self").mkdir()  # not a pid
+    return proc
+
+
+def raylet(address: str) -> bytes:
+    return f"/venv/lib/python3.11/site-packages/ray/core/src/ray/raylet/raylet\0--gcs-address={address}\0".encode()
+
+
+def recorded(tmp_path: Path, address: str) -> dict:
+    """The environment of a machine whose last `ray start` recorded `address` under RAY_TMPDIR."""
+    (tmp_path / "ray").mkdir()
+    (tmp_path / "ray" / "ray_current_cluster").write_text(address + "\n")
+    return {"RAY_TMPDIR": str(tmp_path)}
+
+
+def test_auto_that_finds_no_ray_instance_is_bad_input(tmp_path):
+    proc = fake_proc(tmp_path, b"/usr/bin/python3\0worker.py\0--gcs-address=10.0.0.1:6379\0")  # not a raylet
+    with pytest.raises(BadInput) as refused:
+        check_ray("ray_cluster", {}, environ={"RAY_TMPDIR": str(tmp_path)}, proc=str(proc))
+    assert str(refused.value) == (
+        f"hydra.launcher.ray.init.address: auto found no running Ray instance on this machine (no {tmp_path}/ray/"
+        f"ray_current_cluster, no raylet process); start one (ray start --head) or give HOST:PORT of a cluster's "
+        f"head (or RAY_ADDRESS)"
+    )
+    with pytest.raises(BadInput, match=r"^RAY_ADDRESS: auto found no running Ray instance"):  # as Ray reads it
+        check_ray("ray", {}, environ={"RAY_TMPDIR": str(tmp_path), "RAY_ADDRESS": "auto"}, proc=str(proc))
+    check_ray("ray_cluster", {}, environ={"RAY_TMPDIR": str(tmp_path)}, proc=str(tmp_path / "none"))  # no /proc
+
+
+def test_auto_takes_the_address_ray_start_recorded(tmp_path, closed_port):
+    environ = recorded(tmp_path, f"127.0.0.1:{closed_port}")
+    with pytest.raises(BadInput) as refused:
+        check_ray("ray_cluster", {}, environ=environ, proc=str(fake_proc(tmp_path)))
+    assert str(refused.value) == (
+        f"hydra.launcher.ray.init.address: no Ray cluster answers at 127.0.0.1:{closed_port} (Connection refused; "
+        f"auto read it from {tmp_path}/ray/ray_current_cluster); start one there (ray start --head "
+        f"--port={closed_port}) or give the address of the head node's `ray start`"
+    )
+
+
+def test_auto_passes_where_the_recorded_head_answers(tmp_path):
+    with socket.socket() as head:
+        head.bind(("127.0.0.1", 0))
+        head.listen()
+        environ = recorded(tmp_path, f"127.0.0.1:{head.getsockname()[1]}")
+        check_ray("ray_cluster", {}, environ=environ, proc=str(fake_proc(tmp_path)))
+        keys = overrides("+hydra.launcher.ray.init.address=auto")
+        check_ray("ray", keys, environ=environ, proc=str(fake_proc(tmp_path / "other")))
+
+
+def test_auto_takes_a_running_raylets_address(tmp_path, closed_port):
+    with socket.socket() as head:
+        head.bind(("127.0.0.1", 0))
+        head.listen()
+        proc = fake_proc(tmp_path, raylet(f"127.0.0.1:{head.getsockname()[1]}"))
+        check_ray("ray_cluster", {}, environ={"RAY_TMPDIR": str(tmp_path)}, proc=str(proc))
+    proc = fake_proc(tmp_path / "dead", raylet(f"127.0.0.1:{closed_port}"))
+    with pytest.raises(BadInput, match=rf"at 127\.0\.0\.1:{closed_port} \(Connection refused; auto took it from a "
+                       r"running raylet's --gcs-address\); "):  # fmt: skip
+        check_ray("ray_cluster", {}, environ={"RAY_TMPDIR": str(tmp_path)}, proc=str(proc))
+
+
+def test_raylet_addresses_reads_command_lines_as_ray_does(tmp_path):
+    proc = fake_proc(
+        tmp_path,
+        raylet("10.0.0.2:6379"),
+        b"/opt/ray/raylet --node_id=x --gcs-address=10.0.0.1:6379 --store_socket_name=s\0",  # a title, one string
+        b"/opt/ray/raylet\0--gcs-address=None\0",  # Ray's placeholder, skipped as Ray skips it
+        b"gcs_server\0--gcs-address=10.0.0.9:1\0",
+        b"",  # a kernel thread or a zombie
+    )
+    assert raylet_addresses(str(proc)) == ["10.0.0.1:6379", "10.0.0.2:6379"]
+    assert raylet_addresses(str(tmp_path / "none")) is None
+
+
+def test_rays_temp_dir_is_found_as_ray_finds_it(tmp_path):
+    assert ray_temp_dir({}, {"RAY_TMPDIR": "/a", "TMPDIR": "/b"}) == "/a/ray"
+    assert ray_temp_dir({}, {"TMPDIR": "/b"}) == ("/b/ray" if sys.platform.startswith("linux") else "/tmp/ray")
+    assert ray_temp_dir({}, {}) in ("/tmp/ray", os.path.join(tempfile.gettempdir(), "ray"))
+    assert ray_temp_dir(overrides("+hydra.launcher.ray.init._temp_dir=/c"), {"RAY_TMPDIR": "/a"}) == "/c"
 
 
 @pytest.mark.parametrize("address", ["nonsense", "host:", "host:abc", "host:70000", "a:b:c", "http://h:1"])
