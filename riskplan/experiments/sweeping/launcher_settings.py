@@ -92,7 +92,9 @@ def ray_init_overrides(launcher: str, hydra_keys: dict) -> list[str]:
 
     check_ray(launcher, hydra_keys)
     if not ray_connects(launcher, hydra_keys):
-        return []
+        # hydra/launcher=ray's own instance: ray.init(address=None) would join RAY_ADDRESS's cluster, or the one the
+        # last `ray start` here recorded, and then refuse the object-store size; `local` always starts one
+        return [f"++{RAY_INIT}address=local"] if launcher == "ray" else []
     for key in RAY_CONNECT_REFUSES:
         override = given(key)
         if override is not None and override.value() is not None:
@@ -146,11 +148,13 @@ def check_ray(
 def ray_address(launcher: str, hydra_keys: dict, environ=os.environ) -> tuple[str | None, str]:
     """The address ray.init will connect to and the key it comes from: init.address, else (unset, null or auto)
     RAY_ADDRESS, as ray.init reads it; "auto" when Ray is to look for one on this machine (auto_address). None for
-    a Ray instance of the sweep's own (local, or hydra/launcher=ray's unset address)."""
+    a Ray instance of the sweep's own (local, or hydra/launcher=ray's unset or null address, made local)."""
     key = RAY_INIT + "address"
     override = hydra_keys.get(key)
     given = override is not None and not override.is_delete()
     value = override.value() if given else ("auto" if launcher == "ray_cluster" else None)
+    if value is None and launcher == "ray":  # its own instance (ray_init_overrides: address=local)
+        return None, key
     if value is None or value == "auto":
         if environ.get("RAY_ADDRESS"):
             value, key = environ["RAY_ADDRESS"], "RAY_ADDRESS"

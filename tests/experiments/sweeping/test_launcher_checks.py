@@ -208,12 +208,9 @@ def test_an_unreachable_ray_address_is_bad_input(closed_port):
     with pytest.raises(BadInput, match=rf"^hydra\.launcher\.ray\.init\.address: no Ray cluster answers at "
                        rf"127\.0\.0\.1:{closed_port} \("):  # fmt: skip
         check_ray("ray", keys, environ={})
-    # ray_cluster's `auto`, and the ray launcher's unset address, take RAY_ADDRESS, as ray.init does
-    for launcher, keys in (
-        ("ray_cluster", {}),
-        ("ray", {}),
-        ("ray", overrides("+hydra.launcher.ray.init.address=auto")),
-    ):
+    # ray_cluster's `auto`, and `auto` given to the ray launcher, take RAY_ADDRESS, as ray.init does (the ray
+    # launcher's unset address is made local: test_a_local_ray_instance_has_no_address_to_check)
+    for launcher, keys in (("ray_cluster", {}), ("ray", overrides("+hydra.launcher.ray.init.address=auto"))):
         with pytest.raises(BadInput, match=rf"^RAY_ADDRESS: no Ray cluster answers at 127\.0\.0\.1:{closed_port} "):
             check_ray(launcher, keys, environ={"RAY_ADDRESS": f"127.0.0.1:{closed_port}"})
 
@@ -229,6 +226,7 @@ def test_a_reachable_ray_address_passes():
 
 def test_a_local_ray_instance_has_no_address_to_check(tmp_path):
     assert ray_address("ray", {}, {}) == (None, "hydra.launcher.ray.init.address")
+    assert ray_address("ray", {}, {"RAY_ADDRESS": "127.0.0.1:1"})[0] is None  # made local: RAY_ADDRESS is not read
     assert ray_address("ray", overrides("+hydra.launcher.ray.init.address=local"), {"RAY_ADDRESS": "x:1"})[0] is None
     assert ray_address("ray_cluster", {}, {}) == ("auto", "hydra.launcher.ray.init.address")  # looked for here
     check_ray("ray", {}, environ={"RAY_TMPDIR": str(tmp_path)}, proc=str(fake_proc(tmp_path)))  # nothing runs
@@ -268,7 +266,7 @@ def test_auto_that_finds_no_ray_instance_is_bad_input(tmp_path):
         f"head (or RAY_ADDRESS)"
     )
     with pytest.raises(BadInput, match=r"^RAY_ADDRESS: auto found no running Ray instance"):  # as Ray reads it
-        check_ray("ray", {}, environ={"RAY_TMPDIR": str(tmp_path), "RAY_ADDRESS": "auto"}, proc=str(proc))
+        check_ray("ray_cluster", {}, environ={"RAY_TMPDIR": str(tmp_path), "RAY_ADDRESS": "auto"}, proc=str(proc))
     check_ray("ray_cluster", {}, environ={"RAY_TMPDIR": str(tmp_path)}, proc=str(tmp_path / "none"))  # no /proc
 
 

@@ -22,6 +22,8 @@ ENV = {"RAY_USAGE_STATS_ENABLED": "0", "RAY_DISABLE_DOCKER_CPU_WARNING": "1"}
 
 
 def test_ray_launcher_runs_a_two_job_sweep_on_a_local_ray_instance(tmp_path):
+    """Its own instance even where RAY_ADDRESS names a cluster (ray.init(address=None) would join it, and refuse the
+    launcher's object-store size): riskplan passes address=local."""
     result = subprocess.run(
         [
             *CLI,
@@ -37,7 +39,7 @@ def test_ray_launcher_runs_a_two_job_sweep_on_a_local_ray_instance(tmp_path):
         capture_output=True,
         text=True,
         timeout=600,
-        env={**os.environ, **ENV},
+        env={**os.environ, **ENV, "RAY_ADDRESS": "127.0.0.1:1"},
     )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "(ray)" in result.stdout
