@@ -38,6 +38,7 @@ CALLABLE_KEYS = ("_target_", "()", "class")
 DOTTED = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)+")
 
 
+OUTPUT_SUBDIR = ".hydra"  # the one hydra.output_subdir riskplan takes: where every reader of a run's config looks
 PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._-]*")
 # a log inside the run's (or sweep's) directory, as Hydra's own config and riskplan's sweeps (job.log, sweep.log)
 # name it
@@ -119,8 +120,8 @@ def check_path_setting(key: str, value: Any) -> None:
             f"got {value!r}; it names the run's log file <name>.log in its directory: give a plain name of letters, "
             f"digits, '.', '_' and '-', e.g. riskplan",
         )
-    if key == "hydra.output_subdir" and value != ".hydra":
-        raise BadInput(f"key '{key}'", f"got {value!r}; riskplan keeps a run's config in .hydra: drop it")
+    if key == "hydra.output_subdir" and value != OUTPUT_SUBDIR:
+        raise BadInput(f"key '{key}'", f"got {value!r}; riskplan keeps a run's config in {OUTPUT_SUBDIR}: drop it")
     if key.startswith(("hydra.job_logging.", "hydra.hydra_logging.")) and key.endswith(".filename"):
         raise BadInput(f"key '{key}'", f"got {value!r}; the run's log is <run directory>/<hydra.job.name>.log: drop it")
 

@@ -13,6 +13,8 @@ One writer per job folder: a job holds the folder's lock (`riskplan.util.lock`) 
 anything there; a job whose folder is held by another process fails alone and leaves the folder as it was. Under the
 lock it checks the folder by the rule the sweep's plan applies (`foreign_run`): one that holds a run of another config
 that did not fail (another launch's, in use when this one was planned) fails the job alone, every file left as it is.
+Job by job, Hydra writes no `.hydra/` before the job runs (OWN_FILES): the job writes it then, under the lock, once the
+folder is its own.
 
 A local worker (joblib's, submitit_local's, a local Ray instance's) ends with the `riskplan sweep` driver, however
 it died, and writes nothing after it (`riskplan.experiments.driver_watch`), so a killed sweep leaves no training
@@ -31,6 +33,7 @@ sweeper records a None as a failed trial and goes on (a number such as -inf woul
 from __future__ import annotations
 
 import contextlib
+import copy
 import hashlib
 import json
 import math
@@ -47,9 +50,11 @@ from pathlib import Path
 from typing import TypeVar
 
 import numba
+from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, read_write
 
+from riskplan.config.hydra_safety import OUTPUT_SUBDIR
 from riskplan.config.typed import typed
 from riskplan.engine.step import NumericalTrouble
 from riskplan.experiments.driver_watch import arrive, exit_if_orphaned, take_interrupts, working
@@ -70,7 +75,10 @@ TRIAL_RESOLVER = "riskplan.trial"  # the same for the trials of an optimising sw
 TRIAL_SUBDIR = "${" + TRIAL_RESOLVER + ":${hydra.job.num},${hydra.job.override_dirname}}"
 SAFE = frozenset(string.ascii_letters + string.digits + "._=,+-")  # kept as they are in folder names
 NAME_MAX = 255  # bytes in a file name (ext4, xfs, NFS)
-JOB_OWN = (lock.LOCK, JOB_LOG, ".hydra")  # what a job's folder holds before its status.json (a launch killed early)
+JOB_OWN = (lock.LOCK, JOB_LOG, OUTPUT_SUBDIR)  # a job's folder before its status.json (a launch killed early)
+# Each job's key in a job-by-job launch: Hydra's run_job writes no .hydra/, which would go over the files of another
+# config's run before the job could refuse its folder; the job writes them once the folder is its own (hydra_files).
+OWN_FILES = "hydra.output_subdir=null"
 SAME_CONFIGS = "a sweep goes on in its directory only with the same configs"
 
 
@@ -245,6 +253,33 @@ def holds_another_run(out: Path, config: DictConfig | dict) -> bool:
     return foreign_run(out, config_sha(config) if differs else "", status) is not None
 
 
+def hydra_files(cfg: DictConfig) -> dict[str, str]:
+    """The .hydra/ files of a job that Hydra set up with OWN_FILES, byte for byte as its run_job writes them (the
+    job's config, Hydra's node, the job's overrides), with the output_subdir the user meant (riskplan takes no other
+    than OUTPUT_SUBDIR) and without OWN_FILES among Hydra's overrides; none for any other job (Hydra wrote them)."""
+    if not HydraConfig.initialized() or OWN_FILES not in HydraConfig.get().overrides.hydra:
+        return {}
+    node = copy.deepcopy(HydraConfig.instance().cfg)  # {"hydra": ...}, as run_job saves it
+    with read_write(node.hydra):  # set_config made it read-only
+        node.hydra.output_subdir = OUTPUT_SUBDIR
+        node.hydra.overrides.hydra.remove(OWN_FILES)  # once: hydra_safety refuses the user's
+    return {  # in run_job's order
+        f"{OUTPUT_SUBDIR}/config.yaml": OmegaConf.to_yaml(cfg),
+        f"{OUTPUT_SUBDIR}/hydra.yaml": OmegaConf.to_yaml(node),
+        f"{OUTPUT_SUBDIR}/overrides.yaml": OmegaConf.to_yaml(node.hydra.overrides.task),
+    }
+
+
+def write_files(out: Path, files: dict[str, str]) -> None:
+    """A job's files (hydra_files), each whole or not at all; never from a worker whose sweep driver is gone. Not
+    synced to disk: run_job does not sync them either, and a re-run writes them."""
+    if files:
+        exit_if_orphaned()
+    for name, text in files.items():
+        (out / name).parent.mkdir(exist_ok=True)
+        write_atomic(out / name, text, durable=False)
+
+
 def refusal(out: Path, problem: str) -> str:
     """A job's one line for a folder it leaves to another config's run (`problem`: foreign_run's)."""
     return (
@@ -338,18 +373,20 @@ class JobStart:
         )
 
 
-def begin_job(cfg: DictConfig, out: Path) -> JobStart:
+def begin_job(cfg: DictConfig, out: Path, files: dict[str, str] | None = None) -> JobStart:
     """Where the job in `out` (whose lock the caller holds) stands: finished with this config, or a checkpoint to
     resume (it was killed, or stopped by a signal), or a fresh start with the stale files of a failed run of an
     older config removed; then status.json says running. A folder holding another config's run that did not fail
-    (`foreign_run`) is refused: nothing written, the line in `refused`."""
+    (`foreign_run`) is refused: nothing written, the line in `refused`. `files` (hydra_files) are written once the
+    folder is found to be the job's."""
     sha = config_sha(cfg)
     prior = read_status(out)
-    if is_finished(out, sha, prior):
-        return JobStart(out, finished=True, value=prior.get("cvar"))
-    problem = foreign_run(out, sha, prior)
+    problem = foreign_run(out, sha, prior)  # None for a run of this config, finished or not
     if problem is not None:  # checked again here: the plan's check skips a folder another process holds
         return JobStart(out, refused=refusal(out, problem))
+    write_files(out, files or {})
+    if is_finished(out, sha, prior):
+        return JobStart(out, finished=True, value=prior.get("cvar"))
     resume = (
         prior is not None
         and prior.get("status") in ("running", "interrupted")  # killed, or stopped by a signal (preempted)
@@ -422,7 +459,7 @@ def _locked_job(cfg: DictConfig, out: Path, watched: str | None = None) -> float
     threads = job_threads()
     if threads:
         numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-    start = begin_job(cfg, out)
+    start = begin_job(cfg, out, hydra_files(cfg))
     if start.refused is not None:
         say_refused(start)
         return None

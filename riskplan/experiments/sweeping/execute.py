@@ -11,7 +11,7 @@ import typer
 from joblib import delayed
 
 from riskplan.experiments.driver_watch import end_leftovers, name_driver
-from riskplan.experiments.sweep_worker import THREADS_ENV, is_finished
+from riskplan.experiments.sweep_worker import OWN_FILES, THREADS_ENV, is_finished
 from riskplan.experiments.sweeping.batched import PROGRESS, plan_chunks
 from riskplan.experiments.sweeping.cluster_batches import task_chunks, write_tasks
 from riskplan.experiments.sweeping.jobs import (
@@ -112,8 +112,11 @@ def _launch(plan: Plan, waiting: list, finished: set[int], title: str, before_la
     ):
         if plan.workers_arg is not None and plan.workers > 1 and not pool_started(plan.workers):
             in_background(lambda: start_workers(plan.workers, [delayed(os.getpid)()]))  # spawned with SIGINT held back
+        # job by job, each job writes its .hydra/ once its folder is found to be its own (sweep_worker.OWN_FILES);
+        # a batch's jobs are set up before Hydra's run_job (sweeping.batched)
+        each = () if plan.batch else (OWN_FILES,)
         try:
-            launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log", [job.overrides for job in waiting])
+            launcher_error = launch(plan.argv, plan.sweep_dir / "sweep.log", [job.overrides for job in waiting], each)
         except Interrupted as batch_stop:  # a batch trains here: it checkpointed and marked its jobs
             interrupted = batch_stop.signum
         finally:

@@ -22,6 +22,7 @@ from hydra._internal.config_loader_impl import get_overrides_dirname
 from omegaconf import DictConfig, OmegaConf
 
 from riskplan.config.backends import BACKENDS
+from riskplan.config.hydra_safety import OUTPUT_SUBDIR
 from riskplan.experiments.sweep_worker import SUBDIR, folder_name, holds_another_run
 from riskplan.experiments.sweeping.as_data import Composition, JobConfig, yaml_ready
 from riskplan.experiments.sweeping.grid import JobConfigs, ParsedOnce
@@ -75,7 +76,7 @@ class JobSetup:
             "overrides": {**hydra["overrides"], "task": list(overrides)},
             "runtime": {**hydra["runtime"], "output_dir": os.path.abspath(out)},
         }
-        files = out / ".hydra"
+        files = out / OUTPUT_SUBDIR
         out.mkdir(exist_ok=True)
         files.mkdir(exist_ok=True)
         self._write(files / "config.yaml", self.dumps(config.plain))
@@ -105,7 +106,7 @@ def _as_run_job_would(cfg: DictConfig, hydra: dict) -> bool:
     job = hydra["job"]
     return (
         hydra["sweep"]["subdir"] == SUBDIR
-        and hydra.get("output_subdir") == ".hydra"
+        and hydra.get("output_subdir") == OUTPUT_SUBDIR
         and not job.get("chdir")
         and not job.get("env_set")
         and set(hydra.get("callbacks") or {}) <= {OWN_CALLBACK}

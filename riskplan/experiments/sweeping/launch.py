@@ -31,15 +31,18 @@ NUMBA_THREADS_ENV = "NUMBA_NUM_THREADS"
 JOB_LIST = ".jobs.json"  # a grid's jobs to launch, beside sweep.log while the launch lasts (hydra/sweeper=riskplan)
 
 
-def launch(argv: list[str], log_file: Path, jobs: list[list[str]] | None = None) -> str | None:
+def launch(
+    argv: list[str], log_file: Path, jobs: list[list[str]] | None = None, each: tuple[str, ...] = ()
+) -> str | None:
     """Run Hydra's multirun (`argv`: -m and its overrides), its printed output going to sweep.log; return the
     launcher's error, if any.
 
     `jobs`: a grid's jobs still to run, in order, for riskplan's sweeper (hydra_plugins.riskplan_sweeper), which
-    launches exactly these (a re-run sweep submits only what needs to run). An optimising sweeper chooses its own."""
+    launches exactly these (a re-run sweep submits only what needs to run). An optimising sweeper chooses its own.
+    `each`: Hydra overrides added to every job's, not to the launch's (multirun.yaml stays as the user's)."""
     if jobs is not None:
         listed = (log_file.parent / JOB_LIST).resolve()
-        write_atomic(listed, json.dumps(jobs))
+        write_atomic(listed, json.dumps([[*job, *each] for job in jobs]))
         argv = [*argv, f"hydra.sweeper.jobs={hydra_quote(listed)}"]
     ours = _sigterm_handler()
     try:
