@@ -35,6 +35,7 @@ from riskplan.run.checkpoint import CHECKPOINT, CRASH_ENV
 from riskplan.run.compose import compose
 from riskplan.run.log_reader import read_log
 from riskplan.run.recorder import STOP_ENV
+from riskplan.run.run_files import FINISHED, STATUS
 from riskplan.util.errors import BadInput
 from riskplan.util.lock import holder
 
@@ -280,6 +281,18 @@ WALL_CLOCK = {"wall_time", "throughput_episodes_per_s", "resumed_at"}
 def files(root: Path) -> dict[str, bytes]:
     """Every file below root with its bytes."""
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def stand_in_job(out: Path, status: dict) -> None:
+    """A folder as a finished sweep job leaves it, for the checks that read no more than whether its files are there
+    (and its .hydra/ files' shapes): stand-ins of every file a finished job has, and its status.json."""
+    (out / ".hydra").mkdir(parents=True, exist_ok=True)
+    (out / ".hydra" / "config.yaml").write_text("seed: 0\n")
+    (out / ".hydra" / "hydra.yaml").write_text("hydra: {}\n")
+    (out / ".hydra" / "overrides.yaml").write_text("- seed=0\n")
+    for name in FINISHED:
+        (out / name).write_text("{}")
+    (out / STATUS).write_text(json.dumps(status))
 
 
 def checkpoint_iteration(out: Path, name: str = CHECKPOINT) -> int:

@@ -60,7 +60,7 @@ from riskplan.engine.step import NumericalTrouble
 from riskplan.experiments.driver_watch import arrive, exit_if_orphaned, take_interrupts, working
 from riskplan.run.compose import compose
 from riskplan.run.maps import map_record
-from riskplan.run.run_files import CHECKPOINT, JOB_LOG, STATUS, has_finished, remove_stale
+from riskplan.run.run_files import CHECKPOINT, JOB_LOG, STATUS, has_finished, hydra_intact, remove_stale
 from riskplan.run.training import prepare_resume, train_summary
 from riskplan.util import lock
 from riskplan.util.errors import BadInput, one_line
@@ -211,13 +211,14 @@ def recorded_sha(out: Path, config: dict) -> str:
 
 
 def is_finished(out: Path, sha: str, status: dict | None = None) -> bool:
-    """Whether the job in `out` finished with this config and still has its outputs."""
+    """Whether the job in `out` finished with this config and still has its outputs and readable .hydra/ files."""
     status = read_status(out) if status is None else status
     return (
         status is not None
         and status.get("status") == "done"
         and status.get("config_sha") == sha
         and has_finished(Path(out))
+        and hydra_intact(Path(out))
     )
 
 

@@ -15,6 +15,8 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import yaml
+
 from riskplan.util.lock import LOCK
 from riskplan.util.paths import temp_name
 
@@ -131,6 +133,21 @@ def remove_temps(out: Path) -> None:
 def has_finished(out: Path) -> bool:
     """Whether the run's log, final tables and summary are all there."""
     return all((out / name).is_file() for name in FINISHED)
+
+
+def hydra_intact(out: Path) -> bool:
+    """Whether a sweep job's .hydra/ files read as Hydra writes them: its config and overrides a YAML mapping and
+    list, hydra.yaml not empty. They are renamed into place unsynced, so a power cut can leave one empty or cut
+    short where the run's own files (synced) are whole: the sweep then writes them again, not counting the job
+    finished until it has (with libyaml, 0.7 ms a job)."""
+    folder, loader = out / CONFIG.split("/")[0], getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    try:
+        config = yaml.load((out / CONFIG).read_bytes(), Loader=loader)
+        overrides = yaml.load((folder / "overrides.yaml").read_bytes(), Loader=loader)
+        hydra_size = (folder / "hydra.yaml").stat().st_size
+    except (OSError, yaml.YAMLError):
+        return False
+    return isinstance(config, dict) and bool(config) and isinstance(overrides, list) and hydra_size > 0
 
 
 def remove_stale(out: Path) -> None:

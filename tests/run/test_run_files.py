@@ -8,9 +8,9 @@ import os
 from pathlib import Path
 
 import pytest
-from support import TINY
+from support import TINY, stand_in_job
 
-from riskplan.experiments.sweep_worker import is_finished, write_status
+from riskplan.experiments.sweep_worker import is_finished
 from riskplan.run import run_files
 from riskplan.run.compose import compose
 from riskplan.run.training import train_summary
@@ -74,12 +74,27 @@ def test_the_stale_files_are_every_file_a_run_writes_but_those_meant_to_survive(
 
 def test_a_sweep_skips_a_job_only_with_every_finished_file(tmp_path):
     out = tmp_path / "job"
-    out.mkdir()
-    for name in run_files.FINISHED:
-        (out / name).write_text("{}")
-    write_status(out, {"status": "done", "config_sha": "abc", "error": None})
-    assert is_finished(out, "abc")
-    for name in run_files.FINISHED:
+    stand_in_job(out, {"status": "done", "config_sha": "abc", "error": None})
+    assert is_finished(out, "abc") and not is_finished(out, "abd")
+    for name in [*run_files.FINISHED, ".hydra/config.yaml", ".hydra/hydra.yaml", ".hydra/overrides.yaml"]:
         (out / name).rename(out / "aside")
         assert not is_finished(out, "abc"), name
         (out / "aside").rename(out / name)
+
+
+@pytest.mark.parametrize(
+    ("name", "text"),
+    [
+        (".hydra/config.yaml", ""),  # a power cut: renamed into place, its data never written
+        (".hydra/config.yaml", "seed: 0\ntrain: {iterations: 3"),  # cut short
+        (".hydra/config.yaml", "- seed=0\n"),  # not a mapping
+        (".hydra/overrides.yaml", "seed: 0\n"),  # not a list
+        (".hydra/overrides.yaml", "- 'seed=0"),
+        (".hydra/hydra.yaml", ""),
+    ],
+)
+def test_a_job_whose_hydra_files_do_not_read_as_hydra_writes_them_is_not_finished(tmp_path, name, text):
+    """The sweep's next run then writes them again (test_job_by_job_files)."""
+    stand_in_job(tmp_path, {"status": "done", "config_sha": "abc", "error": None})
+    (tmp_path / name).write_text(text)
+    assert not is_finished(tmp_path, "abc")

@@ -86,7 +86,7 @@ def _job_state(job: Job) -> tuple[str, str | None, dict | None, dict | None]:
         except (OSError, ValueError) as err:
             return "failed", f"unreadable summary.json: {err}", status, None
     if status.get("status") == "done":
-        return "failed", "finished, but some of its output files are missing", status, None
+        return "failed", "finished, but some of its files are missing or unreadable; re-run the sweep", status, None
     if status.get("status") == "running":
         return "interrupted", "killed while running; re-run the sweep to resume it", status, None
     if status.get("status") == "interrupted":  # a signal stopped it after a checkpoint (Ctrl-C, preemption)

@@ -15,17 +15,16 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from support import TINY, run_cli
+from support import TINY, run_cli, stand_in_job
 from typer.testing import CliRunner
 
 import riskplan
 from riskplan.cli import app
 from riskplan.experiments.reporting import build_report
 from riskplan.experiments.reporting.collect import collect
-from riskplan.experiments.sweep_worker import run_identity, write_status
+from riskplan.experiments.sweep_worker import run_identity
 from riskplan.experiments.sweeping.jobs import Job, Outcome
 from riskplan.experiments.sweeping.summary import report_outcome, summarize
-from riskplan.run.run_files import FINISHED
 
 pytestmark = pytest.mark.slow  # three tiny runs (one through the CLI) and reports drawn from them
 
@@ -137,10 +136,7 @@ def test_the_command_prints_one_warning_line(runs, tmp_path):
 def finished_job(root: Path, number: int, sha: str, status: str = "done") -> Job:
     """Job `trial_<number>`, whose status.json says `status` for config `sha`, with every output file."""
     path = root / f"trial_{number}"
-    path.mkdir()
-    for output in FINISHED:
-        (path / output).write_text("{}")
-    write_status(path, {"status": status, "config_sha": sha, "error": None if status == "done" else "boom"})
+    stand_in_job(path, {"status": status, "config_sha": sha, "error": None if status == "done" else "boom"})
     return Job([f"risk.beta=0.{number + 1}"], sha, path=path, label=path.name)
 
 

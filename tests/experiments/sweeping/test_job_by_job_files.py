@@ -1,6 +1,7 @@
 """Job by job, Hydra's run_job writes no .hydra/ (sweep_worker.OWN_FILES): each job writes it under its folder's
 lock, once the folder is its own. The files are byte for byte those Hydra's run_job writes, which resuming,
-reporting, exporting and sweeping again read."""
+reporting, exporting and sweeping again read. A finished job whose .hydra/ a power cut left empty (the files are
+renamed into place unsynced) gets them back from the sweep's re-run, batched or job by job, its run untouched."""
 
 from __future__ import annotations
 
@@ -53,3 +54,17 @@ def test_a_job_whose_folder_another_process_holds_leaves_its_files(tmp_path):
         before = files(out)
         run_sweep(["seed=0,1", *TINY], 1, sweep_dir=tmp_path / "s", out=lambda text: None)
         assert files(out) == before  # no .hydra/ (Hydra wrote one there before riskplan's job ran)
+
+
+@pytest.mark.slow  # two small sweeps
+@pytest.mark.parametrize("jobs", [None, 1], ids=["batched", "job by job"])
+def test_a_re_run_writes_again_the_hydra_files_a_finished_job_lost(tmp_path, jobs):
+    sweep = tmp_path / "s"
+    run_sweep(["seed=0,1", *TINY], jobs, sweep_dir=sweep, out=lambda text: None)
+    before = files(sweep / "seed=0")
+    (sweep / "seed=0" / ".hydra" / "config.yaml").write_text("")  # as a power cut can leave it
+    (sweep / "seed=0" / ".hydra" / "overrides.yaml").write_text("- seed=0\n- 'train.it")  # cut short
+    lines = []
+    outcome = run_sweep(["seed=0,1", *TINY], jobs, sweep_dir=sweep, out=lines.append)
+    assert any("2 jobs: 1 to run, 1 already finished" in line for line in lines) and outcome.failed == []
+    assert files(sweep / "seed=0") == before  # written again as they were; the run's own files untouched
