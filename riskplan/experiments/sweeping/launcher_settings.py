@@ -5,6 +5,7 @@ answers, `auto` finds a Ray instance, ray.remote knows the options; SLURM's are 
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import socket
@@ -242,19 +243,59 @@ def parse_ray_address(address: str, key: str) -> tuple[str, int]:
 
 
 def check_ray_remote(hydra_keys: dict) -> None:
-    """hydra.launcher.ray.remote's option names (RAY_TASK_OPTIONS): an unknown one is bad input, not a ValueError
-    from the launcher once the sweep is written. Ray itself is not imported here: imported in the driver before
-    the launcher's ray.init, it keeps that call's lines out of sweep.log (the values are Ray's to check)."""
+    """hydra.launcher.ray.remote's options as ray.remote judges them (RAY_TASK_OPTIONS' names, RAY_COUNTS'
+    numbers, `resources`' quantities): what it refuses is bad input, not a ValueError from the launcher once the
+    sweep is written. Ray itself is not imported here: imported in the driver before the launcher's ray.init, it
+    keeps that call's lines out of sweep.log (the options not listed in RAY_COUNTS are Ray's to check)."""
     for key, override in hydra_keys.items():
         if override.is_delete() or not (key == RAY_REMOTE or key.startswith(RAY_REMOTE + ".")):
             continue
         if key == RAY_REMOTE:
             value = override.value()
-            names = [(str(k), f"{RAY_REMOTE}.{k}") for k in value] if isinstance(value, dict) else []
-        else:
-            names = [(key[len(RAY_REMOTE) + 1 :].split(".")[0], key)]  # deeper keys (resources.GPU): an option's
-        for name, where in names:
+            given = [(str(k), [], v) for k, v in value.items()] if isinstance(value, dict) else []
+        else:  # deeper keys (resources.GPU=1): an option's part
+            name, *inside = key[len(RAY_REMOTE) + 1 :].split(".")
+            given = [(name, inside, override.value())]
+        for name, inside, value in given:
+            where = ".".join([RAY_REMOTE, name, *inside])
             if name not in RAY_TASK_OPTIONS:
                 raise BadInput(
                     where, f"ray.remote has no option '{name}'; valid options: {', '.join(sorted(RAY_TASK_OPTIONS))}"
                 )
+            problem = _ray_option_problem(name, inside, value)
+            if problem:
+                raise BadInput(where, f"got {value!r}; ray.remote takes {problem}")
+
+
+# ray.remote's numbers as Ray 2.60 checks them (ray._common.ray_option_utils): the least each takes, and whether it
+# may be a fraction (a resource: 0 or at least Ray's unit, 0.0001)
+RAY_COUNTS = {
+    "num_cpus": (0, True), "num_gpus": (0, True), "memory": (0, True),
+    "object_store_memory": (0, False), "max_calls": (0, False), "max_retries": (-1, False),
+}  # fmt: skip
+RAY_UNIT = 1e-4
+
+
+def _ray_option_problem(name: str, inside: list[str], value) -> str:
+    """What ray.remote would refuse in option `name` (`inside`: the part of it a dotted key set), as the values it
+    takes, or ''."""
+    if name == "resources":
+        quantities = {inside[0]: value} if inside else value
+        if not isinstance(quantities, dict):
+            return "a mapping of resource names to quantities"
+        if "CPU" in quantities or "GPU" in quantities:
+            return "CPUs and GPUs as num_cpus and num_gpus, not among resources"
+        return next(filter(None, (_count_problem(q, 0, True) for q in quantities.values())), "")
+    if name in RAY_COUNTS and not inside:
+        return _count_problem(value, *RAY_COUNTS[name])
+    return ""
+
+
+def _count_problem(value, least: int, fraction: bool) -> str:
+    """Why ray.remote refuses a quantity (None passes: Ray's default), or ''."""
+    if value is None:
+        return ""
+    if fraction:
+        ok = isinstance(value, (int, float)) and math.isfinite(value) and (value == 0 or value >= RAY_UNIT)
+        return "" if ok else f"0, a number of at least {RAY_UNIT:g}, or null"
+    return "" if isinstance(value, int) and value >= least else f"a whole number of at least {least}, or null"

@@ -343,7 +343,43 @@ def test_an_unknown_ray_remote_option_is_bad_input():
     with pytest.raises(BadInput, match=r"^hydra\.launcher\.ray\.remote\.foo: ray\.remote has no option 'foo'"):
         check_ray("ray", overrides("+hydra.launcher.ray.remote={num_cpus:1,foo:2}"), environ={})
     check_ray("ray", overrides("+hydra.launcher.ray.remote.num_cpus=2", "+hydra.launcher.ray.remote.memory=9"), {})
-    check_ray("ray", overrides("+hydra.launcher.ray.remote.resources.GPU=1"), environ={})
+    check_ray("ray", overrides("+hydra.launcher.ray.remote.resources.disk=1"), environ={})
+
+
+# ray.remote's verdicts on these values (Ray 2.60's validate_task_options, run on each in the Ray environment)
+@pytest.mark.parametrize(
+    ("setting", "takes"),
+    [
+        ("num_cpus=-1", "0, a number of at least 0.0001, or null"),
+        ("num_cpus=0.00001", "0, a number of at least 0.0001, or null"),  # below Ray's resource unit
+        ("num_cpus=inf", "0, a number of at least 0.0001, or null"),
+        ("num_cpus=abc", "0, a number of at least 0.0001, or null"),
+        ("object_store_memory=1.5", "a whole number of at least 0, or null"),
+        ("max_retries=-2", "a whole number of at least -1, or null"),
+        ("max_calls=-1", "a whole number of at least 0, or null"),
+        ("resources.GPU=1", "CPUs and GPUs as num_cpus and num_gpus, not among resources"),
+        ("resources.disk=-1", "0, a number of at least 0.0001, or null"),
+        ("resources=3", "a mapping of resource names to quantities"),
+        ("num_cpus=0.00015", None),
+        ("num_cpus=0", None),
+        ("num_gpus=0.5", None),
+        ("memory=1.5", None),
+        ("max_retries=-1", None),
+        ("num_cpus=null", None),
+        ("resources={disk:0.5}", None),
+    ],
+)
+def test_a_ray_remote_value_ray_refuses_is_bad_input(setting, takes):
+    keys = overrides(f"+hydra.launcher.ray.remote.{setting}")
+    if takes is None:
+        check_ray("ray", keys, environ={})
+        return
+    key = setting.split("=")[0]
+    with pytest.raises(BadInput) as refused:
+        check_ray("ray", keys, environ={})
+    assert str(refused.value).startswith(f"hydra.launcher.ray.remote.{key}: got ") and str(refused.value).endswith(
+        f"; ray.remote takes {takes}"
+    )
 
 
 # ------------------------------------------------------------------------------------------------- the driver's lines
