@@ -133,6 +133,8 @@ def check_ray(
     if address == "auto":
         address, found = auto_address(key, ray_temp_dir(hydra_keys, environ), proc)
     if address is None:
+        if launcher == "ray":
+            check_own_cpus(hydra_keys)
         return
     host, port = parse_ray_address(address, key)
     try:
@@ -144,6 +146,30 @@ def check_ray(
             f"no Ray cluster answers at {address} ({why}{found}); start one there (ray start --head --port={port}) "
             f"or give the address of the head node's `ray start`",
         ) from None
+
+
+def check_own_cpus(hydra_keys: dict, machine: int | None = None) -> None:
+    """A job asking the sweep's own Ray instance for more CPUs than it has (hydra.launcher.ray.init.num_cpus, else
+    the machine's, `machine`) would wait for ever, Ray warning that it cannot be scheduled."""
+    asked, has = _given(hydra_keys, RAY_REMOTE, "num_cpus"), _given(hydra_keys, RAY_INIT[:-1], "num_cpus")
+    cpus = has if isinstance(has, (int, float)) and not isinstance(has, bool) else machine or os.cpu_count() or 1
+    if isinstance(asked, (int, float)) and not isinstance(asked, bool) and asked > cpus:
+        source = f"{RAY_INIT}num_cpus" if cpus == has else "this machine's"
+        raise BadInput(
+            f"{RAY_REMOTE}.num_cpus",
+            f"got {asked:g}; the sweep's own Ray instance has {cpus:g} CPU{'s' if cpus != 1 else ''} ({source}), and "
+            f"a job asking for more would wait for ever: give at most {cpus:g}",
+        )
+
+
+def _given(hydra_keys: dict, node: str, name: str):
+    """The value the command line gives `node`.`name`, as a dotted key or inside `node`'s mapping; None if neither."""
+    override = hydra_keys.get(f"{node}.{name}")
+    if override is None:
+        override = hydra_keys.get(node)
+        value = override.value() if override is not None and not override.is_delete() else None
+        return value.get(name) if isinstance(value, dict) else None
+    return None if override.is_delete() else override.value()
 
 
 def ray_address(launcher: str, hydra_keys: dict, environ=os.environ) -> tuple[str | None, str]:

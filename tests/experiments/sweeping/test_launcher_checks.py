@@ -21,6 +21,7 @@ from riskplan.experiments.sweeping import launch as launch_module
 from riskplan.experiments.sweeping.cluster_batches import check_sbatch
 from riskplan.experiments.sweeping.launch import _launcher_error, _task_names
 from riskplan.experiments.sweeping.launcher_settings import (
+    check_own_cpus,
     check_ray,
     parse_ray_address,
     ray_address,
@@ -222,6 +223,10 @@ def test_a_reachable_ray_address_passes():
         port = head.getsockname()[1]
         check_ray("ray_cluster", overrides(f"hydra.launcher.ray.init.address=127.0.0.1:{port}"), environ={})
         check_ray("ray_cluster", {}, environ={"RAY_ADDRESS": f"127.0.0.1:{port}"})
+        # a cluster's nodes are its own: CPUs per job are not judged by this machine's
+        check_ray(
+            "ray_cluster", overrides("+hydra.launcher.ray.remote.num_cpus=64"), {"RAY_ADDRESS": f"127.0.0.1:{port}"}
+        )
 
 
 def test_a_local_ray_instance_has_no_address_to_check(tmp_path):
@@ -344,6 +349,30 @@ def test_an_unknown_ray_remote_option_is_bad_input():
         check_ray("ray", overrides("+hydra.launcher.ray.remote={num_cpus:1,foo:2}"), environ={})
     check_ray("ray", overrides("+hydra.launcher.ray.remote.num_cpus=2", "+hydra.launcher.ray.remote.memory=9"), {})
     check_ray("ray", overrides("+hydra.launcher.ray.remote.resources.disk=1"), environ={})
+
+
+@pytest.mark.parametrize(
+    ("settings", "line"),
+    [
+        (["remote.num_cpus=3"], "got 3; the sweep's own Ray instance has 2 CPUs (this machine's)"),
+        (["remote={num_cpus:2.5}"], "got 2.5; the sweep's own Ray instance has 2 CPUs (this machine's)"),
+        (
+            ["remote.num_cpus=2", "init.num_cpus=1"],
+            "got 2; the sweep's own Ray instance has 1 CPU (hydra.launcher.ray.init.num_cpus)",
+        ),
+        (["remote.num_cpus=2"], None),
+        (["remote.num_cpus=8", "init.num_cpus=8"], None),  # Ray takes more CPUs than the machine has, if told so
+    ],
+)
+def test_a_job_asking_the_sweep_s_own_ray_instance_for_more_cpus_than_it_has_is_bad_input(settings, line):
+    """Ray would leave it pending for ever (an infeasible task)."""
+    keys = overrides(*(f"+hydra.launcher.ray.{setting}" for setting in settings))
+    if line is None:
+        check_own_cpus(keys, machine=2)
+        return
+    with pytest.raises(BadInput) as refused:
+        check_own_cpus(keys, machine=2)
+    assert str(refused.value).startswith(f"hydra.launcher.ray.remote.num_cpus: {line}, and a job asking for more ")
 
 
 # ray.remote's verdicts on these values (Ray 2.60's validate_task_options, run on each in the Ray environment)
