@@ -58,6 +58,7 @@ from riskplan.config.hydra_safety import OUTPUT_SUBDIR
 from riskplan.config.typed import typed
 from riskplan.engine.step import NumericalTrouble
 from riskplan.experiments.driver_watch import arrive, exit_if_orphaned, take_interrupts, working
+from riskplan.run.build import build_planned
 from riskplan.run.compose import compose
 from riskplan.run.maps import map_record
 from riskplan.run.run_files import CHECKPOINT, JOB_LOG, STATUS, has_finished, hydra_intact, remove_stale
@@ -534,18 +535,19 @@ def job_threads() -> int | None:
 def _train_job(cfg: DictConfig, out: Path, resume: bool) -> dict:
     """Train (or resume) the job; any error fails this job alone and is returned in its record."""
     try:
+        setup = build_planned(cfg)
         if resume:
             try:
-                summary = train_summary(cfg, out, resume=True)
+                summary = train_summary(setup, out, resume=True)
             except (BadInput, NumericalTrouble):
                 raise
             except Exception:  # an unreadable checkpoint or log: start this job again from scratch
                 traceback.print_exc()
                 print("=== resume failed; training from scratch", flush=True)
                 remove_stale(out)
-                summary = train_summary(cfg, out)
+                summary = train_summary(setup, out)
         else:
-            summary = train_summary(cfg, out)
+            summary = train_summary(setup, out)
     except Exception as err:  # a job that raises fails alone; the sweep goes on
         record = failure(err)
         if "traceback" in record:

@@ -42,6 +42,15 @@ def build_setup(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool = True) -
     return setup
 
 
+def build_planned(cfg: DictConfig | dict | RiskplanConf) -> RunSetup:
+    """build_setup for a sweep's job: the config's warnings are the sweep's to give, once, as it plans (leaving out
+    a key that a variant it sweeps ignores: team.aggregate=mean,trimmed_mean team.trim=1), not again in every job's
+    log."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return build_setup(cfg)
+
+
 def _build(cfg: DictConfig | dict | RiskplanConf, needs_ray: bool) -> RunSetup:
     params = typed(cfg)  # types, unknown keys, Choices, interpolations: the frozen config everything below reads
     validate(params, needs_ray)  # every range, once

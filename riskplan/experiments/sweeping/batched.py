@@ -17,7 +17,6 @@ import functools
 import json
 import os
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,7 +47,7 @@ from riskplan.experiments.sweeping.job_setup import JobSetup
 from riskplan.experiments.sweeping.launch import pool_started, start_workers
 from riskplan.run import cost
 from riskplan.run.batch import BatchRun, train_batch
-from riskplan.run.build import build_setup
+from riskplan.run.build import build_planned
 from riskplan.run.cost import run_bytes
 from riskplan.util import lock
 from riskplan.util.errors import BadInput
@@ -200,7 +199,7 @@ def prepare_job(cfg, plain, out: Path, held: contextlib.ExitStack) -> Prepared:
     if start.finished:
         return Prepared(out, start, value=start.value)
     try:
-        setup = build_setup(cfg)
+        setup = build_planned(cfg)
     except Exception as err:  # bad input for this combination: it fails alone
         _log(out, start.opening + ")")
         return Prepared(out, start, value=_record(start, failure(err)))
@@ -318,9 +317,7 @@ def train_part(
     arrive()  # in a worker process: it ends with the driver
     started = time.perf_counter()
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-    with warnings.catch_warnings():  # a config's warnings are the driver's to give: it printed them as it planned
-        warnings.simplefilter("ignore", UserWarning)
-        setups = [s if isinstance(s, RunSetup) else build_setup(s) for s in setups]
+    setups = [s if isinstance(s, RunSetup) else build_planned(s) for s in setups]
     runs = [BatchRun(setup, Path(out), resume) for setup, out, resume in zip(setups, outs, resumes)]
     freed = FreedCores(threads, list(siblings))
     shown = {"at": 0.0, "done": 0}
