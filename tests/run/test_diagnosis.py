@@ -37,8 +37,10 @@ def test_a_policy_that_cannot_reach_a_source_in_the_horizon_reached_no_source(tm
 
 
 def test_the_closing_line_of_a_degenerate_run_says_so(in_tmp):
-    result = CliRunner().invoke(app, ["train", *TINY, *OUT_OF_REACH, "hydra.run.dir=run"])
+    with pytest.warns(UserWarning, match=r"source \d '\w+' is reached by 0\.0% of the initial policy's") as caught:
+        result = CliRunner().invoke(app, ["train", *TINY, *OUT_OF_REACH, "hydra.run.dir=run"])
     assert result.exit_code == 0, result.output
+    assert len(caught) == 2  # both sources, out of reach
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith("warning: degenerate run: reached no source in its 200 evaluation episodes")
     assert "none 100.0% -> run" in result.stdout
