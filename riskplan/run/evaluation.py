@@ -8,7 +8,8 @@ import json
 import numpy as np
 
 from riskplan.config.backends import BACKENDS
-from riskplan.config.schema import NO_SOURCE, RiskConf, RiskplanConf
+from riskplan.config.faults import faults_of
+from riskplan.config.schema import NO_SOURCE, Aggregate, FaultKind, RiskConf, RiskplanConf
 from riskplan.config.typed import as_dict
 from riskplan.engine import rng
 from riskplan.engine.measures.registry import risk_spec
@@ -219,18 +220,39 @@ def _no_source(params: RiskplanConf, initial: dict) -> str:
             f"lead there (riskplan check prints each source's distance); move the start or the sources, widen the "
             f"signals' covariance, lengthen the horizon or change train.theta0"
         )
+    cause = _fault_cause(params) or (
+        "a risk-averse measure that found the regions' rewards safer than any source's, or too large a step size "
+        "(train.step_size)"
+    )
     return (
         f"{episodes}, where the initial policy reached one in {1 - initial['reached_none']:.1%}: it learned to go "
-        f"nowhere, likely a risk-averse measure that found the regions' rewards safer than any source's, or too "
-        f"large a step size (train.step_size)"
+        f"nowhere, likely {cause}"
     )
 
 
 def _below_initial(params: RiskplanConf, final: dict, initial: dict) -> str:
+    cause = _fault_cause(params) or (
+        f"too large a step size (train.step_size) or too few samples for a steady gradient "
+        f"(train.samples={params.train.samples})"
+    )
     return (
         f"its objective ({final['measure']}) ended below the initial policy's: {_figure(final)} against "
-        f"{_figure(initial)} (95% intervals apart): training made it worse, likely too large a step size "
-        f"(train.step_size) or too few samples for a steady gradient (train.samples={params.train.samples})"
+        f"{_figure(initial)} (95% intervals apart): training made it worse, likely {cause}"
+    )
+
+
+def _fault_cause(params: RiskplanConf) -> str | None:
+    """The likely cause where faulty robots send values (stuck or Byzantine) into the plain mean, which resists none
+    of them: the step size or the samples would be the wrong advice there."""
+    senders = [f for f in faults_of(params.team) if f.kind in (FaultKind.stuck, FaultKind.byzantine)]
+    if not senders or params.team.aggregate != Aggregate.mean:
+        return None
+    which = ", ".join(f"robot {f.robot}: {f.kind.value}" for f in senders)
+    return (
+        f"the faulty robot{'s' if len(senders) > 1 else ''} of team.faults ({which}) pulling the healthy ones "
+        f"through team.aggregate=mean, which "
+        f"resists none; team.aggregate=trimmed_mean or wmsr with team.trim={len(senders)} resists them where the graph "
+        f"is robust enough (riskplan check says)"
     )
 
 

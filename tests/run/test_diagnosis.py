@@ -112,3 +112,31 @@ def test_the_paper_run_is_not_flagged(tmp_path):
     summary = train_summary(compose([]), tmp_path / "run")
     assert summary["diagnosis"]["degenerate"] is False and summary["diagnosis"]["findings"] == []
     assert summary["objective"]["low"] > summary["diagnosis"]["initial_objective"]["high"]  # it learned
+
+
+FAULTY = ["experiment=paper_team", "team.robots=5", "team.graph=complete", "train.eval_episodes=200"]  # 3-robust
+BYZANTINE = "{robot:4,kind:byzantine,from:0,value:[-10,40]}"
+
+
+@pytest.mark.parametrize(
+    ("extra", "cause"),
+    [
+        ([f"team.faults=[{BYZANTINE}]"], "the faulty robot of team.faults (robot 4: byzantine) pulling the healthy"),
+        (
+            [f"team.faults=[{BYZANTINE},{{robot:2,kind:stuck,from:5}}]"],
+            "the faulty robots of team.faults (robot 4: byzantine, robot 2: stuck) pulling the healthy ones through "
+            "team.aggregate=mean, which resists none; team.aggregate=trimmed_mean or wmsr with team.trim=2 resists",
+        ),
+        (["team.faults=[{robot:4,kind:crash,from:0}]"], "too large a step size"),  # a crash sends nothing to resist
+        ([f"team.faults=[{BYZANTINE}]", "team.aggregate=trimmed_mean", "team.trim=1"], "too large a step size"),
+        ([], "too large a step size"),
+    ],
+)
+def test_the_likely_cause_of_a_team_made_worse_is_its_faulty_robots_where_the_mean_takes_them_in(extra, cause):
+    """The faults study's mean runs (robot 6 Byzantine) were told to lower the step size or raise the samples."""
+    setup = setup_of(*FAULTY, *extra)
+    initial = initial_objective(setup)
+    below = {"measure": "cvar", "value": initial["low"] - 50, "low": initial["low"] - 80, "high": initial["low"] - 1}
+    for reached_none, finding in ((0.5, "below_initial"), (1.0, "reached_no_source")):
+        found = {f["check"]: f["message"] for f in diagnose(setup, below, reached_none)["findings"]}
+        assert cause in found[finding] and ("faulty" in cause) == ("faulty" in found[finding])
