@@ -93,6 +93,7 @@ def test_a_value_hydra_takes_only_quoted_names_the_characters_and_the_quoted_for
     "name",
     ["../../outside", "a/b/c", "line\nbreak", "nul\x00x", "x" * 65, ".."],
 )
+@pytest.mark.slow  # check and train through the CLI, per name
 def test_an_experiment_name_with_path_syntax_is_one_line_and_writes_nothing(config_dir, tmp_path, monkeypatch, name):
     """`experiment:` names the run directory (outputs/runs/<time>_<experiment>): a name with path syntax would put
     the run outside outputs/ (the probe's ../../outside), or fail on a NUL with a traceback."""
@@ -118,6 +119,7 @@ def test_an_experiment_name_with_path_syntax_is_one_line_and_writes_nothing(conf
         ("# @package _global_\nhydra:\n  output_subdir: ../elsewhere\n", "hydra.output_subdir"),
     ],
 )
+@pytest.mark.slow  # a CLI run per config file
 def test_hydra_file_settings_in_a_config_file_are_held_to_the_command_lines_rule(tmp_path, monkeypatch, text, key):
     """A `-cd` file sets Hydra's file settings as an override would: its run's log went to ../../evil.log and
     /tmp/evil.log, and its .hydra folder outside the run. Each is refused as the override is (rows 47, 248, 249)."""

@@ -51,6 +51,7 @@ runner = CliRunner()
         ),
     ],
 )
+@pytest.mark.slow  # 11 commands through the CLI
 def test_a_mistyped_choice_or_key_suggests_the_closest(argv, line, closest, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # export checks its --to before it reads anything; nothing is written anywhere
     result = runner.invoke(app, argv)

@@ -40,6 +40,7 @@ def test_the_readme_shows_every_command():
 
 
 @pytest.mark.parametrize("args", readme_commands(), ids=shlex.join)
+@pytest.mark.slow  # 13 of the README's commands, each composed
 def test_a_readme_command_is_valid_as_written(args, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     try:

@@ -50,6 +50,7 @@ def test_hydra_and_riskplan_classes_are_allowed(tmp_path, monkeypatch):
     ],
 )
 @pytest.mark.parametrize("command", ["train", "sweep"])
+@pytest.mark.slow  # 8 commands through the CLI
 def test_hydra_settings_that_name_files_stay_inside_the_run(tmp_path, monkeypatch, override, key, command):
     """A value with path syntax in Hydra's file settings would write (or break) a file outside the run's directory:
     one line naming the key, exit code 2, and nothing written anywhere."""

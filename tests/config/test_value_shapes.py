@@ -56,6 +56,7 @@ def refused(args: list[str], line: str, where: Path) -> None:
         ),
     ],
 )
+@pytest.mark.slow  # 8 commands through the CLI
 def test_a_nested_list_or_a_mapping_in_a_flat_list_is_one_line(in_tmp, args, line):
     refused(args, line, in_tmp)
 

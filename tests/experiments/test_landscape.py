@@ -129,6 +129,7 @@ def test_cli_writes_a_run_like_directory_the_report_recognises(tmp_path):
         ["no_such_key=1"],
     ],
 )
+@pytest.mark.slow  # 10 commands through the CLI
 def test_bad_input_exits_2_and_leaves_nothing(tmp_path, args):
     out = tmp_path / "scan"
     with warnings.catch_warnings():

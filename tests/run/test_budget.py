@@ -43,6 +43,7 @@ BIG = 10**30
         ([f"world.size=[{10**400},1]"], "world.size", "memory"),  # a 400-digit int is a number, not an OverflowError
     ],
 )
+@pytest.mark.slow  # 17 cases, each composed and sized
 def test_the_dominant_key_is_named(overrides, key, kind):
     err = bad_input(*overrides)
     assert err.where == key

@@ -218,6 +218,7 @@ def test_a_start_or_source_on_an_occupied_cell_is_named(small_map):
         (lambda d: write_yaml(d / "m.yaml", "m.yaml"), "world.map", "is not a PGM (P2 or P5) or PNG image"),
     ],
 )
+@pytest.mark.slow  # 11 map files, each composed and read
 def test_a_bad_map_yaml_is_one_line_naming_the_file(tmp_path, small_map, make, where, words):
     path = make(tmp_path)
     err = bad_input(f"world.map={path}", *SMALL)

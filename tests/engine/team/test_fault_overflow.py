@@ -48,6 +48,7 @@ def byzantine(payload: str) -> str:
     ],
 )
 @pytest.mark.parametrize("command", ["train", "check"])
+@pytest.mark.slow  # 10 commands through the CLI
 def test_a_byzantine_value_or_scale_that_overflows_is_refused_in_one_line(
     tmp_path, monkeypatch, payload, key, shown, command
 ):

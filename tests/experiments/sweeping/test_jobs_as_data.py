@@ -65,6 +65,7 @@ def compositions():
 
 @pytest.mark.parametrize("groups", [(), ("experiment=paper_team",)])
 @pytest.mark.parametrize("keys", AS_DATA, ids=",".join)
+@pytest.mark.slow  # 33 Hydra compositions
 def test_a_job_as_data_is_the_config_hydra_composes(compositions, groups, keys):
     _, composition = compositions[groups]
     job = composition.job(ParsedOnce()(keys))
