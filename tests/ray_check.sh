@@ -18,6 +18,11 @@ fi
 "$RAY_VENV/bin/python" -c "import hydra_plugins.hydra_ray_launcher, ray, cloudpickle, joblib; \
 print(f'ray {ray.__version__}, cloudpickle {cloudpickle.__version__}, joblib {joblib.__version__}')"
 export RAY_USAGE_STATS_ENABLED=0
+# Ray keeps its sessions' logs and sockets in the temporary folder, and its killed helpers leave theirs: the tests'
+# instances get a folder of their own, removed at the end.
+TMPDIR=$(mktemp -d "${TMPDIR:-/tmp}/riskplan-ray-check-XXXXXX")
+export TMPDIR
+trap 'rm -rf "$TMPDIR"' EXIT
 # test_ray_bad_settings.py first: `auto` finding no Ray instance needs a machine where no test's Ray is running
 "$RAY_VENV/bin/python" -m pytest -q -p no:cacheprovider tests/clusters/test_ray_bad_settings.py \
   tests/experiments/sweeping/test_ray_launcher.py tests/clusters/test_ray_sweeps.py

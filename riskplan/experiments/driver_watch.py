@@ -18,6 +18,10 @@ Three things end the workers:
 - while it launches, the driver keeps its name in the sweep folder (DRIVER_FILE): a re-run into that folder that
   finds the name of a driver now dead ends what it left running, the same way, before it starts (`end_leftovers`),
   for when the guardian was killed with it.
+
+The driver's workers keep their scratch files in a temporary folder of the driver's (`scratch`), which the guardian
+removes once the workers are gone: a worker killed mid-way (a bad input after the warm-up began, a Ctrl-C, a killed
+driver) leaves nothing behind in the machine's temporary folder.
 """
 
 from __future__ import annotations
@@ -25,10 +29,12 @@ from __future__ import annotations
 import atexit
 import contextlib
 import os
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import warnings
@@ -43,6 +49,7 @@ WATCH_SECONDS = 0.1  # how often the watchdog checks the driver
 GONE_SECONDS = 5.0  # how long a re-run waits for the leftovers it killed to be gone
 
 _guardian: list[subprocess.Popen] = []  # the guardian of this process, once it named itself
+_scratch: list[Path] = []  # this driver's scratch folder for its workers, which its guardian removes
 
 
 def identity(pid: int) -> str | None:
@@ -70,9 +77,10 @@ def name_driver(local: bool) -> None:
         return
     if not _guardian:
         atexit.register(_leave_guardian)
+        _scratch.append(Path(tempfile.mkdtemp(prefix="riskplan-driver-")))
         _guardian.append(
             subprocess.Popen(
-                [sys.executable, "-m", __name__, me],
+                [sys.executable, "-m", __name__, me, str(_scratch[0])],
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,
@@ -82,6 +90,12 @@ def name_driver(local: bool) -> None:
             )
         )
     os.environ[ENV] = me
+
+
+def scratch() -> Path | None:
+    """This driver's scratch folder for its local workers (private to this user, removed by the guardian once the
+    driver and its workers are gone), or None before it named itself to local workers."""
+    return _scratch[0] if _scratch else None
 
 
 def _leave_guardian() -> None:
@@ -206,14 +220,16 @@ def end(name: str) -> list[int]:
     return sorted(found)
 
 
-def guard(name: str) -> None:
-    """The guardian's life: wait for the driver `name` to end, then end what it left running. The signals that
-    stop a sweep, which its driver passes on to the processes below it, are not the guardian's to stop by."""
+def guard(name: str, scratch_dir: Path) -> None:
+    """The guardian's life: wait for the driver `name` to end, then end what it left running and remove its scratch
+    folder. The signals that stop a sweep, which its driver passes on to the processes below it, are not the
+    guardian's to stop by."""
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, signal.SIG_IGN)
     while identity(_pid(name)) == name:
         time.sleep(WATCH_SECONDS)
     end(name)
+    shutil.rmtree(scratch_dir, ignore_errors=True)  # after end(): no worker writes in it any more
 
 
 def end_leftovers(sweep_dir: Path) -> str | None:
@@ -237,4 +253,4 @@ def end_leftovers(sweep_dir: Path) -> str | None:
 
 
 if __name__ == "__main__":
-    guard(sys.argv[1])
+    guard(sys.argv[1], Path(sys.argv[2]))

@@ -493,13 +493,14 @@ WARM_UP_SIZE = [
 ]
 
 
-def warm_up() -> tuple[int, float]:
-    """Import what a job needs and load the compiled kernels from numba's cache, by training tiny runs in a scratch
-    directory: `riskplan reproduce` runs this on its sweep workers while it checks and plans, so that its first
-    jobs start at once. Returns (this worker's pid, seconds taken)."""
+def warm_up(scratch_dir: Path) -> tuple[int, float]:
+    """Import what a job needs and load the compiled kernels from numba's cache, by training tiny runs in a folder
+    of `scratch_dir` (the driver's, driver_watch.scratch: a worker killed mid-way leaves nothing behind):
+    `riskplan reproduce` runs this on its sweep workers while it checks and plans, so that its first jobs start at
+    once. Returns (this worker's pid, seconds taken)."""
     started = time.time()
     arrive()
-    with working(), tempfile.TemporaryDirectory(prefix="riskplan-warm-up-") as scratch:
+    with working(), tempfile.TemporaryDirectory(prefix="warm-up-", dir=scratch_dir) as scratch:
         take_interrupts()
         for number, experiment in enumerate(WARM_UP):
             train_summary(compose([*experiment, *WARM_UP_SIZE]), Path(scratch) / str(number), progress=False)

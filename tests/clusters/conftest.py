@@ -32,13 +32,18 @@ def slurm_cluster():
 
 
 @pytest.fixture(scope="package")
-def slurm_env(slurm_cluster):
+def slurm_env(slurm_cluster, tmp_path_factory):
     """The cluster's client environment (SLURM_CONF) with this virtualenv first on PATH, as for a user whose venv is
     active: sbatch exports it to the jobs. Numba's cache is warmed first (the kernels a paper run uses), so that the
     first job does not spend half a minute compiling them in the middle of a test (measured: 34 s cold, 2 cores)."""
     env = with_venv_on_path(slurm_cluster.env)
+    scratch = tmp_path_factory.mktemp("warm-up")
     warm = subprocess.run(
-        [sys.executable, "-c", "from riskplan.experiments.sweep_worker import warm_up; print(warm_up()[1])"],
+        [
+            sys.executable,
+            "-c",
+            f"from riskplan.experiments.sweep_worker import warm_up; print(warm_up({str(scratch)!r})[1])",
+        ],
         env=env,
         capture_output=True,
         text=True,

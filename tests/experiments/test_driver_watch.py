@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from support import alive
@@ -105,20 +106,27 @@ def test_a_worker_of_a_living_driver_works_and_dies_with_its_parent_the_moment_i
                 os.kill(pid, signal.SIGKILL)
 
 
-def test_the_guardian_ends_every_process_naming_its_driver_once_the_driver_is_killed():
+def test_the_guardian_ends_every_process_naming_its_driver_once_the_driver_is_killed(tmp_path):
+    """...and removes the driver's scratch folder, with what a worker left in it (the warm-up's files)."""
     starter = (
         "import os, subprocess, time; from riskplan.experiments import driver_watch; "
         "driver_watch.name_driver(True); w = subprocess.Popen(['sleep', '600']); "
-        "print(w.pid, driver_watch._guardian[0].pid, flush=True); time.sleep(600)"
+        "(driver_watch.scratch() / 'warm-up-1').mkdir(); (driver_watch.scratch() / 'warm-up-1' / 'run.mcap').touch(); "
+        "print(w.pid, driver_watch._guardian[0].pid, driver_watch.scratch(), flush=True); time.sleep(600)"
     )
-    parent = subprocess.Popen([sys.executable, "-c", starter], stdout=subprocess.PIPE, text=True)
-    worker, guardian = map(int, parent.stdout.readline().split())
+    parent = subprocess.Popen(
+        [sys.executable, "-c", starter], stdout=subprocess.PIPE, text=True, env={**os.environ, "TMPDIR": str(tmp_path)}
+    )
+    worker, guardian, scratch = parent.stdout.readline().split()
+    worker, guardian = int(worker), int(guardian)
     try:
         assert alive(worker) and alive(guardian)
+        assert Path(scratch).parent == tmp_path and Path(scratch, "warm-up-1", "run.mcap").is_file()
         parent.kill()
         parent.wait()
         assert wait_gone(worker)
         assert wait_gone(guardian)  # its work done, it ends too
+        assert list(tmp_path.iterdir()) == []
     finally:
         for pid in (worker, guardian):
             if alive(pid):

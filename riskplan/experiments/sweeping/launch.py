@@ -19,7 +19,7 @@ import numba
 from hydra_plugins.hydra_joblib_launcher.config import JobLibLauncherConf
 from joblib import Parallel, delayed
 
-from riskplan.experiments.driver_watch import name_driver, recorded
+from riskplan.experiments.driver_watch import name_driver, recorded, scratch
 from riskplan.experiments.hydra_app import run_multirun
 from riskplan.experiments.sweep_worker import THREADS_ENV, warm_up
 from riskplan.experiments.sweeping.jobs import TASKS
@@ -150,7 +150,8 @@ def warm_workers(workers: int) -> Callable[[], list[tuple[int, float]]]:
     os.environ[THREADS_ENV] = str(max(1, cpu_count() // workers))
     name_driver(True)
     with StopSignals() as stop:  # a Ctrl-C while they spawn stops this process once a thread holds the results
-        wait = in_background(lambda: start_workers(workers, [delayed(warm_up)() for _ in range(WARMED)]))
+        tasks = [delayed(warm_up)(scratch()) for _ in range(WARMED)]
+        wait = in_background(lambda: start_workers(workers, tasks))
     if stop.received is not None:
         signal.raise_signal(stop.received)  # as it would have come, now that nothing is left half done
     return wait
