@@ -5,6 +5,7 @@ Bad input: one plain line on stderr and exit code 2; a failure at run time: one 
 
 from __future__ import annotations
 
+import inspect
 import sys
 import warnings
 
@@ -29,9 +30,13 @@ warnings.formatwarning = lambda message, *args, **kwargs: f"warning: {message}\n
 
 
 def _register_commands() -> None:
-    """Add every command, in the order `riskplan --help` lists them."""
+    """Add every command, in the order `riskplan --help` lists them, each listed by its docstring's first paragraph
+    as one flowing line (rich markup keeps a docstring's line breaks there, which broke sentences mid-line)."""
     for module in (train, check, report, bench, sweep, reproduce, export):
         module.register(app)
+    for command in app.registered_commands:
+        if command.short_help is None and command.callback.__doc__:
+            command.short_help = " ".join(inspect.cleandoc(command.callback.__doc__).split("\n\n")[0].split())
 
 
 _register_commands()

@@ -40,3 +40,14 @@ def test_help_keeps_every_bracket(command):
     assert all(re.fullmatch(r"riskplan\[\w+\]", extra) for extra in extras), extras
     if command == ["sweep"]:  # the one command whose help names an extra
         assert extras == ["riskplan[optuna]"] and "'riskplan[optuna]'" in shown
+
+
+def test_the_command_list_gives_each_command_one_flowing_line():
+    """Each command's summary is its docstring's first paragraph, its line breaks gone: rich markup kept them, and
+    `reproduce` read "... beyond it, then the" / "report. It says ..." on a wide terminal."""
+    shown = runner.invoke(app, ["--help"], env={"COLUMNS": "400"}).output
+    group = typer.main.get_command(app)
+    for name, command in group.commands.items():
+        summary = " ".join(command.callback.__doc__.split("\n\n")[0].split())
+        (line,) = [line for line in shown.splitlines() if re.match(rf"│ {name} ", line)]
+        assert summary in line, (name, line)
