@@ -6,6 +6,7 @@
 # of docs/clusters.md run as written, on a local instance and on a two-node Ray cluster started from this venv's
 # `ray` (tests/clusters/ray_cluster.py; about a minute).
 # Usage: bash tests/ray_check.sh        (RAY_VENV=DIR to choose where the venv lives; it is reused when present)
+#        bash tests/ray_check.sh --install   (builds the venv and stops: .ci/run builds it while the main suite runs)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -15,6 +16,7 @@ if [ ! -x "$RAY_VENV/bin/python" ]; then
   "$RAY_VENV/bin/python" -m pip install -q --upgrade pip
 fi
 "$RAY_VENV/bin/python" -m pip install -q -e '.[ray]' "pytest>=8"
+[ "${1:-}" = --install ] && exit 0
 "$RAY_VENV/bin/python" -c "import hydra_plugins.hydra_ray_launcher, ray, cloudpickle, joblib; \
 print(f'ray {ray.__version__}, cloudpickle {cloudpickle.__version__}, joblib {joblib.__version__}')"
 export RAY_USAGE_STATS_ENABLED=0
