@@ -39,6 +39,7 @@ from riskplan.config.typed import typed
 from riskplan.experiments.sweep_worker import job_threads
 from riskplan.experiments.sweeping.batched import PROGRESS, plan_chunks, prepare_job, prepare_jobs, train_chunks
 from riskplan.experiments.sweeping.jobs import TASKS
+from riskplan.experiments.sweeping.launcher_settings import given_value
 from riskplan.run import cost
 from riskplan.util.errors import BadInput
 from riskplan.util.interrupt import Interrupted
@@ -69,8 +70,8 @@ def task_size(hydra_keys: dict, jobs: int | None, launcher: str = "submitit_slur
     otherwise). Ray: hydra.launcher.ray.remote.memory (bytes) and num_cpus, and no time limit."""
 
     def given(key: str, default, kind: type = int):
-        override = hydra_keys.get(f"hydra.launcher.{key}")
-        value = override.value() if override is not None and not override.is_delete() else None
+        node, _, name = f"hydra.launcher.{key}".rpartition(".")
+        value = given_value(hydra_keys, node, name)  # a dotted key, or inside its mapping (ray.remote={num_cpus: 2})
         if value is None:
             return default
         if isinstance(value, bool) or not isinstance(value, (int, kind)) or not 0 < value < math.inf:

@@ -151,7 +151,7 @@ def check_ray(
 def check_own_cpus(hydra_keys: dict, machine: int | None = None) -> None:
     """A job asking the sweep's own Ray instance for more CPUs than it has (hydra.launcher.ray.init.num_cpus, else
     the machine's, `machine`) would wait for ever, Ray warning that it cannot be scheduled."""
-    asked, has = _given(hydra_keys, RAY_REMOTE, "num_cpus"), _given(hydra_keys, RAY_INIT[:-1], "num_cpus")
+    asked, has = given_value(hydra_keys, RAY_REMOTE, "num_cpus"), given_value(hydra_keys, RAY_INIT[:-1], "num_cpus")
     cpus = has if isinstance(has, (int, float)) and not isinstance(has, bool) else machine or os.cpu_count() or 1
     if isinstance(asked, (int, float)) and not isinstance(asked, bool) and asked > cpus:
         source = f"{RAY_INIT}num_cpus" if cpus == has else "this machine's"
@@ -162,7 +162,7 @@ def check_own_cpus(hydra_keys: dict, machine: int | None = None) -> None:
         )
 
 
-def _given(hydra_keys: dict, node: str, name: str):
+def given_value(hydra_keys: dict, node: str, name: str):
     """The value the command line gives `node`.`name`, as a dotted key or inside `node`'s mapping; None if neither."""
     override = hydra_keys.get(f"{node}.{name}")
     if override is None:

@@ -101,7 +101,13 @@ def test_task_size_reads_the_launcher_keys():
         overrides("hydra.launcher.ray.remote.num_cpus=2.5", "hydra.launcher.ray.remote.memory=1000"), 3, "ray"
     )
     assert ray == TaskSize(800.0, "80% of hydra.launcher.ray.remote.memory=1000", math.inf, 2, 3)
-    for bad in ("hydra.launcher.ray.remote.num_cpus=0", "hydra.launcher.ray.remote.memory=0.5"):
+    # the same given as the mapping Hydra takes too (it was read as no options at all: 1 CPU, this machine's memory)
+    assert task_size(overrides("hydra.launcher.ray.remote={num_cpus:2.5,memory:1000}"), 3, "ray") == ray
+    for bad in (
+        "hydra.launcher.ray.remote.num_cpus=0",
+        "hydra.launcher.ray.remote.memory=0.5",
+        "hydra.launcher.ray.remote={num_cpus:0}",
+    ):
         with pytest.raises(BadInput, match=bad.split("=")[0]):
             task_size(overrides(bad), None, "ray_cluster")
 
