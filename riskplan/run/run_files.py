@@ -139,15 +139,34 @@ def hydra_intact(out: Path) -> bool:
     """Whether a sweep job's .hydra/ files read as Hydra writes them: its config and overrides a YAML mapping and
     list, hydra.yaml not empty. They are renamed into place unsynced, so a power cut can leave one empty or cut
     short where the run's own files (synced) are whole: the sweep then writes them again, not counting the job
-    finished until it has (with libyaml, 0.7 ms a job)."""
-    folder, loader = out / CONFIG.split("/")[0], getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    finished until it has (with libyaml, 0.7 ms a job). A verdict is kept while the files stay as they were (their
+    inode, size and time): a sweep's plan, its jobs and its summary each ask, so a re-run of 10,000 finished jobs
+    parsed them three times."""
+    folder = out / CONFIG.split("/")[0]
+    files = (out / CONFIG, folder / "overrides.yaml", folder / "hydra.yaml")
     try:
-        config = yaml.load((out / CONFIG).read_bytes(), Loader=loader)
-        overrides = yaml.load((folder / "overrides.yaml").read_bytes(), Loader=loader)
-        hydra_size = (folder / "hydra.yaml").stat().st_size
+        stats = tuple((s.st_ino, s.st_size, s.st_mtime_ns) for s in (path.stat() for path in files))
+    except OSError:
+        return False
+    known = _intact.get(str(out))
+    if known is not None and known[0] == stats:
+        return known[1]
+    verdict = stats[2][1] > 0 and _read_intact(*files[:2])
+    _intact[str(out)] = (stats, verdict)
+    return verdict
+
+
+_intact: dict[str, tuple[tuple, bool]] = {}  # hydra_intact's verdicts, with the files' stats they were given for
+
+
+def _read_intact(config_file: Path, overrides_file: Path) -> bool:
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    try:
+        config = yaml.load(config_file.read_bytes(), Loader=loader)
+        overrides = yaml.load(overrides_file.read_bytes(), Loader=loader)
     except (OSError, yaml.YAMLError):
         return False
-    return isinstance(config, dict) and bool(config) and isinstance(overrides, list) and hydra_size > 0
+    return isinstance(config, dict) and bool(config) and isinstance(overrides, list)
 
 
 def remove_stale(out: Path) -> None:

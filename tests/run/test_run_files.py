@@ -94,7 +94,20 @@ def test_a_sweep_skips_a_job_only_with_every_finished_file(tmp_path):
     ],
 )
 def test_a_job_whose_hydra_files_do_not_read_as_hydra_writes_them_is_not_finished(tmp_path, name, text):
-    """The sweep's next run then writes them again (test_job_by_job_files)."""
+    """The sweep's next run then writes them again (test_job_by_job_files). A verdict given before the damage (the
+    plan's, kept for the job's and the summary's questions) does not outlive it."""
     stand_in_job(tmp_path, {"status": "done", "config_sha": "abc", "error": None})
+    assert is_finished(tmp_path, "abc")
+    whole = (tmp_path / name).read_bytes()
     (tmp_path / name).write_text(text)
     assert not is_finished(tmp_path, "abc")
+    (tmp_path / name).write_bytes(whole)  # written again, as the re-run does
+    assert is_finished(tmp_path, "abc")
+
+
+def test_a_jobs_unchanged_hydra_files_are_parsed_once(tmp_path, monkeypatch):
+    stand_in_job(tmp_path, {"status": "done", "config_sha": "abc", "error": None})
+    parsed = []
+    monkeypatch.setattr(run_files, "_read_intact", lambda *files: parsed.append(files) or True)
+    assert is_finished(tmp_path, "abc") and is_finished(tmp_path, "abc") and is_finished(tmp_path, "abc")
+    assert len(parsed) == 1
