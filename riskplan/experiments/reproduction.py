@@ -33,8 +33,10 @@ simulation (default 24).
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import json
+import os
 import shlex
 import signal
 import sys
@@ -563,14 +565,22 @@ def _landscape(out: Path, quick: bool, overrides: list[str]) -> dict:
 
 
 def stop_workers() -> None:
-    """End the sweeps' idle joblib (loky) worker processes now. Every job has finished and written its files;
-    left alone, they are shut down gracefully at interpreter exit, which kept the command waiting after the last line
-    here."""
-    if "joblib.externals.loky.reusable_executor" not in sys.modules:  # no sweep ran in worker processes
+    """End the sweeps' joblib (loky) worker processes now: idle once every job has finished and written its files
+    (left alone, they are shut down gracefully at interpreter exit, which kept the command waiting after the last
+    line here), or still warming up when the input turned out bad.
+
+    The workers are killed here, then the executor shut down: loky's own `kill_workers=True` cancels the queued work
+    from its manager thread and then fails on a work item submitted just before (a KeyError traceback from
+    "ExecutorManagerThread" under a bad input's line, seen once in CI); a killed worker is a broken pool to loky,
+    which fails the pending work quietly."""
+    module = sys.modules.get("joblib.externals.loky.reusable_executor")  # absent: no sweep ran in worker processes
+    executor = getattr(module, "_executor", None)
+    if executor is None:
         return
-    executor = getattr(sys.modules["joblib.externals.loky.reusable_executor"], "_executor", None)
-    if executor is not None:
-        executor.shutdown(wait=False, kill_workers=True)
+    for pid in list(getattr(executor, "_processes", None) or {}):
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+    executor.shutdown(wait=False)
 
 
 def _shell(arg: str) -> str:
