@@ -184,6 +184,21 @@ def test_a_made_map_enclosed_room_unknown_space_mask_and_metres(room_map):
     assert "unknown (world.map_unknown=obstacle)" in labels and "region 'watched' (risky)" in labels
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("experiment", ["paper_single", "floor_plan"])
+def test_the_legend_sits_beside_the_world_without_a_blank_band(experiment):
+    """The legend took a fixed 3.9 in: with the world's aspect fixed, its short labels left a band of 1.1 in (the
+    paper's world) and 0.7 in (the floor plan, its metre axis on the right) between the world and the legend."""
+    with matplotlib.rc_context(STYLE):
+        figure = wp.draw_picture(wp.picture_of(setup_of(f"experiment={experiment}")))
+        figure.draw_without_rendering()
+        renderer = figure.canvas.get_renderer()
+        world_right = max(ax.get_tightbbox(renderer).x1 for ax in figure.axes)  # the metre axis's labels included
+        legend = figure.legends[0].get_window_extent(renderer)
+    assert 0 < (legend.x0 - world_right) / figure.dpi < 0.4
+    assert legend.x1 <= figure.bbox.x1  # and the legend is whole
+
+
 def test_a_wandering_source_is_drawn_where_its_walk_begins():
     _, figure, ax = drawn("world.sources.1.motion={kind:random_walk,prob:0.5}")
     assert markers(ax, "*") == [(9.0, 3.0), (3.0, 9.0)]

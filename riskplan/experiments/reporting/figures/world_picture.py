@@ -221,16 +221,32 @@ def draw_picture(picture: Picture) -> Figure:
     _axes_in_cells(ax, w, h, picture.metres)
     ax.set_title(literal(textwrap.fill(picture.title, 64)))
     if below:
-        fig.legend(handles=handles, loc="outside lower center", ncols=2)
+        legend = fig.legend(handles=handles, loc="outside lower center", ncols=2)
     else:
-        fig.legend(handles=handles, loc="outside right upper")
+        legend = fig.legend(handles=handles, loc="outside right upper")
+    _fit_legend(fig, legend, below)
     return fig
+
+
+LEGEND_ROOM = (3.9, 2.6)  # inches _size keeps for the legend beside or below the world, before it is measured
+
+
+def _fit_legend(fig: Figure, legend, below: bool) -> None:
+    """Give the legend the room it takes, measured, instead of _size's allowance: with the world's aspect fixed, the
+    allowance's spare inches were a blank band between the world and a legend of short labels."""
+    box = legend.get_window_extent(fig.canvas.get_renderer())
+    taken = (box.height if below else box.width) / fig.dpi + 0.2  # and a margin
+    width, height = fig.get_size_inches()
+    if below:
+        fig.set_size_inches(width, max(height - LEGEND_ROOM[1] + taken, 4.0))
+    else:
+        fig.set_size_inches(min(width - LEGEND_ROOM[0] + taken, WIDEST), height)
 
 
 def _size(width: int, height: int, below: bool) -> tuple[float, float]:
     """(width, height) inches: the world's longer side 3.5-6.5 in (less where the legend needs the room), and
     room for the axes' labels and the legend, within WIDEST."""
-    legend = (0.0, 2.6) if below else (3.9, 0.0)  # inches the legend takes beside or below the world
+    legend = (0.0, LEGEND_ROOM[1]) if below else (LEGEND_ROOM[0], 0.0)  # inches beside or below the world
     labels = (1.3, 1.5)  # the axes' ticks and labels, cells and metres
     longest = min(6.5, max(3.5, 0.4 * max(width, height)))
     scale = min(
