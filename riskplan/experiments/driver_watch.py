@@ -77,10 +77,11 @@ def name_driver(local: bool) -> None:
         return
     if not _guardian:
         atexit.register(_leave_guardian)
-        _scratch.append(Path(tempfile.mkdtemp(prefix="riskplan-driver-")))
+        with contextlib.suppress(OSError):  # no temporary folder at all: the workers go without (warm_up fails)
+            _scratch.append(Path(tempfile.mkdtemp(prefix="riskplan-driver-")))
         _guardian.append(
             subprocess.Popen(
-                [sys.executable, "-m", __name__, me, str(_scratch[0])],
+                [sys.executable, "-m", __name__, me, *map(str, _scratch)],
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,
@@ -220,7 +221,7 @@ def end(name: str) -> list[int]:
     return sorted(found)
 
 
-def guard(name: str, scratch_dir: Path) -> None:
+def guard(name: str, scratch_dir: Path | None) -> None:
     """The guardian's life: wait for the driver `name` to end, then end what it left running and remove its scratch
     folder. The signals that stop a sweep, which its driver passes on to the processes below it, are not the
     guardian's to stop by."""
@@ -229,7 +230,8 @@ def guard(name: str, scratch_dir: Path) -> None:
     while identity(_pid(name)) == name:
         time.sleep(WATCH_SECONDS)
     end(name)
-    shutil.rmtree(scratch_dir, ignore_errors=True)  # after end(): no worker writes in it any more
+    if scratch_dir is not None:
+        shutil.rmtree(scratch_dir, ignore_errors=True)  # after end(): no worker writes in it any more
 
 
 def end_leftovers(sweep_dir: Path) -> str | None:
@@ -253,4 +255,4 @@ def end_leftovers(sweep_dir: Path) -> str | None:
 
 
 if __name__ == "__main__":
-    guard(sys.argv[1], Path(sys.argv[2]))
+    guard(sys.argv[1], Path(sys.argv[2]) if len(sys.argv) > 2 else None)

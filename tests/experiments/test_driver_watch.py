@@ -184,3 +184,25 @@ def test_a_driver_that_exits_with_its_guardian_running_says_nothing_of_it(tmp_pa
     while alive(guardian) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not alive(guardian)
+
+
+@pytest.mark.slow  # a driver and its guardian started
+def test_a_driver_without_a_temporary_folder_still_names_itself_and_its_guardian_ends(tmp_path):
+    """No writable temporary folder anywhere (tempfile finds none): the driver goes without a scratch folder (its
+    workers skip the warm-up) instead of failing every local sweep with a traceback."""
+    code = (
+        "import tempfile\n"
+        "def nowhere(*args, **kwargs): raise FileNotFoundError('no usable temporary directory')\n"
+        "tempfile.mkdtemp = nowhere\n"
+        "from riskplan.experiments import driver_watch\n"
+        "driver_watch.name_driver(True)\n"
+        "print(driver_watch._guardian[0].pid, driver_watch.scratch())\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=60)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    guardian, scratch = done.stdout.split()
+    assert scratch == "None"
+    deadline = time.monotonic() + GONE + 2 * driver_watch.WATCH_SECONDS
+    while alive(int(guardian)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not alive(int(guardian))

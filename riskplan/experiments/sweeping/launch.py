@@ -150,7 +150,8 @@ def warm_workers(workers: int) -> Callable[[], list[tuple[int, float]]]:
     os.environ[THREADS_ENV] = str(max(1, cpu_count() // workers))
     name_driver(True)
     with StopSignals() as stop:  # a Ctrl-C while they spawn stops this process once a thread holds the results
-        tasks = [delayed(warm_up)(scratch()) for _ in range(WARMED)]
+        folder = scratch()  # None: no temporary folder could be made, so no warm-up (the sweeps start workers)
+        tasks = [delayed(warm_up)(folder) for _ in range(WARMED)] if folder is not None else []
         wait = in_background(lambda: start_workers(workers, tasks))
     if stop.received is not None:
         signal.raise_signal(stop.received)  # as it would have come, now that nothing is left half done
