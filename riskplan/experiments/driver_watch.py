@@ -77,7 +77,7 @@ def name_driver(local: bool) -> None:
         return
     if not _guardian:
         atexit.register(_leave_guardian)
-        with contextlib.suppress(OSError):  # no temporary folder at all: the workers go without (warm_up fails)
+        with contextlib.suppress(OSError):  # no temporary folder at all: the workers go without (and no warm-up)
             _scratch.append(Path(tempfile.mkdtemp(prefix="riskplan-driver-")))
         _guardian.append(
             subprocess.Popen(
