@@ -229,6 +229,7 @@ def draw_picture(picture: Picture) -> Figure:
 
 
 LEGEND_ROOM = (3.9, 2.6)  # inches _size keeps for the legend beside or below the world, before it is measured
+LOWEST = 4.0  # inches: the figure's least height, for a world much wider than tall
 
 
 def _fit_legend(fig: Figure, legend, below: bool) -> None:
@@ -238,7 +239,7 @@ def _fit_legend(fig: Figure, legend, below: bool) -> None:
     taken = (box.height if below else box.width) / fig.dpi + 0.2  # and a margin
     width, height = fig.get_size_inches()
     if below:
-        fig.set_size_inches(width, max(height - LEGEND_ROOM[1] + taken, 4.0))
+        fig.set_size_inches(width, max(height - LEGEND_ROOM[1] + taken, LOWEST))
     else:
         fig.set_size_inches(min(width - LEGEND_ROOM[0] + taken, WIDEST), height)
 
@@ -254,7 +255,7 @@ def _size(width: int, height: int, below: bool) -> tuple[float, float]:
         (WIDEST - legend[0] - labels[0]) / width,
         (WIDEST - legend[1] - labels[1]) / height,
     )
-    return width * scale + legend[0] + labels[0], max(height * scale + legend[1] + labels[1], 4.0)
+    return width * scale + legend[0] + labels[0], max(height * scale + legend[1] + labels[1], LOWEST)
 
 
 def _cells_path(mask: np.ndarray, k: int) -> MplPath:
