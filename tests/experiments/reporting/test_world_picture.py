@@ -185,18 +185,23 @@ def test_a_made_map_enclosed_room_unknown_space_mask_and_metres(room_map):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("experiment", ["paper_single", "floor_plan"])
-def test_the_legend_sits_beside_the_world_without_a_blank_band(experiment):
-    """The legend took a fixed 3.9 in: with the world's aspect fixed, its short labels left a band of 1.1 in (the
-    paper's world) and 0.7 in (the floor plan, its metre axis on the right) between the world and the legend."""
+@pytest.mark.parametrize(
+    "overrides", [["experiment=paper_single"], ["experiment=floor_plan"], ["world.size=[40,10]"]], ids=str
+)
+def test_the_legend_sits_beside_or_below_the_world_without_a_blank_band(overrides):
+    """The legend took a fixed 3.9 in beside the world: with the world's aspect fixed, its short labels left a band of
+    1.1 in (the paper's world) and 0.7 in (the floor plan, its metre axis on the right) between the world and the
+    legend; below a wide world, 0.33 in."""
     with matplotlib.rc_context(STYLE):
-        figure = wp.draw_picture(wp.picture_of(setup_of(f"experiment={experiment}")))
+        figure = wp.draw_picture(wp.picture_of(setup_of(*overrides)))
         figure.draw_without_rendering()
         renderer = figure.canvas.get_renderer()
-        world_right = max(ax.get_tightbbox(renderer).x1 for ax in figure.axes)  # the metre axis's labels included
+        world = [ax.get_tightbbox(renderer) for ax in figure.axes]  # the metre axes' labels included
         legend = figure.legends[0].get_window_extent(renderer)
-    assert 0 < (legend.x0 - world_right) / figure.dpi < 0.4
-    assert legend.x1 <= figure.bbox.x1  # and the legend is whole
+    below = overrides == ["world.size=[40,10]"]
+    band = min(box.y0 for box in world) - legend.y1 if below else legend.x0 - max(box.x1 for box in world)
+    assert 0 < band / figure.dpi < 0.2
+    assert figure.bbox.x0 <= legend.x0 and legend.x1 <= figure.bbox.x1 and figure.bbox.y0 <= legend.y0  # whole
 
 
 def test_a_wandering_source_is_drawn_where_its_walk_begins():

@@ -225,6 +225,9 @@ def draw_picture(picture: Picture) -> Figure:
     else:
         legend = fig.legend(handles=handles, loc="outside right upper")
     _fit_legend(fig, legend, below)
+    # the world against its legend: what its fixed aspect leaves of its slot goes to the far side, which the files'
+    # tight bounding box crops (a legend below a world wider than the labels' allowance kept a band above it)
+    ax.set_anchor("S" if below else "E")
     return fig
 
 
