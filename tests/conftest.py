@@ -42,9 +42,10 @@ if "RISKPLAN_CACHE_DIR" not in os.environ:
     os.environ["RISKPLAN_CACHE_DIR"] = tempfile.mkdtemp(prefix="riskplan-tests-cache-")
     atexit.register(shutil.rmtree, os.environ["RISKPLAN_CACHE_DIR"], ignore_errors=True)
 # The local Ray instances of the team.backend=ray tests keep their session folders (logs, sockets) in Ray's temp
-# dir, /tmp/ray unless RAY_TMPDIR says otherwise: 50 of them were left there by every run of the suite. They go to
-# a folder of the tests' own, removed the same way (its name short: Ray's socket paths must stay under 107 bytes).
-if "RAY_TMPDIR" not in os.environ:
+# dir, /tmp/ray unless RAY_TMPDIR (or, on Linux, TMPDIR) says otherwise: 50 of them were left there by every run of
+# the suite. They go to a folder of the tests' own, removed the same way (its name short: Ray's socket paths must
+# stay under 107 bytes). A TMPDIR given is left to Ray (tests/ray_check.sh gives one and removes it).
+if "RAY_TMPDIR" not in os.environ and "TMPDIR" not in os.environ:
     os.environ["RAY_TMPDIR"] = tempfile.mkdtemp(prefix="rp-ray-")
     atexit.register(shutil.rmtree, os.environ["RAY_TMPDIR"], ignore_errors=True)
 SLOW_FOLDERS = ("e2e", "clusters")  # whole runs through the CLI, and real clusters

@@ -25,8 +25,9 @@ FILES = ("run.mcap", "metrics.parquet", "eval.parquet", "trajectories.parquet", 
 
 
 def user_env(**extra: str) -> dict[str, str]:
-    """A user's shell with this virtualenv active and no Ray address or token of another cluster."""
-    env = {key: value for key, value in os.environ.items() if not key.startswith("RAY_")}
+    """A user's shell with this virtualenv active and no Ray address or token of another cluster (the suite's
+    RAY_TMPDIR kept: where the local instances leave their session folders)."""
+    env = {key: value for key, value in os.environ.items() if not key.startswith("RAY_") or key == "RAY_TMPDIR"}
     env.update({"RAY_USAGE_STATS_ENABLED": "0", **extra})
     return with_venv_on_path(env)
 
